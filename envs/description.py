@@ -1,0 +1,403 @@
+"""Robot descriptions: a small typed structure for a serial 6R arm, read from and written to TOML.
+
+A description holds the nominal DH table (modified/Craig or standard), joint offsets and limits, an
+optional mass model, one or more tool points (targets) in the last frame, an optional base transform
+(measurement frame <- robot base) and, for a calibrated arm, the values of any error-model effects.
+
+Internally every numeric routine works on the modified-DH form. A standard-DH arm is converted once
+by :meth:`RobotDescription.to_modified`: row i of the modified table takes alpha/a of standard row
+i-1, and the last standard row's ``TransX(a6) RotX(alpha6)`` becomes a fixed flange transform folded
+into the tool points and the last link's mass model.
+
+SI units inside (m, rad, kg). The TOML file states its own units::
+
+    name = "seed"
+    convention = "modified"      # or "standard"
+    length_unit = "m"            # or "mm"
+    angle_unit = "deg"           # or "rad"
+    payload = 0.0                # kg, a point mass at the first tool point
+
+    [[joints]]
+    alpha = 0.0                  # alpha_{i-1} (modified) or alpha_i (standard)
+    a = 0.0
+    d = 0.080
+    theta_offset = 0.0
+    limits = [-170.2, 170.2]
+    mass = 15.0
+    com = [0.0, 0.0, -0.04]      # centre of mass in frame i
+
+    [[tools]]
+    point = [0.0, 0.0, 0.050]
+
+    [base]                       # optional: measurement frame <- robot base
+    translation = [0.0, 0.0, 0.0]
+    rotation_vector = [0.0, 0.0, 0.0]   # in angle_unit
+
+    [effects.compliance]         # optional: calibrated effect values, SI units of SPEC section 2
+    c2 = 6e-6
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from importlib import resources
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+__all__ = [
+    "DescriptionError",
+    "Joint",
+    "RobotDescription",
+    "load_robot",
+    "rotation_matrix",
+    "rotation_vector",
+    "seed_robot",
+]
+
+Convention = Literal["modified", "standard"]
+
+_LENGTH = {"m": 1.0, "mm": 1e-3}
+_ANGLE = {"rad": 1.0, "deg": math.pi / 180.0}
+
+
+class DescriptionError(ValueError):
+    """A robot description that cannot be used, with the file and key at fault."""
+
+
+@dataclass(frozen=True)
+class Joint:
+    """One row of the DH table, with the joint's limits and the mass model of the link it moves.
+
+    For the modified convention ``alpha`` and ``a`` are alpha_{i-1} and a_{i-1}; ``beta`` is Hayati's
+    rotation about y between RotX(alpha) and TransX(a) (zero for a nominal arm, set by a calibration of
+    parallel consecutive axes).
+    """
+
+    alpha: float
+    a: float
+    d: float
+    theta_offset: float = 0.0
+    lower: float = -math.pi
+    upper: float = math.pi
+    mass: float = 0.0
+    com: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    beta: float = 0.0
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    """A serial 6R arm. Immutable; derive variants with :func:`dataclasses.replace`."""
+
+    name: str
+    joints: tuple[Joint, ...]
+    tools: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),)
+    convention: Convention = "modified"
+    payload: float = 0.0
+    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    base_translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    base_rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    flange: tuple[float, float] = (0.0, 0.0)  # (a, alpha) of a standard-DH last row, once folded
+
+    def __post_init__(self) -> None:
+        if len(self.joints) != 6:
+            raise DescriptionError(
+                f"robot {self.name!r}: 6 joints expected, got {len(self.joints)}"
+            )
+        if not self.tools:
+            raise DescriptionError(f"robot {self.name!r}: at least one tool point is needed")
+        for i, j in enumerate(self.joints, start=1):
+            if not j.lower < j.upper:
+                raise DescriptionError(
+                    f"robot {self.name!r}: joint {i} limits [{j.lower}, {j.upper}] are empty"
+                )
+            if j.mass < 0:
+                raise DescriptionError(f"robot {self.name!r}: joint {i} mass {j.mass} < 0")
+
+    # -- arrays -------------------------------------------------------------------------------
+    def column(self, key: str) -> np.ndarray:
+        """One field of every joint as a (6,) array, e.g. ``column("alpha")``."""
+        return np.array([getattr(j, key) for j in self.joints], dtype=float)
+
+    @property
+    def lower(self) -> np.ndarray:
+        return self.column("lower")
+
+    @property
+    def upper(self) -> np.ndarray:
+        return self.column("upper")
+
+    @property
+    def masses(self) -> np.ndarray:
+        return self.column("mass")
+
+    @property
+    def coms(self) -> np.ndarray:
+        return np.array([j.com for j in self.joints], dtype=float)
+
+    @property
+    def tool_points(self) -> np.ndarray:
+        """(n_targets, 3) tool points in the last frame."""
+        return np.array(self.tools, dtype=float)
+
+    @property
+    def has_mass_model(self) -> bool:
+        return bool(np.any(self.masses > 0))
+
+    @property
+    def base_matrix(self) -> np.ndarray:
+        """4x4 transform measurement frame <- robot base."""
+        T = np.eye(4)
+        T[:3, :3] = rotation_matrix(np.array(self.base_rotation))
+        T[:3, 3] = self.base_translation
+        return T
+
+    def within_limits(self, q: np.ndarray, tol: float = 0.0) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        return np.all((q >= self.lower - tol) & (q <= self.upper + tol), axis=-1)
+
+    def parallel_rows(self, tol: float = 1e-6) -> tuple[int, ...]:
+        """Rows i (1-based, i >= 2) whose axis z_i is parallel to z_{i-1} (alpha_{i-1} = 0 or pi).
+
+        These rows take Hayati's ``beta`` instead of ``d`` as an error parameter.
+        """
+        m = self.to_modified()
+        return tuple(
+            i for i, j in enumerate(m.joints, start=1) if i >= 2 and abs(math.sin(j.alpha)) < tol
+        )
+
+    # -- conventions --------------------------------------------------------------------------
+    def to_modified(self) -> RobotDescription:
+        """The same arm in the modified (Craig) convention; identity for a modified description."""
+        if self.convention == "modified":
+            return self
+        std = self.joints
+        rows = []
+        for i, j in enumerate(std):
+            prev = std[i - 1] if i > 0 else None
+            # standard frame i = modified frame i . TransX(a_i) RotX(alpha_i)
+            com = _std_to_mod_point(j.a, j.alpha, np.array(j.com))
+            rows.append(
+                replace(
+                    j,
+                    alpha=prev.alpha if prev else 0.0,
+                    a=prev.a if prev else 0.0,
+                    com=tuple(float(c) for c in com),
+                )
+            )
+        last = std[-1]
+        tools = tuple(
+            tuple(float(c) for c in _std_to_mod_point(last.a, last.alpha, np.array(t)))
+            for t in self.tools
+        )
+        return replace(
+            self,
+            joints=tuple(rows),
+            tools=tools,
+            convention="modified",
+            flange=(last.a, last.alpha),
+        )
+
+    # -- TOML ---------------------------------------------------------------------------------
+    def to_toml(self, length_unit: str = "m", angle_unit: str = "deg") -> str:
+        import tomli_w
+
+        L, A = _LENGTH[length_unit], _ANGLE[angle_unit]
+        doc: dict = {
+            "name": self.name,
+            "convention": self.convention,
+            "length_unit": length_unit,
+            "angle_unit": angle_unit,
+            "payload": self.payload,
+            "gravity": list(self.gravity),
+        }
+        if self.flange != (0.0, 0.0):
+            doc["flange"] = {"a": self.flange[0] / L, "alpha": self.flange[1] / A}
+        joints = []
+        for j in self.joints:
+            row = {
+                "alpha": j.alpha / A,
+                "a": j.a / L,
+                "d": j.d / L,
+                "theta_offset": j.theta_offset / A,
+                "limits": [j.lower / A, j.upper / A],
+                "mass": j.mass,
+                "com": [c / L for c in j.com],
+            }
+            if j.beta:
+                row["beta"] = j.beta / A
+            joints.append(row)
+        doc["joints"] = joints
+        doc["tools"] = [{"point": [c / L for c in t]} for t in self.tools]
+        if any(self.base_translation) or any(self.base_rotation):
+            doc["base"] = {
+                "translation": [c / L for c in self.base_translation],
+                "rotation_vector": [c / A for c in self.base_rotation],
+            }
+        if self.effects:
+            doc["effects"] = {k: dict(v) for k, v in self.effects.items()}
+        return tomli_w.dumps(doc)
+
+    def save(self, path: str | Path, length_unit: str = "m", angle_unit: str = "deg") -> None:
+        from envs.measurements import atomic_write_text
+
+        atomic_write_text(Path(path), self.to_toml(length_unit, angle_unit))
+
+    @classmethod
+    def from_toml(cls, text: str, source: str = "<string>") -> RobotDescription:
+        try:
+            doc = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise DescriptionError(f"{source}: not valid TOML: {exc}") from exc
+        return _from_dict(doc, source)
+
+
+def _std_to_mod_point(a: float, alpha: float, p: np.ndarray) -> np.ndarray:
+    """A point given in standard frame i, expressed in modified frame i."""
+    c, s = math.cos(alpha), math.sin(alpha)
+    x, y, z = p
+    return np.array([x + a, c * y - s * z, s * y + c * z])
+
+
+def _get(doc: dict, key: str, source: str, kind, where: str, default=None):
+    if key not in doc:
+        if default is not None:
+            return default
+        raise DescriptionError(f"{source}: {where}missing key '{key}'")
+    val = doc[key]
+    if kind is float:
+        if isinstance(val, bool) or not isinstance(val, int | float):
+            raise DescriptionError(f"{source}: {where}'{key}' must be a number, got {val!r}")
+        if not math.isfinite(val):
+            raise DescriptionError(f"{source}: {where}'{key}' is not finite")
+        return float(val)
+    if kind == "vec3":
+        if not isinstance(val, list) or len(val) != 3:
+            raise DescriptionError(f"{source}: {where}'{key}' must be a list of 3 numbers")
+        return tuple(_get({"v": v}, "v", source, float, f"{where}{key}: ") for v in val)
+    if kind is str:
+        if not isinstance(val, str):
+            raise DescriptionError(f"{source}: {where}'{key}' must be a string, got {val!r}")
+        return val
+    return val
+
+
+def _from_dict(doc: dict, source: str) -> RobotDescription:
+    lu = _get(doc, "length_unit", source, str, "", "m")
+    au = _get(doc, "angle_unit", source, str, "", "rad")
+    if lu not in _LENGTH:
+        raise DescriptionError(
+            f"{source}: length_unit must be one of {sorted(_LENGTH)}, got {lu!r}"
+        )
+    if au not in _ANGLE:
+        raise DescriptionError(f"{source}: angle_unit must be one of {sorted(_ANGLE)}, got {au!r}")
+    L, A = _LENGTH[lu], _ANGLE[au]
+    conv = _get(doc, "convention", source, str, "", "modified")
+    if conv not in ("modified", "standard"):
+        raise DescriptionError(
+            f"{source}: convention must be 'modified' or 'standard', got {conv!r}"
+        )
+    rows = doc.get("joints")
+    if not isinstance(rows, list) or len(rows) != 6:
+        raise DescriptionError(f"{source}: [[joints]] must appear exactly 6 times")
+    joints = []
+    for i, r in enumerate(rows, start=1):
+        w = f"joint {i}: "
+        limits = r.get(
+            "limits", [-180.0 if au == "deg" else -math.pi, 180.0 if au == "deg" else math.pi]
+        )
+        if not isinstance(limits, list) or len(limits) != 2:
+            raise DescriptionError(f"{source}: {w}'limits' must be [lower, upper]")
+        lo = _get({"v": limits[0]}, "v", source, float, w + "limits: ")
+        hi = _get({"v": limits[1]}, "v", source, float, w + "limits: ")
+        joints.append(
+            Joint(
+                alpha=_get(r, "alpha", source, float, w) * A,
+                a=_get(r, "a", source, float, w) * L,
+                d=_get(r, "d", source, float, w) * L,
+                theta_offset=_get(r, "theta_offset", source, float, w, 0.0) * A,
+                lower=lo * A,
+                upper=hi * A,
+                mass=_get(r, "mass", source, float, w, 0.0),
+                com=tuple(c * L for c in _get(r, "com", source, "vec3", w, (0.0, 0.0, 0.0))),
+                beta=_get(r, "beta", source, float, w, 0.0) * A,
+            )
+        )
+    tools_doc = doc.get("tools", [{"point": [0.0, 0.0, 0.0]}])
+    if not isinstance(tools_doc, list) or not tools_doc:
+        raise DescriptionError(f"{source}: [[tools]] must be a non-empty list")
+    tools = tuple(
+        tuple(c * L for c in _get(t, "point", source, "vec3", f"tool {k}: "))
+        for k, t in enumerate(tools_doc, start=1)
+    )
+    base = doc.get("base", {})
+    bt = tuple(c * L for c in _get(base, "translation", source, "vec3", "base: ", (0.0, 0.0, 0.0)))
+    br = tuple(
+        c * A for c in _get(base, "rotation_vector", source, "vec3", "base: ", (0.0, 0.0, 0.0))
+    )
+    flange_doc = doc.get("flange", {})
+    flange = (
+        _get(flange_doc, "a", source, float, "flange: ", 0.0) * L,
+        _get(flange_doc, "alpha", source, float, "flange: ", 0.0) * A,
+    )
+    effects = {}
+    for name, vals in doc.get("effects", {}).items():
+        if not isinstance(vals, dict):
+            raise DescriptionError(
+                f"{source}: [effects.{name}] must be a table of parameter values"
+            )
+        effects[name] = {k: _get(vals, k, source, float, f"effects.{name}: ") for k in vals}
+    return RobotDescription(
+        name=_get(doc, "name", source, str, "", Path(source).stem),
+        joints=tuple(joints),
+        tools=tools,
+        convention=conv,
+        payload=_get(doc, "payload", source, float, "", 0.0),
+        gravity=_get(doc, "gravity", source, "vec3", "", (0.0, 0.0, -9.81)),
+        base_translation=bt,
+        base_rotation=br,
+        effects=effects,
+        flange=flange,
+    )
+
+
+def load_robot(name_or_path: str | Path | None = None) -> RobotDescription:
+    """A shipped robot by name (``"seed"``) or a TOML file by path; ``None`` gives the seed arm."""
+    if name_or_path is None:
+        name_or_path = "seed"
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        if not p.is_file():
+            raise DescriptionError(f"{p}: robot description file not found")
+        return RobotDescription.from_toml(p.read_text(), source=str(p))
+    shipped = resources.files("envs") / "robots" / f"{name_or_path}.toml"
+    if not shipped.is_file():
+        raise DescriptionError(
+            f"unknown robot {str(name_or_path)!r}: not a shipped name nor a file"
+        )
+    return RobotDescription.from_toml(shipped.read_text(), source=f"robots/{name_or_path}.toml")
+
+
+def seed_robot() -> RobotDescription:
+    """The seed arm of SPEC section 1."""
+    return load_robot("seed")
+
+
+# -- rotations (rotation vectors <-> matrices), used by base transforms ---------------------------
+def rotation_matrix(r: np.ndarray) -> np.ndarray:
+    """Rodrigues: rotation vector(s) (..., 3) -> matrices (..., 3, 3)."""
+    from scipy.spatial.transform import Rotation
+
+    r = np.asarray(r, dtype=float)
+    return Rotation.from_rotvec(r.reshape(-1, 3)).as_matrix().reshape(*r.shape[:-1], 3, 3)
+
+
+def rotation_vector(R: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    R = np.asarray(R, dtype=float)
+    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(*R.shape[:-2], 3)

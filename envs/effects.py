@@ -1,0 +1,475 @@
+"""The error model's effects (SPEC section 2): each a small class that knows its parameters, the
+measured columns it needs, how it perturbs the joint angles or the chain, and its analytic columns
+of the identification Jacobian.
+
+Two kinds:
+
+* :class:`JointAngleEffect`: ``theta_i = q_i + sum_k p_k * basis_k(inputs)``, linear in its
+  parameters, evaluated at the encoder reading q (first order). A subclass names its ``terms`` and
+  gives ``basis(inputs, joint, term)``; parameters are ``f"{term}{joint}"`` (``ts1``, ``c3``...).
+* :class:`ChainEffect`: changes the chain itself (geometric errors, thermal growth). A subclass
+  implements ``apply`` and, for speed, ``jacobian``; without it the model differentiates
+  numerically.
+
+A user's effect is one such class in a Python file, loaded by ``--effect-module FILE.py`` (every
+:class:`Effect` subclass with a ``name`` in the file is registered) or from another package through
+the ``sixaxis.effects`` entry-point group.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import importlib.util
+import logging
+import re
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+
+from envs.description import RobotDescription, rotation_matrix
+
+if TYPE_CHECKING:  # pragma: no cover
+    from envs.errormodel import ChainState, ModelInputs, Sensitivities
+
+__all__ = [
+    "EFFECTS",
+    "Backlash",
+    "ChainEffect",
+    "Compliance",
+    "Effect",
+    "EffectError",
+    "Geometric",
+    "JointAngleEffect",
+    "JointScale",
+    "LoadBacklash",
+    "Thermal",
+    "Transmission",
+    "load_effect_module",
+    "make_effect",
+    "parse_effects",
+    "register_effect",
+]
+
+log = logging.getLogger(__name__)
+
+REFERENCE_TEMPERATURE = 20.0  # degC, where thermal growth is zero
+
+
+class EffectError(ValueError):
+    """An unknown effect, a bad effect specification or a missing measured column."""
+
+
+class Effect:
+    """Base of all effects. Subclasses set ``name`` and implement one of the two kinds below."""
+
+    name: ClassVar[str] = ""
+    columns: ClassVar[tuple[str, ...]] = ()  # measured columns it needs (beyond q, x, y, z)
+    per_joint: ClassVar[bool] = False
+    description: ClassVar[str] = ""
+    # Typical magnitude range of each parameter family (name prefix), SPEC section 2, and whether
+    # its sign is physical (always positive) rather than either way.
+    typical: ClassVar[dict[str, tuple[float, float]]] = {}
+    positive: ClassVar[bool] = False
+
+    def __init__(self, joints: Sequence[int] | None = None) -> None:
+        if joints is not None and not self.per_joint:
+            raise EffectError(f"effect {self.name!r} is not per joint; it takes no joint list")
+        self.joints: tuple[int, ...] | None = None if joints is None else tuple(sorted(set(joints)))
+        if self.joints is not None and any(not 1 <= j <= 6 for j in self.joints):
+            raise EffectError(
+                f"effect {self.name!r}: joints must be within 1..6, got {self.joints}"
+            )
+
+    @property
+    def label(self) -> str:
+        """``compliance`` or, restricted to joints, ``compliance[2,3]``."""
+        if self.joints is None:
+            return self.name
+        return f"{self.name}[{','.join(map(str, self.joints))}]"
+
+    def parameter_names(self, robot: RobotDescription, targets: Sequence[int]) -> list[str]:
+        """Names of the parameters; ``targets`` are the ids of the measured tool points."""
+        raise NotImplementedError
+
+    def nominal(self, robot: RobotDescription, names: Sequence[str]) -> np.ndarray:
+        """Starting values: those the description carries for this effect, else zero."""
+        known = robot.effects.get(self.name, {})
+        return np.array([known.get(n, 0.0) for n in names], dtype=float)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.label!r})"
+
+
+# --------------------------------------------------------------------------------------------------
+class JointAngleEffect(Effect):
+    """``theta_i = q_i + sum_term p[term, i] * basis(inputs, i, term)`` for each joint i."""
+
+    per_joint = True
+    terms: ClassVar[tuple[str, ...]] = ()
+
+    def active_joints(self) -> tuple[int, ...]:
+        return self.joints if self.joints is not None else (1, 2, 3, 4, 5, 6)
+
+    def parameter_names(self, robot: RobotDescription, targets: Sequence[int]) -> list[str]:
+        return [f"{t}{j}" for t in self.terms for j in self.active_joints()]
+
+    def basis(self, inputs: ModelInputs, joint: int, term: str) -> np.ndarray:
+        """(N,) regressor of parameter ``{term}{joint}`` on theta_joint (``joint`` is 1-based)."""
+        raise NotImplementedError
+
+    def regressor(self, inputs: ModelInputs) -> np.ndarray:
+        """(N, 6, k): d theta / d parameters, in the order of :meth:`parameter_names`."""
+        js = self.active_joints()
+        out = np.zeros((inputs.n, 6, len(self.terms) * len(js)))
+        k = 0
+        for t in self.terms:
+            for j in js:
+                out[:, j - 1, k] = self.basis(inputs, j, t)
+                k += 1
+        return out
+
+    def joint_offsets(self, inputs: ModelInputs, values: np.ndarray) -> np.ndarray:
+        """(N, 6) change of the joint angles."""
+        return inputs.cached(self, self.regressor) @ values
+
+    def joint_jacobian(self, inputs: ModelInputs, values: np.ndarray) -> np.ndarray:
+        """(N, 6, k) d theta / d values; the regressor itself for a linear effect."""
+        return inputs.cached(self, self.regressor)
+
+
+class Compliance(JointAngleEffect):
+    name = "compliance"
+    terms = ("c",)
+    typical = {"c": (3e-6, 1e-5)}
+    positive = True
+    description = "elastic joints: theta_i = q_i + c_i * tau_i(q), tau the gravity torque"
+
+    def basis(self, inputs, joint, term):
+        return inputs.tau[:, joint - 1]
+
+
+class Transmission(JointAngleEffect):
+    name = "transmission"
+    terms = ("ts", "tc")
+    typical = {"ts": (1e-4, 5e-4), "tc": (1e-4, 5e-4)}
+    description = "gear eccentricity: theta_i = q_i + ts_i sin(q_i) + tc_i cos(q_i)"
+
+    def basis(self, inputs, joint, term):
+        qj = inputs.q[:, joint - 1]
+        return np.sin(qj) if term == "ts" else np.cos(qj)
+
+
+class JointScale(JointAngleEffect):
+    name = "joint_scale"
+    terms = ("g",)
+    typical = {"g": (1e-4, 5e-4)}
+    description = "gear-ratio error: theta_i = q_i + g_i q_i"
+
+    def basis(self, inputs, joint, term):
+        return inputs.q[:, joint - 1]
+
+
+class Backlash(JointAngleEffect):
+    name = "backlash"
+    terms = ("bl",)
+    typical = {"bl": (3e-4, 6e-4)}
+    positive = True
+    columns = ("dir1", "dir2", "dir3", "dir4", "dir5", "dir6")
+    description = "friction-held backlash: theta_i = q_i - bl_i/2 dir_i (lags the last motion)"
+
+    def basis(self, inputs, joint, term):
+        return -0.5 * inputs.column(f"dir{joint}")
+
+
+class LoadBacklash(JointAngleEffect):
+    name = "load_backlash"
+    terms = ("lb",)
+    typical = {"lb": (3e-4, 6e-4)}
+    positive = True
+    description = "gravity-loaded backlash: theta_i = q_i + lb_i/2 sign(tau_i(q))"
+
+    def basis(self, inputs, joint, term):
+        return 0.5 * np.sign(inputs.tau[:, joint - 1])
+
+
+# --------------------------------------------------------------------------------------------------
+class ChainEffect(Effect):
+    """An effect on the chain's geometry. ``order`` sets the order of application."""
+
+    order: ClassVar[int] = 100
+
+    def apply(self, inputs: ModelInputs, values: np.ndarray, state: ChainState) -> ChainState:
+        raise NotImplementedError
+
+    def jacobian(
+        self, inputs: ModelInputs, values: np.ndarray, sens: Sensitivities
+    ) -> np.ndarray | None:
+        """(N, 3, k) derivatives of the measured point, or None to differentiate numerically."""
+        return None
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    o = np.zeros_like(x)
+    return np.stack(
+        [np.stack([o, -z, y], -1), np.stack([z, o, -x], -1), np.stack([-y, x, o], -1)], -2
+    )
+
+
+def so3_left_jacobian(r: np.ndarray) -> np.ndarray:
+    """J_l(r) with exp(r + dr) = exp(J_l(r) dr) exp(r) to first order."""
+    r = np.asarray(r, dtype=float)
+    th = float(np.linalg.norm(r))
+    K = _skew(r)
+    if th < 1e-8:
+        return np.eye(3) + 0.5 * K
+    return np.eye(3) + (1 - np.cos(th)) / th**2 * K + (th - np.sin(th)) / th**3 * (K @ K)
+
+
+class Geometric(ChainEffect):
+    """DH errors of every row, Hayati's beta on parallel consecutive axes (replacing that row's d),
+    the base transform (measurement frame <- robot base) and the tool offset of each target.
+
+    ``dalpha{i}, da{i}, dtheta{i}, dd{i}`` are the errors of row i (alpha_{i-1}, a_{i-1}, theta_i,
+    d_i); ``beta{i-1}`` replaces ``dd{i}`` where z_{i-1} and z_i are parallel; ``bx by bz`` (m) and
+    ``brx bry brz`` (rotation vector, rad) are the base transform itself, starting from the
+    description's; ``tx ty tz`` (``tx1``... with several targets) are offsets added to the tool point.
+    """
+
+    name = "geometric"
+    order = 0
+    typical = {
+        "dalpha": (6e-4, 1.5e-3),
+        "dtheta": (6e-4, 1.5e-3),
+        "beta": (6e-4, 1.5e-3),
+        "da": (1e-4, 3e-4),
+        "dd": (1e-4, 3e-4),
+        "b": (2e-4, 1e-3),  # base: small for the seed arm (m, rad)
+        "t": (1e-4, 3e-4),  # tool offsets
+    }
+    description = "DH errors (Hayati beta on parallel axes), base transform and tool offsets"
+
+    def parameter_names(self, robot: RobotDescription, targets: Sequence[int]) -> list[str]:
+        parallel = robot.parallel_rows()
+        names = [f"dalpha{i}" for i in range(1, 7)]
+        names += [f"da{i}" for i in range(1, 7)]
+        names += [f"dtheta{i}" for i in range(1, 7)]
+        names += [f"dd{i}" for i in range(1, 7) if i not in parallel]
+        names += [f"beta{i - 1}" for i in parallel]
+        names += ["bx", "by", "bz", "brx", "bry", "brz"]
+        if len(targets) == 1:
+            names += ["tx", "ty", "tz"]
+        else:
+            names += [f"{c}{k}" for k in targets for c in ("tx", "ty", "tz")]
+        return names
+
+    def nominal(self, robot: RobotDescription, names: Sequence[str]) -> np.ndarray:
+        base = dict(zip(("bx", "by", "bz"), robot.base_translation, strict=True))
+        base |= dict(zip(("brx", "bry", "brz"), robot.base_rotation, strict=True))
+        return np.array([base.get(n, 0.0) for n in names], dtype=float)
+
+    def _slots(self, state: ChainState) -> dict[str, np.ndarray]:
+        """Where each row's parameters sit in this effect's vector, once per (robot, targets)."""
+        key = (state.robot.parallel_rows(), state.targets)
+        cache = self.__dict__.setdefault("_slot_cache", {})
+        if key not in cache:
+            cache[key] = self._compute_slots(self.parameter_names(state.robot, state.targets))
+        return cache[key]
+
+    @staticmethod
+    def _compute_slots(names: Sequence[str]) -> dict[str, np.ndarray]:
+        idx = {n: k for k, n in enumerate(names)}
+
+        def rows(prefix, offset=0):
+            return np.array([idx.get(f"{prefix}{i + offset}", -1) for i in range(1, 7)])
+
+        tool = [idx[n] for n in names if re.fullmatch(r"t[xyz][0-9]*", n)]
+        return {
+            "alpha": rows("dalpha"),
+            "a": rows("da"),
+            "theta": rows("dtheta"),
+            "d": rows("dd"),
+            "beta": rows("beta", -1),
+            "base": np.array([idx[n] for n in ("bx", "by", "bz", "brx", "bry", "brz")]),
+            "tool": np.array(tool, dtype=int).reshape(-1, 3),
+        }
+
+    def apply(self, inputs, values, state):
+        s = self._slots(state)
+
+        def add(base, key):
+            sel = s[key] >= 0
+            out = np.array(base, dtype=float, copy=True)
+            out[..., sel] += values[s[key][sel]]
+            return out
+
+        chain = state.chain.replace(
+            alpha=add(state.chain.alpha, "alpha"),
+            a=add(state.chain.a, "a"),
+            theta_offset=add(state.chain.theta_offset, "theta"),
+            d=add(state.chain.d, "d"),
+            beta=add(state.chain.beta, "beta"),
+        )
+        b = values[s["base"]]
+        tools = state.tools + values[s["tool"]]
+        return state.replace(
+            chain=chain, base_t=b[:3], base_r=b[3:], base_R=rotation_matrix(b[3:]), tools=tools
+        )
+
+    def jacobian(self, inputs, values, sens):
+        s = self._slots(sens.state)
+        J = np.zeros((inputs.n, 3, len(values)))
+        for key, col in (
+            ("alpha", sens.d_alpha),
+            ("a", sens.d_a),
+            ("theta", sens.d_theta),
+            ("d", sens.d_d),
+            ("beta", sens.d_beta),
+        ):
+            sel = s[key] >= 0
+            J[:, :, s[key][sel]] = col[:, :, sel]
+        # lengths a and d scale with thermal growth: d p / d(da) = s * d p / d(a)
+        if sens.state.length_scale is not None:
+            for key in ("a", "d"):
+                sel = s[key][s[key] >= 0]
+                J[:, :, sel] *= sens.state.length_scale[:, None, None]
+        J[:, :, s["base"]] = sens.d_base
+        for k, cols in enumerate(s["tool"]):
+            J[:, :, cols] = sens.d_tool * (inputs.target == k)[:, None, None]
+        return J
+
+
+class Thermal(ChainEffect):
+    """Lengths a and d (nominal plus error) scaled by ``1 + kappa (T - 20 degC)``; base and tool not."""
+
+    name = "thermal"
+    order = 10
+    typical = {"kappa": (1.2e-5, 2.3e-5)}
+    positive = True
+    columns = ("temperature",)
+    description = "thermal growth: a, d scaled by 1 + kappa (T - 20 degC)"
+
+    def parameter_names(self, robot, targets):
+        return ["kappa"]
+
+    def _dT(self, inputs):
+        return inputs.column("temperature") - REFERENCE_TEMPERATURE
+
+    def apply(self, inputs, values, state):
+        scale = 1.0 + values[0] * self._dT(inputs)
+        chain = state.chain.replace(
+            a=np.asarray(state.chain.a)[None, :] * scale[:, None],
+            d=np.asarray(state.chain.d)[None, :] * scale[:, None],
+        )
+        prev = state.length_scale if state.length_scale is not None else 1.0
+        return state.replace(chain=chain, length_scale=prev * scale)
+
+    def jacobian(self, inputs, values, sens):
+        a = np.broadcast_to(sens.state.chain.a, (inputs.n, 6))
+        d = np.broadcast_to(sens.state.chain.d, (inputs.n, 6))
+        scale = 1.0 + values[0] * self._dT(inputs)
+        col = np.einsum("nxi,ni->nx", sens.d_a, a) + np.einsum("nxi,ni->nx", sens.d_d, d)
+        return (col * (self._dT(inputs) / scale)[:, None])[:, :, None]
+
+
+# --------------------------------------------------------------------------------------------------
+EFFECTS: dict[str, type[Effect]] = {}
+
+
+def register_effect(cls: type[Effect]) -> type[Effect]:
+    """Add an effect class to the catalogue (usable as a decorator)."""
+    if not (isinstance(cls, type) and issubclass(cls, Effect)) or not cls.name:
+        raise EffectError(f"{cls!r} is not an Effect subclass with a name")
+    if not re.fullmatch(r"[a-z][a-z0-9_]*", cls.name):
+        raise EffectError(f"effect name {cls.name!r} must be lower-case letters, digits, _")
+    if cls.name in EFFECTS and EFFECTS[cls.name] is not cls:
+        log.info("effect %r replaced by %s", cls.name, cls.__qualname__)
+    EFFECTS[cls.name] = cls
+    return cls
+
+
+for _cls in (Geometric, Compliance, Transmission, JointScale, Backlash, LoadBacklash, Thermal):
+    register_effect(_cls)
+CATALOGUE: tuple[str, ...] = tuple(EFFECTS)
+
+_entry_points_loaded = False
+
+
+def _load_entry_points() -> None:
+    global _entry_points_loaded
+    if _entry_points_loaded:
+        return
+    _entry_points_loaded = True
+    for ep in importlib.metadata.entry_points(group="sixaxis.effects"):
+        try:
+            register_effect(ep.load())
+        except Exception as exc:  # a broken plug-in must not break the catalogue
+            log.warning("effect entry point %s could not be loaded: %s", ep.name, exc)
+
+
+def load_effect_module(path: str | Path) -> list[str]:
+    """Import a Python file and register every named :class:`Effect` subclass defined in it."""
+    path = Path(path)
+    if not path.is_file():
+        raise EffectError(f"{path}: effect module not found")
+    spec = importlib.util.spec_from_file_location(f"sixaxis_user_effects_{path.stem}", path)
+    mod = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(mod)
+    except Exception as exc:
+        raise EffectError(f"{path}: the effect module failed to import: {exc}") from exc
+    found = [
+        obj
+        for obj in vars(mod).values()
+        if isinstance(obj, type)
+        and issubclass(obj, Effect)
+        and obj.name
+        and obj.__module__ == mod.__name__
+    ]
+    if not found:
+        raise EffectError(f"{path}: defines no Effect subclass with a name")
+    for cls in found:
+        register_effect(cls)
+    return [c.name for c in found]
+
+
+_SPEC = re.compile(r"^\s*([a-z][a-z0-9_]*)\s*(?:\[\s*([0-9,\s]*)\s*\])?\s*$")
+
+
+def make_effect(spec: str | Effect) -> Effect:
+    """An effect from its name, ``compliance`` or restricted to joints, ``compliance[2,3]``."""
+    if isinstance(spec, Effect):
+        return spec
+    m = _SPEC.match(spec)
+    if not m:
+        raise EffectError(
+            f"bad effect specification {spec!r}; expected e.g. 'compliance' or 'compliance[2,3]'"
+        )
+    name, joints = m.group(1), m.group(2)
+    if name not in EFFECTS:
+        _load_entry_points()
+    if name not in EFFECTS:
+        raise EffectError(f"unknown effect {name!r}; known: {', '.join(sorted(EFFECTS))}")
+    cls = EFFECTS[name]
+    if joints is None:
+        return cls()
+    try:
+        js = [int(j) for j in joints.split(",") if j.strip()]
+    except ValueError:
+        raise EffectError(f"bad joint list in effect specification {spec!r}") from None
+    return cls(joints=js)
+
+
+def parse_effects(spec: str | Sequence[str | Effect]) -> list[Effect]:
+    """``"geometric,compliance[2,3]"`` or a list of names/effects -> effect instances."""
+    if isinstance(spec, str):
+        parts = re.findall(r"[^,\[]+(?:\[[^\]]*\])?", spec)
+        spec = [p.strip() for p in parts if p.strip()]
+    effects = [make_effect(s) for s in spec]
+    names = [e.name for e in effects]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise EffectError(f"effect(s) listed twice: {', '.join(sorted(dup))}")
+    return effects

@@ -1,0 +1,217 @@
+"""Measurement files (SPEC section 3): one header row, comma separated, one measurement per row.
+
+Required columns ``q1..q6`` (rad) and ``x, y, z`` (m); optional ``t`` (s), ``temperature`` (degC),
+``payload`` (kg), ``dir1..dir6`` (+-1), ``target`` (integer). Other numeric columns are kept and
+offered to custom effects. Foreign data in mm or degrees is read with explicit unit options, never
+guessed. Bad input is refused with the file, line and column named; files are written atomically.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "MeasurementError",
+    "MeasurementSet",
+    "atomic_write_text",
+    "read_measurements",
+    "write_measurements",
+]
+
+JOINTS = tuple(f"q{i}" for i in range(1, 7))
+POSITION = ("x", "y", "z")
+DIRS = tuple(f"dir{i}" for i in range(1, 7))
+OPTIONAL = ("t", "temperature", "payload", *DIRS, "target")
+SCHEMA_VERSION = 1
+
+_LENGTH = {"m": 1.0, "mm": 1e-3}
+_ANGLE = {"rad": 1.0, "deg": math.pi / 180.0}
+
+
+class MeasurementError(ValueError):
+    """Bad measurement input; the message names the file, the line and the column."""
+
+
+@dataclass
+class MeasurementSet:
+    """Joint readings ``q`` (N, 6) in rad, measured points ``xyz`` (N, 3) in m, other columns."""
+
+    q: np.ndarray
+    xyz: np.ndarray
+    columns: dict[str, np.ndarray] = field(default_factory=dict)
+    source: str = "<memory>"
+
+    def __post_init__(self) -> None:
+        self.q = np.asarray(self.q, dtype=float).reshape(-1, 6)
+        self.xyz = np.asarray(self.xyz, dtype=float).reshape(-1, 3)
+        if len(self.q) != len(self.xyz):
+            raise MeasurementError(
+                f"{self.source}: {len(self.q)} joint rows but {len(self.xyz)} points"
+            )
+        self.columns = {k: np.asarray(v, dtype=float).reshape(-1) for k, v in self.columns.items()}
+        for k, v in self.columns.items():
+            if len(v) != len(self.q):
+                raise MeasurementError(
+                    f"{self.source}: column {k!r} has {len(v)} rows, not {len(self.q)}"
+                )
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    @property
+    def targets(self) -> tuple[int, ...]:
+        """Distinct target ids, sorted; ``(0,)`` without a target column."""
+        if "target" not in self.columns:
+            return (0,)
+        return tuple(int(t) for t in np.unique(self.columns["target"]))
+
+    def subset(self, idx) -> MeasurementSet:
+        idx = np.asarray(idx)
+        return MeasurementSet(
+            self.q[idx], self.xyz[idx], {k: v[idx] for k, v in self.columns.items()}, self.source
+        )
+
+    def split(
+        self, fraction: float, rng: np.random.Generator
+    ) -> tuple[MeasurementSet, MeasurementSet]:
+        """A random split into (first, rest) with ``fraction`` of the poses in the first."""
+        perm = rng.permutation(len(self))
+        k = round(fraction * len(self))
+        return self.subset(np.sort(perm[:k])), self.subset(np.sort(perm[k:]))
+
+    def to_csv(self, length_unit: str = "m", angle_unit: str = "rad") -> str:
+        L, A = _LENGTH[length_unit], _ANGLE[angle_unit]
+        extra = [c for c in self.columns if c not in OPTIONAL]
+        names = [*JOINTS, *POSITION, *(c for c in OPTIONAL if c in self.columns), *extra]
+        data = [self.q / A, self.xyz / L]
+        data += [self.columns[c][:, None] for c in names[9:]]
+        table = np.hstack(data)
+        buf = io.StringIO()
+        buf.write(",".join(names) + "\n")
+        ints = {i for i, c in enumerate(names) if c in (*DIRS, "target")}
+        for row in table:
+            buf.write(
+                ",".join(str(int(v)) if i in ints else repr(float(v)) for i, v in enumerate(row))
+                + "\n"
+            )
+        return buf.getvalue()
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write a file so that readers see either the old or the whole new content, never a part."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_measurements(
+    data: MeasurementSet, path: str | Path, length_unit: str = "m", angle_unit: str = "rad"
+) -> None:
+    atomic_write_text(Path(path), data.to_csv(length_unit, angle_unit))
+
+
+def read_measurements(
+    path: str | Path,
+    length_unit: str = "m",
+    angle_unit: str = "rad",
+    min_rows: int = 1,
+) -> MeasurementSet:
+    """Read a SPEC section 3 file. ``length_unit`` (m|mm) applies to x, y, z; ``angle_unit``
+    (rad|deg) to q1..q6. Raises :class:`MeasurementError` naming file, line and column."""
+    path = Path(path)
+    if length_unit not in _LENGTH:
+        raise MeasurementError(f"length unit must be one of {sorted(_LENGTH)}, got {length_unit!r}")
+    if angle_unit not in _ANGLE:
+        raise MeasurementError(f"angle unit must be one of {sorted(_ANGLE)}, got {angle_unit!r}")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise MeasurementError(f"{path}: file not found") from None
+    except UnicodeDecodeError as exc:
+        raise MeasurementError(f"{path}: not a UTF-8 text file ({exc})") from None
+    return parse_measurements(text, str(path), length_unit, angle_unit, min_rows)
+
+
+def parse_measurements(
+    text: str, source: str, length_unit: str = "m", angle_unit: str = "rad", min_rows: int = 1
+) -> MeasurementSet:
+    rows = list(csv.reader(io.StringIO(text)))
+    while rows and not any(c.strip() for c in rows[-1]):
+        rows.pop()
+    if not rows:
+        raise MeasurementError(f"{source}: empty file, expected a header row")
+    header = [h.strip() for h in rows[0]]
+    seen: set[str] = set()
+    for k, h in enumerate(header, start=1):
+        if not h:
+            raise MeasurementError(f"{source}, line 1: column {k} has an empty name")
+        if h in seen:
+            raise MeasurementError(f"{source}, line 1: column {h!r} appears twice")
+        seen.add(h)
+    missing = [c for c in (*JOINTS, *POSITION) if c not in seen]
+    if missing:
+        raise MeasurementError(
+            f"{source}, line 1: missing required column(s) {', '.join(missing)} "
+            f"(found: {', '.join(header)})"
+        )
+    values = np.empty((len(rows) - 1, len(header)))
+    for r, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise MeasurementError(
+                f"{source}, line {r}: {len(row)} fields, but the header has {len(header)}"
+            )
+        for k, cell in enumerate(row):
+            try:
+                v = float(cell)
+            except ValueError:
+                raise MeasurementError(
+                    f"{source}, line {r}, column {header[k]!r}: {cell.strip()!r} is not a number"
+                ) from None
+            if not math.isfinite(v):
+                raise MeasurementError(
+                    f"{source}, line {r}, column {header[k]!r}: {cell.strip()} is not finite"
+                )
+            values[r - 2, k] = v
+    n = values.shape[0]
+    if n < min_rows:
+        raise MeasurementError(f"{source}: {n} measurement rows, at least {min_rows} needed")
+    col = {h: values[:, k] for k, h in enumerate(header)}
+
+    def check(name: str, ok: np.ndarray, what: str) -> None:
+        bad = np.flatnonzero(~ok)
+        if bad.size:
+            r = int(bad[0])
+            raise MeasurementError(
+                f"{source}, line {r + 2}, column {name!r}: {values[r, header.index(name)]:g} {what}"
+            )
+
+    for d in DIRS:
+        if d in col:
+            check(d, np.isin(col[d], (-1.0, 1.0)), "must be -1 or +1")
+    if "target" in col:
+        check("target", col["target"] == np.round(col["target"]), "must be an integer")
+    if "payload" in col:
+        check("payload", col["payload"] >= 0, "must be >= 0 kg")
+    A, L = _ANGLE[angle_unit], _LENGTH[length_unit]
+    q = np.column_stack([col[c] for c in JOINTS]) * A
+    xyz = np.column_stack([col[c] for c in POSITION]) * L
+    other = {h: col[h] for h in header if h not in (*JOINTS, *POSITION)}
+    return MeasurementSet(q, xyz, other, source)

@@ -1,0 +1,1 @@
+"""Experiment configs, sweeps, the leaderboard and the ``sixaxis`` command line."""

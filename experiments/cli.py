@@ -1,0 +1,45 @@
+"""The ``sixaxis`` command line: a thin layer over the Python API.
+
+Each command group lives in its own module (``cli_lab``, ``cli_agents``, ``cli_sweep``) and is
+mounted here; library code logs with :mod:`logging`, the CLI prints with rich.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import typer
+from rich.logging import RichHandler
+
+from experiments import cli_agents, cli_demo, cli_lab, cli_sweep
+
+app = typer.Typer(
+    name="sixaxis",
+    help="sixaxis-track: calibrate a six-axis arm, find what its model misses, benchmark controllers.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_show_locals=False,
+)
+app.add_typer(cli_lab.app, name="lab")
+cli_agents.register(app)
+cli_sweep.register(app)
+cli_demo.register(app)
+
+
+@app.callback()
+def _main(
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="Log library messages."),
+) -> None:
+    logging.basicConfig(
+        level=logging.INFO if verbose else logging.WARNING,
+        format="%(message)s",
+        handlers=[RichHandler(show_path=False, rich_tracebacks=False)],
+    )
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()
