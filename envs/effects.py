@@ -190,8 +190,13 @@ class LoadBacklash(JointAngleEffect):
     positive = True
     description = "gravity-loaded backlash: theta_i = q_i + lb_i/2 sign(tau_i(q))"
 
+    # Below this the gravity torque is rounding noise (tau_1 and tau_6 of the seed arm are zero
+    # by construction but come out as +-1e-15): its sign must not pick a side of the gap.
+    zero_torque: ClassVar[float] = 1e-9  # N·m
+
     def basis(self, inputs, joint, term):
-        return 0.5 * np.sign(inputs.tau[:, joint - 1])
+        tau = inputs.tau[:, joint - 1]
+        return 0.5 * np.where(np.abs(tau) < self.zero_torque, 0.0, np.sign(tau))
 
 
 # --------------------------------------------------------------------------------------------------
