@@ -261,6 +261,19 @@ class ErrorModel:
                 J[:, :, sl] = self._numeric_columns(inputs, p, sl) if cols is None else cols
         return xyz, J
 
+    def joint_jacobian(self, inputs: ModelInputs, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Measured points (N, 3) and their derivatives by the effective joint angles theta
+        (N, 3, 6), in the measurement frame: the step direction of inverse kinematics on the
+        calibrated model (:func:`envs.ik.solve_position`)."""
+        p = np.asarray(p, dtype=float)
+        theta = self.joint_angles(inputs, p)
+        st = self.state(inputs, p)
+        f = link_frames(st.chain, theta)
+        pb = f.o[:, 6] + np.einsum("nij,nj->ni", f.R[:, 6], st.tools[inputs.target])
+        Rb = st.base_R
+        J = np.cross(f.z, pb[:, None, :] - f.o[:, 1:]) @ Rb.T  # (N, 6, 3)
+        return pb @ Rb.T + st.base_t, J.transpose(0, 2, 1)
+
     def _sensitivities(self, f, pb: np.ndarray, st: ChainState) -> Sensitivities:
         Rb = st.base_R
         z = f.z
