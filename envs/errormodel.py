@@ -190,13 +190,19 @@ class ErrorModel:
         payload = cols.get("payload")
         tau = gravity_torques(self.robot, q, payload=payload)
         if "target" in cols:
-            ids = {t: k for k, t in enumerate(self.targets)}
-            unknown = sorted(set(np.unique(cols["target"]).astype(int)) - set(ids))
-            if unknown:
+            t = cols["target"]
+            if np.any(t != np.round(t)):
+                raise EffectError(f"{source}: target ids must be integers")
+            ids = np.array(self.targets)
+            order = np.argsort(ids)
+            pos = np.clip(np.searchsorted(ids[order], t), 0, len(ids) - 1)
+            found = ids[order][pos] == t
+            if not found.all():
+                unknown = sorted({int(v) for v in t[~found]})
                 raise EffectError(
                     f"{source}: target id(s) {unknown} not among the model's {self.targets}"
                 )
-            target = np.array([ids[int(t)] for t in cols["target"]], dtype=int)
+            target = order[pos]
         else:
             if len(self.targets) > 1:
                 raise EffectError(
