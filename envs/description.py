@@ -286,7 +286,42 @@ def _get(doc: dict, key: str, source: str, kind, where: str, default=None):
     return val
 
 
+_KEYS = {
+    "": {
+        "name",
+        "convention",
+        "length_unit",
+        "angle_unit",
+        "payload",
+        "gravity",
+        "joints",
+        "tools",
+        "base",
+        "flange",
+        "effects",
+    },
+    "joint": {"alpha", "a", "d", "theta_offset", "limits", "mass", "com", "beta"},
+    "tool": {"point"},
+    "base": {"translation", "rotation_vector"},
+    "flange": {"a", "alpha"},
+}
+
+
+def _table(val, source: str, where: str, kind: str) -> dict:
+    """A TOML table with only the keys of ``kind``: a typo must not silently drop a value."""
+    if not isinstance(val, dict):
+        raise DescriptionError(f"{source}: {where}must be a table, got {val!r}")
+    unknown = sorted(set(val) - _KEYS[kind])
+    if unknown:
+        raise DescriptionError(
+            f"{source}: {where}unknown key(s) {', '.join(map(repr, unknown))}; "
+            f"known: {', '.join(sorted(_KEYS[kind]))}"
+        )
+    return val
+
+
 def _from_dict(doc: dict, source: str) -> RobotDescription:
+    _table(doc, source, "", "")
     lu = _get(doc, "length_unit", source, str, "", "m")
     au = _get(doc, "angle_unit", source, str, "", "rad")
     if lu not in _LENGTH:
@@ -305,11 +340,11 @@ def _from_dict(doc: dict, source: str) -> RobotDescription:
     if not isinstance(rows, list) or len(rows) != 6:
         raise DescriptionError(f"{source}: [[joints]] must appear exactly 6 times")
     joints = []
+    half_turn = 180.0 if au == "deg" else math.pi
     for i, r in enumerate(rows, start=1):
         w = f"joint {i}: "
-        limits = r.get(
-            "limits", [-180.0 if au == "deg" else -math.pi, 180.0 if au == "deg" else math.pi]
-        )
+        _table(r, source, w, "joint")
+        limits = r.get("limits", [-half_turn, half_turn])
         if not isinstance(limits, list) or len(limits) != 2:
             raise DescriptionError(f"{source}: {w}'limits' must be [lower, upper]")
         lo = _get({"v": limits[0]}, "v", source, float, w + "limits: ")
@@ -329,40 +364,51 @@ def _from_dict(doc: dict, source: str) -> RobotDescription:
         )
     tools_doc = doc.get("tools", [{"point": [0.0, 0.0, 0.0]}])
     if not isinstance(tools_doc, list) or not tools_doc:
-        raise DescriptionError(f"{source}: [[tools]] must be a non-empty list")
+        raise DescriptionError(f"{source}: [[tools]] must be a non-empty list of tables")
     tools = tuple(
-        tuple(c * L for c in _get(t, "point", source, "vec3", f"tool {k}: "))
+        tuple(
+            c * L
+            for c in _get(
+                _table(t, source, f"tool {k}: ", "tool"), "point", source, "vec3", f"tool {k}: "
+            )
+        )
         for k, t in enumerate(tools_doc, start=1)
     )
-    base = doc.get("base", {})
+    base = _table(doc.get("base", {}), source, "[base] ", "base")
     bt = tuple(c * L for c in _get(base, "translation", source, "vec3", "base: ", (0.0, 0.0, 0.0)))
     br = tuple(
         c * A for c in _get(base, "rotation_vector", source, "vec3", "base: ", (0.0, 0.0, 0.0))
     )
-    flange_doc = doc.get("flange", {})
+    flange_doc = _table(doc.get("flange", {}), source, "[flange] ", "flange")
     flange = (
         _get(flange_doc, "a", source, float, "flange: ", 0.0) * L,
         _get(flange_doc, "alpha", source, float, "flange: ", 0.0) * A,
     )
+    effects_doc = doc.get("effects", {})
+    if not isinstance(effects_doc, dict):
+        raise DescriptionError(f"{source}: [effects] must be a table of effect tables")
     effects = {}
-    for name, vals in doc.get("effects", {}).items():
+    for name, vals in effects_doc.items():
         if not isinstance(vals, dict):
             raise DescriptionError(
                 f"{source}: [effects.{name}] must be a table of parameter values"
             )
         effects[name] = {k: _get(vals, k, source, float, f"effects.{name}: ") for k in vals}
-    return RobotDescription(
-        name=_get(doc, "name", source, str, "", Path(source).stem),
-        joints=tuple(joints),
-        tools=tools,
-        convention=conv,
-        payload=_get(doc, "payload", source, float, "", 0.0),
-        gravity=_get(doc, "gravity", source, "vec3", "", (0.0, 0.0, -9.81)),
-        base_translation=bt,
-        base_rotation=br,
-        effects=effects,
-        flange=flange,
-    )
+    try:
+        return RobotDescription(
+            name=_get(doc, "name", source, str, "", Path(source).stem),
+            joints=tuple(joints),
+            tools=tools,
+            convention=conv,
+            payload=_get(doc, "payload", source, float, "", 0.0),
+            gravity=_get(doc, "gravity", source, "vec3", "", (0.0, 0.0, -9.81)),
+            base_translation=bt,
+            base_rotation=br,
+            effects=effects,
+            flange=flange,
+        )
+    except DescriptionError as exc:
+        raise DescriptionError(f"{source}: {exc}") from None
 
 
 def load_robot(name_or_path: str | Path | None = None) -> RobotDescription:
