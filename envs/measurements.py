@@ -88,12 +88,34 @@ class MeasurementSet:
         return self.subset(np.sort(perm[:k])), self.subset(np.sort(perm[k:]))
 
     def to_csv(self, length_unit: str = "m", angle_unit: str = "rad") -> str:
+        """The SPEC section 3 text; q in ``angle_unit`` and x, y, z in ``length_unit``. Refuses
+        values that the reader would refuse (non-finite numbers, bad dir or target values)."""
+        if length_unit not in _LENGTH:
+            raise MeasurementError(
+                f"length unit must be one of {sorted(_LENGTH)}, got {length_unit!r}"
+            )
+        if angle_unit not in _ANGLE:
+            raise MeasurementError(
+                f"angle unit must be one of {sorted(_ANGLE)}, got {angle_unit!r}"
+            )
         L, A = _LENGTH[length_unit], _ANGLE[angle_unit]
         extra = [c for c in self.columns if c not in OPTIONAL]
         names = [*JOINTS, *POSITION, *(c for c in OPTIONAL if c in self.columns), *extra]
         data = [self.q / A, self.xyz / L]
         data += [self.columns[c][:, None] for c in names[9:]]
         table = np.hstack(data)
+        bad = ~np.isfinite(table)
+        for k, c in enumerate(names):
+            if c in DIRS:
+                bad[:, k] |= ~np.isin(table[:, k], (-1.0, 1.0))
+            elif c == "target":
+                bad[:, k] |= table[:, k] != np.round(table[:, k])
+        if bad.any():
+            r, k = np.argwhere(bad)[0]
+            raise MeasurementError(
+                f"{self.source}: row {r + 1}, column {names[k]!r}: {table[r, k]!r} cannot be "
+                "written (values must be finite, dir +-1, target an integer)"
+            )
         buf = io.StringIO()
         buf.write(",".join(names) + "\n")
         ints = {i for i, c in enumerate(names) if c in (*DIRS, "target")}
@@ -147,6 +169,8 @@ def read_measurements(
         raise MeasurementError(f"{path}: file not found") from None
     except UnicodeDecodeError as exc:
         raise MeasurementError(f"{path}: not a UTF-8 text file ({exc})") from None
+    except OSError as exc:
+        raise MeasurementError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     return parse_measurements(text, str(path), length_unit, angle_unit, min_rows)
 
 
@@ -182,8 +206,13 @@ def parse_measurements(
             try:
                 v = float(cell)
             except ValueError:
+                extra = (
+                    ""
+                    if header[k] in (*JOINTS, *POSITION, *OPTIONAL)
+                    else " (extra columns are kept for custom effects and must be numeric)"
+                )
                 raise MeasurementError(
-                    f"{source}, line {r}, column {header[k]!r}: {cell.strip()!r} is not a number"
+                    f"{source}, line {r}, column {header[k]!r}: {cell.strip()!r} is not a number{extra}"
                 ) from None
             if not math.isfinite(v):
                 raise MeasurementError(

@@ -1,0 +1,216 @@
+"""Measurement files (SPEC section 3): every malformed case is refused naming file, line and
+column; unit options round-trip; extra columns are kept; writes are atomic."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+
+from envs.measurements import (
+    MeasurementError,
+    MeasurementSet,
+    atomic_write_text,
+    read_measurements,
+    write_measurements,
+)
+
+HEADER = "q1,q2,q3,q4,q5,q6,x,y,z"
+ROW = "0.1,-1.2,0.3,0.4,0.5,0.6,0.7,0.01,0.8"
+
+
+def _file(tmp_path, text: str, name: str = "data.csv"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+# (file text, min_rows, expected fragments of the message after the file name)
+MALFORMED = {
+    "missing column": (
+        HEADER.replace(",z", "") + "\n" + ROW.rsplit(",", 1)[0] + "\n",
+        1,
+        ["line 1", "missing required column(s) z"],
+    ),
+    "two missing columns": ("q1,q2,q3,q4,q5,x,y\n1,2,3,4,5,6,7\n", 1, ["line 1", "q6, z"]),
+    "text in a number": (
+        f"{HEADER}\n{ROW}\n{ROW.replace('0.4', 'abc')}\n",
+        1,
+        ["line 3", "column 'q4'", "'abc' is not a number"],
+    ),
+    "empty cell": (
+        f"{HEADER}\n{ROW.replace(',0.7,', ',,')}\n",
+        1,
+        ["line 2", "column 'x'", "'' is not a number"],
+    ),
+    "nan": (
+        f"{HEADER}\n{ROW.replace('0.01', 'NaN')}\n",
+        1,
+        ["line 2", "column 'y'", "NaN is not finite"],
+    ),
+    "inf": (
+        f"{HEADER}\n{ROW}\n{ROW}\n{ROW.replace('0.8', '-inf')}\n",
+        1,
+        ["line 4", "column 'z'", "-inf is not finite"],
+    ),
+    "too many fields": (f"{HEADER}\n{ROW},5\n", 1, ["line 2", "10 fields, but the header has 9"]),
+    "too few fields": (
+        f"{HEADER}\n{ROW}\n0.1,0.2\n",
+        1,
+        ["line 3", "2 fields, but the header has 9"],
+    ),
+    "bad dir value": (
+        f"{HEADER},dir1,dir2\n{ROW},1,-1\n{ROW},1,0\n",
+        1,
+        ["line 3", "column 'dir2'", "must be -1 or +1"],
+    ),
+    "non-integer target": (
+        f"{HEADER},target\n{ROW},1\n{ROW},1.5\n",
+        1,
+        ["line 3", "column 'target'", "must be an integer"],
+    ),
+    "negative payload": (
+        f"{HEADER},payload\n{ROW},-2\n",
+        1,
+        ["line 2", "column 'payload'", ">= 0 kg"],
+    ),
+    "empty file": ("", 1, ["empty file"]),
+    "blank lines only": ("\n\n  \n", 1, ["empty file"]),
+    "header only": (f"{HEADER}\n", 1, ["0 measurement rows, at least 1 needed"]),
+    "too few rows": (f"{HEADER}\n{ROW}\n{ROW}\n", 30, ["2 measurement rows, at least 30 needed"]),
+    "duplicate column": (f"{HEADER},x\n{ROW},1\n", 1, ["line 1", "column 'x' appears twice"]),
+    "empty column name": (f"{HEADER},\n{ROW},1\n", 1, ["line 1", "column 10 has an empty name"]),
+    "text in an extra column": (
+        f"{HEADER},operator\n{ROW},anna\n",
+        1,
+        ["line 2", "column 'operator'", "must be numeric"],
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(MALFORMED))
+def test_malformed_file_is_refused_naming_where(tmp_path, case):
+    text, min_rows, fragments = MALFORMED[case]
+    path = _file(tmp_path, text)
+    with pytest.raises(MeasurementError) as err:
+        read_measurements(path, min_rows=min_rows)
+    msg = str(err.value)
+    assert msg.startswith(str(path)), msg
+    for frag in fragments:
+        assert frag in msg, msg
+
+
+def test_missing_and_unreadable_files(tmp_path):
+    with pytest.raises(MeasurementError, match="file not found"):
+        read_measurements(tmp_path / "none.csv")
+    with pytest.raises(MeasurementError, match="cannot be read"):
+        read_measurements(tmp_path)
+    binary = tmp_path / "b.csv"
+    binary.write_bytes(b"\xff\xfe\x00q1")
+    with pytest.raises(MeasurementError, match="not a UTF-8 text file"):
+        read_measurements(binary)
+    with pytest.raises(MeasurementError, match="length unit"):
+        read_measurements(_file(tmp_path, f"{HEADER}\n{ROW}\n"), length_unit="cm")
+    with pytest.raises(MeasurementError, match="angle unit"):
+        read_measurements(_file(tmp_path, f"{HEADER}\n{ROW}\n"), angle_unit="grad")
+
+
+def _sample(n: int = 7, seed: int = 0) -> MeasurementSet:
+    rng = np.random.default_rng(seed)
+    cols = {
+        "t": np.arange(n) * 0.5,
+        "temperature": rng.uniform(18, 30, n),
+        "payload": rng.uniform(0, 5, n),
+        **{f"dir{j}": rng.choice((-1.0, 1.0), n) for j in range(1, 7)},
+        "target": rng.integers(0, 3, n).astype(float),
+        "humidity": rng.uniform(30, 60, n),  # an extra column, for custom effects
+    }
+    return MeasurementSet(rng.uniform(-3, 3, (n, 6)), rng.uniform(-2, 2, (n, 3)), cols, "sample")
+
+
+@pytest.mark.parametrize(
+    ("length_unit", "angle_unit"), [("m", "rad"), ("mm", "deg"), ("mm", "rad"), ("m", "deg")]
+)
+def test_units_round_trip(tmp_path, length_unit, angle_unit):
+    data = _sample()
+    path = tmp_path / "out.csv"
+    write_measurements(data, path, length_unit=length_unit, angle_unit=angle_unit)
+    back = read_measurements(path, length_unit=length_unit, angle_unit=angle_unit)
+    np.testing.assert_allclose(back.q, data.q, rtol=1e-15, atol=0)
+    np.testing.assert_allclose(back.xyz, data.xyz, rtol=1e-15, atol=0)
+    assert set(back.columns) == set(data.columns)
+    for k, v in data.columns.items():
+        np.testing.assert_array_equal(back.columns[k], v)
+    assert back.source == str(path)
+
+
+def test_units_are_applied_as_stated(tmp_path):
+    """Foreign data: q in degrees and x, y, z in mm, read with explicit options."""
+    path = _file(tmp_path, f"{HEADER}\n90,-45,0,0,180,0,1000,-250,1500\n")
+    data = read_measurements(path, length_unit="mm", angle_unit="deg")
+    np.testing.assert_allclose(data.q[0], [math.pi / 2, -math.pi / 4, 0, 0, math.pi, 0])
+    np.testing.assert_allclose(data.xyz[0], [1.0, -0.25, 1.5])
+    si = read_measurements(path)  # never guessed: the same file read as SI
+    assert si.q[0, 0] == 90.0 and si.xyz[0, 0] == 1000.0
+
+
+def test_columns_in_any_order_extra_columns_kept_whitespace_and_bom(tmp_path):
+    text = "\ufeffz, y ,x,q6,q5,q4,q3,q2,q1,wear\n 0.8 ,0.01,0.7,0.6,0.5,0.4,0.3,-1.2,0.1, 3\n"
+    data = read_measurements(_file(tmp_path, text))
+    np.testing.assert_allclose(data.q[0], [0.1, -1.2, 0.3, 0.4, 0.5, 0.6])
+    np.testing.assert_allclose(data.xyz[0], [0.7, 0.01, 0.8])
+    assert list(data.columns) == ["wear"] and data.columns["wear"][0] == 3.0
+    assert data.targets == (0,)
+
+
+def test_targets_subset_and_split():
+    data = _sample(20)
+    assert data.targets == tuple(int(t) for t in np.unique(data.columns["target"]))
+    first, rest = data.split(0.25, np.random.default_rng(1))
+    assert len(first) == 5 and len(rest) == 15
+    both = np.vstack([first.q, rest.q])
+    assert sorted(map(tuple, both)) == sorted(map(tuple, data.q))
+
+
+def test_writer_refuses_what_the_reader_would(tmp_path):
+    data = _sample(3)
+    data.xyz[1, 2] = np.nan
+    path = tmp_path / "out.csv"
+    with pytest.raises(MeasurementError, match=r"row 2, column 'z'"):
+        write_measurements(data, path)
+    assert not path.exists()
+    data = _sample(3)
+    data.columns["dir3"][2] = 0.0
+    with pytest.raises(MeasurementError, match=r"row 3, column 'dir3'"):
+        write_measurements(data, path)
+
+
+def test_mismatched_lengths_are_refused():
+    with pytest.raises(MeasurementError, match="3 joint rows but 2 points"):
+        MeasurementSet(np.zeros((3, 6)), np.zeros((2, 3)))
+    with pytest.raises(MeasurementError, match="column 't' has 2 rows, not 3"):
+        MeasurementSet(np.zeros((3, 6)), np.zeros((3, 3)), {"t": np.zeros(2)})
+
+
+def test_atomic_write_leaves_old_content_on_failure(tmp_path, monkeypatch):
+    """A write that fails midway leaves the previous file whole and no temporary file behind."""
+    path = tmp_path / "data.csv"
+    write_measurements(_sample(4), path)
+    before = path.read_text()
+
+    def fail(fd):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "fsync", fail)
+    with pytest.raises(OSError, match="disk full"):
+        write_measurements(_sample(9, seed=5), path)
+    assert path.read_text() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]
+
+
+def test_atomic_write_creates_directories(tmp_path):
+    target = tmp_path / "a" / "b" / "c.txt"
+    atomic_write_text(target, "hello\n")
+    assert target.read_text() == "hello\n"
