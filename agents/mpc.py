@@ -1,0 +1,495 @@
+"""Kinematic model predictive control of the tool point (CasADi), with online calibration.
+
+Over a horizon of N control steps the controller chooses joint-velocity commands v_0..v_{N-1}
+(the decision variables, 6N) so that the *model's* tool point follows the reference preview:
+
+    min  1/2 sum_k |x(q_k) - r_k|^2 (mm^2)  +  rho_dv/2 sum_k |v_k - v_{k-1}|^2  +  rho_v/2 sum_k |v_k|^2
+    s.t. q_k = q_0 + dt (v_0 + ... + v_{k-1})                      (joint integrators)
+         |v_k| <= v_max,  |v_k - v_{k-1}| <= a_max dt,  q_lower + m <= q_k <= q_upper - m
+
+with ``x`` the :class:`~agents.tool_model.ToolModel` of the current model estimate (nominal
+description + identified errors + effects). Two ways to solve it:
+
+* ``solver="daqp" | "osqp" | "qpoases" | "proxqp"`` (default daqp): a QP from the kinematics
+  linearised at the current encoder reading, ``x(q_k) ~ x(q_0) + J (q_k - q_0)`` with ``J`` the
+  model's d x / d q (CasADi's derivative of the full model), condensed onto the velocities. The
+  constraint matrix is constant, only the Hessian (through ``J``), the gradient and the bounds
+  change; the solution is warm-started from the previous plan shifted by one step (OSQP and
+  qpOASES use it; DAQP, a dual active-set method, starts cold through CasADi). The QP is re-solved
+  at every step from the new encoder reading, so the linearisation error of one step is corrected
+  at the next.
+* ``solver="ipopt"``: the full nonlinear program with the exact model at every q_k, warm-started
+  from the previous primal-dual solution.
+
+:class:`MPCAgent` wires it to the environment and to :class:`~agents.online_calibration.
+RecursiveLeastSquares`, which updates the model from tracker measurements (``"mpc"``), or hands it
+the plant's true model (``"mpc-oracle"``, the floor that model knowledge can reach).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from agents.base import Agent, Observation, measurement_columns, solve_time_stats
+from agents.online_calibration import RecursiveLeastSquares
+from agents.tool_model import ToolModel, cached_tool_model
+from envs.errormodel import ErrorModel
+
+__all__ = ["QP_SOLVERS", "KinematicMPC", "MPCAgent"]
+
+log = logging.getLogger(__name__)
+
+QP_SOLVERS = ("daqp", "osqp", "qpoases", "proxqp")
+MM = 1e3  # the cost is in mm: tracking errors of 0.01-1 mm give well-scaled QPs
+
+
+def _qp_options(solver: str) -> dict:
+    if solver == "osqp":
+        return {
+            "osqp": {
+                "verbose": False,
+                "eps_abs": 1e-7,
+                "eps_rel": 1e-7,
+                "polish": False,
+                "max_iter": 4000,
+            },
+            "warm_start_primal": True,
+            "warm_start_dual": True,
+            "error_on_fail": False,
+        }
+    if solver == "qpoases":
+        return {"printLevel": "none", "sparse": False, "error_on_fail": False}
+    return {"error_on_fail": False}
+
+
+class KinematicMPC:
+    """The optimal-control problem of the module docstring for one arm and one model.
+
+    ``solve(q0, v_prev, refs, p, columns)`` returns the first command v_0 (rad/s); the whole plan
+    is in ``plan`` (N, 6). ``refs`` (N, 3) are the reference points at t + dt .. t + N dt.
+    """
+
+    def __init__(
+        self,
+        tool_model: ToolModel,
+        dt: float,
+        v_max: np.ndarray,
+        a_max: np.ndarray,
+        q_lower: np.ndarray,
+        q_upper: np.ndarray,
+        horizon: int = 10,
+        solver: str = "daqp",
+        rho_dv: float = 1e-2,
+        rho_v: float = 1e-3,
+        limit_margin: float = 0.02,
+        velocity_margin: float = 0.98,
+    ) -> None:
+        if solver not in (*QP_SOLVERS, "ipopt"):
+            raise ValueError(
+                f"unknown MPC solver {solver!r}; choose one of {', '.join((*QP_SOLVERS, 'ipopt'))}"
+            )
+        if horizon < 1:
+            raise ValueError(f"horizon must be at least 1, got {horizon}")
+        self.tm = tool_model
+        self.dt = float(dt)
+        self.v_max = np.asarray(v_max, dtype=float) * velocity_margin
+        self.a_max = np.asarray(a_max, dtype=float)
+        self.q_lower = np.asarray(q_lower, dtype=float) + limit_margin
+        self.q_upper = np.asarray(q_upper, dtype=float) - limit_margin
+        self.N = int(horizon)
+        self.solver = solver
+        self.rho_dv = float(rho_dv)
+        self.rho_v = float(rho_v)
+        N = self.N
+        I6 = np.eye(6)
+        # D: v_k - v_{k-1}; L: dt * sum_{j<=k} v_j; both constant
+        Dn = np.eye(N) - np.eye(N, k=-1)
+        self.A = np.vstack([np.kron(Dn, I6), np.kron(np.tril(np.ones((N, N))), I6) * self.dt])
+        self.nA = self.A.shape[0]
+        self._C = (N - np.maximum.outer(np.arange(N), np.arange(N))).astype(float)
+        self._R = self.rho_dv * np.kron(Dn.T @ Dn, I6) + self.rho_v * np.eye(6 * N)
+        self._lbx = -np.tile(self.v_max, N)
+        self._ubx = np.tile(self.v_max, N)
+        self._warm_start = solver in ("osqp", "qpoases", "ipopt")
+        self.n_fail = 0
+        self.last_status = ""
+        self.reset()
+        if solver == "ipopt":
+            self._build_nlp()
+        else:
+            self._build_qp()
+
+    def reset(self) -> None:
+        self.plan = np.zeros((self.N, 6))
+        self._lam_x = np.zeros(6 * self.N)
+        self._lam_a = np.zeros(self.nA)
+
+    def _warm(self) -> np.ndarray:
+        return np.concatenate([self.plan[1:].reshape(-1), self.plan[-1]])
+
+    # -- bounds ----------------------------------------------------------------------------------
+    def constraint_bounds(self, q0: np.ndarray, v_prev: np.ndarray):
+        """Bounds (lba, uba) of the rows of ``A``: acceleration, then joint position."""
+        N = self.N
+        da = self.a_max * self.dt
+        lb = np.empty((2, N, 6))
+        ub = np.empty((2, N, 6))
+        lb[0] = -da
+        ub[0] = da
+        lb[0, 0] += v_prev
+        ub[0, 0] += v_prev
+        # joint limits; where q0 is already beyond a limit, only forbid going further
+        lb[1] = np.minimum(self.q_lower - q0, 0.0)
+        ub[1] = np.maximum(self.q_upper - q0, 0.0)
+        return lb.reshape(-1), ub.reshape(-1)
+
+    def _symbolic_bounds(self, q0, v_prev):
+        N = self.N
+        da = ca.DM(self.a_max * self.dt)
+        lo = ca.fmin(ca.DM(self.q_lower) - q0, 0)
+        hi = ca.fmax(ca.DM(self.q_upper) - q0, 0)
+        lba = ca.vertcat(v_prev - da, ca.repmat(-da, N - 1, 1), ca.repmat(lo, N, 1))
+        uba = ca.vertcat(v_prev + da, ca.repmat(da, N - 1, 1), ca.repmat(hi, N, 1))
+        return lba, uba
+
+    # -- the QP ----------------------------------------------------------------------------------
+    def qp_matrices(self, x0: np.ndarray, J: np.ndarray, refs: np.ndarray, v_prev: np.ndarray):
+        """Hessian (6N, 6N) and gradient (6N,) of the condensed QP at point x0 with d x / d q J
+        (numpy; the compiled step computes the same inside CasADi)."""
+        dt = self.dt
+        Jm = J * MM
+        E = (x0[None, :] - refs) * MM  # (N, 3) errors if nothing moved
+        S = np.cumsum(E[::-1], axis=0)[::-1]  # S_j = sum_{k >= j} E_k
+        H = dt * dt * np.kron(self._C, Jm.T @ Jm) + self._R
+        g = dt * (S @ Jm).reshape(-1)
+        g[:6] -= self.rho_dv * v_prev
+        return H, g
+
+    def _build_qp(self) -> None:
+        """One CasADi function per step: the model's point and d x / d q at q0, the condensed QP's
+        Hessian, gradient and bounds, and the QP solver on them. Its input and output are single
+        vectors: no matrix crosses into Python."""
+        N, dt, nA = self.N, self.dt, self.nA
+        tm = self.tm
+        nz = tm.n_inputs
+        A = ca.sparsify(ca.DM(self.A))  # block bidiagonal and block lower-triangular
+        qp = {"h": ca.Sparsity.dense(6 * N, 6 * N), "a": A.sparsity()}
+        self._qp = ca.conic("mpc_qp", self.solver, qp, _qp_options(self.solver))
+        # the QP's data as an SX function (scalar expressions, fast to evaluate) ...
+        z = ca.SX.sym("z", nz)
+        refs = ca.SX.sym("refs", 3 * N)
+        v_prev = ca.SX.sym("v_prev", 6)
+        q0 = z[:6]
+        P, nc = len(tm.layout), len(tm.column_names)
+        x = tm.expression(q0, z[6 : 6 + P], z[6 + P : 6 + P + nc], z[6 + P + nc :])
+        Jm = ca.jacobian(x, q0) * MM
+        E = (ca.repmat(x, 1, N) - ca.reshape(refs, 3, N)) * MM  # (3, N)
+        # S_j = sum_{k >= j} E_k (E_k the error at step k + 1), a constant lower-triangular product
+        S = ca.mtimes(E, ca.DM(np.tril(np.ones((N, N)))))
+        H = dt * dt * ca.kron(ca.DM(self._C), ca.mtimes(Jm.T, Jm)) + ca.DM(self._R)
+        g = dt * ca.vec(ca.mtimes(Jm.T, S))
+        g = g - ca.vertcat(self.rho_dv * v_prev, ca.DM.zeros(6 * (N - 1)))
+        lba, uba = self._symbolic_bounds(q0, v_prev)
+        data = ca.Function("mpc_qp_data", [z, refs, v_prev], [H, g, lba, uba])
+        # ... and the solver called on it, in an MX function
+        n_in = nz + 3 * N + 6
+        w = ca.MX.sym("w", n_in + (12 * N + nA if self._warm_start else 0))
+        H, g, lba, uba = data(w[:nz], w[nz : nz + 3 * N], w[nz + 3 * N : n_in])
+        args = {
+            "h": H,
+            "g": g,
+            "a": A,
+            "lba": lba,
+            "uba": uba,
+            "lbx": ca.DM(self._lbx),
+            "ubx": ca.DM(self._ubx),
+        }
+        if self._warm_start:
+            args |= {
+                "x0": w[n_in : n_in + 6 * N],
+                "lam_x0": w[n_in + 6 * N : n_in + 12 * N],
+                "lam_a0": w[n_in + 12 * N :],
+            }
+        sol = self._qp(**args)
+        v = sol["x"]
+        Av = ca.mtimes(A, v)
+        violation = ca.mmax(
+            ca.vertcat(Av - uba, lba - Av, v - ca.DM(self._ubx), ca.DM(self._lbx) - v)
+        )
+        out = [v, violation]
+        if self._warm_start:
+            out += [sol["lam_x"], sol["lam_a"]]
+        self._step = ca.Function("mpc_qp_step", [w], [ca.vertcat(*out)])
+
+    def solve(
+        self,
+        q0: np.ndarray,
+        v_prev: np.ndarray,
+        refs: np.ndarray,
+        p: np.ndarray,
+        columns: Mapping[str, float] | np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The first command v_0 (rad/s) of the plan from encoder reading ``q0``, previous command
+        ``v_prev``, references ``refs`` (N, 3) and model parameters ``p`` (with ``columns``)."""
+        v_prev = np.clip(np.asarray(v_prev, dtype=float), -self.v_max, self.v_max)
+        refs = np.asarray(refs, dtype=float).reshape(self.N, 3)
+        z = self.tm.pack(q0, p, columns)
+        if self.solver == "ipopt":
+            return self._solve_nlp(z, v_prev, refs)
+        parts = [z, refs.reshape(-1), v_prev]
+        if self._warm_start:
+            parts += [self._warm(), self._lam_x, self._lam_a]
+        out = self._step(np.concatenate(parts)).full().reshape(-1)
+        n = 6 * self.N
+        v, violation = out[:n], out[n]
+        ok = bool(np.all(np.isfinite(v)) and violation < 1e-6)
+        self.last_status = "ok" if ok else f"failed (constraint violation {violation:.3g})"
+        if ok and self._warm_start:
+            self._lam_x = out[n + 1 : 2 * n + 1]
+            self._lam_a = out[2 * n + 1 :]
+        return self._accept(ok, v, v_prev)
+
+    def _accept(self, ok: bool, v: np.ndarray, v_prev: np.ndarray) -> np.ndarray:
+        if ok:
+            self.plan = v.reshape(self.N, 6)
+            return self.plan[0].copy()
+        # no solution: brake within the acceleration limit (always feasible)
+        self.n_fail += 1
+        log.debug("MPC solve failed (%s); braking", self.last_status)
+        da = self.a_max * self.dt
+        v0 = v_prev - np.clip(v_prev, -da, da)
+        self.plan = np.repeat(v0[None, :], self.N, axis=0)
+        self._lam_x[:] = 0.0
+        self._lam_a[:] = 0.0
+        return v0
+
+    # -- the NLP ---------------------------------------------------------------------------------
+    def _build_nlp(self) -> None:
+        N, dt = self.N, self.dt
+        tm = self.tm
+        P, nc = len(tm.layout), len(tm.column_names)
+        V = ca.SX.sym("v", 6 * N)
+        z = ca.SX.sym("z", tm.n_inputs)
+        refs = ca.SX.sym("refs", 3 * N)
+        v_prev = ca.SX.sym("v_prev", 6)
+        q0, p, c, off = z[:6], z[6 : 6 + P], z[6 + P : 6 + P + nc], z[6 + P + nc :]
+        qs, ps, cs, os_ = (
+            ca.SX.sym("q", 6),
+            ca.SX.sym("p", P),
+            ca.SX.sym("c", nc),
+            ca.SX.sym("o", 6),
+        )
+        f = ca.Function("x", [qs, ps, cs, os_], [tm.expression(qs, ps, cs, os_)])
+        cost = 0
+        q = q0
+        for k in range(N):
+            vk = V[6 * k : 6 * k + 6]
+            q = q + dt * vk
+            e = (f(q, p, c, off) - refs[3 * k : 3 * k + 3]) * MM
+            cost += 0.5 * ca.dot(e, e)
+            prev = v_prev if k == 0 else V[6 * k - 6 : 6 * k]
+            cost += 0.5 * self.rho_dv * ca.sumsqr(vk - prev) + 0.5 * self.rho_v * ca.sumsqr(vk)
+        g = ca.mtimes(ca.DM(self.A), V)
+        nlp = {"x": V, "p": ca.vertcat(z, refs, v_prev), "f": cost, "g": g}
+        opts = {
+            "ipopt": {
+                "print_level": 0,
+                "sb": "yes",
+                "tol": 1e-8,
+                "max_iter": 100,
+                "warm_start_init_point": "yes",
+                "mu_init": 1e-3,
+            },
+            "print_time": False,
+            "error_on_fail": False,
+        }
+        self._nlp = ca.nlpsol("mpc_nlp", "ipopt", nlp, opts)
+
+    def _solve_nlp(self, z: np.ndarray, v_prev: np.ndarray, refs: np.ndarray) -> np.ndarray:
+        lbg, ubg = self.constraint_bounds(z[:6], v_prev)
+        sol = self._nlp(
+            x0=self._warm(),
+            p=np.concatenate([z, refs.reshape(-1), v_prev]),
+            lbx=self._lbx,
+            ubx=self._ubx,
+            lbg=lbg,
+            ubg=ubg,
+            lam_x0=self._lam_x,
+            lam_g0=self._lam_a,
+        )
+        stats = self._nlp.stats()
+        self.last_status = str(stats.get("return_status", ""))
+        ok = bool(stats.get("success", False)) or self.last_status == "Solved_To_Acceptable_Level"
+        v = sol["x"].full().reshape(-1)
+        ok = ok and bool(np.all(np.isfinite(v)))
+        if ok:
+            self._lam_x = sol["lam_x"].full().reshape(-1)
+            self._lam_a = sol["lam_g"].full().reshape(-1)
+        return self._accept(ok, v, v_prev)
+
+
+class MPCAgent(Agent):
+    """Kinematic MPC on a model that online least squares keeps calibrated.
+
+    Settings: ``solver`` (daqp, osqp, qpoases, proxqp, ipopt), ``horizon`` (steps), ``effects``
+    (what the model and the estimator can express), ``online`` (estimate from measurements),
+    ``oracle`` (use the plant's true model; needs ``truth``), ``forgetting`` and ``sigma`` (m, default
+    the task's instrument noise) of the estimator, ``free`` (names to estimate; default the
+    identifiable ones), and the cost weights ``rho_dv``, ``rho_v``.
+    """
+
+    name = "mpc"
+
+    def __init__(
+        self,
+        solver: str = "daqp",
+        horizon: int = 10,
+        effects: str | Sequence[str] = "geometric",
+        online: bool = True,
+        oracle: bool = False,
+        forgetting: float = 0.995,
+        sigma: float | None = None,
+        free: Sequence[str] | None = None,
+        rho_dv: float = 1e-2,
+        rho_v: float = 1e-3,
+        name: str | None = None,
+    ) -> None:
+        super().__init__()
+        self.solver = solver
+        self.horizon = int(horizon)
+        self.effects = effects
+        self.online = bool(online) and not oracle
+        self.oracle = bool(oracle)
+        self.needs_truth = self.oracle
+        self.forgetting = float(forgetting)
+        self.sigma = sigma
+        self.free = None if free is None else list(free)
+        self.rho_dv, self.rho_v = float(rho_dv), float(rho_v)
+        if name:
+            self.name = name
+        elif oracle:
+            self.name = "mpc-oracle"
+        elif solver == "ipopt":
+            self.name = "mpc-ipopt"
+        self.rls: RecursiveLeastSquares | None = None
+        self.model: ErrorModel | None = None
+        self.p: np.ndarray | None = None
+
+    # -- episode ---------------------------------------------------------------------------------
+    def reset(self, task: Any, seed: int | None = None, truth: Any = None) -> None:
+        self.task = task
+        if self.oracle:
+            if truth is None:
+                raise ValueError("mpc-oracle needs the plant's truth (env.unwrapped.truth)")
+            self.model = truth.model
+            self.p = np.array(truth.params, dtype=float)
+        else:
+            self.model = ErrorModel(task.robot, self.effects)
+            self.p = self.model.nominal()
+        tm = cached_tool_model(self.model)
+        self.mpc = KinematicMPC(
+            tm,
+            task.dt,
+            task.v_max,
+            task.a_max,
+            task.q_lower,
+            task.q_upper,
+            horizon=self.horizon,
+            solver=self.solver,
+            rho_dv=self.rho_dv,
+            rho_v=self.rho_v,
+        )
+        self.tm = tm
+        if self.online:
+            noise = getattr(task, "noise_mm", 0.015) or 0.0
+            sigma = self.sigma if self.sigma is not None else max(noise * 1e-3, 2e-6)
+            self.rls = RecursiveLeastSquares(
+                self.model,
+                free=self.free if self.free is not None else _cached_free(self.model),
+                sigma=sigma,
+                forgetting=self.forgetting,
+                tool_model=tm,
+            )
+            self.p = self.rls.params
+        self._times: list[float] = []
+        self._update_times: list[float] = []
+        self._start_phase()
+
+    def next_phase(self, task: Any, truth: Any = None) -> None:
+        self.task = task
+        self._start_phase()
+
+    def _start_phase(self) -> None:
+        self.v_prev = np.zeros(6)
+        self.dirs = np.zeros(6)
+        self.payload = float(self.model.robot.payload)
+        self._last_meas_time = None
+        self.mpc.reset()
+
+    # -- step -------------------------------------------------------------------------------------
+    def _update_model(self, info: Mapping[str, Any]) -> None:
+        cols = measurement_columns(info)
+        if "payload" in cols and np.isfinite(cols["payload"]):
+            self.payload = cols["payload"]
+        if not self.online or not info.get("measurement_valid", False):
+            return
+        t_meas = info.get("measurement_time")
+        if t_meas is not None and t_meas == self._last_meas_time:
+            return  # the same measurement again
+        self._last_meas_time = t_meas
+        y = np.asarray(info.get("measurement", np.full(3, np.nan)), dtype=float)
+        q_meas = info.get("measurement_q")
+        if q_meas is None:
+            return
+        self.rls.update(np.asarray(q_meas, dtype=float), y, cols)
+        self.p = self.rls.params
+
+    def _columns(self, o: Observation) -> np.ndarray:
+        cols = {"temperature": o.temperature, "payload": self.payload}
+        cols.update({f"dir{i + 1}": float(self.dirs[i]) for i in range(6)})
+        return self.tm.column_vector(cols)
+
+    def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
+        t0 = time.perf_counter()
+        o = Observation.parse(self.task, obs)
+        self._update_model(info)
+        t1 = time.perf_counter()
+        refs = o.references(self.horizon)
+        v = self.mpc.solve(o.q, self.v_prev, refs, self.p, self._columns(o))
+        moving = np.abs(v) > 1e-6
+        self.dirs[moving] = np.sign(v[moving])
+        self.v_prev = v
+        t2 = time.perf_counter()
+        self.last_solve_time = t2 - t0
+        self._times.append(t2 - t0)
+        self._update_times.append(t1 - t0)
+        return np.clip(v / np.asarray(self.task.v_max, dtype=float), -1.0, 1.0)
+
+    def report(self) -> dict[str, float | list]:
+        out: dict[str, float | list] = {"mpc_failures": self.mpc.n_fail}
+        out |= solve_time_stats(self._times)
+        out |= solve_time_stats(self._update_times, "model_update_time")
+        if self.rls is not None:
+            out |= self.rls.report()
+        if self.model is not None and self.p is not None:
+            out["parameter_names"] = list(self.model.layout.names)
+            out["parameters"] = [float(v) for v in self.p]
+        return out
+
+
+_FREE_CACHE: dict[tuple, list[str]] = {}
+
+
+def _cached_free(model: ErrorModel) -> list[str]:
+    from agents.online_calibration import identifiable_parameters
+
+    key = (model.robot.to_toml(), tuple(model.effect_names), model.targets)
+    if key not in _FREE_CACHE:
+        _FREE_CACHE[key] = identifiable_parameters(model)
+    return list(_FREE_CACHE[key])

@@ -1,0 +1,278 @@
+"""Reference controllers: the floor (``hold``), the textbook (``nominal``) and the calibration
+engineer's (``calibrated``).
+
+* ``hold`` commands zero velocity: the floor any agent must beat.
+* ``nominal``: resolved-rate tracking with the nominal kinematic model and no measurements,
+  ``v = J^+ ((r_1 - r_0) / dt + gain (r_0 - x(q)) / dt)``, J^+ a damped pseudo-inverse, scaled
+  into the velocity limits and the acceleration limits, stopped at joint limits.
+* ``calibrated``: the same tracking law on a model identified from a measurement phase. It
+  records every tracker measurement (with the encoder reading and columns of its instant) while
+  tracking with the nominal model; at ``calibration_seconds`` (or when the next phase starts) it
+  fits the model's identifiable parameters by least squares, as the lab does, and from then on
+  tracks with the identified model, blind.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from agents.base import Agent, Observation, measurement_columns, solve_time_stats
+from agents.tool_model import cached_tool_model
+from envs.errormodel import ErrorModel
+
+__all__ = ["CalibratedAgent", "HoldAgent", "NominalAgent", "fit_measurements"]
+
+log = logging.getLogger(__name__)
+
+
+class HoldAgent(Agent):
+    """Commands zero joint velocity."""
+
+    name = "hold"
+
+    def reset(self, task: Any, seed: int | None = None, truth: Any = None) -> None:
+        self.task = task
+
+    def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
+        return np.zeros(6)
+
+
+class NominalAgent(Agent):
+    """Resolved-rate tracking of the reference with a kinematic model (nominal by default).
+
+    ``gain`` (0..1] is the fraction of the current error removed per step, ``damping`` (m) the
+    damped pseudo-inverse's regularisation, ``effects`` the model (its parameters stay nominal
+    unless a subclass identifies them).
+    """
+
+    name = "nominal"
+
+    def __init__(
+        self, gain: float = 0.5, damping: float = 1e-3, effects: str | Sequence[str] = "geometric"
+    ) -> None:
+        super().__init__()
+        if not 0.0 < gain <= 1.0:
+            raise ValueError(f"gain must be in (0, 1], got {gain}")
+        self.gain = float(gain)
+        self.damping = float(damping)
+        self.effects = effects
+
+    def reset(self, task: Any, seed: int | None = None, truth: Any = None) -> None:
+        self.task = task
+        self.model = ErrorModel(task.robot, self.effects)
+        self.p = self.model.nominal()
+        self.tm = cached_tool_model(self.model)
+        self._times: list[float] = []
+        self._start_phase()
+
+    def next_phase(self, task: Any, truth: Any = None) -> None:
+        self.task = task
+        self._start_phase()
+
+    def _start_phase(self) -> None:
+        self.v_prev = np.zeros(6)
+        self.dirs = np.zeros(6)
+        self.payload = float(self.task.robot.payload)
+
+    def _columns(self, o: Observation, info: Mapping[str, Any]) -> dict[str, float]:
+        mc = measurement_columns(info)
+        if "payload" in mc and np.isfinite(mc["payload"]):
+            self.payload = mc["payload"]
+        cols = {"temperature": o.temperature, "payload": self.payload}
+        cols.update({f"dir{i + 1}": float(self.dirs[i]) for i in range(6)})
+        return cols
+
+    def command(self, o: Observation, cols: Mapping[str, float]) -> np.ndarray:
+        """The joint velocity (rad/s) of the resolved-rate law at observation ``o``."""
+        task = self.task
+        dt = float(task.dt)
+        x, J = self.tm.point_dq(o.q, self.p, cols)
+        r0 = o.ref
+        r1 = o.references(1)[0]
+        xd = (r1 - r0) / dt + self.gain * (r0 - x) / dt
+        lam2 = self.damping**2
+        v = J.T @ np.linalg.solve(J @ J.T + lam2 * np.eye(3), xd)
+        v_max = np.asarray(task.v_max, dtype=float)
+        scale = np.max(np.abs(v) / v_max)
+        if scale > 1.0:
+            v = v / scale
+        da = np.asarray(task.a_max, dtype=float) * dt
+        v = self.v_prev + np.clip(v - self.v_prev, -da, da)
+        # do not drive into a joint limit
+        q_next = o.q + dt * v
+        v = np.where(
+            (q_next < np.asarray(task.q_lower)) & (v < 0)
+            | (q_next > np.asarray(task.q_upper)) & (v > 0),
+            0.0,
+            v,
+        )
+        return v
+
+    def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
+        t0 = time.perf_counter()
+        o = Observation.parse(self.task, obs)
+        v = self.command(o, self._columns(o, info))
+        moving = np.abs(v) > 1e-6
+        self.dirs[moving] = np.sign(v[moving])
+        self.v_prev = v
+        self.last_solve_time = time.perf_counter() - t0
+        self._times.append(self.last_solve_time)
+        return np.clip(v / np.asarray(self.task.v_max, dtype=float), -1.0, 1.0)
+
+    def report(self) -> dict[str, float | list]:
+        return solve_time_stats(self._times)
+
+
+def fit_measurements(
+    model: ErrorModel,
+    q: np.ndarray,
+    xyz: np.ndarray,
+    columns: Mapping[str, np.ndarray] | None = None,
+    p0: np.ndarray | None = None,
+    loss: str = "soft_l1",
+    noise: float = 15e-6,
+) -> tuple[np.ndarray, list[str]]:
+    """Least-squares identification of ``model`` from measured points ``xyz`` (N, 3) at encoder
+    readings ``q`` (N, 6): the parameters these poses determine are fitted (QR with column
+    pivoting of the scaled Jacobian at these poses), the rest stay at ``p0``. Returns the full
+    parameter vector and the names fitted.
+
+    Uses the lab's ``lab.fit`` when it is installed; otherwise scipy's ``least_squares`` with the
+    error model's analytic Jacobian and a robust loss (``soft_l1`` with scale ``3 noise``)."""
+    from scipy.optimize import least_squares
+
+    from agents.online_calibration import identifiable_parameters
+
+    q = np.asarray(q, dtype=float).reshape(-1, 6)
+    xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    p0 = model.nominal() if p0 is None else np.asarray(p0, dtype=float)
+    columns = {k: np.asarray(v, dtype=float) for k, v in (columns or {}).items()}
+    inputs = model.inputs(q, columns)
+    free = identifiable_parameters(model, q, columns, p=p0, noise=noise)
+    if 3 * len(q) < len(free) or not free:
+        raise ValueError(
+            f"{len(q)} measurements cannot determine {len(free)} parameters of {model!r}"
+        )
+    idx = model.layout.indices(free)
+    from agents.online_calibration import prior_scales
+
+    s = prior_scales(model)[idx]
+
+    def residual(z):
+        p = p0.copy()
+        p[idx] += s * z
+        return (model.predict(inputs, p) - xyz).reshape(-1)
+
+    def jac(z):
+        p = p0.copy()
+        p[idx] += s * z
+        _, J = model.predict(inputs, p, jacobian=True)
+        return J[:, :, idx].reshape(-1, len(idx)) * s
+
+    sol = least_squares(
+        residual, np.zeros(len(idx)), jac=jac, loss=loss, f_scale=3 * noise, x_scale=1.0
+    )
+    p = p0.copy()
+    p[idx] += s * sol.x
+    return p, free
+
+
+class CalibratedAgent(NominalAgent):
+    """Calibrate from a measurement phase, then track blind with the identified model.
+
+    ``calibration_seconds``: when to fit within a single-phase episode (None: only when the next
+    phase starts); ``effects``: what the identified model expresses; ``min_measurements``: below
+    this many the model stays nominal.
+    """
+
+    name = "calibrated"
+
+    def __init__(
+        self,
+        calibration_seconds: float | None = 3.0,
+        effects: str | Sequence[str] = "geometric",
+        gain: float = 0.5,
+        damping: float = 1e-3,
+        min_measurements: int = 10,
+    ) -> None:
+        super().__init__(gain=gain, damping=damping, effects=effects)
+        self.calibration_seconds = calibration_seconds
+        self.min_measurements = int(min_measurements)
+
+    def reset(self, task: Any, seed: int | None = None, truth: Any = None) -> None:
+        super().reset(task, seed, truth)
+        self._q: list[np.ndarray] = []
+        self._xyz: list[np.ndarray] = []
+        self._cols: list[dict[str, float]] = []
+        self._seen: set = set()
+        self.fitted: list[str] = []
+        self.calibrated = False
+        self.fit_time_s = 0.0
+        self._t = 0.0
+
+    def next_phase(self, task: Any, truth: Any = None) -> None:
+        if not self.calibrated:
+            self.calibrate()
+            self.calibrated = True
+        super().next_phase(task, truth)
+
+    def _record(self, info: Mapping[str, Any]) -> None:
+        if not info.get("measurement_valid", False):
+            return
+        key = info.get("measurement_time")
+        if key is not None and key in self._seen:
+            return
+        self._seen.add(key)
+        y = np.asarray(info.get("measurement"), dtype=float)
+        qm = np.asarray(info.get("measurement_q"), dtype=float)
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(qm))):
+            return
+        self._q.append(qm)
+        self._xyz.append(y)
+        self._cols.append(measurement_columns(info))
+
+    def calibrate(self) -> None:
+        """Fit the model to every measurement recorded so far."""
+        n = len(self._q)
+        if n < self.min_measurements:
+            log.info("calibrated: only %d measurements, the model stays nominal", n)
+            return
+        need = self.model.required_columns() | {"payload"}
+        cols = {}
+        for c in need:
+            default = self.task.robot.payload if c == "payload" else 0.0
+            cols[c] = np.array([d.get(c, default) for d in self._cols], dtype=float)
+        t0 = time.perf_counter()
+        sigma = max(float(getattr(self.task, "noise_mm", 0.015) or 0.0) * 1e-3, 2e-6)
+        try:
+            self.p, self.fitted = fit_measurements(
+                self.model, np.array(self._q), np.array(self._xyz), cols, noise=sigma
+            )
+            self.calibrated = True
+        except ValueError as exc:
+            log.warning("calibrated: fit failed (%s); the model stays as it was", exc)
+        self.fit_time_s = time.perf_counter() - t0
+
+    def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
+        if not self.calibrated:
+            self._record(info)
+            t = info.get("time")
+            self._t = float(t) if t is not None else self._t + float(self.task.dt)
+            if self.calibration_seconds is not None and self._t >= self.calibration_seconds:
+                self.calibrate()
+                self.calibrated = True  # one shot, even if too few measurements came
+        return super().act(obs, info)
+
+    def report(self) -> dict[str, float | list]:
+        out = super().report()
+        out["calibration_measurements"] = len(self._q)
+        out["calibration_fit_time_s"] = self.fit_time_s
+        out["parameter_names"] = list(self.model.layout.names)
+        out["parameters"] = [float(v) for v in self.p]
+        out["fitted"] = list(self.fitted)
+        return out

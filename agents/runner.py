@@ -1,0 +1,244 @@
+"""The episode loop: one agent, one seeded arm, one or more phases, arrays out.
+
+    result = run_episode(make_agent("mpc"), {"scenario": "geometric"}, seed=3)
+    result.rms_mm(start=3.0)                      # tracking RMS after the first 3 s, mm
+
+A *phase* is a stretch of the same arm under different env settings: the must-show "calibrate,
+then run blind on a new trajectory" is two phases,
+
+    run_episode(agent, {"scenario": "compliance"}, seed=0,
+                phases=calibrate_then_blind(10.0, 10.0, judge_trajectory="lemniscate"))
+
+Each phase makes the env with ``env_kwargs | phase.overrides`` and resets it with the same seed, so
+the truth (the sampled arm) is the same (checked: a phase whose truth differs is refused); the agent
+is told with ``next_phase`` and keeps what it learned. Only ``judged`` phases count in the metrics.
+
+Deterministic: the same agent settings, env settings and seed give the same arrays (timings
+aside). Inputs and outputs are plain data, so runs can be farmed out to other processes.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from agents.base import Agent
+
+__all__ = ["ENV_ID", "EpisodeResult", "Phase", "calibrate_then_blind", "run_episode"]
+
+log = logging.getLogger(__name__)
+
+ENV_ID = "SixAxisTrack-v0"
+
+
+@dataclass(frozen=True)
+class Phase:
+    """``seconds`` of the episode with ``overrides`` of the env settings (e.g. a new
+    ``trajectory``, ``measurements=False``); ``judged`` phases count in the metrics."""
+
+    name: str = "track"
+    seconds: float | None = None
+    overrides: Mapping[str, Any] = field(default_factory=dict)
+    judged: bool = True
+
+
+def calibrate_then_blind(
+    calibration_seconds: float = 10.0,
+    judge_seconds: float = 10.0,
+    judge_trajectory: str | None = "lemniscate",
+    calibration_trajectory: str | None = None,
+) -> list[Phase]:
+    """A calibration phase with measurements (not judged), then blind tracking (measurements
+    off) on another trajectory (judged)."""
+    cal = {} if calibration_trajectory is None else {"trajectory": calibration_trajectory}
+    blind: dict[str, Any] = {"measurements": False}
+    if judge_trajectory is not None:
+        blind["trajectory"] = judge_trajectory
+    return [
+        Phase("calibration", calibration_seconds, cal, judged=False),
+        Phase("blind", judge_seconds, blind, judged=True),
+    ]
+
+
+@dataclass
+class EpisodeResult:
+    """Per-step arrays of one episode (all phases concatenated) and what the agent reported.
+
+    ``time`` (s, continuing across phases, at the end of each step), ``phase`` (index into
+    ``phases``), ``judged`` (bool), ``true_error_mm`` (against the plant's true tool point),
+    ``actions`` (T, 6) in [-1, 1], ``measurement`` (T, 3) the tracker point delivered at that step
+    (NaN if none), ``solve_time_s`` (the agent's computation per step), ``diverged``.
+    """
+
+    agent: str
+    seed: int
+    env_id: str
+    env_kwargs: dict
+    phases: list[dict]
+    time: np.ndarray
+    phase: np.ndarray
+    judged: np.ndarray
+    true_error_mm: np.ndarray
+    actions: np.ndarray
+    measurement: np.ndarray
+    solve_time_s: np.ndarray
+    diverged: bool
+    report: dict
+    truth_parameters: dict[str, float] = field(default_factory=dict)
+    wall_time_s: float = 0.0
+
+    def _mask(self, start: float = 0.0, judged_only: bool = True) -> np.ndarray:
+        m = np.ones(len(self.time), dtype=bool)
+        if judged_only:
+            m &= self.judged
+        if start:
+            # ``start`` counts from the beginning of the first judged phase
+            t0 = self.time[self.judged][0] - self._dt() if judged_only and self.judged.any() else 0
+            m &= self.time - t0 > start + 1e-9
+        return m
+
+    def _dt(self) -> float:
+        return float(self.time[1] - self.time[0]) if len(self.time) > 1 else 0.0
+
+    def rms_mm(self, start: float = 0.0, judged_only: bool = True) -> float:
+        """Tracking RMS (mm) over the judged steps after ``start`` seconds into them."""
+        e = self.true_error_mm[self._mask(start, judged_only)]
+        return float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
+
+    def max_mm(self, start: float = 0.0, judged_only: bool = True) -> float:
+        e = self.true_error_mm[self._mask(start, judged_only)]
+        return float(e.max()) if e.size else float("nan")
+
+    def to_dict(self) -> dict:
+        """Plain lists and numbers (for JSON records)."""
+        out = asdict(self)
+        for k, v in out.items():
+            if isinstance(v, np.ndarray):
+                out[k] = v.tolist()
+        return out
+
+
+def _make_env(env_id: str, kwargs: Mapping[str, Any], steps: int | None):
+    import gymnasium as gym
+
+    import envs  # noqa: F401  (registers SixAxisTrack-v0)
+
+    kw = dict(kwargs)
+    if steps is not None:
+        kw["max_episode_steps"] = steps
+    return gym.make(env_id, **kw)
+
+
+def _truth_parameters(truth: Any) -> dict[str, float]:
+    try:
+        return truth.model.layout.as_dict(truth.params)
+    except Exception:
+        return {}
+
+
+def run_episode(
+    agent: Agent,
+    env_kwargs: Mapping[str, Any] | None = None,
+    seed: int = 0,
+    episode_seconds: float | None = None,
+    phases: Sequence[Phase] | None = None,
+    env_id: str = ENV_ID,
+) -> EpisodeResult:
+    """Run ``agent`` on one seeded episode; see the module docstring."""
+    env_kwargs = dict(env_kwargs or {})
+    if phases is None:
+        phases = [Phase("track", episode_seconds, {}, judged=True)]
+    if not phases:
+        raise ValueError("run_episode needs at least one phase")
+    cols: dict[str, list] = {
+        k: [] for k in ("time", "phase", "judged", "err", "act", "meas", "solve")
+    }
+    diverged = False
+    truth0 = None
+    t_offset = 0.0
+    wall0 = time.perf_counter()
+    for k, ph in enumerate(phases):
+        kw = env_kwargs | dict(ph.overrides)
+        env = None
+        try:
+            # the phase's length is counted here, so lift the registered time limit
+            env = _make_env(env_id, kw, None if ph.seconds is None else 10**9)
+            obs, info = env.reset(seed=int(seed))
+            task = env.unwrapped.task
+            dt = float(task.dt)
+            steps = None if ph.seconds is None else max(1, round(ph.seconds / dt))
+            truth = env.unwrapped.truth
+            if k == 0:
+                truth0 = truth
+                agent.reset(task, seed=int(seed), truth=truth if agent.needs_truth else None)
+            else:
+                if not _same_truth(truth0, truth):
+                    raise ValueError(
+                        f"phase {ph.name!r}: overrides {dict(ph.overrides)} change the sampled "
+                        "arm; a phase must keep the truth of the episode"
+                    )
+                agent.next_phase(task, truth=truth if agent.needs_truth else None)
+            n = 0
+            while True:
+                action = agent.act(obs, info)
+                solve = float(getattr(agent, "last_solve_time", 0.0))
+                obs, _, terminated, truncated, info = env.step(action)
+                n += 1
+                cols["time"].append(t_offset + float(info.get("time", n * dt)))
+                cols["phase"].append(k)
+                cols["judged"].append(ph.judged)
+                cols["err"].append(float(info.get("true_error_mm", np.nan)))
+                cols["act"].append(np.asarray(action, dtype=float))
+                m = info.get("measurement")
+                valid = bool(info.get("measurement_valid", False)) and m is not None
+                cols["meas"].append(np.asarray(m, dtype=float) if valid else np.full(3, np.nan))
+                cols["solve"].append(solve)
+                if info.get("diverged", False):
+                    diverged = True
+                if terminated or truncated or diverged or (steps is not None and n >= steps):
+                    break
+            t_offset = cols["time"][-1] if cols["time"] else t_offset
+        finally:
+            if env is not None:
+                env.close()
+        if diverged:
+            log.warning("episode diverged in phase %r (seed %s)", ph.name, seed)
+            break
+    return EpisodeResult(
+        agent=agent.name,
+        seed=int(seed),
+        env_id=env_id,
+        env_kwargs=env_kwargs,
+        phases=[
+            {
+                "name": p.name,
+                "seconds": p.seconds,
+                "overrides": dict(p.overrides),
+                "judged": p.judged,
+            }
+            for p in phases
+        ],
+        time=np.asarray(cols["time"], dtype=float),
+        phase=np.asarray(cols["phase"], dtype=int),
+        judged=np.asarray(cols["judged"], dtype=bool),
+        true_error_mm=np.asarray(cols["err"], dtype=float),
+        actions=np.asarray(cols["act"], dtype=float).reshape(-1, 6),
+        measurement=np.asarray(cols["meas"], dtype=float).reshape(-1, 3),
+        solve_time_s=np.asarray(cols["solve"], dtype=float),
+        diverged=diverged,
+        report=agent.report(),
+        truth_parameters=_truth_parameters(truth0),
+        wall_time_s=time.perf_counter() - wall0,
+    )
+
+
+def _same_truth(a: Any, b: Any) -> bool:
+    try:
+        return np.array_equal(np.asarray(a.params), np.asarray(b.params))
+    except Exception:
+        return True

@@ -1,0 +1,373 @@
+"""The error model's measured tool point as a CasADi expression, for controllers and estimators.
+
+:class:`envs.errormodel.ErrorModel` is the project's model (numpy, batched over poses). A controller
+needs the same prediction for one pose at every control step, its derivative by the joint angles
+(to linearise the kinematics for the MPC's QP), its derivative by the parameters (for recursive
+least squares) and, for the nonlinear MPC, the expression itself inside an optimisation problem.
+:class:`ToolModel` builds that expression once from the model's description and effects:
+
+    tm = ToolModel(ErrorModel(seed_robot(), "geometric,compliance"))
+    x, Jq, Jp = tm.evaluate(q, p, {"payload": 0.0})   # (3,), (3, 6), (3, P): one compiled call
+    expr = tm.expression(q_sym, p_sym, c_sym)          # for an NLP
+
+It is a second, independent implementation of the error model (CasADi's algorithmic derivatives
+instead of the analytic Jacobian); the tests check it against :meth:`ErrorModel.predict`.
+
+Every catalogued effect is translated. A model with a user's joint-angle effect still works: that
+effect's joint offsets are computed by its numpy ``basis`` at each call and enter as an input
+(their derivative by q is neglected, like the other effects' second-order terms); a user's chain
+effect is refused with a clear error.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from envs.effects import (
+    REFERENCE_TEMPERATURE,
+    Backlash,
+    ChainEffect,
+    Compliance,
+    Geometric,
+    JointAngleEffect,
+    JointScale,
+    LoadBacklash,
+    Thermal,
+    Transmission,
+)
+from envs.errormodel import ErrorModel
+from envs.kinematics import Chain
+
+__all__ = ["ToolEval", "ToolModel", "UnsupportedEffectError", "cached_tool_model"]
+
+log = logging.getLogger(__name__)
+
+
+class UnsupportedEffectError(ValueError):
+    """An effect that the CasADi tool model cannot express."""
+
+
+@dataclass(frozen=True)
+class ToolEval:
+    """One pose's prediction: the point (3,) and its derivatives by q (3, 6) and by p (3, P)."""
+
+    x: np.ndarray
+    Jq: np.ndarray
+    Jp: np.ndarray
+
+
+def _rot_x(a):
+    c, s = ca.cos(a), ca.sin(a)
+    return ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, c, -s), ca.horzcat(0, s, c))
+
+
+def _rot_y(b):
+    c, s = ca.cos(b), ca.sin(b)
+    return ca.vertcat(ca.horzcat(c, 0, s), ca.horzcat(0, 1, 0), ca.horzcat(-s, 0, c))
+
+
+def _rot_z(t):
+    c, s = ca.cos(t), ca.sin(t)
+    return ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
+
+
+def _skew(v):
+    return ca.vertcat(
+        ca.horzcat(0, -v[2], v[1]), ca.horzcat(v[2], 0, -v[0]), ca.horzcat(-v[1], v[0], 0)
+    )
+
+
+def rodrigues(r):
+    """Rotation matrix of a rotation vector, smooth (with derivatives) at r = 0."""
+    th2 = ca.dot(r, r)
+    small = th2 < 1e-8
+    safe = ca.if_else(small, 1.0, th2)  # keeps the unused branch finite at 0
+    th = ca.sqrt(safe)
+    a = ca.if_else(small, 1 - th2 / 6 + th2**2 / 120, ca.sin(th) / th)
+    b = ca.if_else(small, 0.5 - th2 / 24 + th2**2 / 720, (1 - ca.cos(th)) / safe)
+    K = _skew(r)
+    return ca.SX.eye(3) + a * K + b * (K @ K)
+
+
+def _frames(alpha, beta, a, d, theta):
+    """Rotations and origins of frames 1..6 of a modified-DH chain (lists of SX)."""
+    R = ca.SX.eye(3)
+    o = ca.SX.zeros(3)
+    Rs, os_ = [], []
+    for i in range(6):
+        Q = R @ _rot_x(alpha[i]) @ _rot_y(beta[i])
+        o = o + a[i] * Q[:, 0] + d[i] * Q[:, 2]
+        R = Q @ _rot_z(theta[i])
+        Rs.append(R)
+        os_.append(o)
+    return Rs, os_
+
+
+class ToolModel:
+    """See the module docstring. ``target`` is the index of the measured tool point."""
+
+    def __init__(self, model: ErrorModel, target: int = 0) -> None:
+        self.model = model
+        self.layout = model.layout
+        self.target = int(target)
+        robot = model.robot
+        self._chain0 = Chain.from_description(robot)
+        self._tool0 = np.array(robot.tool_points[min(self.target, len(robot.tools) - 1)])
+        self._custom: list[JointAngleEffect] = []
+        for e in model.effects:
+            if isinstance(e, ChainEffect) and type(e) not in (Geometric, Thermal):
+                raise UnsupportedEffectError(
+                    f"chain effect {e.name!r} has no CasADi form; the MPC supports "
+                    "geometric and thermal chain effects and any joint-angle effect"
+                )
+            if isinstance(e, JointAngleEffect) and type(e) not in _BASIS:
+                self._custom.append(e)
+        cols = {"payload"}
+        for e in model.effects:
+            cols |= set(e.columns)
+        self.column_names: tuple[str, ...] = tuple(sorted(cols))
+        self._defaults = {
+            "payload": float(robot.payload),
+            "temperature": REFERENCE_TEMPERATURE,
+        }
+        P = len(self.layout)
+        q = ca.SX.sym("q", 6)
+        p = ca.SX.sym("p", P)
+        c = ca.SX.sym("c", len(self.column_names))
+        extra = ca.SX.sym("offset", 6)  # joint offsets of user effects, computed in numpy
+        x = self.expression(q, p, c, extra)
+        # one packed input and one packed output per function: every numpy <-> CasADi conversion
+        # costs tens of microseconds, whatever its size
+        z = ca.vertcat(q, p, c, extra)
+        self.n_inputs = z.shape[0]
+        self._f_q = ca.Function("tool_point_dq", [z], [ca.vertcat(x, ca.vec(ca.jacobian(x, q)))])
+        self._f_p = ca.Function("tool_point_dp", [z], [ca.vertcat(x, ca.vec(ca.jacobian(x, p)))])
+        self._f_point = ca.Function("tool_point", [z], [x])
+
+    def __repr__(self) -> str:
+        return f"ToolModel({self.model!r})"
+
+    # -- inputs ---------------------------------------------------------------------------------
+    def column_vector(self, columns: Mapping[str, float] | None = None) -> np.ndarray:
+        """The model's per-pose columns in this model's order; missing ones take defaults
+        (temperature 20 degC, the description's payload, direction 0 = unknown)."""
+        columns = columns or {}
+        out = np.empty(len(self.column_names))
+        for k, name in enumerate(self.column_names):
+            v = columns.get(name)
+            if v is None or not np.isfinite(v):
+                v = self._defaults.get(name, 0.0)
+            out[k] = float(v)
+        return out
+
+    def _offsets(self, q: np.ndarray, p: np.ndarray, cvec: np.ndarray) -> np.ndarray:
+        if not self._custom:
+            return np.zeros(6)
+        inputs = self.model.inputs(q[None, :], dict(zip(self.column_names, cvec[:, None])))
+        out = np.zeros(6)
+        for e in self._custom:
+            out += e.joint_offsets(inputs, p[self.layout.slice(e.name)])[0]
+        return out
+
+    # -- evaluation -----------------------------------------------------------------------------
+    def pack(self, q, p, columns) -> np.ndarray:
+        """The packed input [q, p, columns, user-effect offsets] of the compiled functions."""
+        q = np.asarray(q, dtype=float).reshape(6)
+        p = np.asarray(p, dtype=float).reshape(-1)
+        if p.shape != (len(self.layout),):
+            raise ValueError(f"expected {len(self.layout)} parameters, got shape {p.shape}")
+        cvec = columns if isinstance(columns, np.ndarray) else self.column_vector(columns)
+        return np.concatenate([q, p, cvec, self._offsets(q, p, cvec)])
+
+    def evaluate(
+        self, q: np.ndarray, p: np.ndarray, columns: Mapping[str, float] | np.ndarray | None = None
+    ) -> ToolEval:
+        """Point, d point / d q and d point / d p at one pose (``columns`` a mapping or a vector
+        from :meth:`column_vector`)."""
+        z = self.pack(q, p, columns)
+        x, Jq = self._split(self._f_q(z), 6)
+        _, Jp = self._split(self._f_p(z), len(self.layout))
+        return ToolEval(x, Jq, Jp)
+
+    @staticmethod
+    def _split(out, n: int) -> tuple[np.ndarray, np.ndarray]:
+        v = out.full().reshape(-1)
+        return v[:3].copy(), v[3:].reshape(n, 3).T.copy()
+
+    def point_dq(
+        self, q: np.ndarray, p: np.ndarray, columns: Mapping[str, float] | np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The point (3,) and its derivative by the joint angles (3, 6): the MPC's linearisation."""
+        return self._split(self._f_q(self.pack(q, p, columns)), 6)
+
+    def point_dp(
+        self, q: np.ndarray, p: np.ndarray, columns: Mapping[str, float] | np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The point (3,) and its derivative by the parameters (3, P): the estimator's regressor."""
+        return self._split(self._f_p(self.pack(q, p, columns)), len(self.layout))
+
+    def point(
+        self, q: np.ndarray, p: np.ndarray, columns: Mapping[str, float] | np.ndarray | None = None
+    ) -> np.ndarray:
+        return self._f_point(self.pack(q, p, columns)).full().reshape(3)
+
+    # -- the expression -------------------------------------------------------------------------
+    def expression(self, q, p, c, offset=None):
+        """The measured tool point (3x1) as an expression of q (6), p (P), columns c and an
+        optional joint offset (6) of user effects. Works for SX and MX symbols."""
+        if isinstance(q, ca.MX) or isinstance(p, ca.MX):
+            # build in SX once, then call it on MX arguments
+            qs, ps = ca.SX.sym("q", 6), ca.SX.sym("p", len(self.layout))
+            cs, os_ = ca.SX.sym("c", len(self.column_names)), ca.SX.sym("o", 6)
+            f = ca.Function("tool_point_sx", [qs, ps, cs, os_], [self.expression(qs, ps, cs, os_)])
+            return f(q, p, c, ca.DM.zeros(6) if offset is None else offset)
+        col = {name: c[k] for k, name in enumerate(self.column_names)}
+        ch = self._chain0
+        # gravity torques of the nominal arm at the encoder reading (as ModelInputs.tau)
+        tau = self._gravity_torques(q, col["payload"])
+        theta = [q[i] + 0 for i in range(6)]
+        for e in self.model.effects:
+            if isinstance(e, JointAngleEffect) and type(e) in _BASIS:
+                v = p[self.layout.slice(e.name)]
+                k = 0
+                for term in e.terms:
+                    for j in e.active_joints():
+                        theta[j - 1] = theta[j - 1] + v[k] * _BASIS[type(e)](q, tau, col, j, term)
+                        k += 1
+        if offset is not None:
+            theta = [theta[i] + offset[i] for i in range(6)]
+        alpha = [float(ch.alpha[i]) for i in range(6)]
+        a = [float(ch.a[i]) for i in range(6)]
+        beta = [float(ch.beta[i]) for i in range(6)]
+        d = [float(ch.d[i]) for i in range(6)]
+        toff = [float(ch.theta_offset[i]) for i in range(6)]
+        robot = self.model.robot
+        base_R = ca.SX(robot.base_matrix[:3, :3])
+        base_t = ca.SX(np.asarray(robot.base_translation, dtype=float))
+        tool = ca.SX(self._tool0)
+        for e in sorted(
+            (e for e in self.model.effects if isinstance(e, ChainEffect)), key=lambda e: e.order
+        ):
+            v = p[self.layout.slice(e.name)]
+            if isinstance(e, Geometric):
+                names = self.layout.names[self.layout.slice(e.name)]
+                s = Geometric._compute_slots(names)
+                for i in range(6):
+                    if s["alpha"][i] >= 0:
+                        alpha[i] = alpha[i] + v[int(s["alpha"][i])]
+                    if s["a"][i] >= 0:
+                        a[i] = a[i] + v[int(s["a"][i])]
+                    if s["theta"][i] >= 0:
+                        toff[i] = toff[i] + v[int(s["theta"][i])]
+                    if s["d"][i] >= 0:
+                        d[i] = d[i] + v[int(s["d"][i])]
+                    if s["beta"][i] >= 0:
+                        beta[i] = beta[i] + v[int(s["beta"][i])]
+                b = [v[int(k)] for k in s["base"]]
+                base_t = ca.vertcat(*b[:3])
+                base_R = rodrigues(ca.vertcat(*b[3:]))
+                tcols = s["tool"][min(self.target, len(s["tool"]) - 1)]
+                tool = tool + ca.vertcat(*[v[int(k)] for k in tcols])
+            else:  # Thermal
+                scale = 1 + v[0] * (col["temperature"] - REFERENCE_TEMPERATURE)
+                a = [ai * scale for ai in a]
+                d = [di * scale for di in d]
+        Rs, os_ = _frames(alpha, beta, a, d, [theta[i] + toff[i] for i in range(6)])
+        pb = os_[5] + Rs[5] @ tool
+        return base_R @ pb + base_t
+
+    def _gravity_torques(self, q, payload):
+        """SPEC section 2: tau_i = z_i . sum_{k>=i} (c_k - o_i) x (m_k g), nominal arm."""
+        robot = self.model.robot
+        ch = self._chain0
+        Rs, os_ = _frames(
+            [float(x) for x in ch.alpha],
+            [float(x) for x in ch.beta],
+            [float(x) for x in ch.a],
+            [float(x) for x in ch.d],
+            [q[i] + float(ch.theta_offset[i]) for i in range(6)],
+        )
+        g = ca.SX(np.asarray(robot.gravity, dtype=float))
+        masses = robot.masses
+        coms = robot.coms
+        tool_pt = os_[5] + Rs[5] @ ca.SX(robot.tool_points[0])
+        M = 0
+        MC = ca.SX.zeros(3)
+        tau = [None] * 6
+        for i in range(5, -1, -1):
+            M = M + float(masses[i])
+            MC = MC + float(masses[i]) * (os_[i] + Rs[i] @ ca.SX(coms[i]))
+            if i == 5:
+                M = M + payload
+                MC = MC + payload * tool_pt
+            lever = MC - M * os_[i]
+            tau[i] = ca.dot(Rs[i][:, 2], ca.cross(lever, g))
+        return tau
+
+
+# d theta_j / d parameter of each catalogued joint-angle effect, as CasADi expressions
+def _basis_compliance(q, tau, col, j, term):
+    return tau[j - 1]
+
+
+def _basis_transmission(q, tau, col, j, term):
+    return ca.sin(q[j - 1]) if term == "ts" else ca.cos(q[j - 1])
+
+
+def _basis_scale(q, tau, col, j, term):
+    return q[j - 1]
+
+
+def _basis_backlash(q, tau, col, j, term):
+    return -0.5 * col[f"dir{j}"]
+
+
+def _basis_load_backlash(q, tau, col, j, term):
+    # a dead band where the torque vanishes identically (tau_1, tau_6 of the seed arm), so that
+    # round-off does not flip the side of the gap from one step to the next
+    t, eps = tau[j - 1], LoadBacklash.zero_torque
+    return ca.if_else(t > eps, 0.5, ca.if_else(t < -eps, -0.5, 0.0))
+
+
+_BASIS = {
+    Compliance: _basis_compliance,
+    Transmission: _basis_transmission,
+    JointScale: _basis_scale,
+    Backlash: _basis_backlash,
+    LoadBacklash: _basis_load_backlash,
+}
+
+
+_CACHE: dict[tuple, ToolModel] = {}
+
+
+def cached_tool_model(model: ErrorModel, target: int = 0) -> ToolModel:
+    """A :class:`ToolModel` of ``model``, built once per process for each (description, effects,
+    target): building the CasADi expressions takes a fraction of a second, evaluating them
+    microseconds."""
+    key = (model.robot.to_toml(), tuple(model.effect_names), model.targets, int(target))
+    tm = _CACHE.get(key)
+    if tm is None:
+        if len(_CACHE) > 32:
+            _CACHE.clear()
+        tm = _CACHE[key] = ToolModel(model, target)
+    elif tm.model is not model:
+        tm = _rebind(tm, model)
+    return tm
+
+
+def _rebind(tm: ToolModel, model: ErrorModel) -> ToolModel:
+    """The cached expressions for an equal model object (same layout and effects)."""
+    clone = object.__new__(ToolModel)
+    clone.__dict__.update(tm.__dict__)
+    clone.model = model
+    clone.layout = model.layout
+    clone._custom = [
+        e for e in model.effects if isinstance(e, JointAngleEffect) and type(e) not in _BASIS
+    ]
+    return clone
