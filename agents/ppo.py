@@ -76,7 +76,7 @@ class PolicyFeatures:
         self.tm = cached_tool_model(self.model)
         self.dt = float(task.dt)
         self.P = int(task.preview_steps)
-        self._q = deque(maxlen=max(2, int(round(self.history_s / self.dt)) + 1))
+        self._q = deque(maxlen=max(2, round(self.history_s / self.dt) + 1))
         self._model_error = np.zeros(3)
 
     @property
@@ -91,7 +91,7 @@ class PolicyFeatures:
         pv = (o.references(self.P) - o.ref[None, :]).reshape(-1) * MM
         age = o.meas_age if np.isfinite(o.meas_age) else 1e3
         if o.meas_valid and age <= self.history_s:
-            k = min(int(round(age / self.dt)), len(self._q) - 1)
+            k = min(round(age / self.dt), len(self._q) - 1)
             q_then = self._q[-1 - k]
             self._model_error = (o.meas - self.tm.point(q_then, self.p)) * MM
         valid = float(o.meas_valid and age <= self.history_s)
@@ -285,13 +285,16 @@ def train(cfg: PPOConfig, progress: bool = False) -> Path:
     out = Path(cfg.output)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(_config_dict(cfg), indent=2))
-    fns = [lambda fn=_make_env_fn(cfg, k): Monitor(fn()) for k in range(cfg.n_envs)]
+
+    def monitored(k):
+        fn = _make_env_fn(cfg, k)
+        return lambda: Monitor(fn())
+
+    fns = [monitored(k) for k in range(cfg.n_envs)]
     venv_cls = SubprocVecEnv if cfg.subprocess else DummyVecEnv
     venv = VecNormalize(venv_cls(fns), gamma=cfg.gamma, norm_obs=True, norm_reward=True)
     venv.seed(cfg.seed)
-    eval_fns = [
-        lambda fn=_make_env_fn(cfg, k): Monitor(fn()) for k in range(max(1, len(cfg.scenarios)))
-    ]
+    eval_fns = [monitored(k) for k in range(max(1, len(cfg.scenarios)))]
     eval_env = VecNormalize(DummyVecEnv(eval_fns), training=False, norm_reward=False)
     eval_env.seed(cfg.eval_seed)
     model = PPO(

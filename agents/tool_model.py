@@ -168,7 +168,9 @@ class ToolModel:
     def _offsets(self, q: np.ndarray, p: np.ndarray, cvec: np.ndarray) -> np.ndarray:
         if not self._custom:
             return np.zeros(6)
-        inputs = self.model.inputs(q[None, :], dict(zip(self.column_names, cvec[:, None])))
+        inputs = self.model.inputs(
+            q[None, :], dict(zip(self.column_names, cvec[:, None], strict=True))
+        )
         out = np.zeros(6)
         for e in self._custom:
             out += e.joint_offsets(inputs, p[self.layout.slice(e.name)])[0]
