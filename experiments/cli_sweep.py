@@ -1,9 +1,284 @@
-"""Commands of the ``sixaxis`` CLI for sweep. Work in progress: commands are added as they land."""
+"""``sixaxis sweep CONFIG``, ``sixaxis leaderboard [RUNS_DIR]``, ``sixaxis reproduce RECORD``: thin
+layers over :mod:`experiments.sweep`, :mod:`experiments.leaderboard` and :mod:`experiments.records`."""
 
 from __future__ import annotations
 
+import math
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Annotated
+
 import typer
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.table import Table
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def _command() -> str:
+    args = [Path(sys.argv[0]).name if sys.argv else "sixaxis", *sys.argv[1:]]
+    if args[0] in ("__main__.py", "cli.py"):
+        args[0] = "sixaxis"
+    return shlex.join(args)
+
+
+def sweep(
+    config: Annotated[
+        Path,
+        typer.Argument(help="An experiment config (TOML), e.g. experiments/configs/quick.toml."),
+    ],
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Records directory (default: runs/<config name>)."),
+    ] = None,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            "--workers", "-w", help="Parallel runs (default: the CPU count); 0 runs in this process."
+        ),
+    ] = None,
+    backend: Annotated[str, typer.Option(help="local (processes) or dask.")] = "local",
+    address: Annotated[
+        str | None, typer.Option(help="Dask scheduler address; none: start a LocalCluster.")
+    ] = None,
+    retry_failed: Annotated[
+        bool, typer.Option("--retry-failed/--keep-failed", help="Rerun runs recorded as failed.")
+    ] = True,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace records made by another spec of the same run.")
+    ] = False,
+    dry_run: Annotated[
+        bool, typer.Option(help="Validate and list what would run, run nothing.")
+    ] = False,
+) -> None:
+    """Run every agent x scenario x seed of CONFIG; finished runs are skipped, so rerunning resumes."""
+    from experiments.config import ConfigError, load_config
+    from experiments.records import RecordError, RunStore
+    from experiments.sweep import SweepError, plan_sweep, run_sweep
+
+    try:
+        cfg = load_config(config)
+    except ConfigError as exc:
+        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        raise typer.Exit(2) from None
+    out_dir = out if out is not None else Path("runs") / cfg.name
+    if dry_run:
+        try:
+            pending, finished = plan_sweep(cfg, RunStore(out_dir), retry_failed, overwrite)
+        except (SweepError, RecordError) as exc:
+            err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+            raise typer.Exit(2) from None
+        console.print(
+            f"{cfg.name}: {len(cfg.agents)} agents x {len(cfg.scenarios)} scenarios x "
+            f"{len(cfg.seeds)} seeds = {len(pending) + len(finished)} runs; "
+            f"{len(finished)} finished in {out_dir}, {len(pending)} to run."
+        )
+        for spec in pending:
+            console.print(f"  {spec.run_key}", highlight=False)
+        return
+
+    columns = (
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("running {task.fields[running]}  failed [red]{task.fields[failed]}[/red]"),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=console, transient=False) as bar:
+        task = bar.add_task(f"sweep {cfg.name}", total=None, running=0, failed=0)
+
+        def on_progress(state) -> None:
+            bar.update(
+                task,
+                total=state.total,
+                completed=state.skipped + state.done,
+                running=state.running,
+                failed=state.failed,
+            )
+
+        try:
+            summary = run_sweep(
+                cfg,
+                out_dir,
+                workers=workers,
+                backend=backend,
+                address=address,
+                retry_failed=retry_failed,
+                overwrite=overwrite,
+                command=_command(),
+                progress=on_progress,
+            )
+        except (SweepError, RecordError, ValueError) as exc:
+            err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+            raise typer.Exit(2) from None
+    console.print(
+        f"{summary.done} runs in {summary.wall_time_s:.1f} s ({summary.skipped} already finished, "
+        f"{len(summary.failed)} failed); records in {summary.out_dir}"
+    )
+    if summary.failed:
+        for key in summary.failed[:10]:
+            console.print(
+                f"  [red]failed[/red] {summary.out_dir / (key + '.json')}", highlight=False
+            )
+        if len(summary.failed) > 10:
+            console.print(f"  ... and {len(summary.failed) - 10} more")
+    console.print(f"next: sixaxis leaderboard {summary.out_dir}", highlight=False)
+    if summary.failed:
+        raise typer.Exit(1)
+
+
+def leaderboard(
+    runs_dir: Annotated[Path, typer.Argument(help="A sweep's records directory.")] = Path(
+        "runs/full"
+    ),
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Where leaderboard.md/.csv and the PNGs go.")
+    ] = Path("results"),
+    rank_by: Annotated[
+        str | None, typer.Option(help="The headline metric (default: the config's rank_by).")
+    ] = None,
+    plots: Annotated[bool, typer.Option(help="Draw the PNG plots.")] = True,
+) -> None:
+    """Build results/leaderboard.md and .csv (mean and 95 % CI over seeds) and the plots."""
+    from experiments.leaderboard import _cell, build_leaderboard, write_leaderboard
+    from experiments.records import RecordError
+
+    try:
+        board = build_leaderboard(runs_dir, rank_by=rank_by)
+    except RecordError as exc:
+        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        raise typer.Exit(2) from None
+    paths = write_leaderboard(board, out, command=_command(), plots=plots)
+    m = board.rank_by
+    table = Table(title=f"{m}: mean ± 95 % CI over seeds (bold: best per scenario)")
+    table.add_column("agent", style="bold")
+    for s in board.scenarios:
+        table.add_column(s, justify="right")
+    for a in board.agents:
+        cells = []
+        for s in board.scenarios:
+            r = board.row(a, s)
+            c = "" if r is None else _cell(r.stats[m], m)
+            cells.append(f"[bold green]{c}[/bold green]" if r is not None and r.best else c)
+        table.add_row(a, *cells)
+    console.print(table)
+    if board.failed:
+        console.print(f"[red]{len(board.failed)} failed run(s)[/red] (listed in the markdown)")
+    for p in paths.values():
+        console.print(f"wrote {p}", highlight=False)
+
+
+def reproduce(
+    record: Annotated[Path, typer.Argument(help="A run record (runs/<config>/<run-key>.json).")],
+    rtol: Annotated[
+        float, typer.Option(help="Relative tolerance of the comparison (0: exact).")
+    ] = 0.0,
+) -> None:
+    """Rerun the run a record describes and compare its metrics with the recorded ones."""
+    from experiments.config import RunSpec
+    from experiments.records import RecordError, environment_info, load_record
+    from experiments.sweep import build_record, execute_run, run_in_worker
+
+    try:
+        rec = load_record(record)
+    except RecordError as exc:
+        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        raise typer.Exit(2) from None
+    spec = RunSpec.from_dict(rec["spec"])
+    here = environment_info()
+    for key in ("versions", "git"):
+        mine, theirs = here[key], rec.get(key) or {}
+        for k in sorted(set(mine) | set(theirs)):
+            if k == "dirty":
+                continue
+            if mine.get(k) != theirs.get(k):
+                console.print(
+                    f"[yellow]note:[/yellow] {key}.{k} was {theirs.get(k)}, is {mine.get(k)}",
+                    highlight=False,
+                )
+    console.print(f"rerunning {spec.run_key} ({spec.agent} on {spec.scenario}, seed {spec.seed})")
+    t0 = time.perf_counter()
+    new = build_record(spec, run_in_worker(execute_run, spec.to_dict()))
+    if new["status"] != "ok":
+        err = new.get("error") or {}
+        err_console.print(f"[red]the rerun failed:[/red] {err.get('traceback') or err}")
+        raise typer.Exit(1)
+    if rec.get("status") != "ok":
+        console.print(
+            f"the record is a failed run ({(rec.get('error') or {}).get('type')}); the rerun succeeded"
+        )
+    table = Table(
+        title=f"{spec.run_key}: recorded vs reproduced ({time.perf_counter() - t0:.1f} s)"
+    )
+    for c in ("metric", "recorded", "reproduced", "difference", ""):
+        table.add_column(c, justify="right" if c not in ("metric", "") else "left")
+    differ = []
+    old_m, new_m = rec.get("metrics") or {}, new.get("metrics") or {}
+    for k in sorted(set(old_m) | set(new_m)):
+        a, b = old_m.get(k), new_m.get(k)
+        same = _same(a, b, rtol)
+        if not same:
+            differ.append(k)
+        diff = "" if a is None or b is None else f"{b - a:+.3g}"
+        table.add_row(
+            k, _show(a), _show(b), diff, "[green]same[/green]" if same else "[red]DIFFERS[/red]"
+        )
+    for k in ("series", "report", "calibration", "episode"):
+        if rec.get(k) != new.get(k) and not _close_tree(rec.get(k), new.get(k), rtol):
+            differ.append(k)
+            table.add_row(k, "", "", "", "[red]DIFFERS[/red]")
+    console.print(table)
+    old_t, new_t = rec.get("timing") or {}, new.get("timing") or {}
+    for k in ("wall_time_s", "solve_time_median_ms"):
+        if k in old_t and k in new_t:
+            console.print(
+                f"timing {k}: recorded {_show(old_t[k])}, now {_show(new_t[k])} (not compared)"
+            )
+    if differ:
+        err_console.print(f"[red]not reproduced:[/red] {', '.join(differ)} differ")
+        raise typer.Exit(1)
+    console.print("[green]reproduced:[/green] every metric and the error series are the same")
+
+
+def _show(v) -> str:
+    return "–" if v is None else f"{v:.9g}" if isinstance(v, float) else str(v)
+
+
+def _same(a, b, rtol: float) -> bool:
+    if a is None or b is None:
+        return a is b
+    if rtol == 0:
+        return a == b
+    return math.isclose(a, b, rel_tol=rtol, abs_tol=0.0)
+
+
+def _close_tree(a, b, rtol: float) -> bool:
+    if rtol == 0:
+        return a == b
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_close_tree(a[k], b[k], rtol) for k in a)
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_close_tree(x, y, rtol) for x, y in zip(a, b, strict=True))
+    if isinstance(a, float) and isinstance(b, float):
+        return math.isclose(a, b, rel_tol=rtol)
+    return a == b
 
 
 def register(app: typer.Typer) -> None:
     """Mount this module's commands on the main app."""
+    app.command("sweep")(sweep)
+    app.command("leaderboard")(leaderboard)
+    app.command("reproduce")(reproduce)

@@ -1,0 +1,728 @@
+"""Experiment configs: a TOML file names the agents (with their settings), the scenarios, the seeds,
+the episode and the metrics; :func:`load_config` parses it and refuses anything wrong *before* a
+single run starts, naming the file and the key.
+
+    name = "quick"                       # optional (default: the file's stem); runs/<name>/
+    description = "a few minutes on 2 cores"
+    env_id = "SixAxisTrack-v0"           # optional
+    seeds = [0, 1]                       # a list of seeds, or a count n meaning 0..n-1
+    episode_seconds = 6.0                # one judged phase of this length (unless [[phases]])
+    settle_seconds = 3.0                 # rms_settled_mm counts after this much of the episode
+    metrics = ["rms_mm", "max_mm", "rms_settled_mm", "effort_rms", "calib_rms_mm", "diverged"]
+    rank_by = "rms_mm"                   # the leaderboard's headline metric (default rms_mm)
+    scenarios = ["nominal", "geometric", { name = "stiff", scenario = "compliance", env = {...} }]
+
+    [env]                                # keyword arguments of gym.make for every run
+    trajectory = "circle"
+
+    [[agents]]
+    name = "mpc"                         # a registered agent, or "package.module:Class"
+    label = "mpc-h20"                    # optional: how it shows in records and the leaderboard
+    settings = { horizon = 20 }          # keyword arguments of the agent
+    env = { preview_steps = 20 }         # optional env overrides for this agent
+
+    [[phases]]                           # optional: e.g. calibrate, then run blind
+    name = "calibration"
+    seconds = 10.0
+    judged = false
+    env = { trajectory = "spline" }
+
+An agent may also be given as a bare string in ``agents = ["hold", "nominal"]``. The env keyword
+arguments of a run are ``[env] | scenario.env | agent.env | {"scenario": ...}``, in that order.
+
+A config expands into :class:`RunSpec` s, one per agent x scenario x seed: plain data that says
+everything a run needs, so a record that carries it can be rerun anywhere.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import inspect
+import json
+import logging
+import re
+import tomllib
+import types
+import typing
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "AgentEntry",
+    "ConfigError",
+    "ExperimentConfig",
+    "PhaseEntry",
+    "RunSpec",
+    "ScenarioEntry",
+    "canonical_json",
+    "known_scenarios",
+    "load_config",
+    "parse_config",
+    "short_hash",
+]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_ENV_ID = "SixAxisTrack-v0"
+LABEL_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+
+
+class ConfigError(ValueError):
+    """A config that cannot run: the message names the file and every key at fault."""
+
+    def __init__(self, source: str, problems: Sequence[str]) -> None:
+        self.source = source
+        self.problems = list(problems)
+        lines = "\n".join(f"  - {p}" for p in self.problems)
+        super().__init__(f"{source}: bad experiment config:\n{lines}")
+
+
+def canonical_json(obj: Any) -> str:
+    """One spelling of a JSON value (sorted keys, no spaces): what hashes are taken of."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=True)
+
+
+def short_hash(obj: Any, n: int = 16) -> str:
+    return hashlib.sha256(canonical_json(obj).encode()).hexdigest()[:n]
+
+
+# -- the parsed config ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AgentEntry:
+    label: str
+    agent: str
+    settings: dict[str, Any] = field(default_factory=dict)
+    env: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ScenarioEntry:
+    label: str
+    scenario: str
+    env: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class PhaseEntry:
+    name: str
+    seconds: float
+    judged: bool = True
+    env: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "seconds": self.seconds, "judged": self.judged, "env": self.env}
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything one run needs: agent and settings, env id and keyword arguments, seed, phases,
+    metrics. ``run_hash`` is taken over all of it except the config's name, so the same run in two
+    configs is the same run."""
+
+    config_name: str
+    agent_label: str
+    agent: str
+    settings: dict[str, Any]
+    scenario_label: str
+    scenario: str
+    env_id: str
+    env_kwargs: dict[str, Any]
+    seed: int
+    episode_seconds: float
+    settle_seconds: float
+    phases: tuple[dict[str, Any], ...]
+    metrics: tuple[str, ...]
+
+    @property
+    def run_key(self) -> str:
+        return f"{self.agent_label}__{self.scenario_label}__seed{self.seed}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "config_name": self.config_name,
+            "agent_label": self.agent_label,
+            "agent": self.agent,
+            "settings": dict(self.settings),
+            "scenario_label": self.scenario_label,
+            "scenario": self.scenario,
+            "env_id": self.env_id,
+            "env_kwargs": dict(self.env_kwargs),
+            "seed": self.seed,
+            "episode_seconds": self.episode_seconds,
+            "settle_seconds": self.settle_seconds,
+            "phases": [dict(p) for p in self.phases],
+            "metrics": list(self.metrics),
+        }
+
+    @property
+    def run_hash(self) -> str:
+        d = self.to_dict()
+        d.pop("config_name")
+        return short_hash(d)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> RunSpec:
+        return cls(
+            config_name=str(d["config_name"]),
+            agent_label=str(d["agent_label"]),
+            agent=str(d["agent"]),
+            settings=dict(d["settings"]),
+            scenario_label=str(d["scenario_label"]),
+            scenario=str(d["scenario"]),
+            env_id=str(d["env_id"]),
+            env_kwargs=dict(d["env_kwargs"]),
+            seed=int(d["seed"]),
+            episode_seconds=float(d["episode_seconds"]),
+            settle_seconds=float(d["settle_seconds"]),
+            phases=tuple(dict(p) for p in d.get("phases", ())),
+            metrics=tuple(d["metrics"]),
+        )
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """A validated experiment config; :meth:`runs` expands it into agent x scenario x seed."""
+
+    name: str
+    description: str
+    env_id: str
+    seeds: tuple[int, ...]
+    episode_seconds: float
+    settle_seconds: float
+    metrics: tuple[str, ...]
+    rank_by: str
+    env: dict[str, Any]
+    agents: tuple[AgentEntry, ...]
+    scenarios: tuple[ScenarioEntry, ...]
+    phases: tuple[PhaseEntry, ...] = ()
+    path: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The normalised config (what its hash is taken of; the file's path is not in it)."""
+        return {
+            "name": self.name,
+            "description": self.description,
+            "env_id": self.env_id,
+            "seeds": list(self.seeds),
+            "episode_seconds": self.episode_seconds,
+            "settle_seconds": self.settle_seconds,
+            "metrics": list(self.metrics),
+            "rank_by": self.rank_by,
+            "env": dict(self.env),
+            "agents": [
+                {"label": a.label, "name": a.agent, "settings": a.settings, "env": a.env}
+                for a in self.agents
+            ],
+            "scenarios": [
+                {"label": s.label, "scenario": s.scenario, "env": s.env} for s in self.scenarios
+            ],
+            "phases": [p.to_dict() for p in self.phases],
+        }
+
+    @property
+    def hash(self) -> str:
+        return short_hash(self.to_dict())
+
+    def runs(self) -> list[RunSpec]:
+        """Every run, in a fixed order: agents, then scenarios, then seeds."""
+        out = []
+        for a in self.agents:
+            for s in self.scenarios:
+                env_kwargs = self.env | s.env | a.env | {"scenario": s.scenario}
+                for seed in self.seeds:
+                    out.append(
+                        RunSpec(
+                            config_name=self.name,
+                            agent_label=a.label,
+                            agent=a.agent,
+                            settings=dict(a.settings),
+                            scenario_label=s.label,
+                            scenario=s.scenario,
+                            env_id=self.env_id,
+                            env_kwargs=dict(sorted(env_kwargs.items())),
+                            seed=seed,
+                            episode_seconds=self.episode_seconds,
+                            settle_seconds=self.settle_seconds,
+                            phases=tuple(p.to_dict() for p in self.phases),
+                            metrics=self.metrics,
+                        )
+                    )
+        return out
+
+
+# -- parsing and validation -------------------------------------------------------------------
+
+_TOP_KEYS = {
+    "name": str,
+    "description": str,
+    "env_id": str,
+    "seeds": (list, int),
+    "episode_seconds": (int, float),
+    "settle_seconds": (int, float),
+    "metrics": list,
+    "rank_by": str,
+    "env": dict,
+    "agents": list,
+    "scenarios": list,
+    "phases": list,
+}
+_REQUIRED = ("seeds", "agents", "scenarios")
+_AGENT_KEYS = {"name", "label", "settings", "env"}
+_SCENARIO_KEYS = {"name", "scenario", "env"}
+_PHASE_KEYS = {"name", "seconds", "judged", "env"}
+
+
+def _tname(v: Any) -> str:
+    return {
+        bool: "a boolean",
+        int: "an integer",
+        float: "a float",
+        str: "a string",
+        list: "an array",
+        dict: "a table",
+    }.get(type(v), type(v).__name__)
+
+
+def _is(v: Any, types_: type | tuple[type, ...]) -> bool:
+    """isinstance, except that a bool is not an int (TOML keeps them apart, so do we)."""
+    types_ = types_ if isinstance(types_, tuple) else (types_,)
+    if isinstance(v, bool):
+        return bool in types_
+    return isinstance(v, types_)
+
+
+def load_config(path: str | Path, check_agents: bool = True) -> ExperimentConfig:
+    """Read and validate an experiment config file; :class:`ConfigError` names every problem."""
+    p = Path(path)
+    try:
+        raw = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(str(p), ["no such file"]) from None
+    except OSError as exc:
+        raise ConfigError(str(p), [f"cannot read: {exc}"]) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(str(p), [f"not valid TOML: {exc}"]) from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(str(p), [f"not UTF-8 text: {exc}"]) from None
+    return parse_config(raw, source=str(p), default_name=p.stem, check_agents=check_agents)
+
+
+def parse_config(
+    raw: Mapping[str, Any],
+    source: str = "<config>",
+    default_name: str = "experiment",
+    check_agents: bool = True,
+) -> ExperimentConfig:
+    """Validate a config given as a mapping (what TOML parses to). ``check_agents=False`` skips
+    making each agent once (which catches bad setting values, at the cost of importing them)."""
+    problems: list[str] = []
+    bad = problems.append
+
+    for key in raw:
+        if key not in _TOP_KEYS:
+            bad(f"{key}: unknown key; known: {', '.join(_TOP_KEYS)}")
+    for key, types_ in _TOP_KEYS.items():
+        if key in raw and not _is(raw[key], types_):
+            want = " or ".join(
+                _tname(t()) for t in (types_ if isinstance(types_, tuple) else (types_,))
+            )
+            bad(f"{key}: expected {want}, got {_tname(raw[key])} {raw[key]!r}")
+    for key in _REQUIRED:
+        if key not in raw:
+            bad(f"{key}: missing (required)")
+    if problems:
+        raise ConfigError(source, problems)
+
+    name = raw.get("name", default_name)
+    if not LABEL_RE.match(name):
+        bad(f"name: {name!r} must be letters, digits and _ . + - (it names the runs directory)")
+    env_id = raw.get("env_id", DEFAULT_ENV_ID)
+
+    # seeds
+    seeds_raw = raw["seeds"]
+    seeds: list[int] = []
+    if _is(seeds_raw, int):
+        if seeds_raw < 1:
+            bad(f"seeds: a count must be at least 1, got {seeds_raw}")
+        seeds = list(range(max(seeds_raw, 0)))
+    else:
+        for i, s in enumerate(seeds_raw):
+            if not _is(s, int) or s < 0:
+                bad(f"seeds[{i}]: expected a non-negative integer, got {_tname(s)} {s!r}")
+            else:
+                seeds.append(s)
+        if not seeds_raw:
+            bad("seeds: empty")
+        if len(set(seeds)) != len(seeds):
+            bad(f"seeds: repeated seeds in {seeds_raw}")
+
+    episode_seconds = float(raw.get("episode_seconds", 10.0))
+    if not episode_seconds > 0:
+        bad(f"episode_seconds: must be positive, got {episode_seconds}")
+    settle_seconds = float(raw.get("settle_seconds", 3.0))
+    if settle_seconds < 0:
+        bad(f"settle_seconds: must not be negative, got {settle_seconds}")
+
+    # metrics
+    from experiments.metrics import DEFAULT_METRICS, METRICS
+
+    metrics = raw.get("metrics", list(DEFAULT_METRICS))
+    for i, m in enumerate(metrics):
+        if not _is(m, str):
+            bad(f"metrics[{i}]: expected a string, got {_tname(m)} {m!r}")
+        elif m not in METRICS:
+            bad(f"metrics[{i}]: unknown metric {m!r}; known: {', '.join(METRICS)}")
+    if len(set(map(str, metrics))) != len(metrics):
+        bad(f"metrics: repeated names in {metrics}")
+    rank_by = raw.get("rank_by", "rms_mm")
+    if rank_by not in metrics:
+        bad(f"rank_by: {rank_by!r} is not one of the metrics {metrics}")
+
+    env_info = _env_signature(env_id, bad)
+    scenarios_known = known_scenarios(env_id)
+
+    env = dict(raw.get("env", {}))
+    if "scenario" in env:
+        bad("env.scenario: scenarios are chosen by the top-level 'scenarios' list")
+    _check_env_kwargs(env, "env", env_info, bad)
+
+    # scenarios
+    scenarios: list[ScenarioEntry] = []
+    for i, s in enumerate(raw["scenarios"]):
+        where = f"scenarios[{i}]"
+        if _is(s, str):
+            s = {"name": s}
+        if not _is(s, dict):
+            bad(f"{where}: expected a scenario name or a table, got {_tname(s)} {s!r}")
+            continue
+        for k in s:
+            if k not in _SCENARIO_KEYS:
+                bad(f"{where}.{k}: unknown key; known: {', '.join(sorted(_SCENARIO_KEYS))}")
+        label = s.get("name")
+        scen = s.get("scenario", label)
+        if not _is(label, str):
+            bad(f"{where}.name: expected a string, got {_tname(label)} {label!r}")
+            continue
+        if not _is(scen, str):
+            bad(f"{where}.scenario: expected a string, got {_tname(scen)} {scen!r}")
+            continue
+        if not LABEL_RE.match(label):
+            bad(f"{where}.name: {label!r} must be letters, digits and _ . + -")
+        if scenarios_known is not None and scen not in scenarios_known:
+            key = "scenario" if "scenario" in s else "name"
+            bad(f"{where}.{key}: unknown scenario {scen!r}; known: {', '.join(scenarios_known)}")
+        senv = s.get("env", {})
+        if not _is(senv, dict):
+            bad(f"{where}.env: expected a table, got {_tname(senv)}")
+            senv = {}
+        if "scenario" in senv:
+            bad(f"{where}.env.scenario: give the scenario as {where}.scenario")
+        _check_env_kwargs(senv, f"{where}.env", env_info, bad)
+        scenarios.append(ScenarioEntry(label, scen, dict(senv)))
+    labels = [s.label for s in scenarios]
+    for dup in sorted({x for x in labels if labels.count(x) > 1}):
+        bad(f"scenarios: the name {dup!r} appears twice (give one a different name)")
+    if not raw["scenarios"]:
+        bad("scenarios: empty")
+
+    # agents
+    agents: list[AgentEntry] = []
+    for i, a in enumerate(raw["agents"]):
+        where = f"agents[{i}]"
+        if _is(a, str):
+            a = {"name": a}
+        if not _is(a, dict):
+            bad(f"{where}: expected an agent name or a table, got {_tname(a)} {a!r}")
+            continue
+        for k in a:
+            if k not in _AGENT_KEYS:
+                bad(f"{where}.{k}: unknown key; known: {', '.join(sorted(_AGENT_KEYS))}")
+        agent = a.get("name")
+        if not _is(agent, str):
+            bad(
+                f"{where}.name: expected a string (an agent name or 'package.module:Class'), got {_tname(agent)} {agent!r}"
+            )
+            continue
+        label = a.get("label", agent.rpartition(":")[2] if ":" in agent else agent)
+        if not _is(label, str) or not LABEL_RE.match(label):
+            bad(f"{where}.label: {label!r} must be letters, digits and _ . + -")
+            continue
+        settings = a.get("settings", {})
+        if not _is(settings, dict):
+            bad(f"{where}.settings: expected a table, got {_tname(settings)}")
+            settings = {}
+        aenv = a.get("env", {})
+        if not _is(aenv, dict):
+            bad(f"{where}.env: expected a table, got {_tname(aenv)}")
+            aenv = {}
+        _check_env_kwargs(aenv, f"{where}.env", env_info, bad)
+        if _check_agent(agent, settings, where, bad, construct=check_agents):
+            agents.append(AgentEntry(label, agent, dict(settings), dict(aenv)))
+    labels = [a.label for a in agents]
+    for dup in sorted({x for x in labels if labels.count(x) > 1}):
+        bad(f"agents: the label {dup!r} appears twice (give one a 'label')")
+    if not raw["agents"]:
+        bad("agents: empty")
+
+    # phases
+    phases: list[PhaseEntry] = []
+    for i, ph in enumerate(raw.get("phases", [])):
+        where = f"phases[{i}]"
+        if not _is(ph, dict):
+            bad(f"{where}: expected a table, got {_tname(ph)}")
+            continue
+        for k in ph:
+            if k not in _PHASE_KEYS:
+                bad(f"{where}.{k}: unknown key; known: {', '.join(sorted(_PHASE_KEYS))}")
+        pname = ph.get("name", f"phase{i}")
+        secs = ph.get("seconds")
+        judged = ph.get("judged", True)
+        penv = ph.get("env", {})
+        if not _is(pname, str):
+            bad(f"{where}.name: expected a string, got {_tname(pname)}")
+        if not _is(secs, (int, float)) or secs <= 0:
+            bad(f"{where}.seconds: expected a positive number, got {_tname(secs)} {secs!r}")
+            secs = 1.0
+        if not _is(judged, bool):
+            bad(f"{where}.judged: expected a boolean, got {_tname(judged)} {judged!r}")
+        if not _is(penv, dict):
+            bad(f"{where}.env: expected a table, got {_tname(penv)}")
+            penv = {}
+        if "scenario" in penv:
+            bad(f"{where}.env.scenario: a phase keeps the episode's scenario")
+        _check_env_kwargs(penv, f"{where}.env", env_info, bad)
+        phases.append(PhaseEntry(str(pname), float(secs), bool(judged), dict(penv)))
+    if phases and not any(p.judged for p in phases):
+        bad("phases: no phase is judged; mark at least one 'judged = true'")
+    if phases and "episode_seconds" in raw:
+        bad("episode_seconds: give either episode_seconds or [[phases]], not both")
+    if phases:
+        episode_seconds = float(sum(p.seconds for p in phases if p.judged))
+    _check_lengths(env, scenarios, agents, phases, episode_seconds, raw, env_info, bad)
+
+    if problems:
+        raise ConfigError(source, problems)
+    return ExperimentConfig(
+        name=name,
+        description=raw.get("description", ""),
+        env_id=env_id,
+        seeds=tuple(seeds),
+        episode_seconds=episode_seconds,
+        settle_seconds=settle_seconds,
+        metrics=tuple(metrics),
+        rank_by=rank_by,
+        env=dict(sorted(env.items())),
+        agents=tuple(agents),
+        scenarios=tuple(scenarios),
+        phases=tuple(phases),
+        path=source,
+    )
+
+
+# -- checks against the env and the agents ----------------------------------------------------
+
+
+def _env_class(env_id: str):
+    import gymnasium as gym
+
+    import envs  # noqa: F401  (registers SixAxisTrack-v0)
+
+    spec = gym.spec(env_id)
+    ep = spec.entry_point
+    if callable(ep):
+        return ep
+    module, _, attr = ep.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+def known_scenarios(env_id: str = DEFAULT_ENV_ID) -> tuple[str, ...] | None:
+    """The env's scenario names: ``SCENARIOS`` of the env class, of its module, or (for
+    SixAxisTrack-v0) of :mod:`envs.scenarios`; None when the env names none (not checked then)."""
+    try:
+        cls = _env_class(env_id)
+    except Exception as exc:
+        log.warning("cannot import the env class of %s to check scenarios: %s", env_id, exc)
+        cls = None
+    found = None
+    if cls is not None:
+        found = getattr(cls, "SCENARIOS", None)
+        if found is None:
+            found = getattr(importlib.import_module(cls.__module__), "SCENARIOS", None)
+    if found is None and env_id == DEFAULT_ENV_ID:
+        from envs.scenarios import SCENARIOS
+
+        found = SCENARIOS
+    return None if found is None else tuple(found)
+
+
+def _env_signature(env_id: str, bad) -> dict[str, inspect.Parameter] | None:
+    """The env constructor's keyword parameters (None: cannot tell, so env keys are not checked)."""
+    try:
+        import gymnasium as gym
+
+        import envs  # noqa: F401
+
+        gym.spec(env_id)
+    except Exception as exc:
+        bad(f"env_id: unknown environment {env_id!r} ({exc})")
+        return None
+    try:
+        cls = _env_class(env_id)
+    except Exception as exc:
+        log.warning("cannot import the env class of %s to check env keys: %s", env_id, exc)
+        return None
+    params = dict(inspect.signature(cls.__init__).parameters)
+    params.pop("self", None)
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return None
+    try:
+        hints = typing.get_type_hints(cls.__init__)
+    except Exception:
+        hints = {}
+    return {k: (v, hints.get(k)) for k, v in params.items()}
+
+
+def _check_lengths(env, scenarios, agents, phases, episode_seconds, raw, env_info, bad) -> None:
+    """An episode (or phase) may not outlast the env's reference trajectory (its own
+    ``episode_seconds`` option, when it has one)."""
+    if env_info is None or "episode_seconds" not in env_info:
+        return
+    default = env_info["episode_seconds"][0].default
+    runs = phases or [PhaseEntry("episode", episode_seconds, True, {})]
+    seen = set()
+    for s in scenarios:
+        for a in agents:
+            base = env | s.env | a.env
+            for i, ph in enumerate(runs):
+                limit = (base | ph.env).get("episode_seconds", default)
+                if not _is(limit, (int, float)) or ph.seconds <= limit + 1e-9:
+                    continue
+                key = f"phases[{i}].seconds" if phases else "episode_seconds"
+                if key in seen:
+                    continue
+                seen.add(key)
+                bad(
+                    f"{key}: {ph.seconds:g} s is longer than the env's reference trajectory "
+                    f"({limit:g} s); set env.episode_seconds = {ph.seconds:g}"
+                )
+
+
+def _check_env_kwargs(env: Mapping[str, Any], where: str, info, bad) -> None:
+    if info is None:
+        return
+    for k, v in env.items():
+        if k == "render_mode":
+            bad(f"{where}.{k}: sweeps do not render")
+            continue
+        if k not in info:
+            known = ", ".join(n for n in info if n not in ("render_mode",))
+            bad(f"{where}.{k}: unknown env option; the env takes: {known}")
+            continue
+        param, hint = info[k]
+        msg = _type_problem(v, hint, param.default)
+        if msg:
+            bad(f"{where}.{k}: {msg}")
+
+
+def _check_agent(agent: str, settings: dict, where: str, bad, construct: bool) -> bool:
+    from agents.registry import AgentError, _target, check_settings, make_agent
+
+    try:
+        _, cls = _target(agent)
+    except AgentError as exc:
+        bad(f"{where}.name: {exc}")
+        return False
+    except Exception as exc:  # the agent's module itself fails to import
+        bad(f"{where}.name: agent {agent!r} cannot be loaded: {type(exc).__name__}: {exc}")
+        return False
+    try:
+        check_settings(agent, settings)
+    except AgentError as exc:
+        bad(f"{where}.settings: {exc}")
+        return False
+    params = inspect.signature(cls.__init__).parameters
+    try:
+        hints = typing.get_type_hints(cls.__init__)
+    except Exception:
+        hints = {}
+    ok = True
+    for k, v in settings.items():
+        p = params.get(k)
+        if p is None:  # taken by **kwargs
+            continue
+        msg = _type_problem(v, hints.get(k), p.default)
+        if msg:
+            bad(f"{where}.settings.{k}: {msg}")
+            ok = False
+    if ok and construct:
+        try:
+            make_agent(agent, **settings)
+        except Exception as exc:
+            bad(
+                f"{where}.settings: agent {agent!r} refuses {settings}: {type(exc).__name__}: {exc}"
+            )
+            ok = False
+    return ok
+
+
+def _type_problem(value: Any, hint: Any, default: Any) -> str | None:
+    """Why ``value`` does not fit a parameter annotated ``hint`` (default ``default``), or None.
+    Unknown or complex annotations are let through: the agent or env will judge."""
+    if hint is None:
+        if default is inspect.Parameter.empty or default is None:
+            return None
+        hint = type(default)
+    ok = _fits(value, hint)
+    if ok is False:
+        return f"expected {_hint_name(hint)}, got {_tname(value)} {value!r}"
+    return None
+
+
+def _fits(value: Any, hint: Any) -> bool | None:
+    """True/False when the annotation can be judged, None when it cannot."""
+    if hint is Any or hint is inspect.Parameter.empty:
+        return None
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        results = [_fits(value, h) for h in typing.get_args(hint)]
+        if any(r is True for r in results):
+            return True
+        return None if any(r is None for r in results) else False
+    if hint is type(None):
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return _is(value, int)
+    if hint is float:
+        return _is(value, (int, float))
+    if hint is str:
+        return isinstance(value, str)
+    target = origin or hint
+    if target in (list, tuple) or target in (Sequence, typing.Sequence):
+        if isinstance(value, str) or not isinstance(value, (list, tuple)):
+            return False
+        args = [a for a in typing.get_args(hint) if a is not Ellipsis]
+        if len(args) == 1:
+            inner = [_fits(v, args[0]) for v in value]
+            if any(r is False for r in inner):
+                return False
+        return True
+    if target in (dict, Mapping, typing.Mapping):
+        return isinstance(value, dict)
+    if isinstance(hint, type) and hint.__module__ == "builtins":
+        return isinstance(value, hint)
+    return None
+
+
+def _hint_name(hint: Any) -> str:
+    if isinstance(hint, type):
+        return {bool: "a boolean", int: "an integer", float: "a number", str: "a string"}.get(
+            hint, hint.__name__
+        )
+    return str(hint).replace("typing.", "")

@@ -1,0 +1,255 @@
+"""What a run is judged by: metrics of one episode (an :class:`agents.runner.EpisodeResult`) and
+their summary over seeds (mean and 95 % Student-t confidence interval).
+
+| metric                 | unit | what it is                                                            |
+|------------------------|------|-----------------------------------------------------------------------|
+| `rms_mm`               | mm   | RMS of the true tool-point error over the judged steps                 |
+| `max_mm`               | mm   | its maximum                                                           |
+| `rms_settled_mm`       | mm   | RMS after the first ``settle_seconds`` of the judged steps            |
+| `effort_rms`           | 1    | RMS of the normalised joint-velocity commands (1: every joint at full speed) |
+| `effort_rate_rms`      | 1/s  | RMS of the commands' rate of change (normalised units per second)     |
+| `calib_rms_mm`         | mm   | calibration error: RMS over 64 fixed poses of the distance between the tool point the agent's model (with what it identified) predicts and the true one; only for agents that report their model's parameters |
+| `calib_params`         | 1    | how many parameters the agent identified                              |
+| `diverged`             | 1    | 1 if the simulation diverged (the leaderboard sums it over seeds)     |
+| `solve_time_median_ms` | ms   | median computation time of the agent per step (a timing field)        |
+| `solve_time_p95_ms`    | ms   | its 95th percentile (a timing field)                                  |
+
+Timing metrics vary from run to run; records keep them apart (``record["timing"]``) so that
+everything else in a record is reproducible bit for bit.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "DEFAULT_METRICS",
+    "METRICS",
+    "Metric",
+    "calibration_error_mm",
+    "episode_metrics",
+    "parameter_errors",
+    "reports_model",
+    "summarize",
+]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Metric:
+    name: str
+    unit: str
+    description: str
+    timing: bool = False  # varies with the machine: kept out of the reproducible part
+    aggregate: str = "mean"  # "mean" (with a CI over seeds) or "sum" (a count over seeds)
+
+
+METRICS: dict[str, Metric] = {
+    m.name: m
+    for m in (
+        Metric("rms_mm", "mm", "tracking RMS of the true tool-point error (judged steps)"),
+        Metric("max_mm", "mm", "maximum true tool-point error (judged steps)"),
+        Metric("rms_settled_mm", "mm", "tracking RMS after the settling time"),
+        Metric("effort_rms", "1", "RMS of the normalised joint-velocity commands"),
+        Metric("effort_rate_rms", "1/s", "RMS rate of change of the normalised commands"),
+        Metric(
+            "calib_rms_mm", "mm", "tool-point error of the agent's identified model at 64 poses"
+        ),
+        Metric("calib_params", "1", "number of parameters identified"),
+        Metric("diverged", "1", "episodes in which the simulation diverged", aggregate="sum"),
+        Metric("solve_time_median_ms", "ms", "median computation per step", timing=True),
+        Metric("solve_time_p95_ms", "ms", "95th percentile computation per step", timing=True),
+    )
+}
+
+DEFAULT_METRICS = (
+    "rms_mm",
+    "max_mm",
+    "rms_settled_mm",
+    "effort_rms",
+    "calib_rms_mm",
+    "diverged",
+    "solve_time_median_ms",
+    "solve_time_p95_ms",
+)
+
+CALIBRATION_POSES = 64
+CALIBRATION_POSE_SEED = 20240611  # fixed: every agent and run is judged at the same poses
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
+
+
+def episode_metrics(
+    result: Any,
+    names: Iterable[str],
+    settle_seconds: float = 3.0,
+    calib_rms_mm: float | None = None,
+) -> tuple[dict[str, float], dict[str, float]]:
+    """The metrics ``names`` of one episode, split into ``(reproducible, timing)``.
+
+    ``result`` is an :class:`agents.runner.EpisodeResult` (or anything with its arrays);
+    ``calib_rms_mm`` comes from :func:`calibration_error_mm` (it needs the truth's model)."""
+    names = list(names)
+    unknown = [n for n in names if n not in METRICS]
+    if unknown:
+        raise KeyError(f"unknown metric(s) {unknown}; known: {', '.join(METRICS)}")
+    judged = np.asarray(result.judged, dtype=bool)
+    t = np.asarray(result.time, dtype=float)
+    err = np.asarray(result.true_error_mm, dtype=float)
+    act = np.asarray(result.actions, dtype=float).reshape(-1, 6)
+    dt = float(t[1] - t[0]) if len(t) > 1 else float("nan")
+    e = err[judged]
+    # the settling time counts from the start of the first judged phase
+    if judged.any():
+        t0 = t[judged][0] - (dt if np.isfinite(dt) else 0.0)
+        settled = err[judged & (t - t0 > settle_seconds + 1e-9)]
+    else:
+        settled = np.empty(0)
+    a = act[judged]
+    rate = np.diff(act, axis=0)[judged[1:]] / dt if len(act) > 1 else np.empty((0, 6))
+    solve = np.asarray(result.solve_time_s, dtype=float)
+    solve = solve[judged] if solve.shape == judged.shape else solve
+    values: dict[str, float] = {
+        "rms_mm": _rms(e),
+        "max_mm": float(np.max(e)) if e.size else float("nan"),
+        "rms_settled_mm": _rms(settled),
+        "effort_rms": _rms(a),
+        "effort_rate_rms": _rms(rate),
+        "diverged": 1.0 if bool(result.diverged) else 0.0,
+        "solve_time_median_ms": float(np.median(solve)) * 1e3 if solve.size else float("nan"),
+        "solve_time_p95_ms": float(np.percentile(solve, 95)) * 1e3 if solve.size else float("nan"),
+    }
+    report = getattr(result, "report", {}) or {}
+    values["calib_params"] = float(len(identified_names(report)))
+    values["calib_rms_mm"] = float("nan") if calib_rms_mm is None else float(calib_rms_mm)
+    out, timing = {}, {}
+    for n in names:
+        (timing if METRICS[n].timing else out)[n] = values[n]
+    return out, timing
+
+
+def identified_names(report: Mapping[str, Any]) -> list[str]:
+    """The parameters an agent says it identified: its ``fitted`` or ``rls_free`` list when it
+    gives one (possibly empty: it identified nothing yet), else every parameter it reports; none if
+    it reports no parameters."""
+    names = report.get("parameter_names")
+    if not names or "parameters" not in report:
+        return []
+    for key in ("fitted", "rls_free"):
+        if key in report:
+            return [str(n) for n in report[key]]
+    return [str(n) for n in names]
+
+
+def reports_model(report: Mapping[str, Any]) -> bool:
+    """Whether the agent reports the parameters of its model (``parameter_names``, ``parameters``)."""
+    return bool(report.get("parameter_names")) and "parameters" in report
+
+
+def parameter_errors(report: Mapping[str, Any], truth: Mapping[str, float]) -> dict[str, float]:
+    """identified - true, for every identified parameter that the truth also has (SI units)."""
+    names = report.get("parameter_names") or []
+    values = report.get("parameters") or []
+    est = dict(zip(names, values, strict=False))
+    return {
+        n: float(est[n]) - float(truth[n])
+        for n in identified_names(report)
+        if n in truth and n in est
+    }
+
+
+def calibration_error_mm(
+    truth_model: Any,
+    truth_params: np.ndarray,
+    names: Sequence[str],
+    values: Sequence[float],
+    est_model: Any = None,
+    n_poses: int = CALIBRATION_POSES,
+) -> float:
+    """RMS (mm) over ``n_poses`` fixed poses of |x_est(q) - x_true(q)|: the tool point predicted by
+    the identified parameters (``names``, ``values``) against the truth's.
+
+    The estimate is evaluated with ``est_model`` (an :class:`envs.errormodel.ErrorModel` whose
+    layout has ``names``) when given, else with the truth's model (its other parameters nominal),
+    which needs ``names`` to be among the truth's. Poses come from a fixed seed; columns an effect
+    needs are set to reference conditions (temperature 20 degC, the arm's payload, every joint
+    approached from +)."""
+    from envs.sampling import sample_poses
+
+    names = list(names)
+    values = np.asarray(values, dtype=float)
+    if est_model is not None and tuple(est_model.layout.names) == tuple(names):
+        model, p_est = est_model, values
+    else:
+        missing = [n for n in names if n not in truth_model.layout]
+        if missing:
+            raise ValueError(
+                f"the identified parameters {missing} are not in the truth's model and no model "
+                "of the estimate was given"
+            )
+        model = truth_model
+        p_est = truth_model.nominal()
+        for n, v in zip(names, values, strict=True):
+            p_est[truth_model.layout.index(n)] = v
+    robot = truth_model.robot
+    q = sample_poses(robot, n_poses, np.random.default_rng(CALIBRATION_POSE_SEED))
+
+    def cols(m):
+        base = {
+            "temperature": np.full(len(q), 20.0),
+            "payload": np.full(len(q), float(getattr(robot, "payload", 0.0) or 0.0)),
+            "t": np.zeros(len(q)),
+        }
+        base |= {f"dir{i}": np.ones(len(q)) for i in range(1, 7)}
+        return {c: base[c] for c in m.required_columns() | {"payload"} if c in base}
+
+    x_true = truth_model.predict(truth_model.inputs(q, cols(truth_model)), np.asarray(truth_params))
+    x_est = model.predict(model.inputs(q, cols(model)), p_est)
+    return float(np.sqrt(np.mean(np.sum((x_est - x_true) ** 2, axis=1)))) * 1e3
+
+
+@dataclass(frozen=True)
+class Summary:
+    """A metric over seeds: mean, the half-width of its 95 % Student-t confidence interval (NaN
+    with fewer than two values), standard deviation and count of finite values."""
+
+    mean: float
+    ci95: float
+    std: float
+    n: int
+    total: float
+
+    @property
+    def low(self) -> float:
+        return self.mean - self.ci95
+
+    @property
+    def high(self) -> float:
+        return self.mean + self.ci95
+
+
+def summarize(values: Iterable[float], confidence: float = 0.95) -> Summary:
+    """Mean and Student-t confidence interval (``scipy.stats.t``) of the finite ``values``."""
+    from scipy import stats
+
+    x = np.asarray([v for v in values if v is not None], dtype=float)
+    x = x[np.isfinite(x)]
+    n = int(x.size)
+    if n == 0:
+        return Summary(float("nan"), float("nan"), float("nan"), 0, float("nan"))
+    mean = float(np.mean(x))
+    total = float(np.sum(x))
+    if n < 2:
+        return Summary(mean, float("nan"), float("nan"), n, total)
+    std = float(np.std(x, ddof=1))
+    half = float(stats.t.ppf(0.5 + confidence / 2, n - 1)) * std / math.sqrt(n)
+    return Summary(mean, half, std, n, total)

@@ -1,0 +1,528 @@
+"""The sweep runner: every agent x scenario x seed of a config, one record per run.
+
+    config = load_config("experiments/configs/quick.toml")
+    summary = run_sweep(config, workers=2)                    # local processes
+    summary = run_sweep(config, backend="dask")               # a Dask LocalCluster
+    summary = run_sweep(config, backend="dask", address="tcp://scheduler:8786")
+
+Runs go to local processes (:class:`concurrent.futures.ProcessPoolExecutor`, spawned, one thread
+each) or to a Dask distributed cluster (the optional ``cluster`` extra). Workers only compute: each
+returns its outcome and this process writes the record atomically, so whatever the backend,
+``runs/<config-name>/`` holds one whole file per finished run and nothing else. A rerun skips every
+finished record whose spec is unchanged, so an interrupted sweep resumes where it stopped; failed
+runs are retried (``retry_failed=False`` keeps them). A run that raises is recorded with its
+traceback and the sweep goes on.
+
+A record with the same run key but another spec (the config changed under the same output
+directory) is refused before anything runs, unless ``overwrite=True``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import logging
+import os
+import socket
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from experiments.config import ExperimentConfig, RunSpec
+from experiments.records import RECORD_SCHEMA, RunStore, environment_info, jsonable
+
+__all__ = [
+    "SweepError",
+    "SweepProgress",
+    "SweepSummary",
+    "build_record",
+    "execute_run",
+    "plan_sweep",
+    "run_sweep",
+]
+
+log = logging.getLogger(__name__)
+
+RunFn = Callable[[RunSpec], Mapping[str, Any]]
+
+_THREAD_VARS = (
+    "OMP_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "NUMEXPR_NUM_THREADS",
+    "VECLIB_MAXIMUM_THREADS",
+)
+
+
+class SweepError(RuntimeError):
+    """A sweep that cannot start (e.g. records of another spec under the same run keys)."""
+
+
+@dataclass
+class SweepProgress:
+    """Counts for a progress display: ``done`` includes ``failed``; ``skipped`` were finished
+    before this sweep started."""
+
+    total: int
+    skipped: int
+    done: int = 0
+    failed: int = 0
+    running: int = 0
+    last: str = ""
+
+    @property
+    def remaining(self) -> int:
+        return self.total - self.skipped - self.done
+
+
+@dataclass
+class SweepSummary:
+    out_dir: Path
+    total: int
+    skipped: int
+    done: int
+    failed: list[str] = field(default_factory=list)
+    wall_time_s: float = 0.0
+
+
+# -- one run ------------------------------------------------------------------------------------
+
+
+def execute_run(spec: RunSpec) -> dict[str, Any]:
+    """Run one spec for real: make the agent, run the episode, compute the metrics.
+
+    Returns the outcome part of a record: ``metrics``, ``timing_metrics``, ``report``, ``series``
+    (time, true error, judged per step), ``calibration``, ``episode``."""
+    from agents.registry import make_agent
+    from agents.runner import Phase, run_episode
+    from experiments.metrics import (
+        calibration_error_mm,
+        episode_metrics,
+        parameter_errors,
+        reports_model,
+    )
+
+    agent = make_agent(spec.agent, **spec.settings)
+    phases = None
+    if spec.phases:
+        phases = [
+            Phase(p["name"], float(p["seconds"]), dict(p.get("env", {})), bool(p["judged"]))
+            for p in spec.phases
+        ]
+    result = run_episode(
+        agent,
+        spec.env_kwargs,
+        seed=spec.seed,
+        episode_seconds=None if phases else spec.episode_seconds,
+        phases=phases,
+        env_id=spec.env_id,
+    )
+    report = dict(result.report or {})
+    calib_mm = None
+    calibration: dict[str, Any] = {}
+    if reports_model(report):
+        calibration["parameter_errors"] = parameter_errors(report, result.truth_parameters)
+        if "calib_rms_mm" in spec.metrics:
+            try:
+                truth = _truth(spec)
+                calib_mm = calibration_error_mm(
+                    truth.model,
+                    truth.params,
+                    report["parameter_names"],
+                    report["parameters"],
+                    est_model=getattr(agent, "model", None),
+                )
+            except Exception as exc:  # a metric that cannot be computed is missing, not fatal
+                log.warning("%s: no calibration error: %s", spec.run_key, exc)
+                calibration["calib_rms_error"] = f"{type(exc).__name__}: {exc}"
+    metrics, timing_metrics = episode_metrics(
+        result, spec.metrics, settle_seconds=spec.settle_seconds, calib_rms_mm=calib_mm
+    )
+    timed = {k: v for k, v in report.items() if "time" in k}
+    return {
+        "metrics": metrics,
+        "timing_metrics": timing_metrics | {"report": timed},
+        "report": {k: v for k, v in report.items() if k not in timed},
+        "calibration": calibration,
+        "series": {
+            "time": result.time,
+            "true_error_mm": result.true_error_mm,
+            "judged": result.judged,
+        },
+        "episode": {"steps": len(result.time), "diverged": bool(result.diverged)},
+    }
+
+
+def _truth(spec: RunSpec):
+    """The plant's truth for this spec and seed (a fresh env, reset with the run's seed)."""
+    from agents.runner import _make_env
+
+    env = _make_env(spec.env_id, spec.env_kwargs, None)
+    try:
+        env.reset(seed=int(spec.seed))
+        return env.unwrapped.truth
+    finally:
+        env.close()
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
+
+
+def _limit_threads() -> None:
+    """One thread per run: two workers on two cores must not fight over BLAS or torch threads."""
+    for var in _THREAD_VARS:
+        os.environ.setdefault(var, "1")
+    import sys
+
+    if "torch" in sys.modules or _torch_installed():
+        try:
+            import torch
+
+            torch.set_num_threads(1)
+        except Exception:  # pragma: no cover - torch is a dependency, but never fatal here
+            pass
+
+
+@contextlib.contextmanager
+def _child_thread_env() -> Iterator[None]:
+    """Children inherit the environment when spawned: one BLAS thread each."""
+    saved = {v: os.environ.get(v) for v in _THREAD_VARS}
+    for v in _THREAD_VARS:
+        os.environ[v] = "1"
+    try:
+        yield
+    finally:
+        for v, old in saved.items():
+            if old is None:
+                os.environ.pop(v, None)
+            else:
+                os.environ[v] = old
+
+
+def _torch_installed() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("torch") is not None
+
+
+def run_in_worker(run_fn: RunFn, spec_dict: dict[str, Any]) -> dict[str, Any]:
+    """What a worker does with one run: call ``run_fn``, never raise, time it. Returns the
+    outcome, the status (ok/failed with the traceback) and where and when it ran."""
+    _limit_threads()
+    spec = RunSpec.from_dict(spec_dict)
+    started = _now()
+    t0 = time.perf_counter()
+    try:
+        outcome = dict(run_fn(spec))
+        status, error = "ok", None
+    except Exception as exc:
+        log.info("run %s failed: %s: %s", spec.run_key, type(exc).__name__, exc)
+        outcome = {}
+        status = "failed"
+        error = {
+            "type": type(exc).__name__,
+            "message": str(exc),
+            "traceback": traceback.format_exc(),
+        }
+    wall = time.perf_counter() - t0
+    env = environment_info()
+    return jsonable(
+        {
+            "status": status,
+            "error": error,
+            "outcome": outcome,
+            "versions": env["versions"],
+            "git": env["git"],
+            "timing": {
+                "started": started,
+                "finished": _now(),
+                "wall_time_s": wall,
+                "host": socket.gethostname(),
+                "pid": os.getpid(),
+            },
+        }
+    )
+
+
+def build_record(
+    spec: RunSpec, result: Mapping[str, Any], config: ExperimentConfig | None = None
+) -> dict[str, Any]:
+    """A record from a spec and what :func:`run_in_worker` returned."""
+    outcome = dict(result.get("outcome") or {})
+    timing = dict(result.get("timing") or {})
+    timing |= dict(outcome.pop("timing_metrics", {}) or {})
+    return jsonable(
+        {
+            "schema": RECORD_SCHEMA,
+            "run_key": spec.run_key,
+            "run_hash": spec.run_hash,
+            "config_name": spec.config_name,
+            "config_hash": config.hash if config is not None else None,
+            "config_path": config.path if config is not None else None,
+            "spec": spec.to_dict(),
+            "status": result.get("status", "failed"),
+            "error": result.get("error"),
+            "metrics": outcome.pop("metrics", {}),
+            "report": outcome.pop("report", {}),
+            "calibration": outcome.pop("calibration", {}),
+            "episode": outcome.pop("episode", {}),
+            "series": outcome.pop("series", {}),
+            "extra": outcome,
+            "versions": result.get("versions", {}),
+            "git": result.get("git", {}),
+            "timing": timing,
+        }
+    )
+
+
+def _failed_outcome(exc: BaseException, note: str) -> dict[str, Any]:
+    env = environment_info()
+    return {
+        "status": "failed",
+        "error": {
+            "type": type(exc).__name__,
+            "message": f"{note}: {exc}",
+            "traceback": "".join(traceback.format_exception(exc)),
+        },
+        "outcome": {},
+        "versions": env["versions"],
+        "git": env["git"],
+        "timing": {"started": _now(), "finished": _now(), "wall_time_s": 0.0},
+    }
+
+
+# -- the sweep ---------------------------------------------------------------------------------
+
+
+def plan_sweep(
+    config: ExperimentConfig,
+    store: RunStore,
+    retry_failed: bool = True,
+    overwrite: bool = False,
+) -> tuple[list[RunSpec], list[RunSpec]]:
+    """``(pending, finished)``: the runs still to do and those whose record is already there.
+
+    Raises :class:`SweepError` when a record under a run key has another spec (unless
+    ``overwrite``): the config changed, and mixing the two would lose or mislabel results."""
+    pending, finished, conflicts = [], [], []
+    for spec in config.runs():
+        rec = store.load(spec.run_key)
+        if rec is None:
+            pending.append(spec)
+        elif rec.get("run_hash") != spec.run_hash:
+            if overwrite:
+                pending.append(spec)
+            else:
+                conflicts.append(store.path(spec.run_key))
+        elif rec.get("status") == "ok" or not retry_failed:
+            finished.append(spec)
+        else:
+            pending.append(spec)
+    if conflicts:
+        shown = "\n".join(f"  {p}" for p in conflicts[:5])
+        more = f"\n  ... and {len(conflicts) - 5} more" if len(conflicts) > 5 else ""
+        raise SweepError(
+            f"{len(conflicts)} record(s) in {store.root} were made by another spec of the same "
+            f"run (the config changed):\n{shown}{more}\nUse another output directory, or "
+            "overwrite them (--overwrite)."
+        )
+    return pending, finished
+
+
+def run_sweep(
+    config: ExperimentConfig,
+    out_dir: str | Path | None = None,
+    *,
+    workers: int | None = None,
+    backend: str = "local",
+    address: str | None = None,
+    processes: bool = True,
+    run_fn: RunFn | None = None,
+    retry_failed: bool = True,
+    overwrite: bool = False,
+    command: str | None = None,
+    progress: Callable[[SweepProgress], None] | None = None,
+) -> SweepSummary:
+    """Run every pending run of ``config``; see the module docstring.
+
+    ``workers``: local processes (default: the CPU count; 0 runs in this process, one after
+    another), or the workers of a Dask LocalCluster. ``address``: an existing Dask scheduler.
+    ``processes=False`` makes the LocalCluster's workers threads of this process. ``run_fn``
+    replaces :func:`execute_run` (it must be picklable: a module-level function)."""
+    if backend not in ("local", "dask"):
+        raise ValueError(f"unknown backend {backend!r}; use 'local' or 'dask'")
+    run_fn = run_fn or execute_run
+    store = RunStore(out_dir if out_dir is not None else Path("runs") / config.name)
+    pending, finished = plan_sweep(config, store, retry_failed, overwrite)
+    t0 = time.perf_counter()
+    store.write_manifest(
+        {
+            "config_name": config.name,
+            "config_hash": config.hash,
+            "config_path": config.path,
+            "command": command,
+            "config": config.to_dict(),
+            "runs": {s.run_key: s.run_hash for s in config.runs()},
+        }
+    )
+    state = SweepProgress(total=len(pending) + len(finished), skipped=len(finished))
+    failed: list[str] = []
+    log.info(
+        "sweep %s: %d runs, %d already finished, %d to run (%s backend)",
+        config.name,
+        state.total,
+        state.skipped,
+        len(pending),
+        backend,
+    )
+
+    def report(spec: RunSpec, result: Mapping[str, Any]) -> None:
+        rec = build_record(spec, result, config)
+        store.write(rec)
+        state.done += 1
+        state.last = spec.run_key
+        if rec["status"] != "ok":
+            state.failed += 1
+            failed.append(spec.run_key)
+            err = rec.get("error") or {}
+            log.warning("%s failed: %s: %s", spec.run_key, err.get("type"), err.get("message"))
+
+    def tick(running: int) -> None:
+        state.running = running
+        if progress is not None:
+            progress(state)
+
+    tick(0)
+    if pending:
+        if backend == "dask":
+            _run_dask(pending, run_fn, workers, address, processes, report, tick)
+        elif workers == 0:
+            for spec in pending:
+                tick(1)
+                report(spec, run_in_worker(run_fn, spec.to_dict()))
+            tick(0)
+        else:
+            n = workers if workers is not None else (os.cpu_count() or 1)
+            _run_local(pending, run_fn, max(1, n), report, tick)
+    return SweepSummary(
+        out_dir=store.root,
+        total=state.total,
+        skipped=state.skipped,
+        done=state.done,
+        failed=failed,
+        wall_time_s=time.perf_counter() - t0,
+    )
+
+
+def _run_local(
+    pending: Sequence[RunSpec],
+    run_fn: RunFn,
+    workers: int,
+    report: Callable[[RunSpec, Mapping[str, Any]], None],
+    tick: Callable[[int], None],
+) -> None:
+    """A bounded queue over a spawned process pool: at most ``workers`` runs in flight, so the
+    progress bar's "running" is true and an interrupt loses at most those."""
+    import multiprocessing as mp
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
+
+    queue = deque(pending)
+    ctx = mp.get_context("spawn")  # no forked copies of MuJoCo, CasADi or torch state
+    with _child_thread_env():
+        while queue:
+            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+                inflight: dict[Any, RunSpec] = {}
+                broken = False
+                while (queue or inflight) and not broken:
+                    while queue and len(inflight) < workers:
+                        spec = queue.popleft()
+                        inflight[pool.submit(run_in_worker, run_fn, spec.to_dict())] = spec
+                    tick(len(inflight))
+                    done, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        spec = inflight.pop(fut)
+                        try:
+                            result = fut.result()
+                        except BrokenProcessPool as exc:
+                            broken = True
+                            result = _failed_outcome(
+                                exc,
+                                "a worker process died while this run was in flight (this run "
+                                "or another one in flight crashed it)",
+                            )
+                        except Exception as exc:  # e.g. an outcome that cannot be pickled
+                            result = _failed_outcome(exc, "the run's result did not come back")
+                        report(spec, result)
+                if broken:  # the pool is unusable: every run still in flight died with it
+                    for fut, spec in inflight.items():
+                        exc = fut.exception() if fut.done() else BrokenProcessPool("pool broken")
+                        report(spec, _failed_outcome(exc, "a worker process died"))
+                    inflight.clear()
+                    log.warning("a worker process died; starting a new pool")
+    tick(0)
+
+
+def _run_dask(
+    pending: Sequence[RunSpec],
+    run_fn: RunFn,
+    workers: int | None,
+    address: str | None,
+    processes: bool,
+    report: Callable[[RunSpec, Mapping[str, Any]], None],
+    tick: Callable[[int], None],
+) -> None:
+    """The same bounded queue over a Dask cluster (an existing scheduler, or a LocalCluster)."""
+    try:
+        from distributed import Client, LocalCluster, wait
+    except ImportError as exc:  # pragma: no cover - depends on the installed extras
+        raise SweepError(
+            "the Dask backend needs the 'cluster' extra: pip install 'sixaxis-track[cluster]'"
+        ) from exc
+
+    with contextlib.ExitStack() as stack:
+        if address:
+            client = stack.enter_context(Client(address))
+        else:
+            n = workers if workers else (os.cpu_count() or 1)
+            with _child_thread_env():
+                cluster = stack.enter_context(
+                    LocalCluster(
+                        n_workers=n,
+                        threads_per_worker=1,
+                        processes=processes,
+                        dashboard_address=None,
+                    )
+                )
+            client = stack.enter_context(Client(cluster))
+        slots = max(1, sum(client.nthreads().values()))
+        log.info("dask: %s with %d worker threads", client.scheduler.address, slots)
+        queue = deque(pending)
+        inflight: dict[Any, RunSpec] = {}
+        while queue or inflight:
+            while queue and len(inflight) < slots:
+                spec = queue.popleft()
+                fut = client.submit(
+                    run_in_worker,
+                    run_fn,
+                    spec.to_dict(),
+                    pure=False,
+                    key=f"sixaxis-run-{spec.run_key}-{os.urandom(4).hex()}",
+                )
+                inflight[fut] = spec
+            tick(len(inflight))
+            done, _ = wait(list(inflight), return_when="FIRST_COMPLETED")
+            for fut in done:
+                spec = inflight.pop(fut)
+                try:
+                    result = fut.result()
+                except Exception as exc:  # a killed worker, a lost connection
+                    result = _failed_outcome(exc, "the Dask task failed")
+                report(spec, result)
+                fut.release()
+    tick(0)

@@ -1,0 +1,194 @@
+"""Experiment configs: the shipped ones parse, a config expands into the right runs, and a bad
+config is refused before any run starts, naming the file and the key at fault."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from experiments.config import ConfigError, load_config, parse_config
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = ROOT / "experiments" / "configs"
+
+GOOD = {
+    "name": "t",
+    "seeds": [0, 1],
+    "episode_seconds": 2.0,
+    "scenarios": ["nominal", "geometric"],
+    "agents": ["hold", {"name": "nominal", "settings": {"gain": 0.4}}],
+}
+
+
+def parse(**changes):
+    raw = {k: v for k, v in (GOOD | changes).items() if v is not None}
+    return parse_config(raw, source="cfg.toml", check_agents=False)
+
+
+def refused(**changes) -> str:
+    with pytest.raises(ConfigError) as err:
+        parse(**changes)
+    msg = str(err.value)
+    assert msg.startswith("cfg.toml: bad experiment config")
+    return msg
+
+
+@pytest.mark.parametrize("name", ["quick", "full"])
+def test_shipped_configs_parse(name):
+    cfg = load_config(CONFIGS / f"{name}.toml")
+    assert cfg.name == name
+    runs = cfg.runs()
+    assert len(runs) == len(cfg.agents) * len(cfg.scenarios) * len(cfg.seeds)
+    assert len({r.run_key for r in runs}) == len(runs)
+    if name == "full":
+        assert len(cfg.seeds) >= 5
+        assert {s.scenario for s in cfg.scenarios} >= {"nominal", "geometric", "compliance"}
+
+
+def test_runs_expand_agents_by_scenarios_by_seeds_and_merge_env_options():
+    cfg = parse(
+        env={"noise_mm": 0.02, "trajectory": "circle"},
+        scenarios=[
+            "nominal",
+            {"name": "geo-lemni", "scenario": "geometric", "env": {"trajectory": "lemniscate"}},
+        ],
+        agents=["hold", {"name": "nominal", "label": "nom-slow", "env": {"noise_mm": 0.05}}],
+    )
+    runs = cfg.runs()
+    assert [r.run_key for r in runs] == [
+        "hold__nominal__seed0",
+        "hold__nominal__seed1",
+        "hold__geo-lemni__seed0",
+        "hold__geo-lemni__seed1",
+        "nom-slow__nominal__seed0",
+        "nom-slow__nominal__seed1",
+        "nom-slow__geo-lemni__seed0",
+        "nom-slow__geo-lemni__seed1",
+    ]
+    r = runs[6]
+    # [env] | scenario.env | agent.env | scenario
+    assert r.env_kwargs == {"noise_mm": 0.05, "scenario": "geometric", "trajectory": "lemniscate"}
+    assert r.agent == "nominal" and r.agent_label == "nom-slow"
+
+
+def test_seed_count_means_zero_to_n_minus_one():
+    assert parse(seeds=5).seeds == (0, 1, 2, 3, 4)
+
+
+def test_run_hash_names_the_run_not_the_config():
+    a = parse().runs()[0]
+    b = parse(name="other").runs()[0]
+    c = parse(episode_seconds=3.0).runs()[0]
+    assert a.run_hash == b.run_hash
+    assert a.run_hash != c.run_hash
+    assert parse().hash != parse(name="other").hash
+
+
+def test_user_agent_by_class_path_is_accepted():
+    cfg = parse(agents=[{"name": "agents.reference:HoldAgent", "settings": {}}])
+    assert cfg.agents[0].label == "HoldAgent"
+    assert cfg.agents[0].agent == "agents.reference:HoldAgent"
+
+
+@pytest.mark.parametrize(
+    ("changes", "key", "words"),
+    [
+        ({"agents": ["hold", "bogus"]}, "agents[1].name", "unknown agent 'bogus'"),
+        ({"agents": ["no.such.module:Agent"]}, "agents[0].name", "cannot import module"),
+        ({"agents": ["agents.base:Observation"]}, "agents[0].name", "not a subclass"),
+        ({"scenarios": ["geometric", "wobbly"]}, "scenarios[1].name", "unknown scenario 'wobbly'"),
+        (
+            {"scenarios": [{"name": "x", "scenario": "wobbly"}]},
+            "scenarios[0].scenario",
+            "unknown scenario",
+        ),
+        ({"seeds": "0,1"}, "seeds", "expected an array or an integer"),
+        ({"seeds": [0, 1.5]}, "seeds[1]", "non-negative integer"),
+        ({"seeds": [0, 0]}, "seeds", "repeated"),
+        ({"episode_seconds": "long"}, "episode_seconds", "expected an integer or a float"),
+        ({"episode_seconds": 30.0}, "episode_seconds", "longer than the env's reference"),
+        ({"metrics": ["rms_mm", "happiness"]}, "metrics[1]", "unknown metric 'happiness'"),
+        ({"rank_by": "max_mm", "metrics": ["rms_mm"]}, "rank_by", "not one of the metrics"),
+        ({"colour": "blue"}, "colour", "unknown key"),
+        ({"agents": [{"name": "nominal", "setings": {}}]}, "agents[0].setings", "unknown key"),
+        (
+            {"agents": [{"name": "nominal", "settings": {"gain": "high"}}]},
+            "agents[0].settings.gain",
+            "expected a number",
+        ),
+        (
+            {"agents": [{"name": "nominal", "settings": {"gian": 1.0}}]},
+            "agents[0].settings",
+            "unknown setting(s) gian",
+        ),
+        (
+            {"agents": [{"name": "mpc", "settings": {"horizon": 12.5}}]},
+            "agents[0].settings.horizon",
+            "expected an integer",
+        ),
+        ({"env": {"noise_mm": "15um"}}, "env.noise_mm", "expected a number"),
+        ({"env": {"measurements": 1}}, "env.measurements", "expected a boolean"),
+        ({"env": {"nosie_mm": 0.01}}, "env.nosie_mm", "unknown env option"),
+        ({"env": {"scenario": "geometric"}}, "env.scenario", "top-level 'scenarios'"),
+        ({"agents": ["hold", "hold"]}, "agents", "'hold' appears twice"),
+        ({"scenarios": []}, "scenarios", "empty"),
+        ({"agents": None}, "agents", "missing (required)"),
+        ({"name": "a/b"}, "name", "letters, digits"),
+        (
+            {"phases": [{"name": "cal", "seconds": 1.0, "judged": False}]},
+            "phases",
+            "no phase is judged",
+        ),
+        ({"phases": [{"name": "cal", "seconds": -1.0}]}, "phases[0].seconds", "positive number"),
+    ],
+)
+def test_bad_config_is_refused_naming_the_key(changes, key, words):
+    msg = refused(**changes)
+    line = next((ln for ln in msg.splitlines() if ln.strip().startswith(f"- {key}:")), None)
+    assert line is not None, f"no problem reported for key {key!r}:\n{msg}"
+    assert words in line, line
+
+
+def test_every_problem_is_reported_at_once():
+    msg = refused(agents=["bogus"], scenarios=["wobbly"], seeds=[-1])
+    for key in ("agents[0].name", "scenarios[0].name", "seeds[0]"):
+        assert f"- {key}:" in msg
+
+
+def test_bad_setting_value_is_caught_by_making_the_agent(tmp_path):
+    raw = GOOD | {"agents": [{"name": "nominal", "settings": {"gain": 2.0}}]}
+    with pytest.raises(ConfigError, match=r"agents\[0\]\.settings: agent 'nominal' refuses"):
+        parse_config(raw, source="cfg.toml", check_agents=True)
+
+
+def test_file_errors_name_the_file(tmp_path):
+    p = tmp_path / "broken.toml"
+    p.write_text('seeds = [0\nagents = ["hold"]\n')
+    with pytest.raises(
+        ConfigError, match=r"broken\.toml: bad experiment config:\n  - not valid TOML"
+    ):
+        load_config(p)
+    with pytest.raises(ConfigError, match="no such file"):
+        load_config(tmp_path / "missing.toml")
+
+
+def test_cli_refuses_a_bad_config_before_any_run_starts(tmp_path):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(
+        'seeds = [0]\nepisode_seconds = 1.0\nscenarios = ["geometric"]\n'
+        'agents = ["hold", { name = "nominal", settings = { gain = "fast" } }]\n'
+    )
+    out = tmp_path / "runs"
+    proc = subprocess.run(
+        [sys.executable, "-m", "experiments.cli", "sweep", str(cfg), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
+    assert proc.returncode == 2
+    assert "bad.toml" in proc.stderr and "agents[1].settings.gain" in proc.stderr
+    assert not out.exists()  # nothing ran, nothing was written

@@ -1,0 +1,297 @@
+"""The sweep runner: one atomic record per run, resumable, failures recorded, the same records from
+every backend; and for real: the actual agents on the actual env, run twice, killed and resumed,
+and on a Dask cluster.
+
+The bookkeeping tests inject a small deterministic run function (the runner takes one, for users
+too); the real-run tests run hold/nominal and a user's class on SixAxisTrack-v0 for 1 s episodes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import zlib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from agents.base import Agent
+from experiments.config import RunSpec, parse_config
+from experiments.leaderboard import build_leaderboard, to_csv
+from experiments.records import RunStore, load_record, without_timing
+from experiments.sweep import SweepError, run_sweep
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+# -- a user's controller, joining by its class path ---------------------------------------------
+
+
+class DampedHold(Agent):
+    """A user's agent: commands a fixed fraction of the previous joint velocity (nearly hold)."""
+
+    name = "damped-hold"
+
+    def __init__(self, factor: float = 0.5) -> None:
+        super().__init__()
+        self.factor = float(factor)
+
+    def reset(self, task: Any, seed: int | None = None, truth: Any = None) -> None:
+        self.task = task
+        self.steps = 0
+
+    def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
+        self.steps += 1
+        qd = np.asarray(obs, dtype=float)[self.task.obs_slices["qd"]]
+        return np.clip(self.factor * qd / np.asarray(self.task.v_max), -1.0, 1.0)
+
+    def report(self) -> dict:
+        return {"steps": self.steps}
+
+
+# -- a deterministic stand-in for a run (dependency injection) ----------------------------------
+
+
+def fake_run(spec: RunSpec) -> dict:
+    """Numbers that depend only on the spec; seed 13 fails, like a run that raises."""
+    if spec.seed == 13:
+        raise RuntimeError(f"deliberate failure of {spec.run_key}")
+    rng = np.random.default_rng(
+        [spec.seed, zlib.crc32(spec.agent_label.encode()), zlib.crc32(spec.scenario.encode())]
+    )
+    err = rng.uniform(0.1, 2.0, 20)
+    return {
+        "metrics": {"rms_mm": float(np.sqrt(np.mean(err**2))), "max_mm": float(err.max())},
+        "timing_metrics": {"solve_time_median_ms": float(time.perf_counter() % 1)},
+        "series": {"time": (np.arange(20) * 0.02 + 0.02).tolist(), "true_error_mm": err.tolist()},
+    }
+
+
+def config(**changes):
+    raw = {
+        "name": "fake",
+        "seeds": [0, 1, 2],
+        "episode_seconds": 1.0,
+        "metrics": ["rms_mm", "max_mm", "solve_time_median_ms"],
+        "scenarios": ["nominal", "geometric"],
+        "agents": ["hold", "nominal"],
+    } | changes
+    return parse_config(raw, source="fake.toml", check_agents=False)
+
+
+def comparable(store: RunStore) -> dict[str, dict]:
+    return {p.name: without_timing(load_record(p)) for p in store.paths()}
+
+
+def test_every_run_writes_one_whole_record(tmp_path):
+    cfg = config()
+    calls = []
+    summary = run_sweep(
+        cfg,
+        tmp_path,
+        workers=0,
+        run_fn=fake_run,
+        progress=lambda s: calls.append((s.done, s.running, s.failed)),
+    )
+    store = RunStore(tmp_path)
+    names = sorted(p.name for p in store.paths())
+    assert names == sorted(f"{s.run_key}.json" for s in cfg.runs())
+    assert summary.done == 12 and summary.skipped == 0 and not summary.failed
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp files left
+    rec = store.load("nominal__geometric__seed2")
+    spec = RunSpec.from_dict(rec["spec"])
+    assert spec == next(s for s in cfg.runs() if s.run_key == "nominal__geometric__seed2")
+    assert rec["run_hash"] == spec.run_hash and rec["config_hash"] == cfg.hash
+    assert rec["status"] == "ok" and rec["metrics"] == fake_run(spec)["metrics"]
+    assert "solve_time_median_ms" in rec["timing"] and "solve_time_median_ms" not in rec["metrics"]
+    assert rec["versions"]["numpy"] == np.__version__ and "commit" in rec["git"]
+    assert calls[-1] == (12, 0, 0)
+    manifest = store.manifest()
+    assert manifest["config_hash"] == cfg.hash and len(manifest["runs"]) == 12
+
+
+def test_a_rerun_skips_finished_records_and_retries_failed_ones(tmp_path):
+    cfg = config(seeds=[0, 13])
+    first = run_sweep(cfg, tmp_path, workers=0, run_fn=fake_run)
+    assert sorted(first.failed) == sorted(
+        f"{a}__{s}__seed13" for a in ("hold", "nominal") for s in ("nominal", "geometric")
+    )
+    rec = RunStore(tmp_path).load("hold__nominal__seed13")
+    assert rec["status"] == "failed" and rec["metrics"] == {}
+    assert rec["error"]["type"] == "RuntimeError"
+    assert "deliberate failure of hold__nominal__seed13" in rec["error"]["traceback"]
+    before = {p.name: p.stat().st_mtime_ns for p in RunStore(tmp_path).paths()}
+
+    second = run_sweep(cfg, tmp_path, workers=0, run_fn=fake_run)
+    assert second.skipped == 4 and second.done == 4  # the failed four are retried
+    after = {p.name: p.stat().st_mtime_ns for p in RunStore(tmp_path).paths()}
+    assert {k for k in after if after[k] != before[k]} == {f"{k}.json" for k in first.failed}
+
+    third = run_sweep(cfg, tmp_path, workers=0, run_fn=fake_run, retry_failed=False)
+    assert third.skipped == 8 and third.done == 0
+
+
+def test_more_seeds_reuse_the_finished_runs(tmp_path):
+    run_sweep(config(seeds=[0]), tmp_path, workers=0, run_fn=fake_run)
+    summary = run_sweep(config(seeds=[0, 1]), tmp_path, workers=0, run_fn=fake_run)
+    assert summary.skipped == 4 and summary.done == 4
+
+
+def test_records_of_another_spec_are_refused_not_overwritten(tmp_path):
+    run_sweep(config(), tmp_path, workers=0, run_fn=fake_run)
+    before = comparable(RunStore(tmp_path))
+    with pytest.raises(SweepError, match=r"(?s)12 record\(s\).*another spec.*--overwrite"):
+        run_sweep(config(episode_seconds=2.0), tmp_path, workers=0, run_fn=fake_run)
+    assert comparable(RunStore(tmp_path)) == before
+    summary = run_sweep(
+        config(episode_seconds=2.0), tmp_path, workers=0, run_fn=fake_run, overwrite=True
+    )
+    assert summary.done == 12
+
+
+def test_process_pool_gives_the_same_records_as_in_process(tmp_path):
+    cfg = config(seeds=[0, 13, 1])
+    a, b = tmp_path / "a", tmp_path / "b"
+    run_sweep(cfg, a, workers=0, run_fn=fake_run)
+    summary = run_sweep(cfg, b, workers=2, run_fn=fake_run)
+    assert len(summary.failed) == 4  # failures do not stop the sweep
+    ra, rb = comparable(RunStore(a)), comparable(RunStore(b))
+    for rec in (*ra.values(), *rb.values()):  # tracebacks name the pool's frames; compare the rest
+        if rec["error"]:
+            rec["error"].pop("traceback")
+    assert ra == rb
+
+
+# -- for real: the actual env and agents --------------------------------------------------------
+
+TINY = """
+name = "tiny"
+seeds = [0]
+episode_seconds = 1.0
+settle_seconds = 0.5
+metrics = ["rms_mm", "rms_settled_mm", "max_mm", "effort_rms", "calib_rms_mm", "diverged", "solve_time_median_ms"]
+scenarios = ["nominal", "geometric"]
+agents = [
+    "hold",
+    "nominal",
+    { name = "tests.test_experiments_sweep:DampedHold", label = "damped", settings = { factor = 0.3 } },
+]
+[env]
+trajectory = "circle"
+"""
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """The tiny real config and one sweep of it (two local processes)."""
+    from experiments.config import load_config
+
+    root = tmp_path_factory.mktemp("tiny")
+    path = root / "tiny.toml"
+    path.write_text(TINY)
+    cfg = load_config(path)
+    summary = run_sweep(cfg, root / "first", workers=2)
+    assert not summary.failed, [
+        load_record(root / "first" / f"{k}.json")["error"] for k in summary.failed
+    ]
+    return cfg, root
+
+
+def test_real_tiny_sweep_twice_gives_identical_records_apart_from_timing(tiny):
+    cfg, root = tiny
+    run_sweep(cfg, root / "second", workers=1)
+    a, b = comparable(RunStore(root / "first")), comparable(RunStore(root / "second"))
+    assert len(a) == 6 and a == b
+    rec = a["nominal__geometric__seed0.json"]
+    assert rec["spec"]["env_kwargs"] == {"scenario": "geometric", "trajectory": "circle"}
+    assert rec["episode"]["steps"] == 50 and len(rec["series"]["true_error_mm"]) == 50
+    # the metric is the RMS of the recorded series: the record is self-consistent
+    e = np.asarray(rec["series"]["true_error_mm"])
+    assert rec["metrics"]["rms_mm"] == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
+    hold = a["hold__geometric__seed0.json"]["metrics"]["rms_mm"]
+    assert rec["metrics"]["rms_mm"] < hold  # tracking beats holding still
+    assert a["damped__geometric__seed0.json"]["report"] == {"steps": 50}
+
+
+def test_dask_backend_gives_the_same_records_as_local_processes(tiny):
+    pytest.importorskip("distributed")
+    cfg, root = tiny
+    summary = run_sweep(cfg, root / "dask", backend="dask", workers=1, processes=False)
+    assert summary.done == 6 and not summary.failed
+    assert comparable(RunStore(root / "dask")) == comparable(RunStore(root / "first"))
+
+
+def _sweep_cmd(config: Path, out: Path) -> list[str]:
+    return [
+        sys.executable,
+        "-m",
+        "experiments.cli",
+        "sweep",
+        str(config),
+        "--out",
+        str(out),
+        "--workers",
+        "1",
+    ]
+
+
+def _table(runs: Path) -> str:
+    """The leaderboard CSV without the timing columns (those vary from run to run)."""
+    lines = to_csv(build_leaderboard(runs)).splitlines()
+    header = lines[0].split(",")
+    keep = [i for i, h in enumerate(header) if not h.startswith("solve_time")]
+    return "\n".join(",".join(row.split(",")[i] for i in keep) for row in lines)
+
+
+@pytest.mark.slow
+def test_killed_sweep_resumes_to_the_same_table(tiny, tmp_path):
+    _, root = tiny
+    config_path = root / "tiny-long.toml"
+    config_path.write_text(TINY.replace("seeds = [0]", "seeds = [0, 1]"))
+    killed = tmp_path / "killed"
+    proc = subprocess.Popen(
+        _sweep_cmd(config_path, killed),
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,  # its own process group: the kill takes the workers too
+    )
+    deadline = time.monotonic() + 180
+    try:
+        while len(RunStore(killed).paths()) < 4:
+            assert proc.poll() is None, "the sweep ended before it could be killed"
+            assert time.monotonic() < deadline, "the sweep made no progress"
+            time.sleep(0.01)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    done_before = {p.name: load_record(p) for p in RunStore(killed).paths()}
+    assert 4 <= len(done_before) < 12, "killed too late to test a resume"
+
+    resumed = subprocess.run(
+        _sweep_cmd(config_path, killed), cwd=ROOT, capture_output=True, text=True, timeout=300
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"({len(done_before)} already finished, 0 failed)" in resumed.stdout
+    final = {p.name: load_record(p) for p in RunStore(killed).paths()}
+    assert len(final) == 12
+    for name, rec in done_before.items():  # nothing finished before the kill was redone
+        assert final[name] == rec
+    assert not [p for p in killed.iterdir() if p.name.startswith(".")]  # no temp files
+
+    whole = tmp_path / "whole"
+    subprocess.run(
+        _sweep_cmd(config_path, whole), cwd=ROOT, check=True, capture_output=True, timeout=300
+    )
+    assert _table(killed) == _table(whole)
+    assert (
+        json.loads((killed / "_sweep.json").read_text())["config_hash"]
+        == json.loads((whole / "_sweep.json").read_text())["config_hash"]
+    )
