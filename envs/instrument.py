@@ -1,0 +1,113 @@
+"""A laser-tracker-like instrument: it samples the true tool point every ``measure_every`` control
+steps, adds independent Gaussian noise of ``noise_mm`` per axis, loses a sample with probability
+``dropout``, and delivers each one ``latency_steps`` control steps after it was taken. Turned off
+(``enabled=False``) it models production running blind.
+
+A measurement carries what an estimator needs to use it late: the encoder reading, the time and
+the lab's columns (temperature, payload, dir1..dir6) *at the instant it was sampled*.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["InstrumentError", "LaserTracker", "Measurement", "TrackerConfig"]
+
+
+class InstrumentError(ValueError):
+    """An instrument setting out of range."""
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Per-axis noise (mm, one standard deviation), the sampling period (control steps), the
+    probability that a sample is lost, the delivery latency (control steps), on/off."""
+
+    noise_mm: float = 0.015
+    measure_every: int = 5
+    dropout: float = 0.0
+    latency_steps: int = 0
+    enabled: bool = True
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.noise_mm) and self.noise_mm >= 0):
+            raise InstrumentError(f"noise_mm must be >= 0, got {self.noise_mm}")
+        if int(self.measure_every) != self.measure_every or self.measure_every < 1:
+            raise InstrumentError(
+                f"measure_every must be a positive integer, got {self.measure_every}"
+            )
+        if not 0.0 <= self.dropout < 1.0:
+            raise InstrumentError(f"dropout must be in [0, 1), got {self.dropout}")
+        if int(self.latency_steps) != self.latency_steps or self.latency_steps < 0:
+            raise InstrumentError(
+                f"latency_steps must be a non-negative integer, got {self.latency_steps}"
+            )
+
+
+@dataclass
+class Measurement:
+    """One delivered sample: the measured point (3,) m, the encoder reading (6,) rad, the time
+    (s) and the columns (temperature, payload, dir1..dir6) at the instant it was sampled."""
+
+    xyz: np.ndarray
+    q: np.ndarray
+    time: float
+    step: int
+    columns: dict[str, float] = field(default_factory=dict)
+
+
+class LaserTracker:
+    """See the module docstring. ``reset(rng)`` at each episode; ``sample(...)`` after every
+    control step (it decides whether this step is sampled); ``deliver(step)`` returns the sample
+    due at this step, if any."""
+
+    def __init__(self, config: TrackerConfig | None = None) -> None:
+        self.config = config or TrackerConfig()
+        self._sigma = self.config.noise_mm * 1e-3
+        self._queue: deque[tuple[int, Measurement]] = deque()
+        self._rng = np.random.default_rng(0)
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self._rng = rng
+        self._queue.clear()
+
+    def due(self, step: int) -> bool:
+        """Whether the tracker samples at control step ``step``."""
+        c = self.config
+        return c.enabled and step % c.measure_every == 0
+
+    def sample(
+        self,
+        step: int,
+        time: float,
+        true_point: np.ndarray,
+        q: np.ndarray,
+        columns: dict[str, float],
+    ) -> None:
+        """Take a sample at ``step`` if one is due (noise and dropout drawn from the episode's
+        generator)."""
+        if not self.due(step):
+            return
+        noise = self._rng.normal(0.0, 1.0, 3)
+        lost = self._rng.random() < self.config.dropout
+        if lost:
+            return
+        m = Measurement(
+            xyz=np.asarray(true_point, dtype=float) + self._sigma * noise,
+            q=np.array(q, dtype=float),
+            time=float(time),
+            step=int(step),
+            columns=dict(columns),
+        )
+        self._queue.append((step + self.config.latency_steps, m))
+
+    def deliver(self, step: int) -> Measurement | None:
+        """The newest sample due by ``step`` (older ones due at the same time are superseded)."""
+        out = None
+        q = self._queue
+        while q and q[0][0] <= step:
+            out = q.popleft()[1]
+        return out

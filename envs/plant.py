@@ -1,0 +1,700 @@
+"""The MuJoCo plant: a six-axis arm built in code (MjSpec) from a robot description with its *true*
+geometry, driven by joint servos that follow velocity commands, with the hidden effects made by
+physics wherever physics can make them.
+
+Bodies follow the modified-DH rows exactly: body i sits at ``RotX(alpha_{i-1}) RotY(beta_{i-1})
+TransX(a_{i-1}) RotZ(theta_offset_i) TransZ(d_i)`` in its parent and turns about its own z, so that
+with rigid joints MuJoCo's ``site_xpos`` of the tool is the kinematic model's tool point of the same
+arm (``envs.kinematics``), to rounding. A base body carries the base transform (measurement frame
+<- robot base); the world frame is the measurement frame.
+
+Each axis is a motor-side hinge (the encoder reads it) driven by a servo: an integrating position
+loop (``intvelocity``, the reference integrates the commanded velocity within the joint limits)
+with a velocity feed-forward loop, a torque limit on the joint, reflected rotor inertia
+(armature), viscous and dry friction. The command is rate-limited to the axis' acceleration limit
+and clipped to its velocity limit once per control step.
+
+An *elastic* plant adds, per axis, a link-side hinge in series with the motor hinge, joined by the
+gear mesh: a fixed tendon ``L_i = q_link_i - s_i q_motor_i`` with stiffness ``k_i`` (the joint
+compliance ``c_i = 1/k_i``), a little mesh damping, and a dead band ``[c_i - gap_i/2, c_i +
+gap_i/2]`` (the backlash). So gravity and payload really deflect the links, fast motion really
+vibrates, and inside the gap the link is free: where gravity loads the joint it rests against the
+loaded side; where the link-side bearing friction holds it, it lags its motor. Gear transmission
+error (an eccentricity ``ts sin(q) + tc cos(q)``) and a gear-ratio error ``g q`` move the mesh's
+rest position with the motor angle: once per control step the rest function is linearised at the
+motor angle (``s_i`` and ``c_i`` above), exact to second order in the motion of one step.
+
+Thermal growth: one arm temperature heats with the motors' losses and cools towards ambient; every
+control step the link lengths a and d (nominal plus error) are scaled by ``1 + kappa (T - 20 degC)``
+by moving the bodies (the base and the tool do not grow). The payload is a point mass at the tool
+point that may change during an episode.
+
+The ``discrete`` integrator (implicit in position and velocity) keeps stiff joints and servos stable
+at 1 kHz with light wrist links.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field, replace
+
+import mujoco
+import numpy as np
+
+from envs.description import RobotDescription, rotation_matrix
+from envs.effects import REFERENCE_TEMPERATURE
+from envs.kinematics import Chain, gravity_torques
+
+__all__ = [
+    "RIGID_STIFFNESS",
+    "Drive",
+    "HiddenEffects",
+    "Plant",
+    "PlantError",
+]
+
+log = logging.getLogger(__name__)
+
+RIGID_STIFFNESS = 1e9  # N*m/rad: an elastic plant's mesh where the scenario has no compliance
+MESH_DAMPING_STIFFNESS = 1e6  # N*m/rad: mesh damping is sized for at most this stiffness
+PHYSICS_DT = 0.001  # s
+SUBSTEPS = 20  # physics steps per control step (50 Hz control)
+AMBIENT = 20.0  # degC
+MAX_SPEED = 100.0  # rad/s: any hinge faster than this means the simulation has diverged
+
+# Servo and drive-train defaults of the seed arm's class (about 6 kg payload, 1 m reach).
+V_MAX = (1.2, 1.2, 1.5, 2.5, 2.5, 3.0)  # rad/s
+A_MAX = (6.0, 6.0, 8.0, 12.0, 12.0, 15.0)  # rad/s^2
+SERVO_BANDWIDTH = 2 * math.pi * 8.0  # rad/s, position loop
+HOLD_POWER = 60.0  # W dissipated by an axis holding its full torque (copper losses)
+KP_MIN = 2000.0  # N*m/rad: the light axes' position loop is stiffer than their inertia asks
+
+
+class PlantError(ValueError):
+    """A plant configuration that cannot be built or applied."""
+
+
+def _vec6(x, name: str) -> np.ndarray:
+    a = np.array(np.broadcast_to(np.asarray(x, dtype=float), (6,)), dtype=float)
+    if not np.all(np.isfinite(a) | np.isinf(a)) or np.any(np.isnan(a)):
+        raise PlantError(f"{name} must be 6 numbers, got {x!r}")
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Drive:
+    """Servo and drive-train constants of the six axes (SI units, all (6,) arrays).
+
+    ``v_max``/``a_max`` limit the commanded velocity and its rate of change; ``torque_max`` limits
+    the total servo torque on the motor hinge; ``armature`` is the reflected rotor inertia;
+    ``kp``/``kv`` the position and velocity loop gains; ``damping``/``friction`` the motor side's
+    viscous and dry friction.
+    """
+
+    v_max: np.ndarray
+    a_max: np.ndarray
+    torque_max: np.ndarray
+    armature: np.ndarray
+    kp: np.ndarray
+    kv: np.ndarray
+    damping: np.ndarray
+    friction: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class HiddenEffects:
+    """The physical magnitudes of a plant's hidden effects (SI units; arrays are per axis).
+
+    ``stiffness`` of the gear mesh (N*m/rad; ``inf``: rigid), ``gap`` the whole backlash (rad),
+    ``bearing_friction`` the link-side dry friction (N*m) that holds a link inside its gap,
+    ``ts``/``tc`` the transmission error and ``g`` the gear-ratio error (rad, 1), ``kappa`` the
+    thermal expansion (1/K) with the arm starting at ``temperature0`` (degC), heating by ``heating``
+    K per J of motor losses and cooling towards ambient with ``cooling_time`` (s); ``payload0`` (kg)
+    at the tool point, changed to ``mass`` at each ``(time, mass)`` of ``payload_schedule``.
+    """
+
+    stiffness: np.ndarray = field(default_factory=lambda: np.full(6, np.inf))
+    gap: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    bearing_friction: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    ts: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    tc: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    g: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    mesh_damping_ratio: float = 0.05
+    kappa: float = 0.0
+    temperature0: float = AMBIENT
+    heating: float = 0.0
+    cooling_time: float = 600.0
+    payload0: float = 0.0
+    payload_schedule: tuple[tuple[float, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in ("stiffness", "gap", "bearing_friction", "ts", "tc", "g"):
+            object.__setattr__(self, name, _vec6(getattr(self, name), name))
+        if np.any(self.stiffness <= 0):
+            raise PlantError(f"stiffness must be > 0 (inf for rigid), got {self.stiffness}")
+        if np.any(self.gap < 0) or np.any(self.bearing_friction < 0):
+            raise PlantError("backlash gaps and bearing friction must be >= 0")
+        if self.payload0 < 0 or any(m < 0 for _, m in self.payload_schedule):
+            raise PlantError("payload masses must be >= 0 kg")
+        if self.cooling_time <= 0:
+            raise PlantError(f"cooling_time must be > 0 s, got {self.cooling_time}")
+
+    @property
+    def needs_elastic(self) -> bool:
+        """Whether a motor-side and a link-side hinge are needed (rigid joints are one hinge)."""
+        return bool(
+            np.any(np.isfinite(self.stiffness))
+            or np.any(self.gap > 0)
+            or np.any(self.ts)
+            or np.any(self.tc)
+            or np.any(self.g)
+        )
+
+    @property
+    def thermal(self) -> bool:
+        return self.kappa != 0.0 or self.temperature0 != AMBIENT or self.heating != 0.0
+
+    def replace(self, **kw) -> HiddenEffects:
+        return replace(self, **kw)
+
+
+# -- geometry -----------------------------------------------------------------------------------
+def _rx(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _ry(b: float) -> np.ndarray:
+    c, s = math.cos(b), math.sin(b)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _rz(t: float) -> np.ndarray:
+    c, s = math.cos(t), math.sin(t)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _quat(R: np.ndarray) -> np.ndarray:
+    q = np.empty(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R).reshape(9))
+    return q
+
+
+def row_frames(robot: RobotDescription) -> tuple[np.ndarray, np.ndarray]:
+    """Position (6, 3) and quaternion (6, 4) of each row's body in its parent (modified DH)."""
+    m = robot.to_modified()
+    pos = np.empty((6, 3))
+    quat = np.empty((6, 4))
+    for i, j in enumerate(m.joints):
+        Rab = _rx(j.alpha) @ _ry(j.beta)
+        pos[i] = Rab @ np.array([j.a, 0.0, j.d])
+        quat[i] = _quat(Rab @ _rz(j.theta_offset))
+    return pos, quat
+
+
+def _cylinder_inertia(mass: float, axis: np.ndarray, length: float, radius: float) -> np.ndarray:
+    u = axis / np.linalg.norm(axis)
+    perp = mass * (3 * radius**2 + length**2) / 12.0
+    along = 0.5 * mass * radius**2
+    return perp * (np.eye(3) - np.outer(u, u)) + along * np.outer(u, u)
+
+
+def _link_segments(robot: RobotDescription) -> list[np.ndarray]:
+    """For each link i (1..6), the next frame's origin (or the tool point) in frame i."""
+    m = robot.to_modified()
+    out = []
+    for i in range(6):
+        if i < 5:
+            nxt = m.joints[i + 1]
+            out.append(_rx(nxt.alpha) @ _ry(nxt.beta) @ np.array([nxt.a, 0.0, nxt.d]))
+        else:
+            out.append(m.tool_points[0].copy())
+    return out
+
+
+# -- the plant ----------------------------------------------------------------------------------
+class Plant:
+    """A MuJoCo arm (see the module docstring). ``elastic`` selects the two-hinge drive train,
+    needed by compliance, transmission and backlash; :meth:`configure` sets the true geometry and
+    the hidden effects (values can change between episodes, the structure cannot)."""
+
+    def __init__(
+        self,
+        robot: RobotDescription,
+        elastic: bool = False,
+        drive: Drive | None = None,
+        physics_dt: float = PHYSICS_DT,
+        substeps: int = SUBSTEPS,
+    ) -> None:
+        self.nominal = robot.to_modified()
+        if not self.nominal.has_mass_model:
+            raise PlantError(f"robot {robot.name!r} has no masses: the plant needs a mass model")
+        self.elastic = bool(elastic)
+        self.physics_dt = float(physics_dt)
+        self.substeps = int(substeps)
+        self.dt = self.physics_dt * self.substeps
+        self.spec = self._build_spec()
+        self.model = self.spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self._index()
+        self.drive = drive if drive is not None else self.default_drive()
+        self._apply_drive(self.drive)
+        self._v_ref = np.zeros(6)
+        self._dv = np.zeros(6)
+        self._lo = np.zeros(6)
+        self._hi = np.zeros(6)
+        self.dirs = np.ones(6)
+        self._J_link: np.ndarray | None = None
+        self.configure(self.nominal, HiddenEffects())
+
+    # -- building ---------------------------------------------------------------------------
+    def _build_spec(self) -> mujoco.MjSpec:
+        r = self.nominal
+        spec = mujoco.MjSpec()
+        spec.modelname = f"sixaxis_{r.name}"
+        spec.compiler.degree = False
+        spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
+        spec.compiler.autolimits = True
+        opt = spec.option
+        opt.timestep = self.physics_dt
+        opt.integrator = mujoco.mjtIntegrator.mjINT_DISCRETE
+        opt.gravity = np.asarray(r.gravity, dtype=float)
+        opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+        spec.visual.quality.offsamples = 0
+        spec.visual.quality.shadowsize = 0
+        spec.stat.center = np.array([0.3, 0.0, 0.5])
+        spec.stat.extent = 1.2
+
+        wb = spec.worldbody
+        wb.add_light(pos=[0.5, -0.5, 3.0], dir=[-0.2, 0.2, -1.0], castshadow=False)
+        wb.add_geom(
+            name="floor",
+            type=mujoco.mjtGeom.mjGEOM_PLANE,
+            size=[2.0, 2.0, 0.05],
+            rgba=[0.82, 0.84, 0.86, 1.0],
+            contype=0,
+            conaffinity=0,
+        )
+        base = wb.add_body(name="base")
+        base.add_geom(
+            type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+            size=[0.09, 0.5 * max(r.joints[0].d, 0.02), 0.0],
+            pos=[0.0, 0.0, 0.5 * max(r.joints[0].d, 0.02)],
+            rgba=[0.25, 0.25, 0.28, 1.0],
+            contype=0,
+            conaffinity=0,
+        )
+        pos, quat = row_frames(r)
+        segs = _link_segments(r)
+        colours = ([0.95, 0.55, 0.1, 1.0], [0.9, 0.9, 0.92, 1.0])
+        parent = base
+        for i, j in enumerate(r.joints):
+            k = i + 1
+            lim = [j.lower, j.upper]
+            b = parent.add_body(name=f"row{k}", pos=pos[i], quat=quat[i])
+            b.add_joint(
+                name=f"motor{k}",
+                type=mujoco.mjtJoint.mjJNT_HINGE,
+                axis=[0.0, 0.0, 1.0],
+                range=lim,
+                limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+            )
+            if self.elastic:
+                # the motor body is the gear's input side: no mass of its own (the rotor is armature)
+                b.mass = 1e-6
+                b.inertia = [1e-9, 1e-9, 1e-9]
+                b.ipos = [0.0, 0.0, 0.0]
+                link = b.add_body(name=f"link{k}")
+                link.add_joint(
+                    name=f"link{k}", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0.0, 0.0, 1.0]
+                )
+            else:
+                link = b
+            mass = max(j.mass, 1e-6)
+            seg = segs[i]
+            length = float(np.linalg.norm(seg))
+            axis = seg if length > 0.05 else np.array([0.0, 0.0, 1.0])
+            radius = 0.035 + 0.004 * min(j.mass, 10.0)
+            I = _cylinder_inertia(mass, axis, max(length, 0.1), radius)
+            link.mass = mass
+            link.ipos = np.array(j.com, dtype=float)
+            link.fullinertia = [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
+            link.explicitinertial = True
+            rad = 0.6 * radius
+            link.add_geom(
+                type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+                fromto=[0.0, 0.0, -0.06, 0.0, 0.0, 0.06],
+                size=[rad * 1.25, 0.0, 0.0],
+                rgba=colours[0],
+                contype=0,
+                conaffinity=0,
+                group=1,
+            )
+            if length > 1e-6:
+                link.add_geom(
+                    type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+                    fromto=[0.0, 0.0, 0.0, *seg],
+                    size=[rad, 0.0, 0.0],
+                    rgba=colours[1] if i < 5 else [0.3, 0.3, 0.33, 1.0],
+                    contype=0,
+                    conaffinity=0,
+                    group=1,
+                )
+            parent = link
+        last = parent
+        tool = r.tool_points[0]
+        last.add_site(name="tool", pos=tool, size=[0.012, 0, 0], rgba=[0.1, 0.6, 1.0, 1.0])
+        payload = last.add_body(name="payload", pos=tool)
+        payload.mass = 0.0
+        payload.ipos = [0.0, 0.0, 0.0]
+        payload.inertia = [0.0, 0.0, 0.0]
+        payload.explicitinertial = True
+        if self.elastic:
+            for k in range(1, 7):
+                mesh = spec.add_tendon(name=f"mesh{k}")
+                mesh.wrap_joint(f"link{k}", 1.0)
+                mesh.wrap_joint(f"motor{k}", 0.0)
+                mesh.stiffness = [RIGID_STIFFNESS, 0.0, 0.0]
+                mesh.springlength = [0.0, 0.0]
+                bearing = spec.add_tendon(name=f"bearing{k}")
+                bearing.wrap_joint(f"motor{k}", 1.0)
+                bearing.wrap_joint(f"link{k}", 1.0)
+                # hard dry friction: MuJoCo's friction is regularised, and at the default
+                # impedance a link held in its gap by friction alone creeps through it in ~1 s
+                bearing.solimp_friction = [0.9999, 0.9999, 0.001, 0.5, 2.0]
+        for k in range(1, 7):
+            a = spec.add_actuator(name=f"servo{k}", target=f"motor{k}")
+            a.trntype = mujoco.mjtTrn.mjTRN_JOINT
+            a.set_to_intvelocity(kp=1.0, kv=0.0)
+            a.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            a.actrange = [r.joints[k - 1].lower, r.joints[k - 1].upper]
+        for k in range(1, 7):
+            a = spec.add_actuator(name=f"velocity{k}", target=f"motor{k}")
+            a.trntype = mujoco.mjtTrn.mjTRN_JOINT
+            a.set_to_velocity(kv=1.0)
+        return spec
+
+    def _index(self) -> None:
+        m = self.model
+
+        def jid(name):
+            return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+
+        def as_index(ix):
+            ix = np.asarray(ix, dtype=int)
+            step = ix[1] - ix[0]
+            if np.all(np.diff(ix) == step):
+                return slice(int(ix[0]), int(ix[-1]) + 1, int(step))
+            return ix
+
+        motor = [jid(f"motor{k}") for k in range(1, 7)]
+        self._motor_jnt = np.array(motor)
+        self.iq = as_index(m.jnt_qposadr[motor])  # encoder positions in qpos
+        self.iv = as_index(m.jnt_dofadr[motor])  # motor velocities in qvel
+        if self.elastic:
+            link = [jid(f"link{k}") for k in range(1, 7)]
+            self.il = as_index(m.jnt_qposadr[link])
+            self.ilv = as_index(m.jnt_dofadr[link])
+            mesh = [
+                mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TENDON, f"mesh{k}") for k in range(1, 7)
+            ]
+            bearing = [
+                mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TENDON, f"bearing{k}") for k in range(1, 7)
+            ]
+            self._mesh = np.array(mesh)
+            self._bearing = np.array(bearing)
+            # the motor's coefficient in each mesh tendon (the second wrap entry)
+            self._mesh_coef = m.tendon_adr[self._mesh] + 1
+        self.tool_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "tool")
+        self._rows = np.array(
+            [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"row{k}") for k in range(1, 7)]
+        )
+        self._base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "base")
+        self._payload = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "payload")
+        self._act_adr = m.actuator_actadr[:6].copy()
+        self.tool_xpos = self.data.site_xpos[self.tool_site]  # a view, updated by every step
+
+    # -- the drive ------------------------------------------------------------------------------
+    def _home(self) -> np.ndarray:
+        return 0.5 * (self.nominal.lower + self.nominal.upper)
+
+    def link_inertia(self, q: np.ndarray | None = None) -> np.ndarray:
+        """The inertia (6,) that each motor hinge drives at ``q`` (default the middle of the
+        limits), without armature: the diagonal of MuJoCo's mass matrix."""
+        d = mujoco.MjData(self.model)
+        d.qpos[self.iq] = self._home() if q is None else q
+        mujoco.mj_forward(self.model, d)
+        M = np.zeros((self.model.nv, self.model.nv))
+        mujoco.mj_fullM(self.model, d, M)
+        diag = np.diag(M)[self.iv] - self.model.dof_armature[self.iv]
+        return diag
+
+    def default_drive(self) -> Drive:
+        """Servo constants for this arm: armature half the link inertia (at the middle of the
+        limits), a critically damped position loop of ``SERVO_BANDWIDTH``, torque limits 2.5x
+        the largest gravity torque (3 kg payload) plus the inertial torque at ``a_max``."""
+        J = self.link_inertia()
+        armature = np.maximum(0.5 * J, 0.02)
+        inertia = J + armature
+        rng = np.random.default_rng(0)
+        q = rng.uniform(self.nominal.lower, self.nominal.upper, size=(512, 6))
+        grav = np.abs(gravity_torques(self.nominal, q, payload=3.0)).max(axis=0)
+        a_max = np.array(A_MAX)
+        torque_max = np.maximum(2.5 * grav + inertia * a_max, 10.0)
+        w = SERVO_BANDWIDTH
+        return Drive(
+            v_max=np.array(V_MAX),
+            a_max=a_max,
+            torque_max=torque_max,
+            armature=armature,
+            kp=np.maximum(inertia * w**2, KP_MIN),
+            kv=2.0 * inertia * w,
+            damping=0.004 * torque_max,
+            friction=0.012 * torque_max,
+        )
+
+    def _apply_drive(self, drive: Drive) -> None:
+        m = self.model
+        iv = self.iv
+        m.dof_armature[iv] = drive.armature
+        m.dof_damping[iv] = drive.damping
+        m.dof_frictionloss[iv] = drive.friction
+        for k in range(6):
+            # intvelocity: force = kp * act - kp * q ; velocity: force = kv * ctrl - kv * qdot
+            m.actuator_gainprm[k, 0] = drive.kp[k]
+            m.actuator_biasprm[k, 1] = -drive.kp[k]
+            m.actuator_biasprm[k, 2] = 0.0
+            m.actuator_gainprm[6 + k, 0] = drive.kv[k]
+            m.actuator_biasprm[6 + k, 2] = -drive.kv[k]
+            jnt = self._motor_jnt[k]
+            m.jnt_actfrclimited[jnt] = 1
+            m.jnt_actfrcrange[jnt] = (-drive.torque_max[k], drive.torque_max[k])
+        self._a_dt = drive.a_max * self.dt
+        self._v_max = np.asarray(drive.v_max, dtype=float)
+
+    # -- configuration --------------------------------------------------------------------------
+    def configure(self, robot: RobotDescription, effects: HiddenEffects) -> None:
+        """Set the true geometry (a description with the errors folded in: DH rows, Hayati beta,
+        base and tool) and the hidden effects. The state is reset; call :meth:`place` next."""
+        r = robot.to_modified()
+        if effects.needs_elastic and not self.elastic:
+            raise PlantError(
+                "these hidden effects (compliance, transmission or backlash) need an elastic "
+                "plant: Plant(robot, elastic=True)"
+            )
+        m = self.model
+        self.robot = r
+        self.effects = effects
+        pos, quat = row_frames(r)
+        self._row_pos = pos
+        m.body_pos[self._rows] = pos
+        m.body_quat[self._rows] = quat
+        m.body_pos[self._base] = r.base_translation
+        m.body_quat[self._base] = _quat(rotation_matrix(np.array(r.base_rotation)))
+        m.site_pos[self.tool_site] = r.tool_points[0]
+        m.body_pos[self._payload] = r.tool_points[0]
+        if self.elastic:
+            k = np.where(np.isfinite(effects.stiffness), effects.stiffness, RIGID_STIFFNESS)
+            if self._J_link is None:
+                self._J_link = self.link_inertia_link_side()
+            J = self._J_link
+            m.tendon_stiffness[self._mesh] = k
+            # damping of the elastic mode; a stiff mesh needs none (the integrator is implicit)
+            # and would drag a link across its gap with the motor
+            k_damped = np.minimum(k, MESH_DAMPING_STIFFNESS)
+            m.tendon_damping[self._mesh] = 2.0 * effects.mesh_damping_ratio * np.sqrt(k_damped * J)
+            m.tendon_frictionloss[self._bearing] = effects.bearing_friction
+            self._stiffness = k
+        self._transmission = self.elastic and bool(
+            np.any(effects.ts) or np.any(effects.tc) or np.any(effects.g)
+        )
+        self._thermal = effects.thermal
+        self._schedule = sorted(effects.payload_schedule)
+        self._tau_max = np.asarray(self.drive.torque_max, dtype=float)
+        self.reset()
+
+    def link_inertia_link_side(self) -> np.ndarray:
+        """The inertia (6,) about each link-side hinge at the middle of the limits."""
+        if not self.elastic:
+            return self.link_inertia()
+        d = mujoco.MjData(self.model)
+        d.qpos[self.iq] = self._home()
+        mujoco.mj_forward(self.model, d)
+        M = np.zeros((self.model.nv, self.model.nv))
+        mujoco.mj_fullM(self.model, d, M)
+        return np.diag(M)[self.ilv]
+
+    def reset(self) -> None:
+        """Zero state at the nominal temperature and initial payload (then :meth:`place`)."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.temperature = float(self.effects.temperature0)
+        self.payload = -1.0
+        self.set_payload(self.effects.payload0)
+        self._next_payload = 0
+        self._apply_temperature()
+        self._v_ref[:] = 0.0
+        self.dirs[:] = 1.0
+        self.energy = 0.0
+
+    def set_payload(self, mass: float) -> None:
+        """Change the payload (kg), a point mass at the tool point."""
+        mass = float(mass)
+        if mass == self.payload:
+            return
+        m = self.model
+        m.body_mass[self._payload] = mass
+        m.body_ipos[self._payload] = 0.0  # at the tool point
+        # a small sphere (r = 2 cm) so that the mass matrix stays well defined
+        m.body_inertia[self._payload] = 0.4 * mass * 0.02**2
+        self.payload = mass
+        # derived constants (subtree masses...); mj_setConst works on a scratch state because it
+        # overwrites the state it is given
+        mujoco.mj_setConst(m, mujoco.MjData(m))
+
+    def _apply_temperature(self) -> None:
+        s = 1.0 + self.effects.kappa * (self.temperature - REFERENCE_TEMPERATURE)
+        self.model.body_pos[self._rows] = self._row_pos * s
+
+    # -- state ------------------------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def q(self) -> np.ndarray:
+        """Encoder readings (6,) rad: the motor-side hinges."""
+        return self.data.qpos[self.iq].copy()
+
+    @property
+    def qd(self) -> np.ndarray:
+        return self.data.qvel[self.iv].copy()
+
+    @property
+    def theta(self) -> np.ndarray:
+        """The link angles (6,): motor plus link-side deflection (theta offsets excluded)."""
+        if not self.elastic:
+            return self.q
+        return self.data.qpos[self.iq] + self.data.qpos[self.il]
+
+    def tool_point(self) -> np.ndarray:
+        """The true tool point (3,) in the measurement (world) frame, m."""
+        return self.data.site_xpos[self.tool_site].copy()
+
+    def gravity_torques(self) -> np.ndarray:
+        """MuJoCo's gravity torques on the motor hinges at rest (SPEC sign: minus qfrc_bias)."""
+        d = mujoco.MjData(self.model)
+        d.qpos[:] = self.data.qpos
+        mujoco.mj_forward(self.model, d)
+        return -d.qfrc_bias[self.iv]
+
+    def _mesh_rest(self, qm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The mesh's rest function r(q) = ts sin q + tc cos q + g q, and its slope."""
+        e = self.effects
+        s, c = np.sin(qm), np.cos(qm)
+        return e.ts * s + e.tc * c + e.g * qm, e.ts * c - e.tc * s + e.g
+
+    def _set_mesh(self, qm: np.ndarray) -> None:
+        """Linearise the mesh's rest position at the motor angles ``qm`` (once a control step)."""
+        m = self.model
+        r, slope = self._mesh_rest(qm)
+        centre = r - slope * qm
+        half = 0.5 * self.effects.gap
+        m.wrap_prm[self._mesh_coef] = -slope
+        m.tendon_lengthspring[self._mesh, 0] = centre - half
+        m.tendon_lengthspring[self._mesh, 1] = centre + half
+
+    def place(self, q: np.ndarray, dirs: np.ndarray | None = None, settle: float = 0.1) -> None:
+        """Put the arm at rest with the encoders reading ``q``: the servo's reference is set so
+        that it holds q against gravity, each link at its static deflection (against the loaded
+        side of its gap where gravity exceeds the bearing friction, else lagging its last motion
+        ``dirs``), then ``settle`` seconds of physics; the clock restarts at zero."""
+        q = np.asarray(q, dtype=float).reshape(6)
+        m, d = self.model, self.data
+        if dirs is not None:
+            self.dirs[:] = np.where(np.asarray(dirs) < 0, -1.0, 1.0)
+        d.qpos[:] = 0.0
+        d.qvel[:] = 0.0
+        d.qpos[self.iq] = q
+        self._v_ref[:] = 0.0
+        d.ctrl[:] = 0.0
+        if self.elastic:
+            self._set_mesh(q)
+            r, _ = self._mesh_rest(q)
+            half = 0.5 * self.effects.gap
+            f = self.effects.bearing_friction
+            for _ in range(6):
+                mujoco.mj_forward(m, d)
+                tau = -d.qfrc_bias[self.ilv]
+                loaded = np.abs(tau) > f
+                side = np.where(loaded, np.sign(tau), -self.dirs)
+                defl = np.where(loaded, tau / self._stiffness, 0.0)
+                d.qpos[self.il] = r + side * half + defl
+        mujoco.mj_forward(m, d)
+        # the servo's reference sits where its position loop holds q against gravity
+        hold = d.qfrc_bias[self.iv] - d.qfrc_passive[self.iv]
+        d.act[self._act_adr] = q + hold / self.drive.kp
+        if settle > 0:
+            mujoco.mj_step(m, d, nstep=max(1, round(settle / self.physics_dt)))
+            d.qvel[:] = 0.0
+        d.time = 0.0
+        mujoco.mj_forward(m, d)
+
+    # -- stepping ---------------------------------------------------------------------------
+    def step(self, v_cmd: np.ndarray) -> None:
+        """One control step: rate- and velocity-limit the commanded joint velocities (6,), rad/s,
+        and run the physics for ``substeps`` steps with the effects updated once."""
+        m, d = self.model, self.data
+        dv = self._dv
+        np.subtract(v_cmd, self._v_ref, out=dv)
+        np.minimum(dv, self._a_dt, out=dv)
+        np.maximum(dv, -self._a_dt, out=dv)
+        v = self._v_ref
+        v += dv
+        np.minimum(v, self._v_max, out=v)
+        np.maximum(v, -self._v_max, out=v)
+        ctrl = d.ctrl
+        ctrl[:6] = v
+        ctrl[6:] = v
+        if self._transmission:
+            self._set_mesh(d.qpos[self.iq])
+        if self._schedule and self._next_payload < len(self._schedule):
+            t_next, mass = self._schedule[self._next_payload]
+            if d.time + 0.5 * self.physics_dt >= t_next:
+                self.set_payload(mass)
+                self._next_payload += 1
+        # the direction of each axis' last motion, as its controller commanded it
+        np.copyto(self.dirs, np.sign(v), where=v != 0.0)
+        mujoco.mj_step(m, d, nstep=self.substeps)
+        if self._thermal:
+            self._heat()
+        # positions (site_xpos) of the state just reached, not of the last substep's start
+        mujoco.mj_kinematics(m, d)
+
+    def _heat(self) -> None:
+        d = self.data
+        tau = d.qfrc_actuator[self.iv]
+        power = float(
+            np.abs(tau * d.qvel[self.iv]).sum() + HOLD_POWER * ((tau / self._tau_max) ** 2).sum()
+        )
+        self.energy += power * self.dt
+        e = self.effects
+        self.temperature += self.dt * (
+            e.heating * power - (self.temperature - AMBIENT) / e.cooling_time
+        )
+        self._apply_temperature()
+
+    def diverged(self) -> bool:
+        """Whether the simulation has blown up (non-finite state, absurd speed, or MuJoCo reset
+        it after a bad acceleration)."""
+        d = self.data
+        v = d.qvel
+        if not np.isfinite(v).all() or not np.isfinite(d.qpos).all():
+            return True
+        if np.abs(v).max(initial=0.0) > MAX_SPEED:
+            return True
+        return d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0
+
+    # -- kinematic checks -------------------------------------------------------------------
+    def chain(self) -> Chain:
+        return Chain.from_description(self.robot)

@@ -1,0 +1,372 @@
+"""Named scenarios as data: which hidden effects the plant carries and the ranges their magnitudes
+are drawn from (SPEC section 2; the error model's ``typical`` tables), and the draw of one
+episode's truth from a seed.
+
+    truth = draw_truth("compliance", seed_robot(), rng, overrides={"compliance": {"c2": 8e-6}})
+    truth.hidden        # the plant's physical magnitudes (stiffness, gaps, kappa, ...)
+    truth.model, truth.params   # an ErrorModel and its true parameters, for evaluation / oracles
+
+Overrides: ``{effect: {name: value}}`` where ``name`` is one parameter (``c2``, ``ts1``, ``bl3``,
+``kappa``, ``dalpha2``...) or a family for all six joints (``c``, ``ts``, ``bl``...), and
+``value`` is a number (fixed) or a ``(low, high)`` pair (drawn uniformly, the sign still random
+where the effect's sign is not physical). ``{"geometric": {"scale": 0}}`` gives a perfect
+geometry. Every draw is made whether or not it is overridden, so an override never shifts the other
+draws of the same seed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from envs.description import RobotDescription
+from envs.effects import Backlash, Compliance, JointScale, Thermal, Transmission
+from envs.errormodel import ErrorModel
+from envs.kinematics import gravity_torques
+from envs.plant import AMBIENT, HiddenEffects
+from envs.sampling import sample_parameters, sample_poses
+
+__all__ = [
+    "EFFECTS",
+    "RANGES",
+    "SCENARIOS",
+    "Scenario",
+    "ScenarioError",
+    "Truth",
+    "draw_truth",
+]
+
+EFFECTS = ("geometric", "compliance", "transmission", "backlash", "thermal", "payload")
+
+
+class ScenarioError(ValueError):
+    """An unknown scenario, or an override that names an unknown effect or parameter."""
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A named set of hidden physical effects (a subset of :data:`EFFECTS`)."""
+
+    name: str
+    effects: tuple[str, ...]
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        bad = [e for e in self.effects if e not in EFFECTS]
+        if bad:
+            raise ScenarioError(f"scenario {self.name!r}: unknown effect(s) {bad}; known {EFFECTS}")
+
+    @property
+    def elastic(self) -> bool:
+        """Whether the plant needs the two-hinge (elastic) drive train."""
+        return bool({"compliance", "transmission", "backlash", "payload"} & set(self.effects))
+
+
+SCENARIOS: dict[str, Scenario] = {
+    s.name: s
+    for s in (
+        Scenario("nominal", (), "the arm is exactly its description: rigid, no errors"),
+        Scenario("geometric", ("geometric",), "DH, base and tool errors; rigid joints"),
+        Scenario(
+            "compliance",
+            ("geometric", "compliance"),
+            "elastic joints: gravity deflects the links, fast motion vibrates",
+        ),
+        Scenario(
+            "transmission",
+            ("geometric", "transmission"),
+            "gear eccentricity and gear-ratio error between motor and link (stiff mesh)",
+        ),
+        Scenario(
+            "backlash",
+            ("geometric", "backlash"),
+            "a gap in each gear: loaded side under gravity, lagging under friction (stiff mesh)",
+        ),
+        Scenario(
+            "thermal",
+            ("geometric", "thermal"),
+            "the links grow with the arm's temperature, which rises with motion",
+        ),
+        Scenario(
+            "payload",
+            ("geometric", "compliance", "payload"),
+            "elastic joints with a payload that changes during the episode",
+        ),
+        Scenario("all", EFFECTS, "every effect at once"),
+    )
+}
+
+# Magnitude ranges (SI units) of each effect's parameter families, drawn uniformly per episode.
+# Signs: compliance, backlash, friction, kappa, heating are physical (positive); transmission and
+# gear-ratio errors take a random sign. Geometric errors follow envs.effects.Geometric.typical.
+RANGES: dict[str, dict[str, tuple[float, float]]] = {
+    "geometric": {"scale": (1.0, 1.0)},
+    "compliance": {"c": Compliance.typical["c"]},
+    "transmission": {
+        "ts": Transmission.typical["ts"],
+        "tc": Transmission.typical["tc"],
+        "g": JointScale.typical["g"],
+    },
+    "backlash": {
+        "bl": Backlash.typical["bl"],
+        "bf": (1.0, 1.0),  # link-side bearing friction, times BEARING_FRICTION (N*m)
+    },
+    "thermal": {
+        "kappa": Thermal.typical["kappa"],
+        "temperature0": (20.0, 35.0),  # degC at the start of the episode
+        # K per J of motor losses, and the time constant of cooling towards ambient: a working
+        # arm settles 5-25 K above ambient within minutes (a real arm takes about an hour; the
+        # time scale is shortened so that a 10 s episode shows the drift)
+        "heating": (1e-3, 4e-3),
+        "cooling_time": (60.0, 180.0),  # s
+    },
+    "payload": {
+        "payload0": (0.0, 2.0),  # kg at the start
+        "payload1": (0.0, 3.0),  # kg after the change
+        "change_time": (3.0, 7.0),  # s
+    },
+}
+# Link-side bearing friction (N*m) of the seed arm's class, joints 1..6: holds a link in its gap
+# where gravity does not (an override of "bf"/"bf3" gives N*m directly).
+BEARING_FRICTION = (4.0, 4.0, 3.0, 2.0, 2.0, 0.5)
+_SIGNED = {"ts", "tc", "g"}
+_PER_JOINT = {"c", "ts", "tc", "g", "bl", "bf"}
+
+
+@dataclass
+class Truth:
+    """Everything hidden about one episode's arm, for evaluation and oracle controllers only.
+
+    ``true_robot``: the description with the sampled geometric errors folded in (DH rows, Hayati
+    beta, base, tool) and the other effects' values in ``effects``; ``model``/``params``: an
+    :class:`~envs.errormodel.ErrorModel` on the *nominal* arm whose effects approximate the
+    plant's (geometric plus compliance ``c_i = 1/k_i``, transmission and joint_scale, backlash
+    where friction holds a link and load_backlash where gravity does, thermal) and its true
+    parameter vector laid out by ``model.layout``; ``hidden``: the plant's physical magnitudes;
+    ``magnitudes``: the same as plain values by name (stiffness, gap, kappa, payload schedule...).
+    """
+
+    scenario: str
+    true_robot: RobotDescription
+    model: ErrorModel
+    params: np.ndarray
+    hidden: HiddenEffects
+    magnitudes: dict[str, Any] = field(default_factory=dict)
+
+    def parameters(self) -> dict[str, float]:
+        """The true parameters by name."""
+        return self.model.layout.as_dict(self.params)
+
+
+def get_scenario(scenario: str | Scenario) -> Scenario:
+    if isinstance(scenario, Scenario):
+        return scenario
+    try:
+        return SCENARIOS[scenario]
+    except KeyError:
+        raise ScenarioError(
+            f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}"
+        ) from None
+
+
+def _check_overrides(
+    sc: Scenario, overrides: Mapping[str, Mapping[str, Any]], geometric: set[str]
+) -> None:
+    for effect, values in overrides.items():
+        if effect not in EFFECTS:
+            raise ScenarioError(f"override of unknown effect {effect!r}; known: {EFFECTS}")
+        if effect not in sc.effects:
+            raise ScenarioError(
+                f"scenario {sc.name!r} has no {effect!r} effect (it has "
+                f"{', '.join(sc.effects) or 'none'}); choose a scenario that does"
+            )
+        if not isinstance(values, Mapping):
+            raise ScenarioError(f"overrides[{effect!r}] must be a mapping of name -> value")
+        for name, v in values.items():
+            if not _known(effect, name, geometric):
+                raise ScenarioError(
+                    f"unknown {effect} parameter {name!r}; known: {', '.join(_names(effect))}"
+                )
+            vals = np.atleast_1d(np.asarray(v, dtype=float))
+            if vals.size not in (1, 2) or not np.all(np.isfinite(vals)):
+                raise ScenarioError(
+                    f"overrides[{effect!r}][{name!r}] must be a finite number or a (low, high) "
+                    f"pair, got {v!r}"
+                )
+
+
+def _names(effect: str) -> list[str]:
+    if effect == "geometric":
+        return ["scale", "dalpha1..6", "da1..6", "dtheta1..6", "dd1..6", "beta*", "bx..brz", "tx.."]
+    fams = RANGES[effect]
+    out = []
+    for f in fams:
+        out += [f, *(f"{f}{k}" for k in range(1, 7))] if f in _PER_JOINT else [f]
+    return out
+
+
+def _known(effect: str, name: str, geometric: set[str]) -> bool:
+    if effect == "geometric":
+        return name == "scale" or name in geometric
+    fams = RANGES[effect]
+    if name in fams:
+        return True
+    fam, digit = name.rstrip("123456"), name[len(name.rstrip("123456")) :]
+    return fam in _PER_JOINT and fam in fams and len(digit) == 1
+
+
+def _lookup(over: Mapping[str, Any], family: str, joint: int | None) -> Any:
+    if joint is not None and f"{family}{joint}" in over:
+        return over[f"{family}{joint}"]
+    return over.get(family)
+
+
+def _draw(
+    rng: np.random.Generator,
+    effect: str,
+    family: str,
+    over: Mapping[str, Any],
+    joint: int | None = None,
+) -> float:
+    """One magnitude: drawn from the range (always, to keep the stream), then overridden."""
+    lo, hi = RANGES[effect][family]
+    if family == "bf":
+        lo, hi = lo * BEARING_FRICTION[joint - 1], hi * BEARING_FRICTION[joint - 1]
+    value = rng.uniform(lo, hi)
+    sign = rng.choice((-1.0, 1.0)) if family in _SIGNED else 1.0
+    o = _lookup(over, family, joint)
+    if o is None:
+        return float(sign * value)
+    o = np.atleast_1d(np.asarray(o, dtype=float))
+    if o.size == 2:  # a range of magnitudes: reuse the same uniform draw
+        u = (value - lo) / (hi - lo) if hi > lo else 0.5
+        return float(sign * (o[0] + u * (o[1] - o[0])))
+    return float(o[0])
+
+
+def draw_truth(
+    scenario: str | Scenario,
+    robot: RobotDescription,
+    rng: np.random.Generator,
+    overrides: Mapping[str, Mapping[str, Any]] | None = None,
+) -> Truth:
+    """One episode's hidden arm: the scenario's effects with magnitudes drawn from ``rng``."""
+    sc = get_scenario(scenario)
+    nominal = robot.to_modified()
+    overrides = dict(overrides or {})
+    geo = ErrorModel(nominal, "geometric")
+    _check_overrides(sc, overrides, set(geo.layout.names))
+    on = set(sc.effects)
+    mags: dict[str, Any] = {}
+
+    # geometric errors (always drawn, so that other effects keep their draws across scenarios)
+    p_geo = sample_parameters(geo, rng)
+    p0 = geo.nominal()
+    go = overrides.get("geometric", {})
+    scale = float(go.get("scale", 1.0)) if "geometric" in on else 0.0
+    p_geo = p0 + scale * (p_geo - p0)
+    for name, v in go.items():
+        if name != "scale":
+            p_geo[geo.layout.index(name)] = float(v)
+
+    def per_joint(effect, family):
+        o = overrides.get(effect, {})
+        return np.array([_draw(rng, effect, family, o, k) for k in range(1, 7)])
+
+    c = per_joint("compliance", "c")
+    ts = per_joint("transmission", "ts")
+    tc = per_joint("transmission", "tc")
+    g = per_joint("transmission", "g")
+    gap = per_joint("backlash", "bl")
+    bf = per_joint("backlash", "bf")
+    to = overrides.get("thermal", {})
+    kappa = _draw(rng, "thermal", "kappa", to)
+    temperature0 = _draw(rng, "thermal", "temperature0", to)
+    heating = _draw(rng, "thermal", "heating", to)
+    cooling = _draw(rng, "thermal", "cooling_time", to)
+    po = overrides.get("payload", {})
+    payload0 = _draw(rng, "payload", "payload0", po)
+    payload1 = _draw(rng, "payload", "payload1", po)
+    change = _draw(rng, "payload", "change_time", po)
+
+    compliant = "compliance" in on
+    if compliant and np.any(c <= 0):
+        raise ScenarioError(f"compliance c must be > 0 rad/(N*m), got {c}")
+    if np.any(gap < 0) or np.any(bf < 0):
+        raise ScenarioError("backlash gaps and bearing friction must be >= 0")
+    hidden = HiddenEffects(
+        stiffness=1.0 / c if compliant else np.full(6, np.inf),
+        gap=gap if "backlash" in on else np.zeros(6),
+        bearing_friction=bf if "backlash" in on else np.zeros(6),
+        ts=ts if "transmission" in on else np.zeros(6),
+        tc=tc if "transmission" in on else np.zeros(6),
+        g=g if "transmission" in on else np.zeros(6),
+        kappa=kappa if "thermal" in on else 0.0,
+        temperature0=temperature0 if "thermal" in on else AMBIENT,
+        heating=heating if "thermal" in on else 0.0,
+        cooling_time=cooling,
+        payload0=payload0 if "payload" in on else 0.0,
+        payload_schedule=((change, payload1),) if "payload" in on else (),
+    )
+
+    # the error model that approximates the plant
+    effects = ["geometric"]
+    if compliant:
+        effects.append("compliance")
+    if "transmission" in on:
+        effects += ["transmission", "joint_scale"]
+    kind = {}
+    if "backlash" in on:
+        kind = _backlash_kinds(nominal, bf, hidden.payload0)
+        fr = [k for k in range(1, 7) if kind[k] == "friction"]
+        ld = [k for k in range(1, 7) if kind[k] == "load"]
+        if fr:
+            effects.append(f"backlash[{','.join(map(str, fr))}]")
+        if ld:
+            effects.append(f"load_backlash[{','.join(map(str, ld))}]")
+    if "thermal" in on:
+        effects.append("thermal")
+    model = ErrorModel(nominal, effects)
+    values = dict(geo.layout.as_dict(p_geo))
+    values |= {f"c{k}": float(c[k - 1]) for k in range(1, 7)}
+    values |= {f"ts{k}": float(ts[k - 1]) for k in range(1, 7)}
+    values |= {f"tc{k}": float(tc[k - 1]) for k in range(1, 7)}
+    values |= {f"g{k}": float(g[k - 1]) for k in range(1, 7)}
+    values |= {f"bl{k}": float(gap[k - 1]) for k in range(1, 7)}
+    values |= {f"lb{k}": float(gap[k - 1]) for k in range(1, 7)}
+    values["kappa"] = kappa
+    params = np.array([values[n] for n in model.layout.names], dtype=float)
+    true_robot = model.description(params, name=f"{nominal.name}-true")
+    true_robot = replace(true_robot, payload=hidden.payload0)
+
+    mags["stiffness"] = hidden.stiffness.copy()
+    if compliant:
+        mags["compliance"] = c.copy()
+    if "transmission" in on:
+        mags |= {"ts": ts.copy(), "tc": tc.copy(), "g": g.copy()}
+    if "backlash" in on:
+        mags |= {"gap": gap.copy(), "bearing_friction": bf.copy(), "backlash_kind": kind}
+    if "thermal" in on:
+        mags |= {
+            "kappa": kappa,
+            "temperature0": temperature0,
+            "heating": heating,
+            "cooling_time": cooling,
+        }
+    if "payload" in on:
+        mags |= {"payload0": payload0, "payload_schedule": hidden.payload_schedule}
+    return Truth(sc.name, true_robot, model, params, hidden, mags)
+
+
+def _backlash_kinds(
+    robot: RobotDescription, friction: np.ndarray, payload: float
+) -> dict[int, str]:
+    """Per joint, whether gravity ("load") or friction ("friction") usually holds its link in
+    the gap: gravity where the median |gravity torque| over the workspace exceeds twice the
+    bearing friction. A fixed pose sample, so that the answer depends on the arm only."""
+    q = sample_poses(robot, 256, np.random.default_rng(12345))
+    tau = np.median(np.abs(gravity_torques(robot, q, payload=payload)), axis=0)
+    return {k: ("load" if tau[k - 1] > 2.0 * friction[k - 1] else "friction") for k in range(1, 7)}

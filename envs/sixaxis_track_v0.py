@@ -1,0 +1,511 @@
+"""``SixAxisTrack-v0``: track a reference path with the tool point of a six-axis arm whose true
+geometry and physics differ from its description, seen through encoders and a laser tracker."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import sys
+from dataclasses import dataclass
+from typing import Any
+
+if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+    os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering; set before mujoco loads
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from envs.description import RobotDescription, load_robot
+from envs.instrument import LaserTracker, TrackerConfig
+from envs.plant import MAX_SPEED, Plant
+from envs.scenarios import Scenario, Truth, draw_truth, get_scenario
+from envs.trajectories import KINDS, Trajectory, sample_trajectory
+
+__all__ = ["SixAxisTrackEnv", "TaskInfo", "Truth"]
+
+MAX_MEASUREMENT_AGE = 10.0  # s, the age reported before the first measurement
+
+WORKSPACE = 5.0  # m, bound of every observed point
+DIVERGENCE_REWARD = -1000.0
+
+
+@dataclass(frozen=True, eq=False)
+class TaskInfo:
+    """What a controller may know: the *nominal* arm, the timing, the servo limits and the
+    instrument's settings, and where each part of the observation sits.
+
+    ``robot`` nominal description; ``dt`` control period (s); ``v_max``/``a_max`` (6,) the servo's
+    velocity and acceleration limits (a command is ``action * v_max``, rate-limited to
+    ``a_max * dt`` per step); ``q_lower``/``q_upper`` (6,) joint limits; ``preview_steps``;
+    ``obs_slices`` {name: slice} into the observation; ``noise_mm`` per-axis tracker noise;
+    ``measure_every`` (steps), ``latency_steps``, ``dropout``, ``measurements`` (False: blind);
+    ``scenario``; ``physics_dt`` and ``substeps``; ``torque_max`` (6,); ``jerk_weight``.
+    """
+
+    robot: RobotDescription
+    dt: float
+    v_max: np.ndarray
+    a_max: np.ndarray
+    q_lower: np.ndarray
+    q_upper: np.ndarray
+    preview_steps: int
+    obs_slices: dict[str, slice]
+    noise_mm: float
+    measure_every: int
+    latency_steps: int
+    dropout: float
+    measurements: bool
+    scenario: str
+    physics_dt: float
+    substeps: int
+    torque_max: np.ndarray
+    jerk_weight: float
+
+    @property
+    def obs_size(self) -> int:
+        return max(s.stop for s in self.obs_slices.values())
+
+
+def _layout(preview: int) -> dict[str, slice]:
+    sizes = (
+        ("q", 6),
+        ("qd", 6),
+        ("ref", 3),
+        ("preview", 3 * preview),
+        ("meas", 3),
+        ("meas_age", 1),
+        ("meas_valid", 1),
+        ("temperature", 1),
+        ("payload", 1),
+    )
+    out, k = {}, 0
+    for name, n in sizes:
+        out[name] = slice(k, k + n)
+        k += n
+    return out
+
+
+class SixAxisTrackEnv(gym.Env):
+    """
+    ## Description
+    A six-axis industrial arm (the seed arm of SPEC section 1 unless another description is
+    given) simulated in MuJoCo must move its tool point along a reference path. The arm the agent
+    is told about (``task.robot``) is the *nominal* one; the simulated arm carries randomised DH,
+    base and tool errors and, per scenario, hidden physical effects (elastic joints, gear
+    transmission error, backlash, thermal growth, payload changes) made by the physics of the
+    plant (``envs/plant.py``). The agent sees the motor-side encoders and, every few steps, a
+    noisy laser-tracker measurement of the true tool point. Control at 50 Hz (``dt = 0.02 s``)
+    over 1 kHz physics (20 substeps).
+
+    ## Action Space
+    ``Box(-1, 1, (6,), float32)``: normalised joint-velocity commands. The servo of axis i is
+    commanded ``action[i] * v_max[i]`` rad/s (``task.v_max``), rate-limited to ``a_max[i] * dt``
+    per step (``task.a_max``); its position loop integrates the command within the joint limits
+    and its torque is limited to ``task.torque_max``. Values outside [-1, 1] are clipped; NaN, inf
+    or a wrong shape raise ``ValueError``.
+
+    | Num | Action                         | Min | Max | Joint  | Unit               |
+    |-----|--------------------------------|-----|-----|--------|--------------------|
+    | 0   | velocity command of axis 1     | -1  | 1   | motor1 | fraction of v_max  |
+    | 1   | velocity command of axis 2     | -1  | 1   | motor2 | fraction of v_max  |
+    | 2   | velocity command of axis 3     | -1  | 1   | motor3 | fraction of v_max  |
+    | 3   | velocity command of axis 4     | -1  | 1   | motor4 | fraction of v_max  |
+    | 4   | velocity command of axis 5     | -1  | 1   | motor5 | fraction of v_max  |
+    | 5   | velocity command of axis 6     | -1  | 1   | motor6 | fraction of v_max  |
+
+    Seed arm: ``v_max = (1.2, 1.2, 1.5, 2.5, 2.5, 3.0)`` rad/s, ``a_max = (6, 6, 8, 12, 12, 15)``
+    rad/s^2.
+
+    ## Observation Space
+    ``Box(-inf, inf, (22 + 3 * preview_steps,), float32)`` (52 with the default preview of 10);
+    ``task.obs_slices`` names each part. All points are in the measurement frame (the nominal
+    robot base frame, z up), in metres.
+
+    | Num        | Observation                                         | Min  | Max | Name (obs_slices) | Unit    |
+    |------------|-----------------------------------------------------|------|-----|-------------------|---------|
+    | 0-5        | encoder angles of axes 1-6 (motor side)             | -Inf | Inf | q                 | rad     |
+    | 6-11       | encoder velocities of axes 1-6                      | -Inf | Inf | qd                | rad/s   |
+    | 12-14      | reference tool point now (x, y, z)                  | -Inf | Inf | ref               | m       |
+    | 15-44      | the next ``preview_steps`` reference points         | -Inf | Inf | preview           | m       |
+    | 45-47      | last laser-tracker measurement (zeros before one)   | -Inf | Inf | meas              | m       |
+    | 48         | age of that measurement (10 before the first)       | 0    | 10  | meas_age          | s       |
+    | 49         | 1 if a new measurement arrived this step, else 0    | 0    | 1   | meas_valid        | 0/1     |
+    | 50         | arm temperature                                     | -Inf | Inf | temperature       | degC    |
+    | 51         | payload mass (declared to the controller)           | 0    | Inf | payload           | kg      |
+
+    (indices for ``preview_steps=10``; with P preview steps the preview spans 15..15+3P-1 and the
+    rest shifts.)
+
+    ## Rewards
+    ``reward = reward_tracking + reward_jerk`` with ``reward_tracking = -|p_true - p_ref|`` in mm
+    (the plant's true tool point, not the measured one) and ``reward_jerk = -jerk_weight *
+    |a_t - 2 a_{t-1} + a_{t-2}|^2`` (the command's second difference; ``jerk_weight`` 0.01).
+    ``_get_rew()`` returns ``(reward, reward_info)``; both parts are in ``info``. A diverged
+    simulation scores ``-1000`` once and ends the episode.
+
+    ## Info
+    Every step (and reset) gives: ``true_error_mm`` (float), ``true_tool`` (3,), ``reference``
+    (3,), ``measurement_valid`` (bool: a new measurement arrived this step), ``reward_tracking``,
+    ``reward_jerk``, ``diverged``, ``time`` (s), ``temperature`` (degC), ``payload`` (kg),
+    ``trajectory`` (kind). When ``measurement_valid`` is True it also gives ``measurement`` (3,)
+    the measured point, ``measurement_q`` (6,) the encoder reading at the instant that point was
+    sampled (it differs from the current one with latency), ``measurement_time`` (s, when sampled)
+    and ``measurement_columns`` {t, temperature, payload, dir1..dir6} at that instant; without a
+    new measurement these keys are absent (use ``info.get``; Gymnasium's vector envs mask them),
+    never NaN, so that equal seeds give equal infos.
+
+    ## Hidden truth
+    ``env.unwrapped.task`` (:class:`TaskInfo`) is what an agent may use. ``env.unwrapped.truth``
+    (:class:`~envs.scenarios.Truth`) is for evaluation and oracle controllers only: the true
+    description, an ``ErrorModel`` approximating the plant with its true ``params``, and the raw
+    magnitudes.
+
+    ## Starting State
+    ``reset(seed=...)`` draws the truth (scenario magnitudes), the trajectory and the instrument
+    noise from the seed: the same seed gives the same episode bit for bit. The arm starts at rest
+    with its encoders at the nominal inverse kinematics of the path's start (so the true tool is
+    off by the arm's errors), links at their static deflection, backlash against the loaded side
+    or lagging a random last direction. ``options={"trajectory": "circle"}`` picks the path kind
+    for one episode.
+
+    ## Episode End
+    Terminates only if the simulation diverges (``info["diverged"]``). Truncated by the
+    ``TimeLimit`` of the registration after 500 steps (10 s).
+
+    ## Arguments
+    | Parameter       | Type        | Default       | Description                                                  |
+    |-----------------|-------------|---------------|--------------------------------------------------------------|
+    | `scenario`      | str         | `"geometric"` | nominal, geometric, compliance, transmission, backlash, thermal, payload, all |
+    | `overrides`     | dict        | `None`        | `{effect: {param: value or (lo, hi)}}`, see `envs.scenarios`  |
+    | `trajectory`    | str or None | `None`        | circle, lemniscate, lines, spline; None draws one per reset  |
+    | `noise_mm`      | float       | `0.015`       | tracker noise per axis (1 sigma), mm                         |
+    | `measure_every` | int         | `5`           | tracker sampling period, control steps                       |
+    | `dropout`       | float       | `0.0`         | probability that a sample is lost                            |
+    | `latency_steps` | int         | `0`           | delivery delay of a sample, control steps                    |
+    | `measurements`  | bool        | `True`        | False: no tracker (production running blind)                 |
+    | `preview_steps` | int         | `10`          | reference points ahead in the observation                    |
+    | `jerk_weight`   | float       | `0.01`        | weight of the command-jerk penalty                           |
+    | `robot`         | str or RobotDescription | `"seed"` | the nominal arm (needs a mass model)                  |
+    | `episode_seconds` | float     | `10.0`        | length of the reference computed per reset (the TimeLimit ends episodes) |
+    | `render_mode`   | str or None | `None`        | `"rgb_array"`                                                |
+    | `width`, `height` | int       | `640`, `480`  | rendered frame size                                          |
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+
+    def __init__(
+        self,
+        scenario: str | Scenario = "geometric",
+        overrides: dict[str, dict[str, Any]] | None = None,
+        trajectory: str | None = None,
+        noise_mm: float = 0.015,
+        measure_every: int = 5,
+        dropout: float = 0.0,
+        latency_steps: int = 0,
+        measurements: bool = True,
+        preview_steps: int = 10,
+        jerk_weight: float = 0.01,
+        robot: str | RobotDescription = "seed",
+        episode_seconds: float = 10.0,
+        render_mode: str | None = None,
+        width: int = 640,
+        height: int = 480,
+    ) -> None:
+        self.scenario = get_scenario(scenario)
+        if trajectory is not None and trajectory not in KINDS:
+            raise ValueError(
+                f"trajectory must be one of {', '.join(KINDS)} or None, got {trajectory!r}"
+            )
+        if int(preview_steps) != preview_steps or preview_steps < 0:
+            raise ValueError(f"preview_steps must be an integer >= 0, got {preview_steps}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or None, "
+                f"got {render_mode!r}"
+            )
+        self.overrides = overrides
+        self.trajectory_kind = trajectory
+        self.render_mode = render_mode
+        self.width, self.height = int(width), int(height)
+        self.jerk_weight = float(jerk_weight)
+        nominal = robot if isinstance(robot, RobotDescription) else load_robot(robot)
+        self.nominal = nominal.to_modified()
+        # check the overrides once, now, rather than at the first reset
+        draw_truth(self.scenario, self.nominal, np.random.default_rng(0), overrides)
+        self.plant = Plant(self.nominal, elastic=self.scenario.elastic)
+        self.tracker = LaserTracker(
+            TrackerConfig(
+                noise_mm=float(noise_mm),
+                measure_every=int(measure_every),
+                dropout=float(dropout),
+                latency_steps=int(latency_steps),
+                enabled=bool(measurements),
+            )
+        )
+        drive = self.plant.drive
+        P = int(preview_steps)
+        slices = _layout(P)
+        self.task = TaskInfo(
+            robot=self.nominal,
+            dt=self.plant.dt,
+            v_max=drive.v_max.copy(),
+            a_max=drive.a_max.copy(),
+            q_lower=self.nominal.lower,
+            q_upper=self.nominal.upper,
+            preview_steps=P,
+            obs_slices=slices,
+            noise_mm=float(noise_mm),
+            measure_every=int(measure_every),
+            latency_steps=int(latency_steps),
+            dropout=float(dropout),
+            measurements=bool(measurements),
+            scenario=self.scenario.name,
+            physics_dt=self.plant.physics_dt,
+            substeps=self.plant.substeps,
+            torque_max=drive.torque_max.copy(),
+            jerk_weight=self.jerk_weight,
+        )
+        self.dt = self.plant.dt
+        self.episode_steps = round(float(episode_seconds) / self.dt)
+        self.action_space = spaces.Box(-1.0, 1.0, (6,), np.float32)
+        n = self.task.obs_size
+        low = np.empty(n, dtype=np.float32)
+        high = np.empty(n, dtype=np.float32)
+        low[slices["q"]] = self.nominal.lower - math.pi  # hard stops sit at the limits
+        high[slices["q"]] = self.nominal.upper + math.pi
+        for name, lo, hi in (
+            ("qd", -MAX_SPEED, MAX_SPEED),
+            ("ref", -WORKSPACE, WORKSPACE),
+            ("preview", -WORKSPACE, WORKSPACE),
+            ("meas", -WORKSPACE, WORKSPACE),
+            ("meas_age", 0.0, MAX_MEASUREMENT_AGE),
+            ("meas_valid", 0.0, 1.0),
+            ("temperature", -50.0, 200.0),
+            ("payload", 0.0, 100.0),
+        ):
+            low[slices[name]], high[slices[name]] = lo, hi
+        self.observation_space = spaces.Box(low, high, (n,), np.float32)
+
+        # per-episode state
+        self.truth: Truth | None = None
+        self.trajectory: Trajectory | None = None
+        self.references = np.zeros((1, 3))
+        self._obs = np.zeros(n)
+        self._sl = slices
+        self._v_max = drive.v_max.astype(float)
+        self._a = np.zeros(6)
+        self._a1 = np.zeros(6)
+        self._a2 = np.zeros(6)
+        self._k = 0
+        self._diverged = False
+        self._meas_time = math.nan
+        self._meas_points: list[np.ndarray] = []
+        self._renderer: mujoco.Renderer | None = None
+        self._camera: mujoco.MjvCamera | None = None
+        self._ref_sl = slices["ref"]
+        self._prev_sl = slices["preview"]
+
+    # -- gymnasium API --------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        kind = (options or {}).get("trajectory", self.trajectory_kind)
+        if kind is not None and kind not in KINDS:
+            raise ValueError(
+                f"options['trajectory'] must be one of {', '.join(KINDS)}, got {kind!r}"
+            )
+        truth_rng, traj_rng, noise_rng, start_rng = self.np_random.spawn(4)
+        self.truth = draw_truth(self.scenario, self.nominal, truth_rng, self.overrides)
+        self.trajectory, q0 = sample_trajectory(
+            self.nominal,
+            traj_rng,
+            kind,
+            duration=self.episode_steps * self.dt,
+            v_max=self.task.v_max,
+        )
+        n_ref = self.episode_steps + self.task.preview_steps + 1
+        self.references = self.trajectory.positions(np.arange(n_ref) * self.dt)
+        plant = self.plant
+        plant.configure(self.truth.true_robot, self.truth.hidden)
+        plant.place(q0, dirs=start_rng.choice((-1.0, 1.0), 6))
+        self.tracker.reset(noise_rng)
+        self._k = 0
+        self._diverged = False
+        self._a1[:] = 0.0
+        self._a2[:] = 0.0
+        self._obs[:] = 0.0
+        self._obs[self._sl["meas_age"]] = MAX_MEASUREMENT_AGE
+        self._meas_time = math.nan
+        self._meas_points = []
+        tool = plant.tool_point()
+        err_mm = self._error_mm(tool)
+        self._fill_obs(None)
+        info = self._info(tool, err_mm, None, 0.0, 0.0)
+        return self._obs.astype(np.float32), info
+
+    def step(self, action):
+        a = self._check_action(action)
+        if self._diverged:
+            raise RuntimeError("the episode ended (the simulation diverged): call reset()")
+        np.multiply(a, self._v_max, out=self._a)
+        self.plant.step(self._a)
+        self._k += 1
+        if self.plant.diverged():
+            return self._on_divergence(a)
+        tool = self.plant.tool_point()
+        err_mm = self._error_mm(tool)
+        meas = self._measure(tool)
+        self._fill_obs(meas)
+        reward, parts = self._get_rew(err_mm, a)
+        self._a2, self._a1 = self._a1, self._a2
+        self._a1[:] = a
+        info = self._info(tool, err_mm, meas, parts["reward_tracking"], parts["reward_jerk"])
+        return self._obs.astype(np.float32), reward, False, False, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.plant.model, self.height, self.width)
+            cam = mujoco.MjvCamera()
+            cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+            cam.lookat[:] = (0.45, 0.0, 0.45)
+            cam.distance = 2.1
+            cam.azimuth = 135.0
+            cam.elevation = -22.0
+            self._camera = cam
+        r = self._renderer
+        r.update_scene(self.plant.data, camera=self._camera)
+        scn = r.scene
+        scn.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+        scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
+        self._draw_overlays(scn)
+        return r.render()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # -- parts ----------------------------------------------------------------------------------
+    def _check_action(self, action) -> np.ndarray:
+        if type(action) is not np.ndarray:
+            try:
+                action = np.asarray(action, dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"action must be 6 numbers, got {action!r}") from exc
+        if action.shape != (6,):
+            raise ValueError(f"action must have shape (6,), got shape {action.shape}")
+        if not np.isfinite(action).all():
+            bad = [i for i in range(6) if not math.isfinite(float(action[i]))]
+            raise ValueError(f"action has NaN or inf at index {bad}: {action}")
+        return np.clip(action.astype(float), -1.0, 1.0)
+
+    def _reference(self, k: int) -> np.ndarray:
+        need = k + self.task.preview_steps + 1
+        if need > len(self.references):  # past the planned horizon: extend the path
+            n = max(need, 2 * len(self.references))
+            self.references = self.trajectory.positions(np.arange(n) * self.dt)
+        return self.references[k]
+
+    def _error_mm(self, tool: np.ndarray) -> float:
+        d = tool - self._reference(self._k)
+        return 1e3 * math.sqrt(float(d @ d))
+
+    def _measure(self, tool: np.ndarray):
+        tr = self.tracker
+        k = self._k
+        if tr.due(k):
+            p = self.plant
+            cols = {"t": p.time, "temperature": p.temperature, "payload": p.payload}
+            for i in range(6):
+                cols[f"dir{i + 1}"] = float(p.dirs[i])
+            tr.sample(k, p.time, tool, p.data.qpos[p.iq], cols)
+        return tr.deliver(k)
+
+    def _fill_obs(self, meas) -> None:
+        o, sl, p, d = self._obs, self._sl, self.plant, self.plant.data
+        k = self._k
+        o[sl["q"]] = d.qpos[p.iq]
+        o[sl["qd"]] = d.qvel[p.iv]
+        o[self._ref_sl] = self.references[k]
+        P = self.task.preview_steps
+        if P:
+            o[self._prev_sl] = self.references[k + 1 : k + 1 + P].reshape(-1)
+        t = p.time
+        if meas is not None:
+            o[sl["meas"]] = meas.xyz
+            self._meas_time = meas.time
+            self._meas_points.append(meas.xyz)
+        o[sl["meas_valid"]] = 0.0 if meas is None else 1.0
+        age = t - self._meas_time
+        o[sl["meas_age"]] = MAX_MEASUREMENT_AGE if not age <= MAX_MEASUREMENT_AGE else age
+        o[sl["temperature"]] = p.temperature
+        o[sl["payload"]] = p.payload
+
+    def _get_rew(self, err_mm: float, action: np.ndarray) -> tuple[float, dict[str, float]]:
+        """The reward and its parts: minus the true tracking error (mm) and the jerk penalty."""
+        j = action - 2.0 * self._a1 + self._a2
+        jerk = -self.jerk_weight * float(j @ j)
+        tracking = -err_mm
+        return tracking + jerk, {"reward_tracking": tracking, "reward_jerk": jerk}
+
+    def _info(self, tool, err_mm, meas, r_track, r_jerk) -> dict[str, Any]:
+        p = self.plant
+        info = {
+            "true_error_mm": err_mm,
+            "true_tool": tool,
+            "reference": self.references[self._k].copy(),
+            "measurement_valid": meas is not None,
+            "reward_tracking": r_track,
+            "reward_jerk": r_jerk,
+            "diverged": False,
+            "time": p.time,
+            "temperature": p.temperature,
+            "payload": p.payload,
+            "trajectory": self.trajectory.kind,
+        }
+        if meas is not None:
+            info["measurement"] = meas.xyz.copy()
+            info["measurement_q"] = meas.q.copy()
+            info["measurement_time"] = meas.time
+            info["measurement_columns"] = dict(meas.columns)
+        return info
+
+    def _on_divergence(self, action: np.ndarray):
+        """End the episode with a flag instead of crashing; the last good observation is kept."""
+        self._diverged = True
+        tool = np.full(3, np.nan)
+        info = self._info(tool, math.nan, None, DIVERGENCE_REWARD, 0.0)
+        info["diverged"] = True
+        mujoco.mj_resetData(self.plant.model, self.plant.data)
+        return self._obs.astype(np.float32), DIVERGENCE_REWARD, True, False, info
+
+    def _draw_overlays(self, scn: mujoco.MjvScene) -> None:
+        """The reference path (green), the reference now (large green) and the measured points
+        (red) as extra scene geoms."""
+        eye = np.eye(3).reshape(-1)
+
+        def add(kind, size, pos, rgba):
+            if scn.ngeom >= scn.maxgeom:
+                return None
+            g = scn.geoms[scn.ngeom]
+            mujoco.mjv_initGeom(g, kind, np.asarray(size, float), np.asarray(pos, float), eye, rgba)
+            scn.ngeom += 1
+            return g
+
+        path = self.references[: self.episode_steps + 1 : 2]
+        green = np.array([0.1, 0.75, 0.3, 0.9], dtype=np.float32)
+        for a, b in itertools.pairwise(path):
+            g = add(mujoco.mjtGeom.mjGEOM_CAPSULE, (0.002, 0, 0), a, green)
+            if g is not None:
+                mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_CAPSULE, 0.002, a, b)
+        add(mujoco.mjtGeom.mjGEOM_SPHERE, (0.012, 0, 0), self.references[self._k], green)
+        red = np.array([0.9, 0.1, 0.1, 1.0], dtype=np.float32)
+        for pt in self._meas_points[-40:]:
+            add(mujoco.mjtGeom.mjGEOM_SPHERE, (0.005, 0, 0), pt, red)
