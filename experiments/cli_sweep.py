@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import shlex
-import sys
 import time
 from pathlib import Path
 from typing import Annotated
@@ -23,14 +22,19 @@ from rich.progress import (
 from rich.table import Table
 
 console = Console()
-err_console = Console(stderr=True)
+err_console = Console(stderr=True, soft_wrap=True)
 
 
-def _command() -> str:
-    args = [Path(sys.argv[0]).name if sys.argv else "sixaxis", *sys.argv[1:]]
-    if args[0] in ("__main__.py", "cli.py"):
-        args[0] = "sixaxis"
-    return shlex.join(args)
+def _command(*args: object, **options: object) -> str:
+    """The command line that these arguments and (non-default) options spell."""
+    words = ["sixaxis", *map(str, args)]
+    for flag, value in options.items():
+        if value is None or value is False:
+            continue
+        words.append(flag)
+        if value is not True:
+            words.append(str(value))
+    return shlex.join(words)
 
 
 def sweep(
@@ -45,7 +49,9 @@ def sweep(
     workers: Annotated[
         int | None,
         typer.Option(
-            "--workers", "-w", help="Parallel runs (default: the CPU count); 0 runs in this process."
+            "--workers",
+            "-w",
+            help="Parallel runs (default: the CPU count); 0 runs in this process.",
         ),
     ] = None,
     backend: Annotated[str, typer.Option(help="local (processes) or dask.")] = "local",
@@ -118,7 +124,18 @@ def sweep(
                 address=address,
                 retry_failed=retry_failed,
                 overwrite=overwrite,
-                command=_command(),
+                command=_command(
+                    "sweep",
+                    config,
+                    **{
+                        "--out": out,
+                        "--workers": workers,
+                        "--backend": None if backend == "local" else backend,
+                        "--address": address,
+                        "--keep-failed": not retry_failed,
+                        "--overwrite": overwrite,
+                    },
+                ),
                 progress=on_progress,
             )
         except (SweepError, RecordError, ValueError) as exc:
@@ -161,7 +178,16 @@ def leaderboard(
     except RecordError as exc:
         err_console.print(f"[red]error:[/red] {exc}", highlight=False)
         raise typer.Exit(2) from None
-    paths = write_leaderboard(board, out, command=_command(), plots=plots)
+    command = _command(
+        "leaderboard",
+        runs_dir,
+        **{
+            "--out": None if out == Path("results") else out,
+            "--rank-by": rank_by,
+            "--no-plots": not plots,
+        },
+    )
+    paths = write_leaderboard(board, out, command=command, plots=plots)
     m = board.rank_by
     table = Table(title=f"{m}: mean ± 95 % CI over seeds (bold: best per scenario)")
     table.add_column("agent", style="bold")

@@ -216,7 +216,7 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
     seeds = sorted({r["spec"]["seed"] for r in board.records})
     lines = ["# Leaderboard", ""]
     lines.append(
-        f"{meta.description.capitalize()} ({meta.unit}): mean ± half-width of the 95 % Student-t "
+        f"{meta.description[:1].upper()}{meta.description[1:]} ({meta.unit}): mean ± half-width of the 95 % Student-t "
         f"confidence interval over {len(seeds)} seed(s); lower is better; **bold**: the best agent "
         "of each scenario."
     )
@@ -247,7 +247,10 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
             f"{episode}, settling time {cfg.get('settle_seconds'):g} s, env options "
             f"`{cfg.get('env') or {}}`"
         )
-    facts.append(f"{len(board.records)} runs ({len(board.failed)} failed), seeds {_ranges(seeds)}")
+    facts.append(
+        f"{len(board.records) + len(board.failed)} runs ({len(board.failed)} failed), seeds "
+        f"{_ranges(seeds)}"
+    )
     facts.append(
         f"commit {', '.join(c[:10] for c in commits)}{' with local changes' if dirty else ''}"
     )

@@ -24,6 +24,7 @@ import datetime as _dt
 import logging
 import os
 import socket
+import sys
 import time
 import traceback
 from collections import deque
@@ -107,6 +108,7 @@ def execute_run(spec: RunSpec) -> dict[str, Any]:
     )
 
     agent = make_agent(spec.agent, **spec.settings)
+    _limit_threads()  # the agent may have imported torch
     phases = None
     if spec.phases:
         phases = [
@@ -174,18 +176,13 @@ def _now() -> str:
 
 
 def _limit_threads() -> None:
-    """One thread per run: two workers on two cores must not fight over BLAS or torch threads."""
+    """One thread per run: two workers on two cores must not fight over BLAS or torch threads, and
+    a fixed thread count keeps torch's sums in the same order, run after run."""
     for var in _THREAD_VARS:
         os.environ.setdefault(var, "1")
-    import sys
-
-    if "torch" in sys.modules or _torch_installed():
-        try:
-            import torch
-
-            torch.set_num_threads(1)
-        except Exception:  # pragma: no cover - torch is a dependency, but never fatal here
-            pass
+    torch = sys.modules.get("torch")  # never import it here: agents that use it already have
+    if torch is not None and torch.get_num_threads() != 1:
+        torch.set_num_threads(1)
 
 
 @contextlib.contextmanager
@@ -202,12 +199,6 @@ def _child_thread_env() -> Iterator[None]:
                 os.environ.pop(v, None)
             else:
                 os.environ[v] = old
-
-
-def _torch_installed() -> bool:
-    import importlib.util
-
-    return importlib.util.find_spec("torch") is not None
 
 
 def run_in_worker(run_fn: RunFn, spec_dict: dict[str, Any]) -> dict[str, Any]:
@@ -485,6 +476,9 @@ def _run_dask(
             "the Dask backend needs the 'cluster' extra: pip install 'sixaxis-track[cluster]'"
         ) from exc
 
+    if not log.isEnabledFor(logging.INFO):  # Dask's own chatter only when asked for (-v)
+        for name in ("distributed", "dask"):
+            logging.getLogger(name).setLevel(logging.WARNING)
     with contextlib.ExitStack() as stack:
         if address:
             client = stack.enter_context(Client(address))

@@ -221,11 +221,22 @@ def test_real_tiny_sweep_twice_gives_identical_records_apart_from_timing(tiny):
 
 
 def test_dask_backend_gives_the_same_records_as_local_processes(tiny):
-    pytest.importorskip("distributed")
+    distributed = pytest.importorskip("distributed")
     cfg, root = tiny
+    first = comparable(RunStore(root / "first"))
+    # a LocalCluster started by the sweep
     summary = run_sweep(cfg, root / "dask", backend="dask", workers=1, processes=False)
     assert summary.done == 6 and not summary.failed
-    assert comparable(RunStore(root / "dask")) == comparable(RunStore(root / "first"))
+    assert comparable(RunStore(root / "dask")) == first
+    # an existing cluster, by its scheduler's address
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as cluster:
+        summary = run_sweep(
+            cfg, root / "dask-address", backend="dask", address=cluster.scheduler_address
+        )
+    assert summary.done == 6 and not summary.failed
+    assert comparable(RunStore(root / "dask-address")) == first
 
 
 def _sweep_cmd(config: Path, out: Path) -> list[str]:
