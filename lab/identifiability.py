@@ -29,6 +29,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import lapack
 
 from envs.errormodel import ErrorModel, ModelInputs
 
@@ -41,6 +42,9 @@ __all__ = [
     "analyse_jacobian",
     "analyse_model",
     "format_combination",
+    "gram_factor",
+    "lower_inverse",
+    "orthonormal_basis",
     "priority_order",
     "typical_magnitudes",
 ]
@@ -348,3 +352,49 @@ def analyse_jacobian(
         tol=tol,
         warn=warn,
     )
+
+
+def gram_factor(G: np.ndarray, rtol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Rank-revealing pivoted Cholesky (LAPACK ``dpstrf``) of a Gram matrix ``G = A^T A``.
+
+    Returns ``(idx, L)``: the independent columns in pivot order and the lower-triangular factor
+    with ``G[idx][:, idx] = L L^T``. A column counts as dependent when its part orthogonal to
+    the columns before it is under ``rtol`` of its norm (the test is made on the normalised
+    matrix). Tiny matrices, microseconds: the tall matrix is never factored."""
+    G = np.asarray(G, dtype=float)
+    d = np.sqrt(np.clip(np.diag(G), 0.0, None))
+    ok = np.flatnonzero(d > 0)
+    if not ok.size:
+        return ok, np.zeros((0, 0))
+    Gn = G[np.ix_(ok, ok)] / np.outer(d[ok], d[ok])
+    c, piv, rank, _ = lapack.dpstrf(Gn, tol=rtol**2, lower=1)
+    sel = piv[:rank] - 1
+    L = np.tril(c)[:rank, :rank] * d[ok][sel][:, None]
+    return ok[sel], L
+
+
+def orthonormal_basis(A: np.ndarray, rtol: float = 1e-6) -> np.ndarray:
+    """Orthonormal columns spanning the numerically independent columns of ``A`` (M, k) (see
+    :func:`gram_factor`): Cholesky QR of the rank-revealing factor, applied twice (CholeskyQR2)
+    for orthogonality to round-off. Multithreaded LAPACK QR/SVD of a tall matrix is several times
+    slower than these two products (OpenBLAS)."""
+    A = np.asarray(A, dtype=float)
+    if A.shape[1] == 0:
+        return A
+    idx, L = gram_factor(A.T @ A, rtol)
+    if not idx.size:
+        return A[:, :0]
+    Q = A[:, idx] @ lower_inverse(L).T  # A L^-T, by gemm
+    idx2, L2 = gram_factor(Q.T @ Q, 0.0)
+    return Q[:, idx2] @ lower_inverse(L2).T
+
+
+def lower_inverse(L: np.ndarray) -> np.ndarray:
+    """The inverse of a small lower-triangular matrix (LAPACK ``dtrtri``; scipy's
+    ``solve_triangular`` costs milliseconds per call in its Python layers)."""
+    if L.size == 0:
+        return np.zeros_like(L)
+    inv, info = lapack.dtrtri(L, lower=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"singular triangular factor (dtrtri info {info})")
+    return inv

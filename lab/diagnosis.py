@@ -1,0 +1,600 @@
+"""Diagnosis: which physical effect does the model miss?
+
+    d = diagnose(data, robot, "geometric", noise_mm=0.015)
+    d.verdict        # "compliance", "none" or "unexplained"
+    d.candidates     # every catalogued effect (per joint) tested, best first
+    d.hints          # which measured variables the residual still depends on
+    d.to_dict()      # SPEC section 4 JSON
+
+Method. The model is fitted; its identifiable Jacobian columns ``J0`` span what it can explain.
+Every effect of the catalogue (and any the user registered) that is not in the model becomes
+candidates: one per joint for a per-joint effect, plus one with all its joints, one for a
+global effect (thermal). Their Jacobian columns at the fitted parameters, with the current
+model's columns projected out, are tested by the **F-test of nested linear models** (equivalent,
+to first order, to the score / Lagrange-multiplier test of the added parameters: one
+Gauss-Newton step from the fitted model): ``F = (SS_added / k) / (RSS_after / (3N - r - k))``.
+Columns that the current model already explains, or whose typical-size effect beyond it stays
+under the noise, are not testable (unidentifiable given the model) and are skipped.
+One family-wise significance level ``alpha`` holds over all candidates (Holm's step-down
+correction). A significant candidate must also **predict held-out poses** better than the model
+alone: leave-one-pose-out residuals of the linearised model, from the (3 x 3) diagonal blocks of
+the hat matrix, no refits. Significant, confirmed candidates rank by that held-out RMS; the
+verdict names the best one's effect.
+
+Otherwise, with the instrument's per-axis noise ``noise_mm`` known, a **chi-square test** of the
+residual sum of squares with 3N minus the identifiable parameters as degrees of freedom says
+whether the residual is noise (``none``) or not (``unexplained``); ``alpha`` is then split
+equally between the candidates and this test, so that the false-alarm rate on a correct model
+stays under ``alpha``. Without ``noise_mm`` the verdict comes from the candidate tests alone.
+
+**Hints** score every measured variable (q1..q6, gravity torques tau1..tau6, t, temperature,
+payload, dir1..dir6, target, and any other column) by how much of the remaining residual smooth
+functions of it explain (adjusted R^2, with the F-test's p-value): harmonics 1-3 of an angle,
+linear and quadratic terms of other variables, the sign of a direction; each function enters
+times a fixed direction in the measurement frame and times the sensitivity of the point to each
+joint angle, so both a Cartesian and a joint-angle error that depend on the variable show up.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from envs.description import RobotDescription
+from envs.effects import EFFECTS, Effect, EffectError, JointAngleEffect, make_effect
+from envs.errormodel import ErrorModel
+from envs.measurements import MeasurementSet
+from lab.identifiability import (
+    gram_factor,
+    lower_inverse,
+    orthonormal_basis,
+    typical_magnitudes,
+)
+from lab.identification import (
+    SCHEMA_VERSION,
+    FitError,
+    FitResult,
+    _as_data,
+    fit,
+)
+
+__all__ = ["Candidate", "Diagnosis", "Hint", "diagnose"]
+
+log = logging.getLogger(__name__)
+
+HARMONICS = 3  # sin/cos(k q), k = 1..HARMONICS, for the angle hints
+_DEPENDENT = 1e-6  # a candidate column this much outside the model's span is dependent on it
+MAX_EFFECT_STEPS = 6  # forward selection adds at most this many candidates
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One tested effect: its name, joints (None for a global effect), the parameters tested,
+    the training RMS after adding it (linearised), its held-out RMS and the F-test."""
+
+    effect: str
+    joints: tuple[int, ...] | None
+    parameters: tuple[str, ...]
+    rms_mm: float
+    cv_rms_mm: float
+    statistic: float
+    p_value: float
+    significant: bool = False
+    confirmed: bool = False
+
+    @property
+    def label(self) -> str:
+        if self.joints is None:
+            return self.effect
+        return f"{self.effect}[{','.join(map(str, self.joints))}]"
+
+    def to_dict(self) -> dict:
+        return {
+            "effect": self.effect,
+            "joints": None if self.joints is None else list(self.joints),
+            "rms_mm": self.rms_mm,
+            "p_value": self.p_value,
+            "significant": self.significant,
+            "cv_rms_mm": self.cv_rms_mm,
+            "confirmed": self.confirmed,
+            "parameters": list(self.parameters),
+        }
+
+
+@dataclass(frozen=True)
+class Hint:
+    """How much of the remaining residual depends on one measured variable."""
+
+    variable: str
+    score: float
+    p_value: float
+
+    def to_dict(self) -> dict:
+        return {"variable": self.variable, "score": self.score, "p_value": self.p_value}
+
+
+@dataclass
+class Diagnosis:
+    """The verdict on a model, with every candidate tested and the hints; see the module doc."""
+
+    fit: FitResult
+    verdict: str
+    candidates: list[Candidate]
+    hints: list[Hint]
+    noise_mm: float | None
+    alpha: float
+    cv_rms_mm: float
+    chi2_p_value: float | None
+    chi2_p_value_after: float | None
+    suggestion: str | None
+    explanation: list[Candidate] = field(default_factory=list)
+    skipped: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def effects(self) -> list[str]:
+        return self.fit.effects
+
+    @property
+    def rms_mm(self) -> float:
+        return self.fit.rms_mm
+
+    @property
+    def noise_floor_mm(self) -> float | None:
+        """The 3-D RMS of a perfect model on held-out points: noise_mm * sqrt(3)."""
+        return None if self.noise_mm is None else self.noise_mm * math.sqrt(3.0)
+
+    @property
+    def best(self) -> Candidate | None:
+        return self.candidates[0] if self.candidates else None
+
+    def to_dict(self) -> dict:
+        """The JSON object of ``sixaxis lab diagnose --json`` (SPEC section 4)."""
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "effects": self.effects,
+            "n_points": self.fit.n_points,
+            "rms_mm": self.rms_mm,
+            "noise_floor_mm": self.noise_floor_mm,
+            "verdict": self.verdict,
+            "candidates": [c.to_dict() for c in self.candidates],
+            "hints": [h.to_dict() for h in self.hints],
+            "cv_rms_mm": self.cv_rms_mm,
+            "noise_mm": self.noise_mm,
+            "chi2_p_value": self.chi2_p_value,
+            "chi2_p_value_after": self.chi2_p_value_after,
+            "alpha": self.alpha,
+            "suggestion": self.suggestion,
+            "skipped": dict(self.skipped),
+        }
+
+    def summary(self) -> str:
+        floor = f", noise floor {self.noise_floor_mm:.4f} mm" if self.noise_floor_mm else ""
+        lines = [
+            f"model {', '.join(self.effects)}: RMS {self.rms_mm:.4f} mm, held-out "
+            f"{self.cv_rms_mm:.4f} mm{floor}",
+            f"verdict: {self.verdict}" + (f" (fit {self.suggestion})" if self.suggestion else ""),
+        ]
+        for c in self.candidates[:5]:
+            flag = "significant" if c.significant else "not significant"
+            lines.append(
+                f"  {c.label:<22} RMS {c.rms_mm:.4f} mm, held-out {c.cv_rms_mm:.4f} mm, "
+                f"p = {c.p_value:.3g} ({flag})"
+            )
+        lines.append("hints: " + ", ".join(f"{h.variable} {h.score:.2f}" for h in self.hints[:5]))
+        return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------------
+def _hat_blocks(Q: np.ndarray) -> np.ndarray:
+    """The (N, 3, 3) diagonal blocks of the hat matrix of orthonormal regressors ``Q`` (3N, m)."""
+    Qb = Q.reshape(Q.shape[0] // 3, 3, -1)
+    return np.matmul(Qb, Qb.transpose(0, 2, 1))
+
+
+def _press(e: np.ndarray, H: np.ndarray) -> float:
+    """Leave-one-pose-out RMS (3-D) of a linear least-squares fit whose residual is ``e`` (3N)
+    and whose hat matrix has the diagonal blocks ``H`` (N, 3, 3): e_(-i) = (I - H_ii)^-1 e_i."""
+    n = H.shape[0]
+    loo = np.linalg.solve(np.eye(3) - H, e.reshape(n, 3, 1))[:, :, 0]
+    return float(np.sqrt(np.mean(np.sum(loo**2, axis=1))))
+
+
+def _holm(p: np.ndarray, alpha: float) -> np.ndarray:
+    """Holm's step-down: which hypotheses are rejected at family-wise level ``alpha``."""
+    m = len(p)
+    sig = np.zeros(m, dtype=bool)
+    for i, k in enumerate(np.argsort(p, kind="stable")):
+        if p[k] > alpha / (m - i):
+            break
+        sig[k] = True
+    return sig
+
+
+def _f_test(ss: float, k: int, rss: float, dof: int) -> tuple[float, float]:
+    if k <= 0 or dof <= 0 or rss <= 0:
+        return 0.0, 1.0
+    F = (ss / k) / (rss / dof)
+    return float(F), float(stats.f.sf(F, k, dof))
+
+
+@dataclass(frozen=True)
+class _Group:
+    effect: str
+    joints: tuple[int, ...] | None
+    names: tuple[str, ...]
+
+
+def _candidate_model(
+    model: ErrorModel,
+    data: MeasurementSet,
+    candidates: Sequence[str] | None,
+) -> tuple[ErrorModel, list[_Group], dict[str, str]]:
+    """One model holding the fitted effects (all joints) and every testable candidate effect, the
+    candidate parameter groups, and the effects skipped with the reason."""
+    skipped: dict[str, str] = {}
+    have = {e.name: e for e in model.effects}
+    effects: list[Effect] = []
+    for e in model.effects:  # a per-joint effect fitted on some joints: the others are candidates
+        effects.append(type(e)() if e.per_joint and e.joints is not None else e)
+    names = list(EFFECTS) if candidates is None else list(candidates)
+    for spec in names:
+        try:
+            e = make_effect(spec)
+        except EffectError as exc:
+            raise FitError(str(exc)) from None
+        if e.name in have:
+            continue
+        missing = [c for c in e.columns if c not in data.columns]
+        if missing:
+            skipped[e.label] = f"needs column(s) {', '.join(missing)}"
+            continue
+        effects.append(e)
+    full = ErrorModel(model.robot, effects, targets=model.targets)
+    base_names = set(model.layout.names)
+    groups: list[_Group] = []
+    for e in full.effects:
+        new = [n for n in full.layout.names[full.layout.slice(e.name)] if n not in base_names]
+        if not new:
+            continue
+        if isinstance(e, JointAngleEffect):
+            per = []
+            for j in e.active_joints():
+                js = tuple(n for n in (f"{t}{j}" for t in e.terms) if n in new)
+                if js:
+                    per.append(_Group(e.name, (j,), js))
+            groups += per
+            if len(per) > 1:
+                groups.append(_Group(e.name, tuple(g.joints[0] for g in per), tuple(new)))
+        else:
+            groups.append(_Group(e.name, None, tuple(new)))
+    return full, groups, skipped
+
+
+def diagnose(
+    data: MeasurementSet | str | Path,
+    robot: RobotDescription | str | Path | None = None,
+    effects: str | Sequence[str | Effect] = "geometric",
+    noise_mm: float | None = None,
+    *,
+    loss: str = "linear",
+    candidates: Sequence[str] | None = None,
+    alpha: float = 0.05,
+    base: FitResult | None = None,
+) -> Diagnosis:
+    """Fit ``effects`` and test what they miss; see the module docstring.
+
+    ``noise_mm``: the instrument's per-axis standard uncertainty (mm), for the ``none`` /
+    ``unexplained`` decision. ``candidates``: effect names to test (default: every registered
+    effect). ``alpha``: the family-wise false-alarm rate. ``base``: an existing fit of ``data``
+    to diagnose instead of fitting ``effects`` again.
+    """
+    if not 0 < alpha < 1:
+        raise FitError(f"alpha must lie in (0, 1), got {alpha}")
+    if noise_mm is not None and not noise_mm > 0:
+        raise FitError(f"noise_mm must be positive, got {noise_mm}")
+    data = _as_data(data)
+    res = base if base is not None else fit(data, robot, effects, loss=loss, noise_mm=noise_mm)
+    model = res.model
+    n = res.n_points
+    free = res.identifiable
+    scale = res.identifiability.scale
+    sw = None if res.weights is None else np.sqrt(res.weights).reshape(-1)
+
+    def weigh(A):
+        return A if sw is None else (A * sw[:, None] if A.ndim == 2 else A * sw)
+
+    J0 = weigh(res.jacobian[:, :, free].reshape(3 * n, -1) * scale[free])
+    Q0 = orthonormal_basis(J0)
+    e = weigh(res.residuals.reshape(-1).copy())
+    e0 = e - Q0 @ (Q0.T @ e)
+    rss0 = float(e0 @ e0)
+    dof0 = 3 * n - Q0.shape[1]
+    sigma = noise_mm * 1e-3 if noise_mm is not None else math.sqrt(rss0 / max(dof0, 1))
+    H0 = _hat_blocks(Q0)
+    cv0 = _press(e0, H0)
+    alpha_c = alpha / 2 if noise_mm is not None else alpha
+
+    full, groups, skipped = _candidate_model(model, data, candidates)
+    inputs = full.inputs(data.q, data.columns, source=data.source)
+    p = full.nominal()
+    p[full.layout.indices(model.layout.names)] = res.params
+    _, Jf = full.predict(inputs, p, jacobian=True)
+    Jf = Jf.reshape(3 * n, -1)
+    typ = typical_magnitudes(full)
+
+    tested: list[np.ndarray] = []  # each candidate's orthonormal columns, the model's projected out
+    rows = []
+    for g in groups:
+        idx = full.layout.indices(g.names)
+        X = weigh(Jf[:, idx])
+        Xp = X - Q0 @ (Q0.T @ X)
+        nx, nxp = np.linalg.norm(X, axis=0), np.linalg.norm(Xp, axis=0)
+        keep = (nxp > _DEPENDENT * nx) & (nxp * typ[idx] > sigma)
+        if not keep.any():
+            skipped[_label(g)] = "unidentifiable given the model"
+            continue
+        Qc = orthonormal_basis(Xp[:, keep])
+        proj = Qc.T @ e0
+        ss = float(proj @ proj)
+        k = Qc.shape[1]
+        F, pv = _f_test(ss, k, rss0 - ss, dof0 - k)
+        e1 = e0 - Qc @ proj
+        cv = _press(e1, H0 + _hat_blocks(Qc))
+        joints = g.joints
+        if joints is not None and len(joints) > 1:  # the joints that were testable
+            kept = {nm for nm, ok in zip(g.names, keep, strict=True) if ok}
+            joints = tuple(j for j in joints if any(nm.endswith(str(j)) for nm in kept))
+        names = tuple(nm for nm, ok in zip(g.names, keep, strict=True) if ok)
+        tested.append(Qc)
+        rows.append(
+            Candidate(
+                effect=g.effect,
+                joints=joints,
+                parameters=names,
+                rms_mm=1e3 * math.sqrt(max(rss0 - ss, 0.0) / n),
+                cv_rms_mm=1e3 * cv,
+                statistic=F,
+                p_value=pv,
+            )
+        )
+    pvals = np.array([c.p_value for c in rows])
+    sig = _holm(pvals, alpha_c) if rows else np.zeros(0, dtype=bool)
+    cands = [
+        Candidate(**{**c.__dict__, "significant": bool(s), "confirmed": c.cv_rms_mm < 1e3 * cv0})
+        for c, s in zip(rows, sig, strict=True)
+    ]
+    order = sorted(
+        range(len(cands)),
+        key=lambda i: (
+            not (cands[i].significant and cands[i].confirmed),
+            cands[i].cv_rms_mm if cands[i].significant and cands[i].confirmed else 0.0,
+            cands[i].p_value,
+        ),
+    )
+    cands = [cands[i] for i in order]
+    tested = [tested[i] for i in order]
+    sel = _Selection(e0, rss0, dof0, H0, cv0)
+    chosen = _forward(cands, tested, sel, alpha_c) if cands and cands[0].significant else []
+
+    chi2_p = chi2_after = None
+    if noise_mm is not None:
+        chi2_p = float(stats.chi2.sf(rss0 / sigma**2, max(dof0, 1)))
+        chi2_after = float(stats.chi2.sf(sel.rss / sigma**2, max(sel.dof, 1)))
+    suggestion = None
+    if chosen:
+        suggestion = _suggestion(model, chosen)
+        # what the catalogue offers must bring the residual down to the noise
+        ok = chi2_after is None or chi2_after >= alpha / 2
+        verdict = chosen[0].effect if ok else "unexplained"
+    elif chi2_p is not None and chi2_p < alpha / 2:
+        verdict = "unexplained"
+    else:
+        verdict = "none"
+
+    hints = _hints(res, data, Q0, e0, rss0, dof0, weigh)
+    d = Diagnosis(
+        fit=res,
+        verdict=verdict,
+        candidates=cands,
+        hints=hints,
+        noise_mm=noise_mm,
+        alpha=alpha,
+        cv_rms_mm=1e3 * cv0,
+        chi2_p_value=chi2_p,
+        chi2_p_value_after=chi2_after,
+        suggestion=suggestion,
+        explanation=chosen,
+        skipped=skipped,
+    )
+    log.info("%s", d.summary())
+    return d
+
+
+def _label(g: _Group) -> str:
+    return g.effect if g.joints is None else f"{g.effect}[{','.join(map(str, g.joints))}]"
+
+
+class _Selection:
+    """Forward selection state: the residual and hat blocks after the chosen columns."""
+
+    def __init__(self, e, rss, dof, H, cv):
+        self.e, self.rss, self.dof, self.H, self.cv = e, rss, dof, H, cv
+        self.Q = np.empty((e.size, 0))
+
+    def trial(self, basis: np.ndarray):
+        """(held-out RMS, p-value, state pieces) of adding ``basis`` (orthonormal, model-free)."""
+        X = basis - self.Q @ (self.Q.T @ basis)
+        X = X[:, np.linalg.norm(X, axis=0) > _DEPENDENT]  # the columns had norm 1
+        Qc = orthonormal_basis(X)
+        k = Qc.shape[1]
+        if k == 0 or self.dof - k <= 0:
+            return None
+        proj = Qc.T @ self.e
+        ss = float(proj @ proj)
+        _, pv = _f_test(ss, k, self.rss - ss, self.dof - k)
+        H = self.H + _hat_blocks(Qc)
+        return _press(self.e - Qc @ proj, H), pv, (Qc, proj, ss, H)
+
+    def add(self, cv, pieces) -> None:
+        Qc, proj, ss, H = pieces
+        self.e = self.e - Qc @ proj
+        self.rss, self.dof, self.H, self.cv = self.rss - ss, self.dof - Qc.shape[1], H, cv
+        self.Q = np.hstack([self.Q, Qc])
+
+
+def _forward(cands, bases, sel: _Selection, alpha) -> list[Candidate]:
+    """Effect-level forward selection. Each step tries every candidate of the effects not yet
+    chosen given those chosen, takes the one that predicts held-out poses best among those whose
+    F-test is significant at ``alpha`` over the candidates tried (Bonferroni) and that lower the
+    held-out RMS, and then settles the joints of its effect by forward selection over that
+    effect's single joints (the same rule). Returns the chosen effects as candidates (joints
+    merged), in the order chosen."""
+    chosen: list[Candidate] = []
+    done: set[str] = set()
+    while len(chosen) < MAX_EFFECT_STEPS:
+        live = [i for i, c in enumerate(cands) if c.effect not in done]
+        if not live:
+            break
+        best = None
+        for i in live:
+            t = sel.trial(bases[i])
+            if t is not None and t[1] <= alpha / len(live) and t[0] < sel.cv:
+                if best is None or t[0] < best[0][0]:
+                    best = (t, i)
+        if best is None:
+            break
+        c = cands[best[1]]
+        done.add(c.effect)
+        singles = [
+            i
+            for i in live
+            if cands[i].effect == c.effect
+            and cands[i].joints is not None
+            and len(cands[i].joints) == 1
+        ]
+        joints: list[int] = []
+        while singles:
+            pick = None
+            for i in singles:
+                t = sel.trial(bases[i])
+                if t is not None and t[1] <= alpha / len(singles) and t[0] < sel.cv:
+                    if pick is None or t[0] < pick[0][0]:
+                        pick = (t, i)
+            if pick is None:
+                break
+            sel.add(pick[0][0], pick[0][2])
+            joints.append(cands[pick[1]].joints[0])
+            singles.remove(pick[1])
+        if not joints:  # no single joint carries it alone: take the whole group
+            sel.add(best[0][0], best[0][2])
+        chosen.append(
+            Candidate(
+                effect=c.effect,
+                joints=tuple(sorted(joints)) if joints else c.joints,
+                parameters=(),
+                rms_mm=float("nan"),
+                cv_rms_mm=1e3 * sel.cv,
+                statistic=float("nan"),
+                p_value=float("nan"),
+                significant=True,
+                confirmed=True,
+            )
+        )
+    return chosen
+
+
+def _suggestion(model: ErrorModel, chosen: list[Candidate]) -> str:
+    """The model to fit next: the fitted effects plus the chosen candidates, joints merged."""
+    joints: dict[str, set[int] | None] = {}
+    for e in model.effects:
+        joints[e.name] = None if e.joints is None else set(e.joints)
+    order = [e.name for e in model.effects]
+    for c in chosen:
+        if c.effect not in joints:
+            order.append(c.effect)
+            joints[c.effect] = set()
+        if c.joints is None or joints[c.effect] is None:
+            joints[c.effect] = None if c.joints is None else joints[c.effect]
+        else:
+            joints[c.effect] |= set(c.joints)
+    out = []
+    for name in order:
+        js = joints[name]
+        out.append(name if js is None else f"{name}[{','.join(map(str, sorted(js)))}]")
+    return ",".join(out)
+
+
+# --------------------------------------------------------------------------------------------------
+def _standardise(v: np.ndarray) -> np.ndarray | None:
+    sd = float(np.std(v))
+    if not np.isfinite(sd) or sd < 1e-12 * max(1.0, float(np.max(np.abs(v)))):
+        return None
+    return (v - np.mean(v)) / sd
+
+
+def hint_variables(res: FitResult, data: MeasurementSet) -> dict[str, np.ndarray]:
+    """The measured variables and their smooth functions (N, K) that the hints regress on."""
+    out: dict[str, np.ndarray] = {}
+    q = data.q
+    for j in range(6):
+        k = np.arange(1, HARMONICS + 1)
+        out[f"q{j + 1}"] = np.hstack([np.sin(np.outer(q[:, j], k)), np.cos(np.outer(q[:, j], k))])
+    tau = res.inputs.tau
+    for j in range(6):
+        z = _standardise(tau[:, j])
+        if z is not None:
+            out[f"tau{j + 1}"] = np.column_stack([z, z**2])
+    for name, v in data.columns.items():
+        if name == "target":
+            ids = np.unique(v)
+            if len(ids) > 1:
+                out[name] = np.column_stack([(v == t).astype(float) for t in ids[1:]])
+            continue
+        if name.startswith("dir") and name[3:].isdigit():
+            if np.std(v) > 0:
+                out[name] = (v - np.mean(v))[:, None]
+            continue
+        z = _standardise(v)
+        if z is not None:
+            out[name] = np.column_stack([z, z**2])
+    return out
+
+
+def _hints(res, data, Q0, e0, rss0, dof0, weigh) -> list[Hint]:
+    """Score each variable's block ``phi_k(v) * direction_d`` by the F-test of adding it to the
+    fitted model. The block's Gram matrices come from the Kronecker structure (per pose
+    ``D^T D``, ``Q0^T D``, ``e^T D``), so no (3N, K * 9) matrix is formed."""
+    n = res.n_points
+    _, Jq = res.model.joint_jacobian(res.inputs, res.params)  # (N, 3, 6)
+    rms = np.sqrt(np.mean(np.sum(Jq**2, axis=1), axis=0))
+    dirs = [np.broadcast_to(np.eye(3)[a], (n, 3)) for a in range(3)]
+    dirs += [Jq[:, :, j] / rms[j] for j in range(6) if rms[j] > 0]
+    D = weigh(np.stack(dirs, axis=-1).reshape(3 * n, -1)).reshape(n, 3, -1)  # (N, 3, nd)
+    nd = D.shape[2]
+    M = np.einsum("nad,nae->nde", D, D).reshape(n, nd * nd)
+    Q0D = np.einsum("nam,nad->nmd", Q0.reshape(n, 3, -1), D)  # (N, r, nd)
+    eD = np.einsum("na,nad->nd", e0.reshape(n, 3), D)  # (N, nd)
+    out = []
+    for name, phi in hint_variables(res, data).items():
+        K = phi.shape[1]
+        pp = (phi[:, :, None] * phi[:, None, :]).reshape(n, K * K)
+        Gbb = (pp.T @ M).reshape(K, K, nd, nd).transpose(0, 2, 1, 3).reshape(K * nd, K * nd)
+        G0b = np.einsum("nmd,nk->mkd", Q0D, phi).reshape(Q0D.shape[1], K * nd)
+        b = (phi.T @ eD).reshape(K * nd)
+        idx, L = gram_factor(Gbb - G0b.T @ G0b, _DEPENDENT)
+        k = idx.size
+        if k == 0 or dof0 - k <= 0:
+            continue
+        z = lower_inverse(L) @ b[idx]
+        ss = min(float(z @ z), rss0)
+        _, pv = _f_test(ss, k, rss0 - ss, dof0 - k)
+        adj = 1.0 - ((rss0 - ss) / (dof0 - k)) / (rss0 / dof0)
+        out.append(Hint(name, max(float(adj), 0.0), pv))
+    out.sort(key=lambda h: (-h.score, h.p_value))
+    return out
