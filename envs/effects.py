@@ -21,6 +21,7 @@ from __future__ import annotations
 import importlib.metadata
 import importlib.util
 import logging
+import math
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,7 +29,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from envs.description import RobotDescription, rotation_matrix
+from envs.description import RobotDescription
 
 if TYPE_CHECKING:  # pragma: no cover
     from envs.errormodel import ChainState, ModelInputs, Sensitivities
@@ -138,6 +139,30 @@ class JointAngleEffect(Effect):
         """(N, 6, k) d theta / d values; the regressor itself for a linear effect."""
         return inputs.cached(self, self.regressor)
 
+    def _sparse_regressor(self, inputs: ModelInputs) -> tuple[np.ndarray, np.ndarray]:
+        """The regressor's one non-zero per parameter: its joint (k,) and values (k, N)."""
+        js = self.active_joints()
+        joints = np.array([j - 1 for _ in self.terms for j in js], dtype=int)
+        basis = np.array([self.basis(inputs, j, t) for t in self.terms for j in js], dtype=float)
+        return joints, basis.reshape(len(joints), inputs.n)
+
+    def jacobian_into(
+        self, inputs: ModelInputs, values: np.ndarray, sens: Sensitivities, out: np.ndarray
+    ) -> bool:
+        """Write d point / d values, component-major (k, 3, N), into ``out``."""
+        cls = type(self)
+        if (
+            cls.regressor is JointAngleEffect.regressor
+            and cls.joint_jacobian is JointAngleEffect.joint_jacobian
+        ):  # linear, one joint per parameter: a gather and a product
+            joints, basis = inputs.cached(self, self._sparse_regressor)
+            np.multiply(sens.rows_theta[joints], basis[:, None, :], out=out)
+        else:  # a subclass with its own (dense or non-linear) joint Jacobian
+            out[...] = np.einsum(
+                "jxn,njk->kxn", sens.rows_theta, self.joint_jacobian(inputs, values)
+            )
+        return True
+
 
 class Compliance(JointAngleEffect):
     name = "compliance"
@@ -214,23 +239,52 @@ class ChainEffect(Effect):
         """(N, 3, k) derivatives of the measured point, or None to differentiate numerically."""
         return None
 
+    def jacobian_into(
+        self, inputs: ModelInputs, values: np.ndarray, sens: Sensitivities, out: np.ndarray
+    ) -> bool:
+        """Write the derivatives component-major, (k, 3, N), into ``out``; False when the effect
+        has no analytic columns. The catalogue overrides this (and derives ``jacobian`` from it);
+        a user's effect may implement either."""
+        J = self.jacobian(inputs, values, sens)
+        if J is None:
+            return False
+        out[...] = np.asarray(J).transpose(2, 1, 0)
+        return True
+
+    def _jacobian_from_into(self, inputs, values, sens) -> np.ndarray:
+        out = np.empty((len(values), 3, inputs.n))
+        self.jacobian_into(inputs, values, sens, out)
+        return out.transpose(2, 1, 0)
+
 
 def _skew(v: np.ndarray) -> np.ndarray:
+    """[v]x for vectors (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    K = np.zeros((*v.shape[:-1], 3, 3))
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
-    o = np.zeros_like(x)
-    return np.stack(
-        [np.stack([o, -z, y], -1), np.stack([z, o, -x], -1), np.stack([-y, x, o], -1)], -2
-    )
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -z, y, -x
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = z, -y, x
+    return K
+
+
+def _rodrigues(r: np.ndarray) -> np.ndarray:
+    """The rotation matrix of one rotation vector (3,)."""
+    r = np.asarray(r, dtype=float)
+    th = math.sqrt(float(r @ r))
+    K = _skew(r)
+    if th < 1e-8:
+        return np.eye(3) + K + 0.5 * (K @ K)
+    return np.eye(3) + math.sin(th) / th * K + (1 - math.cos(th)) / th**2 * (K @ K)
 
 
 def so3_left_jacobian(r: np.ndarray) -> np.ndarray:
     """J_l(r) with exp(r + dr) = exp(J_l(r) dr) exp(r) to first order."""
     r = np.asarray(r, dtype=float)
-    th = float(np.linalg.norm(r))
+    th = math.sqrt(float(r @ r))
     K = _skew(r)
     if th < 1e-8:
         return np.eye(3) + 0.5 * K
-    return np.eye(3) + (1 - np.cos(th)) / th**2 * K + (th - np.sin(th)) / th**3 * (K @ K)
+    return np.eye(3) + (1 - math.cos(th)) / th**2 * K + (th - math.sin(th)) / th**3 * (K @ K)
 
 
 class Geometric(ChainEffect):
@@ -288,7 +342,20 @@ class Geometric(ChainEffect):
         idx = {n: k for k, n in enumerate(names)}
 
         def rows(prefix, offset=0):
-            return np.array([idx.get(f"{prefix}{i + offset}", -1) for i in range(1, 7)])
+            """(positions in the vector, DH rows 0..5) of the parameters present; a slice when
+            the positions are consecutive, so the columns are written without a gather."""
+            pairs = [
+                (idx[f"{prefix}{i + offset}"], i - 1)
+                for i in range(1, 7)
+                if f"{prefix}{i + offset}" in idx
+            ]
+            dst = np.array([d for d, _ in pairs], dtype=int)
+            src = np.array([r for _, r in pairs], dtype=int)
+            if len(dst) and np.all(np.diff(dst) == 1):
+                dst = slice(int(dst[0]), int(dst[-1]) + 1)
+            if len(src) and np.all(np.diff(src) == 1):
+                src = slice(int(src[0]), int(src[-1]) + 1)
+            return dst, src
 
         tool = [idx[n] for n in names if re.fullmatch(r"t[xyz][0-9]*", n)]
         return {
@@ -305,9 +372,9 @@ class Geometric(ChainEffect):
         s = self._slots(state)
 
         def add(base, key):
-            sel = s[key] >= 0
+            dst, src = s[key]
             out = np.array(base, dtype=float, copy=True)
-            out[..., sel] += values[s[key][sel]]
+            out[..., src] += values[dst]
             return out
 
         chain = state.chain.replace(
@@ -320,30 +387,38 @@ class Geometric(ChainEffect):
         b = values[s["base"]]
         tools = state.tools + values[s["tool"]]
         return state.replace(
-            chain=chain, base_t=b[:3], base_r=b[3:], base_R=rotation_matrix(b[3:]), tools=tools
+            chain=chain, base_t=b[:3], base_r=b[3:], base_R=_rodrigues(b[3:]), tools=tools
         )
 
     def jacobian(self, inputs, values, sens):
+        return self._jacobian_from_into(inputs, values, sens)
+
+    def jacobian_into(self, inputs, values, sens, out):
         s = self._slots(sens.state)
-        J = np.zeros((inputs.n, 3, len(values)))
-        for key, col in (
-            ("alpha", sens.d_alpha),
-            ("a", sens.d_a),
-            ("theta", sens.d_theta),
-            ("d", sens.d_d),
-            ("beta", sens.d_beta),
+        for key, rows in (
+            ("alpha", "rows_alpha"),
+            ("a", "rows_a"),
+            ("theta", "rows_theta"),
+            ("d", "rows_d"),
         ):
-            sel = s[key] >= 0
-            J[:, :, s[key][sel]] = col[:, :, sel]
+            dst, src = s[key]
+            if isinstance(dst, slice) or len(dst):
+                out[dst] = getattr(sens, rows)[src]
+        dst, src = s["beta"]  # only the few parallel rows have one
+        if isinstance(dst, slice) or len(dst):
+            out[dst] = sens.beta_rows(src)
         # lengths a and d scale with thermal growth: d p / d(da) = s * d p / d(a)
         if sens.state.length_scale is not None:
             for key in ("a", "d"):
-                sel = s[key][s[key] >= 0]
-                J[:, :, sel] *= sens.state.length_scale[:, None, None]
-        J[:, :, s["base"]] = sens.d_base
-        for k, cols in enumerate(s["tool"]):
-            J[:, :, cols] = sens.d_tool * (inputs.target == k)[:, None, None]
-        return J
+                out[s[key][0]] *= sens.state.length_scale
+        out[s["base"]] = sens.base_cols
+        tool = sens.tool_cols
+        if len(s["tool"]) == 1:
+            out[s["tool"][0]] = tool
+        else:
+            for k, cols in enumerate(s["tool"]):
+                out[cols] = tool * (inputs.target == k)
+        return True
 
 
 class Thermal(ChainEffect):
@@ -372,11 +447,18 @@ class Thermal(ChainEffect):
         return state.replace(chain=chain, length_scale=prev * scale)
 
     def jacobian(self, inputs, values, sens):
-        a = np.broadcast_to(sens.state.chain.a, (inputs.n, 6))
-        d = np.broadcast_to(sens.state.chain.d, (inputs.n, 6))
-        scale = 1.0 + values[0] * self._dT(inputs)
-        col = np.einsum("nxi,ni->nx", sens.d_a, a) + np.einsum("nxi,ni->nx", sens.d_d, d)
-        return (col * (self._dT(inputs) / scale)[:, None])[:, :, None]
+        return self._jacobian_from_into(inputs, values, sens)
+
+    def jacobian_into(self, inputs, values, sens, out):
+        # d p / d kappa = sum_i (d p / d a_i) a_i' + (d p / d d_i) d_i', a' = a_nominal dT
+        dT = self._dT(inputs)
+        a = np.asarray(sens.state.chain.a, dtype=float)
+        d = np.asarray(sens.state.chain.d, dtype=float)
+        a = a[:, None, None] if a.ndim == 1 else a.T[:, None, :]
+        d = d[:, None, None] if d.ndim == 1 else d.T[:, None, :]
+        col = (sens.rows_a * a).sum(axis=0) + (sens.rows_d * d).sum(axis=0)
+        out[0] = col * (dT / (1.0 + values[0] * dT))
+        return True
 
 
 # --------------------------------------------------------------------------------------------------

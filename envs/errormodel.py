@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -26,11 +27,18 @@ from envs.effects import (
     Effect,
     EffectError,
     JointAngleEffect,
-    _skew,
     parse_effects,
     so3_left_jacobian,
 )
-from envs.kinematics import Chain, gravity_torques, link_frames
+from envs.kinematics import (
+    Chain,
+    ColumnFrames,
+    Workspace,
+    column_frames,
+    cross_columns,
+    gravity_torques,
+    tool_points,
+)
 from envs.params import ParameterLayout
 
 __all__ = ["ChainState", "ErrorModel", "ModelInputs", "Sensitivities"]
@@ -102,23 +110,84 @@ class ChainState:
         return replace(self, **kw)
 
 
-@dataclass(frozen=True)
 class Sensitivities:
-    """Elementary derivatives of the measured point (N, 3, ...) in the measurement frame.
+    """Elementary derivatives of the measured point, in the measurement frame, computed on first
+    use from the frames of one evaluation.
 
-    ``d_alpha[:, :, i]`` is d p / d alpha of row i+1 (likewise a, beta, theta, d, all at the state's
-    values), ``d_base`` by (bx, by, bz, brx, bry, brz), ``d_tool`` by the tool point of the pose's
-    target (the target's columns are masked by the effect).
+    Component-major blocks, pose index last (what the catalogue's effects use): ``rows_alpha[i]``
+    (3, N) is d p / d alpha of row i+1 (likewise ``rows_beta``, ``rows_a``, ``rows_theta``,
+    ``rows_d``, all at the state's values), ``base_cols`` (6, 3, N) d p / d (bx, by, bz, brx, bry,
+    brz) and ``tool_cols`` (3, 3, N) d p / d the tool point of the pose's own target. The same as
+    (N, 3, k) views: ``d_alpha[:, :, i]``, ``d_beta``, ``d_a``, ``d_theta``, ``d_d``, ``d_base``,
+    ``d_tool``.
     """
 
-    state: ChainState
-    d_alpha: np.ndarray
-    d_beta: np.ndarray
-    d_a: np.ndarray
-    d_theta: np.ndarray
-    d_d: np.ndarray
-    d_base: np.ndarray
-    d_tool: np.ndarray
+    def __init__(
+        self,
+        state: ChainState,
+        frames: ColumnFrames,
+        point: np.ndarray,
+        work: Workspace | None = None,
+    ) -> None:
+        self.state = state
+        self._f = frames
+        self._p = point  # (3, N), measurement frame
+        self._new = (lambda name, shape: np.empty(shape)) if work is None else work
+
+    @cached_property
+    def _lever(self) -> np.ndarray:
+        """p - o_i for frames 0..6, (7, 3, N)."""
+        return np.subtract(self._p[None], self._f.o, out=self._new("sens.lever", self._f.o.shape))
+
+    @cached_property
+    def rows_alpha(self) -> np.ndarray:
+        out = self._new("sens.alpha", self._f.x_a.shape)
+        return cross_columns(self._f.axes[:6, 0], self._lever[:6], out=out)
+
+    @cached_property
+    def rows_beta(self) -> np.ndarray:
+        return cross_columns(self._f.y_beta, self._lever[:6])
+
+    def beta_rows(self, rows) -> np.ndarray:
+        """``rows_beta[rows]``, computing only those rows."""
+        if "rows_beta" in self.__dict__:
+            return self.rows_beta[rows]
+        return cross_columns(self._f.y_beta[rows], self._lever[:6][rows])
+
+    @property
+    def rows_a(self) -> np.ndarray:
+        return self._f.x_a
+
+    @cached_property
+    def rows_theta(self) -> np.ndarray:
+        out = self._new("sens.theta", self._f.x_a.shape)
+        return cross_columns(self._f.axes[1:, 2], self._lever[1:], out=out)
+
+    @property
+    def rows_d(self) -> np.ndarray:
+        return self._f.axes[1:, 2]
+
+    @cached_property
+    def base_cols(self) -> np.ndarray:
+        st = self.state
+        out = np.zeros((6, 3, self._p.shape[1]))
+        out[0, 0] = out[1, 1] = out[2, 2] = 1.0
+        # d(R(r) p_b)/dr = -[R p_b]x J_l(r): column j is J_l[:, j] x (p - t_b)
+        Jl = so3_left_jacobian(st.base_r)
+        out[3:] = cross_columns(Jl.T[:, :, None], (self._p - st.base_t[:, None])[None])
+        return out
+
+    @property
+    def tool_cols(self) -> np.ndarray:
+        return self._f.axes[6]
+
+    d_alpha = property(lambda self: self.rows_alpha.transpose(2, 1, 0))
+    d_beta = property(lambda self: self.rows_beta.transpose(2, 1, 0))
+    d_a = property(lambda self: self.rows_a.transpose(2, 1, 0))
+    d_theta = property(lambda self: self.rows_theta.transpose(2, 1, 0))
+    d_d = property(lambda self: self.rows_d.transpose(2, 1, 0))
+    d_base = property(lambda self: self.base_cols.transpose(2, 1, 0))
+    d_tool = property(lambda self: self.tool_cols.transpose(2, 1, 0))
 
 
 class ErrorModel:
@@ -139,6 +208,8 @@ class ErrorModel:
             (e.name, e.parameter_names(self.robot, self.targets)) for e in self.effects
         )
         self._chain0 = Chain.from_description(self.robot)
+        self._base_R0 = self.robot.base_matrix[:3, :3]
+        self._work = Workspace()  # scratch of predict(jacobian=True), reused between calls
         tools = self.robot.tool_points
         self._tools0 = np.array(
             [tools[k] if k < len(tools) else tools[0] for k in range(len(self.targets))]
@@ -234,11 +305,28 @@ class ErrorModel:
             robot=self.robot,
             targets=self.targets,
             chain=self._chain0,
-            base_R=self.robot.base_matrix[:3, :3],
+            base_R=self._base_R0,
             base_t=np.array(self.robot.base_translation, dtype=float),
             base_r=np.array(self.robot.base_rotation, dtype=float),
             tools=self._tools0.copy(),
         )
+
+    def _evaluate(
+        self, inputs: ModelInputs, p: np.ndarray, work: Workspace | None = None
+    ) -> tuple[ChainState, ColumnFrames]:
+        """The chain state and its frames in the measurement frame (component-major)."""
+        theta = self.joint_angles(inputs, p)
+        st = self.state(inputs, p)
+        return st, column_frames(st.chain, theta, st.base_R, st.base_t, work)
+
+    @staticmethod
+    def _point(st: ChainState, f: ColumnFrames, target: np.ndarray) -> np.ndarray:
+        """The measured point (3, N) of each pose's target."""
+        tool = st.tools.T[:, target] if len(st.tools) > 1 else st.tools[0][:, None]
+        p = f.o[6] + f.axes[6, 0] * tool[0]
+        p += f.axes[6, 1] * tool[1]
+        p += f.axes[6, 2] * tool[2]
+        return p
 
     def predict(
         self, inputs: ModelInputs, p: np.ndarray, jacobian: bool = False
@@ -247,61 +335,33 @@ class ErrorModel:
         p = np.asarray(p, dtype=float)
         if p.shape != (len(self.layout),):
             raise ValueError(f"expected {len(self.layout)} parameters, got shape {p.shape}")
-        theta = self.joint_angles(inputs, p)
-        st = self.state(inputs, p)
-        f = link_frames(st.chain, theta)
-        tool = st.tools[inputs.target]
-        pb = f.o[:, 6] + np.einsum("nij,nj->ni", f.R[:, 6], tool)
-        xyz = pb @ st.base_R.T + st.base_t
         if not jacobian:
-            return xyz
-        sens = self._sensitivities(f, pb, st)
-        J = np.empty((inputs.n, 3, len(self.layout)))
+            theta = self.joint_angles(inputs, p)
+            st = self.state(inputs, p)
+            tool = st.tools[inputs.target] if len(st.tools) > 1 else st.tools[0]
+            return tool_points(st.chain, theta, tool) @ st.base_R.T + st.base_t
+        st, f = self._evaluate(inputs, p, self._work)
+        point = self._point(st, f, inputs.target)
+        sens = Sensitivities(st, f, point, self._work)
+        # columns are built component-major, (P, 3, N), then laid out as (N, 3, P) once
+        JT = self._work("jacobian", (len(self.layout), 3, inputs.n))
         for e in self.effects:
             sl = self.layout.slice(e.name)
             v = p[sl]
             if isinstance(e, JointAngleEffect):
-                J[:, :, sl] = np.einsum("nxj,njk->nxk", sens.d_theta, e.joint_jacobian(inputs, v))
-            else:
-                cols = e.jacobian(inputs, v, sens)
-                J[:, :, sl] = self._numeric_columns(inputs, p, sl) if cols is None else cols
-        return xyz, J
+                e.jacobian_into(inputs, v, sens, JT[sl])
+            elif not e.jacobian_into(inputs, v, sens, JT[sl]):
+                JT[sl] = self._numeric_columns(inputs, p, sl).transpose(2, 1, 0)
+        return point.T.copy(), np.ascontiguousarray(JT.transpose(2, 1, 0))
 
     def joint_jacobian(self, inputs: ModelInputs, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Measured points (N, 3) and their derivatives by the effective joint angles theta
         (N, 3, 6), in the measurement frame: the step direction of inverse kinematics on the
         calibrated model (:func:`envs.ik.solve_position`)."""
-        p = np.asarray(p, dtype=float)
-        theta = self.joint_angles(inputs, p)
-        st = self.state(inputs, p)
-        f = link_frames(st.chain, theta)
-        pb = f.o[:, 6] + np.einsum("nij,nj->ni", f.R[:, 6], st.tools[inputs.target])
-        Rb = st.base_R
-        J = np.cross(f.z, pb[:, None, :] - f.o[:, 1:]) @ Rb.T  # (N, 6, 3)
-        return pb @ Rb.T + st.base_t, J.transpose(0, 2, 1)
-
-    def _sensitivities(self, f, pb: np.ndarray, st: ChainState) -> Sensitivities:
-        Rb = st.base_R
-        z = f.z
-        r_prev = pb[:, None, :] - f.o[:, :6]
-        r_this = pb[:, None, :] - f.o[:, 1:]
-
-        def to_meas(v):  # (N, 6, 3) base-frame vectors -> (N, 3, 6) measurement frame
-            return np.einsum("ij,nkj->nik", Rb, v)
-
-        d_base = np.empty((pb.shape[0], 3, 6))
-        d_base[:, :, :3] = np.eye(3)
-        d_base[:, :, 3:] = -_skew(pb @ Rb.T) @ so3_left_jacobian(st.base_r)
-        return Sensitivities(
-            state=st,
-            d_alpha=to_meas(np.cross(f.x_alpha, r_prev)),
-            d_beta=to_meas(np.cross(f.y_beta, r_prev)),
-            d_a=to_meas(f.x_a),
-            d_theta=to_meas(np.cross(z, r_this)),
-            d_d=to_meas(z),
-            d_base=d_base,
-            d_tool=np.einsum("ij,njk->nik", Rb, f.R[:, 6]),
-        )
+        st, f = self._evaluate(inputs, np.asarray(p, dtype=float))
+        point = self._point(st, f, inputs.target)
+        sens = Sensitivities(st, f, point)
+        return point.T.copy(), np.ascontiguousarray(sens.d_theta)
 
     def _numeric_columns(self, inputs: ModelInputs, p: np.ndarray, sl: slice) -> np.ndarray:
         """Central differences for an effect without analytic columns."""

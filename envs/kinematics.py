@@ -11,6 +11,8 @@ The tool-point FK transforms the point backwards through the six rows (about 15 
 
 from __future__ import annotations
 
+import math
+import threading
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -19,7 +21,11 @@ from envs.description import RobotDescription
 
 __all__ = [
     "Chain",
+    "ColumnFrames",
     "Frames",
+    "Workspace",
+    "column_frames",
+    "cross_columns",
     "geometric_jacobian",
     "gravity_torques",
     "link_frames",
@@ -64,29 +70,46 @@ def _angles(chain: Chain, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def tool_points(chain: Chain, q: np.ndarray, point: np.ndarray) -> np.ndarray:
-    """Positions (N, 3) in the base frame of ``point`` ((3,) or (N, 3)) given in the last frame."""
+    """Positions (N, 3) in the base frame of ``point`` ((3,) or (N, 3)) given in the last frame.
+
+    The point is carried backwards through the six rows, in place in three (N,) vectors: no 4x4
+    products, one ``cos``/``sin`` per joint angle, no temporaries per row, and terms whose
+    parameter is exactly zero (a, d, alpha, beta of a single chain) skipped.
+    """
     q = np.asarray(q, dtype=float)
     single = q.ndim == 1
     c, s = _angles(chain, q)
     n = c.shape[1]
     pt = np.asarray(point, dtype=float)
-    if pt.ndim == 1:
-        x, y, z = (np.full(n, v) for v in pt)
-    else:
-        x, y, z = (np.array(pt[:, k]) for k in range(3))
-    ca, sa = np.cos(_rows(chain.alpha)), np.sin(_rows(chain.alpha))
-    beta = _rows(chain.beta)
-    cb, sb = np.cos(beta), np.sin(beta)
+    xyz = np.empty((3, n))
+    xyz[:] = pt[:, None] if pt.ndim == 1 else pt.T
+    x, y, z = xyz
+    t1, t2 = np.empty(n), np.empty(n)
+    alpha, beta = _rows(chain.alpha), _rows(chain.beta)
+    ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
     a, d = _rows(chain.a), _rows(chain.d)
+    const = alpha.shape[1] == 1 and a.shape[1] == 1 and d.shape[1] == 1 and beta.shape[1] == 1
+
+    def rotate(u, v, cos, sin):  # (u, v) <- (cos u - sin v, sin u + cos v), in place
+        np.multiply(v, sin, out=t1)
+        np.multiply(v, cos, out=t2)
+        np.multiply(u, sin, out=v)
+        v += t2
+        u *= cos
+        u -= t1
+
     for i in range(5, -1, -1):
-        z = z + d[i]
-        x, y = c[i] * x - s[i] * y, s[i] * x + c[i] * y
-        x = x + a[i]
+        if not (const and d[i, 0] == 0.0):
+            z += d[i]
+        rotate(x, y, c[i], s[i])
+        if not (const and a[i, 0] == 0.0):
+            x += a[i]
         if np.any(sb[i]):
-            x, z = cb[i] * x + sb[i] * z, cb[i] * z - sb[i] * x
-        y, z = ca[i] * y - sa[i] * z, sa[i] * y + ca[i] * z
-    out = np.stack((x, y, z), axis=-1)
-    return out[0] if single else out
+            rotate(z, x, cb[i], sb[i])  # RotY(beta): x' = cb x + sb z, z' = cb z - sb x
+        if not (const and alpha[i, 0] == 0.0):
+            rotate(y, z, ca[i], sa[i])
+    out = xyz.T
+    return out[0].copy() if single else out
 
 
 @dataclass(frozen=True)
@@ -119,55 +142,133 @@ class Frames:
         )
 
 
-def link_frames(chain: Chain, q: np.ndarray) -> Frames:
-    """Frames 0..6 for a batch of joint angles (N, 6)."""
+class Workspace:
+    """Named scratch arrays kept between calls, per thread: repeated evaluations of one batch size
+    then reuse memory instead of faulting in fresh pages each call (a freed large numpy array goes
+    back to the operating system, and touching a new one costs about as much as the arithmetic
+    done on it). Like Pinocchio's ``Data``, but allocated on first use. Arrays from a workspace are
+    overwritten by the next call that asks for the same name: never return them to a caller.
+    Requests above ``limit_bytes`` get plain fresh arrays."""
+
+    def __init__(self, limit_bytes: int = 64 << 20) -> None:
+        self.limit_bytes = limit_bytes
+        self._local = threading.local()
+
+    def __call__(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        arrays = self._local.__dict__.setdefault("arrays", {})
+        a = arrays.get(name)
+        if a is None or a.shape != shape:
+            if 8 * math.prod(shape) > self.limit_bytes:
+                return np.empty(shape)
+            a = arrays[name] = np.empty(shape)
+        return a
+
+    def __reduce__(self):  # picklable (sweeps ship models to workers): scratch is not state
+        return (Workspace, (self.limit_bytes,))
+
+
+def _fresh(name: str, shape: tuple[int, ...]) -> np.ndarray:
+    return np.empty(shape)
+
+
+@dataclass(frozen=True)
+class ColumnFrames:
+    """Frames in component-major layout, pose index last, for the error model's inner loops:
+    ``axes[i, k]`` (3, N) is axis k (x, y, z) of frame i, ``o[i]`` (3, N) its origin, ``x_a[i]`` and
+    ``y_beta[i]`` (3, N) the directions of a_{i} and beta_{i} of row i+1. Every slice is a
+    contiguous block, so a row's update is a handful of vector operations over the batch."""
+
+    axes: np.ndarray  # (7, 3, 3, N)
+    o: np.ndarray  # (7, 3, N)
+    x_a: np.ndarray  # (6, 3, N)
+    y_beta: np.ndarray  # (6, 3, N)
+
+    def frames(self) -> Frames:
+        """The same frames in :class:`Frames` layout (views, no copy)."""
+        return Frames(
+            R=self.axes.transpose(3, 0, 2, 1),
+            o=self.o.transpose(2, 0, 1),
+            y_beta=self.y_beta.transpose(2, 0, 1),
+            x_a=self.x_a.transpose(2, 0, 1),
+        )
+
+
+def column_frames(
+    chain: Chain,
+    q: np.ndarray,
+    base_R: np.ndarray | None = None,
+    base_t: np.ndarray | None = None,
+    work: Workspace | None = None,
+) -> ColumnFrames:
+    """Frames 0..6 of a batch (N, 6) in component-major layout; frame 0 is ``(base_R, base_t)``
+    (default the identity), so everything comes out in that outer frame directly. With a
+    ``work`` space the arrays are its scratch (valid until the next call using it)."""
+    new = _fresh if work is None else work
     q = np.atleast_2d(np.asarray(q, dtype=float))
     n = q.shape[0]
     c, s = _angles(chain, q)
     alpha, beta = _rows(chain.alpha), _rows(chain.beta)
+    ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
     a, d = _rows(chain.a), _rows(chain.d)
-    R = np.empty((n, 7, 3, 3))
-    o = np.empty((n, 7, 3))
-    y_beta = np.empty((n, 6, 3))
-    x_a = np.empty((n, 6, 3))
-    R[:, 0] = np.eye(3)
-    o[:, 0] = 0.0
+    axes = new("frames.axes", (7, 3, 3, n))
+    o = new("frames.o", (7, 3, n))
+    x_a = new("frames.x_a", (6, 3, n))
+    y_beta = new("frames.y_beta", (6, 3, n))
+    R0 = np.eye(3) if base_R is None else np.asarray(base_R, dtype=float)
+    axes[0] = R0.T[:, :, None]  # axis k of frame 0 is column k of R0
+    o[0] = 0.0 if base_t is None else np.asarray(base_t, dtype=float)[:, None]
+    const = alpha.shape[1] == 1  # one chain for the batch: exact zeros skip their terms
     for i in range(6):
-        ca, sa = np.cos(alpha[i]), np.sin(alpha[i])
-        cb, sb = np.cos(beta[i]), np.sin(beta[i])
-        Rp = R[:, i]
-        # P = RotX(alpha) RotY(beta); columns of Q = R_{i-1} P
-        if alpha.shape[1] == 1 and beta.shape[1] == 1:
-            P = np.array(
-                [
-                    [cb[0], 0.0, sb[0]],
-                    [sa[0] * sb[0], ca[0], -sa[0] * cb[0]],
-                    [-ca[0] * sb[0], sa[0], ca[0] * cb[0]],
-                ]
-            )
-            Q = Rp @ P
-            y_beta[:, i] = Rp @ np.array([0.0, ca[0], sa[0]])
+        X, Y, Z = axes[i]
+        # Q = R_i RotX(alpha) RotY(beta): columns (Q0, Q1, Q2); y' = Q1 is beta's axis
+        Q1 = y_beta[i]
+        if const and alpha[i, 0] == 0.0:
+            Q1[:] = Y
+            Zp = Z
         else:
-            P = np.stack(
-                [
-                    np.stack([cb, 0 * cb, sb], -1),
-                    np.stack([sa * sb, ca + 0 * sb, -sa * cb], -1),
-                    np.stack([-ca * sb, sa + 0 * sb, ca * cb], -1),
-                ],
-                -2,
-            ).reshape(-1, 3, 3)
-            Q = Rp @ P
-            y_beta[:, i] = np.einsum(
-                "nij,nj->ni", Rp, np.stack([0 * ca, ca, sa], -1).reshape(-1, 3)
-            )
-        x_a[:, i] = Q[:, :, 0]
-        ci, si = c[i][:, None], s[i][:, None]
-        Ri = R[:, i + 1]
-        Ri[:, :, 0] = Q[:, :, 0] * ci + Q[:, :, 1] * si
-        Ri[:, :, 1] = Q[:, :, 1] * ci - Q[:, :, 0] * si
-        Ri[:, :, 2] = Q[:, :, 2]
-        o[:, i + 1] = o[:, i] + a[i][:, None] * Q[:, :, 0] + d[i][:, None] * Q[:, :, 2]
-    return Frames(R=R, o=o, y_beta=y_beta, x_a=x_a)
+            np.multiply(Y, ca[i], out=Q1)
+            Q1 += Z * sa[i]
+            Zp = Z * ca[i]
+            Zp -= Y * sa[i]
+        if np.any(sb[i]):
+            Q0 = X * cb[i]
+            Q0 -= Zp * sb[i]
+            Q2 = X * sb[i]
+            Q2 += Zp * cb[i]
+        else:
+            Q0, Q2 = X, Zp
+        x_a[i] = Q0
+        ci, si = c[i], s[i]
+        nX, nY = axes[i + 1, 0], axes[i + 1, 1]
+        np.multiply(Q0, ci, out=nX)
+        nX += Q1 * si
+        np.multiply(Q1, ci, out=nY)
+        nY -= Q0 * si
+        axes[i + 1, 2] = Q2
+        on = o[i + 1]
+        on[:] = o[i]
+        if not (const and a[i, 0] == 0.0):
+            on += Q0 * a[i]
+        if not (const and d[i, 0] == 0.0):
+            on += Q2 * d[i]
+    return ColumnFrames(axes=axes, o=o, x_a=x_a, y_beta=y_beta)
+
+
+def link_frames(chain: Chain, q: np.ndarray) -> Frames:
+    """Frames 0..6 for a batch of joint angles (N, 6)."""
+    return column_frames(chain, q).frames()
+
+
+def cross_columns(u: np.ndarray, v: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """u x v for component-major stacks (..., 3, N), broadcasting the leading axes."""
+    u0, u1, u2 = u[..., 0, :], u[..., 1, :], u[..., 2, :]
+    v0, v1, v2 = v[..., 0, :], v[..., 1, :], v[..., 2, :]
+    if out is None:
+        out = np.empty(np.broadcast_shapes(u.shape, v.shape))
+    for k, (a, b, c, d) in enumerate(((u1, v2, u2, v1), (u2, v0, u0, v2), (u0, v1, u1, v0))):
+        np.multiply(a, b, out=out[..., k, :])
+        out[..., k, :] -= c * d
+    return out
 
 
 def geometric_jacobian(chain: Chain, q: np.ndarray, point: np.ndarray) -> np.ndarray:
