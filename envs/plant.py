@@ -266,13 +266,25 @@ class Plant:
         spec.stat.center = np.array([0.3, 0.0, 0.5])
         spec.stat.extent = 1.2
 
+        spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
+        spec.visual.headlight.diffuse = [0.55, 0.55, 0.55]
+        sky = spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX)
+        sky.builtin = mujoco.mjtBuiltin.mjBUILTIN_GRADIENT
+        sky.rgb1, sky.rgb2 = [0.93, 0.95, 0.98], [0.62, 0.68, 0.76]
+        sky.width, sky.height = 256, 1536
+        grid = spec.add_texture(name="grid", type=mujoco.mjtTexture.mjTEXTURE_2D)
+        grid.builtin = mujoco.mjtBuiltin.mjBUILTIN_CHECKER
+        grid.rgb1, grid.rgb2 = [0.86, 0.87, 0.89], [0.78, 0.80, 0.83]
+        grid.width, grid.height = 300, 300
+        floor_mat = spec.add_material(name="floor", texrepeat=[8.0, 8.0], reflectance=0.0)
+        floor_mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "grid"
         wb = spec.worldbody
         wb.add_light(pos=[0.5, -0.5, 3.0], dir=[-0.2, 0.2, -1.0], castshadow=False)
         wb.add_geom(
             name="floor",
             type=mujoco.mjtGeom.mjGEOM_PLANE,
             size=[2.0, 2.0, 0.05],
-            rgba=[0.82, 0.84, 0.86, 1.0],
+            material="floor",
             contype=0,
             conaffinity=0,
         )
@@ -432,8 +444,9 @@ class Plant:
 
     def default_drive(self) -> Drive:
         """Servo constants for this arm: armature half the link inertia (at the middle of the
-        limits), a critically damped position loop of ``SERVO_BANDWIDTH``, torque limits 2.5x
-        the largest gravity torque (3 kg payload) plus the inertial torque at ``a_max``."""
+        limits), a critically damped position loop of ``SERVO_BANDWIDTH`` (at least ``KP_MIN``
+        stiff), torque limits 2.5x the largest gravity torque (3 kg payload) plus the inertial
+        torque at ``a_max``."""
         J = self.link_inertia()
         armature = np.maximum(0.5 * J, 0.02)
         inertia = J + armature
@@ -442,14 +455,14 @@ class Plant:
         grav = np.abs(gravity_torques(self.nominal, q, payload=3.0)).max(axis=0)
         a_max = np.array(A_MAX)
         torque_max = np.maximum(2.5 * grav + inertia * a_max, 10.0)
-        w = SERVO_BANDWIDTH
+        kp = np.maximum(inertia * SERVO_BANDWIDTH**2, KP_MIN)
         return Drive(
             v_max=np.array(V_MAX),
             a_max=a_max,
             torque_max=torque_max,
             armature=armature,
-            kp=np.maximum(inertia * w**2, KP_MIN),
-            kv=2.0 * inertia * w,
+            kp=kp,
+            kv=2.0 * np.sqrt(kp * inertia),  # critically damped
             damping=0.004 * torque_max,
             friction=0.012 * torque_max,
         )
@@ -604,11 +617,18 @@ class Plant:
         m.tendon_lengthspring[self._mesh, 0] = centre - half
         m.tendon_lengthspring[self._mesh, 1] = centre + half
 
-    def place(self, q: np.ndarray, dirs: np.ndarray | None = None, settle: float = 0.1) -> None:
+    def place(
+        self,
+        q: np.ndarray,
+        dirs: np.ndarray | None = None,
+        settle: float = 0.1,
+        static: bool = True,
+    ) -> None:
         """Put the arm at rest with the encoders reading ``q``: the servo's reference is set so
         that it holds q against gravity, each link at its static deflection (against the loaded
         side of its gap where gravity exceeds the bearing friction, else lagging its last motion
-        ``dirs``), then ``settle`` seconds of physics; the clock restarts at zero."""
+        ``dirs``), then ``settle`` seconds of physics; the clock restarts at zero. With
+        ``static=False`` the links start undeflected and the physics alone finds their rest."""
         q = np.asarray(q, dtype=float).reshape(6)
         m, d = self.model, self.data
         if dirs is not None:
@@ -621,9 +641,10 @@ class Plant:
         if self.elastic:
             self._set_mesh(q)
             r, _ = self._mesh_rest(q)
+            d.qpos[self.il] = r
             half = 0.5 * self.effects.gap
             f = self.effects.bearing_friction
-            for _ in range(6):
+            for _ in range(6 if static else 0):
                 mujoco.mj_forward(m, d)
                 tau = -d.qfrc_bias[self.ilv]
                 loaded = np.abs(tau) > f
@@ -693,7 +714,12 @@ class Plant:
             return True
         if np.abs(v).max(initial=0.0) > MAX_SPEED:
             return True
-        return d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0
+        w = d.warning
+        return (
+            w[mujoco.mjtWarning.mjWARN_BADQACC].number > 0
+            or w[mujoco.mjtWarning.mjWARN_BADQVEL].number > 0
+            or w[mujoco.mjtWarning.mjWARN_BADQPOS].number > 0
+        )
 
     # -- kinematic checks -------------------------------------------------------------------
     def chain(self) -> Chain:

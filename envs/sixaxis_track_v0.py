@@ -350,8 +350,8 @@ class SixAxisTrackEnv(gym.Env):
 
     def step(self, action):
         a = self._check_action(action)
-        if self._diverged:
-            raise RuntimeError("the episode ended (the simulation diverged): call reset()")
+        if self._diverged:  # stepped past the end: the same terminal transition again
+            return self._on_divergence(a)
         np.multiply(a, self._v_max, out=self._a)
         self.plant.step(self._a)
         self._k += 1
@@ -374,11 +374,12 @@ class SixAxisTrackEnv(gym.Env):
             self._renderer = mujoco.Renderer(self.plant.model, self.height, self.width)
             cam = mujoco.MjvCamera()
             cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-            cam.lookat[:] = (0.45, 0.0, 0.45)
-            cam.distance = 2.1
-            cam.azimuth = 135.0
-            cam.elevation = -22.0
+            cam.distance = 1.45
+            cam.azimuth = 150.0
+            cam.elevation = -18.0
             self._camera = cam
+        # look between the arm's base and the path
+        self._camera.lookat[:] = 0.6 * self.trajectory.centre + np.array([0.0, 0.0, 0.15])
         r = self._renderer
         r.update_scene(self.plant.data, camera=self._camera)
         scn = r.scene
@@ -496,16 +497,17 @@ class SixAxisTrackEnv(gym.Env):
                 return None
             g = scn.geoms[scn.ngeom]
             mujoco.mjv_initGeom(g, kind, np.asarray(size, float), np.asarray(pos, float), eye, rgba)
+            g.emission = 0.4
             scn.ngeom += 1
             return g
 
         path = self.references[: self.episode_steps + 1 : 2]
-        green = np.array([0.1, 0.75, 0.3, 0.9], dtype=np.float32)
+        green = np.array([0.05, 0.7, 0.2, 1.0], dtype=np.float32)
         for a, b in itertools.pairwise(path):
-            g = add(mujoco.mjtGeom.mjGEOM_CAPSULE, (0.002, 0, 0), a, green)
+            g = add(mujoco.mjtGeom.mjGEOM_CAPSULE, (0.003, 0, 0), a, green)
             if g is not None:
-                mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_CAPSULE, 0.002, a, b)
+                mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_CAPSULE, 0.003, a, b)
         add(mujoco.mjtGeom.mjGEOM_SPHERE, (0.012, 0, 0), self.references[self._k], green)
-        red = np.array([0.9, 0.1, 0.1, 1.0], dtype=np.float32)
-        for pt in self._meas_points[-40:]:
+        red = np.array([0.85, 0.05, 0.05, 1.0], dtype=np.float32)
+        for pt in self._meas_points[-25:]:
             add(mujoco.mjtGeom.mjGEOM_SPHERE, (0.005, 0, 0), pt, red)
