@@ -133,7 +133,15 @@ class JointAngleEffect(Effect):
 
     def joint_offsets(self, inputs: ModelInputs, values: np.ndarray) -> np.ndarray:
         """(N, 6) change of the joint angles."""
-        return inputs.cached(self, self.regressor) @ values
+        if type(self).regressor is not JointAngleEffect.regressor:  # a subclass's own regressor
+            return inputs.cached(self, self.regressor) @ values
+        joints, basis = inputs.cached(self, self._sparse_regressor)
+        out = np.zeros((6, inputs.n))
+        m = len(self.active_joints())
+        for t in range(len(self.terms)):  # within a term the joints are distinct
+            sl = slice(t * m, (t + 1) * m)
+            out[joints[sl]] += basis[sl] * values[sl, None]
+        return out.T
 
     def joint_jacobian(self, inputs: ModelInputs, values: np.ndarray) -> np.ndarray:
         """(N, 6, k) d theta / d values; the regressor itself for a linear effect."""

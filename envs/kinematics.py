@@ -74,7 +74,7 @@ def tool_points(chain: Chain, q: np.ndarray, point: np.ndarray) -> np.ndarray:
 
     The point is carried backwards through the six rows, in place in three (N,) vectors: no 4x4
     products, one ``cos``/``sin`` per joint angle, no temporaries per row, and terms whose
-    parameter is exactly zero (a, d, alpha, beta of a single chain) skipped.
+    parameter is exactly zero (a, d, alpha, beta) skipped.
     """
     q = np.asarray(q, dtype=float)
     single = q.ndim == 1
@@ -88,7 +88,6 @@ def tool_points(chain: Chain, q: np.ndarray, point: np.ndarray) -> np.ndarray:
     alpha, beta = _rows(chain.alpha), _rows(chain.beta)
     ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
     a, d = _rows(chain.a), _rows(chain.d)
-    const = alpha.shape[1] == 1 and a.shape[1] == 1 and d.shape[1] == 1 and beta.shape[1] == 1
 
     def rotate(u, v, cos, sin):  # (u, v) <- (cos u - sin v, sin u + cos v), in place
         np.multiply(v, sin, out=t1)
@@ -99,14 +98,14 @@ def tool_points(chain: Chain, q: np.ndarray, point: np.ndarray) -> np.ndarray:
         u -= t1
 
     for i in range(5, -1, -1):
-        if not (const and d[i, 0] == 0.0):
+        if np.any(d[i]):
             z += d[i]
         rotate(x, y, c[i], s[i])
-        if not (const and a[i, 0] == 0.0):
+        if np.any(a[i]):
             x += a[i]
         if np.any(sb[i]):
             rotate(z, x, cb[i], sb[i])  # RotY(beta): x' = cb x + sb z, z' = cb z - sb x
-        if not (const and alpha[i, 0] == 0.0):
+        if np.any(alpha[i]):
             rotate(y, z, ca[i], sa[i])
     out = xyz.T
     return out[0].copy() if single else out
@@ -217,12 +216,11 @@ def column_frames(
     R0 = np.eye(3) if base_R is None else np.asarray(base_R, dtype=float)
     axes[0] = R0.T[:, :, None]  # axis k of frame 0 is column k of R0
     o[0] = 0.0 if base_t is None else np.asarray(base_t, dtype=float)[:, None]
-    const = alpha.shape[1] == 1  # one chain for the batch: exact zeros skip their terms
-    for i in range(6):
+    for i in range(6):  # terms whose parameter is exactly zero in every pose are skipped
         X, Y, Z = axes[i]
         # Q = R_i RotX(alpha) RotY(beta): columns (Q0, Q1, Q2); y' = Q1 is beta's axis
         Q1 = y_beta[i]
-        if const and alpha[i, 0] == 0.0:
+        if not np.any(alpha[i]):
             Q1[:] = Y
             Zp = Z
         else:
@@ -247,9 +245,9 @@ def column_frames(
         axes[i + 1, 2] = Q2
         on = o[i + 1]
         on[:] = o[i]
-        if not (const and a[i, 0] == 0.0):
+        if np.any(a[i]):
             on += Q0 * a[i]
-        if not (const and d[i, 0] == 0.0):
+        if np.any(d[i]):
             on += Q2 * d[i]
     return ColumnFrames(axes=axes, o=o, x_a=x_a, y_beta=y_beta)
 
