@@ -61,6 +61,21 @@ def test_closed_form_returns_q_and_only_exact_solutions(arm, request):
         assert d.min() > 1e-6
 
 
+def test_standard_dh_arm_with_a_flange_row(puma):
+    """A standard-DH last row TransX(a6) RotX(alpha6) is the flange: poses are the flange's."""
+    joints = list(puma.joints)
+    joints[5] = replace(joints[5], a=0.05, alpha=math.radians(90), theta_offset=0.3)
+    arm = replace(puma, joints=tuple(joints))
+    ik = InverseKinematics(arm)
+    assert ik.method == "closed_form"
+    q = random_q(arm, 100, seed=14)
+    q = q[_away_from_wrist_singularity(arm, q)]
+    T = forward_pose(arm, q)
+    sols, owner = ik.solve_flat(T)
+    assert np.all(_nearest_distance(q, sols, owner) < 1e-7)
+    np.testing.assert_allclose(forward_pose(arm, sols), T[owner], atol=1e-9)
+
+
 def test_wrist_angles_are_aliased_by_two_pi(seed):
     """q6 spans +-6.28 rad on the seed arm: both q6 and q6 - 2 pi reach the pose; the wrist flip
     (q4 + pi, -q5, q6 + pi) is there too, with its own aliases."""

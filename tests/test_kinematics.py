@@ -80,10 +80,17 @@ def _standard_product(robot, q):
     return T
 
 
+def _with_flange(robot):
+    """The same standard-DH arm with a last row that is not the identity (a6, alpha6 != 0)."""
+    joints = list(robot.joints)
+    joints[5] = replace(joints[5], a=0.05, alpha=math.radians(90), theta_offset=0.3)
+    return replace(robot, joints=tuple(joints), name=robot.name + "-flange")
+
+
 def test_standard_dh_to_modified_matches_the_standard_product(ur5):
     from envs.ik import forward_pose
 
-    for robot in (ur5, puma_arm()):
+    for robot in (ur5, puma_arm(), _with_flange(ur5), _with_flange(puma_arm())):
         m = robot.to_modified()
         chain = Chain.from_description(m)
         q = random_q(robot, 20, seed=1)
