@@ -543,8 +543,8 @@ def hint_variables(res: FitResult, data: MeasurementSet) -> dict[str, np.ndarray
     out: dict[str, np.ndarray] = {}
     q = data.q
     for j in range(6):
-        k = np.arange(1, HARMONICS + 1)
-        out[f"q{j + 1}"] = np.hstack([np.sin(np.outer(q[:, j], k)), np.cos(np.outer(q[:, j], k))])
+        kq = np.outer(q[:, j], np.arange(1, HARMONICS + 1))  # sin q, cos q, sin 2q, cos 2q...
+        out[f"q{j + 1}"] = np.stack([np.sin(kq), np.cos(kq)], axis=2).reshape(len(q), -1)
     tau = res.inputs.tau
     for j in range(6):
         z = _standardise(tau[:, j])
@@ -582,7 +582,9 @@ def _hints(res, data, Q0, e0, rss0, dof0, weigh) -> list[Hint]:
     eD = np.einsum("na,nad->nd", e0.reshape(n, 3), D)  # (N, nd)
     out = []
     for name, phi in hint_variables(res, data).items():
-        K = phi.shape[1]
+        # few poses: the lowest-order functions only, at most half the degrees of freedom
+        K = min(phi.shape[1], max(1, dof0 // (2 * nd)))
+        phi = phi[:, :K]
         pp = (phi[:, :, None] * phi[:, None, :]).reshape(n, K * K)
         Gbb = (pp.T @ M).reshape(K, K, nd, nd).transpose(0, 2, 1, 3).reshape(K * nd, K * nd)
         G0b = np.einsum("nmd,nk->mkd", Q0D, phi).reshape(Q0D.shape[1], K * nd)

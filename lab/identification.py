@@ -46,7 +46,16 @@ from envs.measurements import MeasurementSet, read_measurements
 from envs.params import parameter_unit
 from lab.identifiability import Identifiability, analyse_jacobian
 
-__all__ = ["LOSSES", "SCHEMA_VERSION", "FitError", "FitResult", "fit", "register_base"]
+__all__ = [
+    "LOSSES",
+    "SCHEMA_VERSION",
+    "FitError",
+    "FitResult",
+    "fit",
+    "identifiability_of",
+    "reference_values",
+    "register_base",
+]
 
 log = logging.getLogger(__name__)
 
@@ -670,3 +679,29 @@ def _standard_errors(J, r, free, scale, w=None) -> tuple[np.ndarray, float]:
         cov = cho_solve(cho_factor(A.T @ A), np.eye(idx.size))
         std[idx] = sigma * np.sqrt(np.diag(cov)) * scale[idx]
     return std, sigma
+
+
+def identifiability_of(
+    data: MeasurementSet | str | Path | np.ndarray,
+    robot: RobotDescription | str | Path | None = None,
+    effects: str | Sequence[str | Effect] = "geometric",
+    params: Mapping[str, float] | None = None,
+    *,
+    noise_mm: float | None = None,
+) -> Identifiability:
+    """Which parameters of ``effects`` the poses of ``data`` (a measurement set, or joint angles
+    (N, 6) alone) can identify, at ``params`` (default nominal): rank, named unidentifiable
+    combinations, condition number, O1 and O4. With ``noise_mm`` parameters whose typical-size
+    error moves the points by less than the noise are counted unidentifiable too."""
+    robot = _as_robot(robot)
+    if isinstance(data, np.ndarray):
+        data = MeasurementSet(data, np.zeros((len(np.atleast_2d(data)), 3)), source="poses")
+    data = _as_data(data)
+    try:
+        model = ErrorModel(robot, effects, targets=data.targets)
+    except EffectError as exc:
+        raise FitError(str(exc)) from None
+    inputs = _inputs(model, data)
+    p = model.nominal() if not params else model.layout.vector(params, default=model.nominal())
+    _, J = model.predict(inputs, p, jacobian=True)
+    return analyse_jacobian(model, J, noise=None if noise_mm is None else noise_mm * 1e-3)

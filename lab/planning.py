@@ -1,0 +1,241 @@
+"""Pose planning: choose the calibration poses that identify the most, so a user measures less.
+
+    p = plan(30, robot, "geometric")          # 30 poses out of 2,000 random candidates
+    p.q                                       # (30, 6) joint angles to measure
+    p.o1, p.random_o1                         # vs. as many random poses
+
+Candidates are random within the joint limits with the tool point above the floor
+(:func:`envs.sampling.sample_poses`), or given. Their identification Jacobian at the nominal
+parameters is column-scaled once, by each column's RMS per pose over all candidates, so that
+pose sets of one size compare on one scale; only the parameters identifiable from the candidates
+(:mod:`lab.identifiability`) count. A set's information matrix is ``M = sum_i A_i^T A_i`` over its
+poses' (3, L) scaled blocks, whose eigenvalues are the squared singular values:
+
+* ``o1`` (Borm & Menq): ``(s_1 ... s_L)^(1/L) / sqrt(N)``, i.e. D-optimality, ``log det M``;
+* ``o4`` (Nahvi & Hollerbach, noise amplification): ``s_min^2 / s_max``.
+
+The search is Mitchell's DETMAX with excursions of one pose: a sequential D-optimal start (each
+pose the one that raises ``log det (M + eps I)`` most, by the determinant lemma), then repeated
+exchanges: add the candidate that raises the criterion most, remove the pose whose loss lowers it
+least, until the pose removed is the one just added. For ``o4`` the candidates to add are screened
+by the first-order gain of the smallest eigenvalue, ``|A_i v_min|^2``, and the best few evaluated
+exactly.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from envs.description import RobotDescription
+from envs.effects import Effect
+from envs.errormodel import ErrorModel
+from envs.sampling import sample_poses
+from lab.identifiability import Identifiability, analyse, analyse_jacobian
+from lab.identification import SCHEMA_VERSION, FitError, _as_robot
+
+__all__ = ["CRITERIA", "Plan", "observability", "plan"]
+
+log = logging.getLogger(__name__)
+
+CRITERIA = ("o1", "o4")
+_SCREEN = 24  # o4: candidates evaluated exactly per addition
+
+
+@dataclass
+class Plan:
+    """Chosen poses ``q`` (N, 6) (rows of ``candidates`` at ``indices``) and their quality, beside
+    the mean over random sets of as many candidates."""
+
+    q: np.ndarray
+    indices: np.ndarray
+    candidates: np.ndarray
+    criterion: str
+    o1: float
+    o4: float
+    random_o1: float
+    random_o4: float
+    identifiability: Identifiability
+    exchanges: int
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.q)
+
+    @property
+    def condition_number(self) -> float:
+        return self.identifiability.condition_number
+
+    def to_dict(self) -> dict:
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "criterion": self.criterion,
+            "n_poses": self.n_poses,
+            "n_candidates": len(self.candidates),
+            "o1": self.o1,
+            "o4": self.o4,
+            "random_o1": self.random_o1,
+            "random_o4": self.random_o4,
+            "condition_number": self.condition_number,
+            "rank": self.identifiability.rank,
+            "unidentifiable": self.identifiability.unidentifiable,
+            "q": self.q.tolist(),
+        }
+
+    def summary(self) -> str:
+        return (
+            f"{self.n_poses} poses chosen from {len(self.candidates)} by {self.criterion}: "
+            f"O1 {self.o1:.4g} (random {self.random_o1:.4g}), O4 {self.o4:.4g} "
+            f"(random {self.random_o4:.4g}), condition number {self.condition_number:.3g}"
+        )
+
+
+def _eig(M: np.ndarray) -> np.ndarray:
+    return np.clip(np.linalg.eigvalsh(M), 0.0, None)
+
+
+def observability(M: np.ndarray, n_poses: int, criterion: str) -> float:
+    """O1 or O4 of an information matrix ``M`` (L, L) of ``n_poses`` poses."""
+    ev = _eig(M)
+    if ev[0] <= 0:
+        return 0.0
+    if criterion == "o1":
+        return float(math.exp(0.5 * np.mean(np.log(ev))) / math.sqrt(n_poses))
+    return float(ev[0] / math.sqrt(ev[-1]))
+
+
+def plan(
+    n: int,
+    robot: RobotDescription | str | Path | None = None,
+    effects: str | Sequence[str | Effect] = "geometric",
+    *,
+    criterion: str = "o1",
+    candidates: np.ndarray | int = 2000,
+    columns: Mapping[str, np.ndarray] | None = None,
+    seed: int | np.random.Generator = 0,
+    max_exchanges: int = 1000,
+) -> Plan:
+    """Choose ``n`` poses from ``candidates`` (an (M, 6) array, or how many random ones to draw)
+    that maximise ``criterion`` (``o1`` or ``o4``) for identifying ``effects`` of ``robot``.
+    ``columns`` gives the candidates' other inputs (payload...) for effects that need them."""
+    if criterion not in CRITERIA:
+        raise FitError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+    robot = _as_robot(robot)
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    if isinstance(candidates, int | np.integer):
+        cand = sample_poses(robot, int(candidates), rng)
+    else:
+        cand = np.asarray(candidates, dtype=float).reshape(-1, 6)
+    model = ErrorModel(robot, effects)
+    if n > len(cand):
+        raise FitError(f"cannot choose {n} poses from {len(cand)} candidates")
+    inputs = model.inputs(cand, columns, source="candidates")
+    _, J = model.predict(inputs, model.nominal(), jacobian=True)
+    ident = analyse_jacobian(model, J, warn=False)
+    L = ident.rank
+    if 3 * n < L:
+        raise FitError(
+            f"{n} poses give {3 * n} equations for the {L} identifiable parameters of "
+            f"{','.join(model.effect_names)}; at least {math.ceil(L / 3)} poses are needed"
+        )
+    free = ident.identifiable
+    A = J[:, :, free] * ident.scale[free]  # (M, 3, L), columns of RMS 1 per pose over candidates
+
+    chosen = _sequential(A, n)
+    chosen, exchanges = _exchange(A, chosen, criterion, max_exchanges)
+    M = np.einsum("nai,naj->ij", A[chosen], A[chosen])
+    o1, o4 = observability(M, n, "o1"), observability(M, n, "o4")
+    r1, r4 = [], []
+    for _ in range(20):
+        idx = rng.choice(len(cand), n, replace=False)
+        Mr = np.einsum("nai,naj->ij", A[idx], A[idx])
+        r1.append(observability(Mr, n, "o1"))
+        r4.append(observability(Mr, n, "o4"))
+    idx = np.sort(chosen)
+    final = analyse(
+        J[idx],
+        model.layout.names,
+        scale=ident.scale,
+        priority=np.flatnonzero(free).tolist() + np.flatnonzero(~free).tolist(),
+        warn=False,
+    )
+    result = Plan(
+        q=cand[idx],
+        indices=idx,
+        candidates=cand,
+        criterion=criterion,
+        o1=o1,
+        o4=o4,
+        random_o1=float(np.mean(r1)),
+        random_o4=float(np.mean(r4)),
+        identifiability=final,
+        exchanges=exchanges,
+    )
+    log.info("%s", result.summary())
+    return result
+
+
+def _sequential(A: np.ndarray, n: int) -> np.ndarray:
+    """Greedy D-optimal start: each pose maximises det(I + A_i M^-1 A_i^T) with M = eps I + ..."""
+    m, _, L = A.shape
+    eps = 1e-6 * float(np.mean(np.einsum("nai,nai->n", A, A)))
+    Minv = np.eye(L) / eps
+    taken = np.zeros(m, dtype=bool)
+    chosen = []
+    for _ in range(n):
+        W = A @ Minv  # (m, 3, L)
+        S = np.eye(3) + np.einsum("nai,nbi->nab", W, A)
+        gain = np.linalg.slogdet(S)[1]
+        gain[taken] = -np.inf
+        i = int(np.argmax(gain))
+        chosen.append(i)
+        taken[i] = True
+        # Woodbury: (M + A^T A)^-1 = Minv - Minv A^T (I + A Minv A^T)^-1 A Minv
+        Wi = W[i]
+        Minv = Minv - Wi.T @ np.linalg.solve(S[i], Wi)
+    return np.array(chosen)
+
+
+def _exchange(A, chosen, criterion, max_exchanges) -> tuple[np.ndarray, int]:
+    """DETMAX excursions of one pose, on the exact criterion."""
+    n = len(chosen)
+    chosen = list(chosen)
+    taken = np.zeros(A.shape[0], dtype=bool)
+    taken[chosen] = True
+    M = np.einsum("nai,naj->ij", A[chosen], A[chosen])
+    best = observability(M, n, criterion)
+    exchanges = 0
+    for _ in range(max_exchanges):
+        # add the candidate that raises the criterion most
+        if criterion == "o1":
+            Minv = np.linalg.inv(M)
+            S = np.eye(3) + np.einsum("nai,ij,nbj->nab", A, Minv, A)
+            gain = np.linalg.slogdet(S)[1]
+            gain[taken] = -np.inf
+            add = int(np.argmax(gain))
+        else:
+            _, V = np.linalg.eigh(M)
+            g = np.sum((A @ V[:, 0]) ** 2, axis=1)
+            g[taken] = -np.inf
+            top = np.argsort(g)[-_SCREEN:]
+            vals = [observability(M + A[i].T @ A[i], n + 1, "o4") for i in top]
+            add = int(top[int(np.argmax(vals))])
+        M1 = M + A[add].T @ A[add]
+        trial = [*chosen, add]
+        # remove the pose whose loss lowers it least
+        vals = [observability(M1 - A[j].T @ A[j], n, criterion) for j in trial]
+        k = int(np.argmax(vals))
+        if trial[k] == add or vals[k] <= best * (1 + 1e-12):
+            break
+        taken[trial[k]] = False
+        taken[add] = True
+        chosen = [j for j in trial if j != trial[k]]
+        M = M1 - A[trial[k]].T @ A[trial[k]]
+        best = vals[k]
+        exchanges += 1
+    return np.array(chosen), exchanges
