@@ -397,6 +397,8 @@ def wrist_structure(robot: RobotDescription, tol: float = _STRUCTURE_EXACT) -> t
         bad.append("sin(alpha_4), sin(alpha_5) != 0")
     if abs(chain.a[2]) < 1e-6:
         bad.append("a_2 != 0")
+    if math.hypot(chain.a[3], math.sin(chain.alpha[3]) * chain.d[3]) < 1e-6:
+        bad.append("the wrist centre off axis 3")
     return (
         not bad,
         "" if not bad else "not a spherical-wrist arm of the supported form: " + ", ".join(bad),

@@ -9,7 +9,11 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
+from envs.description import Joint, RobotDescription
 from envs.errormodel import ErrorModel
 from envs.ik import (
     POSE_TOL,
@@ -21,7 +25,7 @@ from envs.ik import (
     solve_position,
     wrist_structure,
 )
-from envs.kinematics import Chain, tool_points
+from envs.kinematics import Chain, link_frames, tool_points
 from envs.sampling import sample_parameters
 from tests.conftest import random_q
 
@@ -248,3 +252,53 @@ def test_bad_shapes_are_refused(seed):
         solve_pose(seed, np.eye(4)[None].repeat(3, 0), np.zeros((2, 6)))
     with pytest.raises(IKError, match="tool"):
         InverseKinematics(seed, tool=np.zeros(2))
+
+
+@settings(max_examples=25, derandomize=True, deadline=None)
+@given(
+    lengths=arrays(np.float64, 9, elements=st.floats(-0.6, 0.6)),
+    offsets=arrays(np.float64, 6, elements=st.floats(-math.pi, math.pi)),
+    alpha0=st.floats(-math.pi, math.pi),
+    alpha3=st.floats(-math.pi, math.pi),
+    alpha4=st.sampled_from([90.0, -90.0, 60.0, -120.0]),
+    alpha5=st.sampled_from([90.0, -90.0, 45.0]),
+    alpha1=st.sampled_from([90.0, -90.0]),
+    alpha2=st.sampled_from([0.0, 180.0]),
+)
+def test_closed_form_on_any_arm_of_the_supported_structure(
+    lengths, offsets, alpha0, alpha3, alpha4, alpha5, alpha1, alpha2
+):
+    """The derivation's generality: any alpha_0, a_0, d_1, shoulder offset a_1, lateral offsets
+    d_2, d_3, elbow offsets a_3, d_4 and alpha_3, either sign of alpha_1, alpha_2 = 0 or 180 deg,
+    non-orthogonal wrists, any theta offsets."""
+    a0, a1, a2, a3, d1, d2, d3, d4, d6 = lengths
+    a2 = math.copysign(max(abs(a2), 0.2), a2)  # joints 2, 3 need a link between them
+    d4 = math.copysign(max(abs(d4), 0.2), d4)  # and the wrist centre must be off axis 3
+    alpha3 = math.copysign(max(abs(alpha3), 0.3), alpha3)
+    rows = [
+        (math.degrees(alpha0), a0, d1),
+        (alpha1, a1, d2),
+        (alpha2, a2, d3),
+        (math.degrees(alpha3), a3, d4),
+        (alpha4, 0.0, 0.0),
+        (alpha5, 0.0, d6),
+    ]
+    arm = RobotDescription(
+        "random",
+        tuple(
+            Joint(alpha=math.radians(al), a=a, d=d, theta_offset=off)
+            for (al, a, d), off in zip(rows, offsets, strict=True)
+        ),
+    )
+    ik = InverseKinematics(arm)
+    assert ik.method == "closed_form", ik.reason
+    q = random_q(arm, 40, seed=15)
+    T = forward_pose(arm, q)
+    sols, owner = ik.solve_flat(T)
+    W = np.cross(
+        link_frames(Chain.from_description(arm), q).R[:, 4, :, 2],
+        link_frames(Chain.from_description(arm), q).R[:, 6, :, 2],
+    )
+    regular = np.linalg.norm(W, axis=1) > 1e-3  # axes 4 and 6 not aligned
+    assert np.all(_nearest_distance(q, sols, owner)[regular] < 1e-6)
+    np.testing.assert_allclose(forward_pose(arm, sols), T[owner], atol=1e-9)
