@@ -194,9 +194,22 @@ def test_joint_angle_effects_follow_their_laws():
         expected[:, j] += v[f"ts{k}"] * np.sin(q[:, j]) + v[f"tc{k}"] * np.cos(q[:, j])
         expected[:, j] += v[f"g{k}"] * q[:, j]
         expected[:, j] -= v[f"bl{k}"] / 2 * cols[f"dir{k}"]
-        if abs(tau[0, j]) > 1e-9 or j not in (0, 5):
-            expected[:, j] += v[f"lb{k}"] / 2 * np.sign(tau[:, j])
+        loaded = np.where(np.abs(tau[:, j]) < 1e-9, 0.0, np.sign(tau[:, j]))
+        expected[:, j] += v[f"lb{k}"] / 2 * loaded
     np.testing.assert_allclose(model.joint_angles(model.inputs(q, cols), p), expected, atol=1e-15)
+
+
+def test_load_backlash_ignores_torques_that_are_zero_by_construction():
+    """tau_1 and tau_6 of the seed arm are zero up to rounding (+-1e-15): the gap must not be
+    taken on a side picked by rounding noise, so lb1 and lb6 move nothing."""
+    model = ErrorModel(SEED, "load_backlash")
+    q = random_q(SEED, 50, seed=6)
+    inputs = model.inputs(q, {"payload": np.full(50, 2.0)})
+    assert np.abs(inputs.tau[:, [0, 5]]).max() < 1e-9
+    _, J = model.predict(inputs, model.nominal(), jacobian=True)
+    names = model.layout.names
+    assert np.all(J[:, :, [names.index("lb1"), names.index("lb6")]] == 0.0)
+    assert np.all(np.abs(J[:, :, names.index("lb2")]).max(axis=1) > 0)
 
 
 def test_thermal_grows_the_arm_not_base_or_tool():
