@@ -37,7 +37,12 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import sys
 from dataclasses import dataclass, field, replace
+
+if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+    os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering; set before mujoco loads
 
 import mujoco
 import numpy as np
@@ -261,6 +266,8 @@ class Plant:
         opt.integrator = mujoco.mjtIntegrator.mjINT_DISCRETE
         opt.gravity = np.asarray(r.gravity, dtype=float)
         opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+        # a blown-up state is kept (and detected by step()), not silently reset to qpos0
+        opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         spec.visual.quality.offsamples = 0
         spec.visual.quality.shadowsize = 0
         spec.stat.center = np.array([0.3, 0.0, 0.5])
@@ -485,6 +492,7 @@ class Plant:
             m.jnt_actfrcrange[jnt] = (-drive.torque_max[k], drive.torque_max[k])
         self._a_dt = drive.a_max * self.dt
         self._v_max = np.asarray(drive.v_max, dtype=float)
+        self._max_speed2 = MAX_SPEED**2
 
     # -- configuration --------------------------------------------------------------------------
     def configure(self, robot: RobotDescription, effects: HiddenEffects) -> None:
@@ -662,9 +670,10 @@ class Plant:
         mujoco.mj_forward(m, d)
 
     # -- stepping ---------------------------------------------------------------------------
-    def step(self, v_cmd: np.ndarray) -> None:
+    def step(self, v_cmd: np.ndarray) -> bool:
         """One control step: rate- and velocity-limit the commanded joint velocities (6,), rad/s,
-        and run the physics for ``substeps`` steps with the effects updated once."""
+        and run the physics for ``substeps`` steps with the effects updated once. Returns False
+        if the simulation diverged (MuJoCo reset it, or a hinge is absurdly fast)."""
         m, d = self.model, self.data
         dv = self._dv
         np.subtract(v_cmd, self._v_ref, out=dv)
@@ -685,12 +694,17 @@ class Plant:
                 self.set_payload(mass)
                 self._next_payload += 1
         # the direction of each axis' last motion, as its controller commanded it
-        np.copyto(self.dirs, np.sign(v), where=v != 0.0)
+        if v.all():
+            np.sign(v, out=self.dirs)
+        else:
+            np.copyto(self.dirs, np.sign(v), where=v != 0.0)
         mujoco.mj_step(m, d, nstep=self.substeps)
         if self._thermal:
             self._heat()
         # positions (site_xpos) of the state just reached, not of the last substep's start
         mujoco.mj_kinematics(m, d)
+        qv = d.qvel
+        return float(qv @ qv) < self._max_speed2  # NaN and inf fail the comparison too
 
     def _heat(self) -> None:
         d = self.data

@@ -353,9 +353,9 @@ class SixAxisTrackEnv(gym.Env):
         if self._diverged:  # stepped past the end: the same terminal transition again
             return self._on_divergence(a)
         np.multiply(a, self._v_max, out=self._a)
-        self.plant.step(self._a)
+        healthy = self.plant.step(self._a)
         self._k += 1
-        if self.plant.diverged():
+        if not healthy:
             return self._on_divergence(a)
         tool = self.plant.tool_point()
         err_mm = self._error_mm(tool)
@@ -395,6 +395,8 @@ class SixAxisTrackEnv(gym.Env):
 
     # -- parts ----------------------------------------------------------------------------------
     def _check_action(self, action) -> np.ndarray:
+        """The action as a new float array clipped to [-1, 1]; a clear error when it is not 6
+        finite numbers."""
         if type(action) is not np.ndarray:
             try:
                 action = np.asarray(action, dtype=float)
@@ -402,10 +404,17 @@ class SixAxisTrackEnv(gym.Env):
                 raise ValueError(f"action must be 6 numbers, got {action!r}") from exc
         if action.shape != (6,):
             raise ValueError(f"action must have shape (6,), got shape {action.shape}")
-        if not np.isfinite(action).all():
-            bad = [i for i in range(6) if not math.isfinite(float(action[i]))]
-            raise ValueError(f"action has NaN or inf at index {bad}: {action}")
-        return np.clip(action.astype(float), -1.0, 1.0)
+        try:
+            finite = math.isfinite(action.sum(dtype=float))  # NaN and inf propagate
+            a = np.minimum(action, 1.0, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"action must be 6 numbers, got {action!r}") from exc
+        if not finite:
+            bad = np.flatnonzero(~np.isfinite(np.asarray(action, dtype=float))).tolist()
+            if bad:
+                raise ValueError(f"action has NaN or inf at index {bad}: {action}")
+        np.maximum(a, -1.0, out=a)
+        return a
 
     def _reference(self, k: int) -> np.ndarray:
         need = k + self.task.preview_steps + 1

@@ -24,6 +24,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from envs.description import RobotDescription
+from envs.ik import solve_point
 from envs.kinematics import Chain, link_frames
 from envs.sampling import MIN_TOOL_HEIGHT
 
@@ -175,35 +176,18 @@ def _shape(kind: str, centre: np.ndarray, rng: np.random.Generator) -> Trajector
 
 
 def solve_tool_points(
-    robot: RobotDescription,
-    targets: np.ndarray,
-    q0: np.ndarray,
-    iterations: int = 50,
-    tol: float = 1e-9,
-    damping: float = 1e-3,
+    robot: RobotDescription, targets: np.ndarray, q0: np.ndarray, tol: float = 1e-10
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Encoder angles (N, 6) putting the nominal arm's tool point at ``targets`` (N, 3), all
-    from ``q0`` (6,) by batched damped Gauss-Newton: minimum-norm steps, so the solutions stay
-    close to ``q0`` in the redundant directions and vary smoothly along a path. Returns the angles
-    and the final errors (N,) in m."""
+    """Encoder angles (N, 6) putting the nominal arm's tool point at ``targets`` (N, 3, in the
+    measurement frame), all from ``q0`` (6,) by damped least squares (``envs.ik.solve_point``):
+    minimum-norm steps, so the solutions stay close to ``q0`` in the redundant directions and vary
+    smoothly along a path. Returns the angles and the final errors (N,) in m."""
     m = robot.to_modified()
-    chain = Chain.from_description(m)
-    tool = m.tool_points[0]
     targets = np.asarray(targets, dtype=float).reshape(-1, 3)
-    q = np.tile(np.asarray(q0, dtype=float), (len(targets), 1))
-    eye = damping**2 * np.eye(3)
-    err = np.full(len(targets), np.inf)
-    for _ in range(iterations):
-        f = link_frames(chain, q)
-        p = f.point(tool)
-        r = targets - p
-        err = np.linalg.norm(r, axis=1)
-        if err.max() < tol:
-            break
-        J = np.cross(f.z, p[:, None, :] - f.o[:, 1:]).transpose(0, 2, 1)  # (N, 3, 6)
-        y = np.linalg.solve(J @ J.transpose(0, 2, 1) + eye, r[..., None])
-        q = np.clip(q + (J.transpose(0, 2, 1) @ y)[..., 0], m.lower, m.upper)
-    return q, err
+    R = m.base_matrix[:3, :3]
+    in_base = (targets - m.base_matrix[:3, 3]) @ R  # R^T (p - t), row-wise
+    res = solve_point(m, in_base, np.asarray(q0, dtype=float), tol=tol, max_iter=60)
+    return res.q, res.error
 
 
 def _comfortable(robot: RobotDescription, rng: np.random.Generator) -> np.ndarray:
@@ -248,7 +232,8 @@ def sample_trajectory(
     lo, hi = m.lower + JOINT_MARGIN, m.upper - JOINT_MARGIN
     for attempt in range(max_tries):
         qc = _comfortable(m, rng)
-        centre = link_frames(chain, qc[None]).point(tool)[0]
+        base = m.base_matrix
+        centre = base[:3, :3] @ link_frames(chain, qc[None]).point(tool)[0] + base[:3, 3]
         traj = _shape(kind, centre, rng)
         if traj.positions(t_fine)[:, 2].min() < MIN_TOOL_HEIGHT:
             continue
