@@ -42,6 +42,7 @@ class Observation:
     meas_age: float  # its age, s
     meas_valid: bool
     temperature: float  # degC
+    payload: float | None = None  # kg, as declared to the controller (None: not observed)
 
     @classmethod
     def parse(cls, task: Any, obs: np.ndarray) -> Observation:
@@ -64,6 +65,7 @@ class Observation:
             meas_age=float(part("meas_age", np.array([np.inf]))[0]),
             meas_valid=bool(part("meas_valid", np.zeros(1))[0] > 0.5),
             temperature=float(part("temperature", np.array([20.0]))[0]),
+            payload=float(obs[sl["payload"]][0]) if "payload" in sl else None,
         )
 
     def references(self, n: int) -> np.ndarray:

@@ -4,6 +4,7 @@ Over a horizon of N control steps the controller chooses joint-velocity commands
 (the decision variables, 6N) so that the *model's* tool point follows the reference preview:
 
     min  1/2 sum_k |x(q_k) - r_k|^2 (mm^2)  +  rho_dv/2 sum_k |v_k - v_{k-1}|^2  +  rho_v/2 sum_k |v_k|^2
+                                             +  rho_q/2 sum_k |q_k - q_posture|^2
     s.t. q_k = q_0 + dt (v_0 + ... + v_{k-1})                      (joint integrators)
          |v_k| <= v_max,  |v_k - v_{k-1}| <= a_max dt,  q_lower + m <= q_k <= q_upper - m
 
@@ -87,6 +88,8 @@ class KinematicMPC:
         solver: str = "daqp",
         rho_dv: float = 1e-2,
         rho_v: float = 1e-3,
+        rho_q: float = 1e-1,
+        error_decay: float = 0.3,
         limit_margin: float = 0.02,
         velocity_margin: float = 0.98,
     ) -> None:
@@ -106,6 +109,10 @@ class KinematicMPC:
         self.solver = solver
         self.rho_dv = float(rho_dv)
         self.rho_v = float(rho_v)
+        self.rho_q = float(rho_q)
+        if not 0.0 <= error_decay < 1.0:
+            raise ValueError(f"error_decay must be in [0, 1), got {error_decay}")
+        self.error_decay = float(error_decay)
         N = self.N
         I6 = np.eye(6)
         # D: v_k - v_{k-1}; L: dt * sum_{j<=k} v_j; both constant
@@ -113,7 +120,12 @@ class KinematicMPC:
         self.A = np.vstack([np.kron(Dn, I6), np.kron(np.tril(np.ones((N, N))), I6) * self.dt])
         self.nA = self.A.shape[0]
         self._C = (N - np.maximum.outer(np.arange(N), np.arange(N))).astype(float)
-        self._R = self.rho_dv * np.kron(Dn.T @ Dn, I6) + self.rho_v * np.eye(6 * N)
+        self._R = (
+            self.rho_dv * np.kron(Dn.T @ Dn, I6)
+            + self.rho_v * np.eye(6 * N)
+            + self.rho_q * self.dt**2 * np.kron(self._C, I6)
+        )
+        self._decay = self.error_decay ** np.arange(1, N + 1)  # of the present error, by step
         self._lbx = -np.tile(self.v_max, N)
         self._ubx = np.tile(self.v_max, N)
         self._warm_start = solver in ("osqp", "qpoases", "ipopt")
@@ -159,7 +171,15 @@ class KinematicMPC:
         return lba, uba
 
     # -- the QP ----------------------------------------------------------------------------------
-    def qp_matrices(self, x0: np.ndarray, J: np.ndarray, refs: np.ndarray, v_prev: np.ndarray):
+    def qp_matrices(
+        self,
+        x0: np.ndarray,
+        J: np.ndarray,
+        refs: np.ndarray,
+        v_prev: np.ndarray,
+        q0: np.ndarray | None = None,
+        q_posture: np.ndarray | None = None,
+    ):
         """Hessian (6N, 6N) and gradient (6N,) of the condensed QP at point x0 with d x / d q J
         (numpy; the compiled step computes the same inside CasADi)."""
         dt = self.dt
@@ -169,6 +189,9 @@ class KinematicMPC:
         H = dt * dt * np.kron(self._C, Jm.T @ Jm) + self._R
         g = dt * (S @ Jm).reshape(-1)
         g[:6] -= self.rho_dv * v_prev
+        if q0 is not None and q_posture is not None:
+            counts = self.N - np.arange(self.N)
+            g += self.rho_q * dt * np.kron(counts, np.asarray(q0) - np.asarray(q_posture))
         return H, g
 
     def _build_qp(self) -> None:
@@ -185,22 +208,28 @@ class KinematicMPC:
         z = ca.SX.sym("z", nz)
         refs = ca.SX.sym("refs", 3 * N)
         v_prev = ca.SX.sym("v_prev", 6)
+        q_post = ca.SX.sym("q_posture", 6)
+        r0 = ca.SX.sym("r0", 3)
         q0 = z[:6]
         P, nc = len(tm.layout), len(tm.column_names)
         x = tm.expression(q0, z[6 : 6 + P], z[6 + P : 6 + P + nc], z[6 + P + nc :])
         Jm = ca.jacobian(x, q0) * MM
         E = (ca.repmat(x, 1, N) - ca.reshape(refs, 3, N)) * MM  # (3, N)
+        E = E - ca.mtimes(x - r0, ca.DM(self._decay).T) * MM
         # S_j = sum_{k >= j} E_k (E_k the error at step k + 1), a constant lower-triangular product
         S = ca.mtimes(E, ca.DM(np.tril(np.ones((N, N)))))
         H = dt * dt * ca.kron(ca.DM(self._C), ca.mtimes(Jm.T, Jm)) + ca.DM(self._R)
         g = dt * ca.vec(ca.mtimes(Jm.T, S))
         g = g - ca.vertcat(self.rho_dv * v_prev, ca.DM.zeros(6 * (N - 1)))
+        counts = ca.DM(N - np.arange(N))
+        g = g + self.rho_q * dt * ca.kron(counts, q0 - q_post)
         lba, uba = self._symbolic_bounds(q0, v_prev)
-        data = ca.Function("mpc_qp_data", [z, refs, v_prev], [H, g, lba, uba])
+        data = ca.Function("mpc_qp_data", [z, refs, v_prev, q_post, r0], [H, g, lba, uba])
         # ... and the solver called on it, in an MX function
-        n_in = nz + 3 * N + 6
+        n_in = nz + 3 * N + 15
         w = ca.MX.sym("w", n_in + (12 * N + nA if self._warm_start else 0))
-        H, g, lba, uba = data(w[:nz], w[nz : nz + 3 * N], w[nz + 3 * N : n_in])
+        o = nz + 3 * N
+        H, g, lba, uba = data(w[:nz], w[nz:o], w[o : o + 6], w[o + 6 : o + 12], w[o + 12 : n_in])
         args = {
             "h": H,
             "g": g,
@@ -234,15 +263,22 @@ class KinematicMPC:
         refs: np.ndarray,
         p: np.ndarray,
         columns: Mapping[str, float] | np.ndarray | None = None,
+        q_posture: np.ndarray | None = None,
+        ref_now: np.ndarray | None = None,
     ) -> np.ndarray:
         """The first command v_0 (rad/s) of the plan from encoder reading ``q0``, previous command
-        ``v_prev``, references ``refs`` (N, 3) and model parameters ``p`` (with ``columns``)."""
+        ``v_prev``, references ``refs`` (N, 3) and model parameters ``p`` (with ``columns``);
+        ``q_posture`` (default ``q0``) the posture that the redundant directions keep to;
+        ``ref_now`` the reference at this instant (default ``refs[0]``): the plan removes the
+        model's present error ``x(q0) - ref_now`` along ``error_decay**k``, not in one step."""
         v_prev = np.clip(np.asarray(v_prev, dtype=float), -self.v_max, self.v_max)
         refs = np.asarray(refs, dtype=float).reshape(self.N, 3)
         z = self.tm.pack(q0, p, columns)
+        qp_ = z[:6] if q_posture is None else np.asarray(q_posture, dtype=float).reshape(6)
+        r0 = refs[0] if ref_now is None else np.asarray(ref_now, dtype=float).reshape(3)
         if self.solver == "ipopt":
-            return self._solve_nlp(z, v_prev, refs)
-        parts = [z, refs.reshape(-1), v_prev]
+            return self._solve_nlp(z, v_prev, refs, qp_, r0)
+        parts = [z, refs.reshape(-1), v_prev, qp_, r0]
         if self._warm_start:
             parts += [self._warm(), self._lam_x, self._lam_a]
         out = self._step(np.concatenate(parts)).full().reshape(-1)
@@ -278,6 +314,8 @@ class KinematicMPC:
         z = ca.SX.sym("z", tm.n_inputs)
         refs = ca.SX.sym("refs", 3 * N)
         v_prev = ca.SX.sym("v_prev", 6)
+        q_post = ca.SX.sym("q_posture", 6)
+        r0 = ca.SX.sym("r0", 3)
         q0, p, c, off = z[:6], z[6 : 6 + P], z[6 + P : 6 + P + nc], z[6 + P + nc :]
         qs, ps, cs, os_ = (
             ca.SX.sym("q", 6),
@@ -288,15 +326,17 @@ class KinematicMPC:
         f = ca.Function("x", [qs, ps, cs, os_], [tm.expression(qs, ps, cs, os_)])
         cost = 0
         q = q0
+        e0 = f(q0, p, c, off) - r0
         for k in range(N):
             vk = V[6 * k : 6 * k + 6]
             q = q + dt * vk
-            e = (f(q, p, c, off) - refs[3 * k : 3 * k + 3]) * MM
+            e = (f(q, p, c, off) - refs[3 * k : 3 * k + 3] - self._decay[k] * e0) * MM
             cost += 0.5 * ca.dot(e, e)
             prev = v_prev if k == 0 else V[6 * k - 6 : 6 * k]
             cost += 0.5 * self.rho_dv * ca.sumsqr(vk - prev) + 0.5 * self.rho_v * ca.sumsqr(vk)
+            cost += 0.5 * self.rho_q * ca.sumsqr(q - q_post)
         g = ca.mtimes(ca.DM(self.A), V)
-        nlp = {"x": V, "p": ca.vertcat(z, refs, v_prev), "f": cost, "g": g}
+        nlp = {"x": V, "p": ca.vertcat(z, refs, v_prev, q_post, r0), "f": cost, "g": g}
         opts = {
             "ipopt": {
                 "print_level": 0,
@@ -311,11 +351,11 @@ class KinematicMPC:
         }
         self._nlp = ca.nlpsol("mpc_nlp", "ipopt", nlp, opts)
 
-    def _solve_nlp(self, z: np.ndarray, v_prev: np.ndarray, refs: np.ndarray) -> np.ndarray:
+    def _solve_nlp(self, z, v_prev, refs, q_posture, r0) -> np.ndarray:
         lbg, ubg = self.constraint_bounds(z[:6], v_prev)
         sol = self._nlp(
             x0=self._warm(),
-            p=np.concatenate([z, refs.reshape(-1), v_prev]),
+            p=np.concatenate([z, refs.reshape(-1), v_prev, q_posture, r0]),
             lbx=self._lbx,
             ubx=self._ubx,
             lbg=lbg,
@@ -341,7 +381,8 @@ class MPCAgent(Agent):
     (what the model and the estimator can express), ``online`` (estimate from measurements),
     ``oracle`` (use the plant's true model; needs ``truth``), ``forgetting`` and ``sigma`` (m, default
     the task's instrument noise) of the estimator, ``free`` (names to estimate; default the
-    identifiable ones), and the cost weights ``rho_dv``, ``rho_v``.
+    identifiable ones), and the cost weights ``rho_dv``, ``rho_v``, ``rho_q`` (posture: the
+    redundant directions keep to the posture of the phase's start).
     """
 
     name = "mpc"
@@ -358,6 +399,8 @@ class MPCAgent(Agent):
         free: Sequence[str] | None = None,
         rho_dv: float = 1e-2,
         rho_v: float = 1e-3,
+        rho_q: float = 1e-1,
+        error_decay: float = 0.3,
         name: str | None = None,
     ) -> None:
         super().__init__()
@@ -370,7 +413,8 @@ class MPCAgent(Agent):
         self.forgetting = float(forgetting)
         self.sigma = sigma
         self.free = None if free is None else list(free)
-        self.rho_dv, self.rho_v = float(rho_dv), float(rho_v)
+        self.rho_dv, self.rho_v, self.rho_q = float(rho_dv), float(rho_v), float(rho_q)
+        self.error_decay = float(error_decay)
         if name:
             self.name = name
         elif oracle:
@@ -404,6 +448,8 @@ class MPCAgent(Agent):
             solver=self.solver,
             rho_dv=self.rho_dv,
             rho_v=self.rho_v,
+            rho_q=self.rho_q,
+            error_decay=self.error_decay,
         )
         self.tm = tm
         if self.online:
@@ -430,6 +476,7 @@ class MPCAgent(Agent):
         self.dirs = np.zeros(6)
         self.payload = float(self.model.robot.payload)
         self._last_meas_time = None
+        self.q_posture: np.ndarray | None = None
         self.mpc.reset()
 
     # -- step -------------------------------------------------------------------------------------
@@ -451,6 +498,8 @@ class MPCAgent(Agent):
         self.p = self.rls.params
 
     def _columns(self, o: Observation) -> np.ndarray:
+        if o.payload is not None:
+            self.payload = o.payload
         cols = {"temperature": o.temperature, "payload": self.payload}
         cols.update({f"dir{i + 1}": float(self.dirs[i]) for i in range(6)})
         return self.tm.column_vector(cols)
@@ -461,7 +510,9 @@ class MPCAgent(Agent):
         self._update_model(info)
         t1 = time.perf_counter()
         refs = o.references(self.horizon)
-        v = self.mpc.solve(o.q, self.v_prev, refs, self.p, self._columns(o))
+        if self.q_posture is None:  # the posture of the phase's start
+            self.q_posture = np.array(o.q, dtype=float)
+        v = self.mpc.solve(o.q, self.v_prev, refs, self.p, self._columns(o), self.q_posture, o.ref)
         moving = np.abs(v) > 1e-6
         self.dirs[moving] = np.sign(v[moving])
         self.v_prev = v

@@ -145,6 +145,7 @@ class ActionMap:
             meas_age=o.meas_age,
             meas_valid=o.meas_valid,
             temperature=o.temperature,
+            payload=o.payload,
         )
         nom = self.nominal
         v = nom.command(shifted, nom._columns(o, info))

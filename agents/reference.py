@@ -83,6 +83,8 @@ class NominalAgent(Agent):
         mc = measurement_columns(info)
         if "payload" in mc and np.isfinite(mc["payload"]):
             self.payload = mc["payload"]
+        if o.payload is not None:
+            self.payload = o.payload
         cols = {"temperature": o.temperature, "payload": self.payload}
         cols.update({f"dir{i + 1}": float(self.dirs[i]) for i in range(6)})
         return cols
@@ -183,11 +185,13 @@ def fit_measurements(
 
 
 class CalibratedAgent(NominalAgent):
-    """Calibrate from a measurement phase, then track blind with the identified model.
+    """Calibrate from measurements, then track blind with the identified model.
 
-    ``calibration_seconds``: when to fit within a single-phase episode (None: only when the next
-    phase starts); ``effects``: what the identified model expresses; ``min_measurements``: below
-    this many the model stays nominal.
+    ``calibration_seconds``: a single fit at this time (s from the episode's start, over all
+    phases), after which measurements are ignored; ``None``: collect every measurement and refit
+    at the start of each new phase (a multi-phase calibration, then a blind phase).
+    ``effects``: what the identified model expresses; ``min_measurements``: below this many the
+    model stays as it was.
     """
 
     name = "calibrated"
@@ -201,6 +205,8 @@ class CalibratedAgent(NominalAgent):
         min_measurements: int = 10,
     ) -> None:
         super().__init__(gain=gain, damping=damping, effects=effects)
+        if calibration_seconds is not None and calibration_seconds < 0:
+            raise ValueError(f"calibration_seconds must be >= 0, got {calibration_seconds}")
         self.calibration_seconds = calibration_seconds
         self.min_measurements = int(min_measurements)
 
@@ -209,25 +215,22 @@ class CalibratedAgent(NominalAgent):
         self._q: list[np.ndarray] = []
         self._xyz: list[np.ndarray] = []
         self._cols: list[dict[str, float]] = []
-        self._seen: set = set()
         self.fitted: list[str] = []
-        self.calibrated = False
+        self.n_fits = 0
+        self.final = False  # the one-shot fit is done: measurements are no longer used
         self.fit_time_s = 0.0
+        self._t0 = 0.0  # episode time at the start of the phase
         self._t = 0.0
 
     def next_phase(self, task: Any, truth: Any = None) -> None:
-        if not self.calibrated:
+        if not self.final and self.calibration_seconds is None and len(self._q) > 0:
             self.calibrate()
-            self.calibrated = True
+        self._t0 = self._t
         super().next_phase(task, truth)
 
     def _record(self, info: Mapping[str, Any]) -> None:
         if not info.get("measurement_valid", False):
             return
-        key = info.get("measurement_time")
-        if key is not None and key in self._seen:
-            return
-        self._seen.add(key)
         y = np.asarray(info.get("measurement"), dtype=float)
         qm = np.asarray(info.get("measurement_q"), dtype=float)
         if not (np.all(np.isfinite(y)) and np.all(np.isfinite(qm))):
@@ -253,24 +256,25 @@ class CalibratedAgent(NominalAgent):
             self.p, self.fitted = fit_measurements(
                 self.model, np.array(self._q), np.array(self._xyz), cols, noise=sigma
             )
-            self.calibrated = True
+            self.n_fits += 1
         except ValueError as exc:
             log.warning("calibrated: fit failed (%s); the model stays as it was", exc)
         self.fit_time_s = time.perf_counter() - t0
 
     def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
-        if not self.calibrated:
+        t = info.get("time")
+        self._t = self._t0 + float(t) if t is not None else self._t + float(self.task.dt)
+        if not self.final:
             self._record(info)
-            t = info.get("time")
-            self._t = float(t) if t is not None else self._t + float(self.task.dt)
             if self.calibration_seconds is not None and self._t >= self.calibration_seconds:
                 self.calibrate()
-                self.calibrated = True  # one shot, even if too few measurements came
+                self.final = True  # one shot, even if too few measurements came
         return super().act(obs, info)
 
     def report(self) -> dict[str, float | list]:
         out = super().report()
         out["calibration_measurements"] = len(self._q)
+        out["calibration_fits"] = self.n_fits
         out["calibration_fit_time_s"] = self.fit_time_s
         out["parameter_names"] = list(self.model.layout.names)
         out["parameters"] = [float(v) for v in self.p]

@@ -257,24 +257,24 @@ class ToolModel:
         ):
             v = p[self.layout.slice(e.name)]
             if isinstance(e, Geometric):
-                names = self.layout.names[self.layout.slice(e.name)]
-                s = Geometric._compute_slots(names)
+                # by name (SPEC section 2): row i has dalpha_i, da_i, dtheta_i, dd_i or beta_{i-1}
+                k = {n: j for j, n in enumerate(self.layout.names[self.layout.slice(e.name)])}
                 for i in range(6):
-                    if s["alpha"][i] >= 0:
-                        alpha[i] = alpha[i] + v[int(s["alpha"][i])]
-                    if s["a"][i] >= 0:
-                        a[i] = a[i] + v[int(s["a"][i])]
-                    if s["theta"][i] >= 0:
-                        toff[i] = toff[i] + v[int(s["theta"][i])]
-                    if s["d"][i] >= 0:
-                        d[i] = d[i] + v[int(s["d"][i])]
-                    if s["beta"][i] >= 0:
-                        beta[i] = beta[i] + v[int(s["beta"][i])]
-                b = [v[int(k)] for k in s["base"]]
-                base_t = ca.vertcat(*b[:3])
-                base_R = rodrigues(ca.vertcat(*b[3:]))
-                tcols = s["tool"][min(self.target, len(s["tool"]) - 1)]
-                tool = tool + ca.vertcat(*[v[int(k)] for k in tcols])
+                    r = i + 1
+                    if f"dalpha{r}" in k:
+                        alpha[i] = alpha[i] + v[k[f"dalpha{r}"]]
+                    if f"da{r}" in k:
+                        a[i] = a[i] + v[k[f"da{r}"]]
+                    if f"dtheta{r}" in k:
+                        toff[i] = toff[i] + v[k[f"dtheta{r}"]]
+                    if f"dd{r}" in k:
+                        d[i] = d[i] + v[k[f"dd{r}"]]
+                    if f"beta{r - 1}" in k:
+                        beta[i] = beta[i] + v[k[f"beta{r - 1}"]]
+                base_t = ca.vertcat(*(v[k[n]] for n in ("bx", "by", "bz")))
+                base_R = rodrigues(ca.vertcat(*(v[k[n]] for n in ("brx", "bry", "brz"))))
+                suffix = "" if "tx" in k else str(self.model.targets[self.target])
+                tool = tool + ca.vertcat(*(v[k[f"t{c}{suffix}"]] for c in "xyz"))
             else:  # Thermal
                 scale = 1 + v[0] * (col["temperature"] - REFERENCE_TEMPERATURE)
                 a = [ai * scale for ai in a]
