@@ -307,7 +307,8 @@ class SixAxisTrackEnv(gym.Env):
         self._meas_time = math.nan
         self._meas_points: list[np.ndarray] = []
         self._renderer: mujoco.Renderer | None = None
-        self._camera: mujoco.MjvCamera | None = None
+        self._camera: mujoco.MjvCamera | None = None  # free camera; adjust it at will
+        self._camera_target: Trajectory | None = None
         self._ref_sl = slices["ref"]
         self._prev_sl = slices["preview"]
 
@@ -378,8 +379,9 @@ class SixAxisTrackEnv(gym.Env):
             cam.azimuth = 150.0
             cam.elevation = -18.0
             self._camera = cam
-        # look between the arm's base and the path
-        self._camera.lookat[:] = 0.6 * self.trajectory.centre + np.array([0.0, 0.0, 0.15])
+        if self._camera_target is not self.trajectory:  # a new path: look between it and the base
+            self._camera.lookat[:] = 0.6 * self.trajectory.centre + np.array([0.0, 0.0, 0.15])
+            self._camera_target = self.trajectory
         r = self._renderer
         r.update_scene(self.plant.data, camera=self._camera)
         scn = r.scene
