@@ -582,9 +582,11 @@ def _hints(res, data, Q0, e0, rss0, dof0, weigh) -> list[Hint]:
     dirs += [Jq[:, :, j] / rms[j] for j in range(6) if rms[j] > 0]
     D = weigh(np.stack(dirs, axis=-1).reshape(3 * n, -1)).reshape(n, 3, -1)  # (N, 3, nd)
     nd = D.shape[2]
-    M = np.einsum("nad,nae->nde", D, D).reshape(n, nd * nd)
-    Q0D = np.einsum("nam,nad->nmd", Q0.reshape(n, 3, -1), D)  # (N, r, nd)
-    eD = np.einsum("na,nad->nd", e0.reshape(n, 3), D)  # (N, nd)
+    Dt = D.transpose(0, 2, 1)
+    M = np.matmul(Dt, D).reshape(n, nd * nd)
+    r0 = Q0.shape[1]
+    Q0D = np.matmul(Q0.reshape(n, 3, r0).transpose(0, 2, 1), D).reshape(n, r0 * nd)
+    eD = np.matmul(Dt, e0.reshape(n, 3, 1))[:, :, 0]  # (N, nd)
     out = []
     for name, phi in hint_variables(res, data).items():
         # few poses: the lowest-order functions only, at most half the degrees of freedom
@@ -592,7 +594,7 @@ def _hints(res, data, Q0, e0, rss0, dof0, weigh) -> list[Hint]:
         phi = phi[:, :K]
         pp = (phi[:, :, None] * phi[:, None, :]).reshape(n, K * K)
         Gbb = (pp.T @ M).reshape(K, K, nd, nd).transpose(0, 2, 1, 3).reshape(K * nd, K * nd)
-        G0b = np.einsum("nmd,nk->mkd", Q0D, phi).reshape(Q0D.shape[1], K * nd)
+        G0b = (phi.T @ Q0D).reshape(K, r0, nd).transpose(1, 0, 2).reshape(r0, K * nd)
         b = (phi.T @ eD).reshape(K * nd)
         idx, L = gram_factor(Gbb - G0b.T @ G0b, _DEPENDENT)
         k = idx.size
