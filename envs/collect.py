@@ -54,7 +54,7 @@ def collect_measurements(
     truth: Any = None,
     poses: np.ndarray | None = None,
     n: int = 100,
-    scenario: str = "all",
+    scenario: str = "geometric",
     overrides: Mapping[str, Mapping[str, Any]] | None = None,
     noise_mm: float = 0.015,
     seed: int = 0,

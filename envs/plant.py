@@ -49,7 +49,7 @@ import numpy as np
 
 from envs.description import RobotDescription, rotation_matrix
 from envs.effects import REFERENCE_TEMPERATURE
-from envs.kinematics import Chain, gravity_torques
+from envs.kinematics import gravity_torques
 
 __all__ = [
     "RIGID_STIFFNESS",
@@ -734,7 +734,3 @@ class Plant:
             or w[mujoco.mjtWarning.mjWARN_BADQVEL].number > 0
             or w[mujoco.mjtWarning.mjWARN_BADQPOS].number > 0
         )
-
-    # -- kinematic checks -------------------------------------------------------------------
-    def chain(self) -> Chain:
-        return Chain.from_description(self.robot)

@@ -157,6 +157,21 @@ class SixAxisTrackEnv(gym.Env):
     new measurement these keys are absent (use ``info.get``; Gymnasium's vector envs mask them),
     never NaN, so that equal seeds give equal infos.
 
+    ## Scenarios
+    Magnitudes are drawn per episode from the seed (SPEC section 2; ``envs.scenarios.RANGES``)
+    and every one can be overridden (``overrides={"compliance": {"c2": 8e-6}}``).
+
+    | scenario       | hidden effects (made by the plant's physics)                                  |
+    |----------------|-------------------------------------------------------------------------------|
+    | `nominal`      | none: the arm is its description                                              |
+    | `geometric`    | DH errors (lengths 0.1-0.3 mm, angles 0.6-1.5 mrad), Hayati beta, base, tool   |
+    | `compliance`   | + elastic joints, c = 1/k of 3e-6..1e-5 rad/(N m): gravity sag, vibration      |
+    | `transmission` | + gear eccentricity ts, tc and gear-ratio error g, 1e-4..5e-4 (stiff mesh)     |
+    | `backlash`     | + gaps of 3e-4..6e-4 rad: loaded side under gravity, lagging under friction    |
+    | `thermal`      | + link growth, kappa 1.2e-5..2.3e-5 /K, start 20-35 degC, heating with motion  |
+    | `payload`      | + elastic joints and a payload of 0-2 kg that changes to 0-3 kg at 3-7 s       |
+    | `all`          | everything at once                                                            |
+
     ## Hidden truth
     ``env.unwrapped.task`` (:class:`TaskInfo`) is what an agent may use. ``env.unwrapped.truth``
     (:class:`~envs.scenarios.Truth`) is for evaluation and oracle controllers only: the true
