@@ -60,10 +60,13 @@ from lab.identifiability import (
     typical_magnitudes,
 )
 from lab.identification import (
+    HUBER_K,
+    OUTLIER_RADIUS,
     SCHEMA_VERSION,
     FitError,
     FitResult,
     _as_data,
+    _robust_sigma,
     fit,
 )
 
@@ -137,6 +140,7 @@ class Diagnosis:
     chi2_p_value_after: float | None
     suggestion: str | None
     explanation: list[Candidate] = field(default_factory=list)
+    outliers: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=int))
     skipped: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -174,13 +178,15 @@ class Diagnosis:
             "alpha": self.alpha,
             "suggestion": self.suggestion,
             "skipped": dict(self.skipped),
+            "outliers": [int(i) for i in self.outliers],
         }
 
     def summary(self) -> str:
         floor = f", noise floor {self.noise_floor_mm:.4f} mm" if self.noise_floor_mm else ""
+        left = f" ({len(self.outliers)} outliers left out)" if len(self.outliers) else ""
         lines = [
             f"model {', '.join(self.effects)}: RMS {self.rms_mm:.4f} mm, held-out "
-            f"{self.cv_rms_mm:.4f} mm{floor}",
+            f"{self.cv_rms_mm:.4f} mm{floor}{left}",
             f"verdict: {self.verdict}" + (f" (fit {self.suggestion})" if self.suggestion else ""),
         ]
         for c in self.candidates[:5]:
@@ -304,15 +310,31 @@ def diagnose(
     data = _as_data(data)
     res = base if base is not None else fit(data, robot, effects, loss=loss, noise_mm=noise_mm)
     model = res.model
-    n = res.n_points
     free = res.identifiable
     scale = res.identifiability.scale
-    sw = None if res.weights is None else np.sqrt(res.weights).reshape(-1)
+    N = res.n_points
+    full, groups, skipped = _candidate_model(model, data, candidates)
+    inputs = full.inputs(data.q, data.columns, source=data.source)
+    p = full.nominal()
+    p[full.layout.indices(model.layout.names)] = res.params
+    _, Jf = full.predict(inputs, p, jacobian=True)
+    Jf = Jf.reshape(3 * N, -1)
+    typ = typical_magnitudes(full)
+    J0 = res.jacobian[:, :, free].reshape(3 * N, -1) * scale[free]
+
+    # a robust fit's outliers take no part in the tests: they would look like a missing effect
+    outliers = np.empty(0, dtype=int)
+    if res.loss != "linear":
+        outliers = _outliers(res.residuals.reshape(-1), np.hstack([J0, Jf]))
+    inlier = np.ones(N, dtype=bool)
+    inlier[outliers] = False
+    n = int(inlier.sum())
+    keep3 = np.repeat(inlier, 3)
 
     def weigh(A):
-        return A if sw is None else (A * sw[:, None] if A.ndim == 2 else A * sw)
+        return A[keep3]
 
-    J0 = weigh(res.jacobian[:, :, free].reshape(3 * n, -1) * scale[free])
+    J0 = weigh(J0)
     Q0 = orthonormal_basis(J0)
     e = weigh(res.residuals.reshape(-1).copy())
     e0 = e - Q0 @ (Q0.T @ e)
@@ -322,14 +344,6 @@ def diagnose(
     H0 = _hat_blocks(Q0)
     cv0 = _press(e0, H0)
     alpha_c = alpha / 2 if noise_mm is not None else alpha
-
-    full, groups, skipped = _candidate_model(model, data, candidates)
-    inputs = full.inputs(data.q, data.columns, source=data.source)
-    p = full.nominal()
-    p[full.layout.indices(model.layout.names)] = res.params
-    _, Jf = full.predict(inputs, p, jacobian=True)
-    Jf = Jf.reshape(3 * n, -1)
-    typ = typical_magnitudes(full)
 
     tested: list[np.ndarray] = []  # each candidate's orthonormal columns, the model's projected out
     rows = []
@@ -400,7 +414,7 @@ def diagnose(
     else:
         verdict = "none"
 
-    hints = _hints(res, data, Q0, e0, rss0, dof0, weigh)
+    hints = _hints(res, data, Q0, e0, rss0, dof0, inlier)
     d = Diagnosis(
         fit=res,
         verdict=verdict,
@@ -413,10 +427,35 @@ def diagnose(
         chi2_p_value_after=chi2_after,
         suggestion=suggestion,
         explanation=chosen,
+        outliers=outliers,
         skipped=skipped,
     )
     log.info("%s", d.summary())
     return d
+
+
+def _outliers(e: np.ndarray, X: np.ndarray, iterations: int = 20) -> np.ndarray:
+    """The points a robust fit should leave out of the tests: Huber IRLS of the residual ``e``
+    (3N) on every column the model and all candidates have (``X``), so that a missing effect
+    is explained, not mistaken for outliers; then the points farther off than
+    :data:`~lab.identification.OUTLIER_RADIUS` robust standard deviations."""
+    n = e.size // 3
+    Q = orthonormal_basis(X)
+    if Q.shape[1] > e.size // 2:  # too few poses for the catalogue: the fit's residual as it is
+        r = e
+    else:
+        w = np.ones_like(e)
+        for _ in range(iterations):
+            A = Q * w[:, None]
+            c = np.linalg.lstsq(A.T @ Q, A.T @ e, rcond=None)[0]
+            r = e - Q @ c
+            f = HUBER_K * _robust_sigma(r)
+            w_new = np.minimum(1.0, f / np.maximum(np.abs(r), 1e-300))
+            if np.max(np.abs(w_new - w)) < 1e-6:
+                break
+            w = w_new
+    dist = np.linalg.norm(r.reshape(n, 3), axis=1)
+    return np.flatnonzero(dist > OUTLIER_RADIUS * _robust_sigma(r))
 
 
 def _label(g: _Group) -> str:
@@ -571,16 +610,17 @@ def hint_variables(res: FitResult, data: MeasurementSet) -> dict[str, np.ndarray
     return out
 
 
-def _hints(res, data, Q0, e0, rss0, dof0, weigh) -> list[Hint]:
+def _hints(res, data, Q0, e0, rss0, dof0, inlier) -> list[Hint]:
     """Score each variable's block ``phi_k(v) * direction_d`` by the F-test of adding it to the
     fitted model. The block's Gram matrices come from the Kronecker structure (per pose
     ``D^T D``, ``Q0^T D``, ``e^T D``), so no (3N, K * 9) matrix is formed."""
-    n = res.n_points
+    n = int(inlier.sum())
     _, Jq = res.model.joint_jacobian(res.inputs, res.params)  # (N, 3, 6)
+    Jq = Jq[inlier]
     rms = np.sqrt(np.mean(np.sum(Jq**2, axis=1), axis=0))
     dirs = [np.broadcast_to(np.eye(3)[a], (n, 3)) for a in range(3)]
     dirs += [Jq[:, :, j] / rms[j] for j in range(6) if rms[j] > 0]
-    D = weigh(np.stack(dirs, axis=-1).reshape(3 * n, -1)).reshape(n, 3, -1)  # (N, 3, nd)
+    D = np.stack(dirs, axis=-1)  # (N, 3, nd)
     nd = D.shape[2]
     Dt = D.transpose(0, 2, 1)
     M = np.matmul(Dt, D).reshape(n, nd * nd)
@@ -589,6 +629,7 @@ def _hints(res, data, Q0, e0, rss0, dof0, weigh) -> list[Hint]:
     eD = np.matmul(Dt, e0.reshape(n, 3, 1))[:, :, 0]  # (N, nd)
     out = []
     for name, phi in hint_variables(res, data).items():
+        phi = phi[inlier]
         # few poses: the lowest-order functions only, at most half the degrees of freedom
         K = min(phi.shape[1], max(1, dof0 // (2 * nd)))
         phi = phi[:, :K]

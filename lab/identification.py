@@ -13,14 +13,20 @@ The steps, each a pure function of arrays:
    squares for the base translation and every target's tool offset given that rotation.
 2. **Identifiability** (:mod:`lab.identifiability`) on the column-scaled Jacobian at the start:
    parameters that the poses cannot separate are fixed at nominal, not fitted into noise.
-3. **Levenberg-Marquardt** (MINPACK's ``lmder`` through :func:`scipy.optimize.least_squares`)
-   on the identifiable parameters, scaled so that every Jacobian column has an RMS of 1 m per
-   pose, with the error model's analytic Jacobian. A robust loss (``huber``, ``soft_l1``) uses the
-   trust-region reflective method from the linear solution, with ``f_scale`` set to 1.345 robust
-   standard deviations of the residual (Huber's 95 %-efficiency constant), estimated from the
-   median absolute deviation and re-estimated once.
-4. A second identifiability pass at the solution with the noise now known: a parameter whose
-   typical-size error moves the points by less than the noise is fixed too (then a short refit).
+3. **Levenberg-Marquardt** on the identifiable parameters, scaled so that every Jacobian column
+   has an RMS of 1 m per pose, with the error model's analytic Jacobian:
+   :func:`levenberg_marquardt` takes Gauss-Newton steps and damps them (Nielsen's update) only
+   when one fails. Once the base is registered these problems are nearly linear, and it converges
+   in 3-5 model evaluations where MINPACK's ``lmder`` (``solver="minpack"``, through
+   :func:`scipy.optimize.least_squares`), which always starts damped, needs 4-10; both reach the
+   same solution (``benchmarks/lab.py``, ``tests/test_lab_fit.py``). A robust loss (``huber``,
+   ``soft_l1``) then runs scipy's trust-region reflective method from the linear solution, with
+   ``f_scale`` set to 1.345 robust standard deviations of the residual (Huber's 95 %-efficiency
+   constant) from the median absolute deviation, re-estimated once.
+4. A second identifiability pass at the solution with the noise now known (``noise_mm``, else the
+   residual's): a parameter whose typical-size error moves the points by less than the noise is
+   fixed too, and a parameter only nearly dependent at the start is restored if the data determine
+   it; then a short refit.
 5. **Standard errors** from the scaled Jacobian at the solution: ``cov = s^2 (J^T J)^-1`` with
    ``s^2 = sum r^2 / (3N - rank)`` (robust fits: IRLS weights in both).
 """
@@ -37,6 +43,7 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from envs.description import RobotDescription, load_robot, rotation_vector
 from envs.effects import Effect, EffectError
@@ -68,6 +75,7 @@ LOSSES = ("linear", "huber", "soft_l1")
 START_TOL = 1e-2
 HUBER_K = 1.345  # Huber's tuning constant: 95 % efficiency on Gaussian noise
 MAD_TO_SIGMA = 1.4826
+OUTLIER_RADIUS = math.sqrt(chi2.ppf(0.999, 3))  # 4.03 sigma: the 99.9 % radius of 3-D noise
 
 
 class FitError(ValueError):
@@ -160,10 +168,11 @@ class FitResult:
 
     @property
     def outliers(self) -> np.ndarray:
-        """Indices of points more than 5 noise standard deviations (3-D) off the fit."""
-        return np.flatnonzero(
-            np.linalg.norm(self.residuals, axis=1) > 5 * self.sigma * math.sqrt(3)
-        )
+        """Indices of points farther off the fit than :data:`OUTLIER_RADIUS` robust standard
+        deviations (median absolute deviation of the residual's coordinates): a point of
+        Gaussian noise lies that far out once in 1,000. A robust fit's outliers."""
+        r = np.linalg.norm(self.residuals, axis=1)
+        return np.flatnonzero(r > OUTLIER_RADIUS * _robust_sigma(self.residuals))
 
     def parameters(self) -> dict[str, float]:
         return self.model.layout.as_dict(self.params)

@@ -115,6 +115,21 @@ def test_unexplained_when_nothing_in_the_catalogue_fits(seed, user_effects):
     assert d.hints[0].variable == "q1"
 
 
+def test_a_robust_diagnosis_leaves_outliers_out(seed):
+    c = campaign(seed, "geometric,compliance[2,3]", seed=404)
+    d = c.measure(200)
+    planted = np.array([3, 50, 120, 177])
+    xyz = d.xyz.copy()
+    xyz[planted] += [1e-3, -0.6e-3, 0.8e-3]
+    data = MeasurementSet(d.q, xyz, d.columns)
+    plain = diagnose(data, seed, "geometric", noise_mm=NOISE_MM)
+    assert plain.verdict == "unexplained"  # least squares: the outliers swamp the tests
+    robust = diagnose(data, seed, "geometric", noise_mm=NOISE_MM, loss="huber")
+    assert set(planted) <= set(robust.outliers) and len(robust.outliers) <= 6
+    assert robust.verdict == "compliance"
+    assert robust.to_dict()["outliers"] == [int(i) for i in robust.outliers]
+
+
 def test_json_shape(seed):
     c = campaign(seed, "geometric,compliance[2,3]", seed=400)
     d = diagnose(c.measure(200), seed, "geometric", noise_mm=NOISE_MM)
