@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from envs.description import RobotDescription
-from envs.effects import Effect
+from envs.effects import Effect, EffectError
 from envs.errormodel import ErrorModel
 from envs.sampling import sample_poses
 from lab.identifiability import Identifiability, analyse, analyse_jacobian
@@ -131,10 +131,13 @@ def plan(
         cand = sample_poses(robot, int(candidates), rng)
     else:
         cand = np.asarray(candidates, dtype=float).reshape(-1, 6)
-    model = ErrorModel(robot, effects)
+    try:
+        model = ErrorModel(robot, effects)
+        inputs = model.inputs(cand, columns, source="candidate poses")
+    except EffectError as exc:
+        raise FitError(f"{exc}; give them for every candidate with columns=") from None
     if n > len(cand):
         raise FitError(f"cannot choose {n} poses from {len(cand)} candidates")
-    inputs = model.inputs(cand, columns, source="candidates")
     _, J = model.predict(inputs, model.nominal(), jacobian=True)
     ident = analyse_jacobian(model, J, warn=False)
     L = ident.rank

@@ -295,3 +295,27 @@ def test_real_laser_tracker_data_by_leave_one_out():
         errors.append(np.linalg.norm(f.residuals_of(data.subset(~keep))))
     cv_rms_mm = 1e3 * math.sqrt(np.mean(np.square(errors)))
     assert cv_rms_mm < 0.15
+
+
+@pytest.mark.parametrize("arm", ["seed", "rokae", "puma", "ur5"])
+def test_registration_from_any_tracker_pose_and_tool(arm, request):
+    """Any base rotation, a tracker metres away, a reflector up to 300 mm off the flange in any
+    direction; the description knows none of it."""
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    robot = replace(request.getfixturevalue(arm), tools=((0.0, 0.0, 0.0),))
+    for s in range(2):
+        rng = np.random.default_rng(20 + s)
+        tool = rng.normal(size=3)
+        tool *= rng.uniform(0.05, 0.3) / np.linalg.norm(tool)
+        truth = replace(
+            robot,
+            base_translation=tuple(rng.uniform(-5, 5, 3)),
+            base_rotation=tuple(Rotation.random(random_state=rng).as_rotvec()),
+            tools=(tuple(tool),),
+        )
+        c = campaign(truth, "geometric", seed=30 + s)
+        res = fit(c.measure(100), robot, "geometric", validate=c.measure(200))
+        assert res.validation_rms_mm < 1.2 * FLOOR_MM, (arm, s)

@@ -73,3 +73,5 @@ def test_plan_errors(seed):
         plan(8, seed, candidates=300)
     with pytest.raises(FitError, match="criterion must be one of o1, o4"):
         plan(20, seed, criterion="d")
+    with pytest.raises(FitError, match=r"dir1 \(needed by backlash\).*columns="):
+        plan(20, seed, "geometric,backlash", candidates=100)
