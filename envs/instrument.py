@@ -104,6 +104,11 @@ class LaserTracker:
         )
         self._queue.append((step + self.config.latency_steps, m))
 
+    @property
+    def pending(self) -> bool:
+        """Whether samples are waiting to be delivered."""
+        return bool(self._queue)
+
     def deliver(self, step: int) -> Measurement | None:
         """The newest sample due by ``step`` (older ones due at the same time are superseded)."""
         out = None

@@ -432,7 +432,14 @@ class Plant:
         self._base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "base")
         self._payload = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "payload")
         self._act_adr = m.actuator_actadr[:6].copy()
-        self.tool_xpos = self.data.site_xpos[self.tool_site]  # a view, updated by every step
+        # views into MjData (its buffers never move): the step reads them without re-wrapping
+        d = self.data
+        self._ctrl = d.ctrl
+        self._ctrl_pos, self._ctrl_vel = d.ctrl[:6], d.ctrl[6:12]
+        self._qvel = d.qvel
+        self.q_view = d.qpos[self.iq] if isinstance(self.iq, slice) else None
+        self.qd_view = d.qvel[self.iv] if isinstance(self.iv, slice) else None
+        self.tool_xpos = d.site_xpos[self.tool_site]
 
     # -- the drive ------------------------------------------------------------------------------
     def _home(self) -> np.ndarray:
@@ -584,7 +591,7 @@ class Plant:
 
     @property
     def q(self) -> np.ndarray:
-        """Encoder readings (6,) rad: the motor-side hinges."""
+        """Encoder readings (6,) rad: the motor-side hinges (a copy)."""
         return self.data.qpos[self.iq].copy()
 
     @property
@@ -599,8 +606,8 @@ class Plant:
         return self.data.qpos[self.iq] + self.data.qpos[self.il]
 
     def tool_point(self) -> np.ndarray:
-        """The true tool point (3,) in the measurement (world) frame, m."""
-        return self.data.site_xpos[self.tool_site].copy()
+        """The true tool point (3,) in the measurement (world) frame, m (a copy)."""
+        return self.tool_xpos.copy()
 
     def gravity_torques(self) -> np.ndarray:
         """MuJoCo's gravity torques on the motor hinges at rest (SPEC sign: minus qfrc_bias)."""
@@ -683,9 +690,8 @@ class Plant:
         v += dv
         np.minimum(v, self._v_max, out=v)
         np.maximum(v, -self._v_max, out=v)
-        ctrl = d.ctrl
-        ctrl[:6] = v
-        ctrl[6:] = v
+        self._ctrl_pos[:] = v
+        self._ctrl_vel[:] = v
         if self._transmission:
             self._set_mesh(d.qpos[self.iq])
         if self._schedule and self._next_payload < len(self._schedule):
@@ -703,7 +709,7 @@ class Plant:
             self._heat()
         # positions (site_xpos) of the state just reached, not of the last substep's start
         mujoco.mj_kinematics(m, d)
-        qv = d.qvel
+        qv = self._qvel
         return float(qv @ qv) < self._max_speed2  # NaN and inf fail the comparison too
 
     def _heat(self) -> None:

@@ -326,6 +326,13 @@ class SixAxisTrackEnv(gym.Env):
         self._camera_target: Trajectory | None = None
         self._ref_sl = slices["ref"]
         self._prev_sl = slices["preview"]
+        self._q_sl, self._qd_sl = slices["q"], slices["qd"]
+        self._valid_i = slices["meas_valid"].start
+        self._age_i = slices["meas_age"].start
+        self._temp_i = slices["temperature"].start
+        self._payload_i = slices["payload"].start
+        self._P = P
+        self._j = np.zeros(6)
 
     # -- gymnasium API --------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -453,31 +460,36 @@ class SixAxisTrackEnv(gym.Env):
             for i in range(6):
                 cols[f"dir{i + 1}"] = float(p.dirs[i])
             tr.sample(k, p.time, tool, p.data.qpos[p.iq], cols)
-        return tr.deliver(k)
+        return tr.deliver(k) if tr.pending else None
 
     def _fill_obs(self, meas) -> None:
-        o, sl, p, d = self._obs, self._sl, self.plant, self.plant.data
+        o, sl, p = self._obs, self._sl, self.plant
         k = self._k
-        o[sl["q"]] = d.qpos[p.iq]
-        o[sl["qd"]] = d.qvel[p.iv]
+        d = p.data
+        o[self._q_sl] = d.qpos[p.iq] if p.q_view is None else p.q_view
+        o[self._qd_sl] = d.qvel[p.iv] if p.qd_view is None else p.qd_view
         o[self._ref_sl] = self.references[k]
-        P = self.task.preview_steps
-        if P:
-            o[self._prev_sl] = self.references[k + 1 : k + 1 + P].reshape(-1)
-        t = p.time
+        if self._P:
+            o[self._prev_sl] = self.references[k + 1 : k + 1 + self._P].reshape(-1)
         if meas is not None:
             o[sl["meas"]] = meas.xyz
             self._meas_time = meas.time
             self._meas_points.append(meas.xyz)
-        o[sl["meas_valid"]] = 0.0 if meas is None else 1.0
-        age = t - self._meas_time
-        o[sl["meas_age"]] = MAX_MEASUREMENT_AGE if not age <= MAX_MEASUREMENT_AGE else age
-        o[sl["temperature"]] = p.temperature
-        o[sl["payload"]] = p.payload
+            o[self._valid_i] = 1.0
+        else:
+            o[self._valid_i] = 0.0
+        age = d.time - self._meas_time
+        o[self._age_i] = MAX_MEASUREMENT_AGE if not age <= MAX_MEASUREMENT_AGE else age
+        o[self._temp_i] = p.temperature
+        o[self._payload_i] = p.payload
 
     def _get_rew(self, err_mm: float, action: np.ndarray) -> tuple[float, dict[str, float]]:
-        """The reward and its parts: minus the true tracking error (mm) and the jerk penalty."""
-        j = action - 2.0 * self._a1 + self._a2
+        """The reward and its parts: minus the true tracking error (mm) and the jerk penalty
+        (the squared second difference of the normalised command)."""
+        j = self._j
+        np.subtract(action, self._a1, out=j)
+        j -= self._a1
+        j += self._a2
         jerk = -self.jerk_weight * float(j @ j)
         tracking = -err_mm
         return tracking + jerk, {"reward_tracking": tracking, "reward_jerk": jerk}
