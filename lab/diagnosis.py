@@ -18,8 +18,16 @@ under the noise, are not testable (unidentifiable given the model) and are skipp
 One family-wise significance level ``alpha`` holds over all candidates (Holm's step-down
 correction). A significant candidate must also **predict held-out poses** better than the model
 alone: leave-one-pose-out residuals of the linearised model, from the (3 x 3) diagonal blocks of
-the hat matrix, no refits. Significant, confirmed candidates rank by that held-out RMS; the
-verdict names the best one's effect.
+the hat matrix, no refits. Significant, confirmed candidates rank by that held-out RMS.
+
+The **explanation** is built by effect-level forward selection from that ranking: the best
+effect, on the joints that each add significantly (given the ones before), then the next effect
+given the first, while one is significant (Bonferroni over all candidates at every step) and
+predicts held-out poses better. The verdict names the first effect chosen, unless ``noise_mm``
+is known and even the whole explanation leaves a residual above the noise (chi-square, below):
+then it is ``unexplained``, the catalogue explains part only. ``suggestion`` is the model to fit
+next (``geometric,compliance[2,3]``); ``candidates`` lists the explanation first
+(each entry tested given those before it), then every other candidate.
 
 Otherwise, with the instrument's per-axis noise ``noise_mm`` known, a **chi-square test** of the
 residual sum of squares with 3N minus the identifiable parameters as degrees of freedom says
@@ -398,6 +406,9 @@ def diagnose(
     tested = [tested[i] for i in order]
     sel = _Selection(e0, rss0, dof0, H0, cv0)
     chosen = _forward(cands, tested, sel, alpha_c) if cands and cands[0].significant else []
+    # the explanation first (each given the ones before it), then every other candidate
+    picked = {(c.effect, c.joints) for c in chosen}
+    cands = chosen + [c for c in cands if (c.effect, c.joints) not in picked]
 
     chi2_p = chi2_after = None
     if noise_mm is not None:
@@ -497,7 +508,8 @@ def _forward(cands, bases, sel: _Selection, alpha) -> list[Candidate]:
     that a chance addition stays rare however many steps there are) and that lower the held-out
     RMS, and then settles the joints of its effect by forward selection over that effect's single
     joints (the same rule). Returns the chosen effects as candidates (joints merged), in the
-    order chosen."""
+    order chosen, each with the F-test of all its columns given the effects chosen before it and
+    the training and held-out RMS after it."""
     chosen: list[Candidate] = []
     done: set[str] = set()
     level = alpha / max(len(cands), 1)
@@ -515,6 +527,7 @@ def _forward(cands, bases, sel: _Selection, alpha) -> list[Candidate]:
             break
         c = cands[best[1]]
         done.add(c.effect)
+        rss_before, dof_before = sel.rss, sel.dof
         singles = [
             i
             for i in live
@@ -523,6 +536,7 @@ def _forward(cands, bases, sel: _Selection, alpha) -> list[Candidate]:
             and len(cands[i].joints) == 1
         ]
         joints: list[int] = []
+        names: list[str] = []
         while singles:
             pick = None
             for i in singles:
@@ -534,18 +548,21 @@ def _forward(cands, bases, sel: _Selection, alpha) -> list[Candidate]:
                 break
             sel.add(pick[0][0], pick[0][2])
             joints.append(cands[pick[1]].joints[0])
+            names += cands[pick[1]].parameters
             singles.remove(pick[1])
         if not joints:  # no single joint carries it alone: take the whole group
             sel.add(best[0][0], best[0][2])
+            names = list(c.parameters)
+        F, pv = _f_test(rss_before - sel.rss, dof_before - sel.dof, sel.rss, sel.dof)
         chosen.append(
             Candidate(
                 effect=c.effect,
                 joints=tuple(sorted(joints)) if joints else c.joints,
-                parameters=(),
-                rms_mm=float("nan"),
+                parameters=tuple(sorted(names, key=names.index)),
+                rms_mm=1e3 * math.sqrt(max(sel.rss, 0.0) / (sel.e.size // 3)),
                 cv_rms_mm=1e3 * sel.cv,
-                statistic=float("nan"),
-                p_value=float("nan"),
+                statistic=F,
+                p_value=pv,
                 significant=True,
                 confirmed=True,
             )
