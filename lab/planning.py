@@ -36,7 +36,7 @@ from envs.description import RobotDescription
 from envs.effects import Effect, EffectError
 from envs.errormodel import ErrorModel
 from envs.sampling import sample_poses
-from lab.identifiability import Identifiability, analyse, analyse_jacobian
+from lab.identifiability import Identifiability, analyse_jacobian
 from lab.identification import SCHEMA_VERSION, FitError, _as_robot
 
 __all__ = ["CRITERIA", "Plan", "observability", "plan"]
@@ -117,12 +117,17 @@ def plan(
     criterion: str = "o1",
     candidates: np.ndarray | int = 2000,
     columns: Mapping[str, np.ndarray] | None = None,
+    noise_mm: float | None = 0.015,
     seed: int | np.random.Generator = 0,
     max_exchanges: int = 1000,
 ) -> Plan:
     """Choose ``n`` poses from ``candidates`` (an (M, 6) array, or how many random ones to draw)
     that maximise ``criterion`` (``o1`` or ``o4``) for identifying ``effects`` of ``robot``.
-    ``columns`` gives the candidates' other inputs (payload...) for effects that need them."""
+    ``columns`` gives the candidates' other inputs (payload...) for effects that need them.
+    ``noise_mm`` (the instrument's per-axis noise; None: structure only) leaves out parameters
+    that ``n`` such poses could not determine better than their typical size (a tool a millimetre
+    off joint 6's axis makes dalpha6 barely separable from dd5): chasing them would spend the
+    poses on directions no calibration resolves."""
     if criterion not in CRITERIA:
         raise FitError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
     robot = _as_robot(robot)
@@ -139,7 +144,9 @@ def plan(
     if n > len(cand):
         raise FitError(f"cannot choose {n} poses from {len(cand)} candidates")
     _, J = model.predict(inputs, model.nominal(), jacobian=True)
-    ident = analyse_jacobian(model, J, warn=False)
+    # a parameter's effect grows with sqrt(poses): judged for n poses, not for all candidates
+    noise = None if noise_mm is None else 1e-3 * noise_mm * math.sqrt(len(cand) / n)
+    ident = analyse_jacobian(model, J, noise=noise, warn=False)
     L = ident.rank
     if 3 * n < L:
         raise FitError(
@@ -160,11 +167,11 @@ def plan(
         r1.append(observability(Mr, n, "o1"))
         r4.append(observability(Mr, n, "o4"))
     idx = np.sort(chosen)
-    final = analyse(
+    final = analyse_jacobian(
+        model,
         J[idx],
-        model.layout.names,
         scale=ident.scale,
-        priority=np.flatnonzero(free).tolist() + np.flatnonzero(~free).tolist(),
+        noise=None if noise_mm is None else 1e-3 * noise_mm,
         warn=False,
     )
     result = Plan(
