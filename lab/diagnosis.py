@@ -317,6 +317,8 @@ def diagnose(
         raise FitError(f"noise_mm must be positive, got {noise_mm}")
     data = _as_data(data)
     res = base if base is not None else fit(data, robot, effects, loss=loss, noise_mm=noise_mm)
+    if res.n_points != len(data):
+        raise FitError(f"the fit given has {res.n_points} points, the data {len(data)}")
     model = res.model
     free = res.identifiable
     scale = res.identifiability.scale
@@ -339,12 +341,9 @@ def diagnose(
     n = int(inlier.sum())
     keep3 = np.repeat(inlier, 3)
 
-    def weigh(A):
-        return A[keep3]
-
-    J0 = weigh(J0)
+    J0, Jk = J0[keep3], Jf[keep3]
     Q0 = orthonormal_basis(J0)
-    e = weigh(res.residuals.reshape(-1).copy())
+    e = res.residuals.reshape(-1)[keep3]
     e0 = e - Q0 @ (Q0.T @ e)
     rss0 = float(e0 @ e0)
     dof0 = 3 * n - Q0.shape[1]
@@ -357,7 +356,7 @@ def diagnose(
     rows = []
     for g in groups:
         idx = full.layout.indices(g.names)
-        X = weigh(Jf[:, idx])
+        X = Jk[:, idx]
         Xp = X - Q0 @ (Q0.T @ X)
         nx, nxp = np.linalg.norm(X, axis=0), np.linalg.norm(Xp, axis=0)
         keep = (nxp > _DEPENDENT * nx) & (nxp * typ[idx] > sigma)
