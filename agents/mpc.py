@@ -57,7 +57,7 @@ def _qp_options(solver: str) -> dict:
                 "verbose": False,
                 "eps_abs": 1e-7,
                 "eps_rel": 1e-7,
-                "polish": False,
+                "polish": False,  # prints even when not verbose
                 "max_iter": 4000,
             },
             "warm_start_primal": True,
@@ -129,6 +129,10 @@ class KinematicMPC:
         self._lbx = -np.tile(self.v_max, N)
         self._ubx = np.tile(self.v_max, N)
         self._warm_start = solver in ("osqp", "qpoases", "ipopt")
+        # a plan violating the constraints by more than this (rad/s) is a failed solve: active-set
+        # methods are exact; first-order ones (OSQP's ADMM) stop near the solution, or at their
+        # iteration limit on hard problems, and the servo clips what little is left
+        self._tolerance = 1e-3 if solver in ("osqp", "proxqp") else 1e-6
         self.n_fail = 0
         self.last_status = ""
         self.reset()
@@ -179,12 +183,15 @@ class KinematicMPC:
         v_prev: np.ndarray,
         q0: np.ndarray | None = None,
         q_posture: np.ndarray | None = None,
+        r0: np.ndarray | None = None,
     ):
         """Hessian (6N, 6N) and gradient (6N,) of the condensed QP at point x0 with d x / d q J
-        (numpy; the compiled step computes the same inside CasADi)."""
+        (numpy, for reading and testing; the compiled step computes the same inside CasADi)."""
         dt = self.dt
         Jm = J * MM
         E = (x0[None, :] - refs) * MM  # (N, 3) errors if nothing moved
+        if r0 is not None:
+            E -= np.outer(self._decay, x0 - r0) * MM
         S = np.cumsum(E[::-1], axis=0)[::-1]  # S_j = sum_{k >= j} E_k
         H = dt * dt * np.kron(self._C, Jm.T @ Jm) + self._R
         g = dt * (S @ Jm).reshape(-1)
@@ -284,7 +291,7 @@ class KinematicMPC:
         out = self._step(np.concatenate(parts)).full().reshape(-1)
         n = 6 * self.N
         v, violation = out[:n], out[n]
-        ok = bool(np.all(np.isfinite(v)) and violation < 1e-6)
+        ok = bool(np.all(np.isfinite(v)) and violation < self._tolerance)
         self.last_status = "ok" if ok else f"failed (constraint violation {violation:.3g})"
         if ok and self._warm_start:
             self._lam_x = out[n + 1 : 2 * n + 1]

@@ -272,10 +272,10 @@ def _set_threads() -> None:
     torch.set_num_threads(1)
 
 
-def train(cfg: PPOConfig, progress: bool = False) -> Path:
+def train(cfg: PPOConfig, progress=None) -> Path:
     """Train PPO as configured; writes checkpoints, ``progress.csv`` (SB3's logger),
     ``evaluations.npz`` and the final ``model.zip`` + ``vecnormalize.npz`` under ``cfg.output``.
-    Returns the output directory."""
+    ``progress(done, total)`` is called every step if given. Returns the output directory."""
     _set_threads()
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
@@ -339,8 +339,17 @@ def train(cfg: PPOConfig, progress: bool = False) -> Path:
             deterministic=True,
         ),
     ]
+    if progress is not None:
+        from stable_baselines3.common.callbacks import BaseCallback
+
+        class _Progress(BaseCallback):
+            def _on_step(self) -> bool:
+                progress(self.num_timesteps, cfg.total_timesteps)
+                return True
+
+        callbacks.append(_Progress())
     t0 = time.perf_counter()
-    model.learn(total_timesteps=cfg.total_timesteps, callback=callbacks, progress_bar=progress)
+    model.learn(total_timesteps=cfg.total_timesteps, callback=callbacks)
     log.info("trained %d steps in %.0f s", cfg.total_timesteps, time.perf_counter() - t0)
     model.save(out / "model.zip")
     save_normalisation(venv, out / "vecnormalize.npz")

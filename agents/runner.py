@@ -29,7 +29,14 @@ import numpy as np
 
 from agents.base import Agent
 
-__all__ = ["ENV_ID", "EpisodeResult", "Phase", "calibrate_then_blind", "run_episode"]
+__all__ = [
+    "ENV_ID",
+    "EpisodeResult",
+    "Phase",
+    "calibrate_then_blind",
+    "calibration_campaign",
+    "run_episode",
+]
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +70,46 @@ def calibrate_then_blind(
         Phase("calibration", calibration_seconds, cal, judged=False),
         Phase("blind", judge_seconds, blind, judged=True),
     ]
+
+
+def calibration_campaign(
+    kinds: Sequence[str] = ("circle", "lines", "spline"),
+    payloads: Sequence[float] | None = (0.0, 3.0),
+    seconds: float = 10.0,
+    judge_trajectory: str = "lemniscate",
+    judge_payload: float | None = 1.5,
+    judge_seconds: float = 10.0,
+) -> list[Phase]:
+    """A calibration campaign, then blind tracking on a trajectory not seen before.
+
+    One measured phase per trajectory kind (each drawn in its own region of the workspace) and,
+    with ``payloads``, per payload mass (kg, constant through the phase: the ``payload``
+    scenario's schedule overridden); then the judged phase, measurements off, on
+    ``judge_trajectory`` with ``judge_payload``. Load contrast is what separates the joints'
+    compliance from the geometry: at a fixed load, gravity torques vary too little along the
+    env's trajectories for a geometric model to fail where it was not calibrated."""
+
+    def load(m):
+        return {} if m is None else {"overrides": {"payload": {"payload0": m, "payload1": m}}}
+
+    phases = [
+        Phase(
+            f"calibration-{k}" + ("" if m is None else f"-{m:g}kg"),
+            seconds,
+            {"trajectory": k} | load(m),
+            judged=False,
+        )
+        for k in kinds
+        for m in (payloads if payloads is not None else (None,))
+    ]
+    phases.append(
+        Phase(
+            "blind",
+            judge_seconds,
+            {"trajectory": judge_trajectory, "measurements": False} | load(judge_payload),
+        )
+    )
+    return phases
 
 
 @dataclass

@@ -1,9 +1,126 @@
-"""Commands of the ``sixaxis`` CLI for agents. Work in progress: commands are added as they land."""
+"""``sixaxis train ppo --config FILE`` and ``sixaxis evaluate AGENT``: thin layers over
+:mod:`agents.ppo` and :mod:`agents.runner`."""
 
 from __future__ import annotations
 
+import json
+import time
+from pathlib import Path
+from typing import Annotated
+
 import typer
+from rich.console import Console
+from rich.table import Table
+
+console = Console()
+err_console = Console(stderr=True, soft_wrap=True)
+
+train_app = typer.Typer(help="Train learning agents.", no_args_is_help=True)
+
+
+@train_app.command("ppo")
+def train_ppo(
+    config: Annotated[
+        Path, typer.Option("--config", "-c", help="A TOML file with a [ppo] table.")
+    ] = Path("experiments/configs/ppo.toml"),
+    timesteps: Annotated[
+        int | None, typer.Option(help="Override total_timesteps (e.g. a short trial run).")
+    ] = None,
+    output: Annotated[Path | None, typer.Option(help="Override the output directory.")] = None,
+    variant: Annotated[str | None, typer.Option(help="Override the variant.")] = None,
+    ship: Annotated[
+        bool,
+        typer.Option(help="Copy the best policy into agents/policies/ when training ends."),
+    ] = False,
+) -> None:
+    """Train PPO on SixAxisTrack-v0: checkpoints, evaluations and CSV logs in the output dir."""
+    from agents.ppo import load_config, ship_policy, train
+
+    try:
+        cfg = load_config(config)
+    except ValueError as exc:
+        err_console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(2) from None
+    if timesteps is not None:
+        cfg.total_timesteps = int(timesteps)
+    if output is not None:
+        cfg.output = str(output)
+    if variant is not None:
+        cfg.variant = variant
+        cfg.__post_init__()
+    console.print(
+        f"training PPO ({cfg.variant}) for {cfg.total_timesteps:,} steps on "
+        f"{', '.join(sorted(set(cfg.scenarios)))}; logs in {cfg.output}"
+    )
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+
+    t0 = time.perf_counter()
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=console,
+    ) as bar:
+        job = bar.add_task("steps", total=cfg.total_timesteps)
+        out = train(cfg, progress=lambda n, total: bar.update(job, completed=n))
+    console.print(f"done in {time.perf_counter() - t0:.0f} s: {out / 'model.zip'}")
+    if ship:
+        dst = ship_policy(out, cfg.variant)
+        console.print(f"shipped {dst} ({dst.stat().st_size / 1024:.0f} KB)")
+
+
+def evaluate(
+    agent: Annotated[str, typer.Argument(help="An agent name or package.module:Class.")],
+    scenario: Annotated[list[str], typer.Option(help="Scenario(s).")] = ["geometric"],  # noqa: B006
+    seeds: Annotated[int, typer.Option(help="Seeds 0..N-1.")] = 3,
+    settings: Annotated[
+        str, typer.Option(help="Agent settings as JSON, e.g. '{\"horizon\": 15}'.")
+    ] = "{}",
+    settle: Annotated[float, typer.Option(help="RMS after this many seconds.")] = 3.0,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """Run an agent on seeded episodes and print its tracking error (mm, true tool point)."""
+    import numpy as np
+
+    from agents.registry import AgentError, make_agent
+    from agents.runner import run_episode
+
+    try:
+        kw = json.loads(settings)
+        make_agent(agent, **kw)
+    except (json.JSONDecodeError, AgentError) as exc:
+        err_console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(2) from None
+    rows = []
+    with console.status("running episodes...") as status:
+        for sc in scenario:
+            for s in range(seeds):
+                status.update(f"{agent} on {sc}, seed {s}")
+                r = run_episode(make_agent(agent, **kw), {"scenario": sc}, seed=s)
+                rows.append(
+                    {
+                        "scenario": sc,
+                        "seed": s,
+                        "rms_mm": r.rms_mm(),
+                        f"rms_after_{settle:g}s_mm": r.rms_mm(start=settle),
+                        "max_mm": r.max_mm(),
+                        "solve_time_median_ms": 1e3 * float(np.median(r.solve_time_s)),
+                        "diverged": r.diverged,
+                    }
+                )
+    if as_json:
+        print(json.dumps(rows, indent=2))
+        return
+    table = Table(title=f"{agent} {kw or ''}")
+    for k in rows[0]:
+        table.add_column(k)
+    for row in rows:
+        table.add_row(*(f"{v:.4f}" if isinstance(v, float) else str(v) for v in row.values()))
+    console.print(table)
 
 
 def register(app: typer.Typer) -> None:
     """Mount this module's commands on the main app."""
+    app.add_typer(train_app, name="train")
+    app.command("evaluate")(evaluate)
