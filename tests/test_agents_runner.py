@@ -96,7 +96,7 @@ def test_registry_names_settings_and_user_classes():
     assert isinstance(user, ConstantAgent) and user.value == 0.2
     with pytest.raises(AgentError, match="unknown agent 'mpcc'"):
         make_agent("mpcc")
-    with pytest.raises(AgentError, match="unknown setting.*horizn"):
+    with pytest.raises(AgentError, match=r"unknown setting.*horizn"):
         make_agent("mpc", horizn=5)
     with pytest.raises(AgentError, match="no 'Nope'"):
         make_agent("tests.test_agents_runner:Nope")
