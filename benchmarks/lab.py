@@ -91,7 +91,7 @@ def main() -> None:
     small, _ = problem(200, seed=1)
     t_fit200, _ = timed(lambda: fit(small, None, effects))
     t_diag200, _ = timed(lambda: diagnose(small, None, "geometric", noise_mm=1e3 * SIGMA))
-    n_cands = len(diag.candidates)
+    n_cands = diag.n_tested
     floor = SIGMA * math.sqrt(3) * 1e3
 
     model = ErrorModel(seed_robot(), effects)

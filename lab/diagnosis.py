@@ -149,6 +149,7 @@ class Diagnosis:
     suggestion: str | None
     explanation: list[Candidate] = field(default_factory=list)
     outliers: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=int))
+    n_tested: int = 0
     skipped: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -187,6 +188,7 @@ class Diagnosis:
             "suggestion": self.suggestion,
             "skipped": dict(self.skipped),
             "outliers": [int(i) for i in self.outliers],
+            "n_tested": self.n_tested,
         }
 
     def summary(self) -> str:
@@ -352,24 +354,26 @@ def diagnose(
     cv0 = _press(e0, H0)
     alpha_c = alpha / 2 if noise_mm is not None else alpha
 
+    sel = _Selection(e0, rss0, dof0, H0, cv0)
+    Jp = Jk - Q0 @ (Q0.T @ Jk)  # every candidate column with the model's span projected out
+    norms, norms_p = np.linalg.norm(Jk, axis=0), np.linalg.norm(Jp, axis=0)
     tested: list[np.ndarray] = []  # each candidate's orthonormal columns, the model's projected out
     rows = []
     for g in groups:
         idx = full.layout.indices(g.names)
-        X = Jk[:, idx]
-        Xp = X - Q0 @ (Q0.T @ X)
-        nx, nxp = np.linalg.norm(X, axis=0), np.linalg.norm(Xp, axis=0)
+        Xp = Jp[:, idx]
+        nx, nxp = norms[idx], norms_p[idx]
         keep = (nxp > _DEPENDENT * nx) & (nxp * typ[idx] > sigma)
         if not keep.any():
             skipped[_label(g)] = "unidentifiable given the model"
             continue
         Qc = orthonormal_basis(Xp[:, keep])
-        proj = Qc.T @ e0
-        ss = float(proj @ proj)
-        k = Qc.shape[1]
-        F, pv = _f_test(ss, k, rss0 - ss, dof0 - k)
-        e1 = e0 - Qc @ proj
-        cv = _press(e1, H0 + _hat_blocks(Qc))
+        t = sel.trial(Qc, key=len(rows))
+        if t is None:
+            skipped[_label(g)] = "unidentifiable given the model"
+            continue
+        cv, pv, (Qc, _, ss, _) = t
+        F, _ = _f_test(ss, Qc.shape[1], rss0 - ss, dof0 - Qc.shape[1])
         joints = g.joints
         if joints is not None and len(joints) > 1:  # the joints that were testable
             kept = {nm for nm, ok in zip(g.names, keep, strict=True) if ok}
@@ -403,8 +407,9 @@ def diagnose(
     )
     cands = [cands[i] for i in order]
     tested = [tested[i] for i in order]
-    sel = _Selection(e0, rss0, dof0, H0, cv0)
-    chosen = _forward(cands, tested, sel, alpha_c) if cands and cands[0].significant else []
+    keys = list(order)  # each candidate's key in the selection's remembered first trials
+    n_tested = len(cands)
+    chosen = _forward(cands, tested, keys, sel, alpha_c) if cands and cands[0].significant else []
     # the explanation first (each given the ones before it), then every other candidate
     picked = {(c.effect, c.joints) for c in chosen}
     cands = chosen + [c for c in cands if (c.effect, c.joints) not in picked]
@@ -438,6 +443,7 @@ def diagnose(
         suggestion=suggestion,
         explanation=chosen,
         outliers=outliers,
+        n_tested=n_tested,
         skipped=skipped,
     )
     log.info("%s", d.summary())
@@ -478,9 +484,20 @@ class _Selection:
     def __init__(self, e, rss, dof, H, cv):
         self.e, self.rss, self.dof, self.H, self.cv = e, rss, dof, H, cv
         self.Q = np.empty((e.size, 0))
+        self._first: dict[int, tuple | None] = {}  # trials before anything is chosen, by key
 
-    def trial(self, basis: np.ndarray):
-        """(held-out RMS, p-value, state pieces) of adding ``basis`` (orthonormal, model-free)."""
+    def trial(self, basis: np.ndarray, key: int | None = None):
+        """(held-out RMS, p-value, state pieces) of adding ``basis`` (orthonormal, model-free);
+        None if it adds nothing. Trials on the initial state are remembered by ``key``."""
+        first = self.Q.shape[1] == 0 and key is not None
+        if first and key in self._first:
+            return self._first[key]
+        out = self._trial(basis)
+        if first:
+            self._first[key] = out
+        return out
+
+    def _trial(self, basis: np.ndarray):
         X = basis - self.Q @ (self.Q.T @ basis)
         X = X[:, np.linalg.norm(X, axis=0) > _DEPENDENT]  # the columns had norm 1
         Qc = orthonormal_basis(X)
@@ -500,7 +517,7 @@ class _Selection:
         self.Q = np.hstack([self.Q, Qc])
 
 
-def _forward(cands, bases, sel: _Selection, alpha) -> list[Candidate]:
+def _forward(cands, bases, keys, sel: _Selection, alpha) -> list[Candidate]:
     """Effect-level forward selection. Each step tries every candidate of the effects not yet
     chosen given those chosen, takes the one that predicts held-out poses best among those whose
     F-test is significant at ``alpha`` over all the candidates (Bonferroni, at every step, so
@@ -518,7 +535,7 @@ def _forward(cands, bases, sel: _Selection, alpha) -> list[Candidate]:
             break
         best = None
         for i in live:
-            t = sel.trial(bases[i])
+            t = sel.trial(bases[i], keys[i])
             if t is not None and t[1] <= level and t[0] < sel.cv:
                 if best is None or t[0] < best[0][0]:
                     best = (t, i)
@@ -539,7 +556,7 @@ def _forward(cands, bases, sel: _Selection, alpha) -> list[Candidate]:
         while singles:
             pick = None
             for i in singles:
-                t = sel.trial(bases[i])
+                t = sel.trial(bases[i], keys[i])
                 if t is not None and t[1] <= level and t[0] < sel.cv:
                     if pick is None or t[0] < pick[0][0]:
                         pick = (t, i)
@@ -629,7 +646,9 @@ def hint_variables(res: FitResult, data: MeasurementSet) -> dict[str, np.ndarray
 def _hints(res, data, Q0, e0, rss0, dof0, inlier) -> list[Hint]:
     """Score each variable's block ``phi_k(v) * direction_d`` by the F-test of adding it to the
     fitted model. The block's Gram matrices come from the Kronecker structure (per pose
-    ``D^T D``, ``Q0^T D``, ``e^T D``), so no (3N, K * 9) matrix is formed."""
+    ``D^T D``, ``Q0^T D``, ``e^T D``), so no (3N, K * 9) matrix is formed, and all variables go
+    through three matrix products together (many small multithreaded BLAS calls stall on a
+    busy machine)."""
     n = int(inlier.sum())
     _, Jq = res.model.joint_jacobian(res.inputs, res.params)  # (N, 3, 6)
     Jq = Jq[inlier]
@@ -643,16 +662,28 @@ def _hints(res, data, Q0, e0, rss0, dof0, inlier) -> list[Hint]:
     r0 = Q0.shape[1]
     Q0D = np.matmul(Q0.reshape(n, 3, r0).transpose(0, 2, 1), D).reshape(n, r0 * nd)
     eD = np.matmul(Dt, e0.reshape(n, 3, 1))[:, :, 0]  # (N, nd)
-    out = []
+
+    names, blocks = [], []
     for name, phi in hint_variables(res, data).items():
-        phi = phi[inlier]
         # few poses: the lowest-order functions only, at most half the degrees of freedom
         K = min(phi.shape[1], max(1, dof0 // (2 * nd)))
-        phi = phi[:, :K]
-        pp = (phi[:, :, None] * phi[:, None, :]).reshape(n, K * K)
-        Gbb = (pp.T @ M).reshape(K, K, nd, nd).transpose(0, 2, 1, 3).reshape(K * nd, K * nd)
-        G0b = (phi.T @ Q0D).reshape(K, r0, nd).transpose(1, 0, 2).reshape(r0, K * nd)
-        b = (phi.T @ eD).reshape(K * nd)
+        names.append(name)
+        blocks.append(phi[inlier][:, :K])
+    if not blocks:
+        return []
+    Phi = np.hstack(blocks)  # (N, sum K)
+    pairs = np.hstack([(b[:, :, None] * b[:, None, :]).reshape(n, -1) for b in blocks])
+    Gall = pairs.T @ M  # (sum K^2, nd^2)
+    Call = (Phi.T @ Q0D).reshape(-1, r0, nd)  # (sum K, r0, nd)
+    ball = Phi.T @ eD  # (sum K, nd)
+    out = []
+    c = g = 0
+    for name, blk in zip(names, blocks, strict=True):
+        K = blk.shape[1]
+        Gbb = Gall[g : g + K * K].reshape(K, K, nd, nd).transpose(0, 2, 1, 3).reshape(K * nd, -1)
+        G0b = Call[c : c + K].transpose(1, 0, 2).reshape(r0, K * nd)
+        b = ball[c : c + K].reshape(K * nd)
+        c, g = c + K, g + K * K
         idx, L = gram_factor(Gbb - G0b.T @ G0b, _DEPENDENT)
         k = idx.size
         if k == 0 or dof0 - k <= 0:
