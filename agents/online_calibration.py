@@ -190,6 +190,8 @@ class RecursiveLeastSquares:
         n = len(self.idx)
         self.z = np.zeros(n)
         self.info = np.eye(n)
+        self._chol = np.eye(n)  # lower Cholesky factor of ``info``
+        self._p = self.p0.copy()
         self.n_updates = 0
         self.n_rejected = 0
         self._run_rejected = 0
@@ -200,9 +202,7 @@ class RecursiveLeastSquares:
     @property
     def params(self) -> np.ndarray:
         """The full parameter vector: estimates for the free ones, ``p0`` for the rest."""
-        p = self.p0.copy()
-        p[self.idx] += self.scale * self.z
-        return p
+        return self._p.copy()
 
     @property
     def std(self) -> np.ndarray:
@@ -244,16 +244,18 @@ class RecursiveLeastSquares:
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(y))):
             return False
         columns = columns or {}
-        x, Jp = self._predict(q, columns, self.params)
+        x, Jp = self._predict(q, columns, self._p)
         e = y - x
         H = Jp[:, self.idx] * self.scale  # (3, n) in scaled parameters
         r_inv = 1.0 / self.sigma**2
-        S = H @ np.linalg.solve(self.info, H.T) + self.sigma**2 * np.eye(3)
+        # innovation covariance H info^-1 H' + R, with the Cholesky factor of the last update
+        # (cho_solve, not solve_triangular: OpenBLAS's threaded trsm took 9 ms here for 25x3)
+        S = H @ scipy.linalg.cho_solve((self._chol, True), H.T, check_finite=False)
+        S[np.diag_indices(3)] += self.sigma**2
         d2 = float(e @ np.linalg.solve(S, e))
-        enorm = float(np.linalg.norm(e))
-        typical = max(
-            float(np.median(self._recent)) if self._recent else 0.0, np.sqrt(3) * self.sigma
-        )
+        enorm = float(np.sqrt(e @ e))
+        recent = sorted(self._recent)
+        typical = max(recent[len(recent) // 2] if recent else 0.0, np.sqrt(3) * self.sigma)
         self.last_innovation = e
         if (
             d2 > self.gate
@@ -267,10 +269,15 @@ class RecursiveLeastSquares:
         self._run_rejected = 0
         self._recent.append(enorm)
         lam = self.forgetting
-        self.info = lam * self.info + (1.0 - lam) * np.eye(len(self.z)) + r_inv * (H.T @ H)
-        self.info = 0.5 * (self.info + self.info.T)
+        info = self.info
+        info *= lam
+        info[np.diag_indices_from(info)] += 1.0 - lam
+        info += r_inv * (H.T @ H)
+        self._chol = np.linalg.cholesky(info)
         grad = r_inv * (H.T @ e) - (1.0 - lam) * self.z
-        self.z = self.z + np.linalg.solve(self.info, grad)
+        self.z = self.z + scipy.linalg.cho_solve((self._chol, True), grad, check_finite=False)
+        self._p = self.p0.copy()
+        self._p[self.idx] += self.scale * self.z
         self.n_updates += 1
         return True
 

@@ -180,7 +180,7 @@ class PolicyEnv(gym.Wrapper):
 
     def step(self, action):
         env_action = self.actions(action, self._obs, self._info)
-        obs, reward, terminated, truncated, info = self.env.step(env_action.astype(np.float32))
+        obs, reward, terminated, truncated, info = self.env.step(env_action)
         self._obs, self._info = obs, info
         return self.features(obs), reward, terminated, truncated, info
 
@@ -317,10 +317,16 @@ def train(cfg: PPOConfig, progress=None) -> Path:
     model.set_logger(configure(str(out), ["csv", "log"]))
 
     class _SyncNorm(EvalCallback):
-        def _on_step(self) -> bool:  # evaluate with the current normalisation statistics
+        """Evaluate with the current normalisation statistics; keep them with the best model."""
+
+        def _on_step(self) -> bool:
             if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
                 eval_env.obs_rms = venv.obs_rms.copy()
-            return super()._on_step()
+            best = self.best_mean_reward
+            ok = super()._on_step()
+            if self.best_mean_reward > best:
+                save_normalisation(venv, out / "best" / "vecnormalize.npz")
+            return ok
 
     per_env = max(1, cfg.n_envs)
     callbacks = [
@@ -376,40 +382,63 @@ def save_normalisation(venv, path: Path) -> None:
     )
 
 
-def ship_policy(run_dir: str | Path, variant: str, use_best: bool = True) -> Path:
-    """Copy a trained policy (weights only, no optimiser state) and its normalisation into
-    ``agents/policies/`` as ``ppo-<variant>.zip`` / ``.npz`` / ``.json``."""
+def _policy_source(run_dir: Path, which: str) -> tuple[Path, dict[str, np.ndarray]]:
+    """The policy zip and its normalisation statistics: ``best`` (the best evaluation, with the
+    statistics saved then), ``final``, or a checkpoint's step count."""
+    if which == "best" and (run_dir / "best" / "vecnormalize.npz").exists():
+        src, norm = run_dir / "best" / "best_model.zip", run_dir / "best" / "vecnormalize.npz"
+    elif which in ("best", "final"):
+        src, norm = run_dir / "model.zip", run_dir / "vecnormalize.npz"
+    else:
+        src = run_dir / "checkpoints" / f"ppo_{which}_steps.zip"
+        pkl = run_dir / "checkpoints" / f"ppo_vecnormalize_{which}_steps.pkl"
+        if not src.exists() or not pkl.exists():
+            raise FileNotFoundError(f"no checkpoint {which} in {run_dir / 'checkpoints'}")
+        import pickle
+
+        with open(pkl, "rb") as fh:  # written by our own training run
+            vn = pickle.load(fh)
+        stats = {
+            "mean": vn.obs_rms.mean,
+            "var": vn.obs_rms.var,
+            "clip_obs": np.array(vn.clip_obs),
+            "epsilon": np.array(vn.epsilon),
+        }
+        return src, stats
+    data = np.load(norm)
+    return src, {k: data[k] for k in data.files}
+
+
+def ship_policy(run_dir: str | Path, variant: str, which: str = "best") -> Path:
+    """Copy a trained policy (SB3's zip, which ``PPO.load`` needs whole) and its normalisation into
+    ``agents/policies/`` as ``ppo-<variant>.zip`` / ``.npz`` / ``.json``; ``which`` is ``best``,
+    ``final`` or a checkpoint's step count."""
     _set_threads()
     from stable_baselines3 import PPO
 
     run_dir = Path(run_dir)
-    src = run_dir / "best" / "best_model.zip" if use_best else run_dir / "model.zip"
-    if not src.exists():
-        src = run_dir / "model.zip"
+    src, stats = _policy_source(run_dir, which)
     model = PPO.load(src, device="cpu")
     POLICY_DIR.mkdir(exist_ok=True)
     dst = POLICY_DIR / f"ppo-{variant}"
     model.save(dst.with_suffix(".zip"), exclude=["env", "_last_obs", "_last_original_obs"])
-    _strip_optimizer(dst.with_suffix(".zip"))
-    norm = np.load(run_dir / "vecnormalize.npz")
-    np.savez(dst.with_suffix(".npz"), **{k: norm[k] for k in norm.files})
+    np.savez(dst.with_suffix(".npz"), **stats)
     cfg = json.loads((run_dir / "config.json").read_text())
-    meta = {"variant": variant, "source": str(src), "config": cfg}
+    meta = {
+        "variant": variant,
+        "source": str(src),
+        "timesteps": int(model.num_timesteps),
+        "config": cfg,
+    }
+    dst.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
+    meta["leaderboard"] = {
+        "env": LEADERBOARD_ENV,
+        "seeds": list(LEADERBOARD_SEEDS),
+        "episode_seconds": 10.0,
+        "rms_mm": evaluate_policy(variant, path=str(dst.with_suffix(".zip"))),
+    }
     dst.with_suffix(".json").write_text(json.dumps(meta, indent=2) + "\n")
     return dst.with_suffix(".zip")
-
-
-def _strip_optimizer(path: Path) -> None:
-    """Remove the optimiser state from an SB3 zip (evaluation needs the weights only)."""
-    import zipfile
-
-    tmp = path.with_suffix(".tmp")
-    with zipfile.ZipFile(path) as zin, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zout:
-        for item in zin.infolist():
-            if item.filename == "policy.optimizer.pth":
-                continue
-            zout.writestr(item, zin.read(item.filename))
-    tmp.replace(path)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -486,23 +515,41 @@ class PPOAgent(Agent):
         return solve_time_stats(self._times)
 
 
+#: the leaderboard's episodes (experiments/configs/full.toml): the shipped policies' rows
+LEADERBOARD_SCENARIOS = (
+    "nominal",
+    "geometric",
+    "compliance",
+    "transmission",
+    "backlash",
+    "thermal",
+    "payload",
+    "all",
+)
+LEADERBOARD_SEEDS = (0, 1, 2, 3, 4)
+LEADERBOARD_ENV = {"noise_mm": 0.015, "measure_every": 5}
+
+
 def evaluate_policy(
     variant: str = "residual",
-    scenarios: tuple[str, ...] = ("geometric",),
-    seeds: tuple[int, ...] = (0,),
+    scenarios: tuple[str, ...] = LEADERBOARD_SCENARIOS,
+    seeds: tuple[int, ...] = LEADERBOARD_SEEDS,
     env_kwargs: Mapping[str, Any] | None = None,
     path: str | None = None,
+    episode_seconds: float = 10.0,
 ) -> dict[str, float]:
-    """Deterministic evaluation of a policy: tracking RMS (mm) by scenario, mean over ``seeds``
-    (the same numbers every time: deterministic actions, seeded episodes)."""
+    """Deterministic evaluation of a policy: tracking RMS (mm, the whole episode, as the
+    leaderboard's ``rms_mm``) by scenario, mean over ``seeds``. The same numbers every time:
+    deterministic actions, seeded episodes."""
     from agents.runner import run_episode
 
+    env = dict(LEADERBOARD_ENV if env_kwargs is None else env_kwargs)
     out = {}
     for sc in scenarios:
         rms = []
         for s in seeds:
             agent = PPOAgent(variant, path=path)
-            r = run_episode(agent, dict(env_kwargs or {}) | {"scenario": sc}, seed=s)
+            r = run_episode(agent, env | {"scenario": sc}, seed=s, episode_seconds=episode_seconds)
             rms.append(r.rms_mm())
         out[sc] = float(np.mean(rms))
     return out

@@ -70,6 +70,24 @@ def train_ppo(
         console.print(f"shipped {dst} ({dst.stat().st_size / 1024:.0f} KB)")
 
 
+@train_app.command("ship")
+def ship(
+    run: Annotated[Path, typer.Argument(help="A training output directory (runs/ppo-...).")],
+    variant: Annotated[str, typer.Option(help="residual or plain.")] = "residual",
+    which: Annotated[str, typer.Option(help="best, final, or a checkpoint's step count.")] = "best",
+) -> None:
+    """Copy a trained policy into agents/policies/ and record its deterministic leaderboard
+    evaluation next to it (ppo-<variant>.json)."""
+    from agents.ppo import ship_policy
+
+    with console.status("evaluating the policy on the leaderboard's episodes..."):
+        dst = ship_policy(run, variant, which)
+    meta = json.loads(dst.with_suffix(".json").read_text())
+    console.print(f"shipped {dst} ({dst.stat().st_size / 1024:.0f} KB)")
+    for sc, v in meta["leaderboard"]["rms_mm"].items():
+        console.print(f"  {sc:13s} {v:.4f} mm")
+
+
 def evaluate(
     agent: Annotated[str, typer.Argument(help="An agent name or package.module:Class.")],
     scenario: Annotated[list[str], typer.Option(help="Scenario(s).")] = ["geometric"],  # noqa: B006
