@@ -77,7 +77,7 @@ def test_policy_env_passes_the_sb3_checker(variant):
 def test_bad_configs_are_refused(tmp_path):
     p = tmp_path / "c.toml"
     p.write_text("[ppo]\nvariant = 'residual'\nlearnig_rate = 1e-3\n")
-    with pytest.raises(ValueError, match="unknown key.*learnig_rate"):
+    with pytest.raises(ValueError, match=r"unknown key.*learnig_rate"):
         load_config(p)
     p.write_text("[ppo]\nn_envs = 'four'\n")
     with pytest.raises(ValueError, match="n_envs must be int"):
