@@ -5,11 +5,11 @@ engineer's (``calibrated``).
 * ``nominal``: resolved-rate tracking with the nominal kinematic model and no measurements,
   ``v = J^+ ((r_1 - r_0) / dt + gain (r_0 - x(q)) / dt)``, J^+ a damped pseudo-inverse, scaled
   into the velocity limits and the acceleration limits, stopped at joint limits.
-* ``calibrated``: the same tracking law on a model identified from a measurement phase. It
-  records every tracker measurement (with the encoder reading and columns of its instant) while
-  tracking with the nominal model; at ``calibration_seconds`` (or when the next phase starts) it
-  fits the model's identifiable parameters by least squares, as the lab does, and from then on
-  tracks with the identified model, blind.
+* ``calibrated``: the same tracking law on a model identified from measurements. It records
+  every tracker measurement (with the encoder reading and columns of its instant) while tracking
+  with the nominal model; at ``calibration_seconds`` (or, with ``None``, at the start of every new
+  phase) it identifies the model with the lab (:func:`lab.fit`) and from then on tracks with the
+  identified model, blind.
 """
 
 from __future__ import annotations
@@ -139,21 +139,40 @@ def fit_measurements(
     loss: str = "soft_l1",
     noise: float = 15e-6,
 ) -> tuple[np.ndarray, list[str]]:
-    """Least-squares identification of ``model`` from measured points ``xyz`` (N, 3) at encoder
-    readings ``q`` (N, 6): the parameters these poses determine are fitted (QR with column
-    pivoting of the scaled Jacobian at these poses), the rest stay at ``p0``. Returns the full
-    parameter vector and the names fitted.
+    """Identify ``model`` from measured points ``xyz`` (N, 3) at encoder readings ``q`` (N, 6):
+    the parameters these poses determine are fitted, the rest stay nominal. Returns the full
+    parameter vector (laid out by ``model.layout``) and the names fitted.
 
-    Uses the lab's ``lab.fit`` when it is installed; otherwise scipy's ``least_squares`` with the
-    error model's analytic Jacobian and a robust loss (``soft_l1`` with scale ``3 noise``)."""
-    from scipy.optimize import least_squares
-
-    from agents.online_calibration import identifiable_parameters
-
+    The lab's identification (:func:`lab.fit`: identifiability, Levenberg-Marquardt with the
+    analytic Jacobian, a robust loss against outliers) when the lab is installed; otherwise
+    scipy's ``least_squares`` with the error model's analytic Jacobian and the same robust loss
+    on the identifiable parameters."""
     q = np.asarray(q, dtype=float).reshape(-1, 6)
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
-    p0 = model.nominal() if p0 is None else np.asarray(p0, dtype=float)
     columns = {k: np.asarray(v, dtype=float) for k, v in (columns or {}).items()}
+    try:
+        from lab import fit
+    except ImportError:
+        return _fit_scipy(model, q, xyz, columns, p0, loss, noise)
+    from envs.measurements import MeasurementSet
+
+    data = MeasurementSet(q, xyz, columns, source="calibration phase")
+    start = None if p0 is None else model.layout.as_dict(p0)
+    res = fit(data, model.robot, model.effects, loss=loss, noise_mm=noise * 1e3, start=start)
+    p = model.nominal() if p0 is None else np.array(p0, dtype=float)
+    fitted = [n for n, ok in zip(res.names, res.identifiable, strict=True) if ok]
+    values = res.parameters()
+    for n in model.layout.names:
+        p[model.layout.index(n)] = values[n]
+    return p, fitted
+
+
+def _fit_scipy(model, q, xyz, columns, p0, loss, noise) -> tuple[np.ndarray, list[str]]:
+    from scipy.optimize import least_squares
+
+    from agents.online_calibration import identifiable_parameters, prior_scales
+
+    p0 = model.nominal() if p0 is None else np.asarray(p0, dtype=float)
     inputs = model.inputs(q, columns)
     free = identifiable_parameters(model, q, columns, p=p0, noise=noise)
     if 3 * len(q) < len(free) or not free:
@@ -161,8 +180,6 @@ def fit_measurements(
             f"{len(q)} measurements cannot determine {len(free)} parameters of {model!r}"
         )
     idx = model.layout.indices(free)
-    from agents.online_calibration import prior_scales
-
     s = prior_scales(model)[idx]
 
     def residual(z):
@@ -257,7 +274,7 @@ class CalibratedAgent(NominalAgent):
                 self.model, np.array(self._q), np.array(self._xyz), cols, noise=sigma
             )
             self.n_fits += 1
-        except ValueError as exc:
+        except ValueError as exc:  # lab.FitError is a ValueError
             log.warning("calibrated: fit failed (%s); the model stays as it was", exc)
         self.fit_time_s = time.perf_counter() - t0
 
