@@ -1,0 +1,15 @@
+"""Controllers and estimators for SixAxisTrack-v0, behind one small interface.
+
+    from agents.registry import make_agent
+    from agents.runner import run_episode
+
+    result = run_episode(make_agent("mpc"), {"scenario": "geometric"}, seed=0)
+    result.rms_mm(start=3.0)            # tracking RMS after 3 s, mm (true tool point)
+
+Modules: :mod:`agents.base` (the ``Agent`` interface), :mod:`agents.reference` (hold, nominal,
+calibrated), :mod:`agents.mpc` (kinematic MPC: QP or IPOPT), :mod:`agents.online_calibration`
+(recursive least squares), :mod:`agents.tool_model` (the error model in CasADi),
+:mod:`agents.ppo` (stable-baselines3 PPO: training, shipped policies), :mod:`agents.registry`
+(agents by name or ``package.module:Class``), :mod:`agents.runner` (the episode loop, phases).
+Importing this package loads neither MuJoCo nor torch.
+"""
