@@ -9,7 +9,11 @@ Over a horizon of N control steps the controller chooses joint-velocity commands
          |v_k| <= v_max,  |v_k - v_{k-1}| <= a_max dt,  q_lower + m <= q_k <= q_upper - m
 
 with ``x`` the :class:`~agents.tool_model.ToolModel` of the current model estimate (nominal
-description + identified errors + effects). Two ways to solve it:
+description + identified errors + effects), ``q_posture`` the posture at the phase's start (it
+holds the three redundant directions of a point task), and ``r_k`` the reference preview plus
+``error_decay**k (x(q_0) - r_now)``: the plan removes the present error geometrically (by 70 % a
+step by default) rather than at once; a dead-beat correction through the motor encoders pumped
+energy into elastic links after a load change and diverged. Two ways to solve it:
 
 * ``solver="daqp" | "osqp" | "qpoases" | "proxqp"`` (default daqp): a QP from the kinematics
   linearised at the current encoder reading, ``x(q_k) ~ x(q_0) + J (q_k - q_0)`` with ``J`` the
