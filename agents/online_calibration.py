@@ -15,9 +15,10 @@ measurement Jacobian ``H`` and innovation ``e = y - f(q, p)`` evaluated at the c
 Old information fades with ``lam`` (so a slowly changing arm is followed) but never below the prior,
 so directions that the current motion does not excite do not wind up.
 
-Only parameters found identifiable are estimated (QR with column pivoting of the column-scaled
-identification Jacobian over random poses, :func:`identifiable_parameters`); the rest stay at their
-nominal values, as the lab fixes them. It survives:
+Only parameters found identifiable are estimated (:func:`identifiable_parameters`: the lab's
+analysis of the column-scaled identification Jacobian over random poses, or a local QR with column
+pivoting without the lab); the rest stay at their nominal values, as the lab fixes them. It
+survives:
 
 * dropouts: no measurement, no update;
 * latency: the update uses the encoder reading taken when the point was sampled

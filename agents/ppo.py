@@ -272,10 +272,12 @@ def _set_threads() -> None:
     torch.set_num_threads(1)
 
 
-def train(cfg: PPOConfig, progress=None) -> Path:
+def train(cfg: PPOConfig, progress=None, resume: str | Path | None = None) -> Path:
     """Train PPO as configured; writes checkpoints, ``progress.csv`` (SB3's logger),
     ``evaluations.npz`` and the final ``model.zip`` + ``vecnormalize.npz`` under ``cfg.output``.
-    ``progress(done, total)`` is called every step if given. Returns the output directory."""
+    ``progress(done, total)`` is called every step if given; ``resume`` (a previous output
+    directory) continues its final policy and observation statistics for ``total_timesteps``
+    more steps. Returns the output directory."""
     _set_threads()
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
@@ -314,6 +316,13 @@ def train(cfg: PPOConfig, progress=None) -> Path:
         device="cpu",
         verbose=0,
     )
+    if resume is not None:
+        resume = Path(resume)
+        model = PPO.load(resume / "model.zip", env=venv, device="cpu")
+        norm = np.load(resume / "vecnormalize.npz")
+        venv.obs_rms.mean, venv.obs_rms.var = norm["mean"].copy(), norm["var"].copy()
+        venv.obs_rms.count = float(norm["count"]) if "count" in norm.files else 1e6
+        log.info("resuming %s at %d steps", resume, model.num_timesteps)
     model.set_logger(configure(str(out), ["csv", "log"]))
 
     class _SyncNorm(EvalCallback):
@@ -355,7 +364,11 @@ def train(cfg: PPOConfig, progress=None) -> Path:
 
         callbacks.append(_Progress())
     t0 = time.perf_counter()
-    model.learn(total_timesteps=cfg.total_timesteps, callback=callbacks)
+    model.learn(
+        total_timesteps=cfg.total_timesteps,
+        callback=callbacks,
+        reset_num_timesteps=resume is None,
+    )
     log.info("trained %d steps in %.0f s", cfg.total_timesteps, time.perf_counter() - t0)
     model.save(out / "model.zip")
     save_normalisation(venv, out / "vecnormalize.npz")
@@ -377,6 +390,7 @@ def save_normalisation(venv, path: Path) -> None:
         path,
         mean=venv.obs_rms.mean,
         var=venv.obs_rms.var,
+        count=np.array(venv.obs_rms.count),
         clip_obs=np.array(venv.clip_obs),
         epsilon=np.array(venv.epsilon),
     )

@@ -32,6 +32,10 @@ def train_ppo(
         bool,
         typer.Option(help="Copy the best policy into agents/policies/ when training ends."),
     ] = False,
+    resume: Annotated[
+        Path | None,
+        typer.Option(help="Continue a previous run's final policy for --timesteps more steps."),
+    ] = None,
 ) -> None:
     """Train PPO on SixAxisTrack-v0: checkpoints, evaluations and CSV logs in the output dir."""
     from agents.ppo import load_config, ship_policy, train
@@ -63,7 +67,13 @@ def train_ppo(
         console=console,
     ) as bar:
         job = bar.add_task("steps", total=cfg.total_timesteps)
-        out = train(cfg, progress=lambda n, total: bar.update(job, completed=n))
+        start = [None]
+
+        def update(n, total):
+            start[0] = n if start[0] is None else start[0]
+            bar.update(job, completed=n - start[0])
+
+        out = train(cfg, progress=update, resume=resume)
     console.print(f"done in {time.perf_counter() - t0:.0f} s: {out / 'model.zip'}")
     if ship:
         dst = ship_policy(out, cfg.variant)
