@@ -38,7 +38,6 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import scipy.linalg
 
-from envs.effects import Effect
 from envs.errormodel import ErrorModel
 from envs.sampling import _range, sample_poses
 
@@ -289,10 +288,3 @@ class RecursiveLeastSquares:
             "rls_free": list(self.free),
             "rls_estimate": [float(v) for v in self.params[self.idx]],
         }
-
-
-def effects_label(effects: str | Sequence[str | Effect]) -> str:
-    """A readable label of an effects specification."""
-    if isinstance(effects, str):
-        return effects
-    return ",".join(e if isinstance(e, str) else e.label for e in effects)
