@@ -440,20 +440,11 @@ def plot_by_scenario(board: Leaderboard, path: str | Path) -> Path:
 
 def _save(fig, path: str | Path) -> Path:
     """Write a PNG atomically (temp file + rename)."""
-    import os
-    import tempfile
+    from envs.measurements import atomic_path
 
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=110, metadata={"Software": None})
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(p) as tmp:
+        fig.savefig(tmp, format="png", dpi=110, metadata={"Software": None})
     return p
 
 

@@ -46,14 +46,20 @@ def test_shipped_policy_loads_and_beats_hold(variant):
 def test_shipped_policy_reproduces_its_leaderboard_row(variant):
     meta = json.loads((POLICY_DIR / f"ppo-{variant}.json").read_text())
     row = meta["leaderboard"]
-    got = evaluate_policy(
-        variant,
-        scenarios=("geometric",),
-        seeds=tuple(row["seeds"]),
-        env_kwargs=row["env"],
-        episode_seconds=row["episode_seconds"],
-    )
-    assert got["geometric"] == row["rms_mm"]["geometric"]  # bit for bit
+    def evaluate():
+        return evaluate_policy(
+            variant,
+            scenarios=("geometric",),
+            seeds=tuple(row["seeds"]),
+            env_kwargs=row["env"],
+            episode_seconds=row["episode_seconds"],
+        )["geometric"]
+
+    got = evaluate()
+    assert evaluate() == got  # on one machine, bit for bit
+    # On another CPU, torch's float32 kernels (AVX2 vs AVX-512) round differently and a closed
+    # loop carries the difference on: the recorded row holds to a small relative tolerance.
+    assert got == pytest.approx(row["rms_mm"]["geometric"], rel=1e-3)
 
 
 @pytest.mark.parametrize("variant", ["residual", "plain"])

@@ -214,3 +214,14 @@ def test_atomic_write_creates_directories(tmp_path):
     target = tmp_path / "a" / "b" / "c.txt"
     atomic_write_text(target, "hello\n")
     assert target.read_text() == "hello\n"
+
+
+def test_atomic_write_gives_the_umasks_permissions(tmp_path):
+    """Written files are readable as with a plain open(), not left at mkstemp's 0600."""
+    old = os.umask(0o022)
+    try:
+        target = tmp_path / "out.csv"
+        write_measurements(_sample(3), target)
+    finally:
+        os.umask(old)
+    assert target.stat().st_mode & 0o777 == 0o644
