@@ -201,15 +201,43 @@ def _child_thread_env() -> Iterator[None]:
                 os.environ[v] = old
 
 
+class _WarningCollector(logging.Handler):
+    """Keeps the warnings a run logs, for its record, instead of letting workers print them over
+    the parent's progress bar."""
+
+    def __init__(self) -> None:
+        super().__init__(level=logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(f"{record.name}: {record.getMessage()}")
+
+
+@contextlib.contextmanager
+def _collect_warnings() -> Iterator[list[str]]:
+    # A spawned worker's root logger has no handler, so without this one logging's last resort
+    # would print each warning to stderr; in this process the caller's handlers still see them.
+    root = logging.getLogger()
+    collector = _WarningCollector()
+    root.addHandler(collector)
+    try:
+        yield collector.messages
+    finally:
+        root.removeHandler(collector)
+
+
 def run_in_worker(run_fn: RunFn, spec_dict: dict[str, Any]) -> dict[str, Any]:
     """What a worker does with one run: call ``run_fn``, never raise, time it. Returns the
-    outcome, the status (ok/failed with the traceback) and where and when it ran."""
+    outcome, the status (ok/failed with the traceback), the warnings it logged and where and when
+    it ran."""
     _limit_threads()
     spec = RunSpec.from_dict(spec_dict)
     started = _now()
     t0 = time.perf_counter()
+    warnings_logged: list[str] = []
     try:
-        outcome = dict(run_fn(spec))
+        with _collect_warnings() as warnings_logged:
+            outcome = dict(run_fn(spec))
         status, error = "ok", None
     except Exception as exc:
         log.info("run %s failed: %s: %s", spec.run_key, type(exc).__name__, exc)
@@ -227,6 +255,7 @@ def run_in_worker(run_fn: RunFn, spec_dict: dict[str, Any]) -> dict[str, Any]:
             "status": status,
             "error": error,
             "outcome": outcome,
+            "warnings": warnings_logged,
             "versions": env["versions"],
             "git": env["git"],
             "timing": {
@@ -262,6 +291,7 @@ def build_record(
             "report": outcome.pop("report", {}),
             "calibration": outcome.pop("calibration", {}),
             "episode": outcome.pop("episode", {}),
+            "warnings": list(result.get("warnings") or []),
             "series": outcome.pop("series", {}),
             "extra": outcome,
             "versions": result.get("versions", {}),
