@@ -395,8 +395,8 @@ def plot_error_over_time(board: Leaderboard, path: str | Path) -> Path:
             if lab not in labels:
                 handles.append(h)
                 labels.append(lab)
-    fig.legend(handles, labels, loc="outside upper center", ncol=min(len(labels), 8), frameon=False)
-    fig.suptitle("Tracking error over the episode (mean over seeds)", y=1.06 if nrow == 1 else 1.02)
+    fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 8), frameon=False)
+    fig.suptitle("Tracking error over the episode (mean over seeds)")
     return _save(fig, path)
 
 
