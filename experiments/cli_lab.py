@@ -1,11 +1,922 @@
-"""``sixaxis lab ...``: the model lab's commands (fit, diagnose, report, plan, collect, export,
-compensate). Work in progress: commands are added as the lab lands."""
+"""``sixaxis lab ...``: the model lab's commands, thin layers over the Python API.
+
+    sixaxis lab collect -o data.csv --scenario compliance     # measure the simulated arm
+    sixaxis lab fit data.csv --effects geometric               # Table 3, or --json (SPEC section 4)
+    sixaxis lab diagnose data.csv --noise-mm 0.015             # which effect does the model miss?
+    sixaxis lab report data.csv -o report.html                 # fit, diagnose, refit, plots
+    sixaxis lab plan --n 30 -o poses.csv                       # poses worth measuring
+    sixaxis lab export data.csv --effects geometric,compliance -o calibrated.toml
+    sixaxis lab compensate targets.csv --robot calibrated.toml -o joints.csv
+
+Bad input (a missing file, a bad CSV cell, an unknown effect or unit) prints one line
+``error: ...`` naming the file, line, column or option on stderr and exits with code 2; a
+traceback means a bug. Library modules are imported inside each command, so ``sixaxis --help``
+stays fast and only ``collect`` loads MuJoCo.
+"""
 
 from __future__ import annotations
 
+import csv
+import io
+import json
+import math
+import shlex
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Annotated, Any, NoReturn
+
 import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    SpinnerColumn,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.table import Table
 
 app = typer.Typer(
     help="The model lab: compare the model with measurements, find what it misses.",
     no_args_is_help=True,
 )
+
+console = Console()
+err_console = Console(stderr=True, soft_wrap=True)
+
+
+@app.callback()
+def _lab() -> None:
+    # Log records (e.g. lab's "poor pose set" warning) go to stderr, so that stdout carries only
+    # the command's output: with --json, one JSON object.
+    import logging
+
+    from rich.logging import RichHandler
+
+    for h in logging.getLogger().handlers:
+        if isinstance(h, RichHandler):
+            h.console = err_console
+
+
+POSES_SCHEMA_VERSION = 1
+LENGTH_UNITS = ("m", "mm")
+ANGLE_UNITS = ("rad", "deg")
+LOSSES = ("linear", "huber", "soft_l1")
+JOINTS = tuple(f"q{i}" for i in range(1, 7))
+
+
+# -- shared options -------------------------------------------------------------------------------
+DataArg = Annotated[Path, typer.Argument(help="A measurement CSV (SPEC section 3).")]
+RobotOpt = Annotated[
+    str,
+    typer.Option("--robot", "-r", help="The nominal arm: a robot TOML file or a shipped name."),
+]
+EffectsOpt = Annotated[
+    str,
+    typer.Option(
+        "--effects",
+        "-e",
+        help="Effects to fit, comma separated, optionally on some joints: "
+        "geometric,compliance[2,3]. Catalogue: geometric, compliance, transmission, joint_scale, "
+        "backlash, load_backlash, thermal, and any --effect-module defines.",
+    ),
+]
+ModuleOpt = Annotated[
+    list[Path] | None,
+    typer.Option(
+        "--effect-module",
+        help="A Python file defining Effect subclasses to register (repeatable).",
+    ),
+]
+ValidateOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--validate", help="Held-out measurements (same units) for validation RMS and median."
+    ),
+]
+LossOpt = Annotated[
+    str, typer.Option("--loss", help="linear (least squares), huber or soft_l1 (robust).")
+]
+LengthOpt = Annotated[
+    str, typer.Option("--length-unit", help="Unit of x, y, z in the CSV files: m or mm.")
+]
+AngleOpt = Annotated[
+    str, typer.Option("--angle-unit", help="Unit of q1..q6 in the CSV files: rad or deg.")
+]
+NoiseOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--noise-mm",
+        help="The instrument's per-axis standard uncertainty (mm); the noise floor of a 3-D "
+        "RMS is this times sqrt(3). Default: estimated from the residual.",
+    ),
+]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print the JSON object only.")]
+JsonOutOpt = Annotated[
+    Path | None,
+    typer.Option("--out", help="Also write the JSON object to this file (atomically)."),
+]
+
+
+def _user_errors() -> tuple[type[Exception], ...]:
+    """The library's bad-input exceptions: each message already names file, line, column or
+    parameter, so the CLI prints it as one line."""
+    from envs.description import DescriptionError
+    from envs.effects import EffectError
+    from envs.measurements import MeasurementError
+    from lab.identification import FitError
+
+    return (DescriptionError, EffectError, MeasurementError, FitError)
+
+
+def _fail(message: str) -> NoReturn:
+    err_console.print(f"[red]error:[/red] {escape(str(message))}", highlight=False)
+    raise typer.Exit(2)
+
+
+class _Guard:
+    """``with _guard(...)``: the listed exceptions become ``error: ...`` and exit code 2."""
+
+    def __init__(self, *extra: type[Exception]) -> None:
+        self.types = (*_user_errors(), *extra)
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, et, exc, tb) -> bool:
+        if exc is not None and isinstance(exc, self.types):
+            _fail(str(exc))
+        return False
+
+
+def _guard(*extra: type[Exception]) -> _Guard:
+    return _Guard(*extra)
+
+
+def _check_units(length_unit: str, angle_unit: str) -> None:
+    if length_unit not in LENGTH_UNITS:
+        _fail(f"--length-unit must be one of {', '.join(LENGTH_UNITS)}, got {length_unit!r}")
+    if angle_unit not in ANGLE_UNITS:
+        _fail(f"--angle-unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
+
+
+def _check_noise(noise_mm: float | None) -> None:
+    if noise_mm is not None and not (math.isfinite(noise_mm) and noise_mm > 0):
+        _fail(f"--noise-mm must be a positive number of millimetres, got {noise_mm}")
+
+
+def _check_loss(loss: str) -> None:
+    if loss not in LOSSES:
+        _fail(f"--loss must be one of {', '.join(LOSSES)}, got {loss!r}")
+
+
+def _load_modules(modules: Sequence[Path] | None) -> list[str]:
+    """Register the effects of every ``--effect-module`` file; returns their names."""
+    from envs.effects import EffectError, load_effect_module
+
+    names: list[str] = []
+    for m in modules or ():
+        try:
+            names += load_effect_module(m)
+        except EffectError as exc:
+            _fail(f"--effect-module: {exc}")
+    return names
+
+
+def _parse_effects(effects: str) -> None:
+    from envs.effects import EffectError, parse_effects
+
+    try:
+        if not parse_effects(effects):
+            _fail("--effects: no effect given")
+    except EffectError as exc:
+        _fail(f"--effects: {exc}")
+
+
+def _robot(robot: str):
+    from envs.description import DescriptionError, load_robot
+
+    try:
+        return load_robot(robot)
+    except DescriptionError as exc:
+        _fail(f"--robot: {exc}")
+
+
+def _read(path: Path, length_unit: str, angle_unit: str):
+    from envs.measurements import MeasurementError, read_measurements
+
+    try:
+        return read_measurements(path, length_unit=length_unit, angle_unit=angle_unit)
+    except MeasurementError as exc:
+        _fail(str(exc))
+
+
+def _prepare(
+    data: Path,
+    robot: str,
+    effects: str,
+    modules: Sequence[Path] | None,
+    validate: Path | None,
+    loss: str,
+    length_unit: str,
+    angle_unit: str,
+    noise_mm: float | None,
+):
+    """Check the options (cheap ones first), register effect modules, read the robot and data."""
+    _check_units(length_unit, angle_unit)
+    _check_loss(loss)
+    _check_noise(noise_mm)
+    _load_modules(modules)
+    _parse_effects(effects)
+    arm = _robot(robot)
+    meas = _read(data, length_unit, angle_unit)
+    val = None if validate is None else _read(validate, length_unit, angle_unit)
+    return arm, meas, val
+
+
+def _json_safe(obj: Any) -> Any:
+    """Plain JSON: numpy scalars and arrays as numbers and lists, NaN and inf as null."""
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {str(k): _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _json_safe(obj.tolist())
+    if isinstance(obj, np.bool_ | bool):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        return float(obj) if math.isfinite(obj) else None
+    return obj
+
+
+def _dump(obj: dict) -> str:
+    return json.dumps(_json_safe(obj), indent=2, allow_nan=False)
+
+
+def _emit_json(obj: dict, as_json: bool, out: Path | None) -> None:
+    from envs.measurements import atomic_write_text
+
+    text = _dump(obj)
+    if out is not None:
+        atomic_write_text(out, text + "\n")
+    if as_json:
+        print(text)
+    elif out is not None:
+        console.print(f"wrote {out}", highlight=False, soft_wrap=True)
+
+
+def _command(*words: object, **options: object) -> str:
+    """The command line these arguments and (non-default) options spell, for reports."""
+    out = ["sixaxis", "lab", *map(str, words)]
+    for flag, value in options.items():
+        if value is None or value is False or value == []:
+            continue
+        for v in value if isinstance(value, list) else [value]:
+            out.append(flag)
+            if v is not True:
+                out.append(str(v))
+    return shlex.join(out)
+
+
+def _p(p: float | None) -> str:
+    if p is None or not math.isfinite(p):
+        return "-"
+    return f"{p:.2g}" if p >= 1e-300 else "< 1e-300"
+
+
+def _mm(v: float | None, digits: int = 4) -> str:
+    return "-" if v is None else f"{v:.{digits}f}"
+
+
+# -- fit --------------------------------------------------------------------------------------------
+def _fit_table(result) -> Table:
+    """The paper's Table 3 and more: nominal, identified error and its standard error per
+    parameter (lengths in mm; angles: nominal in deg, errors in mrad)."""
+    table = Table(
+        title=f"identified parameters ({result.rank} of {result.n_parameters} fitted)",
+        title_justify="left",
+    )
+    for c, j in (
+        ("parameter", "left"),
+        ("effect", "left"),
+        ("nominal", "right"),
+        ("error", "right"),
+        ("std", "right"),
+        ("unit", "left"),
+    ):
+        table.add_column(c, justify=j)
+    for row in result.rows():
+        unit = row["unit"]
+        if unit == "m":
+            nom, f, shown = f"{row['nominal'] * 1e3:.3f} mm", 1e3, "mm"
+        elif unit == "rad":
+            nom, f, shown = f"{math.degrees(row['nominal']):.3f} deg", 1e3, "mrad"
+        else:
+            nom, f, shown = f"{row['nominal']:.4g}", 1.0, unit
+        if row["identifiable"]:
+            err = f"{row['error'] * f:+#.4g}"
+            std = "-" if row["std"] is None else f"{row['std'] * f:.2g}"
+        else:
+            err, std = "[dim]fixed[/dim]", ""
+        table.add_row(row["name"], row["effect"], nom, err, std, shown)
+    return table
+
+
+def _print_fit(result) -> None:
+    console.print(_fit_table(result))
+    console.print(escape(result.summary()), highlight=False, soft_wrap=True)
+
+
+@app.command("fit")
+def fit_cmd(
+    data: DataArg,
+    robot: RobotOpt = "seed",
+    effects: EffectsOpt = "geometric",
+    validate: ValidateOpt = None,
+    loss: LossOpt = "linear",
+    effect_module: ModuleOpt = None,
+    length_unit: LengthOpt = "m",
+    angle_unit: AngleOpt = "rad",
+    noise_mm: NoiseOpt = None,
+    as_json: JsonOpt = False,
+    out: JsonOutOpt = None,
+) -> None:
+    """Identify the model's parameters from measured tool points.
+
+    Prints the identified parameters with standard errors, the RMS before and after, and which
+    parameters the poses cannot identify; --json prints the SPEC section 4 object (SI units)."""
+    from lab import fit
+
+    arm, meas, val = _prepare(
+        data, robot, effects, effect_module, validate, loss, length_unit, angle_unit, noise_mm
+    )
+    with _guard():
+        result = fit(meas, arm, effects, loss=loss, validate=val, noise_mm=noise_mm)
+    if not as_json:
+        _print_fit(result)
+    _emit_json(result.to_dict(), as_json, out)
+
+
+# -- diagnose ---------------------------------------------------------------------------------------
+def _print_diagnosis(d) -> None:
+    floor = f", noise floor {d.noise_floor_mm:.4f} mm" if d.noise_floor_mm else ""
+    console.print(
+        f"model [bold]{escape(', '.join(d.effects))}[/bold] on {d.fit.n_points} points: RMS "
+        f"{d.rms_mm:.4f} mm, held-out {d.cv_rms_mm:.4f} mm{floor}",
+        highlight=False,
+        soft_wrap=True,
+    )
+    colour = {"none": "green", "unexplained": "yellow"}.get(d.verdict, "red")
+    line = f"verdict: [bold {colour}]{escape(d.verdict)}[/bold {colour}]"
+    if d.verdict == "none":
+        line += " (the residual is consistent with the noise: nothing missing)"
+    elif d.verdict == "unexplained":
+        line += " (the residual is above the noise and no catalogued effect explains it)"
+    if d.suggestion:
+        line += f"; next: sixaxis lab fit ... --effects {escape(d.suggestion)}"
+    console.print(line, highlight=False, soft_wrap=True)
+    if len(d.outliers):
+        console.print(
+            f"{len(d.outliers)} outlier(s) left out of the tests", highlight=False, soft_wrap=True
+        )
+    table = Table(
+        title="candidate effects, best first (RMS after adding each)", title_justify="left"
+    )
+    for c, j in (
+        ("candidate", "left"),
+        ("RMS mm", "right"),
+        ("held-out mm", "right"),
+        ("p-value", "right"),
+        ("significant", "left"),
+    ):
+        table.add_column(c, justify=j)
+    shown = d.candidates[:10]
+    for c in shown:
+        sig = "[bold]yes[/bold]" if c.significant else "no"
+        table.add_row(escape(c.label), _mm(c.rms_mm), _mm(c.cv_rms_mm), _p(c.p_value), sig)
+    if shown:
+        table.columns[0].min_width = max(len(c.label) for c in shown)
+        console.print(table)
+    if len(d.candidates) > len(shown):
+        console.print(f"... and {len(d.candidates) - len(shown)} more (--json lists all)")
+    if d.hints:
+        hints = Table(
+            title="where the remaining residual depends on a measured variable",
+            title_justify="left",
+        )
+        hints.add_column("variable")
+        hints.add_column("score (adjusted R^2)", justify="right")
+        hints.add_column("p-value", justify="right")
+        for h in d.hints[:6]:
+            hints.add_row(escape(h.variable), f"{h.score:.3f}", _p(h.p_value))
+        console.print(hints)
+
+
+@app.command("diagnose")
+def diagnose_cmd(
+    data: DataArg,
+    robot: RobotOpt = "seed",
+    effects: EffectsOpt = "geometric",
+    noise_mm: NoiseOpt = None,
+    loss: LossOpt = "linear",
+    effect_module: ModuleOpt = None,
+    length_unit: LengthOpt = "m",
+    angle_unit: AngleOpt = "rad",
+    alpha: Annotated[float, typer.Option(help="Family-wise false-alarm rate of the tests.")] = 0.02,
+    as_json: JsonOpt = False,
+    out: JsonOutOpt = None,
+) -> None:
+    """Fit the model and test which catalogued effect it misses.
+
+    The verdict names the missing effect, or says none (the residual is noise; needs --noise-mm)
+    or unexplained; candidates are ranked with their p-values, hints say which measured variables
+    the residual still depends on."""
+    from lab import diagnose
+
+    arm, meas, _ = _prepare(
+        data, robot, effects, effect_module, None, loss, length_unit, angle_unit, noise_mm
+    )
+    if not 0 < alpha < 1:
+        _fail(f"--alpha must lie in (0, 1), got {alpha}")
+    with _guard():
+        with console.status("fitting and testing the candidate effects..."):
+            d = diagnose(meas, arm, effects, noise_mm=noise_mm, loss=loss, alpha=alpha)
+    if not as_json:
+        _print_diagnosis(d)
+    _emit_json(d.to_dict(), as_json, out)
+
+
+# -- report -----------------------------------------------------------------------------------------
+@app.command("report")
+def report_cmd(
+    data: DataArg,
+    output: Annotated[Path, typer.Option("--output", "-o", help="The HTML file to write.")] = Path(
+        "report.html"
+    ),
+    robot: RobotOpt = "seed",
+    effects: EffectsOpt = "geometric",
+    validate: ValidateOpt = None,
+    noise_mm: NoiseOpt = None,
+    loss: LossOpt = "linear",
+    effect_module: ModuleOpt = None,
+    length_unit: LengthOpt = "m",
+    angle_unit: AngleOpt = "rad",
+    rounds: Annotated[
+        int, typer.Option(help="At most this many rounds of diagnose-and-refit.")
+    ] = 3,
+) -> None:
+    """Fit, diagnose, refit what the diagnosis suggests; write an HTML report.
+
+    Repeats diagnose-and-refit while the verdict names a missing catalogued effect (at most
+    --rounds times); the report has the tables and plots of every model."""
+    from lab.report import build_report
+
+    arm, meas, val = _prepare(
+        data, robot, effects, effect_module, validate, loss, length_unit, angle_unit, noise_mm
+    )
+    if rounds < 0:
+        _fail(f"--rounds must be >= 0, got {rounds}")
+    command = _command(
+        "report",
+        data,
+        **{
+            "-o": output,
+            "--robot": None if robot == "seed" else robot,
+            "--effects": None if effects == "geometric" else effects,
+            "--validate": validate,
+            "--noise-mm": noise_mm,
+            "--loss": None if loss == "linear" else loss,
+            "--effect-module": [str(m) for m in effect_module or []],
+            "--length-unit": None if length_unit == "m" else length_unit,
+            "--angle-unit": None if angle_unit == "rad" else angle_unit,
+            "--rounds": None if rounds == 3 else rounds,
+        },
+    )
+    t0 = time.perf_counter()
+    with Progress(
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        TimeElapsedColumn(),
+        console=console,
+        transient=True,
+    ) as bar:
+        task = bar.add_task("starting", total=None)
+        last = [None, t0]
+
+        def step(message: str | None) -> None:
+            now = time.perf_counter()
+            if last[0] is not None:
+                bar.console.print(
+                    f"[green]done[/green] {escape(last[0])} ({now - last[1]:.2f} s)",
+                    highlight=False,
+                    soft_wrap=True,
+                )
+            last[:] = [message, now]
+            if message is not None:
+                bar.update(task, description=escape(message))
+
+        with _guard():
+            rep = build_report(
+                meas,
+                arm,
+                effects,
+                val,
+                noise_mm,
+                loss=loss,
+                rounds=rounds,
+                command=command,
+                progress=step,
+            )
+        step("writing the HTML")
+        rep.write(output)
+        step(None)
+    for run in rep.runs:
+        verdict = f", verdict {run.diagnosis.verdict}" if run.diagnosis is not None else ""
+        held = (
+            f", held-out {run.validation_rms_mm:.4f} mm"
+            if run.validation_rms_mm is not None
+            else ""
+        )
+        console.print(
+            f"  {escape(run.label):<28} RMS {run.rms_mm:.4f} mm{held}{verdict}",
+            highlight=False,
+            soft_wrap=True,
+        )
+    console.print(
+        f"wrote {output} ({output.stat().st_size / 1024:.0f} KB) in "
+        f"{time.perf_counter() - t0:.1f} s",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+# -- plan -------------------------------------------------------------------------------------------
+def poses_csv(q, angle_unit: str = "rad") -> str:
+    """Joint angles (N, 6) as a poses file: a ``#`` line with the schema version and unit, a
+    header q1..q6, one pose per row."""
+    import numpy as np
+
+    f = 1.0 if angle_unit == "rad" else 180.0 / math.pi
+    buf = io.StringIO()
+    buf.write(
+        f"# sixaxis-track poses to measure, schema_version {POSES_SCHEMA_VERSION}, "
+        f"q1..q6 in {angle_unit}\n"
+    )
+    buf.write(",".join(JOINTS) + "\n")
+    for row in np.asarray(q, dtype=float) * f:
+        buf.write(",".join(repr(float(v)) for v in row) + "\n")
+    return buf.getvalue()
+
+
+def read_poses(path: Path, angle_unit: str = "rad"):
+    """Joint angles (N, 6) in rad from a CSV with columns q1..q6 (other columns, and lines
+    starting with ``#``, are ignored: a measurement file is a poses file too)."""
+    import numpy as np
+
+    from envs.measurements import MeasurementError
+
+    try:
+        text = Path(path).read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise MeasurementError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MeasurementError(f"{path}: cannot be read ({exc})") from None
+    lines = [
+        (k, row)
+        for k, row in enumerate(csv.reader(io.StringIO(text)), start=1)
+        if any(c.strip() for c in row) and not row[0].lstrip().startswith("#")
+    ]
+    if not lines:
+        raise MeasurementError(f"{path}: empty file, expected a header row with q1..q6")
+    hline, header = lines[0][0], [h.strip() for h in lines[0][1]]
+    missing = [c for c in JOINTS if c not in header]
+    if missing:
+        raise MeasurementError(
+            f"{path}, line {hline}: missing required column(s) {', '.join(missing)} "
+            f"(found: {', '.join(header)})"
+        )
+    cols = [header.index(c) for c in JOINTS]
+    q = np.empty((len(lines) - 1, 6))
+    for i, (k, row) in enumerate(lines[1:]):
+        if len(row) != len(header):
+            raise MeasurementError(
+                f"{path}, line {k}: {len(row)} fields, but the header has {len(header)}"
+            )
+        for j, c in enumerate(cols):
+            try:
+                v = float(row[c])
+            except ValueError:
+                raise MeasurementError(
+                    f"{path}, line {k}, column {header[c]!r}: {row[c].strip()!r} is not a number"
+                ) from None
+            if not math.isfinite(v):
+                raise MeasurementError(
+                    f"{path}, line {k}, column {header[c]!r}: {row[c].strip()} is not finite"
+                )
+            q[i, j] = v
+    if not len(q):
+        raise MeasurementError(f"{path}: no pose rows")
+    return q * (1.0 if angle_unit == "rad" else math.pi / 180.0)
+
+
+@app.command("plan")
+def plan_cmd(
+    n: Annotated[int, typer.Option("--n", "-n", help="How many poses to choose.")] = 30,
+    output: Annotated[
+        Path, typer.Option("--output", "-o", help="The poses CSV to write (q1..q6).")
+    ] = Path("poses.csv"),
+    robot: RobotOpt = "seed",
+    effects: EffectsOpt = "geometric",
+    effect_module: ModuleOpt = None,
+    candidates: Annotated[
+        int, typer.Option(help="Random candidate poses (within the limits) to choose from.")
+    ] = 2000,
+    criterion: Annotated[
+        str, typer.Option(help="O1 (D-optimal, all parameters) or O4 (the weakest one).")
+    ] = "O1",
+    noise_mm: Annotated[
+        float,
+        typer.Option(
+            "--noise-mm",
+            help="The instrument's per-axis noise (mm): parameters that N poses cannot "
+            "determine above it are not planned for.",
+        ),
+    ] = 0.015,
+    seed: Annotated[int, typer.Option(help="Seed of the random candidates.")] = 0,
+    angle_unit: Annotated[
+        str, typer.Option("--angle-unit", help="Unit of q1..q6 in the file: rad or deg.")
+    ] = "rad",
+    as_json: JsonOpt = False,
+) -> None:
+    """Choose N calibration poses that identify the most; write their joint angles.
+
+    O1 (Borm & Menq) is D-optimality over all identifiable parameters, O4 (Nahvi & Hollerbach)
+    the noise amplification of the weakest one; both are printed beside random pose sets."""
+    from envs.measurements import atomic_write_text
+    from lab import plan
+
+    _check_units("m", angle_unit)
+    _check_noise(noise_mm)
+    crit = criterion.lower()
+    if crit not in ("o1", "o4"):
+        _fail(f"--criterion must be O1 or O4, got {criterion!r}")
+    if n < 1:
+        _fail(f"--n must be at least 1, got {n}")
+    if candidates < n:
+        _fail(f"--candidates ({candidates}) must be at least --n ({n})")
+    _load_modules(effect_module)
+    _parse_effects(effects)
+    arm = _robot(robot)
+    with _guard():
+        with console.status(f"choosing {n} of {candidates} poses by {crit.upper()}..."):
+            p = plan(
+                n, arm, effects, criterion=crit, candidates=candidates, noise_mm=noise_mm, seed=seed
+            )
+    atomic_write_text(output, poses_csv(p.q, angle_unit))
+    if as_json:
+        print(_dump(p.to_dict() | {"output": str(output), "angle_unit": angle_unit}))
+        return
+    table = Table(title=f"{p.n_poses} poses chosen by {crit.upper()}", title_justify="left")
+    table.add_column("", style="bold")
+    table.add_column("planned", justify="right")
+    table.add_column(f"{p.n_poses} random poses (mean of 20)", justify="right")
+    table.add_row("O1", f"{p.o1:.4g}", f"{p.random_o1:.4g}")
+    table.add_row("O4", f"{p.o4:.4g}", f"{p.random_o4:.4g}")
+    console.print(table)
+    ident = p.identifiability
+    console.print(
+        f"{ident.rank} of {ident.n_parameters} parameters identifiable, condition number "
+        f"{p.condition_number:.3g}",
+        highlight=False,
+        soft_wrap=True,
+    )
+    if ident.unidentifiable:
+        console.print(
+            "not identifiable from positions (fixed): " + escape("; ".join(ident.unidentifiable)),
+            highlight=False,
+            soft_wrap=True,
+        )
+    console.print(f"wrote {output} (q1..q6 in {angle_unit})", highlight=False, soft_wrap=True)
+
+
+# -- collect ----------------------------------------------------------------------------------------
+@app.command("collect")
+def collect_cmd(
+    output: Annotated[Path, typer.Option("--output", "-o", help="The measurement CSV to write.")],
+    scenario: Annotated[
+        str,
+        typer.Option(
+            help="The simulated arm's hidden effects: nominal, geometric, compliance, "
+            "transmission, backlash, thermal, payload, all."
+        ),
+    ] = "compliance",
+    n: Annotated[int, typer.Option("--n", "-n", help="Random poses to measure.")] = 200,
+    noise_mm: Annotated[
+        float, typer.Option("--noise-mm", help="The tracker's per-axis noise (mm).")
+    ] = 0.015,
+    seed: Annotated[int, typer.Option(help="Seed of the poses, the motions and the noise.")] = 0,
+    arm_seed: Annotated[
+        int | None,
+        typer.Option(
+            help="Seed of the hidden arm (default: --seed). Measure one arm twice, e.g. for "
+            "held-out data: --seed 1 and --seed 2 --arm-seed 1."
+        ),
+    ] = None,
+    poses: Annotated[
+        Path | None,
+        typer.Option(help="A poses CSV (q1..q6, e.g. from sixaxis lab plan) instead of --n."),
+    ] = None,
+    angle_unit: Annotated[
+        str, typer.Option("--angle-unit", help="Unit of q1..q6 in --poses: rad or deg.")
+    ] = "rad",
+    robot: RobotOpt = "seed",
+) -> None:
+    """Measure the simulated arm (MuJoCo) like a laser-tracker campaign.
+
+    Each pose is approached from a random side, settled, and its tool point measured with
+    noise; the CSV (SPEC section 3) has every optional column."""
+    import numpy as np
+
+    from envs.scenarios import SCENARIOS, ScenarioError, draw_truth
+
+    _check_units("m", angle_unit)
+    if scenario not in SCENARIOS:
+        _fail(f"--scenario: unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
+    if not (math.isfinite(noise_mm) and noise_mm >= 0):
+        _fail(f"--noise-mm must be >= 0, got {noise_mm}")
+    if poses is None and n < 1:
+        _fail(f"--n must be at least 1, got {n}")
+    arm = _robot(robot)
+    q = None
+    if poses is not None:
+        with _guard():
+            q = read_poses(poses, angle_unit)
+        outside = ~arm.within_limits(q)
+        if outside.any():
+            i = int(np.flatnonzero(outside)[0])
+            _fail(f"{poses}: pose {i + 1} is outside the joint limits of {arm.name}: {q[i]}")
+    from envs.collect import collect_measurements  # MuJoCo is loaded only here
+
+    with _guard(ScenarioError):
+        truth = draw_truth(
+            scenario, arm, np.random.default_rng(seed if arm_seed is None else arm_seed)
+        )
+    total = len(q) if q is not None else n
+    t0 = time.perf_counter()
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+        console=console,
+    ) as bar:
+        task = bar.add_task(f"measuring ({scenario})", total=total)
+        with _guard(ScenarioError, ValueError):
+            meas = collect_measurements(
+                truth=truth,
+                poses=q,
+                n=total,
+                scenario=scenario,
+                noise_mm=noise_mm,
+                seed=seed,
+                robot=arm,
+                path=output,
+                progress=lambda i, _n: bar.update(task, completed=i),
+            )
+    console.print(
+        f"wrote {len(meas)} measurements of the simulated arm ({scenario}, noise "
+        f"{noise_mm:g} mm per axis) to {output} in {time.perf_counter() - t0:.1f} s",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+# -- export / compensate ----------------------------------------------------------------------------
+@app.command("export")
+def export_cmd(
+    data: DataArg,
+    output: Annotated[
+        Path, typer.Option("--output", "-o", help="The calibrated robot TOML to write.")
+    ] = Path("calibrated.toml"),
+    robot: RobotOpt = "seed",
+    effects: EffectsOpt = "geometric",
+    validate: ValidateOpt = None,
+    loss: LossOpt = "linear",
+    effect_module: ModuleOpt = None,
+    length_unit: LengthOpt = "m",
+    angle_unit: AngleOpt = "rad",
+    noise_mm: NoiseOpt = None,
+    name: Annotated[
+        str | None, typer.Option(help="The calibrated arm's name (default: <robot>-calibrated).")
+    ] = None,
+) -> None:
+    """Fit, then write the calibrated arm as a robot TOML.
+
+    The geometric errors are folded into the DH table, base and tool, other effects' values
+    kept; the file works as --robot anywhere."""
+    from lab import fit
+    from lab.export import ExportError, export_robot
+
+    arm, meas, val = _prepare(
+        data, robot, effects, effect_module, validate, loss, length_unit, angle_unit, noise_mm
+    )
+    with _guard():
+        result = fit(meas, arm, effects, loss=loss, validate=val, noise_mm=noise_mm)
+    console.print(escape(result.summary()), highlight=False, soft_wrap=True)
+    with _guard(ExportError):
+        cal = export_robot(result, output, name=name)
+    console.print(
+        f"wrote the calibrated arm {cal.name!r} to {output}; use it with --robot {output}",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+@app.command("compensate")
+def compensate_cmd(
+    targets: Annotated[
+        Path,
+        typer.Argument(
+            help="Desired tool points: CSV with x, y, z (and optionally q1..q6 start angles, "
+            "target, and the columns the arm's effects need)."
+        ),
+    ],
+    robot: Annotated[
+        str,
+        typer.Option("--robot", "-r", help="The calibrated arm (a TOML from sixaxis lab export)."),
+    ],
+    output: Annotated[
+        Path, typer.Option("--output", "-o", help="The joint-angle CSV to write.")
+    ] = Path("joints.csv"),
+    nominal: Annotated[
+        str, typer.Option(help="The arm the controller believes in (TOML or shipped name).")
+    ] = "seed",
+    nominal_base: Annotated[
+        str,
+        typer.Option(help="Where the nominal arm stands: auto, nominal or calibrated."),
+    ] = "auto",
+    effect_module: ModuleOpt = None,
+    length_unit: LengthOpt = "m",
+    angle_unit: AngleOpt = "rad",
+    as_json: JsonOpt = False,
+) -> None:
+    """Joint angles that put the calibrated arm's tool point on each target.
+
+    Also prints the error that commanding the nominal inverse kinematics would leave."""
+    from lab.export import CompensationError, compensate, read_targets, write_joints
+
+    _check_units(length_unit, angle_unit)
+    if nominal_base not in ("auto", "nominal", "calibrated"):
+        _fail(f"--nominal-base must be auto, nominal or calibrated, got {nominal_base!r}")
+    _load_modules(effect_module)
+    cal = _robot(robot)
+    nom = _robot(nominal)
+    with _guard(CompensationError):
+        tset = read_targets(targets, length_unit=length_unit, angle_unit=angle_unit)
+    with _guard(CompensationError):
+        with console.status(f"solving {len(tset)} targets..."):
+            comp = compensate(cal, tset, nom, nominal_base=nominal_base)
+    write_joints(comp, output)
+    summary = comp.to_dict() | {"output": str(output)}
+    if as_json:
+        print(_dump(summary))
+        return
+    table = Table(
+        title=f"{comp.n} targets, error of the calibrated arm {cal.name!r} (mm)",
+        title_justify="left",
+    )
+    table.add_column("joint angles commanded")
+    table.add_column("RMS", justify="right")
+    table.add_column("max", justify="right")
+    table.add_row(
+        f"nominal inverse kinematics ({nom.name})",
+        _mm(summary["nominal_rms_mm"]),
+        _mm(summary["nominal_max_mm"]),
+    )
+    table.add_row("compensated", _mm(summary["rms_mm"], 6), _mm(summary["max_mm"], 6))
+    console.print(table)
+    console.print(
+        f"compensation removes {summary['nominal_rms_mm'] - summary['rms_mm']:.4f} mm RMS "
+        f"(largest joint change {summary['max_joint_change_mrad']:.3f} mrad); "
+        f"{summary['converged']} of {comp.n} converged",
+        highlight=False,
+        soft_wrap=True,
+    )
+    if summary["not_converged"]:
+        console.print(
+            f"[yellow]not converged (out of reach?):[/yellow] rows "
+            f"{', '.join(str(i + 1) for i in summary['not_converged'][:20])}",
+            highlight=False,
+            soft_wrap=True,
+        )
+    console.print(f"wrote {output}", highlight=False, soft_wrap=True)
