@@ -1,0 +1,179 @@
+"""Export and compensation: the calibrated arm written as a robot TOML is the fitted model, read
+back by ``load_robot`` and evaluated by the plain kinematics (not the error model that fitted it);
+compensated joint angles put the true arm's tool point on the desired points, where the nominal
+inverse kinematics misses by the calibration error. Bad input is refused with nothing written."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from envs.description import load_robot, rotation_matrix
+from envs.effects import JointAngleEffect
+from envs.kinematics import Chain, gravity_torques, tool_points
+from envs.sampling import sample_poses
+from lab import fit
+from lab.export import (
+    CompensationError,
+    ExportError,
+    compensate,
+    export_robot,
+    read_targets,
+    torque_difference,
+    write_joints,
+)
+from tests._lab_data import campaign
+
+
+def fk(robot, q, theta=None):
+    """Tool point in the measurement frame by the plain kinematics of a description: its DH
+    table (Hayati beta, offsets), first tool point and base transform; ``theta`` replaces the
+    joint angles (to add an effect by hand)."""
+    chain = Chain.from_description(robot)
+    p = tool_points(chain, q if theta is None else theta, robot.tool_points[0])
+    return p @ rotation_matrix(np.array(robot.base_rotation)).T + np.array(robot.base_translation)
+
+
+@pytest.fixture(scope="module")
+def geometric_fit(seed):
+    c = campaign(seed, "geometric", seed=21)
+    data = c.measure(150)
+    return c, data, fit(data, seed, "geometric")
+
+
+@pytest.mark.parametrize("units", [("m", "rad"), ("mm", "deg")])
+def test_exported_arm_is_the_fitted_model_by_plain_kinematics(geometric_fit, tmp_path, units):
+    c, data, res = geometric_fit
+    path = tmp_path / "cal.toml"
+    export_robot(res, path, length_unit=units[0], angle_unit=units[1])
+    arm = load_robot(path)
+    assert f'length_unit = "{units[0]}"' in path.read_text()
+    assert arm.joints[2].beta == pytest.approx(res["beta2"], abs=1e-15)  # Hayati's beta kept
+    # on the fitted poses and on poses the fit never saw
+    new = sample_poses(arm, 300, np.random.default_rng(5))
+    for q, fitted in ((data.q, res.predict(res.inputs)), (new, res.predict(c.measure(new)))):
+        assert np.max(np.linalg.norm(fk(arm, q) - fitted, axis=1)) < 1e-12  # m: round-off
+    # and it is calibrated: the measured points within the noise
+    rms = np.sqrt(np.mean(np.sum((fk(arm, data.q) - data.xyz) ** 2, axis=1)))
+    assert rms == pytest.approx(res.rms, rel=1e-9)
+
+
+def test_exported_compliance_uses_the_fits_torques_up_to_a_second_order_term(seed, tmp_path):
+    """The fit's compliance angle is ``c * tau`` with tau from the nominal table; the exported
+    arm's values reproduce it exactly with those torques, and with the torques of its own
+    (calibrated) table stay within a few micrometres (the term export_robot reports)."""
+    c = campaign(seed, "geometric,compliance", seed=7, hidden_level="typical")
+    data = c.measure(200)
+    res = fit(data, seed, "geometric,compliance[2,3]")
+    arm = export_robot(res, tmp_path / "cal.toml")
+    assert load_robot(tmp_path / "cal.toml") == arm
+    cvals = np.array([0, arm.effects["compliance"]["c2"], arm.effects["compliance"]["c3"], 0, 0, 0])
+    assert cvals[1] == res["c2"] and cvals[2] == res["c3"]
+    fitted = res.predict(res.inputs)
+    with_fit_tau = fk(arm, data.q, data.q + cvals * gravity_torques(seed, data.q))
+    assert np.max(np.linalg.norm(with_fit_tau - fitted, axis=1)) < 1e-12
+    own = fk(arm, data.q, data.q + cvals * gravity_torques(arm, data.q))
+    second_order = np.max(np.linalg.norm(own - fitted, axis=1))
+    assert 1e-8 < second_order < 5e-6
+    assert torque_difference(res, arm) == pytest.approx(second_order, rel=1e-6)
+
+
+class _Wobble(JointAngleEffect):
+    """An effect that is never registered: a file cannot name it for load_robot."""
+
+    name = "wobble_unregistered"
+    terms = ("w",)
+    typical = {"w": (1e-4, 5e-4)}
+
+    def basis(self, inputs, joint, term):
+        return np.sin(3 * inputs.q[:, joint - 1])
+
+
+def test_export_refuses_bad_input_and_leaves_the_old_file(geometric_fit, seed, tmp_path):
+    _, data, res = geometric_fit
+    old = tmp_path / "cal.toml"
+    old.write_text("old\n")
+    with pytest.raises(ExportError, match="length unit must be one of m, mm, got 'inch'"):
+        export_robot(res, old, length_unit="inch")
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(ExportError, match=r"file/cal\.toml: cannot be written"):
+        export_robot(res, blocker / "cal.toml")
+    odd = fit(data, seed, ["geometric", _Wobble(joints=[2])])
+    with pytest.raises(ExportError, match=r"wobble_unregistered.*not registered.*not written"):
+        export_robot(odd, old)
+    assert old.read_text() == "old\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.toml", "file"]  # no temp files
+
+
+# -- compensation ------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def true_arm(seed):
+    """A true arm with geometric errors and joint compliance; its description is what a perfect
+    calibration exports."""
+    c = campaign(seed, "geometric,compliance", seed=3, hidden_level="typical")
+    return c.truth.description(c.params, name="truth")
+
+
+def true_fk(arm, q):
+    """The true arm's tool point, by hand: joint angles sagged by c * tau (tau of its own table)."""
+    cvals = np.array([arm.effects["compliance"].get(f"c{j}", 0.0) for j in range(1, 7)])
+    return fk(arm, q, q + cvals * gravity_torques(arm, q))
+
+
+def test_compensated_joints_put_the_true_arm_on_the_targets(seed, true_arm):
+    q_true = sample_poses(seed, 40, np.random.default_rng(8))
+    targets = fk(seed, q_true)  # points the nominal arm reaches: a program taught on it
+    comp = compensate(true_arm, targets, nominal=seed)
+    assert comp.converged.all() and comp.nominal_converged.all()
+    assert comp.nominal_base == "nominal"
+    # the nominal inverse kinematics is right for the nominal arm...
+    assert np.max(np.linalg.norm(fk(seed, comp.q_nominal) - targets, axis=1)) < 1e-9
+    # ...and the true arm misses with it by its calibration error, which the report states
+    miss = 1e3 * np.linalg.norm(true_fk(true_arm, comp.q_nominal) - targets, axis=1)
+    assert miss.min() > 0.2 and np.sqrt(np.mean(miss**2)) > 1.0
+    np.testing.assert_allclose(comp.error_nominal_mm, miss, rtol=1e-6, atol=1e-9)
+    # the compensated joints put the true arm's tool point on the targets
+    hit = 1e3 * np.linalg.norm(true_fk(true_arm, comp.q) - targets, axis=1)
+    assert hit.max() < 1e-4  # mm: 0.1 um
+    np.testing.assert_allclose(comp.error_mm, hit, atol=1e-6)
+    assert np.all(true_arm.within_limits(comp.q))
+    d = comp.to_dict()
+    assert d["nominal_rms_mm"] == pytest.approx(np.sqrt(np.mean(miss**2)))
+    assert d["rms_mm"] < 1e-4 and d["converged"] == 40
+
+
+def test_compensation_from_an_exported_file_and_a_targets_csv(true_arm, tmp_path):
+    """The user's path: a calibrated TOML, a CSV of desired points in mm, a CSV of joints out."""
+    path = tmp_path / "truth.toml"
+    true_arm.save(path, "mm", "deg")
+    q = sample_poses(true_arm, 5, np.random.default_rng(2))
+    xyz = true_fk(true_arm, q)
+    lines = ["x,y,z"] + [",".join(repr(float(v) * 1e3) for v in row) for row in xyz]
+    (tmp_path / "targets.csv").write_text("\n".join(lines) + "\n")
+    targets = read_targets(tmp_path / "targets.csv", length_unit="mm")
+    comp = compensate(path, targets)
+    assert np.max(np.linalg.norm(true_fk(true_arm, comp.q) - xyz, axis=1)) < 1e-7
+    write_joints(comp, tmp_path / "joints.csv")
+    out = np.loadtxt(tmp_path / "joints.csv", delimiter=",", skiprows=2)
+    np.testing.assert_array_equal(out[:, :6], comp.q)
+
+
+def test_bad_targets_are_named(tmp_path, true_arm):
+    f = tmp_path / "t.csv"
+    f.write_text("x,y\n1,2\n")
+    with pytest.raises(CompensationError, match=r"t.csv, line 1: missing required column\(s\) z"):
+        read_targets(f)
+    f.write_text("x,y,z\n0.5,0.1,0.6\n0.5,abc,0.6\n")
+    with pytest.raises(
+        CompensationError, match=r"t.csv, line 3, column 'y': 'abc' is not a number"
+    ):
+        read_targets(f)
+    f.write_text("x,y,z,q1,q2\n0.5,0.1,0.6,0,0\n")
+    with pytest.raises(CompensationError, match=r"need all of q1\.\.q6, found only q1, q2"):
+        read_targets(f)
+    with pytest.raises(CompensationError, match=r"target id\(s\) \[1\] are not among"):
+        two = np.array([[0.5, 0.1, 0.6], [0.5, 0.2, 0.6]])
+        compensate(true_arm, two, columns={"target": np.array([0.0, 1.0])})
+    with pytest.raises(CompensationError, match="no targets"):
+        compensate(true_arm, np.empty((0, 3)))
