@@ -1,0 +1,893 @@
+"""The lab's report: one self-contained HTML file (PNG figures inlined as base64, no external
+files, scripts or fonts) that a calibration engineer can send to a colleague.
+
+    report = build_report("data.csv", "seed", "geometric", validate="other.csv", noise_mm=0.015)
+    report.write("report.html")
+
+The loop it documents: the nominal arm (base and tool registered), the model asked for, then as
+long as the diagnosis names a missing catalogued effect (up to ``rounds`` times) the model with
+it. For every model: residuals per pose (the seed paper's Fig. 8), RMS on fitted and held-out
+poses; for every diagnosis: the verdict, the candidates and the hints, with the residual plotted
+against the hinted variables; for the final model: the identified parameters (the paper's
+Table 3 with standard errors), identifiability, and the error-factor sensitivity of the paper's
+section 3.3 (Fig. 7: how far a unit error of each parameter moves the tool point).
+
+Helpers used by the CLI as well: :func:`nominal_parameters` (the nominal arm with its base and
+tool registered, the "before" of every comparison), :func:`error_sensitivity`,
+:func:`geometric_table` (Table 3 layout) and :func:`readable` (SI -> mm / mrad for people).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import logging
+import math
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from envs.description import RobotDescription
+from envs.effects import Effect
+from envs.errormodel import ErrorModel, ModelInputs
+from envs.measurements import MeasurementSet, atomic_write_text
+from envs.params import parameter_unit
+from lab import plots
+from lab.diagnosis import Diagnosis, diagnose, hint_variables
+from lab.identifiability import CONDITION_WARNING, typical_magnitudes
+from lab.identification import FitResult, _as_data, _as_robot, fit, register_base
+
+__all__ = [
+    "LabReport",
+    "ModelRun",
+    "arm_parameters",
+    "build_report",
+    "error_sensitivity",
+    "geometric_table",
+    "nominal_parameters",
+    "readable",
+]
+
+log = logging.getLogger(__name__)
+
+
+# --------------------------------------------------------------------------------------------------
+def readable(value: float | None, unit: str, signed: bool = False) -> tuple[str, str]:
+    """A SI value as people read it: m -> mm, rad -> mrad, others as they are. Returns (number,
+    unit)."""
+    if value is None or not np.isfinite(value):
+        return "-", ""
+    sign = "+" if signed else ""
+    if unit == "m":
+        return f"{value * 1e3:{sign}.4f}", "mm"
+    if unit == "rad":
+        return f"{value * 1e3:{sign}.4f}", "mrad"
+    return f"{value:{sign}.4g}", unit
+
+
+def nominal_parameters(model: ErrorModel, inputs: ModelInputs, xyz: np.ndarray) -> np.ndarray:
+    """The nominal parameter vector with the base transform and tool offsets registered in closed
+    form (:func:`lab.identification.register_base`): the "before" of a calibration, the nominal arm
+    placed where the measurements say it stands (without it, data in a laser tracker's frame
+    would be metres off). The registration is kept only where it lowers the RMS."""
+    p = model.nominal()
+    if "geometric" not in model.layout.effects:
+        return p
+    p_reg = register_base(model, inputs, xyz, p)
+    before = np.sum((model.predict(inputs, p) - xyz) ** 2)
+    after = np.sum((model.predict(inputs, p_reg) - xyz) ** 2)
+    return p_reg if after < before else p
+
+
+@dataclass(frozen=True)
+class Sensitivity:
+    """How far an error of each parameter moves the tool point, RMS over the poses.
+
+    ``per_unit``: m of tool point per SI unit of the parameter (a length: mm per mm; an angle:
+    mm per mrad; the same number); ``typical_mm``: mm for an error of the parameter's typical size
+    (the upper end of its effect's ``typical`` range); ``identified_mm``: mm for the error
+    identified (``p`` minus nominal; zero for a parameter held at nominal)."""
+
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    per_unit: np.ndarray
+    typical_mm: np.ndarray
+    identified_mm: np.ndarray
+
+    def ranked(self, by: str = "typical_mm") -> list[int]:
+        v = getattr(self, by)
+        return [int(k) for k in np.argsort(-v, kind="stable")]
+
+
+def error_sensitivity(
+    model: ErrorModel, inputs: ModelInputs, p: np.ndarray | None = None
+) -> Sensitivity:
+    """The error-factor analysis of the seed paper's section 3.3 (its Fig. 7), from the
+    identification Jacobian at ``p`` (default nominal) over the poses of ``inputs``: the RMS over
+    the poses of the tool point's displacement by a small error of each parameter."""
+    p = model.nominal() if p is None else np.asarray(p, dtype=float)
+    _, J = model.predict(inputs, p, jacobian=True)
+    per_unit = np.sqrt(np.mean(np.sum(J**2, axis=1), axis=0))
+    names = model.layout.names
+    return Sensitivity(
+        names=names,
+        units=tuple(parameter_unit(n) for n in names),
+        per_unit=per_unit,
+        typical_mm=1e3 * per_unit * typical_magnitudes(model),
+        identified_mm=1e3 * per_unit * np.abs(p - model.nominal()),
+    )
+
+
+_BASE = re.compile(r"b[xyz]|br[xyz]")
+
+
+def arm_parameters(names: Sequence[str]) -> list[int]:
+    """Indices of the parameters that belong to the arm (DH rows, tool offsets, other effects),
+    not to where it stands: the base transform is a registration, arbitrary for a tracker."""
+    return [k for k, n in enumerate(names) if not _BASE.fullmatch(n)]
+
+
+_ROW = re.compile(r"(dalpha|da|dtheta|dd)([1-6])|beta([0-5])")
+COLUMNS = (("dalpha", "alpha"), ("da", "a"), ("dtheta", "theta"), ("dd", "d"))
+
+
+def geometric_table(result: FitResult) -> list[dict]:
+    """The paper's Table 3: one row per joint i with, for alpha_{i-1}, a_{i-1}, theta_i and d_i
+    (or Hayati's beta_{i-1} where z_{i-1} and z_i are parallel), a cell ``{name, nominal, error,
+    std, identifiable, unit}`` in SI units (``None`` where the model has no such parameter)."""
+    if "geometric" not in result.model.layout.effects:
+        return []
+    rows = {r["name"]: r for r in result.rows()}
+    out = []
+    for i in range(1, 7):
+        row: dict = {"joint": i}
+        for pre, key in COLUMNS:
+            r = rows.get(f"{pre}{i}")
+            if r is None and key == "d" and f"beta{i - 1}" in rows:
+                r = rows[f"beta{i - 1}"]
+            row[key] = r
+        out.append(row)
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class ModelRun:
+    """One model of the comparison: its residuals on the fitted and held-out poses; the fit and
+    its diagnosis (both None for the nominal arm)."""
+
+    label: str
+    residuals: np.ndarray
+    validation_residuals: np.ndarray | None = None
+    fit: FitResult | None = None
+    diagnosis: Diagnosis | None = None
+    n_fitted: int = 0
+
+    @staticmethod
+    def _rms(r: np.ndarray | None) -> float | None:
+        if r is None or not len(r):
+            return None
+        return 1e3 * float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
+
+    @property
+    def rms_mm(self) -> float:
+        return self._rms(self.residuals)
+
+    @property
+    def max_mm(self) -> float:
+        return 1e3 * float(np.linalg.norm(self.residuals, axis=1).max())
+
+    @property
+    def validation_rms_mm(self) -> float | None:
+        return self._rms(self.validation_residuals)
+
+    @property
+    def validation_median_mm(self) -> float | None:
+        r = self.validation_residuals
+        return None if r is None else 1e3 * float(np.median(np.linalg.norm(r, axis=1)))
+
+
+@dataclass
+class LabReport:
+    """Everything the HTML shows; :meth:`to_html` renders it, :meth:`write` writes it atomically."""
+
+    data: MeasurementSet
+    validation: MeasurementSet | None
+    robot: RobotDescription
+    noise_mm: float | None
+    runs: list[ModelRun]
+    sensitivity: Sensitivity
+    title: str = "Calibration report"
+    command: str | None = None
+    figures: dict[str, bytes] = field(default_factory=dict, repr=False)
+
+    @property
+    def final(self) -> ModelRun:
+        return self.runs[-1]
+
+    @property
+    def noise_floor_mm(self) -> float | None:
+        return None if self.noise_mm is None else self.noise_mm * math.sqrt(3.0)
+
+    def to_html(self) -> str:
+        return _render(self)
+
+    def write(self, path: str | Path) -> None:
+        atomic_write_text(Path(path), self.to_html())
+
+
+def build_report(
+    data: MeasurementSet | str | Path,
+    robot: RobotDescription | str | Path | None = None,
+    effects: str | Sequence[str | Effect] = "geometric",
+    validate: MeasurementSet | str | Path | None = None,
+    noise_mm: float | None = None,
+    *,
+    loss: str = "linear",
+    rounds: int = 3,
+    title: str | None = None,
+    command: str | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> LabReport:
+    """Fit ``effects``, diagnose, and while the verdict names a missing catalogued effect (at most
+    ``rounds`` times) fit the suggested model and diagnose again; see the module docstring."""
+    step = progress or (lambda msg: None)
+    data = _as_data(data)
+    val = None if validate is None else _as_data(validate)
+    robot = _as_robot(robot)
+
+    step(f"fitting {effects if isinstance(effects, str) else ','.join(map(str, effects))}")
+    first = fit(data, robot, effects, loss=loss, validate=val, noise_mm=noise_mm)
+    p0 = nominal_parameters(first.model, first.inputs, data.xyz)
+    runs = [
+        ModelRun(
+            "nominal",
+            first.model.predict(first.inputs, p0) - data.xyz,
+            None if val is None else first.model.predict(_inputs(first.model, val), p0) - val.xyz,
+        )
+    ]
+    res = first
+    seen = {",".join(res.effects)}
+    for k in range(max(rounds, 0) + 1):
+        step(f"diagnosing {', '.join(res.effects)}")
+        d = diagnose(data, noise_mm=noise_mm, loss=loss, base=res)
+        runs.append(
+            ModelRun(
+                ", ".join(res.effects),
+                res.residuals,
+                res.validation_residuals,
+                fit=res,
+                diagnosis=d,
+                n_fitted=res.rank,
+            )
+        )
+        nxt = d.suggestion
+        if k == rounds or not nxt or nxt in seen or d.verdict in ("none", "unexplained"):
+            break
+        seen.add(nxt)
+        step(f"fitting {nxt}")
+        res = fit(data, robot, nxt, loss=loss, validate=val, noise_mm=noise_mm)
+
+    final = runs[-1].fit
+    step("error-factor sensitivity")
+    sens = error_sensitivity(final.model, final.inputs, final.params)
+    report = LabReport(
+        data=data,
+        validation=val,
+        robot=robot,
+        noise_mm=noise_mm,
+        runs=runs,
+        sensitivity=sens,
+        title=title or f"Calibration report: {Path(data.source).name}",
+        command=command,
+    )
+    step("plotting")
+    report.figures = _figures(report)
+    return report
+
+
+def _inputs(model: ErrorModel, data: MeasurementSet) -> ModelInputs:
+    return model.inputs(data.q, data.columns, source=data.source)
+
+
+# -- the residual against the hinted variables -------------------------------------------------------
+_JOINT_VAR = re.compile(r"(q|tau|dir)([1-6])")
+
+
+def _hint_projection(
+    res: FitResult, data: MeasurementSet, variable: str, direction: str | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, str, str]:
+    """Per pose, the residual of ``res`` along the direction that depends on ``variable`` most:
+    for q_j, tau_j, dir_j the equivalent angle error of joint j (mrad: the residual projected on
+    the tool point's motion by joint j), and for every variable the x, y, z and radial components
+    (mm); the one that the variable's smooth functions explain best (highest R^2), or
+    ``direction`` when given (to draw another model along the same one). Returns (mask of the
+    poses used, x, y, y label, direction)."""
+    e = res.residuals
+    n = len(e)
+    m = _JOINT_VAR.fullmatch(variable)
+    if variable in data.columns:
+        x = data.columns[variable]
+    elif m and m.group(1) == "q":
+        x = data.q[:, int(m.group(2)) - 1]
+    elif m and m.group(1) == "tau":
+        x = res.inputs.tau[:, int(m.group(2)) - 1]
+    else:
+        x = np.zeros(n)
+    every = np.ones(n, dtype=bool)
+    options: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
+    if m and direction in (None, "joint"):
+        j = int(m.group(2)) - 1
+        _, Jq = res.model.joint_jacobian(res.inputs, res.params)
+        g = Jq[:, :, j]
+        norm = np.linalg.norm(g, axis=1)
+        use = norm > 0.25 * np.median(norm)  # poses where joint j moves the point
+        y = np.zeros(n)
+        y[use] = 1e3 * np.sum(g[use] * e[use], axis=1) / norm[use] ** 2
+        options["joint"] = (use, y, f"equivalent joint-{j + 1} angle error (mrad)")
+    if direction != "joint":
+        pts = res.predict(res.inputs)
+        base = res.model.state(res.inputs, res.params).base_t
+        radial = pts - base
+        radial /= np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-9)
+        comps = {"x": e[:, 0], "y": e[:, 1], "z": e[:, 2], "radial": np.sum(e * radial, axis=1)}
+        for name, v in comps.items():
+            if direction in (None, name):
+                options[name] = (every, 1e3 * v, f"{name} error (mm)")
+    if direction is None:
+        phi = hint_variables(res, data).get(variable)
+        best = -np.inf
+        for name, (use, y, _) in options.items():  # the joint first: it wins ties
+            r2 = _r2(y[use], None if phi is None else phi[use])
+            if r2 > best + 1e-9:
+                best, direction = r2, name
+    use, y, label = options[direction]
+    return use, x, y, label, direction
+
+
+def _design(phi: np.ndarray | None, n: int) -> np.ndarray:
+    return np.ones((n, 1)) if phi is None else np.column_stack([np.ones(n), phi])
+
+
+def _r2(v: np.ndarray, phi: np.ndarray) -> float:
+    A = _design(phi, len(v))
+    coef, *_ = np.linalg.lstsq(A, v, rcond=None)
+    ss = float(np.sum((v - v.mean()) ** 2))
+    return 1.0 - float(np.sum((v - A @ coef) ** 2)) / ss if ss > 0 else 0.0
+
+
+def _smooth(res: FitResult, data: MeasurementSet, variable: str, y: np.ndarray, use: np.ndarray):
+    phi = hint_variables(res, data).get(variable)
+    A = _design(None if phi is None else phi[use], int(use.sum()))
+    coef, *_ = np.linalg.lstsq(A, y[use], rcond=None)
+    return A @ coef
+
+
+# hints drawn only below this p-value: a smooth curve through the noise of a variable that
+# explains nothing (30 poses of real data) would suggest a dependence that is not there
+HINT_PLOT_P = 0.01
+
+
+def hint_panels(report: LabReport, top: int = 3) -> list[plots.HintPanel]:
+    """Panels of the first fitted model's top significant hints (p < :data:`HINT_PLOT_P`), with
+    the final model's residual overlaid."""
+    first, last = report.runs[1], report.runs[-1]
+    d = first.diagnosis
+    hints = [h for h in (d.hints if d is not None else []) if h.p_value < HINT_PLOT_P]
+    models = [(1, first)] + ([(len(report.runs) - 1, last)] if last is not first else [])
+    panels = []
+    for h in hints[:top]:
+        series = []
+        direction = None
+        y_label = x_label = h.variable
+        for _, run in models:
+            use, x, y, y_label, direction = _hint_projection(
+                run.fit, report.data, h.variable, direction
+            )
+            yfit = _smooth(run.fit, report.data, h.variable, y, use)
+            series.append((run.label, x[use], y[use], yfit))
+        x_label = _variable_label(h.variable)
+        discrete = h.variable.startswith("dir") or h.variable == "target"
+        panels.append(plots.HintPanel(h.variable, x_label, y_label, h.score, series, discrete))
+    return panels
+
+
+def _variable_label(v: str) -> str:
+    m = _JOINT_VAR.fullmatch(v)
+    if m and m.group(1) == "q":
+        return f"joint {m.group(2)} angle q{m.group(2)} (rad)"
+    if m and m.group(1) == "tau":
+        return f"gravity torque about axis {m.group(2)} (N·m)"
+    if m and m.group(1) == "dir":
+        return f"last direction of joint {m.group(2)} (±1)"
+    return {"t": "time (s)", "temperature": "temperature (°C)", "payload": "payload (kg)"}.get(v, v)
+
+
+# -- figures -----------------------------------------------------------------------------------------
+def _figures(r: LabReport) -> dict[str, bytes]:
+    colors = [plots.color(k) for k in range(len(r.runs))]
+    figs: dict[str, bytes] = {}
+    figs["rms"] = plots.png(
+        plots.rms_figure(
+            [run.label for run in r.runs],
+            [run.rms_mm for run in r.runs],
+            [run.validation_rms_mm for run in r.runs] if r.validation is not None else None,
+            r.noise_floor_mm,
+        )
+    )
+    if r.validation is not None:
+        figs["residuals_validation"] = plots.png(
+            plots.residuals_figure(
+                [(run.label, run.validation_residuals) for run in r.runs],
+                f"held-out poses ({len(r.validation)}, {Path(r.validation.source).name})",
+                colors,
+                r.noise_floor_mm,
+            )
+        )
+    figs["residuals"] = plots.png(
+        plots.residuals_figure(
+            [(run.label, run.residuals) for run in r.runs],
+            f"fitted poses ({len(r.data)}, {Path(r.data.source).name})",
+            colors,
+            r.noise_floor_mm,
+        )
+    )
+    panels = hint_panels(r)
+    if panels:
+        sel = [colors[1]] + ([colors[len(r.runs) - 1]] if len(r.runs) > 2 else [])
+        figs["hints"] = plots.png(plots.hints_figure(panels, sel))
+    for k, run in enumerate(r.runs[1:], start=1):
+        d = run.diagnosis
+        if d is not None and d.candidates:
+            top = d.candidates[:15]
+            figs[f"candidates{k}"] = plots.png(
+                plots.candidates_figure(
+                    [c.label for c in top],
+                    [c.cv_rms_mm for c in top],
+                    [c.significant and c.confirmed for c in top],
+                    d.cv_rms_mm,
+                    d.noise_floor_mm,
+                )
+            )
+    s = r.sensitivity
+    final = r.final.fit
+    keep = arm_parameters(s.names)
+    figs["sensitivity"] = plots.png(
+        plots.sensitivity_figure(
+            [s.names[k] for k in keep],
+            s.typical_mm[keep],
+            [s.units[k] for k in keep],
+            s.identified_mm[keep],
+            final.identifiable[keep],
+        )
+    )
+    figs["singular_values"] = plots.png(
+        plots.singular_values_figure(final.identifiability.singular_values, CONDITION_WARNING)
+    )
+    return figs
+
+
+# -- HTML ----------------------------------------------------------------------------------------------
+_CSS = """
+:root { --ink:#1b1f24; --muted:#5f6b76; --line:#d9dee3; --bg:#f6f8fa; --accent:#1f77b4;
+        --good:#2e7d32; --bad:#c62828; --warn:#b26a00; }
+* { box-sizing: border-box; }
+body { margin:0; font:14px/1.5 -apple-system, "Segoe UI", Roboto, Helvetica, Arial, sans-serif;
+       color:var(--ink); background:#fff; }
+main { max-width: 1020px; margin: 0 auto; padding: 28px 24px 60px; }
+header h1 { font-size: 24px; margin: 0 0 4px; }
+header p { color: var(--muted); margin: 0; }
+h2 { font-size: 18px; margin: 36px 0 8px; padding-bottom: 4px; border-bottom: 2px solid var(--line); }
+h3 { font-size: 15px; margin: 22px 0 6px; }
+p.note, figcaption { color: var(--muted); font-size: 12.5px; }
+.cards { display: flex; flex-wrap: wrap; gap: 12px; margin: 20px 0 8px; }
+.card { flex: 1 1 150px; background: var(--bg); border: 1px solid var(--line); border-radius: 8px;
+        padding: 10px 14px; }
+.card .k { color: var(--muted); font-size: 12px; text-transform: uppercase; letter-spacing: .04em; }
+.card .v { font-size: 21px; font-weight: 600; font-variant-numeric: tabular-nums; }
+.card .s { color: var(--muted); font-size: 12px; }
+.verdict { display:inline-block; padding: 2px 10px; border-radius: 12px; font-weight: 600; }
+.verdict.effect { background:#fdecea; color: var(--bad); }
+.verdict.none { background:#e8f5e9; color: var(--good); }
+.verdict.unexplained { background:#fff4e5; color: var(--warn); }
+table { border-collapse: collapse; width: 100%; margin: 8px 0 4px; font-size: 12.5px;
+        font-variant-numeric: tabular-nums; }
+th, td { padding: 4px 8px; border-bottom: 1px solid var(--line); text-align: right; white-space: nowrap; }
+th { background: var(--bg); font-weight: 600; }
+td.l, th.l { text-align: left; }
+tbody tr:nth-child(even) { background: #fbfcfd; }
+td.fixed { color: #9aa4ad; font-style: italic; }
+.std { color: var(--muted); }
+.yes { color: var(--good); font-weight: 600; }
+.no { color: #9aa4ad; }
+figure { margin: 12px 0 18px; }
+figure img { max-width: 100%; border: 1px solid var(--line); border-radius: 6px; }
+code { background: var(--bg); padding: 1px 5px; border-radius: 4px; font-size: 12.5px; }
+ul.combos { columns: 2; font-size: 12.5px; }
+.warn { border-left: 4px solid var(--warn); background: #fff8ec; padding: 6px 12px; margin: 8px 0; }
+footer { margin-top: 40px; color: var(--muted); font-size: 12px; border-top: 1px solid var(--line);
+         padding-top: 8px; }
+"""
+
+
+def _e(x: object) -> str:
+    return html.escape(str(x), quote=True)
+
+
+def _img(r: LabReport, key: str, caption: str) -> str:
+    data = r.figures.get(key)
+    if data is None:
+        return ""
+    b64 = base64.b64encode(data).decode("ascii")
+    return (
+        f'<figure><img alt="{_e(caption)}" src="data:image/png;base64,{b64}">'
+        f"<figcaption>{caption}</figcaption></figure>"
+    )
+
+
+def _mm(v: float | None, digits: int = 4) -> str:
+    return "-" if v is None else f"{v:.{digits}f}"
+
+
+def _table(head: Sequence[str], rows: Sequence[Sequence[str]], left: int = 1) -> str:
+    th = "".join(
+        f'<th class="l">{h}</th>' if k < left else f"<th>{h}</th>" for k, h in enumerate(head)
+    )
+    body = []
+    for row in rows:
+        cells = []
+        for k, c in enumerate(row):
+            cls = ' class="l"' if k < left else ""
+            if isinstance(c, tuple):  # (html, css class)
+                c, extra = c
+                cls = f' class="{extra}{" l" if k < left else ""}"'
+            cells.append(f"<td{cls}>{c}</td>")
+        body.append("<tr>" + "".join(cells) + "</tr>")
+    return f"<table><thead><tr>{th}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def _verdict(v: str) -> str:
+    cls = v if v in ("none", "unexplained") else "effect"
+    return f'<span class="verdict {cls}">{_e(v)}</span>'
+
+
+def _card(k: str, v: str, s: str = "") -> str:
+    return f'<div class="card"><div class="k">{k}</div><div class="v">{v}</div><div class="s">{s}</div></div>'
+
+
+def _cell(c: dict | None) -> tuple[str, str]:
+    """(nominal, error ± std) of a Table-3 cell."""
+    if c is None:
+        return "", ""
+    unit = c["unit"]
+    if unit == "rad":
+        nom = f"{math.degrees(c['nominal']):.3f}°"
+    else:
+        nom = f"{c['nominal'] * 1e3:.3f}"
+    if not c["identifiable"]:
+        return nom, '<span class="no">fixed</span>'
+    err, _ = readable(c["error"], unit, signed=True)
+    std, _ = readable(c["std"], unit)
+    return nom, f'{err} <span class="std">± {std}</span>'
+
+
+def _parameter_tables(fit: FitResult) -> str:
+    out = []
+    table = geometric_table(fit)
+    if table:
+        head = [
+            "joint i",
+            "α<sub>i-1</sub>",
+            "Δα (mrad)",
+            "a<sub>i-1</sub> (mm)",
+            "Δa (mm)",
+            "θ offset",
+            "Δθ (mrad)",
+            "d<sub>i</sub> (mm) / β",
+            "Δd (mm) / Δβ (mrad)",
+        ]
+        rows = []
+        for row in table:
+            cells = [str(row["joint"])]
+            for _, key in COLUMNS:
+                c = row[key]
+                nom, err = _cell(c)
+                if c is not None and c["name"].startswith("beta"):
+                    nom, err = f"β{c['name'][4:]} {nom}", err
+                cells += [nom, err]
+            rows.append(cells)
+        out.append(
+            "<h3>DH table (the paper's Table 3): nominal value and identified error ± standard error</h3>"
+        )
+        out.append(_table(head, rows))
+        out.append(
+            '<p class="note">Errors are identified minus nominal; <i>fixed</i>: not identifiable '
+            "from these poses (see Identifiability), held at nominal.</p>"
+        )
+    other = [r for r in fit.rows() if not (_ROW.fullmatch(r["name"]))]
+    if other:
+        rows = []
+        for r in other:
+            val, unit = readable(r["value"], r["unit"])
+            err, _ = readable(r["error"], r["unit"], signed=True)
+            std, _ = readable(r["std"], r["unit"])
+            ident = r["identifiable"]
+            rows.append(
+                [
+                    f"<code>{_e(r['name'])}</code>",
+                    _e(r["effect"]),
+                    val if ident else (val, "fixed"),
+                    err if ident else ("fixed", "fixed"),
+                    std if ident else "",
+                    _e(unit),
+                ]
+            )
+        out.append("<h3>Base, tool and other effects</h3>")
+        out.append(_table(["parameter", "effect", "value", "error", "std", "unit"], rows, left=2))
+    return "\n".join(out)
+
+
+def _diagnosis_html(run: ModelRun, r: LabReport, k: int) -> str:
+    d = run.diagnosis
+    out = [f"<h3>Model {_e(run.label)}: verdict {_verdict(d.verdict)}</h3>"]
+    facts = [
+        f"RMS {d.rms_mm:.4f} mm on the fitted poses, {d.cv_rms_mm:.4f} mm leave-one-out",
+    ]
+    if d.noise_floor_mm is not None:
+        facts.append(f"noise floor {d.noise_floor_mm:.4f} mm")
+    if d.chi2_p_value is not None:
+        facts.append(f"χ² test of the residual against the noise: p = {d.chi2_p_value:.3g}")
+    out.append(f"<p>{'; '.join(facts)}.</p>")
+    if d.suggestion:
+        out.append(f"<p>Next model: <code>--effects {_e(d.suggestion)}</code></p>")
+    elif d.verdict == "unexplained":
+        out.append(
+            '<p class="warn">The residual is above the noise floor and no catalogued effect '
+            "explains it: look at the hints, and consider a user effect (--effect-module).</p>"
+        )
+    rows = []
+    for c in d.candidates[:10]:
+        ok = c.significant and c.confirmed
+        rows.append(
+            [
+                _e(c.label),
+                f"{c.rms_mm:.4f}",
+                f"{c.cv_rms_mm:.4f}",
+                f"{c.p_value:.3g}",
+                ("yes", "yes") if ok else ("no", "no"),
+            ]
+        )
+    if rows:
+        out.append(
+            _table(
+                ["candidate", "RMS after (mm)", "held-out RMS (mm)", "p-value", "significant"], rows
+            )
+        )
+    out.append(
+        _img(
+            r,
+            f"candidates{k}",
+            "Held-out (leave-one-pose-out) RMS after adding each candidate; red: significant at the family-wise level and confirmed on held-out poses.",
+        )
+    )
+    hrows = [
+        [f"<code>{_e(h.variable)}</code>", f"{h.score:.3f}", f"{h.p_value:.3g}"]
+        for h in d.hints[:8]
+    ]
+    if hrows:
+        out.append(
+            "<p>Hints: the measured variables the remaining residual depends on (adjusted R², p-value):</p>"
+        )
+        out.append(_table(["variable", "score", "p-value"], hrows))
+    return "\n".join(out)
+
+
+def _render(r: LabReport) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        ver = version("sixaxis-track")
+    except PackageNotFoundError:  # pragma: no cover
+        ver = "dev"
+    nominal, final = r.runs[0], r.final
+    fit = final.fit
+    ident = fit.identifiability
+    first_d = r.runs[1].diagnosis
+    cards = [
+        _card("nominal RMS", f"{nominal.rms_mm:.3f} mm", f"max {nominal.max_mm:.3f} mm"),
+        _card("calibrated RMS", f"{final.rms_mm:.4f} mm", f"max {final.max_mm:.4f} mm"),
+    ]
+    if final.validation_rms_mm is not None:
+        cards.append(
+            _card(
+                "held-out RMS",
+                f"{final.validation_rms_mm:.4f} mm",
+                f"median {final.validation_median_mm:.4f} mm, {len(r.validation)} poses",
+            )
+        )
+    if r.noise_floor_mm is not None:
+        cards.append(
+            _card("noise floor", f"{r.noise_floor_mm:.4f} mm", f"σ = {r.noise_mm:g} mm per axis")
+        )
+    cards.append(
+        _card(
+            "diagnosis",
+            _verdict(first_d.verdict),
+            "of "
+            + _e(r.runs[1].label)
+            + (f" → final {_verdict(final.diagnosis.verdict)}" if len(r.runs) > 2 else ""),
+        )
+    )
+
+    model_rows = []
+    for run in r.runs:
+        model_rows.append(
+            [
+                _e(run.label),
+                str(run.n_fitted) if run.fit is not None else "base, tool",
+                f"{run.rms_mm:.4f}",
+                f"{run.max_mm:.4f}",
+                _mm(run.validation_rms_mm),
+                _mm(run.validation_median_mm),
+                _mm(run.diagnosis.cv_rms_mm) if run.diagnosis else "-",
+                _verdict(run.diagnosis.verdict) if run.diagnosis else "",
+            ]
+        )
+
+    s = r.sensitivity
+    srows = []
+    arm = set(arm_parameters(s.names))
+    for k in [k for k in s.ranked("typical_mm") if k in arm][:12]:
+        per, unit = s.per_unit[k], s.units[k]
+        per_s = (
+            f"{per:.3f} mm/mm"
+            if unit == "m"
+            else (
+                f"{per:.3f} mm/mrad"
+                if unit == "rad"
+                else f"{per * 1e3:.4g} mm per {unit or 'unit'}"
+            )
+        )
+        srows.append(
+            [
+                f"<code>{_e(s.names[k])}</code>",
+                per_s,
+                f"{s.typical_mm[k]:.4f}",
+                f"{s.identified_mm[k]:.4f}" if fit.identifiable[k] else ("fixed", "fixed"),
+                ("yes", "yes") if fit.identifiable[k] else ("no", "no"),
+            ]
+        )
+
+    combos = "".join(f"<li><code>{_e(c)}</code></li>" for c in ident.unidentifiable)
+    warn = ""
+    if ident.condition_number > CONDITION_WARNING:
+        warn = (
+            f'<p class="warn">Poor pose set: condition number {ident.condition_number:.3g} &gt; '
+            f"{CONDITION_WARNING:g}. Plan poses with <code>sixaxis lab plan</code> or fit fewer effects.</p>"
+        )
+    cols = (
+        ", ".join(["q1..q6", "x, y, z", *r.data.columns]) if r.data.columns else "q1..q6, x, y, z"
+    )
+    floor_txt = (
+        f" The dashed line is the noise floor σ·√3 = {r.noise_floor_mm:.4f} mm of a perfect model on held-out poses."
+        if r.noise_floor_mm
+        else ""
+    )
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        f"<title>{_e(r.title)}</title><style>{_CSS}</style></head><body><main>",
+        f"<header><h1>{_e(r.title)}</h1><p>{len(r.data)} poses from <code>{_e(r.data.source)}</code>"
+        + (
+            f", validated on {len(r.validation)} held-out poses from <code>{_e(r.validation.source)}</code>"
+            if r.validation is not None
+            else ""
+        )
+        + f"; nominal arm <code>{_e(r.robot.name)}</code>.</p></header>",
+        f'<div class="cards">{"".join(cards)}</div>',
+        "<h2>1. Error before and after each model</h2>",
+        "<p>The nominal arm (its base transform and tool offsets registered to the measurements), "
+        "then each fitted model; every model after the first is the one the diagnosis of the model "
+        "before it suggested.</p>",
+        _table(
+            [
+                "model",
+                "parameters fitted",
+                "RMS (mm)",
+                "max (mm)",
+                "held-out RMS (mm)",
+                "held-out median (mm)",
+                "leave-one-out RMS (mm)",
+                "verdict",
+            ],
+            model_rows,
+        ),
+        _img(
+            r,
+            "rms",
+            "3-D RMS error of each model on the fitted poses and, hatched, on held-out poses."
+            + floor_txt,
+        ),
+        _img(
+            r,
+            "residuals_validation",
+            "Residual (predicted minus measured) per held-out pose, x, y, z and 3-D, for each model (the seed paper's Fig. 8).",
+        ),
+        _img(r, "residuals", "Residual per fitted pose, x, y, z and 3-D, for each model."),
+        "<h2>2. Diagnosis: what does the model miss?</h2>",
+        "<p>Each catalogued effect not in the model is tested per joint by a nested-model F-test, "
+        f"with one family-wise significance level α = {first_d.alpha:g} over all candidates (Holm), "
+        "and confirmed by its leave-one-pose-out RMS. Hints score every measured variable by how much "
+        "of the remaining residual its smooth functions explain.</p>",
+        *(_diagnosis_html(run, r, k) for k, run in enumerate(r.runs[1:], start=1)),
+        _img(
+            r,
+            "hints",
+            "The residual against the top hints of the first model, with the final model's overlaid, "
+            "along the direction the variable explains best: the x, y, z or radial component, or for "
+            "a joint variable the equivalent angle error of that joint (the residual projected on the "
+            "tool point's motion by the joint). Lines: least-squares smooth fits.",
+        )
+        if "hints" in r.figures
+        else f'<p class="note">No measured variable explains the residual of model {_e(r.runs[1].label)} '
+        f"significantly (p &lt; {HINT_PLOT_P:g}): no hint is plotted.</p>",
+        f"<h2>3. Identified parameters: {_e(final.label)}</h2>",
+        f"<p>Fit: {fit.loss} loss, {fit.iterations} iterations; residual σ = {fit.sigma_mm:.4f} mm per axis.</p>",
+        _parameter_tables(fit),
+        "<h2>4. Identifiability</h2>",
+        f"<p>{ident.rank} of {ident.n_parameters} parameters identifiable from {ident.n_poses} poses; "
+        f"condition number of the column-scaled identification Jacobian {ident.condition_number:.3g}; "
+        f"observability indices O1 = {ident.o1:.4g} (Borm &amp; Menq), O4 = {ident.o4:.4g} (Nahvi &amp; Hollerbach).</p>",
+        warn,
+        (
+            f'<p>Fixed at nominal (each with the combination it cannot be separated from):</p><ul class="combos">{combos}</ul>'
+            if combos
+            else ""
+        ),
+        _img(
+            r,
+            "singular_values",
+            "Singular values of the column-scaled identification Jacobian (identifiable parameters).",
+        ),
+        "<h2>5. Error-factor sensitivity</h2>",
+        "<p>How far an error of each parameter of the arm moves the tool point, RMS over these poses "
+        "(the seed paper's section 3.3 and Fig. 7): per unit error, for an error of the parameter's "
+        "typical size (the tolerance that matters most when the arm is built), and for the error "
+        "identified on this arm. The base transform is left out: it is where the arm stands.</p>",
+        _img(
+            r,
+            "sensitivity",
+            "Bars: RMS tool-point displacement for a typical-size error of each parameter (angles red, lengths blue); dots: for the error identified; hatched: not identifiable from these poses.",
+        ),
+        _table(
+            [
+                "parameter",
+                "per unit error",
+                "typical error moves (mm)",
+                "identified error moves (mm)",
+                "identifiable",
+            ],
+            srows,
+        ),
+        "<h2>Data</h2>",
+        _table(
+            ["", ""],
+            [
+                ["measurements", f"<code>{_e(r.data.source)}</code>, {len(r.data)} poses"],
+                ["columns", _e(cols)],
+                ["targets", _e(", ".join(map(str, r.data.targets)))],
+                ["robot", f"<code>{_e(r.robot.name)}</code>, {_e(r.robot.convention)} DH"],
+                ["instrument noise", "-" if r.noise_mm is None else f"{r.noise_mm:g} mm per axis"],
+            ],
+            left=2,
+        ),
+        f"<footer>sixaxis-track {ver}"
+        + (f" · <code>{_e(r.command)}</code>" if r.command else "")
+        + "</footer>",
+        "</main></body></html>",
+    ]
+    return "\n".join(p for p in parts if p)
