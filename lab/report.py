@@ -505,6 +505,7 @@ td.fixed { color: #9aa4ad; font-style: italic; }
 .no { color: #9aa4ad; }
 figure { margin: 12px 0 18px; }
 figure img { max-width: 100%; border: 1px solid var(--line); border-radius: 6px; }
+details summary { cursor: pointer; color: var(--accent); margin: 10px 0 4px; }
 code { background: var(--bg); padding: 1px 5px; border-radius: 4px; font-size: 12.5px; }
 ul.combos { columns: 2; font-size: 12.5px; }
 .warn { border-left: 4px solid var(--warn); background: #fff8ec; padding: 6px 12px; margin: 8px 0; }
@@ -567,11 +568,12 @@ def _cell(c: dict | None) -> tuple[str, str]:
         nom = f"{math.degrees(c['nominal']):.3f}°"
     else:
         nom = f"{c['nominal'] * 1e3:.3f}"
+    name = _e(c["name"])
     if not c["identifiable"]:
-        return nom, '<span class="no">fixed</span>'
+        return nom, f'<span class="no" title="{name}">fixed</span>'
     err, _ = readable(c["error"], unit, signed=True)
     std, _ = readable(c["std"], unit)
-    return nom, f'{err} <span class="std">± {std}</span>'
+    return nom, f'<span title="{name}">{err} <span class="std">± {std}</span></span>'
 
 
 def _parameter_tables(fit: FitResult) -> str:
@@ -627,6 +629,23 @@ def _parameter_tables(fit: FitResult) -> str:
             )
         out.append("<h3>Base, tool and other effects</h3>")
         out.append(_table(["parameter", "effect", "value", "error", "std", "unit"], rows, left=2))
+    rows = [
+        [
+            f"<code>{_e(r['name'])}</code>",
+            _e(r["effect"]),
+            f"{r['value']:.10g}",
+            f"{r['error']:+.6g}" if r["identifiable"] else ("fixed", "fixed"),
+            f"{r['std']:.3g}" if r["std"] is not None else "",
+            _e(r["unit"]),
+        ]
+        for r in fit.rows()
+    ]
+    out.append(
+        "<details><summary>Every parameter by the name of the JSON output "
+        "(<code>sixaxis lab fit --json</code>), SI units</summary>"
+        + _table(["parameter", "effect", "value", "error", "std", "unit"], rows, left=2)
+        + "</details>"
+    )
     return "\n".join(out)
 
 
