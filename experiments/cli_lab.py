@@ -366,7 +366,7 @@ def fit_cmd(
 
 
 # -- diagnose ---------------------------------------------------------------------------------------
-def _print_diagnosis(d) -> None:
+def _print_diagnosis(d, data: Path) -> None:
     floor = f", noise floor {d.noise_floor_mm:.4f} mm" if d.noise_floor_mm else ""
     console.print(
         f"model [bold]{escape(', '.join(d.effects))}[/bold] on {d.fit.n_points} points: RMS "
@@ -376,12 +376,17 @@ def _print_diagnosis(d) -> None:
     )
     colour = {"none": "green", "unexplained": "yellow"}.get(d.verdict, "red")
     line = f"verdict: [bold {colour}]{escape(d.verdict)}[/bold {colour}]"
-    if d.verdict == "none":
+    if d.verdict == "none" and d.noise_mm is None:
+        line += (
+            " (no catalogued effect is significant; give --noise-mm to test the residual "
+            "against the instrument's noise)"
+        )
+    elif d.verdict == "none":
         line += " (the residual is consistent with the noise: nothing missing)"
     elif d.verdict == "unexplained":
         line += " (the residual is above the noise and no catalogued effect explains it)"
     if d.suggestion:
-        line += f"; next: sixaxis lab fit ... --effects {escape(d.suggestion)}"
+        line += f"; next: sixaxis lab fit {escape(shlex.quote(str(data)))} --effects {escape(shlex.quote(d.suggestion))}"
     console.print(line, highlight=False, soft_wrap=True)
     if len(d.outliers):
         console.print(
@@ -409,7 +414,7 @@ def _print_diagnosis(d) -> None:
         console.print(f"... and {len(d.candidates) - len(shown)} more (--json lists all)")
     if d.hints:
         hints = Table(
-            title="where the remaining residual depends on a measured variable",
+            title="what the residual depends on",
             title_justify="left",
         )
         hints.add_column("variable")
@@ -450,7 +455,7 @@ def diagnose_cmd(
         with console.status("fitting and testing the candidate effects..."):
             d = diagnose(meas, arm, effects, noise_mm=noise_mm, loss=loss, alpha=alpha)
     if not as_json:
-        _print_diagnosis(d)
+        _print_diagnosis(d, data)
     _emit_json(d.to_dict(), as_json, out)
 
 
@@ -865,6 +870,13 @@ def compensate_cmd(
         str,
         typer.Option(help="Where the nominal arm stands: auto, nominal or calibrated."),
     ] = "auto",
+    target_ids: Annotated[
+        str | None,
+        typer.Option(
+            help="The calibration's target ids in the order of the arm's tool points, e.g. 0,1 "
+            "(needed when the targets file names only some of them)."
+        ),
+    ] = None,
     effect_module: ModuleOpt = None,
     length_unit: LengthOpt = "m",
     angle_unit: AngleOpt = "rad",
@@ -878,6 +890,12 @@ def compensate_cmd(
     _check_units(length_unit, angle_unit)
     if nominal_base not in ("auto", "nominal", "calibrated"):
         _fail(f"--nominal-base must be auto, nominal or calibrated, got {nominal_base!r}")
+    ids = None
+    if target_ids is not None:
+        try:
+            ids = [int(t) for t in target_ids.split(",") if t.strip()]
+        except ValueError:
+            _fail(f"--target-ids must be integers separated by commas, got {target_ids!r}")
     _load_modules(effect_module)
     cal = _robot(robot)
     nom = _robot(nominal)
@@ -885,14 +903,14 @@ def compensate_cmd(
         tset = read_targets(targets, length_unit=length_unit, angle_unit=angle_unit)
     with _guard(CompensationError):
         with console.status(f"solving {len(tset)} targets..."):
-            comp = compensate(cal, tset, nom, nominal_base=nominal_base)
+            comp = compensate(cal, tset, nom, nominal_base=nominal_base, target_ids=ids)
     write_joints(comp, output)
     summary = comp.to_dict() | {"output": str(output)}
     if as_json:
         print(_dump(summary))
         return
     table = Table(
-        title=f"{comp.n} targets, error of the calibrated arm {cal.name!r} (mm)",
+        title=f"error of {cal.name!r} at {comp.n} targets (mm)",
         title_justify="left",
     )
     table.add_column("joint angles commanded")
