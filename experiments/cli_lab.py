@@ -238,6 +238,25 @@ def _prepare(
     return arm, meas, val
 
 
+class _Writing:
+    """``with _writing(path)``: an OSError while writing ``path`` becomes one error line."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, et, exc, tb) -> bool:
+        if exc is not None and isinstance(exc, OSError):
+            _fail(f"{self.path}: cannot write ({exc.strerror or exc})")
+        return False
+
+
+def _writing(path: Path) -> _Writing:
+    return _Writing(path)
+
+
 def _json_safe(obj: Any) -> Any:
     """Plain JSON: numpy scalars and arrays as numbers and lists, NaN and inf as null."""
     import numpy as np
@@ -266,7 +285,8 @@ def _emit_json(obj: dict, as_json: bool, out: Path | None) -> None:
 
     text = _dump(obj)
     if out is not None:
-        atomic_write_text(out, text + "\n")
+        with _writing(out):
+            atomic_write_text(out, text + "\n")
     if as_json:
         print(text)
     elif out is not None:
@@ -386,7 +406,11 @@ def _print_diagnosis(d, data: Path) -> None:
     elif d.verdict == "unexplained":
         line += " (the residual is above the noise and no catalogued effect explains it)"
     if d.suggestion:
-        line += f"; next: sixaxis lab fit {escape(shlex.quote(str(data)))} --effects {escape(shlex.quote(d.suggestion))}"
+        then = escape(shlex.join(["sixaxis", "lab", "fit", str(data), "--effects", d.suggestion]))
+        if d.verdict == "unexplained":
+            line += f"; the catalogue's best, which explains part: {then}"
+        else:
+            line += f"; next: {then}"
     console.print(line, highlight=False, soft_wrap=True)
     if len(d.outliers):
         console.print(
@@ -541,7 +565,8 @@ def report_cmd(
                 progress=step,
             )
         step("writing the HTML")
-        rep.write(output)
+        with _writing(output):
+            rep.write(output)
         step(None)
     for run in rep.runs:
         verdict = f", verdict {run.diagnosis.verdict}" if run.diagnosis is not None else ""
@@ -685,7 +710,8 @@ def plan_cmd(
             p = plan(
                 n, arm, effects, criterion=crit, candidates=candidates, noise_mm=noise_mm, seed=seed
             )
-    atomic_write_text(output, poses_csv(p.q, angle_unit))
+    with _writing(output):
+        atomic_write_text(output, poses_csv(p.q, angle_unit))
     if as_json:
         print(_dump(p.to_dict() | {"output": str(output), "angle_unit": angle_unit}))
         return
@@ -753,6 +779,8 @@ def collect_cmd(
     from envs.scenarios import SCENARIOS, ScenarioError, draw_truth
 
     _check_units("m", angle_unit)
+    if output.is_dir():
+        _fail(f"{output}: is a directory; -o takes the CSV file to write")
     if scenario not in SCENARIOS:
         _fail(f"--scenario: unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
     if not (math.isfinite(noise_mm) and noise_mm >= 0):
@@ -786,7 +814,7 @@ def collect_cmd(
         console=console,
     ) as bar:
         task = bar.add_task(f"measuring ({scenario})", total=total)
-        with _guard(ScenarioError, ValueError):
+        with _guard(ScenarioError, ValueError), _writing(output):
             meas = collect_measurements(
                 truth=truth,
                 poses=q,
@@ -838,7 +866,7 @@ def export_cmd(
     with _guard():
         result = fit(meas, arm, effects, loss=loss, validate=val, noise_mm=noise_mm)
     console.print(escape(result.summary()), highlight=False, soft_wrap=True)
-    with _guard(ExportError):
+    with _guard(ExportError), _writing(output):
         cal = export_robot(result, output, name=name)
     console.print(
         f"wrote the calibrated arm {cal.name!r} to {output}; use it with --robot {output}",
@@ -904,7 +932,8 @@ def compensate_cmd(
     with _guard(CompensationError):
         with console.status(f"solving {len(tset)} targets..."):
             comp = compensate(cal, tset, nom, nominal_base=nominal_base, target_ids=ids)
-    write_joints(comp, output)
+    with _writing(output):
+        write_joints(comp, output)
     summary = comp.to_dict() | {"output": str(output)}
     if as_json:
         print(_dump(summary))

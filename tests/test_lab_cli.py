@@ -160,19 +160,47 @@ def test_mm_data_read_as_metres_is_no_traceback(files):
         )
 
 
-def test_a_user_effect_module_brings_the_error_to_the_floor(files):
-    load_effect_module(SECOND_HARMONIC)  # registers second_harmonic in this process
+@pytest.fixture
+def own_effects():
+    """The effect catalogue as it was before the test: a module loaded by --effect-module
+    registers its effects for the rest of the process."""
+    from envs import effects
+
+    before = dict(effects.EFFECTS)
+    yield
+    effects.EFFECTS.clear()
+    effects.EFFECTS.update(before)
+
+
+@pytest.fixture(scope="module")
+def harmonic_files(files):
+    """An arm with a second-harmonic transmission error on joint 3 (examples/second_harmonic.py),
+    the user's effect the catalogue lacks: 200 poses and 300 held-out ones."""
+    from envs import effects
+
+    before = dict(effects.EFFECTS)
+    load_effect_module(SECOND_HARMONIC)
     c = campaign(seed_robot(), "geometric,second_harmonic[3]", seed=23, hidden_level="typical")
+    true = c.truth.layout.as_dict(c.params)
     d = files["dir"]
     write_measurements(c.measure(200), d / "h2.csv")
     write_measurements(c.measure(300), d / "h2_val.csv")
-    plain = lab_json("fit", d / "h2.csv", "--validate", d / "h2_val.csv")
+    effects.EFFECTS.clear()
+    effects.EFFECTS.update(before)
+    return d / "h2.csv", d / "h2_val.csv", true
+
+
+def test_a_user_effect_module_brings_the_error_to_the_floor(harmonic_files, own_effects):
+    h2, h2_val, true = harmonic_files
+    plain = lab_json("fit", h2, "--validate", h2_val)
     assert plain["validation_rms_mm"] > 2 * FLOOR_MM  # the geometric model misses it
+    res = lab("fit", h2, "--effects", "geometric,second_harmonic[3]")
+    assert res.exit_code == 2 and "unknown effect 'second_harmonic'" in res.stderr
     full = lab_json(
         "fit",
-        d / "h2.csv",
+        h2,
         "--validate",
-        d / "h2_val.csv",
+        h2_val,
         "--effect-module",
         SECOND_HARMONIC,
         "--effects",
@@ -180,9 +208,21 @@ def test_a_user_effect_module_brings_the_error_to_the_floor(files):
     )
     assert full["effects"] == ["geometric", "second_harmonic[3]"]
     assert full["validation_rms_mm"] < 1.2 * FLOOR_MM
-    true = c.truth.layout.as_dict(c.params)
     for name in ("h2s3", "h2c3"):
         assert full["parameters"][name] == pytest.approx(true[name], abs=3e-5), name
+
+
+def test_diagnose_names_a_user_effect_once_its_module_is_loaded(harmonic_files, own_effects):
+    h2 = harmonic_files[0]
+    # the catalogue alone: the residual stays above the noise, and depends on q3
+    alone = lab_json("diagnose", h2, "--noise-mm", NOISE)
+    assert alone["verdict"] == "unexplained"
+    assert alone["hints"][0]["variable"] == "q3"
+    mod = lab_json("diagnose", h2, "--noise-mm", NOISE, "--effect-module", SECOND_HARMONIC)
+    assert mod["verdict"] == "second_harmonic"
+    assert mod["candidates"][0]["effect"] == "second_harmonic"
+    assert mod["candidates"][0]["joints"] == [3]
+    assert mod["suggestion"] == "geometric,second_harmonic[3]"
 
 
 def test_real_laser_tracker_data_through_the_cli(tmp_path):
@@ -335,6 +375,8 @@ def test_plan_writes_n_poses_that_read_back(files):
     assert o4["criterion"] == "o4" and o4["o4"] > o4["random_o4"]
     res = lab("plan", "--criterion", "O2", "-o", out)
     assert res.exit_code == 2 and "--criterion" in res.stderr
+    res = lab("plan", "--n", 15, "--candidates", 400, "-o", files["dir"])  # a directory
+    assert res.exit_code == 2 and "cannot write" in res.stderr
 
 
 # -- report -----------------------------------------------------------------------------------------
