@@ -16,13 +16,14 @@ stays fast and only ``collect`` loads MuJoCo.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
 import math
 import shlex
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
@@ -65,7 +66,6 @@ def _lab() -> None:
 POSES_SCHEMA_VERSION = 1
 LENGTH_UNITS = ("m", "mm")
 ANGLE_UNITS = ("rad", "deg")
-LOSSES = ("linear", "huber", "soft_l1")
 JOINTS = tuple(f"q{i}" for i in range(1, 7))
 
 
@@ -138,23 +138,22 @@ def _fail(message: str) -> NoReturn:
     raise typer.Exit(2)
 
 
-class _Guard:
-    """``with _guard(...)``: the listed exceptions become ``error: ...`` and exit code 2."""
-
-    def __init__(self, *extra: type[Exception]) -> None:
-        self.types = (*_user_errors(), *extra)
-
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, et, exc, tb) -> bool:
-        if exc is not None and isinstance(exc, self.types):
-            _fail(str(exc))
-        return False
+@contextlib.contextmanager
+def _guard(*extra: type[Exception]) -> Iterator[None]:
+    """The library's bad-input exceptions (and ``extra``) become ``error: ...``, exit code 2."""
+    try:
+        yield
+    except (*_user_errors(), *extra) as exc:
+        _fail(str(exc))
 
 
-def _guard(*extra: type[Exception]) -> _Guard:
-    return _Guard(*extra)
+@contextlib.contextmanager
+def _writing(path: Path) -> Iterator[None]:
+    """An OSError while writing ``path`` becomes one error line."""
+    try:
+        yield
+    except OSError as exc:
+        _fail(f"{path}: cannot write ({exc.strerror or exc})")
 
 
 def _check_units(length_unit: str, angle_unit: str) -> None:
@@ -170,6 +169,8 @@ def _check_noise(noise_mm: float | None) -> None:
 
 
 def _check_loss(loss: str) -> None:
+    from lab.identification import LOSSES
+
     if loss not in LOSSES:
         _fail(f"--loss must be one of {', '.join(LOSSES)}, got {loss!r}")
 
@@ -236,25 +237,6 @@ def _prepare(
     meas = _read(data, length_unit, angle_unit)
     val = None if validate is None else _read(validate, length_unit, angle_unit)
     return arm, meas, val
-
-
-class _Writing:
-    """``with _writing(path)``: an OSError while writing ``path`` becomes one error line."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, et, exc, tb) -> bool:
-        if exc is not None and isinstance(exc, OSError):
-            _fail(f"{self.path}: cannot write ({exc.strerror or exc})")
-        return False
-
-
-def _writing(path: Path) -> _Writing:
-    return _Writing(path)
 
 
 def _json_safe(obj: Any) -> Any:
