@@ -70,10 +70,17 @@ JOINTS = tuple(f"q{i}" for i in range(1, 7))
 
 
 # -- shared options -------------------------------------------------------------------------------
-DataArg = Annotated[Path, typer.Argument(help="A measurement CSV (SPEC section 3).")]
+DataArg = Annotated[
+    Path, typer.Argument(help="A measurement CSV (SPEC section 3).", metavar="DATA.csv")
+]
 RobotOpt = Annotated[
     str,
-    typer.Option("--robot", "-r", help="The nominal arm: a robot TOML file or a shipped name."),
+    typer.Option(
+        "--robot",
+        "-r",
+        help="The nominal arm: a robot TOML file or a shipped name.",
+        metavar="FILE|NAME",
+    ),
 ]
 EffectsOpt = Annotated[
     str,
@@ -90,6 +97,7 @@ ModuleOpt = Annotated[
     typer.Option(
         "--effect-module",
         help="A Python file defining Effect subclasses to register (repeatable).",
+        metavar="FILE.py",
     ),
 ]
 ValidateOpt = Annotated[
