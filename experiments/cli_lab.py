@@ -307,6 +307,14 @@ def _mm(v: float | None, digits: int = 4) -> str:
 
 
 # -- fit --------------------------------------------------------------------------------------------
+def _signed(x: float, digits: int = 4) -> str:
+    """``x`` with a sign and ``digits`` significant digits, trailing zeros kept (+10.00, +3300)."""
+    if x == 0 or not math.isfinite(x):
+        return f"{x:+.{digits - 1}f}"
+    decimals = max(0, digits - 1 - math.floor(math.log10(abs(x))))
+    return f"{x:+.{decimals}f}"
+
+
 def _fit_table(result) -> Table:
     """The paper's Table 3 and more: nominal, identified error and its standard error per
     parameter (lengths in mm; angles: nominal in deg, errors in mrad)."""
@@ -332,7 +340,7 @@ def _fit_table(result) -> Table:
         else:
             nom, f, shown = f"{row['nominal']:.4g}", 1.0, unit
         if row["identifiable"]:
-            err = f"{row['error'] * f:+#.4g}"
+            err = _signed(row["error"] * f) if shown in ("mm", "mrad") else f"{row['error']:+.4g}"
             std = "-" if row["std"] is None else f"{row['std'] * f:.2g}"
         else:
             err, std = "[dim]fixed[/dim]", ""
