@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 
 import typer
+from rich.console import Console
 from rich.logging import RichHandler
 
 from experiments import cli_agents, cli_demo, cli_lab, cli_sweep
@@ -33,7 +34,10 @@ def _main(
     logging.basicConfig(
         level=logging.INFO if verbose else logging.WARNING,
         format="%(message)s",
-        handlers=[RichHandler(show_path=False, rich_tracebacks=False)],
+        handlers=[
+            # stderr: a warning must never break a command's --json on stdout
+            RichHandler(console=Console(stderr=True), show_path=False, rich_tracebacks=False)
+        ],
     )
 
 

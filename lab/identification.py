@@ -564,6 +564,9 @@ def _weights(r: np.ndarray, loss: str, f_scale: float) -> np.ndarray:
     return np.ones_like(z)
 
 
+IMPLAUSIBLE_RMS = 0.1  # m: after a fit, no real arm's model is this far from its measurements
+
+
 def fit(
     data: MeasurementSet | str | Path,
     robot: RobotDescription | str | Path | None = None,
@@ -627,9 +630,21 @@ def fit(
         sigma = float(np.sqrt(np.sum(sol.residuals**2) / max(sol.residuals.size - free.sum(), 1)))
     else:
         sigma = _robust_sigma(sol.residuals)
+    fitted_rms = _rms(sol.residuals)
+    if fitted_rms > IMPLAUSIBLE_RMS:
+        raise FitError(
+            f"{data.source}: the model cannot follow these measurements (RMS {fitted_rms * 1e3:.4g}"
+            f" mm after fitting {', '.join(lay.effects)}); are they in other units (length in mm,"
+            " angles in deg: say so when reading) or of another robot?"
+        )
     noise = noise_mm * 1e-3 if noise_mm is not None else sigma
     ident = analyse_jacobian(model, sol.jacobian, noise=noise, warn=True)
     free2 = ident.identifiable & ~held
+    if not free2.any():
+        raise FitError(
+            f"{data.source}: no parameter of {', '.join(lay.effects)} can be identified from these"
+            f" {len(xyz)} poses at a noise of {noise * 1e3:.3g} mm"
+        )
     if not np.array_equal(free2, free):
         free = free2
         sol = solve(np.where(free | held, sol.params, p), free, ident.scale)

@@ -141,12 +141,6 @@ def test_fit_reads_mm_and_degrees_as_the_same_data(files):
         assert mm["parameters"][name] == pytest.approx(v, rel=1e-6, abs=1e-11), name
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="lab.fit raises a bare ValueError (reshape in _Problem.jac) when its noise criterion "
-    "leaves no parameter free, as with mm and deg data read as m and rad; lab/identification.py should raise "
-    "FitError naming the cause",
-)
 def test_mm_data_read_as_metres_is_no_traceback(files):
     foreign = files["dir"] / "geo_mm_deg.csv"
     write_measurements(read_measurements(files["geo"]), foreign, "mm", "deg")
