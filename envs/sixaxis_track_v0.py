@@ -7,6 +7,7 @@ import itertools
 import math
 import os
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,7 +23,7 @@ from envs.description import RobotDescription, load_robot
 from envs.instrument import LaserTracker, TrackerConfig
 from envs.plant import MAX_SPEED, Plant
 from envs.scenarios import Scenario, Truth, draw_truth, get_scenario
-from envs.trajectories import KINDS, Trajectory, sample_trajectory
+from envs.trajectories import KINDS, Trajectory, check_posture, sample_trajectory
 
 __all__ = ["SixAxisTrackEnv", "TaskInfo", "Truth"]
 
@@ -184,7 +185,8 @@ class SixAxisTrackEnv(gym.Env):
     with its encoders at the nominal inverse kinematics of the path's start (so the true tool is
     off by the arm's errors), links at their static deflection, backlash against the loaded side
     or lagging a random last direction. ``options={"trajectory": "circle"}`` picks the path kind
-    for one episode.
+    for one episode, ``options={"posture": [None, -1.6, 0.6, None, None, None]}`` its region (see
+    the ``posture`` argument).
 
     ## Episode End
     Terminates only if the simulation diverges (``info["diverged"]``). Truncated by the
@@ -196,6 +198,7 @@ class SixAxisTrackEnv(gym.Env):
     | `scenario`      | str         | `"geometric"` | nominal, geometric, compliance, transmission, backlash, thermal, payload, all |
     | `overrides`     | dict        | `None`        | `{effect: {param: value or (lo, hi)}}`, see `envs.scenarios`  |
     | `trajectory`    | str or None | `None`        | circle, lemniscate, lines, spline; None draws one per reset  |
+    | `posture`       | 6 floats/None or None | `None` | joint angles (rad; None: drawn) around which the path is drawn: its region of the workspace |
     | `noise_mm`      | float       | `0.015`       | tracker noise per axis (1 sigma), mm                         |
     | `measure_every` | int         | `5`           | tracker sampling period, control steps                       |
     | `dropout`       | float       | `0.0`         | probability that a sample is lost                            |
@@ -219,6 +222,7 @@ class SixAxisTrackEnv(gym.Env):
         scenario: str | Scenario = "geometric",
         overrides: dict[str, dict[str, Any]] | None = None,
         trajectory: str | None = None,
+        posture: Sequence[float | None] | None = None,
         noise_mm: float = 0.015,
         measure_every: int = 5,
         dropout: float = 0.0,
@@ -251,6 +255,8 @@ class SixAxisTrackEnv(gym.Env):
         self.jerk_weight = float(jerk_weight)
         nominal = robot if isinstance(robot, RobotDescription) else load_robot(robot)
         self.nominal = nominal.to_modified()
+        # a region of the workspace for the path (checked now, not at the first reset)
+        self.posture = None if posture is None else check_posture(self.nominal, posture)
         # check the overrides once, now, rather than at the first reset
         draw_truth(self.scenario, self.nominal, np.random.default_rng(0), overrides)
         self.plant = Plant(self.nominal, elastic=self.scenario.elastic)
@@ -342,6 +348,7 @@ class SixAxisTrackEnv(gym.Env):
             raise ValueError(
                 f"options['trajectory'] must be one of {', '.join(KINDS)}, got {kind!r}"
             )
+        posture = (options or {}).get("posture", self.posture)
         truth_rng, traj_rng, noise_rng, start_rng = self.np_random.spawn(4)
         self.truth = draw_truth(self.scenario, self.nominal, truth_rng, self.overrides)
         self.trajectory, q0 = sample_trajectory(
@@ -350,6 +357,7 @@ class SixAxisTrackEnv(gym.Env):
             kind,
             duration=self.episode_steps * self.dt,
             v_max=self.task.v_max,
+            posture=posture,
         )
         n_ref = self.episode_steps + self.task.preview_steps + 1
         self.references = self.trajectory.positions(np.arange(n_ref) * self.dt)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +33,7 @@ __all__ = [
     "KINDS",
     "Trajectory",
     "TrajectoryError",
+    "check_posture",
     "sample_trajectory",
     "solve_tool_points",
 ]
@@ -200,6 +202,29 @@ def _comfortable(robot: RobotDescription, rng: np.random.Generator) -> np.ndarra
     return q
 
 
+def check_posture(robot: RobotDescription, posture: Sequence[float | None]) -> np.ndarray:
+    """``posture`` as a (6,) float array with NaN for the joints left free (None or NaN in the
+    input); a clear error for a wrong length, a non-number or a value outside the joint limits
+    less :data:`JOINT_MARGIN`."""
+    try:
+        vals = [math.nan if v is None else float(v) for v in posture]
+    except (TypeError, ValueError) as exc:
+        raise TrajectoryError(
+            f"posture must be 6 joint angles (rad) or None per joint, got {posture!r}"
+        ) from exc
+    if len(vals) != 6:
+        raise TrajectoryError(f"posture must have 6 entries (one per joint), got {len(vals)}")
+    p = np.array(vals)
+    lo, hi = robot.lower + JOINT_MARGIN, robot.upper - JOINT_MARGIN
+    for i, v in enumerate(p):
+        if np.isinf(v) or (np.isfinite(v) and not lo[i] <= v <= hi[i]):
+            raise TrajectoryError(
+                f"posture of joint {i + 1} is {v:g} rad, outside its limits "
+                f"[{lo[i]:g}, {hi[i]:g}] (less a {JOINT_MARGIN:g} rad margin)"
+            )
+    return p
+
+
 def _position_jacobian_ok(robot: RobotDescription, q: np.ndarray) -> bool:
     m = robot.to_modified()
     f = link_frames(Chain.from_description(m), q)
@@ -216,10 +241,19 @@ def sample_trajectory(
     duration: float = 10.0,
     v_max: np.ndarray | None = None,
     max_tries: int = 100,
+    posture: Sequence[float | None] | None = None,
 ) -> tuple[Trajectory, np.ndarray]:
     """A reachable trajectory of ``kind`` (drawn from :data:`KINDS` when None) for ``duration``
-    seconds, and the nominal arm's encoder angles (6,) at its start (see the module docstring)."""
+    seconds, and the nominal arm's encoder angles (6,) at its start (see the module docstring).
+
+    ``posture`` (6 joint angles in rad, None for a joint left free) places the trajectory in a
+    chosen region of the workspace: the configuration around which the path is drawn takes these
+    angles (the others are drawn as usual), so its centre is the nominal tool point there and the
+    arm tracks it near that posture (e.g. shoulder and elbow angles set the gravity torques the
+    joints carry). The random draws are the same with or without it, so ``None`` gives the same
+    trajectory as before the option existed."""
     m = robot.to_modified()
+    fixed = None if posture is None else check_posture(m, posture)
     if kind is None:
         kind = str(rng.choice(KINDS))
     if kind not in KINDS:
@@ -232,6 +266,8 @@ def sample_trajectory(
     lo, hi = m.lower + JOINT_MARGIN, m.upper - JOINT_MARGIN
     for attempt in range(max_tries):
         qc = _comfortable(m, rng)
+        if fixed is not None:
+            qc = np.where(np.isnan(fixed), qc, fixed)
         base = m.base_matrix
         centre = base[:3, :3] @ link_frames(chain, qc[None]).point(tool)[0] + base[:3, 3]
         traj = _shape(kind, centre, rng)
@@ -249,6 +285,7 @@ def sample_trajectory(
             continue
         log.debug("%s trajectory after %d tries", kind, attempt + 1)
         return traj, q[0]
+    where = "" if fixed is None else f" around posture {np.round(fixed, 3).tolist()}"
     raise TrajectoryError(
-        f"no reachable {kind} trajectory found in {max_tries} tries for robot {m.name!r}"
+        f"no reachable {kind} trajectory found{where} in {max_tries} tries for robot {m.name!r}"
     )
