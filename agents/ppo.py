@@ -323,7 +323,8 @@ def train(cfg: PPOConfig, progress=None, resume: str | Path | None = None) -> Pa
         venv.obs_rms.mean, venv.obs_rms.var = norm["mean"].copy(), norm["var"].copy()
         venv.obs_rms.count = float(norm["count"]) if "count" in norm.files else 1e6
         log.info("resuming %s at %d steps", resume, model.num_timesteps)
-    model.set_logger(configure(str(out), ["csv", "log"]))
+    logger = configure(str(out), ["csv", "log"])
+    model.set_logger(logger)
 
     class _SyncNorm(EvalCallback):
         """Evaluate with the current normalisation statistics; keep them with the best model."""
@@ -364,16 +365,19 @@ def train(cfg: PPOConfig, progress=None, resume: str | Path | None = None) -> Pa
 
         callbacks.append(_Progress())
     t0 = time.perf_counter()
-    model.learn(
-        total_timesteps=cfg.total_timesteps,
-        callback=callbacks,
-        reset_num_timesteps=resume is None,
-    )
-    log.info("trained %d steps in %.0f s", cfg.total_timesteps, time.perf_counter() - t0)
-    model.save(out / "model.zip")
-    save_normalisation(venv, out / "vecnormalize.npz")
-    venv.close()
-    eval_env.close()
+    try:
+        model.learn(
+            total_timesteps=cfg.total_timesteps,
+            callback=callbacks,
+            reset_num_timesteps=resume is None,
+        )
+        log.info("trained %d steps in %.0f s", cfg.total_timesteps, time.perf_counter() - t0)
+        model.save(out / "model.zip")
+        save_normalisation(venv, out / "vecnormalize.npz")
+    finally:
+        logger.close()  # flushes progress.csv and log.txt, also when training stops early
+        venv.close()
+        eval_env.close()
     return out
 
 
