@@ -205,8 +205,9 @@ class CalibratedAgent(NominalAgent):
     """Calibrate from measurements, then track blind with the identified model.
 
     ``calibration_seconds``: a single fit at this time (s from the episode's start, over all
-    phases), after which measurements are ignored; ``None``: collect every measurement and refit
-    at the start of each new phase (a multi-phase calibration, then a blind phase).
+    phases), after which measurements are ignored; ``None`` (or ``"each_phase"``, as a config
+    file spells it): collect every measurement and refit at the start of each new phase (a
+    multi-phase calibration, then a blind phase).
     ``effects``: what the identified model expresses; ``min_measurements``: below this many the
     model stays as it was.
     """
@@ -215,13 +216,20 @@ class CalibratedAgent(NominalAgent):
 
     def __init__(
         self,
-        calibration_seconds: float | None = 3.0,
+        calibration_seconds: float | str | None = 3.0,
         effects: str | Sequence[str] = "geometric",
         gain: float = 0.5,
         damping: float = 1e-3,
         min_measurements: int = 10,
     ) -> None:
         super().__init__(gain=gain, damping=damping, effects=effects)
+        if isinstance(calibration_seconds, str):
+            if calibration_seconds != "each_phase":
+                raise ValueError(
+                    f"calibration_seconds must be seconds, None or 'each_phase', got "
+                    f"{calibration_seconds!r}"
+                )
+            calibration_seconds = None
         if calibration_seconds is not None and calibration_seconds < 0:
             raise ValueError(f"calibration_seconds must be >= 0, got {calibration_seconds}")
         self.calibration_seconds = calibration_seconds

@@ -21,6 +21,8 @@ single run starts, naming the file and the key.
     settings = { horizon = 20 }          # keyword arguments of the agent
     env = { preview_steps = 20 }         # optional env overrides for this agent
 
+    campaign = { kind = "workspace", judge_posture = "reach" }   # or: phases of a named campaign
+
     [[phases]]                           # optional: e.g. calibrate, then run blind
     name = "calibration"
     seconds = 10.0
@@ -270,6 +272,7 @@ _TOP_KEYS = {
     "agents": list,
     "scenarios": list,
     "phases": list,
+    "campaign": dict,
 }
 _REQUIRED = ("seeds", "agents", "scenarios")
 _AGENT_KEYS = {"name", "label", "settings", "env"}
@@ -497,6 +500,13 @@ def parse_config(
             bad(f"{where}.env.scenario: a phase keeps the episode's scenario")
         _check_env_kwargs(penv, f"{where}.env", env_info, bad)
         phases.append(PhaseEntry(str(pname), float(secs), bool(judged), dict(penv)))
+    if "campaign" in raw and _is(raw["campaign"], dict):
+        if raw.get("phases"):
+            bad("campaign: give either campaign or [[phases]], not both")
+        else:
+            phases = _campaign_phases(raw["campaign"], bad)
+            for i, ph in enumerate(phases):
+                _check_env_kwargs(ph.env, f"campaign (phase {i}: {ph.name}).env", env_info, bad)
     if phases and not any(p.judged for p in phases):
         bad("phases: no phase is judged; mark at least one 'judged = true'")
     if phases and "episode_seconds" in raw:
@@ -585,6 +595,31 @@ def _env_signature(env_id: str, bad) -> dict[str, inspect.Parameter] | None:
     except Exception:
         hints = {}
     return {k: (v, hints.get(k)) for k, v in params.items()}
+
+
+_CAMPAIGN_KEYS = {"kind", "judge_posture", "judge_trajectory", "seconds", "judge_seconds"}
+
+
+def _campaign_phases(raw: dict[str, Any], bad) -> list[PhaseEntry]:
+    """``campaign = { kind = "workspace", judge_posture = "reach" }``: the phases of
+    :func:`agents.runner.workspace_campaign` (calibration over the workspace, then blind tracking
+    in a region it did not visit), which TOML cannot spell by hand (free joints are None)."""
+    for k in raw:
+        if k not in _CAMPAIGN_KEYS:
+            bad(f"campaign.{k}: unknown key; known: {', '.join(sorted(_CAMPAIGN_KEYS))}")
+    kind = raw.get("kind", "workspace")
+    if kind != "workspace":
+        bad(f"campaign.kind: unknown campaign {kind!r}; known: workspace")
+        return []
+    from agents.runner import workspace_campaign
+
+    kwargs = {k: v for k, v in raw.items() if k in _CAMPAIGN_KEYS and k != "kind"}
+    try:
+        phases = workspace_campaign(**kwargs)
+    except (TypeError, ValueError) as exc:
+        bad(f"campaign: {exc}")
+        return []
+    return [PhaseEntry(p.name, float(p.seconds), bool(p.judged), dict(p.overrides)) for p in phases]
 
 
 def _check_lengths(env, scenarios, agents, phases, episode_seconds, raw, env_info, bad) -> None:

@@ -36,7 +36,7 @@ def refused(**changes) -> str:
     return msg
 
 
-@pytest.mark.parametrize("name", ["quick", "full"])
+@pytest.mark.parametrize("name", ["quick", "full", "compliance_story"])
 def test_shipped_configs_parse(name):
     cfg = load_config(CONFIGS / f"{name}.toml")
     assert cfg.name == name
@@ -143,6 +143,9 @@ def test_user_agent_by_class_path_is_accepted():
             "no phase is judged",
         ),
         ({"phases": [{"name": "cal", "seconds": -1.0}]}, "phases[0].seconds", "positive number"),
+        ({"campaign": {"kind": "tour"}}, "campaign.kind", "unknown campaign 'tour'"),
+        ({"campaign": {"judge_posture": "moon"}}, "campaign", "unknown judge_posture 'moon'"),
+        ({"campaign": {"judge_postur": "reach"}}, "campaign.judge_postur", "unknown key"),
     ],
 )
 def test_bad_config_is_refused_naming_the_key(changes, key, words):
@@ -192,3 +195,27 @@ def test_cli_refuses_a_bad_config_before_any_run_starts(tmp_path):
     assert proc.returncode == 2
     assert "bad.toml" in proc.stderr and "agents[1].settings.gain" in proc.stderr
     assert not out.exists()  # nothing ran, nothing was written
+
+
+def test_a_named_campaign_expands_into_its_phases():
+    """The compliance story's config: nine measured calibration phases around different postures,
+    then one judged blind phase in a region none of them visited."""
+    from agents.runner import JUDGE_POSTURES
+
+    cfg = load_config(CONFIGS / "compliance_story.toml")
+    phases = cfg.phases
+    assert len(phases) == 10 and [p.judged for p in phases] == [False] * 9 + [True]
+    assert phases[-1].env["measurements"] is False
+    assert phases[-1].env["posture"] == list(JUDGE_POSTURES["reach"])
+    assert len({tuple(map(str, p.env["posture"])) for p in phases[:-1]}) == 9
+    assert cfg.episode_seconds == phases[-1].seconds  # only the blind phase is judged
+    calibrated = [a for a in cfg.agents if a.agent == "calibrated"]
+    assert calibrated and all(a.settings["calibration_seconds"] == "each_phase" for a in calibrated)
+
+
+def test_calibrated_each_phase_is_how_a_config_says_none():
+    from agents.registry import make_agent
+
+    assert make_agent("calibrated", calibration_seconds="each_phase").calibration_seconds is None
+    with pytest.raises(ValueError, match="'sometimes'"):
+        make_agent("calibrated", calibration_seconds="sometimes")
