@@ -46,6 +46,7 @@ def test_shipped_policy_loads_and_beats_hold(variant):
 def test_shipped_policy_reproduces_its_leaderboard_row(variant):
     meta = json.loads((POLICY_DIR / f"ppo-{variant}.json").read_text())
     row = meta["leaderboard"]
+
     def evaluate():
         return evaluate_policy(
             variant,
