@@ -15,6 +15,7 @@ __all__ = [
     "ErrorModel",
     "MeasurementSet",
     "RobotDescription",
+    "SixAxisTrackEnv",
     "load_robot",
     "read_measurements",
     "seed_robot",
@@ -27,3 +28,12 @@ if "SixAxisTrack-v0" not in registry:
         entry_point="envs.sixaxis_track_v0:SixAxisTrackEnv",
         max_episode_steps=500,  # 10 s at 50 Hz
     )
+
+
+def __getattr__(name: str):
+    """``envs.SixAxisTrackEnv`` imports the environment (and MuJoCo) only when asked for."""
+    if name == "SixAxisTrackEnv":
+        from envs.sixaxis_track_v0 import SixAxisTrackEnv
+
+        return SixAxisTrackEnv
+    raise AttributeError(f"module 'envs' has no attribute {name!r}")

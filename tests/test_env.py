@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import envs  # noqa: F401  (registers SixAxisTrack-v0)
+import envs  # registers SixAxisTrack-v0
 from envs.kinematics import Chain, link_frames
 from envs.sampling import MIN_TOOL_HEIGHT
 from envs.trajectories import KINDS
@@ -296,6 +296,14 @@ def test_importing_envs_loads_no_mujoco():
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=os.environ
     )
     assert out.stdout.strip() == "False"
+
+
+def test_the_env_class_is_reachable_from_envs_on_demand():
+    from envs.sixaxis_track_v0 import SixAxisTrackEnv
+
+    assert envs.SixAxisTrackEnv is SixAxisTrackEnv
+    with pytest.raises(AttributeError, match="no attribute 'SixAxisTrack'"):
+        envs.SixAxisTrack  # noqa: B018
 
 
 def test_bad_arguments_are_refused():
