@@ -33,6 +33,8 @@ APPROACH_SPEED = 0.05  # rad/s
 # rad/s^2: slow enough that friction keeps a heavy link against its driving flank when stopping
 APPROACH_DECEL = 0.1
 TRANSIT_FRACTION = 0.5  # of v_max and a_max, for the moves between poses
+LANDING_TOL = 2e-5  # rad: how close the encoders settle to a requested pose
+LANDING_PASSES = 3  # approaches per pose at most
 
 
 def _move(plant, target: np.ndarray, v_cruise: np.ndarray, decel: np.ndarray) -> None:
@@ -70,8 +72,10 @@ def collect_measurements(
     ``scenario`` (and ``overrides``) for ``robot`` with ``seed``. ``poses`` (N, 6) encoder
     targets; without them ``n`` random poses within the limits with the tool above the floor.
     Each pose is reached by a transit to a point ``APPROACH`` rad before it on a random side,
-    then a slow approach, ``settle`` seconds at rest, and a measurement with ``noise_mm`` per
-    axis. ``payloads`` (kg per pose) overrides the truth's payload. ``progress(i, n)`` is called
+    then a slow approach and ``settle`` seconds at rest; where the encoders missed the pose (the
+    position loop sags under gravity) the reference is corrected and the pose approached again
+    from the same side, until they read it within ``LANDING_TOL``; then a measurement with
+    ``noise_mm`` per axis. ``payloads`` (kg per pose) overrides the truth's payload. ``progress(i, n)`` is called
     after each pose. Deterministic for a given seed.
 
     The returned set has columns q1..q6 (the encoder readings at the measurement), x, y, z,
@@ -123,9 +127,20 @@ def collect_measurements(
         if payloads is not None:
             plant.set_payload(float(payloads[i]))
         _move(plant, before, v_transit, d_transit)
-        _move(plant, q, v_slow, d_slow)
-        for _ in range(max(1, math.ceil(settle / plant.dt))):
-            plant.step(np.zeros(6))
+        # Like an industrial servo with integral action, land the encoders on the pose: the
+        # position loop sags under gravity by up to ~8 mrad, so correct the reference by what is
+        # left and approach again from the same side (the last motion, dir1..dir6, is kept).
+        ref = q.copy()
+        for attempt in range(LANDING_PASSES):
+            if attempt:
+                _move(plant, before + (ref - q), v_slow, d_slow)
+            _move(plant, ref, v_slow, d_slow)
+            for _ in range(max(1, math.ceil(settle / plant.dt))):
+                plant.step(np.zeros(6))
+            miss = q - plant.q
+            if np.max(np.abs(miss)) < LANDING_TOL:
+                break
+            ref = ref + miss
         if plant.diverged():
             raise RuntimeError(f"the simulation diverged at pose {i}: {q}")
         q_out[i] = plant.q

@@ -444,13 +444,13 @@ def test_collect_measures_the_simulated_arm(files):
     data = read_measurements(out)
     assert len(data) == 3
     assert {"t", "temperature", "payload", *(f"dir{i}" for i in range(1, 7))} <= set(data.columns)
-    # given poses (e.g. a plan's): measured there, up to the servo's error under gravity
+    # given poses (e.g. a plan's): measured there
     poses = d / "two_poses.csv"
     poses.write_text("# two poses\nq1,q2,q3,q4,q5,q6\n0,-1.2,0.3,0,0.8,0\n0.5,-1.0,0.2,0.4,0.6,1\n")
     out2 = d / "sim2.csv"
     res = lab("collect", "-o", out2, "--poses", poses, "--scenario", "geometric")
     assert res.exit_code == 0, res.output
-    assert np.allclose(read_measurements(out2).q, read_poses(poses), atol=0.02)
+    assert np.allclose(read_measurements(out2).q, read_poses(poses), atol=1e-4)
     res = lab("collect", "-o", out2, "--scenario", "bogus")
     assert res.exit_code == 2 and "unknown scenario 'bogus'" in res.stderr
 
