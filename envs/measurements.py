@@ -14,7 +14,7 @@ import io
 import math
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,9 +23,12 @@ import numpy as np
 __all__ = [
     "MeasurementError",
     "MeasurementSet",
+    "NumericTable",
     "atomic_path",
     "atomic_write_text",
+    "parse_numeric_csv",
     "read_measurements",
+    "read_text",
     "write_measurements",
 ]
 
@@ -35,8 +38,8 @@ DIRS = tuple(f"dir{i}" for i in range(1, 7))
 OPTIONAL = ("t", "temperature", "payload", *DIRS, "target")
 SCHEMA_VERSION = 1
 
-_LENGTH = {"m": 1.0, "mm": 1e-3}
-_ANGLE = {"rad": 1.0, "deg": math.pi / 180.0}
+LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
+ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
 
 
 class MeasurementError(ValueError):
@@ -93,15 +96,15 @@ class MeasurementSet:
     def to_csv(self, length_unit: str = "m", angle_unit: str = "rad") -> str:
         """The SPEC section 3 text; q in ``angle_unit`` and x, y, z in ``length_unit``. Refuses
         values that the reader would refuse (non-finite numbers, bad dir or target values)."""
-        if length_unit not in _LENGTH:
+        if length_unit not in LENGTH_UNITS:
             raise MeasurementError(
-                f"length unit must be one of {sorted(_LENGTH)}, got {length_unit!r}"
+                f"length unit must be one of {sorted(LENGTH_UNITS)}, got {length_unit!r}"
             )
-        if angle_unit not in _ANGLE:
+        if angle_unit not in ANGLE_UNITS:
             raise MeasurementError(
-                f"angle unit must be one of {sorted(_ANGLE)}, got {angle_unit!r}"
+                f"angle unit must be one of {sorted(ANGLE_UNITS)}, got {angle_unit!r}"
             )
-        L, A = _LENGTH[length_unit], _ANGLE[angle_unit]
+        L, A = LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit]
         extra = [c for c in self.columns if c not in OPTIONAL]
         names = [*JOINTS, *POSITION, *(c for c in OPTIONAL if c in self.columns), *extra]
         data = [self.q / A, self.xyz / L]
@@ -169,6 +172,103 @@ def write_measurements(
     atomic_write_text(Path(path), data.to_csv(length_unit, angle_unit))
 
 
+def read_text(path: str | Path, error: type[Exception] = MeasurementError) -> str:
+    """The text of a CSV file (UTF-8, a byte-order mark allowed); ``error`` names the file."""
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise error(f"{path}: file not found") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not a UTF-8 text file ({exc})") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot be read ({exc.strerror or exc})") from None
+
+
+@dataclass
+class NumericTable:
+    """The numeric columns of a CSV: ``header`` (names), ``values`` (rows, columns), the file's
+    line number of each row and of the header."""
+
+    header: list[str]
+    values: np.ndarray
+    lines: np.ndarray
+    header_line: int = 1
+
+
+def parse_numeric_csv(
+    text: str,
+    source: str,
+    required: Sequence[str],
+    *,
+    comments: bool = False,
+    columns: Sequence[str] | None = None,
+    error: type[Exception] = MeasurementError,
+) -> NumericTable:
+    """Parse a CSV of numbers whose header names the ``required`` columns (and any others).
+
+    ``comments``: blank lines and lines starting with ``#`` anywhere are skipped (else only
+    trailing blank lines). ``columns``: read only these (others may hold anything), else every
+    column. The columns read must have distinct, non-empty names and finite numbers in every row;
+    ``error`` names the source, the line and the column of the first problem."""
+    lines = list(enumerate(csv.reader(io.StringIO(text)), start=1))
+    if comments:
+        lines = [
+            (k, r)
+            for k, r in lines
+            if any(c.strip() for c in r) and not r[0].lstrip().startswith("#")
+        ]
+    else:
+        while lines and not any(c.strip() for c in lines[-1][1]):
+            lines.pop()
+    if not lines:
+        raise error(f"{source}: empty file, expected a header row with {', '.join(required)}")
+    hline, header = lines[0][0], [h.strip() for h in lines[0][1]]
+    read = (
+        list(range(len(header)))
+        if columns is None
+        else [k for k, h in enumerate(header) if h in columns]
+    )
+    seen: set[str] = set()
+    for k in read:
+        h = header[k]
+        if not h:
+            raise error(f"{source}, line {hline}: column {k + 1} has an empty name")
+        if h in seen:
+            raise error(f"{source}, line {hline}: column {h!r} appears twice")
+        seen.add(h)
+    missing = [c for c in required if c not in seen]
+    if missing:
+        raise error(
+            f"{source}, line {hline}: missing required column(s) {', '.join(missing)} "
+            f"(found: {', '.join(header)})"
+        )
+    values = np.empty((len(lines) - 1, len(read)))
+    for i, (r, row) in enumerate(lines[1:]):
+        if len(row) != len(header):
+            raise error(f"{source}, line {r}: {len(row)} fields, but the header has {len(header)}")
+        for j, k in enumerate(read):
+            cell = row[k]
+            try:
+                v = float(cell)
+            except ValueError:
+                extra = (
+                    ""
+                    if header[k] in (*JOINTS, *POSITION, *OPTIONAL)
+                    else " (extra columns are kept for custom effects and must be numeric)"
+                )
+                raise error(
+                    f"{source}, line {r}, column {header[k]!r}: {cell.strip()!r} is not a number{extra}"
+                ) from None
+            if not math.isfinite(v):
+                raise error(
+                    f"{source}, line {r}, column {header[k]!r}: {cell.strip()} is not finite"
+                )
+            values[i, j] = v
+    rows = np.array([k for k, _ in lines[1:]], dtype=int)
+    return NumericTable([header[k] for k in read], values, rows, hline)
+
+
 def read_measurements(
     path: str | Path,
     length_unit: str = "m",
@@ -178,66 +278,23 @@ def read_measurements(
     """Read a SPEC section 3 file. ``length_unit`` (m|mm) applies to x, y, z; ``angle_unit``
     (rad|deg) to q1..q6. Raises :class:`MeasurementError` naming file, line and column."""
     path = Path(path)
-    if length_unit not in _LENGTH:
-        raise MeasurementError(f"length unit must be one of {sorted(_LENGTH)}, got {length_unit!r}")
-    if angle_unit not in _ANGLE:
-        raise MeasurementError(f"angle unit must be one of {sorted(_ANGLE)}, got {angle_unit!r}")
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise MeasurementError(f"{path}: file not found") from None
-    except UnicodeDecodeError as exc:
-        raise MeasurementError(f"{path}: not a UTF-8 text file ({exc})") from None
-    except OSError as exc:
-        raise MeasurementError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if length_unit not in LENGTH_UNITS:
+        raise MeasurementError(
+            f"length unit must be one of {sorted(LENGTH_UNITS)}, got {length_unit!r}"
+        )
+    if angle_unit not in ANGLE_UNITS:
+        raise MeasurementError(
+            f"angle unit must be one of {sorted(ANGLE_UNITS)}, got {angle_unit!r}"
+        )
+    text = read_text(path)
     return parse_measurements(text, str(path), length_unit, angle_unit, min_rows)
 
 
 def parse_measurements(
     text: str, source: str, length_unit: str = "m", angle_unit: str = "rad", min_rows: int = 1
 ) -> MeasurementSet:
-    rows = list(csv.reader(io.StringIO(text)))
-    while rows and not any(c.strip() for c in rows[-1]):
-        rows.pop()
-    if not rows:
-        raise MeasurementError(f"{source}: empty file, expected a header row")
-    header = [h.strip() for h in rows[0]]
-    seen: set[str] = set()
-    for k, h in enumerate(header, start=1):
-        if not h:
-            raise MeasurementError(f"{source}, line 1: column {k} has an empty name")
-        if h in seen:
-            raise MeasurementError(f"{source}, line 1: column {h!r} appears twice")
-        seen.add(h)
-    missing = [c for c in (*JOINTS, *POSITION) if c not in seen]
-    if missing:
-        raise MeasurementError(
-            f"{source}, line 1: missing required column(s) {', '.join(missing)} "
-            f"(found: {', '.join(header)})"
-        )
-    values = np.empty((len(rows) - 1, len(header)))
-    for r, row in enumerate(rows[1:], start=2):
-        if len(row) != len(header):
-            raise MeasurementError(
-                f"{source}, line {r}: {len(row)} fields, but the header has {len(header)}"
-            )
-        for k, cell in enumerate(row):
-            try:
-                v = float(cell)
-            except ValueError:
-                extra = (
-                    ""
-                    if header[k] in (*JOINTS, *POSITION, *OPTIONAL)
-                    else " (extra columns are kept for custom effects and must be numeric)"
-                )
-                raise MeasurementError(
-                    f"{source}, line {r}, column {header[k]!r}: {cell.strip()!r} is not a number{extra}"
-                ) from None
-            if not math.isfinite(v):
-                raise MeasurementError(
-                    f"{source}, line {r}, column {header[k]!r}: {cell.strip()} is not finite"
-                )
-            values[r - 2, k] = v
+    table = parse_numeric_csv(text, source, (*JOINTS, *POSITION))
+    header, values = table.header, table.values
     n = values.shape[0]
     if n < min_rows:
         raise MeasurementError(f"{source}: {n} measurement rows, at least {min_rows} needed")
@@ -248,7 +305,7 @@ def parse_measurements(
         if bad.size:
             r = int(bad[0])
             raise MeasurementError(
-                f"{source}, line {r + 2}, column {name!r}: {values[r, header.index(name)]:g} {what}"
+                f"{source}, line {table.lines[r]}, column {name!r}: {values[r, header.index(name)]:g} {what}"
             )
 
     for d in DIRS:
@@ -258,7 +315,7 @@ def parse_measurements(
         check("target", col["target"] == np.round(col["target"]), "must be an integer")
     if "payload" in col:
         check("payload", col["payload"] >= 0, "must be >= 0 kg")
-    A, L = _ANGLE[angle_unit], _LENGTH[length_unit]
+    A, L = ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit]
     q = np.column_stack([col[c] for c in JOINTS]) * A
     xyz = np.column_stack([col[c] for c in POSITION]) * L
     other = {h: col[h] for h in header if h not in (*JOINTS, *POSITION)}

@@ -17,7 +17,6 @@ stays fast and only ``collect`` loads MuJoCo.
 from __future__ import annotations
 
 import contextlib
-import csv
 import io
 import json
 import math
@@ -296,7 +295,8 @@ def _command(*words: object, **options: object) -> str:
     return shlex.join(out)
 
 
-def _p(p: float | None) -> str:
+def p_value_text(p: float | None) -> str:
+    """A p-value as text: below double precision's smallest normal a bound, not 0."""
     if p is None or not math.isfinite(p):
         return "-"
     return f"{p:.2g}" if p >= 1e-300 else "< 1e-300"
@@ -428,7 +428,9 @@ def _print_diagnosis(d, data: Path) -> None:
     shown = d.candidates[:10]
     for c in shown:
         sig = "[bold]yes[/bold]" if c.significant else "no"
-        table.add_row(escape(c.label), _mm(c.rms_mm), _mm(c.cv_rms_mm), _p(c.p_value), sig)
+        table.add_row(
+            escape(c.label), _mm(c.rms_mm), _mm(c.cv_rms_mm), p_value_text(c.p_value), sig
+        )
     if shown:
         table.columns[0].min_width = max(len(c.label) for c in shown)
         console.print(table)
@@ -443,7 +445,7 @@ def _print_diagnosis(d, data: Path) -> None:
         hints.add_column("score (adjusted R^2)", justify="right")
         hints.add_column("p-value", justify="right")
         for h in d.hints[:6]:
-            hints.add_row(escape(h.variable), f"{h.score:.3f}", _p(h.p_value))
+            hints.add_row(escape(h.variable), f"{h.score:.3f}", p_value_text(h.p_value))
         console.print(hints)
 
 
@@ -607,52 +609,12 @@ def poses_csv(q, angle_unit: str = "rad") -> str:
 def read_poses(path: Path, angle_unit: str = "rad"):
     """Joint angles (N, 6) in rad from a CSV with columns q1..q6 (other columns, and lines
     starting with ``#``, are ignored: a measurement file is a poses file too)."""
-    import numpy as np
+    from envs.measurements import ANGLE_UNITS, MeasurementError, parse_numeric_csv, read_text
 
-    from envs.measurements import MeasurementError
-
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise MeasurementError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MeasurementError(f"{path}: cannot be read ({exc})") from None
-    lines = [
-        (k, row)
-        for k, row in enumerate(csv.reader(io.StringIO(text)), start=1)
-        if any(c.strip() for c in row) and not row[0].lstrip().startswith("#")
-    ]
-    if not lines:
-        raise MeasurementError(f"{path}: empty file, expected a header row with q1..q6")
-    hline, header = lines[0][0], [h.strip() for h in lines[0][1]]
-    missing = [c for c in JOINTS if c not in header]
-    if missing:
-        raise MeasurementError(
-            f"{path}, line {hline}: missing required column(s) {', '.join(missing)} "
-            f"(found: {', '.join(header)})"
-        )
-    cols = [header.index(c) for c in JOINTS]
-    q = np.empty((len(lines) - 1, 6))
-    for i, (k, row) in enumerate(lines[1:]):
-        if len(row) != len(header):
-            raise MeasurementError(
-                f"{path}, line {k}: {len(row)} fields, but the header has {len(header)}"
-            )
-        for j, c in enumerate(cols):
-            try:
-                v = float(row[c])
-            except ValueError:
-                raise MeasurementError(
-                    f"{path}, line {k}, column {header[c]!r}: {row[c].strip()!r} is not a number"
-                ) from None
-            if not math.isfinite(v):
-                raise MeasurementError(
-                    f"{path}, line {k}, column {header[c]!r}: {row[c].strip()} is not finite"
-                )
-            q[i, j] = v
-    if not len(q):
+    table = parse_numeric_csv(read_text(path), str(path), JOINTS, comments=True, columns=JOINTS)
+    if not len(table.values):
         raise MeasurementError(f"{path}: no pose rows")
-    return q * (1.0 if angle_unit == "rad" else math.pi / 180.0)
+    return table.values[:, [table.header.index(c) for c in JOINTS]] * ANGLE_UNITS[angle_unit]
 
 
 @app.command("plan")

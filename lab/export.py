@@ -34,10 +34,8 @@ arm far from it (a laser tracker's frame, metres away), at the calibrated one.
 
 from __future__ import annotations
 
-import csv
 import io
 import logging
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -48,7 +46,15 @@ from envs.description import RobotDescription, load_robot, rotation_matrix
 from envs.effects import EFFECTS, EffectError
 from envs.errormodel import ErrorModel
 from envs.ik import solve_point, solve_position
-from envs.measurements import atomic_write_text
+from envs.measurements import (
+    ANGLE_UNITS,
+    JOINTS,
+    LENGTH_UNITS,
+    POSITION,
+    atomic_write_text,
+    parse_numeric_csv,
+    read_text,
+)
 from lab.identification import SCHEMA_VERSION, FitResult
 
 __all__ = [
@@ -74,10 +80,6 @@ EXPORT_TOL = 1e-9
 # the nominal arm is placed at the calibrated base when the two differ by more than this (m, rad)
 BASE_FAR_M = 0.05
 BASE_FAR_RAD = 0.05
-
-_LENGTH = {"m": 1.0, "mm": 1e-3}
-_ANGLE = {"rad": 1.0, "deg": math.pi / 180.0}
-JOINTS = tuple(f"q{i}" for i in range(1, 7))
 
 
 class ExportError(ValueError):
@@ -121,9 +123,9 @@ def export_robot(
     as it was).
     """
     path = Path(path)
-    if length_unit not in _LENGTH:
+    if length_unit not in LENGTH_UNITS:
         raise ExportError(f"{path}: length unit must be one of m, mm, got {length_unit!r}")
-    if angle_unit not in _ANGLE:
+    if angle_unit not in ANGLE_UNITS:
         raise ExportError(f"{path}: angle unit must be one of rad, deg, got {angle_unit!r}")
     desc = result.description(name or f"{result.model.robot.name}-calibrated")
     text = desc.to_toml(length_unit, angle_unit)
@@ -209,65 +211,32 @@ def read_targets(path: str | Path, length_unit: str = "m", angle_unit: str = "ra
     """A CSV of desired tool points: columns x, y, z (required), target, q1..q6 (optional start
     joint angles), any other numeric column. Errors name the file, line and column."""
     path = Path(path)
-    if length_unit not in _LENGTH:
+    if length_unit not in LENGTH_UNITS:
         raise CompensationError(f"length unit must be one of m, mm, got {length_unit!r}")
-    if angle_unit not in _ANGLE:
+    if angle_unit not in ANGLE_UNITS:
         raise CompensationError(f"angle unit must be one of rad, deg, got {angle_unit!r}")
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise CompensationError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CompensationError(f"{path}: cannot be read ({exc})") from None
-    rows = [r for r in csv.reader(io.StringIO(text)) if any(c.strip() for c in r)]
-    rows = [r for r in rows if not r[0].lstrip().startswith("#")]
-    if not rows:
-        raise CompensationError(f"{path}: empty file, expected a header row with x, y, z")
-    header = [h.strip() for h in rows[0]]
-    missing = [c for c in ("x", "y", "z") if c not in header]
-    if missing:
-        raise CompensationError(
-            f"{path}, line 1: missing required column(s) {', '.join(missing)} (found: {', '.join(header)})"
-        )
-    if len(set(header)) != len(header):
-        dup = sorted({h for h in header if header.count(h) > 1})
-        raise CompensationError(f"{path}, line 1: column(s) {', '.join(dup)} appear twice")
+    text = read_text(path, CompensationError)
+    table = parse_numeric_csv(text, str(path), POSITION, comments=True, error=CompensationError)
+    header = table.header
     qcols = [c for c in JOINTS if c in header]
     if qcols and len(qcols) != 6:
         raise CompensationError(
-            f"{path}, line 1: start joint angles need all of q1..q6, found only {', '.join(qcols)}"
+            f"{path}, line {table.header_line}: start joint angles need all of q1..q6, found "
+            f"only {', '.join(qcols)}"
         )
-    if len(rows) < 2:
+    if not len(table.values):
         raise CompensationError(f"{path}: no target rows")
-    values = np.empty((len(rows) - 1, len(header)))
-    for r, row in enumerate(rows[1:], start=2):
-        if len(row) != len(header):
-            raise CompensationError(
-                f"{path}, line {r}: {len(row)} fields, but the header has {len(header)}"
-            )
-        for k, cell in enumerate(row):
-            try:
-                v = float(cell)
-            except ValueError:
-                raise CompensationError(
-                    f"{path}, line {r}, column {header[k]!r}: {cell.strip()!r} is not a number"
-                ) from None
-            if not math.isfinite(v):
-                raise CompensationError(
-                    f"{path}, line {r}, column {header[k]!r}: {cell.strip()} is not finite"
-                )
-            values[r - 2, k] = v
-    col = {h: values[:, k] for k, h in enumerate(header)}
+    col = {h: table.values[:, k] for k, h in enumerate(header)}
     if "target" in col:
         bad = np.flatnonzero(col["target"] != np.round(col["target"]))
         if bad.size:
             raise CompensationError(
-                f"{path}, line {bad[0] + 2}, column 'target': {col['target'][bad[0]]:g} must be an integer"
+                f"{path}, line {table.lines[bad[0]]}, column 'target': {col['target'][bad[0]]:g} must be an integer"
             )
-    L, A = _LENGTH[length_unit], _ANGLE[angle_unit]
-    xyz = np.column_stack([col[c] for c in ("x", "y", "z")]) * L
+    L, A = LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit]
+    xyz = np.column_stack([col[c] for c in POSITION]) * L
     q = np.column_stack([col[c] for c in JOINTS]) * A if qcols else None
-    other = {h: col[h] for h in header if h not in ("x", "y", "z", *JOINTS)}
+    other = {h: col[h] for h in header if h not in (*POSITION, *JOINTS)}
     return TargetSet(xyz, q, other, str(path))
 
 

@@ -169,6 +169,10 @@ def test_bad_targets_are_named(tmp_path, true_arm):
         CompensationError, match=r"t.csv, line 3, column 'y': 'abc' is not a number"
     ):
         read_targets(f)
+    # lines are the file's own, past comments and blank lines
+    f.write_text("# cell 3\nx,y,z,target\n0.5,0.1,0.6,0\n\n0.5,0.2,0.6,1.5\n")
+    with pytest.raises(CompensationError, match=r"t.csv, line 5, column 'target': 1.5 must be"):
+        read_targets(f)
     f.write_text("x,y,z,q1,q2\n0.5,0.1,0.6,0,0\n")
     with pytest.raises(CompensationError, match=r"need all of q1\.\.q6, found only q1, q2"):
         read_targets(f)
