@@ -19,6 +19,8 @@ from rich.panel import Panel
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from experiments.cli_lab import p_value_text
+
 console = Console()
 
 NOISE_MM = 0.015  # per axis, a good laser tracker
@@ -101,7 +103,9 @@ def lab_story(
     diag.add_column("p-value", justify="right")
     diag.add_column("significant")
     for c in d.candidates[:5]:
-        diag.add_row(c.label, f"{c.rms_mm:.4f}", _p(c.p_value), "yes" if c.significant else "no")
+        diag.add_row(
+            c.label, f"{c.rms_mm:.4f}", p_value_text(c.p_value), "yes" if c.significant else "no"
+        )
     console.print(diag)
     console.print(
         "where the geometric model fails (residual explained by each measured variable): "
@@ -122,11 +126,6 @@ def lab_story(
         "full_validation_rms_mm": full.validation_rms_mm,
         "noise_floor_mm": floor,
     }
-
-
-def _p(p: float) -> str:
-    """A p-value as text; below double precision's smallest normal it prints as a bound, not 0."""
-    return f"{p:.2g}" if p >= 1e-300 else "< 1e-300"
 
 
 def register(app: typer.Typer) -> None:
