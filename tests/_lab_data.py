@@ -8,12 +8,14 @@ no payload (the catalogue's effects are all visible without one)."""
 
 from __future__ import annotations
 
+import csv
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from envs.description import RobotDescription
+from envs.description import Joint, RobotDescription
 from envs.errormodel import ErrorModel
 from envs.measurements import MeasurementSet
 from envs.sampling import sample_parameters, sample_poses
@@ -21,6 +23,56 @@ from envs.sampling import sample_parameters, sample_poses
 SIGMA = 15e-6  # m, per axis
 FLOOR_MM = SIGMA * math.sqrt(3) * 1e3  # 3-D RMS of a perfect model on held-out points
 MEDIAN_FLOOR_MM = 1.54 * SIGMA * 1e3  # median 3-D error of a perfect model
+
+# SPEC section 4: the keys every fit and diagnosis JSON object carries
+SPEC_FIT_KEYS = {
+    "effects",
+    "n_points",
+    "rms_mm",
+    "max_mm",
+    "validation_rms_mm",
+    "validation_median_mm",
+    "parameters",
+    "std",
+    "rank",
+    "n_parameters",
+    "unidentifiable",
+    "condition_number",
+    "schema_version",
+}
+SPEC_DIAGNOSE_KEYS = {
+    "schema_version",
+    "effects",
+    "rms_mm",
+    "noise_floor_mm",
+    "verdict",
+    "candidates",
+    "hints",
+}
+
+# Real laser-tracker data of another arm (see its README); tests using it skip where it is absent.
+REAL = Path("/work/shared/data/real/rokae-laser-tracker")
+
+
+def real_arm() -> RobotDescription:
+    """The real data's arm from its own tables (dh_mdh_deg_mm.csv, joint_limits_deg.csv); the tool
+    is unknown: at the flange."""
+    with open(REAL / "dh_mdh_deg_mm.csv") as fh:
+        rows = [[float(x) for x in r] for r in list(csv.reader(fh))[1:]]
+    with open(REAL / "joint_limits_deg.csv") as fh:
+        limits = [[float(x) for x in r] for r in list(csv.reader(fh))[1:]]
+    joints = tuple(
+        Joint(
+            alpha=math.radians(al),
+            a=a / 1e3,
+            d=d / 1e3,
+            theta_offset=math.radians(th),
+            lower=math.radians(lo),
+            upper=math.radians(hi),
+        )
+        for (al, a, d, th), (hi, lo) in zip(rows, limits, strict=True)
+    )
+    return RobotDescription("rokae", joints)
 
 
 @dataclass

@@ -25,38 +25,20 @@ from envs.measurements import read_measurements, write_measurements
 from experiments.cli import app
 from experiments.cli_lab import read_poses
 from lab import diagnose, fit
-from tests._lab_data import FLOOR_MM, SIGMA, campaign
+from tests._lab_data import (
+    FLOOR_MM,
+    REAL,
+    SIGMA,
+    SPEC_DIAGNOSE_KEYS,
+    SPEC_FIT_KEYS,
+    campaign,
+    real_arm,
+)
 
 runner = CliRunner()
 ROOT = Path(__file__).resolve().parents[1]
 SECOND_HARMONIC = ROOT / "examples" / "second_harmonic.py"
 NOISE = str(SIGMA * 1e3)  # mm per axis
-
-# SPEC section 4: the keys every `lab fit --json` and `lab diagnose --json` object carries
-FIT_KEYS = {
-    "effects",
-    "n_points",
-    "rms_mm",
-    "max_mm",
-    "validation_rms_mm",
-    "validation_median_mm",
-    "parameters",
-    "std",
-    "rank",
-    "n_parameters",
-    "unidentifiable",
-    "condition_number",
-    "schema_version",
-}
-DIAGNOSE_KEYS = {
-    "effects",
-    "rms_mm",
-    "noise_floor_mm",
-    "verdict",
-    "candidates",
-    "hints",
-    "schema_version",
-}
 
 
 def lab(*args: object):
@@ -91,7 +73,7 @@ def test_fit_json_has_every_spec_key_and_the_python_api_numbers(files):
     path, val = files["geo"], files["geo_val"]
     out = files["dir"] / "fit.json"
     got = lab_json("fit", path, "--validate", val, "--out", out)
-    assert FIT_KEYS <= set(got), FIT_KEYS - set(got)
+    assert SPEC_FIT_KEYS <= set(got), SPEC_FIT_KEYS - set(got)
     assert json.loads(out.read_text()) == got  # --out writes the same object
 
     ref = fit(read_measurements(path), "seed", "geometric", validate=read_measurements(val))
@@ -220,28 +202,12 @@ def test_diagnose_names_a_user_effect_once_its_module_is_loaded(harmonic_files, 
 
 
 def test_real_laser_tracker_data_through_the_cli(tmp_path):
-    real = Path("/work/shared/data/real/rokae-laser-tracker")
-    if not (real / "measurements.csv").is_file():
+    if not (REAL / "measurements.csv").is_file():
         pytest.skip("real data not present")
     # the arm's description (not the data) as a robot TOML in mm and degrees, tool unknown
-    with open(real / "dh_mdh_deg_mm.csv") as fh:
-        rows = [[float(x) for x in r] for r in list(csv.reader(fh))[1:]]
-    with open(real / "joint_limits_deg.csv") as fh:
-        limits = [[float(x) for x in r] for r in list(csv.reader(fh))[1:]]
-    toml = ['name = "rokae"', 'convention = "modified"', 'length_unit = "mm"', 'angle_unit = "deg"']
-    for (al, a, dd, th), (hi, lo) in zip(rows, limits, strict=True):
-        toml += [
-            "[[joints]]",
-            f"alpha = {al}",
-            f"a = {a}",
-            f"d = {dd}",
-            f"theta_offset = {th}",
-            f"limits = [{lo}, {hi}]",
-        ]
-    toml += ["[[tools]]", "point = [0.0, 0.0, 0.0]"]
     arm = tmp_path / "rokae.toml"
-    arm.write_text("\n".join(toml) + "\n")
-    got = lab_json("fit", real / "measurements.csv", "--robot", arm)
+    real_arm().save(arm, length_unit="mm", angle_unit="deg")
+    got = lab_json("fit", REAL / "measurements.csv", "--robot", arm)
     assert got["n_points"] == 30 and got["rms_mm"] < 0.1
     assert got["parameters"]["tz"] == pytest.approx(0.240, abs=2e-3)  # the README's 239.9 mm
     assert math.hypot(got["parameters"]["bx"], got["parameters"]["by"]) == pytest.approx(
@@ -252,7 +218,7 @@ def test_real_laser_tracker_data_through_the_cli(tmp_path):
 # -- diagnose ---------------------------------------------------------------------------------------
 def test_diagnose_names_the_hidden_compliance(files):
     got = lab_json("diagnose", files["comp"], "--noise-mm", NOISE)
-    assert DIAGNOSE_KEYS <= set(got), DIAGNOSE_KEYS - set(got)
+    assert SPEC_DIAGNOSE_KEYS <= set(got), SPEC_DIAGNOSE_KEYS - set(got)
     assert got["verdict"] == "compliance"
     assert got["noise_floor_mm"] == pytest.approx(FLOOR_MM)
     assert got["rms_mm"] > 2 * FLOOR_MM

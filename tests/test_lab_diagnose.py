@@ -14,20 +14,10 @@ import pytest
 from envs.effects import CATALOGUE, EFFECTS, load_effect_module
 from envs.measurements import MeasurementSet
 from lab import diagnose, fit
-from tests._lab_data import FLOOR_MM, SIGMA, campaign
+from tests._lab_data import FLOOR_MM, SIGMA, SPEC_DIAGNOSE_KEYS, campaign
 
 NOISE_MM = 1e3 * SIGMA
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "second_harmonic.py"
-
-SPEC_DIAGNOSE_KEYS = {
-    "schema_version",
-    "effects",
-    "rms_mm",
-    "noise_floor_mm",
-    "verdict",
-    "candidates",
-    "hints",
-}
 
 HIDDEN = [
     ("compliance", (2, 3)),

@@ -4,36 +4,26 @@ tool far off the flange, and refuses what it cannot do with a clear message."""
 
 from __future__ import annotations
 
-import csv
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from envs.description import Joint, RobotDescription
+from envs.description import RobotDescription
 from envs.errormodel import ErrorModel
 from envs.measurements import MeasurementSet, read_measurements, write_measurements
 from lab import FitError, fit
-from tests._lab_data import FLOOR_MM, MEDIAN_FLOOR_MM, SIGMA, campaign
-
-SPEC_FIT_KEYS = {
-    "effects",
-    "n_points",
-    "rms_mm",
-    "max_mm",
-    "validation_rms_mm",
-    "validation_median_mm",
-    "parameters",
-    "std",
-    "rank",
-    "n_parameters",
-    "unidentifiable",
-    "condition_number",
-    "schema_version",
-}
+from tests._lab_data import (
+    FLOOR_MM,
+    MEDIAN_FLOOR_MM,
+    REAL,
+    SIGMA,
+    SPEC_FIT_KEYS,
+    campaign,
+    real_arm,
+)
 
 
 @pytest.fixture(scope="module")
@@ -260,29 +250,13 @@ def test_clear_errors(seed, geometric_data):
 
 
 # --------------------------------------------------------------------------------------------------
-REAL = Path("/work/shared/data/real/rokae-laser-tracker")
 
 
 @pytest.mark.skipif(not (REAL / "measurements.csv").is_file(), reason="real data not present")
 def test_real_laser_tracker_data_by_leave_one_out():
     """30 poses of a real arm measured by a laser tracker 4.9 m away (see the data's README).
     Judged by leave-one-pose-out cross-validation: every pose predicted by a fit without it."""
-    with open(REAL / "dh_mdh_deg_mm.csv") as fh:
-        rows = [[float(x) for x in r] for r in list(csv.reader(fh))[1:]]
-    with open(REAL / "joint_limits_deg.csv") as fh:
-        limits = [[float(x) for x in r] for r in list(csv.reader(fh))[1:]]
-    joints = tuple(
-        Joint(
-            alpha=math.radians(al),
-            a=a / 1e3,
-            d=d / 1e3,
-            theta_offset=math.radians(th),
-            lower=math.radians(lo),
-            upper=math.radians(hi),
-        )
-        for (al, a, d, th), (hi, lo) in zip(rows, limits, strict=True)
-    )
-    robot = RobotDescription("rokae", joints)  # tool unknown: at the flange
+    robot = real_arm()  # tool unknown: at the flange
     data = read_measurements(REAL / "measurements.csv")
     full = fit(data, robot, "geometric")
     assert full.initial_rms * 1e3 > 1.0  # the nominal arm, registered: millimetres off

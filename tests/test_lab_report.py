@@ -6,21 +6,19 @@ differences of the plain kinematics."""
 from __future__ import annotations
 
 import base64
-import csv
 import math
 import re
 import struct
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from envs.description import Joint, RobotDescription, rotation_matrix
+from envs.description import rotation_matrix
 from envs.kinematics import Chain, gravity_torques, tool_points
 from envs.measurements import read_measurements
 from lab.report import arm_parameters, build_report
-from tests._lab_data import campaign
+from tests._lab_data import REAL, campaign, real_arm
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -136,31 +134,11 @@ def test_sensitivity_agrees_with_finite_differences_of_the_kinematics(seed, repo
     assert ranked[0] in {"dtheta2", "dalpha1", "beta2"}  # angles near the base move it most
 
 
-REAL = Path("/work/shared/data/real/rokae-laser-tracker")
-
-
 @pytest.mark.skipif(not (REAL / "measurements.csv").is_file(), reason="real data not present")
 def test_report_on_real_laser_tracker_data():
     """30 real poses, a tracker 4.9 m away, no validation file: the leave-one-out RMS is the
     held-out figure, nothing is hinted where nothing is significant, the weak pose set is flagged."""
-    with open(REAL / "dh_mdh_deg_mm.csv") as fh:
-        rows = [[float(x) for x in r] for r in list(csv.reader(fh))[1:]]
-    with open(REAL / "joint_limits_deg.csv") as fh:
-        limits = [[float(x) for x in r] for r in list(csv.reader(fh))[1:]]
-    joints = tuple(
-        Joint(
-            alpha=math.radians(al),
-            a=a / 1e3,
-            d=d / 1e3,
-            theta_offset=math.radians(th),
-            lower=math.radians(lo),
-            upper=math.radians(hi),
-        )
-        for (al, a, d, th), (hi, lo) in zip(rows, limits, strict=True)
-    )
-    rep = build_report(
-        read_measurements(REAL / "measurements.csv"), RobotDescription("rokae", joints)
-    )
+    rep = build_report(read_measurements(REAL / "measurements.csv"), real_arm())
     page = rep.to_html()
     nominal, geometric = rep.runs
     assert nominal.rms_mm > 1.0 and geometric.rms_mm < 0.1
