@@ -74,8 +74,8 @@ def lab_story(
         console.print(f"data written to {out}/calibration.csv and {out}/validation.csv")
 
     floor = NOISE_MM * math.sqrt(3.0)
-    geo = fit(train, "seed", "geometric", validate=held_out)
-    d = diagnose(train, "seed", "geometric", noise_mm=NOISE_MM)
+    geo = fit(train, "seed", "geometric", validate=held_out, noise_mm=NOISE_MM)
+    d = diagnose(train, noise_mm=NOISE_MM, base=geo)  # tests what this fit misses, no refit
     suggestion = d.suggestion or "geometric"
     full = fit(train, "seed", suggestion, validate=held_out)
 
