@@ -44,7 +44,7 @@ import numpy as np
 from agents.base import Agent, Observation, measurement_columns, solve_time_stats
 from agents.online_calibration import RecursiveLeastSquares
 from agents.tool_model import ToolModel, cached_tool_model
-from envs.errormodel import ErrorModel
+from arm.errormodel import ErrorModel
 
 __all__ = ["QP_SOLVERS", "KinematicMPC", "MPCAgent"]
 

@@ -1,7 +1,7 @@
 """Online calibration: recursive least squares over the identifiable parameters of an error model.
 
 As tracker measurements arrive during tracking, :class:`RecursiveLeastSquares` updates the
-parameter vector that the MPC's model uses. It learns what its :class:`~envs.errormodel.ErrorModel`
+parameter vector that the MPC's model uses. It learns what its :class:`~arm.errormodel.ErrorModel`
 can express: ``effects="geometric,compliance"`` lets it learn the joint stiffnesses too.
 
 The estimator is an information-form Gauss-Newton filter with *regularised* exponential forgetting
@@ -38,8 +38,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import scipy.linalg
 
-from envs.errormodel import ErrorModel
-from envs.sampling import _range, sample_poses
+from arm.errormodel import ErrorModel
+from arm.sampling import _range, sample_poses
 
 __all__ = [
     "RecursiveLeastSquares",

@@ -40,7 +40,7 @@ import numpy as np
 from agents.base import Agent, Observation, solve_time_stats
 from agents.reference import NominalAgent
 from agents.tool_model import cached_tool_model
-from envs.errormodel import ErrorModel
+from arm.errormodel import ErrorModel
 
 __all__ = [
     "POLICY_DIR",

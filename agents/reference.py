@@ -23,7 +23,7 @@ import numpy as np
 
 from agents.base import Agent, Observation, measurement_columns, solve_time_stats
 from agents.tool_model import cached_tool_model
-from envs.errormodel import ErrorModel
+from arm.errormodel import ErrorModel
 
 __all__ = ["CalibratedAgent", "HoldAgent", "NominalAgent", "fit_measurements"]
 
@@ -154,7 +154,7 @@ def fit_measurements(
         from lab import fit
     except ImportError:
         return _fit_scipy(model, q, xyz, columns, p0, loss, noise)
-    from envs.measurements import MeasurementSet
+    from arm.measurements import MeasurementSet
 
     data = MeasurementSet(q, xyz, columns, source="calibration phase")
     start = None if p0 is None else model.layout.as_dict(p0)

@@ -1,6 +1,6 @@
 """The error model's measured tool point as a CasADi expression, for controllers and estimators.
 
-:class:`envs.errormodel.ErrorModel` is the project's model (numpy, batched over poses). A controller
+:class:`arm.errormodel.ErrorModel` is the project's model (numpy, batched over poses). A controller
 needs the same prediction for one pose at every control step, its derivative by the joint angles
 (to linearise the kinematics for the MPC's QP), its derivative by the parameters (for recursive
 least squares) and, for the nonlinear MPC, the expression itself inside an optimisation problem.
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from envs.effects import (
+from arm.effects import (
     REFERENCE_TEMPERATURE,
     Backlash,
     ChainEffect,
@@ -40,8 +40,8 @@ from envs.effects import (
     Thermal,
     Transmission,
 )
-from envs.errormodel import ErrorModel
-from envs.kinematics import Chain
+from arm.errormodel import ErrorModel
+from arm.kinematics import Chain
 
 __all__ = ["ToolEval", "ToolModel", "UnsupportedEffectError", "cached_tool_model"]
 

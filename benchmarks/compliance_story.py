@@ -31,8 +31,8 @@ import numpy as np
 
 from agents.registry import make_agent
 from agents.runner import JUDGE_POSTURES, WORKSPACE_POSTURES, run_episode, workspace_campaign
+from arm.measurements import atomic_write_text
 from benchmarks._report import RESULTS, machine, write_section
-from envs.measurements import atomic_write_text
 
 SETTLE_S = 2.0
 SCENARIO = "compliance"

@@ -83,7 +83,7 @@ def measure(scenario: str, steps: int, repeats: int) -> dict[str, float]:
 
 def _resolved_rate(task, obs) -> np.ndarray:
     """Nominal resolved-rate tracking (what a controller knowing only the nominal arm does)."""
-    from envs.kinematics import Chain, link_frames
+    from arm.kinematics import Chain, link_frames
 
     sl = task.obs_slices
     q = obs[sl["q"]].astype(float)

@@ -23,11 +23,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from arm.description import RobotDescription, seed_robot
+from arm.errormodel import ErrorModel
+from arm.kinematics import Chain, tool_points
+from arm.sampling import sample_poses
 from benchmarks._report import machine, write_section
-from envs.description import RobotDescription, seed_robot
-from envs.errormodel import ErrorModel
-from envs.kinematics import Chain, tool_points
-from envs.sampling import sample_poses
 
 
 def timed(fn, repeats: int) -> float:

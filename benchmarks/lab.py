@@ -22,11 +22,11 @@ import numpy as np
 from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from arm import seed_robot
+from arm.errormodel import ErrorModel
+from arm.measurements import MeasurementSet
+from arm.sampling import sample_parameters, sample_poses
 from benchmarks._report import machine, write_section
-from envs import seed_robot
-from envs.errormodel import ErrorModel
-from envs.measurements import MeasurementSet
-from envs.sampling import sample_parameters, sample_poses
 from lab import diagnose, fit
 
 N = 1000

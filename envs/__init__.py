@@ -1,26 +1,13 @@
-"""sixaxis-track's robot and its world.
+"""sixaxis-track's simulated world: the MuJoCo plant, the scenarios that hide physical effects in
+it, the laser tracker, the reference trajectories and the Gymnasium environment.
 
-The pure-numpy parts (description, kinematics, error model, measurement files) import no simulator.
 ``SixAxisTrack-v0`` is registered here by an entry-point string, so importing ``envs`` loads no
-MuJoCo until the environment is made.
+MuJoCo until the environment is made. The arm model these build on is the package ``arm``.
 """
 
 from gymnasium.envs.registration import register, registry
 
-from envs.description import RobotDescription, load_robot, seed_robot
-from envs.errormodel import ErrorModel
-from envs.measurements import MeasurementSet, read_measurements, write_measurements
-
-__all__ = [
-    "ErrorModel",
-    "MeasurementSet",
-    "RobotDescription",
-    "SixAxisTrackEnv",
-    "load_robot",
-    "read_measurements",
-    "seed_robot",
-    "write_measurements",
-]
+__all__ = ["SixAxisTrackEnv"]
 
 if "SixAxisTrack-v0" not in registry:
     register(

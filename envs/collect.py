@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from envs.description import RobotDescription, load_robot
-from envs.measurements import MeasurementSet, write_measurements
-from envs.sampling import sample_poses
+from arm.description import RobotDescription, load_robot
+from arm.measurements import MeasurementSet, write_measurements
+from arm.sampling import sample_poses
 
 __all__ = ["collect_measurements"]
 

@@ -5,7 +5,7 @@ physics wherever physics can make them.
 Bodies follow the modified-DH rows exactly: body i sits at ``RotX(alpha_{i-1}) RotY(beta_{i-1})
 TransX(a_{i-1}) RotZ(theta_offset_i) TransZ(d_i)`` in its parent and turns about its own z, so that
 with rigid joints MuJoCo's ``site_xpos`` of the tool is the kinematic model's tool point of the same
-arm (``envs.kinematics``), to rounding. A base body carries the base transform (measurement frame
+arm (``arm.kinematics``), to rounding. A base body carries the base transform (measurement frame
 <- robot base); the world frame is the measurement frame.
 
 Each axis is a motor-side hinge (the encoder reads it) driven by a servo: an integrating position
@@ -47,9 +47,9 @@ if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
 import mujoco
 import numpy as np
 
-from envs.description import RobotDescription, rotation_matrix
-from envs.effects import REFERENCE_TEMPERATURE
-from envs.kinematics import gravity_torques
+from arm.description import RobotDescription, rotation_matrix
+from arm.effects import REFERENCE_TEMPERATURE
+from arm.kinematics import gravity_torques
 
 __all__ = [
     "RIGID_STIFFNESS",

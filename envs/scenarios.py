@@ -22,12 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from envs.description import RobotDescription
-from envs.effects import Backlash, Compliance, JointScale, Thermal, Transmission
-from envs.errormodel import ErrorModel
-from envs.kinematics import gravity_torques
+from arm.description import RobotDescription
+from arm.effects import Backlash, Compliance, JointScale, Thermal, Transmission
+from arm.errormodel import ErrorModel
+from arm.kinematics import gravity_torques
+from arm.sampling import sample_parameters, sample_poses
 from envs.plant import AMBIENT, HiddenEffects
-from envs.sampling import sample_parameters, sample_poses
 
 __all__ = [
     "EFFECTS",
@@ -101,7 +101,7 @@ SCENARIOS: dict[str, Scenario] = {
 
 # Magnitude ranges (SI units) of each effect's parameter families, drawn uniformly per episode.
 # Signs: compliance, backlash, friction, kappa, heating are physical (positive); transmission and
-# gear-ratio errors take a random sign. Geometric errors follow envs.effects.Geometric.typical.
+# gear-ratio errors take a random sign. Geometric errors follow arm.effects.Geometric.typical.
 RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "geometric": {"scale": (1.0, 1.0)},
     "compliance": {"c": Compliance.typical["c"]},
@@ -142,7 +142,7 @@ class Truth:
 
     ``true_robot``: the description with the sampled geometric errors folded in (DH rows, Hayati
     beta, base, tool) and the other effects' values in ``effects``; ``model``/``params``: an
-    :class:`~envs.errormodel.ErrorModel` on the *nominal* arm whose effects approximate the
+    :class:`~arm.errormodel.ErrorModel` on the *nominal* arm whose effects approximate the
     plant's (geometric plus compliance ``c_i = 1/k_i``, transmission and joint_scale, backlash
     where friction holds a link and load_backlash where gravity does, thermal) and its true
     parameter vector laid out by ``model.layout``; ``hidden``: the plant's physical magnitudes;

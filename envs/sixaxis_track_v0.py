@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from envs.description import RobotDescription, load_robot
+from arm.description import RobotDescription, load_robot
 from envs.instrument import LaserTracker, TrackerConfig
 from envs.plant import MAX_SPEED, Plant
 from envs.scenarios import Scenario, Truth, draw_truth, get_scenario

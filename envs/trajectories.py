@@ -24,10 +24,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from envs.description import RobotDescription
-from envs.ik import solve_point
-from envs.kinematics import Chain, link_frames
-from envs.sampling import MIN_TOOL_HEIGHT
+from arm.description import RobotDescription
+from arm.ik import solve_point
+from arm.kinematics import Chain, link_frames
+from arm.sampling import MIN_TOOL_HEIGHT
 
 __all__ = [
     "KINDS",
@@ -181,7 +181,7 @@ def solve_tool_points(
     robot: RobotDescription, targets: np.ndarray, q0: np.ndarray, tol: float = 1e-10
 ) -> tuple[np.ndarray, np.ndarray]:
     """Encoder angles (N, 6) putting the nominal arm's tool point at ``targets`` (N, 3, in the
-    measurement frame), all from ``q0`` (6,) by damped least squares (``envs.ik.solve_point``):
+    measurement frame), all from ``q0`` (6,) by damped least squares (``arm.ik.solve_point``):
     minimum-norm steps, so the solutions stay close to ``q0`` in the redundant directions and vary
     smoothly along a path. Returns the angles and the final errors (N,) in m."""
     m = robot.to_modified()

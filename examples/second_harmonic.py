@@ -9,7 +9,7 @@ per output revolution: ``theta_i = q_i + h2s_i * sin(2 q_i) + h2c_i * cos(2 q_i)
 
 or from Python:
 
-    from envs.effects import load_effect_module
+    from arm.effects import load_effect_module
     from lab import fit
     load_effect_module("examples/second_harmonic.py")
     result = fit(data, robot, "geometric,second_harmonic[3]")
@@ -18,12 +18,12 @@ A joint-angle effect is linear in its parameters: it names its terms (parameters
 ``{term}{joint}``: ``h2s3``, ``h2c3``) and gives the regressor of each on the joint angle; the
 error model derives the identification Jacobian from it. ``typical`` sets the size of an error
 that is worth fitting (the lab fixes parameters whose typical-size error moves the points by less
-than the instrument's noise) and the range :func:`envs.sampling.sample_parameters` draws from.
+than the instrument's noise) and the range :func:`arm.sampling.sample_parameters` draws from.
 """
 
 import numpy as np
 
-from envs.effects import JointAngleEffect
+from arm.effects import JointAngleEffect
 
 
 class SecondHarmonic(JointAngleEffect):
@@ -51,11 +51,11 @@ def simulate(out_dir: str = ".", joint: int = 3, n: int = 200, seed: int = 0) ->
     """
     from pathlib import Path
 
-    from envs.description import seed_robot
-    from envs.effects import register_effect
-    from envs.errormodel import ErrorModel
-    from envs.measurements import MeasurementSet, write_measurements
-    from envs.sampling import sample_parameters, sample_poses
+    from arm.description import seed_robot
+    from arm.effects import register_effect
+    from arm.errormodel import ErrorModel
+    from arm.measurements import MeasurementSet, write_measurements
+    from arm.sampling import sample_parameters, sample_poses
 
     register_effect(SecondHarmonic)
     robot, rng = seed_robot(), np.random.default_rng(seed)

@@ -54,7 +54,7 @@ def lab_story(
     """Run the lab's loop on a simulated campaign; returns the numbers it printed."""
     import numpy as np
 
-    from envs.description import seed_robot
+    from arm.description import seed_robot
     from envs.scenarios import draw_truth
     from lab import diagnose, fit
 
@@ -66,7 +66,7 @@ def lab_story(
     train = _collect(n, scenario, seed, truth, "measuring the calibration poses")
     held_out = _collect(n // 2, scenario, seed + 1000, truth, "measuring held-out poses")
     if out is not None:
-        from envs.measurements import write_measurements
+        from arm.measurements import write_measurements
 
         out.mkdir(parents=True, exist_ok=True)
         write_measurements(train, out / "calibration.csv")

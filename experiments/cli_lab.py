@@ -132,9 +132,9 @@ JsonOutOpt = Annotated[
 def _user_errors() -> tuple[type[Exception], ...]:
     """The library's bad-input exceptions: each message already names file, line, column or
     parameter, so the CLI prints it as one line."""
-    from envs.description import DescriptionError
-    from envs.effects import EffectError
-    from envs.measurements import MeasurementError
+    from arm.description import DescriptionError
+    from arm.effects import EffectError
+    from arm.measurements import MeasurementError
     from lab.identification import FitError
 
     return (DescriptionError, EffectError, MeasurementError, FitError)
@@ -184,7 +184,7 @@ def _check_loss(loss: str) -> None:
 
 def _load_modules(modules: Sequence[Path] | None) -> list[str]:
     """Register the effects of every ``--effect-module`` file; returns their names."""
-    from envs.effects import EffectError, load_effect_module
+    from arm.effects import EffectError, load_effect_module
 
     names: list[str] = []
     for m in modules or ():
@@ -196,7 +196,7 @@ def _load_modules(modules: Sequence[Path] | None) -> list[str]:
 
 
 def _parse_effects(effects: str) -> None:
-    from envs.effects import EffectError, parse_effects
+    from arm.effects import EffectError, parse_effects
 
     try:
         if not parse_effects(effects):
@@ -206,7 +206,7 @@ def _parse_effects(effects: str) -> None:
 
 
 def _robot(robot: str):
-    from envs.description import DescriptionError, load_robot
+    from arm.description import DescriptionError, load_robot
 
     try:
         return load_robot(robot)
@@ -215,7 +215,7 @@ def _robot(robot: str):
 
 
 def _read(path: Path, length_unit: str, angle_unit: str):
-    from envs.measurements import MeasurementError, read_measurements
+    from arm.measurements import MeasurementError, read_measurements
 
     try:
         return read_measurements(path, length_unit=length_unit, angle_unit=angle_unit)
@@ -270,7 +270,7 @@ def _dump(obj: dict) -> str:
 
 
 def _emit_json(obj: dict, as_json: bool, out: Path | None) -> None:
-    from envs.measurements import atomic_write_text
+    from arm.measurements import atomic_write_text
 
     text = _dump(obj)
     if out is not None:
@@ -609,7 +609,7 @@ def poses_csv(q, angle_unit: str = "rad") -> str:
 def read_poses(path: Path, angle_unit: str = "rad"):
     """Joint angles (N, 6) in rad from a CSV with columns q1..q6 (other columns, and lines
     starting with ``#``, are ignored: a measurement file is a poses file too)."""
-    from envs.measurements import ANGLE_UNITS, MeasurementError, parse_numeric_csv, read_text
+    from arm.measurements import ANGLE_UNITS, MeasurementError, parse_numeric_csv, read_text
 
     table = parse_numeric_csv(read_text(path), str(path), JOINTS, comments=True, columns=JOINTS)
     if not len(table.values):
@@ -650,7 +650,7 @@ def plan_cmd(
 
     O1 (Borm & Menq) is D-optimality over all identifiable parameters, O4 (Nahvi & Hollerbach)
     the noise amplification of the weakest one; both are printed beside random pose sets."""
-    from envs.measurements import atomic_write_text
+    from arm.measurements import atomic_write_text
     from lab import plan
 
     _check_units("m", angle_unit)

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from envs.measurements import atomic_write_text
+from arm.measurements import atomic_write_text
 from experiments.metrics import METRICS, Summary, summarize
 from experiments.records import RecordError, RunStore
 
@@ -440,7 +440,7 @@ def plot_by_scenario(board: Leaderboard, path: str | Path) -> Path:
 
 def _save(fig, path: str | Path) -> Path:
     """Write a PNG atomically (temp file + rename)."""
-    from envs.measurements import atomic_path
+    from arm.measurements import atomic_path
 
     p = Path(path)
     with atomic_path(p) as tmp:

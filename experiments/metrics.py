@@ -178,12 +178,12 @@ def calibration_error_mm(
     """RMS (mm) over ``n_poses`` fixed poses of |x_est(q) - x_true(q)|: the tool point predicted by
     the identified parameters (``names``, ``values``) against the truth's.
 
-    The estimate is evaluated with ``est_model`` (an :class:`envs.errormodel.ErrorModel` whose
+    The estimate is evaluated with ``est_model`` (an :class:`arm.errormodel.ErrorModel` whose
     layout has ``names``) when given, else with the truth's model (its other parameters nominal),
     which needs ``names`` to be among the truth's. Poses come from a fixed seed; columns an effect
     needs are set to reference conditions (temperature 20 degC, the arm's payload, every joint
     approached from +)."""
-    from envs.sampling import sample_poses
+    from arm.sampling import sample_poses
 
     names = list(names)
     values = np.asarray(values, dtype=float)

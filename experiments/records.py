@@ -24,7 +24,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from envs.measurements import atomic_write_text
+from arm.measurements import atomic_write_text
 
 __all__ = [
     "RECORD_SCHEMA",

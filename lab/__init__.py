@@ -1,7 +1,7 @@
 """The model lab: compare the kinematic model with measurements, see where it fails, learn which
 physical effect is missing, add it, watch the error fall.
 
-    from envs import read_measurements, load_robot
+    from arm import read_measurements, load_robot
     from lab import fit, diagnose, plan
 
     data = read_measurements("data.csv")

@@ -57,10 +57,10 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from envs.description import RobotDescription
-from envs.effects import EFFECTS, Effect, EffectError, JointAngleEffect, make_effect
-from envs.errormodel import ErrorModel
-from envs.measurements import MeasurementSet
+from arm.description import RobotDescription
+from arm.effects import EFFECTS, Effect, EffectError, JointAngleEffect, make_effect
+from arm.errormodel import ErrorModel
+from arm.measurements import MeasurementSet
 from lab.identifiability import (
     gram_factor,
     lower_inverse,

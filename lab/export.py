@@ -23,9 +23,9 @@ which :func:`export_robot` logs (a warning when it exceeds a quarter of the fit'
 
 **Compensation.** A controller with the nominal kinematics sends the joint angles of the nominal
 inverse kinematics; the real arm then misses the desired point by its calibration error. Here the
-nominal solution (:func:`envs.ik.solve_point`, damped least squares on the tool point, from the
+nominal solution (:func:`arm.ik.solve_point`, damped least squares on the tool point, from the
 joint angles given with each target or from a ready pose aimed at it) starts a damped
-least-squares solve on the *calibrated* model (:func:`envs.ik.solve_position`), every effect
+least-squares solve on the *calibrated* model (:func:`arm.ik.solve_position`), every effect
 included. Both are reported through the calibrated model: the error that compensation removes.
 Targets are in the measurement frame of the calibration (the calibrated arm's base transform
 applies); the nominal arm stands at its own base transform, or, when the calibration placed the
@@ -42,11 +42,11 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.description import RobotDescription, load_robot, rotation_matrix
-from envs.effects import EFFECTS, EffectError
-from envs.errormodel import ErrorModel
-from envs.ik import solve_point, solve_position
-from envs.measurements import (
+from arm.description import RobotDescription, load_robot, rotation_matrix
+from arm.effects import EFFECTS, EffectError
+from arm.errormodel import ErrorModel
+from arm.ik import solve_point, solve_position
+from arm.measurements import (
     ANGLE_UNITS,
     JOINTS,
     LENGTH_UNITS,

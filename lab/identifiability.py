@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import lapack
 
-from envs.errormodel import ErrorModel, ModelInputs
+from arm.errormodel import ErrorModel, ModelInputs
 
 __all__ = [
     "CONDITION_WARNING",

@@ -45,12 +45,12 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from envs.description import RobotDescription, load_robot, rotation_vector
-from envs.effects import Effect, EffectError
-from envs.errormodel import ErrorModel, ModelInputs
-from envs.kinematics import link_frames
-from envs.measurements import MeasurementSet, read_measurements
-from envs.params import parameter_unit
+from arm.description import RobotDescription, load_robot, rotation_vector
+from arm.effects import Effect, EffectError
+from arm.errormodel import ErrorModel, ModelInputs
+from arm.kinematics import link_frames
+from arm.measurements import MeasurementSet, read_measurements
+from arm.params import parameter_unit
 from lab.identifiability import Identifiability, analyse_jacobian
 
 __all__ = [

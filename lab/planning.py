@@ -5,7 +5,7 @@
     p.o1, p.random_o1                         # vs. as many random poses
 
 Candidates are random within the joint limits with the tool point above the floor
-(:func:`envs.sampling.sample_poses`), or given. Their identification Jacobian at the nominal
+(:func:`arm.sampling.sample_poses`), or given. Their identification Jacobian at the nominal
 parameters is column-scaled once, by each column's RMS per pose over all candidates, so that
 pose sets of one size compare on one scale; only the parameters identifiable from the candidates
 (:mod:`lab.identifiability`) count. A set's information matrix is ``M = sum_i A_i^T A_i`` over its
@@ -32,10 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.description import RobotDescription
-from envs.effects import Effect, EffectError
-from envs.errormodel import ErrorModel
-from envs.sampling import sample_poses
+from arm.description import RobotDescription
+from arm.effects import Effect, EffectError
+from arm.errormodel import ErrorModel
+from arm.sampling import sample_poses
 from lab.identifiability import Identifiability, analyse_jacobian
 from lab.identification import SCHEMA_VERSION, FitError, _as_robot
 

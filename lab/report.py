@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.description import RobotDescription
-from envs.effects import Effect
-from envs.errormodel import ErrorModel, ModelInputs
-from envs.measurements import MeasurementSet, atomic_write_text
-from envs.params import parameter_unit
+from arm.description import RobotDescription
+from arm.effects import Effect
+from arm.errormodel import ErrorModel, ModelInputs
+from arm.measurements import MeasurementSet, atomic_write_text
+from arm.params import parameter_unit
 from lab import plots
 from lab.diagnosis import Diagnosis, diagnose, hint_variables
 from lab.identifiability import CONDITION_WARNING, typical_magnitudes

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 import gymnasium as gym
 import numpy as np
 
-from envs.description import RobotDescription, seed_robot
-from envs.errormodel import ErrorModel
-from envs.sampling import sample_parameters
+from arm.description import RobotDescription, seed_robot
+from arm.errormodel import ErrorModel
+from arm.sampling import sample_parameters
 
 KIN_ENV_ID = "SixAxisKinematic-v0"
 

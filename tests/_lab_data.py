@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.description import Joint, RobotDescription
-from envs.errormodel import ErrorModel
-from envs.measurements import MeasurementSet
-from envs.sampling import sample_parameters, sample_poses
+from arm.description import Joint, RobotDescription
+from arm.errormodel import ErrorModel
+from arm.measurements import MeasurementSet
+from arm.sampling import sample_parameters, sample_poses
 
 SIGMA = 15e-6  # m, per axis
 FLOOR_MM = SIGMA * math.sqrt(3) * 1e3  # 3-D RMS of a perfect model on held-out points

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from envs.description import Joint, RobotDescription, seed_robot
+from arm.description import Joint, RobotDescription, seed_robot
 
 
 def _arm(name, rows, convention="modified", limits_deg=None, tools=((0.0, 0.0, 0.0),)):

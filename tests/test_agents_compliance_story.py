@@ -18,8 +18,8 @@ from agents.runner import (
     run_episode,
     workspace_campaign,
 )
-from envs.description import load_robot
-from envs.kinematics import Chain, gravity_torques, tool_points
+from arm.description import load_robot
+from arm.kinematics import Chain, gravity_torques, tool_points
 
 POSTURE = [None, -1.2, 0.3, None, 0.5, None]
 

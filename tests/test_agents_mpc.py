@@ -12,8 +12,8 @@ from agents.mpc import MM, KinematicMPC
 from agents.registry import make_agent
 from agents.runner import run_episode
 from agents.tool_model import cached_tool_model
-from envs import ErrorModel, seed_robot
-from envs.sampling import sample_parameters
+from arm import ErrorModel, seed_robot
+from arm.sampling import sample_parameters
 from tests._agents_kinsim import Q_START, register_kinematic_env
 
 V_MAX = np.array([1.2, 1.2, 1.5, 2.5, 2.5, 3.0])

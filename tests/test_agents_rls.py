@@ -13,8 +13,8 @@ from agents.online_calibration import (
     qr_identifiable,
     random_columns,
 )
-from envs import ErrorModel, seed_robot
-from envs.sampling import sample_parameters, sample_poses
+from arm import ErrorModel, seed_robot
+from arm.sampling import sample_parameters, sample_poses
 
 
 def _data(model, p, n, rng, noise=0.0, payload=0.0):

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from agents.tool_model import ToolModel, UnsupportedEffectError, cached_tool_model
-from envs import ErrorModel, seed_robot
-from envs.effects import ChainEffect, JointAngleEffect
-from envs.sampling import sample_parameters, sample_poses
+from arm import ErrorModel, seed_robot
+from arm.effects import ChainEffect, JointAngleEffect
+from arm.sampling import sample_parameters, sample_poses
 
 ALL = "geometric,compliance,transmission,joint_scale,backlash,load_backlash[2,3,4,5],thermal"
 

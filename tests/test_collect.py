@@ -10,10 +10,10 @@ import sys
 import numpy as np
 import pytest
 
-from envs import read_measurements, seed_robot
+from arm import read_measurements, seed_robot
+from arm.errormodel import ErrorModel
+from arm.sampling import sample_poses
 from envs.collect import collect_measurements
-from envs.errormodel import ErrorModel
-from envs.sampling import sample_poses
 from envs.scenarios import draw_truth
 
 ROBOT = seed_robot()

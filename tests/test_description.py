@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from envs.description import (
+from arm.description import (
     DescriptionError,
     Joint,
     RobotDescription,

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import envs  # registers SixAxisTrack-v0
-from envs.kinematics import Chain, link_frames
-from envs.sampling import MIN_TOOL_HEIGHT
+from arm.kinematics import Chain, link_frames
+from arm.sampling import MIN_TOOL_HEIGHT
 from envs.trajectories import KINDS
 
 ENV = "SixAxisTrack-v0"
@@ -291,7 +291,7 @@ def test_render_draws_arm_path_and_measurements():
 
 def test_importing_envs_loads_no_mujoco():
     code = "import sys, envs, envs.collect, envs.scenarios; print('mujoco' in sys.modules)"
-    code = code.replace("envs.scenarios", "envs.kinematics")
+    code = code.replace("envs.scenarios", "arm.kinematics")
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=os.environ
     )

@@ -12,11 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from envs.description import seed_robot
-from envs.effects import CATALOGUE, EffectError
-from envs.errormodel import ErrorModel
-from envs.kinematics import Chain, gravity_torques, tool_points
-from envs.sampling import sample_parameters
+from arm.description import seed_robot
+from arm.effects import CATALOGUE, EffectError
+from arm.errormodel import ErrorModel
+from arm.kinematics import Chain, gravity_torques, tool_points
+from arm.sampling import sample_parameters
 from tests.conftest import random_q, rokae_arm
 
 ALL = ",".join(CATALOGUE)
@@ -264,7 +264,7 @@ def test_missing_columns_and_bad_targets_are_named():
 def test_sampling_is_reproducible_and_of_the_spec_magnitudes():
     """Same seed, same arm; magnitudes within each effect's typical range (SPEC section 2), with
     physical signs where the effect has one."""
-    from envs.sampling import MIN_TOOL_HEIGHT, sample_poses
+    from arm.sampling import MIN_TOOL_HEIGHT, sample_poses
 
     model = ErrorModel(SEED, ALL)
     a = sample_parameters(model, np.random.default_rng(7))

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from agents.runner import EpisodeResult
-from envs.description import seed_robot
-from envs.errormodel import ErrorModel
+from arm.description import seed_robot
+from arm.errormodel import ErrorModel
 from experiments.metrics import (
     METRICS,
     calibration_error_mm,

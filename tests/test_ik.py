@@ -13,9 +13,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from envs.description import Joint, RobotDescription
-from envs.errormodel import ErrorModel
-from envs.ik import (
+from arm.description import Joint, RobotDescription
+from arm.errormodel import ErrorModel
+from arm.ik import (
     POSE_TOL,
     IKError,
     InverseKinematics,
@@ -25,8 +25,8 @@ from envs.ik import (
     solve_position,
     wrist_structure,
 )
-from envs.kinematics import Chain, link_frames, tool_points
-from envs.sampling import sample_parameters
+from arm.kinematics import Chain, link_frames, tool_points
+from arm.sampling import sample_parameters
 from tests.conftest import random_q
 
 

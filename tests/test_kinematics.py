@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from envs.kinematics import Chain, geometric_jacobian, gravity_torques, link_frames, tool_points
+from arm.kinematics import Chain, geometric_jacobian, gravity_torques, link_frames, tool_points
 from tests.conftest import puma_arm, random_q, rokae_arm
 
 SETTINGS = settings(max_examples=25, derandomize=True, deadline=None)
@@ -88,7 +88,7 @@ def _with_flange(robot):
 
 
 def test_standard_dh_to_modified_matches_the_standard_product(ur5):
-    from envs.ik import forward_pose
+    from arm.ik import forward_pose
 
     for robot in (ur5, puma_arm(), _with_flange(ur5), _with_flange(puma_arm())):
         m = robot.to_modified()
@@ -181,7 +181,7 @@ def _so3_vee(S: np.ndarray) -> np.ndarray:
 def test_geometric_jacobian_equals_finite_differences(q, arm):
     robot = {"seed": None, "rokae": rokae_arm(), "puma": puma_arm()}[arm]
     if robot is None:
-        from envs.description import seed_robot
+        from arm.description import seed_robot
 
         robot = seed_robot()
     m = robot.to_modified()

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from envs.description import load_robot, seed_robot
-from envs.effects import load_effect_module
-from envs.measurements import read_measurements, write_measurements
+from arm.description import load_robot, seed_robot
+from arm.effects import load_effect_module
+from arm.measurements import read_measurements, write_measurements
 from experiments.cli import app
 from experiments.cli_lab import read_poses
 from lab import diagnose, fit
@@ -140,7 +140,7 @@ def test_mm_data_read_as_metres_is_no_traceback(files):
 def own_effects():
     """The effect catalogue as it was before the test: a module loaded by --effect-module
     registers its effects for the rest of the process."""
-    from envs import effects
+    from arm import effects
 
     before = dict(effects.EFFECTS)
     yield
@@ -152,7 +152,7 @@ def own_effects():
 def harmonic_files(files):
     """An arm with a second-harmonic transmission error on joint 3 (examples/second_harmonic.py),
     the user's effect the catalogue lacks: 200 poses and 300 held-out ones."""
-    from envs import effects
+    from arm import effects
 
     before = dict(effects.EFFECTS)
     load_effect_module(SECOND_HARMONIC)
@@ -373,7 +373,7 @@ def test_export_then_compensate_reaches_the_true_arm(files):
 
     # targets: where the true arm puts its tool point at 40 reachable poses
     rng = np.random.default_rng(5)
-    from envs.sampling import sample_poses
+    from arm.sampling import sample_poses
 
     q_true = sample_poses(seed_robot(), 40, rng)
     xyz = c.truth.predict(c.truth.inputs(q_true, {}), c.params)

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from envs.effects import CATALOGUE, EFFECTS, load_effect_module
-from envs.measurements import MeasurementSet
+from arm.effects import CATALOGUE, EFFECTS, load_effect_module
+from arm.measurements import MeasurementSet
 from lab import diagnose, fit
 from tests._lab_data import FLOOR_MM, SIGMA, SPEC_DIAGNOSE_KEYS, campaign
 

@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs.description import load_robot, rotation_matrix
-from envs.effects import JointAngleEffect
-from envs.kinematics import Chain, gravity_torques, tool_points
-from envs.sampling import sample_poses
+from arm.description import load_robot, rotation_matrix
+from arm.effects import JointAngleEffect
+from arm.kinematics import Chain, gravity_torques, tool_points
+from arm.sampling import sample_poses
 from lab import fit
 from lab.export import (
     CompensationError,

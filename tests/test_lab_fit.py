@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from envs.description import RobotDescription
-from envs.errormodel import ErrorModel
-from envs.measurements import MeasurementSet, read_measurements, write_measurements
+from arm.description import RobotDescription
+from arm.errormodel import ErrorModel
+from arm.measurements import MeasurementSet, read_measurements, write_measurements
 from lab import FitError, fit
 from tests._lab_data import (
     FLOOR_MM,

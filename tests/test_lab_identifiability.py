@@ -10,9 +10,9 @@ import re
 import numpy as np
 import pytest
 
-from envs.description import RobotDescription
-from envs.errormodel import ErrorModel
-from envs.sampling import sample_poses
+from arm.description import RobotDescription
+from arm.errormodel import ErrorModel
+from arm.sampling import sample_poses
 from lab import identifiability_of
 from lab.identifiability import analyse, gram_factor, orthonormal_basis
 

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from envs.errormodel import ErrorModel
-from envs.sampling import sample_poses
+from arm.errormodel import ErrorModel
+from arm.sampling import sample_poses
 from lab import FitError, fit, plan
 from tests._lab_data import campaign
 

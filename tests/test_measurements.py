@@ -9,7 +9,7 @@ import os
 import numpy as np
 import pytest
 
-from envs.measurements import (
+from arm.measurements import (
     MeasurementError,
     MeasurementSet,
     atomic_write_text,

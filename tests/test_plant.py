@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs import seed_robot
-from envs.description import replace, rotation_matrix
-from envs.kinematics import Chain, gravity_torques, tool_points
+from arm import seed_robot
+from arm.description import replace, rotation_matrix
+from arm.kinematics import Chain, gravity_torques, tool_points
+from arm.sampling import sample_poses
 from envs.plant import HiddenEffects, Plant, PlantError
-from envs.sampling import sample_poses
 from envs.scenarios import draw_truth
 
 ROBOT = seed_robot()
@@ -72,7 +72,7 @@ def test_elastic_plant_geometry_uses_motor_plus_link_angle(elastic):
 
 @pytest.mark.parametrize("payload", [0.0, 2.5])
 def test_gravity_torques_are_minus_qfrc_bias(rigid, payload):
-    """SPEC sign convention: envs.kinematics.gravity_torques equals minus MuJoCo's qfrc_bias at
+    """SPEC sign convention: arm.kinematics.gravity_torques equals minus MuJoCo's qfrc_bias at
     rest, payload included."""
     truth = draw_truth("geometric", ROBOT, np.random.default_rng(5))
     rigid.configure(truth.true_robot, HiddenEffects(payload0=payload))
@@ -85,7 +85,7 @@ def test_gravity_torques_are_minus_qfrc_bias(rigid, payload):
 
 def test_static_deflection_matches_the_compliance_formula(elastic):
     """Links start undeflected; MuJoCo's physics settles them. Their deflection (link angle minus
-    encoder) equals c_i tau_i (SPEC compliance, c_i = 1/k_i, tau from envs.kinematics) within 5 %
+    encoder) equals c_i tau_i (SPEC compliance, c_i = 1/k_i, tau from arm.kinematics) within 5 %
     wherever |tau_i| > 20 N*m."""
     truth = draw_truth("compliance", ROBOT, np.random.default_rng(7))
     c = truth.magnitudes["compliance"]

@@ -243,7 +243,7 @@ class RobotDescription:
         return tomli_w.dumps(doc)
 
     def save(self, path: str | Path, length_unit: str = "m", angle_unit: str = "deg") -> None:
-        from envs.measurements import atomic_write_text
+        from arm.measurements import atomic_write_text
 
         atomic_write_text(Path(path), self.to_toml(length_unit, angle_unit))
 
@@ -420,7 +420,7 @@ def load_robot(name_or_path: str | Path | None = None) -> RobotDescription:
         if not p.is_file():
             raise DescriptionError(f"{p}: robot description file not found")
         return RobotDescription.from_toml(p.read_text(), source=str(p))
-    shipped = resources.files("envs") / "robots" / f"{name_or_path}.toml"
+    shipped = resources.files("arm") / "robots" / f"{name_or_path}.toml"
     if not shipped.is_file():
         raise DescriptionError(
             f"unknown robot {str(name_or_path)!r}: not a shipped name nor a file"

@@ -1,6 +1,6 @@
 """Inverse kinematics of a 6R arm: every solution in closed form for arms with a spherical wrist,
 and a batched damped least-squares (Levenberg-Marquardt) solver for any arm, for full poses, for
-tool points, and for the measured point of a calibrated :class:`~envs.errormodel.ErrorModel`.
+tool points, and for the measured point of a calibrated :class:`~arm.errormodel.ErrorModel`.
 
 Closed form (derived here; the seed paper's equations (9)-(20) are not used). The modified-DH rows
 ``T(i-1 -> i) = RotX(alpha_{i-1}) RotY(beta_{i-1}) TransX(a_{i-1}) RotZ(theta_i) TransZ(d_i)`` must
@@ -58,11 +58,11 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from envs.description import RobotDescription, rotation_vector
-from envs.kinematics import Chain, link_frames
+from arm.description import RobotDescription, rotation_vector
+from arm.kinematics import Chain, link_frames
 
 if TYPE_CHECKING:  # pragma: no cover
-    from envs.errormodel import ErrorModel
+    from arm.errormodel import ErrorModel
 
 __all__ = [
     "IKError",

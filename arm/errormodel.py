@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from envs.description import RobotDescription
-from envs.effects import (
+from arm.description import RobotDescription
+from arm.effects import (
     ChainEffect,
     Effect,
     EffectError,
@@ -30,7 +30,7 @@ from envs.effects import (
     parse_effects,
     so3_left_jacobian,
 )
-from envs.kinematics import (
+from arm.kinematics import (
     Chain,
     ColumnFrames,
     Workspace,
@@ -39,7 +39,7 @@ from envs.kinematics import (
     gravity_torques,
     tool_points,
 )
-from envs.params import ParameterLayout
+from arm.params import ParameterLayout
 
 __all__ = ["ChainState", "ErrorModel", "ModelInputs", "Sensitivities"]
 
@@ -357,7 +357,7 @@ class ErrorModel:
     def joint_jacobian(self, inputs: ModelInputs, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Measured points (N, 3) and their derivatives by the effective joint angles theta
         (N, 3, 6), in the measurement frame: the step direction of inverse kinematics on the
-        calibrated model (:func:`envs.ik.solve_position`)."""
+        calibrated model (:func:`arm.ik.solve_position`)."""
         st, f = self._evaluate(inputs, np.asarray(p, dtype=float))
         point = self._point(st, f, inputs.target)
         sens = Sensitivities(st, f, point)

@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from envs.description import RobotDescription
+from arm.description import RobotDescription
 
 __all__ = [
     "Chain",

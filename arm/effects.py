@@ -29,10 +29,10 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from envs.description import RobotDescription
+from arm.description import RobotDescription
 
 if TYPE_CHECKING:  # pragma: no cover
-    from envs.errormodel import ChainState, ModelInputs, Sensitivities
+    from arm.errormodel import ChainState, ModelInputs, Sensitivities
 
 __all__ = [
     "EFFECTS",

@@ -7,9 +7,9 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from envs.description import RobotDescription
-from envs.errormodel import ErrorModel
-from envs.kinematics import Chain, tool_points
+from arm.description import RobotDescription
+from arm.errormodel import ErrorModel
+from arm.kinematics import Chain, tool_points
 
 __all__ = ["MIN_TOOL_HEIGHT", "sample_parameters", "sample_poses"]
 
