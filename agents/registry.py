@@ -21,11 +21,12 @@ from collections.abc import Callable
 from typing import Any
 
 from agents.base import Agent
+from arm.errors import SixAxisError
 
 __all__ = ["AGENTS", "AgentError", "agent_names", "make_agent"]
 
 
-class AgentError(ValueError):
+class AgentError(SixAxisError, ValueError):
     """An unknown agent or bad settings, with the name at fault."""
 
 

@@ -41,6 +41,7 @@ from arm.effects import (
     Transmission,
 )
 from arm.errormodel import ErrorModel
+from arm.errors import SixAxisError
 from arm.kinematics import Chain
 
 __all__ = ["ToolEval", "ToolModel", "UnsupportedEffectError", "cached_tool_model"]
@@ -48,7 +49,7 @@ __all__ = ["ToolEval", "ToolModel", "UnsupportedEffectError", "cached_tool_model
 log = logging.getLogger(__name__)
 
 
-class UnsupportedEffectError(ValueError):
+class UnsupportedEffectError(SixAxisError, ValueError):
     """An effect that the CasADi tool model cannot express."""
 
 

@@ -48,6 +48,8 @@ from typing import Literal
 
 import numpy as np
 
+from arm.errors import SixAxisError
+
 __all__ = [
     "DescriptionError",
     "Joint",
@@ -64,7 +66,7 @@ _LENGTH = {"m": 1.0, "mm": 1e-3}
 _ANGLE = {"rad": 1.0, "deg": math.pi / 180.0}
 
 
-class DescriptionError(ValueError):
+class DescriptionError(SixAxisError, ValueError):
     """A robot description that cannot be used, with the file and key at fault."""
 
 

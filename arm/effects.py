@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from arm.description import RobotDescription
+from arm.errors import SixAxisError
 
 if TYPE_CHECKING:  # pragma: no cover
     from arm.errormodel import ChainState, ModelInputs, Sensitivities
@@ -58,7 +59,7 @@ log = logging.getLogger(__name__)
 REFERENCE_TEMPERATURE = 20.0  # degC, where thermal growth is zero
 
 
-class EffectError(ValueError):
+class EffectError(SixAxisError, ValueError):
     """An unknown effect, a bad effect specification or a missing measured column."""
 
 

@@ -59,6 +59,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from arm.description import RobotDescription, rotation_vector
+from arm.errors import SixAxisError
 from arm.kinematics import Chain, link_frames
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -85,7 +86,7 @@ _STRUCTURE_EXACT = 1e-9  # deviations below this count as the exact structure
 _STRUCTURE_NEAR = 0.05  # m / rad: closer than this, the closed form seeds a refinement
 
 
-class IKError(ValueError):
+class IKError(SixAxisError, ValueError):
     """Bad input to an inverse-kinematics function (shapes, unknown tool)."""
 
 

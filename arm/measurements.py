@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from arm.errors import SixAxisError
+
 __all__ = [
     "MeasurementError",
     "MeasurementSet",
@@ -42,7 +44,7 @@ LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
 
 
-class MeasurementError(ValueError):
+class MeasurementError(SixAxisError, ValueError):
     """Bad measurement input; the message names the file, the line and the column."""
 
 

@@ -14,10 +14,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from arm.errors import SixAxisError
+
 __all__ = ["InstrumentError", "LaserTracker", "Measurement", "TrackerConfig"]
 
 
-class InstrumentError(ValueError):
+class InstrumentError(SixAxisError, ValueError):
     """An instrument setting out of range."""
 
 

@@ -41,6 +41,8 @@ import os
 import sys
 from dataclasses import dataclass, field, replace
 
+from arm.errors import SixAxisError
+
 if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
     os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering; set before mujoco loads
 
@@ -76,7 +78,7 @@ HOLD_POWER = 60.0  # W dissipated by an axis holding its full torque (copper los
 KP_MIN = 2000.0  # N*m/rad: the light axes' position loop is stiffer than their inertia asks
 
 
-class PlantError(ValueError):
+class PlantError(SixAxisError, ValueError):
     """A plant configuration that cannot be built or applied."""
 
 

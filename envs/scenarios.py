@@ -25,6 +25,7 @@ import numpy as np
 from arm.description import RobotDescription
 from arm.effects import Backlash, Compliance, JointScale, Thermal, Transmission
 from arm.errormodel import ErrorModel
+from arm.errors import SixAxisError
 from arm.kinematics import gravity_torques
 from arm.sampling import sample_parameters, sample_poses
 from envs.plant import AMBIENT, HiddenEffects
@@ -42,7 +43,7 @@ __all__ = [
 EFFECTS = ("geometric", "compliance", "transmission", "backlash", "thermal", "payload")
 
 
-class ScenarioError(ValueError):
+class ScenarioError(SixAxisError, ValueError):
     """An unknown scenario, or an override that names an unknown effect or parameter."""
 
 

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from arm.description import RobotDescription
+from arm.errors import SixAxisError
 from arm.ik import solve_point
 from arm.kinematics import Chain, link_frames
 from arm.sampling import MIN_TOOL_HEIGHT
@@ -49,7 +50,7 @@ SPEED_FRACTION = 0.5  # of v_max that the nominal joint speeds may use
 MIN_SINGULAR = 0.05  # m/rad, smallest singular value of the position Jacobian
 
 
-class TrajectoryError(ValueError):
+class TrajectoryError(SixAxisError, ValueError):
     """An unknown trajectory kind, or no reachable trajectory found."""
 
 

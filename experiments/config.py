@@ -52,6 +52,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from arm.errors import SixAxisError
+
 __all__ = [
     "AgentEntry",
     "ConfigError",
@@ -72,7 +74,7 @@ DEFAULT_ENV_ID = "SixAxisTrack-v0"
 LABEL_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
 
 
-class ConfigError(ValueError):
+class ConfigError(SixAxisError, ValueError):
     """A config that cannot run: the message names the file and every key at fault."""
 
     def __init__(self, source: str, problems: Sequence[str]) -> None:

@@ -24,6 +24,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from arm.errors import SixAxisError
 from arm.measurements import atomic_write_text
 
 __all__ = [
@@ -56,7 +57,7 @@ _PACKAGES = (
 )
 
 
-class RecordError(ValueError):
+class RecordError(SixAxisError, ValueError):
     """A record file that cannot be read, naming the file."""
 
 

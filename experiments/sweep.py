@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from arm.errors import SixAxisError
 from experiments.config import ExperimentConfig, RunSpec
 from experiments.records import RECORD_SCHEMA, RunStore, environment_info, jsonable
 
@@ -59,7 +60,7 @@ _THREAD_VARS = (
 )
 
 
-class SweepError(RuntimeError):
+class SweepError(SixAxisError, RuntimeError):
     """A sweep that cannot start (e.g. records of another spec under the same run keys)."""
 
 

@@ -45,6 +45,7 @@ import numpy as np
 from arm.description import RobotDescription, load_robot, rotation_matrix
 from arm.effects import EFFECTS, EffectError
 from arm.errormodel import ErrorModel
+from arm.errors import SixAxisError
 from arm.ik import solve_point, solve_position
 from arm.measurements import (
     ANGLE_UNITS,
@@ -82,11 +83,11 @@ BASE_FAR_M = 0.05
 BASE_FAR_RAD = 0.05
 
 
-class ExportError(ValueError):
+class ExportError(SixAxisError, ValueError):
     """The calibrated arm cannot be exported faithfully; nothing was written."""
 
 
-class CompensationError(ValueError):
+class CompensationError(SixAxisError, ValueError):
     """Bad compensation input: the message names the file, line, column or effect."""
 
 

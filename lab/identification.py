@@ -48,6 +48,7 @@ from scipy.stats import chi2
 from arm.description import RobotDescription, load_robot, rotation_vector
 from arm.effects import Effect, EffectError
 from arm.errormodel import ErrorModel, ModelInputs
+from arm.errors import SixAxisError
 from arm.kinematics import link_frames
 from arm.measurements import MeasurementSet, read_measurements
 from arm.params import parameter_unit
@@ -78,7 +79,7 @@ MAD_TO_SIGMA = 1.4826
 OUTLIER_RADIUS = math.sqrt(chi2.ppf(0.999, 3))  # 4.03 sigma: the 99.9 % radius of 3-D noise
 
 
-class FitError(ValueError):
+class FitError(SixAxisError, ValueError):
     """A fit that cannot be done as asked: too few poses, bad options; the message says why."""
 
 
