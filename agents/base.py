@@ -12,7 +12,9 @@ observation and the ``info`` of the step that produced it (the reset's info at t
 agents use only what a real controller would have, never the truth (``truth`` is handed to oracles
 alone).
 
-The observation layout is the env's ``task.obs_slices``; :class:`Observation` reads it by name.
+The contract's types (:class:`~envs.task.TaskInfo`, the :class:`~envs.task.Truth` an oracle reads,
+:class:`~envs.task.Observation`, which reads the flat observation by the env's ``task.obs_slices``)
+live in :mod:`envs.task`, which imports no MuJoCo.
 """
 
 from __future__ import annotations
@@ -20,62 +22,15 @@ from __future__ import annotations
 import abc
 import logging
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-__all__ = ["Agent", "Observation", "measurement_columns", "solve_time_stats"]
+from envs.task import TaskInfo, Truth
+
+__all__ = ["Agent", "measurement_columns", "solve_time_stats"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class Observation:
-    """The named parts of a flat observation vector (views, SI units)."""
-
-    q: np.ndarray  # encoder angles (6,), rad
-    qd: np.ndarray  # joint velocities (6,), rad/s
-    ref: np.ndarray  # the reference tool point now (3,), m
-    preview: np.ndarray  # the next references (preview_steps, 3), m
-    meas: np.ndarray  # the last tracker measurement (3,), m
-    meas_age: float  # its age, s
-    meas_valid: bool
-    temperature: float  # degC
-    payload: float | None = None  # kg, as declared to the controller (None: not observed)
-
-    @classmethod
-    def parse(cls, task: Any, obs: np.ndarray) -> Observation:
-        sl = task.obs_slices
-        obs = np.asarray(obs, dtype=float)
-
-        def part(name, default=None):
-            if name not in sl:
-                if default is None:
-                    raise KeyError(f"the observation has no {name!r} (slices: {sorted(sl)})")
-                return default
-            return obs[sl[name]]
-
-        return cls(
-            q=part("q"),
-            qd=part("qd", np.zeros(6)),
-            ref=part("ref"),
-            preview=part("preview").reshape(-1, 3),
-            meas=part("meas", np.full(3, np.nan)),
-            meas_age=float(part("meas_age", np.array([np.inf]))[0]),
-            meas_valid=bool(part("meas_valid", np.zeros(1))[0] > 0.5),
-            temperature=float(part("temperature", np.array([20.0]))[0]),
-            payload=float(obs[sl["payload"]][0]) if "payload" in sl else None,
-        )
-
-    def references(self, n: int) -> np.ndarray:
-        """The next ``n`` reference points (n, 3), the last preview point repeated if short."""
-        pv = self.preview
-        if len(pv) == 0:
-            return np.repeat(self.ref[None, :], n, axis=0)
-        if len(pv) >= n:
-            return pv[:n]
-        return np.vstack([pv, np.repeat(pv[-1:], n - len(pv), axis=0)])
 
 
 def measurement_columns(info: Mapping[str, Any]) -> dict[str, float]:
@@ -113,14 +68,14 @@ class Agent(abc.ABC):
     needs_truth: bool = False
 
     def __init__(self) -> None:
-        self.task: Any = None
+        self.task: TaskInfo | None = None
         self.last_solve_time: float = 0.0  # s, the computation of the last act()
 
     @abc.abstractmethod
-    def reset(self, task: Any, seed: int | None = None, truth: Any = None) -> None:
-        """Start an episode on the arm described by ``task`` (the env's ``TaskInfo``)."""
+    def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
+        """Start an episode on the arm described by ``task``."""
 
-    def next_phase(self, task: Any, truth: Any = None) -> None:
+    def next_phase(self, task: TaskInfo, truth: Truth | None = None) -> None:
         """Continue on the same arm in a new phase; keep what was learned (default: just the
         task)."""
         self.task = task

@@ -41,10 +41,11 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from agents.base import Agent, Observation, measurement_columns, solve_time_stats
+from agents.base import Agent, measurement_columns, solve_time_stats
 from agents.online_calibration import RecursiveLeastSquares
 from agents.tool_model import ToolModel, cached_tool_model
 from arm.errormodel import ErrorModel
+from envs.task import Observation, TaskInfo, Truth
 
 __all__ = ["QP_SOLVERS", "KinematicMPC", "MPCAgent"]
 
@@ -437,7 +438,7 @@ class MPCAgent(Agent):
         self.p: np.ndarray | None = None
 
     # -- episode ---------------------------------------------------------------------------------
-    def reset(self, task: Any, seed: int | None = None, truth: Any = None) -> None:
+    def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
         self.task = task
         if self.oracle:
             if truth is None:
@@ -464,7 +465,7 @@ class MPCAgent(Agent):
         )
         self.tm = tm
         if self.online:
-            noise = getattr(task, "noise_mm", 0.015) or 0.0
+            noise = task.noise_mm
             sigma = self.sigma if self.sigma is not None else max(noise * 1e-3, 2e-6)
             self.rls = RecursiveLeastSquares(
                 self.model,
@@ -478,7 +479,7 @@ class MPCAgent(Agent):
         self._update_times: list[float] = []
         self._start_phase()
 
-    def next_phase(self, task: Any, truth: Any = None) -> None:
+    def next_phase(self, task: TaskInfo, truth: Truth | None = None) -> None:
         self.task = task
         self._start_phase()
 

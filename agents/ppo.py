@@ -37,10 +37,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from agents.base import Agent, Observation, solve_time_stats
+from agents.base import Agent, solve_time_stats
 from agents.reference import NominalAgent
 from agents.tool_model import cached_tool_model
 from arm.errormodel import ErrorModel
+from envs.task import Observation, TaskInfo, Truth
 
 __all__ = [
     "POLICY_DIR",
@@ -69,7 +70,7 @@ class PolicyFeatures:
     def __init__(self, history_s: float = 1.0) -> None:
         self.history_s = history_s
 
-    def reset(self, task: Any) -> None:
+    def reset(self, task: TaskInfo) -> None:
         self.task = task
         self.model = ErrorModel(task.robot, "geometric")
         self.p = self.model.nominal()
@@ -125,7 +126,7 @@ class ActionMap:
     def size(self) -> int:
         return 6 if self.variant == "plain" else 3
 
-    def reset(self, task: Any) -> None:
+    def reset(self, task: TaskInfo) -> None:
         self.task = task
         if self.variant == "residual":
             self.nominal.reset(task)
@@ -501,7 +502,7 @@ class PPOAgent(Agent):
         offset = meta.get("config", {}).get("offset_mm", 3.0)
         self.offset_mm = float(self._offset_mm if self._offset_mm is not None else offset)
 
-    def reset(self, task: Any, seed: int | None = None, truth: Any = None) -> None:
+    def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
         if self._policy is None:
             self._load()
         self.task = task
@@ -511,7 +512,7 @@ class PPOAgent(Agent):
         self.actions.reset(task)
         self._times: list[float] = []
 
-    def next_phase(self, task: Any, truth: Any = None) -> None:
+    def next_phase(self, task: TaskInfo, truth: Truth | None = None) -> None:
         self.task = task
         self.features.reset(task)
         self.actions.reset(task)

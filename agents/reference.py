@@ -21,9 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from agents.base import Agent, Observation, measurement_columns, solve_time_stats
+from agents.base import Agent, measurement_columns, solve_time_stats
 from agents.tool_model import cached_tool_model
 from arm.errormodel import ErrorModel
+from envs.task import Observation, TaskInfo, Truth
 
 __all__ = ["CalibratedAgent", "HoldAgent", "NominalAgent", "fit_measurements"]
 
@@ -35,7 +36,7 @@ class HoldAgent(Agent):
 
     name = "hold"
 
-    def reset(self, task: Any, seed: int | None = None, truth: Any = None) -> None:
+    def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
         self.task = task
 
     def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
@@ -62,7 +63,7 @@ class NominalAgent(Agent):
         self.damping = float(damping)
         self.effects = effects
 
-    def reset(self, task: Any, seed: int | None = None, truth: Any = None) -> None:
+    def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
         self.task = task
         self.model = ErrorModel(task.robot, self.effects)
         self.p = self.model.nominal()
@@ -70,7 +71,7 @@ class NominalAgent(Agent):
         self._times: list[float] = []
         self._start_phase()
 
-    def next_phase(self, task: Any, truth: Any = None) -> None:
+    def next_phase(self, task: TaskInfo, truth: Truth | None = None) -> None:
         self.task = task
         self._start_phase()
 
@@ -235,7 +236,7 @@ class CalibratedAgent(NominalAgent):
         self.calibration_seconds = calibration_seconds
         self.min_measurements = int(min_measurements)
 
-    def reset(self, task: Any, seed: int | None = None, truth: Any = None) -> None:
+    def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
         super().reset(task, seed, truth)
         self._q: list[np.ndarray] = []
         self._xyz: list[np.ndarray] = []
@@ -247,7 +248,7 @@ class CalibratedAgent(NominalAgent):
         self._t0 = 0.0  # episode time at the start of the phase
         self._t = 0.0
 
-    def next_phase(self, task: Any, truth: Any = None) -> None:
+    def next_phase(self, task: TaskInfo, truth: Truth | None = None) -> None:
         if not self.final and self.calibration_seconds is None and len(self._q) > 0:
             self.calibrate()
         self._t0 = self._t
@@ -276,7 +277,7 @@ class CalibratedAgent(NominalAgent):
             default = self.task.robot.payload if c == "payload" else 0.0
             cols[c] = np.array([d.get(c, default) for d in self._cols], dtype=float)
         t0 = time.perf_counter()
-        sigma = max(float(getattr(self.task, "noise_mm", 0.015) or 0.0) * 1e-3, 2e-6)
+        sigma = max(self.task.noise_mm * 1e-3, 2e-6)
         try:
             self.p, self.fitted = fit_measurements(
                 self.model, np.array(self._q), np.array(self._xyz), cols, noise=sigma

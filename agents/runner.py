@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from agents.base import Agent
+from envs.task import Truth
 
 __all__ = [
     "ENV_ID",
@@ -273,7 +274,7 @@ def _make_env(env_id: str, kwargs: Mapping[str, Any], steps: int | None):
     return gym.make(env_id, **kw)
 
 
-def _truth_parameters(truth: Any) -> dict[str, float]:
+def _truth_parameters(truth: Truth | None) -> dict[str, float]:
     try:
         return truth.model.layout.as_dict(truth.params)
     except Exception:
@@ -298,7 +299,7 @@ def run_episode(
         k: [] for k in ("time", "phase", "judged", "err", "act", "meas", "solve")
     }
     diverged = False
-    truth0 = None
+    truth0: Truth | None = None
     t_offset = 0.0
     wall0 = time.perf_counter()
     for k, ph in enumerate(phases):
@@ -376,7 +377,7 @@ def run_episode(
     )
 
 
-def _same_truth(a: Any, b: Any) -> bool:
+def _same_truth(a: Truth | None, b: Truth | None) -> bool:
     try:
         return np.array_equal(np.asarray(a.params), np.asarray(b.params))
     except Exception:

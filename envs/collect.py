@@ -16,13 +16,16 @@ import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from arm.description import RobotDescription, load_robot
 from arm.measurements import MeasurementSet, write_measurements
 from arm.sampling import sample_poses
+
+if TYPE_CHECKING:
+    from envs.scenarios import EpisodeTruth
 
 __all__ = ["collect_measurements"]
 
@@ -53,7 +56,7 @@ def _move(plant, target: np.ndarray, v_cruise: np.ndarray, decel: np.ndarray) ->
 
 
 def collect_measurements(
-    truth: Any = None,
+    truth: EpisodeTruth | None = None,
     poses: np.ndarray | None = None,
     n: int = 100,
     scenario: str = "geometric",
@@ -68,7 +71,7 @@ def collect_measurements(
 ) -> MeasurementSet:
     """Simulate a calibration measurement campaign and return (and, with ``path``, write) it.
 
-    ``truth``: an :class:`envs.scenarios.Truth` to measure; without one it is drawn from
+    ``truth``: an :class:`envs.scenarios.EpisodeTruth` to measure; without one it is drawn from
     ``scenario`` (and ``overrides``) for ``robot`` with ``seed``. ``poses`` (N, 6) encoder
     targets; without them ``n`` random poses within the limits with the tool above the floor.
     Each pose is reached by a transit to a point ``APPROACH`` rad before it on a random side,

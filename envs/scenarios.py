@@ -34,9 +34,9 @@ __all__ = [
     "EFFECTS",
     "RANGES",
     "SCENARIOS",
+    "EpisodeTruth",
     "Scenario",
     "ScenarioError",
-    "Truth",
     "draw_truth",
 ]
 
@@ -138,7 +138,7 @@ _PER_JOINT = {"c", "ts", "tc", "g", "bl", "bf"}
 
 
 @dataclass
-class Truth:
+class EpisodeTruth:
     """Everything hidden about one episode's arm, for evaluation and oracle controllers only.
 
     ``true_robot``: the description with the sampled geometric errors folded in (DH rows, Hayati
@@ -260,7 +260,7 @@ def draw_truth(
     robot: RobotDescription,
     rng: np.random.Generator,
     overrides: Mapping[str, Mapping[str, Any]] | None = None,
-) -> Truth:
+) -> EpisodeTruth:
     """One episode's hidden arm: the scenario's effects with magnitudes drawn from ``rng``."""
     sc = get_scenario(scenario)
     nominal = robot.to_modified()
@@ -366,7 +366,7 @@ def draw_truth(
         }
     if "payload" in on:
         mags |= {"payload0": payload0, "payload_schedule": hidden.payload_schedule}
-    return Truth(sc.name, true_robot, model, params, hidden, mags)
+    return EpisodeTruth(sc.name, true_robot, model, params, hidden, mags)
 
 
 def _backlash_kinds(

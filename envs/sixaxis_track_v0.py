@@ -8,7 +8,6 @@ import math
 import os
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
@@ -22,52 +21,16 @@ from gymnasium import spaces
 from arm.description import RobotDescription, load_robot
 from envs.instrument import LaserTracker, TrackerConfig
 from envs.plant import MAX_SPEED, Plant
-from envs.scenarios import Scenario, Truth, draw_truth, get_scenario
+from envs.scenarios import EpisodeTruth, Scenario, draw_truth, get_scenario
+from envs.task import TaskInfo
 from envs.trajectories import KINDS, Trajectory, check_posture, sample_trajectory
 
-__all__ = ["SixAxisTrackEnv", "TaskInfo", "Truth"]
+__all__ = ["SixAxisTrackEnv"]
 
 MAX_MEASUREMENT_AGE = 10.0  # s, the age reported before the first measurement
 
 WORKSPACE = 5.0  # m, bound of every observed point
 DIVERGENCE_REWARD = -1000.0
-
-
-@dataclass(frozen=True, eq=False)
-class TaskInfo:
-    """What a controller may know: the *nominal* arm, the timing, the servo limits and the
-    instrument's settings, and where each part of the observation sits.
-
-    ``robot`` nominal description; ``dt`` control period (s); ``v_max``/``a_max`` (6,) the servo's
-    velocity and acceleration limits (a command is ``action * v_max``, rate-limited to
-    ``a_max * dt`` per step); ``q_lower``/``q_upper`` (6,) joint limits; ``preview_steps``;
-    ``obs_slices`` {name: slice} into the observation; ``noise_mm`` per-axis tracker noise;
-    ``measure_every`` (steps), ``latency_steps``, ``dropout``, ``measurements`` (False: blind);
-    ``scenario``; ``physics_dt`` and ``substeps``; ``torque_max`` (6,); ``jerk_weight``.
-    """
-
-    robot: RobotDescription
-    dt: float
-    v_max: np.ndarray
-    a_max: np.ndarray
-    q_lower: np.ndarray
-    q_upper: np.ndarray
-    preview_steps: int
-    obs_slices: dict[str, slice]
-    noise_mm: float
-    measure_every: int
-    latency_steps: int
-    dropout: float
-    measurements: bool
-    scenario: str
-    physics_dt: float
-    substeps: int
-    torque_max: np.ndarray
-    jerk_weight: float
-
-    @property
-    def obs_size(self) -> int:
-        return max(s.stop for s in self.obs_slices.values())
 
 
 def _layout(preview: int) -> dict[str, slice]:
@@ -174,8 +137,8 @@ class SixAxisTrackEnv(gym.Env):
     | `all`          | everything at once                                                            |
 
     ## Hidden truth
-    ``env.unwrapped.task`` (:class:`TaskInfo`) is what an agent may use. ``env.unwrapped.truth``
-    (:class:`~envs.scenarios.Truth`) is for evaluation and oracle controllers only: the true
+    ``env.unwrapped.task`` (:class:`~envs.task.TaskInfo`) is what an agent may use. ``env.unwrapped.truth``
+    (:class:`~envs.scenarios.EpisodeTruth`) is for evaluation and oracle controllers only: the true
     description, an ``ErrorModel`` approximating the plant with its true ``params``, and the raw
     magnitudes.
 
@@ -314,7 +277,7 @@ class SixAxisTrackEnv(gym.Env):
         self.observation_space = spaces.Box(low, high, (n,), np.float32)
 
         # per-episode state
-        self.truth: Truth | None = None
+        self.truth: EpisodeTruth | None = None
         self.trajectory: Trajectory | None = None
         self.references = np.zeros((1, 3))
         self._obs = np.zeros(n)

@@ -1,44 +1,27 @@
 """A small pure-numpy kinematic stand-in for SixAxisTrack-v0, for the agents' fast tests.
 
-Same contract as the real env (spaces, ``task``, ``truth``, observation slices, info keys), but the
-plant is the error model itself: an ideal velocity servo (acceleration-limited integrator) and the
-tool point of the true parameters. It isolates the controllers and the estimator from the MuJoCo
+Same contract as the real env (spaces, the real ``task`` and ``truth`` classes, observation slices,
+info keys), but the plant is the error model itself: an ideal velocity servo (acceleration-limited
+integrator) and the tool point of the true parameters. It isolates the controllers and the estimator from the MuJoCo
 physics, so their tests check the algorithms: with a perfect servo the MPC's oracle error is
 nearly zero and a calibrated model must get close to it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
 
-from arm.description import RobotDescription, seed_robot
+from arm.description import seed_robot
 from arm.errormodel import ErrorModel
 from arm.sampling import sample_parameters
+from envs.plant import HiddenEffects
+from envs.scenarios import EpisodeTruth
+from envs.task import TaskInfo
 
 KIN_ENV_ID = "SixAxisKinematic-v0"
-
-
-@dataclass(frozen=True)
-class KinTask:
-    robot: RobotDescription
-    dt: float
-    v_max: np.ndarray
-    a_max: np.ndarray
-    q_lower: np.ndarray
-    q_upper: np.ndarray
-    preview_steps: int
-    obs_slices: dict = field(default_factory=dict)
-    noise_mm: float = 0.015
-
-
-@dataclass(frozen=True)
-class KinTruth:
-    true_robot: RobotDescription
-    model: ErrorModel
-    params: np.ndarray
 
 
 SCENARIO_EFFECTS = {
@@ -65,10 +48,7 @@ class KinematicTrackEnv(gym.Env):
         outliers=0.0,
         payload=2.0,
     ):
-        self.robot = seed_robot()
-        from dataclasses import replace
-
-        self.robot = replace(self.robot, payload=payload)
+        self.robot = replace(seed_robot(), payload=payload)
         self.scenario = scenario
         self.trajectory = trajectory
         self.noise = noise_mm * 1e-3
@@ -85,7 +65,7 @@ class KinematicTrackEnv(gym.Env):
         for n, s in zip(names, sizes, strict=True):
             sl[n] = slice(k, k + s)
             k += s
-        self.task = KinTask(
+        self.task = TaskInfo(
             robot=self.robot,
             dt=self.dt,
             v_max=np.array([2.0, 2.0, 2.0, 3.0, 3.0, 4.0]),
@@ -95,6 +75,15 @@ class KinematicTrackEnv(gym.Env):
             preview_steps=self.P,
             obs_slices=sl,
             noise_mm=noise_mm,
+            measure_every=measure_every,
+            latency_steps=latency_steps,
+            dropout=dropout,
+            measurements=measurements,
+            scenario=scenario,
+            physics_dt=self.dt,  # the servo is integrated once per control step
+            substeps=1,
+            torque_max=np.full(6, np.inf),  # an ideal servo
+            jerk_weight=0.0,
         )
         self.action_space = gym.spaces.Box(-1.0, 1.0, (6,), np.float32)
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (k,), np.float32)
@@ -124,7 +113,8 @@ class KinematicTrackEnv(gym.Env):
         rng = np.random.default_rng(seed)
         model = ErrorModel(self.robot, SCENARIO_EFFECTS[self.scenario])
         p = model.nominal() if self.scenario == "nominal" else sample_parameters(model, rng)
-        self.truth = KinTruth(model.description(p), model, p)
+        # no hidden physics: the plant is the error model itself
+        self.truth = EpisodeTruth(self.scenario, model.description(p), model, p, HiddenEffects())
         self.noise_rng = np.random.default_rng([int(seed or 0), 7])
         self.q = Q_START.copy()
         nominal = ErrorModel(self.robot, "geometric")

@@ -98,7 +98,7 @@ def test_user_agent_by_class_path_is_accepted():
     [
         ({"agents": ["hold", "bogus"]}, "agents[1].name", "unknown agent 'bogus'"),
         ({"agents": ["no.such.module:Agent"]}, "agents[0].name", "cannot import module"),
-        ({"agents": ["agents.base:Observation"]}, "agents[0].name", "not a subclass"),
+        ({"agents": ["envs.task:Observation"]}, "agents[0].name", "not a subclass"),
         ({"scenarios": ["geometric", "wobbly"]}, "scenarios[1].name", "unknown scenario 'wobbly'"),
         (
             {"scenarios": [{"name": "x", "scenario": "wobbly"}]},

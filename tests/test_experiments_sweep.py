@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from agents.base import Agent
+from envs.task import TaskInfo, Truth
 from experiments.config import RunSpec, parse_config
 from experiments.leaderboard import build_leaderboard, to_csv
 from experiments.records import RunStore, load_record, without_timing
@@ -43,7 +44,7 @@ class DampedHold(Agent):
         super().__init__()
         self.factor = float(factor)
 
-    def reset(self, task: Any, seed: int | None = None, truth: Any = None) -> None:
+    def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
         self.task = task
         self.steps = 0
 
