@@ -410,6 +410,13 @@ def _print_diagnosis(d, data: Path) -> None:
         else:
             line += f"; next: {then}"
     console.print(line, highlight=False, soft_wrap=True)
+    if d.verdict == "unexplained":
+        console.print(
+            "next: let the lab search for the missing term's form: "
+            + escape(discover_command(data, d)),
+            highlight=False,
+            soft_wrap=True,
+        )
     if len(d.outliers):
         console.print(
             f"{len(d.outliers)} outlier(s) left out of the tests", highlight=False, soft_wrap=True
@@ -449,6 +456,20 @@ def _print_diagnosis(d, data: Path) -> None:
         console.print(hints)
 
 
+def discover_command(data: Path, d) -> str:
+    """The ``sixaxis lab discover`` command that continues a diagnosis: from its model (or the
+    catalogue's best explanation, when it has one), with its noise."""
+    return _command(
+        "discover",
+        data,
+        **{
+            "--effects": d.suggestion or ",".join(d.effects),
+            "--noise-mm": d.noise_mm,
+            "-o": "discovered.py",
+        },
+    )
+
+
 @app.command("diagnose")
 def diagnose_cmd(
     data: DataArg,
@@ -480,6 +501,156 @@ def diagnose_cmd(
             d = diagnose(meas, arm, effects, noise_mm=noise_mm, loss=loss, alpha=alpha)
     if not as_json:
         _print_diagnosis(d, data)
+    _emit_json(d.to_dict(), as_json, out)
+
+
+# -- discover ---------------------------------------------------------------------------------------
+def _print_discovery(d, output: Path | None) -> None:
+    floor = f", noise floor {d.noise_floor_mm:.4f} mm" if d.noise_floor_mm else ""
+    console.print(
+        f"model [bold]{escape(', '.join(d.effects))}[/bold] on {d.base.n_points} points: RMS "
+        f"{d.rms_mm:.4f} mm{floor}; {d.n_candidates} candidate terms (harmonics to order "
+        f"{d.order}), family-wise false-discovery rate {d.alpha:g}",
+        highlight=False,
+        soft_wrap=True,
+    )
+    colour = {"none": "green", "unexplained": "yellow"}.get(d.verdict, "red")
+    line = f"verdict: [bold {colour}]{escape(d.verdict)}[/bold {colour}]"
+    if d.verdict == "none" and d.noise_mm is None:
+        line += " (no term is significant; give --noise-mm to test the residual against the noise)"
+    elif d.verdict == "none":
+        line += " (the residual is consistent with the noise: nothing missing)"
+    elif d.verdict == "unexplained" and d.terms:
+        line += " (the terms found explain part; the residual stays above the noise)"
+    elif d.verdict == "unexplained":
+        line += " (the residual is above the noise and no term of the library explains it)"
+    console.print(line, highlight=False, soft_wrap=True)
+    if not d.terms:
+        return
+    for f in d.formulas.values():
+        console.print(f"  [bold]{escape(f)}[/bold]", highlight=False, soft_wrap=True)
+    table = Table(title="discovered terms (refitted with the model)", title_justify="left")
+    for c, j in (
+        ("joint", "right"),
+        ("term", "left"),
+        ("coefficient", "right"),
+        ("std", "right"),
+        ("parameter", "left"),
+    ):
+        table.add_column(c, justify=j)
+    for t in d.terms:
+        table.add_row(
+            str(t.joint),
+            escape(t.expression),
+            f"{t.coefficient:.4g}",
+            "-" if t.std is None else f"{t.std:.2g}",
+            t.name,
+        )
+    console.print(table)
+    for reading in dict.fromkeys(t.reading for t in d.terms):
+        terms = ", ".join(t.expression for t in d.terms if t.reading == reading)
+        console.print(f"  {escape(terms)}: {escape(reading)}", highlight=False, soft_wrap=True)
+    held = f", held-out {d.validation_rms_mm:.4f} mm" if d.validation_rms_mm is not None else ""
+    console.print(
+        f"with the terms: RMS {d.rms_after_mm:.4f} mm{held}", highlight=False, soft_wrap=True
+    )
+    if output is not None:
+        console.print(
+            f"wrote the effect to {escape(str(output))}; fit it with: "
+            + escape(
+                shlex.join(
+                    [
+                        "sixaxis",
+                        "lab",
+                        "fit",
+                        "DATA.csv",
+                        "--effect-module",
+                        str(output),
+                        "--effects",
+                        d.suggestion,
+                    ]
+                )
+            ),
+            highlight=False,
+            soft_wrap=True,
+        )
+
+
+@app.command("discover")
+def discover_cmd(
+    data: DataArg,
+    output: Annotated[
+        Path | None,
+        typer.Option(
+            "--output",
+            "-o",
+            help="The effect module (Python) to write when terms are found; load it with "
+            "--effect-module. Nothing is written when nothing is found.",
+            metavar="MODULE.py",
+        ),
+    ] = None,
+    robot: RobotOpt = "seed",
+    effects: Annotated[
+        str,
+        typer.Option(
+            "--effects",
+            "-e",
+            help="The model E to start from (default geometric; or the diagnosis's best "
+            "catalogued model, e.g. geometric,compliance[2,3]).",
+        ),
+    ] = "geometric",
+    noise_mm: NoiseOpt = None,
+    validate: ValidateOpt = None,
+    effect_module: ModuleOpt = None,
+    length_unit: LengthOpt = "m",
+    angle_unit: AngleOpt = "rad",
+    alpha: Annotated[
+        float, typer.Option(help="Family-wise false-discovery rate (as diagnose's --alpha).")
+    ] = 0.02,
+    order: Annotated[
+        int, typer.Option(help="The highest harmonic sin/cos(m*q) in the library.")
+    ] = 4,
+    name: Annotated[
+        str, typer.Option(help="The discovered effect's name (lower case, digits, _).")
+    ] = "discovered",
+    as_json: JsonOpt = False,
+    out: JsonOutOpt = None,
+) -> None:
+    """Search a library of candidate terms for the form of what the model misses.
+
+    Sparse regression over joint-angle terms theta_j = q_j + k*f(variables) (harmonics of q_j,
+    powers and the sign of tau_j, temperature and its products, t, payload, dir_j), each
+    projected through the identification Jacobian and out of the model's span; the terms found
+    are refitted with the model and written as an effect class (-o MODULE.py)."""
+    from lab.discovery import discover
+
+    arm, meas, val = _prepare(
+        data, robot, effects, effect_module, validate, "linear", length_unit, angle_unit, noise_mm
+    )
+    if not 0 < alpha < 1:
+        _fail(f"--alpha must lie in (0, 1), got {alpha}")
+    if output is not None and output.is_dir():
+        _fail(f"{output}: is a directory; -o takes the Python file to write")
+    if output is not None and output.suffix != ".py":
+        _fail(f"{output}: the effect module must be a .py file")
+    with _guard():
+        with console.status("fitting the model and searching the library..."):
+            d = discover(
+                meas,
+                arm,
+                effects,
+                noise_mm=noise_mm,
+                validate=val,
+                alpha=alpha,
+                order=order,
+                name=name,
+            )
+    written = None
+    if output is not None and d.terms:
+        with _writing(output):
+            written = d.write_module(output)
+    if not as_json:
+        _print_discovery(d, written)
     _emit_json(d.to_dict(), as_json, out)
 
 

@@ -15,6 +15,7 @@ simulator, no plotting here (see ``lab.report``).
 """
 
 from lab.diagnosis import Candidate, Diagnosis, Hint, diagnose
+from lab.discovery import Discovery, discover
 from lab.identifiability import Identifiability, analyse
 from lab.identification import FitError, FitResult, fit, identifiability_of
 from lab.planning import Plan, plan
@@ -22,6 +23,7 @@ from lab.planning import Plan, plan
 __all__ = [
     "Candidate",
     "Diagnosis",
+    "Discovery",
     "FitError",
     "FitResult",
     "Hint",
@@ -29,6 +31,7 @@ __all__ = [
     "Plan",
     "analyse",
     "diagnose",
+    "discover",
     "fit",
     "identifiability_of",
     "plan",

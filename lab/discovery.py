@@ -1,0 +1,752 @@
+"""Discovery: the form of an effect that the catalogue lacks, found by sparse regression.
+
+    d = discover(data, robot, "geometric", noise_mm=0.015)
+    d.verdict           # "discovered", "none" or "unexplained"
+    print(d.formulas)   # {2: "theta2 = q2 + 2.01e-4*sin(2*q2) - 1.0e-4*cos(2*q2)"}
+    d.write_module("discovered.py")   # an effect class; fit with d.suggestion
+    d.to_dict()         # the JSON of ``sixaxis lab discover --json``
+
+Method.
+
+1. **The model E** (default geometric) is fitted; its identifiable Jacobian columns span what it
+   explains, and its residual (with that span projected out) is what is left to explain.
+2. **A library of candidate terms**, each a joint-angle term ``theta_j = q_j + k * f(variables)``
+   for one joint j and one function f of the measured variables (:func:`library_terms`):
+   harmonics ``sin(m*q_j)``, ``cos(m*q_j)`` for m = 1..``order`` (default 4), ``q_j``; powers and
+   the sign of the joint's gravity torque ``tau_j``, ``tau_j^2``, ``tau_j^3``, ``sign(tau_j)``;
+   with a temperature column ``(temperature - 20)`` and its products with ``tau_j``,
+   ``sin(q_j)``, ``cos(q_j)``; ``t``; ``payload``; ``dir_j`` and ``dir_j*tau_j``. A term's
+   regressor is the joint-angle column of joint j of the identification Jacobian (d point /
+   d theta_j, at the fitted parameters) times f, with E's span projected out; a term that E
+   already explains (the column lies in E's span) or that moves no point is not a candidate.
+   The sine and cosine of one harmonic are one candidate (the phase is unknown), every other
+   term is one on its own.
+3. **Forward stepwise selection** over the candidates, by the F-test of nested linear models and
+   leave-one-pose-out prediction, exactly as :func:`lab.diagnose` tests catalogued effects (it
+   shares its code): each step adds the candidate whose addition predicts held-out poses best
+   among those significant at ``alpha / 4 / M`` (Bonferroni over the M candidates, at every
+   step) that lower the held-out RMS. With the instrument's noise known, another quarter of
+   ``alpha`` goes to the chi-square test of the residual (:data:`TERMS_SHARE`,
+   :data:`CHI2_SHARE`): on data that E explains, discovery reports ``none`` with probability at
+   least ``1 - alpha`` (measured: 99 % of 200 clean campaigns, ``tests/test_lab_discover.py``).
+   Why not a library: scikit-learn's LassoLarsIC (AIC/BIC) and OrthogonalMatchingPursuitCV and
+   pysindy's STLSQ choose sparsity by prediction error or an information criterion, which
+   admits a chance term in most clean data sets once the library holds a hundred candidates;
+   their measurement against this selection is ``benchmarks/discovery_selectors.py``.
+4. The selected terms become an effect class (:meth:`Discovery.module_source`), and E plus that
+   effect is **refitted with the lab's own non-linear least squares** (:func:`lab.fit`): the
+   coefficients and their standard errors are that fit's.
+
+Verdict: ``discovered`` when terms were selected and, with the noise known, the refitted
+residual is consistent with it; ``unexplained`` when the residual stays above the noise (with
+the terms found, if any, explaining part); ``none`` when nothing was selected and the residual
+is noise (or the noise is not known).
+"""
+
+from __future__ import annotations
+
+import keyword
+import logging
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from arm.description import RobotDescription
+from arm.effects import REFERENCE_TEMPERATURE, Effect, JointAngleEffect
+from arm.measurements import MeasurementSet, atomic_write_text
+from lab.diagnosis import _hat_blocks, _press, _Selection
+from lab.identifiability import orthonormal_basis
+from lab.identification import SCHEMA_VERSION, FitError, FitResult, _as_data, _as_robot, fit
+
+__all__ = ["DEFAULT_ORDER", "Discovery", "LibraryTerm", "Term", "discover", "library_terms"]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_ORDER = 4  # harmonics sin/cos(m q_j), m = 1..4
+# Shares of alpha: the term tests (Bonferroni over the candidates) and the chi-square test of the
+# residual against the noise. Both are first-order approximations: over 400 clean campaigns the
+# chi-square test rejected 1.25 % at 1 % and 7 % at 5 %, and the Bonferroni-adjusted p-value of
+# the best first term fell below 1 % in 1 % of 205 (correlated candidates do not make it
+# conservative here). Spending half of alpha keeps the measured rate well inside it.
+TERMS_SHARE = 0.25
+CHI2_SHARE = 0.25
+MAX_STEPS = 6  # at most this many candidates (a harmonic pair counts once) are selected
+_MOVES_NOTHING = 1e-12  # m RMS per pose: a term on a joint whose angle moves no measured point
+
+
+@dataclass(frozen=True)
+class LibraryTerm:
+    """One candidate function ``f`` on joint ``joint``: ``theta_joint += k * f``.
+
+    ``key`` is the parameter's prefix (the parameter is ``key + str(joint)``, e.g. ``k_sin3q1``);
+    ``expression`` reads f in the CSV's variable names (``sin(3*q1)``); ``code`` computes f in
+    an effect's ``basis`` from the local names ``q``, ``tau`` (joint's columns), ``dT``
+    (temperature - 20 degC), ``t``, ``payload``, ``direction``; ``group`` joins the sine and
+    cosine of one harmonic into one candidate."""
+
+    joint: int
+    key: str
+    expression: str
+    code: str
+    variables: tuple[str, ...]
+    group: str
+    reading: str
+
+    @property
+    def name(self) -> str:
+        return f"{self.key}{self.joint}"
+
+
+@dataclass(frozen=True)
+class Term:
+    """A discovered term: ``theta_joint += coefficient * expression``, with its standard error."""
+
+    joint: int
+    name: str
+    expression: str
+    coefficient: float
+    std: float | None
+    variables: tuple[str, ...]
+    reading: str
+
+    def to_dict(self) -> dict:
+        return {
+            "joint": self.joint,
+            "expression": self.expression,
+            "coefficient": self.coefficient,
+            "std": self.std,
+            "variables": list(self.variables),
+            "parameter": self.name,
+            "reading": self.reading,
+        }
+
+
+def _ordinal(m: int) -> str:
+    return {1: "1st", 2: "2nd", 3: "3rd"}.get(m, f"{m}th")
+
+
+_HARMONIC_READING = {
+    1: "gear or encoder eccentricity (the catalogue's transmission)",
+    2: "strain-wave gear (elliptical flexspline) or encoder eccentricity",
+    3: "a three-lobed shape of a bearing race or wave generator",
+}
+
+
+def _varies(v: np.ndarray) -> bool:
+    v = np.asarray(v, dtype=float)
+    return bool(np.ptp(v) > 1e-12 * max(1.0, float(np.max(np.abs(v)))))
+
+
+def library_terms(
+    data: MeasurementSet, tau: np.ndarray, order: int = DEFAULT_ORDER
+) -> list[LibraryTerm]:
+    """The candidate terms for these data: those whose variables are measured and vary."""
+    cols = data.columns
+    out: list[LibraryTerm] = []
+    has_temp = "temperature" in cols and _varies(cols["temperature"])
+    T0 = f"{REFERENCE_TEMPERATURE:g}"
+    for j in range(1, 7):
+        q = f"q{j}"
+        for m in range(1, order + 1):
+            reading = f"{_ordinal(m)} harmonic of joint {j}: " + _HARMONIC_READING.get(
+                m, "a gear or encoder error repeating that often per turn"
+            )
+            mq = q if m == 1 else f"{m}*{q}"
+            mc = "q" if m == 1 else f"{m} * q"
+            for fn in ("sin", "cos"):
+                out.append(
+                    LibraryTerm(
+                        j, f"k_{fn}{m}q", f"{fn}({mq})", f"np.{fn}({mc})", (q,), f"h{m}{q}", reading
+                    )
+                )
+        out.append(
+            LibraryTerm(
+                j,
+                "k_q",
+                q,
+                "q",
+                (q,),
+                f"{q}",
+                f"proportional to {q}: a gear-ratio error (the catalogue's joint_scale)",
+            )
+        )
+        if _varies(tau[:, j - 1]):
+            t = f"tau{j}"
+            for key, expr, code, reading in (
+                ("k_tau", t, "tau", "joint elasticity (the catalogue's compliance)"),
+                (
+                    "k_tausq_",
+                    f"{t}^2",
+                    "tau**2",
+                    "a stiffness that differs with the load's direction",
+                ),
+                ("k_taucube_", f"{t}^3", "tau**3", "a non-linear (hardening) gear-mesh stiffness"),
+                (
+                    "k_sign_tau",
+                    f"sign({t})",
+                    "np.sign(tau)",
+                    "gravity-loaded backlash (the catalogue's load_backlash)",
+                ),
+            ):
+                if expr != t:
+                    reading = f"deflection growing with {expr}: {reading}"
+                else:
+                    reading = f"deflection proportional to {t}: {reading}"
+                out.append(LibraryTerm(j, key, expr, code, (t,), f"{key}{j}", reading))
+            if has_temp:
+                out.append(
+                    LibraryTerm(
+                        j,
+                        "k_temp_tau",
+                        f"(temperature - {T0})*{t}",
+                        "dT * tau",
+                        ("temperature", t),
+                        f"temp_tau{j}",
+                        f"a stiffness of joint {j} that changes with temperature",
+                    )
+                )
+        if has_temp:
+            out.append(
+                LibraryTerm(
+                    j,
+                    "k_temp_q",
+                    f"(temperature - {T0})",
+                    "dT",
+                    ("temperature",),
+                    f"temp_q{j}",
+                    f"an encoder zero of joint {j} drifting with temperature",
+                )
+            )
+            for fn in ("sin", "cos"):
+                out.append(
+                    LibraryTerm(
+                        j,
+                        f"k_temp_{fn}q",
+                        f"(temperature - {T0})*{fn}({q})",
+                        f"dT * np.{fn}(q)",
+                        ("temperature", q),
+                        f"temp_h1{q}",
+                        f"an eccentricity of joint {j} that changes with temperature",
+                    )
+                )
+        if "t" in cols and _varies(cols["t"]):
+            out.append(
+                LibraryTerm(
+                    j,
+                    "k_t_q",
+                    "t",
+                    "t",
+                    ("t",),
+                    f"t_q{j}",
+                    f"joint {j}'s zero drifting with time (encoder or mounting creep)",
+                )
+            )
+        if "payload" in cols and _varies(cols["payload"]):
+            out.append(
+                LibraryTerm(
+                    j,
+                    "k_payload_q",
+                    "payload",
+                    "payload",
+                    ("payload",),
+                    f"payload_q{j}",
+                    f"joint {j} deflecting with the payload beyond its gravity torque",
+                )
+            )
+        d = f"dir{j}"
+        if d in cols and _varies(cols[d]):
+            out.append(
+                LibraryTerm(
+                    j,
+                    "k_dir",
+                    d,
+                    "direction",
+                    (d,),
+                    f"dir{j}",
+                    f"joint {j} lagging its last motion: friction-held backlash (the "
+                    "catalogue's backlash)",
+                )
+            )
+            if _varies(tau[:, j - 1]):
+                out.append(
+                    LibraryTerm(
+                        j,
+                        "k_dir_tau",
+                        f"{d}*tau{j}",
+                        "direction * tau",
+                        (d, f"tau{j}"),
+                        f"dir_tau{j}",
+                        f"a compliance of joint {j} that depends on the last "
+                        "motion's direction: friction hysteresis in the gear",
+                    )
+                )
+    return out
+
+
+def _evaluate(code: str, q, tau, columns: dict, joint: int) -> np.ndarray:
+    """The value of one term's ``code`` (the same text the written effect's basis runs)."""
+    n = len(q)
+    env = {
+        "q": q[:, joint - 1],
+        "tau": tau[:, joint - 1],
+        "dT": columns["temperature"] - REFERENCE_TEMPERATURE if "temperature" in columns else None,
+        "t": columns.get("t"),
+        "payload": columns.get("payload"),
+        "direction": columns.get(f"dir{joint}"),
+    }
+    out = eval(code, {"np": np, "__builtins__": {}}, env)  # our own term texts, never user input
+    return np.broadcast_to(np.asarray(out, dtype=float), (n,))
+
+
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class Discovery:
+    """What :func:`discover` found; see the module docstring."""
+
+    base: FitResult
+    verdict: str
+    terms: list[Term]
+    noise_mm: float | None
+    alpha: float
+    order: int
+    n_candidates: int
+    effect_name: str
+    refit: FitResult | None = None
+    chi2_p_value: float | None = None
+    chi2_p_value_after: float | None = None
+    p_value: float = 1.0  # the best first term's p-value, Bonferroni-adjusted (times M)
+    selected: list[LibraryTerm] = field(default_factory=list)
+    effect_module: str | None = None
+    source: str = "<memory>"
+
+    @property
+    def effects(self) -> list[str]:
+        return self.base.effects
+
+    @property
+    def rms_mm(self) -> float:
+        return self.base.rms_mm
+
+    @property
+    def noise_floor_mm(self) -> float | None:
+        return None if self.noise_mm is None else self.noise_mm * math.sqrt(3.0)
+
+    @property
+    def rms_after_mm(self) -> float:
+        return self.refit.rms_mm if self.refit is not None else self.base.rms_mm
+
+    @property
+    def validation_rms_mm(self) -> float | None:
+        res = self.refit if self.refit is not None else self.base
+        return res.validation_rms_mm
+
+    @property
+    def suggestion(self) -> str | None:
+        """The ``--effects`` string that fits E plus the discovered effect."""
+        if not self.terms:
+            return None
+        return ",".join([*self.effects, self.effect_name])
+
+    @property
+    def formulas(self) -> dict[int, str]:
+        """One line per joint with terms: ``theta2 = q2 + 2.01e-4*sin(2*q2) - ...``."""
+        out: dict[int, str] = {}
+        for j in sorted({t.joint for t in self.terms}):
+            line = f"theta{j} = q{j}"
+            for t in (t for t in self.terms if t.joint == j):
+                sign = "-" if t.coefficient < 0 else "+"
+                line += f" {sign} {_number(abs(t.coefficient), t.std)}*{_wrap(t.expression)}"
+            out[j] = line
+        return out
+
+    def module_source(self) -> str:
+        """The Python text of the discovered effect class (empty without terms)."""
+        if not self.selected:
+            return ""
+        return _module_source(self)
+
+    def write_module(self, path: str | Path) -> Path:
+        """Write :meth:`module_source` atomically to ``path``; refuses when nothing was found."""
+        if not self.selected:
+            raise FitError("nothing was discovered: there is no effect module to write")
+        path = Path(path)
+        atomic_write_text(path, self.module_source())
+        self.effect_module = str(path)
+        return path
+
+    def to_dict(self) -> dict:
+        """The JSON object of ``sixaxis lab discover --json``."""
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "effects": self.effects,
+            "rms_mm": self.rms_mm,
+            "noise_floor_mm": self.noise_floor_mm,
+            "verdict": self.verdict,
+            "terms": [t.to_dict() for t in self.terms],
+            "formulas": {str(j): f for j, f in self.formulas.items()},
+            "effect_name": self.effect_name if self.terms else None,
+            "suggestion": self.suggestion,
+            "effect_module": self.effect_module,
+            "rms_after_mm": self.rms_after_mm,
+            "validation_rms_mm": self.validation_rms_mm,
+            "noise_mm": self.noise_mm,
+            "alpha": self.alpha,
+            "order": self.order,
+            "n_candidates": self.n_candidates,
+            "chi2_p_value": self.chi2_p_value,
+            "chi2_p_value_after": self.chi2_p_value_after,
+            "p_value": self.p_value,
+            "n_points": self.base.n_points,
+            "source": self.source,
+        }
+
+    def summary(self) -> str:
+        floor = f", noise floor {self.noise_floor_mm:.4f} mm" if self.noise_floor_mm else ""
+        lines = [
+            f"model {', '.join(self.effects)}: RMS {self.rms_mm:.4f} mm{floor}; "
+            f"{self.n_candidates} candidate terms (harmonics to order {self.order})",
+            f"verdict: {self.verdict}",
+        ]
+        for f in self.formulas.values():
+            lines.append(f"  {f}")
+        for t in self.terms:
+            std = "-" if t.std is None else f"{t.std:.2g}"
+            lines.append(f"  {t.name} = {t.coefficient:.4g} +- {std}: {t.reading}")
+        if self.terms:
+            lines.append(f"with the terms: RMS {self.rms_after_mm:.4f} mm; fit {self.suggestion}")
+        return "\n".join(lines)
+
+
+def _wrap(expr: str) -> str:
+    """An expression as a factor: ``(temperature - 20)`` stays, ``a - b`` gets brackets."""
+    if expr.startswith("(") and expr.endswith(")") and expr.count("(") == 1:
+        return expr
+    return f"({expr})" if (" - " in expr or " + " in expr) else expr
+
+
+def _number(x: float, std: float | None) -> str:
+    """A coefficient with as many digits as its standard error supports (2 to 4)."""
+    if x == 0 or not math.isfinite(x):
+        return f"{x:.3g}"
+    digits = 3
+    if std is not None and std > 0 and math.isfinite(std):
+        digits = int(
+            np.clip(math.floor(math.log10(abs(x))) - math.floor(math.log10(std)) + 2, 2, 4)
+        )
+    return f"{x:.{digits - 1}e}".replace("e-0", "e-").replace("e+0", "e")
+
+
+# --------------------------------------------------------------------------------------------------
+def _q(text: str) -> str:
+    """A string literal in double quotes (the style ruff formats to)."""
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def _class_name(name: str) -> str:
+    return "".join(p.capitalize() for p in name.split("_")) or "Discovered"
+
+
+def _module_source(d: Discovery) -> str:
+    name = d.effect_name
+    forms: dict[int, list[LibraryTerm]] = {}
+    for t in d.selected:
+        forms.setdefault(t.joint, []).append(t)
+    coef = {t.name: t for t in d.terms}
+    keys = list(dict.fromkeys(t.key for t in d.selected))
+    codes = {t.key: t.code for t in d.selected}
+    # typical: the size found, so that sample_parameters draws it and the fit keeps it
+    # (a harmonic's sine and cosine share the pair's amplitude: one of them may be near zero)
+    amp = {}
+    for t in d.selected:
+        amp[t.group] = max(amp.get(t.group, 0.0), abs(coef[t.name].coefficient))
+    typical = {}
+    for k in keys:
+        mags = [amp[t.group] for t in d.selected if t.key == k]
+        typical[k] = (0.5 * min(mags), 2.0 * max(mags))
+    formula_lines = "\n".join(f"    {f}" for f in d.formulas.values())
+    readings = "\n".join(f"    {t.name}: {t.expression} -- {t.reading}" for t in d.terms)
+    columns = sorted(
+        {v for t in d.selected for v in t.variables if not re.fullmatch(r"(q|tau)\d", v)}
+    )
+    data_cols = tuple(c for c in columns)
+    forms_text = ",\n".join(
+        f"        {j}: ({', '.join(_q(t.key) for t in ts)},)" for j, ts in sorted(forms.items())
+    )
+    typical_text = ",\n".join(
+        f"        {_q(k)}: ({lo:.3g}, {hi:.3g})" for k, (lo, hi) in typical.items()
+    )
+    branches = "\n".join(
+        f"        {'if' if i == 0 else 'elif'} term == {_q(k)}:\n            return {codes[k]}"
+        for i, k in enumerate(keys)
+    )
+    needs_dT = any("dT" in codes[k] for k in keys)
+    needs_dir = any("direction" in codes[k] for k in keys)
+    needs_t = any(re.search(r"\bt\b", codes[k]) for k in keys)
+    needs_payload = any("payload" in codes[k] for k in keys)
+    used = " ".join(codes[k] for k in keys)
+    locals_ = []
+    if re.search(r"\bq\b", used):
+        locals_.append("        q = inputs.q[:, joint - 1]")
+    if re.search(r"\btau\b", used):
+        locals_.append("        tau = inputs.tau[:, joint - 1]")
+    if needs_dT:
+        locals_.append('        dT = inputs.column("temperature") - REFERENCE_TEMPERATURE')
+    if needs_t:
+        locals_.append('        t = inputs.column("t")')
+    if needs_payload:
+        locals_.append('        payload = inputs.column("payload")')
+    if needs_dir:
+        locals_.append('        direction = inputs.column(f"dir{joint}")')
+    locals_text = "\n".join(locals_)
+    effects = ",".join(d.effects)
+    suggestion = d.suggestion
+    header = (
+        f'"""An effect discovered by ``sixaxis lab discover`` on top of {effects}\n'
+        f"({d.base.n_points} poses of {d.source}; harmonics to order {d.order}, "
+        f"alpha {d.alpha:g}):\n\n"
+        f"{formula_lines}\n\n"
+        "Each term, with the physical reading the lab knows for its form:\n\n"
+        f"{readings}\n\n"
+        "Edit it like any effect: ``forms`` says which terms act on which joint, ``basis`` what\n"
+        "each term is. Fit it with\n\n"
+        f"    sixaxis lab fit DATA.csv --effect-module THIS_FILE.py --effects {suggestion}\n"
+        '"""'
+    )
+    dT_import = (
+        "from arm.effects import REFERENCE_TEMPERATURE, JointAngleEffect"
+        if needs_dT
+        else "from arm.effects import JointAngleEffect"
+    )
+    return f'''{header}
+
+import numpy as np
+
+{dT_import}
+
+
+class {_class_name(name)}(JointAngleEffect):
+    """theta_j = q_j + sum over the joint's terms of k_term_j * term(variables)."""
+
+    name = {_q(name)}
+    description = {_q("discovered: " + "; ".join(d.formulas.values()))}
+    columns = ({"".join(_q(c) + ", " for c in data_cols).rstrip()})
+    # the terms of each joint; a parameter is named term + joint (k_sin2q2)
+    forms = {{
+{forms_text},
+    }}
+    terms = ({"".join(_q(k) + ", " for k in keys).rstrip()})
+    # the size found: the lab fixes a parameter whose typical error moves no point above the noise
+    typical = {{
+{typical_text},
+    }}
+
+    def parameter_names(self, robot, targets):
+        return [f"{{t}}{{j}}" for j in self.active_joints() for t in self.forms.get(j, ())]
+
+    def regressor(self, inputs):
+        """(N, 6, k) d theta / d parameters, in the order of parameter_names."""
+        cols = [
+            (j, self.basis(inputs, j, t)) for j in self.active_joints() for t in self.forms.get(j, ())
+        ]
+        out = np.zeros((inputs.n, 6, len(cols)))
+        for k, (j, b) in enumerate(cols):
+            out[:, j - 1, k] = b
+        return out
+
+    def basis(self, inputs, joint, term):
+{locals_text}
+{branches}
+        raise ValueError(f"unknown term {{term!r}}")
+'''
+
+
+# --------------------------------------------------------------------------------------------------
+_NAME = re.compile(r"[a-z][a-z0-9_]*")
+
+
+def discover(
+    data: MeasurementSet | str | Path,
+    robot: RobotDescription | str | Path | None = None,
+    effects: str | Sequence[str | Effect] = "geometric",
+    noise_mm: float | None = None,
+    *,
+    validate: MeasurementSet | str | Path | None = None,
+    alpha: float = 0.02,
+    order: int = DEFAULT_ORDER,
+    name: str = "discovered",
+    base: FitResult | None = None,
+) -> Discovery:
+    """Search the library of :func:`library_terms` for what ``effects`` miss; see the module
+    docstring. ``noise_mm``: the instrument's per-axis standard uncertainty (for the verdict
+    ``none`` against ``unexplained``); ``validate``: held-out data for the refitted model;
+    ``alpha``: the family-wise false-discovery rate; ``order``: the highest harmonic; ``name``:
+    the discovered effect's name; ``base``: an existing fit of ``data`` to start from."""
+    if not 0 < alpha < 1:
+        raise FitError(f"alpha must lie in (0, 1), got {alpha}")
+    if noise_mm is not None and not (math.isfinite(noise_mm) and noise_mm > 0):
+        raise FitError(f"noise_mm must be positive, got {noise_mm}")
+    if not 1 <= order <= 12:
+        raise FitError(f"order (the highest harmonic) must lie in 1..12, got {order}")
+    if not _NAME.fullmatch(name) or keyword.iskeyword(name):
+        raise FitError(f"effect name {name!r} must be lower-case letters, digits and _")
+    data = _as_data(data)
+    robot = _as_robot(robot)
+    res = base if base is not None else fit(data, robot, effects, noise_mm=noise_mm)
+    if res.n_points != len(data):
+        raise FitError(f"the fit given has {res.n_points} points, the data {len(data)}")
+    if name in res.model.layout.effects:
+        raise FitError(f"the model already has an effect named {name!r}; choose another name")
+    N = res.n_points
+    free = res.identifiable
+    J0 = res.jacobian[:, :, free].reshape(3 * N, -1) * res.identifiability.scale[free]
+    Q0 = orthonormal_basis(J0)
+    e = res.residuals.reshape(-1)
+    e0 = e - Q0 @ (Q0.T @ e)
+    rss0 = float(e0 @ e0)
+    dof0 = 3 * N - Q0.shape[1]
+    H0 = _hat_blocks(Q0)
+    cv0 = _press(e0, H0)
+
+    # the library's columns: d point / d theta_j times f, E's span projected out
+    _, Jq = res.model.joint_jacobian(res.inputs, res.params)  # (N, 3, 6)
+    tau = res.inputs.tau
+    lib = library_terms(data, tau, order)
+    groups: dict[str, list[int]] = {}
+    cols = []
+    kept: list[LibraryTerm] = []
+    for term in lib:
+        f = _evaluate(term.code, data.q, tau, data.columns, term.joint)
+        x = (Jq[:, :, term.joint - 1] * f[:, None]).reshape(-1)
+        nx = float(np.linalg.norm(x))
+        if nx / math.sqrt(N) < _MOVES_NOTHING * max(1.0, float(np.max(np.abs(f)))):
+            continue
+        xp = x - Q0 @ (Q0.T @ x)
+        if np.linalg.norm(xp) <= 1e-6 * nx:  # E explains it already
+            continue
+        groups.setdefault(term.group, []).append(len(cols))
+        cols.append(xp)
+        kept.append(term)
+    X = np.column_stack(cols) if cols else np.zeros((3 * N, 0))
+    bases = {g: orthonormal_basis(X[:, idx]) for g, idx in groups.items()}
+    bases = {g: b for g, b in bases.items() if b.shape[1]}
+    M = len(bases)
+    level_terms = TERMS_SHARE * alpha / max(M, 1)
+
+    sel = _Selection(e0, rss0, dof0, H0, cv0)
+    chosen: list[str] = []
+    first_p = 1.0  # the first step's smallest p-value among terms that predict better
+    while len(chosen) < MAX_STEPS:
+        best = None
+        for g, b in bases.items():
+            if g in chosen:
+                continue
+            t = sel.trial(b)
+            if not chosen and t is not None and t[0] < sel.cv:
+                first_p = min(first_p, t[1])
+            if t is not None and t[1] <= level_terms and t[0] < sel.cv:
+                if best is None or t[0] < best[0][0]:
+                    best = (t, g)
+        if best is None:
+            break
+        sel.add(best[0][0], best[0][2])
+        chosen.append(best[1])
+        log.debug("discovery: %s (p = %.3g)", best[1], best[0][1])
+
+    sigma = None if noise_mm is None else noise_mm * 1e-3
+    chi2_p = None if sigma is None else float(stats.chi2.sf(rss0 / sigma**2, max(dof0, 1)))
+    # in the library's order (tau2 before tau2^3, joints in turn), not the order selected
+    selected = [t for t in kept if t.group in chosen]
+    disc = Discovery(
+        base=res,
+        verdict="none",
+        terms=[],
+        noise_mm=noise_mm,
+        alpha=alpha,
+        order=order,
+        n_candidates=M,
+        effect_name=name,
+        chi2_p_value=chi2_p,
+        p_value=min(1.0, first_p * max(M, 1)),
+        selected=selected,
+        source=data.source,
+    )
+    if not selected:
+        if chi2_p is not None and chi2_p < CHI2_SHARE * alpha:
+            disc.verdict = "unexplained"
+        if validate is not None:
+            disc.base = res.validate(_as_data(validate))
+        log.info("%s", disc.summary())
+        return disc
+
+    # refit E plus the discovered effect, written as the module a user gets
+    disc.terms = [
+        Term(t.joint, t.name, t.expression, 0.0, None, t.variables, t.reading) for t in selected
+    ]
+    # first pass: sizes for the module's typical ranges from the linear selection
+    amp = _linear_coefficients(res, Jq, selected, data, tau)
+    disc.terms = [
+        Term(t.joint, t.name, t.expression, float(a), None, t.variables, t.reading)
+        for t, a in zip(selected, amp, strict=True)
+    ]
+    cls = _load_class(disc.module_source(), name)
+    refit = fit(
+        data,
+        robot,
+        [*res.model.effects, cls()],
+        noise_mm=noise_mm,
+        validate=validate,
+        loss=res.loss,
+    )
+    std = refit.standard_errors()
+    disc.refit = refit
+    disc.terms = [
+        Term(t.joint, t.name, t.expression, refit[t.name], std[t.name], t.variables, t.reading)
+        for t in selected
+    ]
+    if sigma is not None:
+        rss = float(np.sum(refit.residuals**2))
+        disc.chi2_p_value_after = float(
+            stats.chi2.sf(rss / sigma**2, max(refit.residuals.size - refit.rank, 1))
+        )
+        ok = disc.chi2_p_value_after >= CHI2_SHARE * alpha
+        disc.verdict = "discovered" if ok else "unexplained"
+    else:
+        disc.verdict = "discovered"
+    log.info("%s", disc.summary())
+    return disc
+
+
+def _linear_coefficients(res, Jq, selected, data, tau) -> np.ndarray:
+    """The terms' coefficients of the linearised problem (E's parameters free too)."""
+    N = res.n_points
+    free = res.identifiable
+    J0 = res.jacobian[:, :, free].reshape(3 * N, -1)
+    X = np.column_stack(
+        [
+            (
+                Jq[:, :, t.joint - 1]
+                * _evaluate(t.code, data.q, tau, data.columns, t.joint)[:, None]
+            ).reshape(-1)
+            for t in selected
+        ]
+    )
+    A = np.hstack([J0, X])
+    s = np.linalg.norm(A, axis=0)
+    s[s == 0] = 1.0
+    sol = np.linalg.lstsq(A / s, -res.residuals.reshape(-1), rcond=None)[0] / s
+    return sol[J0.shape[1] :]
+
+
+def _load_class(source: str, name: str) -> type[JointAngleEffect]:
+    """The effect class that ``source`` defines (executed as the module a user would load)."""
+    namespace: dict = {"__name__": f"sixaxis_discovered_{name}"}
+    exec(compile(source, f"<discovered effect {name}>", "exec"), namespace)
+    for obj in namespace.values():
+        if isinstance(obj, type) and issubclass(obj, JointAngleEffect) and obj.name == name:
+            return obj
+    raise RuntimeError(f"the generated module defines no effect {name!r}")  # pragma: no cover
