@@ -623,7 +623,9 @@ def fit(
     # identifiability at the start (the structure), fit, again with the noise known, refit
     pred, J = model.predict(inputs, p, jacobian=True)
     initial_rms = _rms(pred - xyz)
-    ident = analyse_jacobian(model, J, tol=START_TOL, warn=False)
+    # held parameters are known: the others' identifiability is judged without their columns
+    # (with the base held, row 1 is identifiable; with it free, the base absorbs row 1)
+    ident = analyse_jacobian(model, _without(J, held), tol=START_TOL, warn=False)
     free = ident.identifiable & ~held
     sol = solve(p, free, ident.scale)
     iterations, evaluations = sol.iterations, sol.evaluations
@@ -639,7 +641,7 @@ def fit(
             " angles in deg: say so when reading) or of another robot?"
         )
     noise = noise_mm * 1e-3 if noise_mm is not None else sigma
-    ident = analyse_jacobian(model, sol.jacobian, noise=noise, warn=True)
+    ident = analyse_jacobian(model, _without(sol.jacobian, held), noise=noise, warn=True)
     free2 = ident.identifiable & ~held
     if not free2.any():
         raise FitError(
@@ -683,6 +685,15 @@ def fit(
         result = result.validate(_as_data(validate))
     log.info("%s", result.summary())
     return result
+
+
+def _without(J: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """``J`` with the columns of held (known) parameters zeroed."""
+    if not held.any():
+        return J
+    J = J.copy()
+    J[:, :, held] = 0.0
+    return J
 
 
 def _tool_idx(model: ErrorModel) -> np.ndarray:
