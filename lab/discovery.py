@@ -63,7 +63,16 @@ from lab.diagnosis import _hat_blocks, _press, _Selection
 from lab.identifiability import orthonormal_basis
 from lab.identification import SCHEMA_VERSION, FitError, FitResult, _as_data, _as_robot, fit
 
-__all__ = ["DEFAULT_ORDER", "Discovery", "LibraryTerm", "Term", "discover", "library_terms"]
+__all__ = [
+    "DEFAULT_ORDER",
+    "Discovery",
+    "LibraryProblem",
+    "LibraryTerm",
+    "Term",
+    "discover",
+    "library_problem",
+    "library_terms",
+]
 
 log = logging.getLogger(__name__)
 
@@ -602,36 +611,13 @@ def discover(
     if name in res.model.layout.effects:
         raise FitError(f"the model already has an effect named {name!r}; choose another name")
     N = res.n_points
-    free = res.identifiable
-    J0 = res.jacobian[:, :, free].reshape(3 * N, -1) * res.identifiability.scale[free]
-    Q0 = orthonormal_basis(J0)
-    e = res.residuals.reshape(-1)
-    e0 = e - Q0 @ (Q0.T @ e)
+    prob = library_problem(data, res, order)
+    e0, X, kept, groups = prob.residual, prob.columns, prob.terms, prob.groups
     rss0 = float(e0 @ e0)
-    dof0 = 3 * N - Q0.shape[1]
-    H0 = _hat_blocks(Q0)
+    dof0 = 3 * N - prob.model_basis.shape[1]
+    H0 = _hat_blocks(prob.model_basis)
     cv0 = _press(e0, H0)
-
-    # the library's columns: d point / d theta_j times f, E's span projected out
-    _, Jq = res.model.joint_jacobian(res.inputs, res.params)  # (N, 3, 6)
-    tau = res.inputs.tau
-    lib = library_terms(data, tau, order)
-    groups: dict[str, list[int]] = {}
-    cols = []
-    kept: list[LibraryTerm] = []
-    for term in lib:
-        f = _evaluate(term.code, data.q, tau, data.columns, term.joint)
-        x = (Jq[:, :, term.joint - 1] * f[:, None]).reshape(-1)
-        nx = float(np.linalg.norm(x))
-        if nx / math.sqrt(N) < _MOVES_NOTHING * max(1.0, float(np.max(np.abs(f)))):
-            continue
-        xp = x - Q0 @ (Q0.T @ x)
-        if np.linalg.norm(xp) <= 1e-6 * nx:  # E explains it already
-            continue
-        groups.setdefault(term.group, []).append(len(cols))
-        cols.append(xp)
-        kept.append(term)
-    X = np.column_stack(cols) if cols else np.zeros((3 * N, 0))
+    Jq, tau = prob.joint_jacobian, res.inputs.tau
     bases = {g: orthonormal_basis(X[:, idx]) for g, idx in groups.items()}
     bases = {g: b for g, b in bases.items() if b.shape[1]}
     M = len(bases)
@@ -719,6 +705,54 @@ def discover(
         disc.verdict = "discovered"
     log.info("%s", disc.summary())
     return disc
+
+
+@dataclass(frozen=True)
+class LibraryProblem:
+    """The sparse-regression problem of one fit: the residual ``residual`` (3N) and the library's
+    columns ``columns`` (3N, K), both with the model's span (orthonormal ``model_basis``)
+    projected out; ``terms`` (K) the library terms kept, ``groups`` their candidates (indices
+    into the columns), ``joint_jacobian`` (N, 3, 6) d point / d theta at the fit."""
+
+    residual: np.ndarray
+    columns: np.ndarray
+    terms: list[LibraryTerm]
+    groups: dict[str, list[int]]
+    model_basis: np.ndarray
+    joint_jacobian: np.ndarray
+
+
+def library_problem(
+    data: MeasurementSet, res: FitResult, order: int = DEFAULT_ORDER
+) -> LibraryProblem:
+    """The library's columns and the residual of ``res`` (a fit of ``data``), the model's span
+    projected out: each term's column is d point / d theta_j times f; a term the model explains
+    already (its column in the span) or that moves no point is left out."""
+    N = res.n_points
+    free = res.identifiable
+    J0 = res.jacobian[:, :, free].reshape(3 * N, -1) * res.identifiability.scale[free]
+    Q0 = orthonormal_basis(J0)
+    e = res.residuals.reshape(-1)
+    e0 = e - Q0 @ (Q0.T @ e)
+    _, Jq = res.model.joint_jacobian(res.inputs, res.params)  # (N, 3, 6)
+    tau = res.inputs.tau
+    groups: dict[str, list[int]] = {}
+    cols = []
+    kept: list[LibraryTerm] = []
+    for term in library_terms(data, tau, order):
+        f = _evaluate(term.code, data.q, tau, data.columns, term.joint)
+        x = (Jq[:, :, term.joint - 1] * f[:, None]).reshape(-1)
+        nx = float(np.linalg.norm(x))
+        if nx / math.sqrt(N) < _MOVES_NOTHING * max(1.0, float(np.max(np.abs(f)))):
+            continue
+        xp = x - Q0 @ (Q0.T @ x)
+        if np.linalg.norm(xp) <= 1e-6 * nx:  # the model explains it already
+            continue
+        groups.setdefault(term.group, []).append(len(cols))
+        cols.append(xp)
+        kept.append(term)
+    X = np.column_stack(cols) if cols else np.zeros((3 * N, 0))
+    return LibraryProblem(e0, X, kept, groups, Q0, Jq)
 
 
 def _linear_coefficients(res, Jq, selected, data, tau) -> np.ndarray:
