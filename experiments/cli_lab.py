@@ -457,13 +457,15 @@ def _print_diagnosis(d, data: Path) -> None:
 
 
 def discover_command(data: Path, d) -> str:
-    """The ``sixaxis lab discover`` command that continues a diagnosis: from its model (or the
-    catalogue's best explanation, when it has one), with its noise."""
+    """The ``sixaxis lab discover`` command that continues an ``unexplained`` diagnosis: from
+    the diagnosed model (not the catalogue's partial explanation, whose approximating terms would
+    hide the form), with its noise."""
+    effects = ",".join(d.effects)
     return _command(
         "discover",
         data,
         **{
-            "--effects": d.suggestion or ",".join(d.effects),
+            "--effects": None if effects == "geometric" else effects,
             "--noise-mm": d.noise_mm,
             "-o": "discovered.py",
         },

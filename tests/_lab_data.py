@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pytest
 
-from arm.description import Joint, RobotDescription
+from arm.description import Joint, RobotDescription, load_robot
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from arm.sampling import sample_parameters, sample_poses
@@ -50,13 +52,28 @@ SPEC_DIAGNOSE_KEYS = {
     "hints",
 }
 
-# Real laser-tracker data of another arm (see its README); tests using it skip where it is absent.
-REAL = Path("/work/shared/data/real/rokae-laser-tracker")
+# Real laser-tracker data of another arm: not redistributed (no licence). The folder that
+# examples/convert_lm_pytorch.py writes from the public repository (README, "Real data"), named by
+# the environment variable SIXAXIS_REAL_DATA; the tests that use it skip, saying why, without it.
+REAL_DATA_ENV = "SIXAXIS_REAL_DATA"
+REAL = Path(os.environ.get(REAL_DATA_ENV, "")) if os.environ.get(REAL_DATA_ENV) else None
+if REAL is None:
+    _REAL_REASON = (
+        f"real laser-tracker data not configured: set {REAL_DATA_ENV} to the folder that "
+        "examples/convert_lm_pytorch.py wrote (README, 'Real data')"
+    )
+elif not (REAL / "measurements.csv").is_file():
+    _REAL_REASON = f"{REAL_DATA_ENV}={REAL} has no measurements.csv"
+else:
+    _REAL_REASON = ""
+requires_real_data = pytest.mark.skipif(bool(_REAL_REASON), reason=_REAL_REASON)
 
 
 def real_arm() -> RobotDescription:
-    """The real data's arm from its own tables (dh_mdh_deg_mm.csv, joint_limits_deg.csv); the tool
-    is unknown: at the flange."""
+    """The real data's arm: the converter's robot.toml, else its own tables (dh_mdh_deg_mm.csv,
+    joint_limits_deg.csv); the tool is unknown: at the flange."""
+    if (REAL / "robot.toml").is_file():
+        return load_robot(REAL / "robot.toml")
     with open(REAL / "dh_mdh_deg_mm.csv") as fh:
         rows = [[float(x) for x in r] for r in list(csv.reader(fh))[1:]]
     with open(REAL / "joint_limits_deg.csv") as fh:

@@ -33,6 +33,7 @@ from tests._lab_data import (
     SPEC_FIT_KEYS,
     campaign,
     real_arm,
+    requires_real_data,
 )
 
 runner = CliRunner()
@@ -201,9 +202,8 @@ def test_diagnose_names_a_user_effect_once_its_module_is_loaded(harmonic_files, 
     assert mod["suggestion"] == "geometric,second_harmonic[3]"
 
 
+@requires_real_data
 def test_real_laser_tracker_data_through_the_cli(tmp_path):
-    if not (REAL / "measurements.csv").is_file():
-        pytest.skip("real data not present")
     # the arm's description (not the data) as a robot TOML in mm and degrees, tool unknown
     arm = tmp_path / "rokae.toml"
     real_arm().save(arm, length_unit="mm", angle_unit="deg")

@@ -23,6 +23,7 @@ from tests._lab_data import (
     SPEC_FIT_KEYS,
     campaign,
     real_arm,
+    requires_real_data,
 )
 
 
@@ -252,7 +253,7 @@ def test_clear_errors(seed, geometric_data):
 # --------------------------------------------------------------------------------------------------
 
 
-@pytest.mark.skipif(not (REAL / "measurements.csv").is_file(), reason="real data not present")
+@requires_real_data
 def test_real_laser_tracker_data_by_leave_one_out():
     """30 poses of a real arm measured by a laser tracker 4.9 m away (see the data's README).
     Judged by leave-one-pose-out cross-validation: every pose predicted by a fit without it."""

@@ -18,7 +18,7 @@ from arm.description import rotation_matrix
 from arm.kinematics import Chain, gravity_torques, tool_points
 from arm.measurements import read_measurements
 from lab.report import arm_parameters, build_report
-from tests._lab_data import REAL, campaign, real_arm
+from tests._lab_data import REAL, campaign, real_arm, requires_real_data
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -134,7 +134,7 @@ def test_sensitivity_agrees_with_finite_differences_of_the_kinematics(seed, repo
     assert ranked[0] in {"dtheta2", "dalpha1", "beta2"}  # angles near the base move it most
 
 
-@pytest.mark.skipif(not (REAL / "measurements.csv").is_file(), reason="real data not present")
+@requires_real_data
 def test_report_on_real_laser_tracker_data():
     """30 real poses, a tracker 4.9 m away, no validation file: the leave-one-out RMS is the
     held-out figure, nothing is hinted where nothing is significant, the weak pose set is flagged."""

@@ -1,0 +1,123 @@
+"""examples/convert_lm_pytorch.py on small synthetic files in the public repository's layout: the
+controller's jointtarget lines, the tracker's lines of nominal and measured values, the DH table
+and the limits; the lab reads what it writes, and bad files are refused by file and line."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from arm.description import load_robot
+from arm.errormodel import ErrorModel
+from arm.measurements import read_measurements
+
+SCRIPT = Path(__file__).resolve().parents[1] / "examples" / "convert_lm_pytorch.py"
+DH = "alpha, a, d, theta\n0, 0, 487, 0\n-90, 85, 0, -90\n0, 640, 0, 0\n-90, 205, 720, 0\n90, 0, 0, 0\n-90, 0, 75, 180\n"
+LIMITS = "UpperLimit,LowerLimit\n100,-100\n100,-90\n60,-100\n100,-100\n90,-90\n120,-120\n"
+
+
+@pytest.fixture(scope="module")
+def conv():
+    spec = importlib.util.spec_from_file_location("convert_lm_pytorch", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _repo(tmp_path, q_deg, xyz_mm, laser_extra=""):
+    data = tmp_path / "repo" / "data"
+    data.mkdir(parents=True)
+    (data / "dh.csv").write_text(DH)
+    (data / "joint_limits.csv").write_text(LIMITS)
+    lines = [
+        f"LOCAL VAR jointtarget j{k + 1} = j:{{\t {','.join(repr(float(v)) for v in q)}      ,"
+        "\t0\t}\t\t{EJ 0,0,0,0,0,0}"
+        for k, q in enumerate(q_deg)
+    ]
+    (data / "joint_angle.csv").write_text("\n".join(lines) + "\n")
+    laser = [
+        "名称 名义X 名义Y 名义Z 名义Rx 名义Ry 名义Rz 测量X 测量Y 测量Z 测量Rx 测量Ry 测量Rz 余量位置 余量方向"
+    ]
+    for k, p in enumerate(xyz_mm):
+        nominal = " ".join(f"{v + 0.1:.4f}" for v in p) + " 45.5 -70.9 -166.4"
+        laser.append(
+            f"Motion{k + 1} {nominal} {' '.join(f'{v:.4f}' for v in p)} 1.2 -3.4 5.6 0.1 0.03"
+        )
+    (data / "laser_pos.csv").write_text("\n".join(laser) + laser_extra + "\n")
+    return tmp_path / "repo"
+
+
+def test_conversion_is_read_back_by_the_lab(conv, tmp_path):
+    rng = np.random.default_rng(0)
+    q_deg = rng.uniform(-40, 40, (5, 6))
+    xyz_mm = rng.uniform(500, 3500, (5, 3)).round(4)
+    repo = _repo(tmp_path, q_deg, xyz_mm)
+    out = tmp_path / "out"
+    assert conv.main([str(repo), "-o", str(out)]) == 0
+    data = read_measurements(out / "measurements.csv")
+    np.testing.assert_allclose(data.q, np.radians(q_deg), atol=5e-10)
+    np.testing.assert_allclose(data.xyz, xyz_mm / 1e3, atol=5e-11)  # the measured, not nominal
+    robot = load_robot(out / "robot.toml")
+    rows = [[float(x) for x in r.split(",")] for r in DH.splitlines()[1:]]
+    for j, (al, a, d, th) in zip(robot.joints, rows, strict=True):
+        assert j.alpha == pytest.approx(math.radians(al))
+        assert j.a == pytest.approx(a / 1e3) and j.d == pytest.approx(d / 1e3)
+        assert j.theta_offset == pytest.approx(math.radians(th))
+    assert robot.joints[1].lower == pytest.approx(math.radians(-90))
+    assert robot.joints[2].upper == pytest.approx(math.radians(60))
+    assert (out / "dh_mdh_deg_mm.csv").read_text() == DH
+    # the lab can model these poses with that arm
+    m = ErrorModel(robot)
+    assert m.predict(m.inputs(data.q), m.nominal()).shape == (5, 3)
+
+
+def test_the_tables_give_the_arm_of_the_real_data_tests(conv):
+    """The converter's arm equals the one the real-data tests build from the same table."""
+    from tests.conftest import rokae_arm
+
+    rows = [[float(x) for x in r.split(",")] for r in DH.splitlines()[1:]]
+    lim = [[float(x) for x in r.split(",")] for r in LIMITS.splitlines()[1:]]
+    ours = conv.robot_of(rows, lim)
+    ref = rokae_arm()
+    for a, b in zip(ours.joints, ref.joints, strict=True):
+        assert (a.alpha, a.a, a.d, a.theta_offset) == pytest.approx(
+            (b.alpha, b.a, b.d, b.theta_offset)
+        )
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        ("laser_short", "laser_pos.csv, line 3: 9 numbers"),
+        ("count", "has 3 poses but"),
+        ("dh_header", "dh.csv, line 1: header"),
+        ("angle_text", "joint_angle.csv, line 2: 'x1' is not a number"),
+    ],
+)
+def test_bad_files_are_refused_by_file_and_line(conv, tmp_path, damage, message, capsys):
+    q = np.zeros((3, 6))
+    xyz = np.ones((3, 3)) * 1000
+    repo = _repo(tmp_path, q, xyz)
+    data = repo / "data"
+    if damage == "laser_short":
+        lines = (data / "laser_pos.csv").read_text().splitlines()
+        lines[2] = "Motion2 1 2 3 4 5 6 7 8 9"
+        (data / "laser_pos.csv").write_text("\n".join(lines) + "\n")
+    elif damage == "count":
+        (data / "laser_pos.csv").write_text(
+            (data / "laser_pos.csv").read_text() + "Motion4 " + " ".join(["1"] * 14) + "\n"
+        )
+    elif damage == "dh_header":
+        (data / "dh.csv").write_text(DH.replace("alpha", "twist"))
+    else:
+        lines = (data / "joint_angle.csv").read_text().splitlines()
+        lines[1] = lines[1].replace("0.0", "x1", 1)
+        (data / "joint_angle.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    assert conv.main([str(repo), "-o", str(out)]) == 2
+    assert message in capsys.readouterr().err
+    assert not (out / "measurements.csv").exists()  # nothing half-written
