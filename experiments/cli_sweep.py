@@ -168,13 +168,30 @@ def leaderboard(
         str | None, typer.Option(help="The headline metric (default: the config's rank_by).")
     ] = None,
     plots: Annotated[bool, typer.Option(help="Draw the PNG plots.")] = True,
+    allow_dirty: Annotated[
+        bool,
+        typer.Option(
+            help="Accept records made from a tree with local changes (no commit reproduces "
+            "them); their rows are marked."
+        ),
+    ] = False,
 ) -> None:
-    """Build results/leaderboard.md and .csv (mean and 95 % CI over seeds) and the plots."""
-    from experiments.leaderboard import _cell, build_leaderboard, write_leaderboard
+    """Build results/leaderboard.md and .csv (whole-episode RMS, settled RMS, convergence; mean
+    and 95 % CI over seeds), leaderboard_runs.csv (every run, with its commit) and the plots.
+    Records from a tree with local changes are refused unless --allow-dirty."""
+    from experiments.leaderboard import (
+        _cell,
+        _spread_words,
+        build_leaderboard,
+        headline_cell,
+        headline_metrics,
+        write_leaderboard,
+    )
+    from experiments.metrics import METRICS
     from experiments.records import RecordError
 
     try:
-        board = build_leaderboard(runs_dir, rank_by=rank_by)
+        board = build_leaderboard(runs_dir, rank_by=rank_by, allow_dirty=allow_dirty)
     except RecordError as exc:
         err_console.print(f"[red]error:[/red] {exc}", highlight=False)
         raise typer.Exit(2) from None
@@ -185,22 +202,36 @@ def leaderboard(
             "--out": None if out == Path("results") else out,
             "--rank-by": rank_by,
             "--no-plots": not plots,
+            "--allow-dirty": allow_dirty,
         },
     )
     paths = write_leaderboard(board, out, command=command, plots=plots)
     m = board.rank_by
-    table = Table(title=f"{m}: mean ± 95 % CI over seeds (bold: best per scenario)")
-    table.add_column("agent", style="bold")
-    for s in board.scenarios:
-        table.add_column(s, justify="right")
-    for a in board.agents:
-        cells = []
+    head = headline_metrics(board)
+
+    def grid(title: str, cell) -> Table:
+        table = Table(title=title)
+        table.add_column("agent", style="bold")
         for s in board.scenarios:
-            r = board.row(a, s)
-            c = "" if r is None else _cell(r.stats[m], m)
-            cells.append(f"[bold green]{c}[/bold green]" if r is not None and r.best else c)
-        table.add_row(a, *cells)
-    console.print(table)
+            table.add_column(s, justify="right")
+        for a in board.agents:
+            rows = [board.row(a, s) for s in board.scenarios]
+            cells = []
+            for r in rows:
+                c = "" if r is None else cell(r)
+                cells.append(f"[bold green]{c}[/bold green]" if r is not None and r.best else c)
+            table.add_row(next(r for r in rows if r is not None).display, *cells)
+        return table
+
+    if head:
+        console.print(
+            grid(
+                " · ".join(f"{h} ({METRICS[h].unit})" for h in head)
+                + f": means (bold: best by {m})",
+                lambda r: headline_cell(board, r),
+            )
+        )
+    console.print(grid(f"{m}: {_spread_words(board)}", lambda r: _cell(r.stats[m], m, r)))
     if board.failed:
         console.print(f"[red]{len(board.failed)} failed run(s)[/red] (listed in the markdown)")
     for p in paths.values():

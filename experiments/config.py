@@ -5,11 +5,12 @@ single run starts, naming the file and the key.
     name = "quick"                       # optional (default: the file's stem); runs/<name>/
     description = "a few minutes on 2 cores"
     env_id = "SixAxisTrack-v0"           # optional
-    seeds = [0, 1]                       # a list of seeds, or a count n meaning 0..n-1
+    seeds = [0, 1, 2]                    # a list of seeds, or a count n meaning 0..n-1 (>= 3: see below)
     episode_seconds = 6.0                # one judged phase of this length (unless [[phases]])
-    settle_seconds = 3.0                 # rms_settled_mm counts after this much of the episode
-    metrics = ["rms_mm", "max_mm", "rms_settled_mm", "effort_rms", "calib_rms_mm", "diverged"]
-    rank_by = "rms_mm"                   # the leaderboard's headline metric (default rms_mm)
+    settle_seconds = 2.0                 # the settled metrics count after this much of the episode
+    converge_mm = 0.25                   # converge_s: when the true error stays below this (mm)
+    metrics = ["rms_mm", "rms_settled_mm", "converge_s", "max_settled_mm", "effort_rms"]
+    rank_by = "rms_mm"                   # the leaderboard's ranking metric (default rms_mm)
     scenarios = ["nominal", "geometric", { name = "stiff", scenario = "compliance", env = {...} }]
 
     [env]                                # keyword arguments of gym.make for every run
@@ -32,6 +33,15 @@ single run starts, naming the file and the key.
 An agent may also be given as a bare string in ``agents = ["hold", "nominal"]``. The env keyword
 arguments of a run are ``[env] | scenario.env | agent.env | {"scenario": ...}``, in that order.
 
+The judged episode is measured whole (``rms_mm``, ``converge_s``) and after a settling time
+(``rms_settled_mm``, ``max_settled_mm``). ``settle_seconds`` defaults to 2 s: past the servo's
+start-up, and *unlike* any shipped agent's calibration window (``calibrated`` calibrates at 3 s).
+A settling time equal to an agent's calibration window would leave out exactly the phase in which
+that agent tracks uncalibrated, its worst; the loader warns when a setting ``calibration_seconds``
+equals it, and refuses a settling time as long as the judged episode (nothing would be left).
+With fewer than 3 seeds the leaderboard shows the minimum and maximum over seeds instead of a
+Student-t interval (the loader warns): give at least 3.
+
 A config expands into :class:`RunSpec` s, one per agent x scenario x seed: plain data that says
 everything a run needs, so a record that carries it can be rerun anywhere.
 """
@@ -53,6 +63,13 @@ from pathlib import Path
 from typing import Any
 
 from arm.errors import SixAxisError
+from experiments.metrics import (
+    DEFAULT_CONVERGE_MM,
+    DEFAULT_METRICS,
+    DEFAULT_SETTLE_SECONDS,
+    METRICS,
+    MIN_VALUES_FOR_CI,
+)
 
 __all__ = [
     "AgentEntry",
@@ -141,6 +158,7 @@ class RunSpec:
     settle_seconds: float
     phases: tuple[dict[str, Any], ...]
     metrics: tuple[str, ...]
+    converge_mm: float = DEFAULT_CONVERGE_MM
 
     @property
     def run_key(self) -> str:
@@ -161,6 +179,7 @@ class RunSpec:
             "settle_seconds": self.settle_seconds,
             "phases": [dict(p) for p in self.phases],
             "metrics": list(self.metrics),
+            "converge_mm": self.converge_mm,
         }
 
     @property
@@ -185,6 +204,7 @@ class RunSpec:
             settle_seconds=float(d["settle_seconds"]),
             phases=tuple(dict(p) for p in d.get("phases", ())),
             metrics=tuple(d["metrics"]),
+            converge_mm=float(d.get("converge_mm", DEFAULT_CONVERGE_MM)),
         )
 
 
@@ -205,6 +225,7 @@ class ExperimentConfig:
     scenarios: tuple[ScenarioEntry, ...]
     phases: tuple[PhaseEntry, ...] = ()
     path: str | None = None
+    converge_mm: float = DEFAULT_CONVERGE_MM
 
     def to_dict(self) -> dict[str, Any]:
         """The normalised config (what its hash is taken of; the file's path is not in it)."""
@@ -215,6 +236,7 @@ class ExperimentConfig:
             "seeds": list(self.seeds),
             "episode_seconds": self.episode_seconds,
             "settle_seconds": self.settle_seconds,
+            "converge_mm": self.converge_mm,
             "metrics": list(self.metrics),
             "rank_by": self.rank_by,
             "env": dict(self.env),
@@ -254,6 +276,7 @@ class ExperimentConfig:
                             settle_seconds=self.settle_seconds,
                             phases=tuple(p.to_dict() for p in self.phases),
                             metrics=self.metrics,
+                            converge_mm=self.converge_mm,
                         )
                     )
         return out
@@ -268,6 +291,7 @@ _TOP_KEYS = {
     "seeds": (list, int),
     "episode_seconds": (int, float),
     "settle_seconds": (int, float),
+    "converge_mm": (int, float),
     "metrics": list,
     "rank_by": str,
     "env": dict,
@@ -365,18 +389,27 @@ def parse_config(
             bad("seeds: empty")
         if len(set(seeds)) != len(seeds):
             bad(f"seeds: repeated seeds in {seeds_raw}")
+    if 0 < len(seeds) < MIN_VALUES_FOR_CI:
+        log.warning(
+            "%s: seeds: %d seed(s); the leaderboard shows min-max, not a confidence interval, "
+            "with fewer than %d",
+            source,
+            len(seeds),
+            MIN_VALUES_FOR_CI,
+        )
 
     episode_seconds = float(raw.get("episode_seconds", 10.0))
     if not episode_seconds > 0:
         bad(f"episode_seconds: must be positive, got {episode_seconds}")
-    settle_seconds = float(raw.get("settle_seconds", 3.0))
+    settle_seconds = float(raw.get("settle_seconds", DEFAULT_SETTLE_SECONDS))
     if settle_seconds < 0:
         bad(f"settle_seconds: must not be negative, got {settle_seconds}")
+    converge_mm = float(raw.get("converge_mm", DEFAULT_CONVERGE_MM))
+    if not converge_mm > 0:
+        bad(f"converge_mm: must be positive, got {converge_mm}")
 
-    # metrics
-    from experiments.metrics import DEFAULT_METRICS, METRICS
-
-    metrics = raw.get("metrics", list(DEFAULT_METRICS))
+    # metrics (a metric's companion, e.g. never_converged of converge_s, comes with it)
+    metrics = list(raw.get("metrics", list(DEFAULT_METRICS)))
     for i, m in enumerate(metrics):
         if not _is(m, str):
             bad(f"metrics[{i}]: expected a string, got {_tname(m)} {m!r}")
@@ -384,6 +417,10 @@ def parse_config(
             bad(f"metrics[{i}]: unknown metric {m!r}; known: {', '.join(METRICS)}")
     if len(set(map(str, metrics))) != len(metrics):
         bad(f"metrics: repeated names in {metrics}")
+    for m in list(metrics):
+        companion = METRICS[m].companion if isinstance(m, str) and m in METRICS else None
+        if companion is not None and companion not in metrics:
+            metrics.insert(metrics.index(m) + 1, companion)
     rank_by = raw.get("rank_by", "rms_mm")
     if rank_by not in metrics:
         bad(f"rank_by: {rank_by!r} is not one of the metrics {metrics}")
@@ -515,6 +552,20 @@ def parse_config(
         bad("episode_seconds: give either episode_seconds or [[phases]], not both")
     if phases:
         episode_seconds = float(sum(p.seconds for p in phases if p.judged))
+    if episode_seconds > 0 and settle_seconds >= episode_seconds:
+        bad(
+            f"settle_seconds: {settle_seconds:g} s is not shorter than the judged episode "
+            f"({episode_seconds:g} s): no step would be left for the settled metrics"
+        )
+    for a in agents:
+        if a.settings.get("calibration_seconds") == settle_seconds:
+            log.warning(
+                "%s: agent %s calibrates at %g s, the settling time: its uncalibrated phase, its "
+                "worst, is left out of every settled metric; rms_mm and converge_s still count it",
+                source,
+                a.label,
+                settle_seconds,
+            )
     _check_lengths(env, scenarios, agents, phases, episode_seconds, raw, env_info, bad)
 
     if problems:
@@ -526,6 +577,7 @@ def parse_config(
         seeds=tuple(seeds),
         episode_seconds=episode_seconds,
         settle_seconds=settle_seconds,
+        converge_mm=converge_mm,
         metrics=tuple(metrics),
         rank_by=rank_by,
         env=dict(sorted(env.items())),

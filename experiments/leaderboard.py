@@ -1,13 +1,22 @@
-"""The leaderboard: agents by scenario from a directory of run records, as a markdown table, a CSV
-and two PNG plots.
+"""The leaderboard: agents by scenario from a directory of run records, as a markdown table, a CSV,
+a per-run CSV and two PNG plots.
 
     board = build_leaderboard("runs/full")
     paths = write_leaderboard(board, "results", command="sixaxis leaderboard runs/full")
 
 Each cell is the mean over seeds with the half-width of its 95 % Student-t confidence interval
-(``scipy.stats.t``); the best agent of each scenario (lowest mean of the config's ``rank_by``
-metric) is marked. The CSV has one row per agent and scenario with ``<metric>_mean``,
-``<metric>_ci95`` (half-width) and ``n`` for every metric.
+(``scipy.stats.t``), or with the minimum and maximum over seeds when there are fewer than three;
+the best agent of each scenario (lowest mean of the config's ``rank_by`` metric) is marked. The
+whole-episode RMS, the settled RMS and the convergence time stand side by side in the first table.
+Oracles (agents given the plant's truth) are marked as such.
+
+Every row must be reproducible: records from a tree with local changes (or from no git checkout)
+are refused unless ``allow_dirty=True``, and then marked. ``leaderboard_runs.csv`` beside the
+table lists every run (agent, scenario, seed, commit, config, every metric) so that
+``sixaxis reproduce results/leaderboard_runs.csv --run KEY`` can rerun any of them.
+
+The CSV has one row per agent and scenario with ``<metric>_mean``, ``<metric>_ci95`` (half-width;
+empty with fewer than three values), ``<metric>_min``, ``<metric>_max`` and ``<metric>_n``.
 """
 
 from __future__ import annotations
@@ -24,15 +33,30 @@ from typing import Any
 import numpy as np
 
 from arm.measurements import atomic_write_text
-from experiments.metrics import METRICS, Summary, summarize
+from experiments.metrics import METRICS, MIN_VALUES_FOR_CI, Summary, summarize
 from experiments.records import RecordError, RunStore
 
-__all__ = ["Leaderboard", "Row", "build_leaderboard", "write_leaderboard"]
+__all__ = [
+    "Leaderboard",
+    "Row",
+    "build_leaderboard",
+    "is_clean",
+    "is_oracle",
+    "runs_csv",
+    "to_csv",
+    "to_markdown",
+    "write_leaderboard",
+]
 
 log = logging.getLogger(__name__)
 
 MD_NAME = "leaderboard.md"
 CSV_NAME = "leaderboard.csv"
+RUNS_CSV_NAME = "leaderboard_runs.csv"
+#: the first table: the whole episode, the settled part and the convergence, side by side
+HEADLINE = ("rms_mm", "rms_settled_mm", "converge_s")
+ORACLE_MARK = " (oracle)"
+DIRTY_MARK = " (local changes)"
 PLOT_TIME = "leaderboard_error_over_time.png"
 PLOT_SCENARIO = "leaderboard_by_scenario.png"
 
@@ -45,6 +69,15 @@ class Row:
     failed: int
     stats: dict[str, Summary]
     best: bool = False
+    oracle: bool = False
+    dirty: int = 0  # records from a tree with local changes (allowed with allow_dirty)
+
+    @property
+    def display(self) -> str:
+        """The agent's label with its marks (oracle, local changes)."""
+        return (
+            self.agent + (ORACLE_MARK if self.oracle else "") + (DIRTY_MARK if self.dirty else "")
+        )
 
 
 @dataclass
@@ -60,17 +93,35 @@ class Leaderboard:
     manifest: dict[str, Any] | None
     ignored: int = 0
     agent_settings: dict[str, dict[str, Any]] = field(default_factory=dict)
+    allow_dirty: bool = False
 
     def row(self, agent: str, scenario: str) -> Row | None:
         return next((r for r in self.rows if r.agent == agent and r.scenario == scenario), None)
 
 
-def build_leaderboard(runs_dir: str | Path, rank_by: str | None = None) -> Leaderboard:
+def is_clean(rec: dict[str, Any]) -> bool:
+    """Whether a record was made from a commit without local changes (so that commit reproduces
+    it); a record from no git checkout is not."""
+    git = rec.get("git") or {}
+    return bool(git.get("commit")) and git.get("dirty") is False
+
+
+def is_oracle(rec: dict[str, Any]) -> bool:
+    """Whether the record's agent was given the plant's truth (``needs_truth``)."""
+    return bool(rec.get("oracle"))
+
+
+def build_leaderboard(
+    runs_dir: str | Path, rank_by: str | None = None, allow_dirty: bool = False
+) -> Leaderboard:
     """Read every record of a sweep directory and summarise it over seeds.
 
     With the sweep's manifest (``_sweep.json``) present, only the runs of its config count (records
     left from an older config in the same directory are ignored, with a warning), and agents and
-    scenarios keep the config's order."""
+    scenarios keep the config's order.
+
+    Records made from a tree with local changes, or outside a git checkout, are refused
+    (:class:`RecordError` naming them) unless ``allow_dirty``; then their rows are marked."""
     store = RunStore(runs_dir)
     if not store.root.is_dir():
         raise RecordError(f"{store.root}: no such runs directory")
@@ -88,6 +139,16 @@ def build_leaderboard(runs_dir: str | Path, rank_by: str | None = None) -> Leade
         )
     if not records and not failed:
         raise RecordError(f"{store.root}: no run records")
+    unclean = sorted(r["run_key"] for r in records + failed if not is_clean(r))
+    if unclean and not allow_dirty:
+        shown = ", ".join(unclean[:5]) + (
+            f" and {len(unclean) - 5} more" if len(unclean) > 5 else ""
+        )
+        raise RecordError(
+            f"{store.root}: {len(unclean)} record(s) were made from a tree with local changes or "
+            f"outside a git checkout ({shown}); no commit reproduces them. Commit and rerun the "
+            "sweep, or pass --allow-dirty (allow_dirty=True) to mark them in the table"
+        )
 
     cfg = (manifest or {}).get("config", {})
     all_recs = records + failed
@@ -127,7 +188,22 @@ def build_leaderboard(runs_dir: str | Path, rank_by: str | None = None) -> Leade
             if not mine and not nfail:
                 continue
             stats = {m: summarize(_value(r, m) for r in mine) for m in metrics}
-            rows.append(Row(agent, scen, len(mine), nfail, stats))
+            everyone = mine + [
+                r
+                for r in failed
+                if r["spec"]["agent_label"] == agent and r["spec"]["scenario_label"] == scen
+            ]
+            rows.append(
+                Row(
+                    agent,
+                    scen,
+                    len(mine),
+                    nfail,
+                    stats,
+                    oracle=any(is_oracle(r) for r in everyone),
+                    dirty=sum(not is_clean(r) for r in everyone),
+                )
+            )
     for scen in scenarios:
         cands = [r for r in rows if r.scenario == scen and math.isfinite(r.stats[rank_by].mean)]
         if cands:
@@ -144,6 +220,7 @@ def build_leaderboard(runs_dir: str | Path, rank_by: str | None = None) -> Leade
         manifest=manifest,
         ignored=ignored,
         agent_settings=settings,
+        allow_dirty=allow_dirty,
     )
 
 
@@ -173,35 +250,114 @@ def _fmt(v: float, digits: int = 3) -> str:
     return f"{v:.{decimals}f}"
 
 
-def _cell(s: Summary, metric: str) -> str:
+def _cell(s: Summary, metric: str, row: Row | None = None, spread: bool = True) -> str:
+    """A summary as text: ``mean ± ci95`` (three values or more), ``mean (min–max)`` (two),
+    ``mean`` (one), ``k/n`` for counts. A metric with a companion count of runs where it is
+    missing (``converge_s``/``never_converged``) says so: ``never (3/3)``, ``1.2 ± 0.4 (1/4
+    never)``, the mean being over the runs that converged. ``spread=False``: the mean alone."""
     if METRICS[metric].aggregate == "sum":
         return "–" if s.n == 0 else f"{round(s.total)}/{s.n}"
+    companion = METRICS[metric].companion
+    never = row.stats.get(companion) if row is not None and companion else None
+    k = round(never.total) if never is not None and never.n else 0
     if s.n == 0:
-        return "–"
-    if not math.isfinite(s.ci95):
-        return _fmt(s.mean)
-    return f"{_fmt(s.mean)} ± {_fmt(s.ci95, 2)}"
+        return f"never ({k}/{never.n})" if k else "–"
+    if not spread:
+        text = _fmt(s.mean)
+    elif s.has_ci:
+        text = f"{_fmt(s.mean)} ± {_fmt(s.ci95, 2)}"
+    elif s.n >= 2:
+        text = f"{_fmt(s.mean)} ({_fmt(s.min)}–{_fmt(s.max)})"
+    else:
+        text = _fmt(s.mean)
+    return f"{text} ({k}/{never.n} never)" if k else text
 
 
 def to_csv(board: Leaderboard) -> str:
     """One row per agent and scenario; ``<metric>_mean``, ``<metric>_ci95`` (half-width of the
-    95 % Student-t interval), ``<metric>_n``; counts for ``diverged``; ``best`` by ``rank_by``."""
-    header = ["agent", "scenario", "n", "failed", "best"]
+    95 % Student-t interval; empty with fewer than three values), ``<metric>_min``,
+    ``<metric>_max``, ``<metric>_n``; counts for sums (``diverged``, ``never_converged``);
+    ``best`` by ``rank_by``; ``oracle`` (given the truth); ``dirty`` (records with local
+    changes)."""
+    header = ["agent", "scenario", "n", "failed", "best", "oracle", "dirty"]
     for m in board.metrics:
-        header += [f"{m}_mean", f"{m}_ci95", f"{m}_n"]
+        header += [f"{m}_mean", f"{m}_ci95", f"{m}_min", f"{m}_max", f"{m}_n"]
         if METRICS[m].aggregate == "sum":
             header.append(f"{m}_count")
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(header)
     for r in board.rows:
-        line: list[Any] = [r.agent, r.scenario, r.n, r.failed, int(r.best)]
+        line: list[Any] = [r.agent, r.scenario, r.n, r.failed, int(r.best), int(r.oracle), r.dirty]
         for m in board.metrics:
             s = r.stats[m]
-            line += [_num(s.mean), _num(s.ci95), s.n]
+            ci = s.ci95 if s.has_ci else float("nan")
+            line += [_num(s.mean), _num(ci), _num(s.min), _num(s.max), s.n]
             if METRICS[m].aggregate == "sum":
                 line.append("" if s.n == 0 else round(s.total))
         w.writerow(line)
+    return buf.getvalue()
+
+
+def runs_csv(board: Leaderboard) -> str:
+    """One row per run of the leaderboard (failed ones too): agent label and name, scenario,
+    seed, whether it is an oracle, status, the commit and whether the tree was dirty, the config
+    (name, path, hash), the run key and hash, and every metric (timing metrics last; they vary
+    from run to run). ``sixaxis reproduce`` reruns any row."""
+    timing = [m for m in board.metrics if METRICS[m].timing]
+    plain = [m for m in board.metrics if not METRICS[m].timing]
+    header = [
+        "agent",
+        "agent_name",
+        "scenario",
+        "scenario_name",
+        "seed",
+        "oracle",
+        "status",
+        "commit",
+        "dirty",
+        "config_name",
+        "config_path",
+        "config_hash",
+        "run_key",
+        "run_hash",
+        *plain,
+        *timing,
+    ]
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    order = {(a, s): i for i, (a, s) in enumerate((r.agent, r.scenario) for r in board.rows)}
+    recs = sorted(
+        board.records + board.failed,
+        key=lambda r: (
+            order.get((r["spec"]["agent_label"], r["spec"]["scenario_label"]), len(order)),
+            r["spec"]["seed"],
+        ),
+    )
+    man = board.manifest or {}
+    for r in recs:
+        spec, git = r["spec"], r.get("git") or {}
+        w.writerow(
+            [
+                spec["agent_label"],
+                spec["agent"],
+                spec["scenario_label"],
+                spec["scenario"],
+                spec["seed"],
+                int(is_oracle(r)),
+                r.get("status"),
+                git.get("commit") or "",
+                "" if git.get("dirty") is None else int(bool(git.get("dirty"))),
+                r.get("config_name") or man.get("config_name") or "",
+                r.get("config_path") or man.get("config_path") or "",
+                r.get("config_hash") or man.get("config_hash") or "",
+                r["run_key"],
+                r.get("run_hash", ""),
+                *(_num(_value(r, m)) for m in plain),
+                *(_num(_value(r, m)) for m in timing),
+            ]
+        )
     return buf.getvalue()
 
 
@@ -209,16 +365,64 @@ def _num(v: float) -> str:
     return "" if v is None or not math.isfinite(v) else repr(float(v))
 
 
+def _spread_words(board: Leaderboard) -> str:
+    ns = {r.stats[board.rank_by].n for r in board.rows if r.stats[board.rank_by].n}
+    if ns and min(ns) >= MIN_VALUES_FOR_CI:
+        return "mean ± half-width of the 95 % Student-t confidence interval over seeds"
+    if ns and max(ns) < MIN_VALUES_FOR_CI:
+        return (
+            f"mean (minimum–maximum) over seeds: fewer than {MIN_VALUES_FOR_CI} seeds, too few "
+            "for a confidence interval"
+        )
+    return (
+        "mean ± half-width of the 95 % Student-t confidence interval over seeds, or (minimum–"
+        f"maximum) where fewer than {MIN_VALUES_FOR_CI} seeds finished"
+    )
+
+
+def headline_metrics(board: Leaderboard) -> list[str]:
+    """The metrics of the side-by-side table: whole-episode RMS, settled RMS, convergence time
+    (those of them the records have)."""
+    return [m for m in HEADLINE if m in board.metrics]
+
+
+def headline_cell(board: Leaderboard, row: Row) -> str:
+    """``whole · settled · convergence`` means of one row (the first table)."""
+    return " · ".join(_cell(row.stats[m], m, row, spread=False) for m in headline_metrics(board))
+
+
 def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[str] = ()) -> str:
     m0 = board.rank_by
     meta = METRICS[m0]
     man = board.manifest or {}
     seeds = sorted({r["spec"]["seed"] for r in board.records})
+    cfg = man.get("config", {})
     lines = ["# Leaderboard", ""]
+    head = headline_metrics(board)
+    if head:
+        what = {
+            "rms_mm": "the tracking RMS over the whole judged episode",
+            "rms_settled_mm": (
+                f"the RMS after the settling time ({cfg.get('settle_seconds', '?'):g} s)"
+                if isinstance(cfg.get("settle_seconds"), (int, float))
+                else "the RMS after the settling time"
+            ),
+            "converge_s": (
+                f"the time after which the true error stays below "
+                f"{cfg.get('converge_mm', 0.25):g} mm (`never`: it did not, in that many seeds)"
+            ),
+        }
+        lines.append(
+            "Each agent on each scenario, judged on the plant's *true* tool point: "
+            + "; ".join(f"`{m}` ({METRICS[m].unit}), {what[m]}" for m in head)
+            + f". Ranked by `{m0}`; **bold**: the best agent of each scenario. Agents marked "
+            "(oracle) are given the plant's truth: they show what knowing the arm is worth, not "
+            "what a controller can do."
+        )
+        lines.append("")
     lines.append(
-        f"{meta.description[:1].upper()}{meta.description[1:]} ({meta.unit}): mean ± half-width of the 95 % Student-t "
-        f"confidence interval over {len(seeds)} seed(s); lower is better; **bold**: the best agent "
-        "of each scenario."
+        f"Cells of the other tables: {_spread_words(board)} ({len(seeds)} seed(s)); lower is "
+        "better."
     )
     lines += ["", "Made by:", "", "```"]
     if man.get("command"):
@@ -226,7 +430,7 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
     lines.append(command or f"sixaxis leaderboard {board.runs_dir}")
     lines += ["```", ""]
     commits = sorted({(r.get("git") or {}).get("commit") or "?" for r in board.records})
-    dirty = any((r.get("git") or {}).get("dirty") for r in board.records)
+    ndirty = sum(not is_clean(r) for r in board.records + board.failed)
     versions = (board.records[0].get("versions") if board.records else {}) or {}
     facts = []
     if man:
@@ -234,7 +438,6 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
             f"config `{man.get('config_name')}` (`{man.get('config_path')}`, hash "
             f"`{man.get('config_hash')}`)"
         )
-    cfg = man.get("config", {})
     if cfg:
         ph = cfg.get("phases") or []
         if ph:
@@ -243,17 +446,26 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
             )
         else:
             episode = f"{cfg.get('episode_seconds'):g} s episodes"
+        conv = cfg.get("converge_mm")
         facts.append(
-            f"{episode}, settling time {cfg.get('settle_seconds'):g} s, env options "
-            f"`{cfg.get('env') or {}}`"
+            f"{episode}, settling time {cfg.get('settle_seconds'):g} s"
+            + (f", convergence threshold {conv:g} mm" if conv is not None else "")
+            + f", env options `{cfg.get('env') or {}}`"
         )
     facts.append(
         f"{len(board.records) + len(board.failed)} runs ({len(board.failed)} failed), seeds "
         f"{_ranges(seeds)}"
     )
-    facts.append(
-        f"commit {', '.join(c[:10] for c in commits)}{' with local changes' if dirty else ''}"
-    )
+    if ndirty:
+        facts.append(
+            f"commit {', '.join(c[:10] for c in commits)}: **{ndirty} run(s) made with local "
+            "changes** (`--allow-dirty`; rows marked (local changes)): no commit reproduces them"
+        )
+    else:
+        facts.append(
+            f"commit {', '.join(c[:10] for c in commits)}, clean: every run is reproducible "
+            f"from it (`sixaxis reproduce {RUNS_CSV_NAME} --run RUN_KEY`)"
+        )
     if versions:
         facts.append(", ".join(f"{k} {v}" for k, v in versions.items() if v))
     lines += [f"- {f}" for f in facts]
@@ -261,24 +473,34 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
         lines.append(f"- {board.ignored} record(s) of another config in the directory ignored")
     lines.append("")
 
-    # the headline table: agents by scenario
-    lines.append(f"## {m0} ({meta.unit})")
-    lines.append("")
-    lines.append("| agent | " + " | ".join(board.scenarios) + " |")
-    lines.append("|---|" + "---:|" * len(board.scenarios))
-    for a in board.agents:
-        cells = []
-        for s in board.scenarios:
-            r = board.row(a, s)
-            if r is None:
-                cells.append("")
-                continue
-            c = _cell(r.stats[m0], m0)
-            if r.failed:
-                c += f" ({r.failed} failed)"
-            cells.append(f"**{c}**" if r.best else c)
-        lines.append(f"| {a} | " + " | ".join(cells) + " |")
-    lines.append("")
+    def grid(title: str, cell) -> None:
+        lines.append(title)
+        lines.append("")
+        lines.append("| agent | " + " | ".join(board.scenarios) + " |")
+        lines.append("|---|" + "---:|" * len(board.scenarios))
+        for a in board.agents:
+            mine = [board.row(a, s) for s in board.scenarios]
+            shown = next(r for r in mine if r is not None)
+            cells = []
+            for r in mine:
+                if r is None:
+                    cells.append("")
+                    continue
+                c = cell(r)
+                if r.failed:
+                    c += f" ({r.failed} failed)"
+                cells.append(f"**{c}**" if r.best else c)
+            name = a + (ORACLE_MARK if shown.oracle else "")
+            name += DIRTY_MARK if any(r is not None and r.dirty for r in mine) else ""
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        lines.append("")
+
+    if head:
+        grid(
+            "## " + " · ".join(f"{m} ({METRICS[m].unit})" for m in head) + " (means)",
+            lambda r: headline_cell(board, r),
+        )
+    grid(f"## {m0} ({meta.unit})", lambda r: _cell(r.stats[m0], m0, r))
 
     # every metric, long format
     lines.append("## All metrics")
@@ -290,8 +512,8 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
     )
     lines.append("|---|---|---:|" + "---:|" * len(board.metrics))
     for r in board.rows:
-        cells = [_cell(r.stats[m], m) for m in board.metrics]
-        name = f"**{r.agent}**" if r.best else r.agent
+        cells = [_cell(r.stats[m], m, r) for m in board.metrics]
+        name = f"**{r.display}**" if r.best else r.display
         lines.append(f"| {name} | {r.scenario} | {r.n} | " + " | ".join(cells) + " |")
     lines.append("")
     lines.append(
@@ -414,17 +636,25 @@ def plot_by_scenario(board: Leaderboard, path: str | Path) -> Path:
     width = 0.8 / max(1, len(agents))
     x = np.arange(len(scen))
     for i, a in enumerate(agents):
-        means, errs = [], []
+        means, lo, hi = [], [], []
         for s in scen:
             r = board.row(a, s)
             st = r.stats[m] if r else None
             means.append(st.mean if st and st.n else np.nan)
-            errs.append(st.ci95 if st and math.isfinite(st.ci95) else 0.0)
+            if st and st.has_ci:
+                lo.append(st.ci95)
+                hi.append(st.ci95)
+            elif st and st.n >= 2:  # too few seeds for an interval: their range
+                lo.append(st.mean - st.min)
+                hi.append(st.max - st.mean)
+            else:
+                lo.append(0.0)
+                hi.append(0.0)
         ax.bar(
             x + (i - (len(agents) - 1) / 2) * width,
             means,
             width,
-            yerr=errs,
+            yerr=[lo, hi],
             capsize=2,
             color=colors[a],
             label=a,
@@ -434,7 +664,7 @@ def plot_by_scenario(board: Leaderboard, path: str | Path) -> Path:
     ax.set_ylabel(f"{m} ({METRICS[m].unit})")
     ax.grid(True, axis="y", which="both", alpha=0.3)
     ax.legend(ncol=min(4, len(agents)), fontsize=8, frameon=False)
-    ax.set_title(f"{METRICS[m].description} by scenario (mean, 95 % CI over seeds)")
+    ax.set_title(f"{METRICS[m].description} by scenario (mean, 95 % CI or range over seeds)")
     return _save(fig, path)
 
 
@@ -454,9 +684,12 @@ def write_leaderboard(
     command: str | None = None,
     plots: bool = True,
 ) -> dict[str, Path]:
-    """Write leaderboard.md, leaderboard.csv and (``plots``) the two PNGs into ``out_dir``."""
+    """Write leaderboard.md, leaderboard.csv, leaderboard_runs.csv (every run) and (``plots``)
+    the two PNGs into ``out_dir``."""
     out = Path(out_dir)
     paths: dict[str, Path] = {}
+    paths["runs_csv"] = out / RUNS_CSV_NAME
+    atomic_write_text(paths["runs_csv"], runs_csv(board))
     if plots:
         paths["error_over_time"] = plot_error_over_time(board, out / PLOT_TIME)
         paths["by_scenario"] = plot_by_scenario(board, out / PLOT_SCENARIO)

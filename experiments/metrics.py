@@ -1,11 +1,18 @@
 """What a run is judged by: metrics of one episode (an :class:`agents.runner.EpisodeResult`) and
-their summary over seeds (mean and 95 % Student-t confidence interval).
+their summary over seeds (mean with a 95 % Student-t confidence interval from three seeds on; the
+minimum and maximum with fewer, where a t-interval is too wide to mean anything).
+
+The whole episode counts: ``rms_mm`` is over every judged step, start-up included; the settled
+metrics leave out the first ``settle_seconds``; ``converge_s`` says how long the start-up took.
 
 | metric                 | unit | what it is                                                            |
 |------------------------|------|-----------------------------------------------------------------------|
-| `rms_mm`               | mm   | RMS of the true tool-point error over the judged steps                 |
-| `max_mm`               | mm   | its maximum                                                           |
+| `rms_mm`               | mm   | RMS of the true tool-point error over the judged steps (whole episode) |
+| `max_mm`               | mm   | its maximum (mostly the starting offset)                              |
 | `rms_settled_mm`       | mm   | RMS after the first ``settle_seconds`` of the judged steps            |
+| `max_settled_mm`       | mm   | the maximum after the first ``settle_seconds``                        |
+| `converge_s`           | s    | the time (from the start of the judged steps) after which the true error stays below ``converge_mm`` to the end; missing (null) when it never does |
+| `never_converged`      | 1    | 1 if the error never stayed below ``converge_mm`` (the leaderboard counts it over seeds) |
 | `effort_rms`           | 1    | RMS of the normalised joint-velocity commands (1: every joint at full speed) |
 | `effort_rate_rms`      | 1/s  | RMS of the commands' rate of change (normalised units per second)     |
 | `calib_rms_mm`         | mm   | calibration error: RMS over 64 fixed poses of the distance between the tool point the agent's model (with what it identified) predicts and the true one; only for agents that report their model's parameters |
@@ -29,10 +36,15 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "DEFAULT_CONVERGE_MM",
     "DEFAULT_METRICS",
+    "DEFAULT_SETTLE_SECONDS",
     "METRICS",
+    "MIN_VALUES_FOR_CI",
     "Metric",
+    "Summary",
     "calibration_error_mm",
+    "convergence_time",
     "episode_metrics",
     "parameter_errors",
     "reports_model",
@@ -49,6 +61,9 @@ class Metric:
     description: str
     timing: bool = False  # varies with the machine: kept out of the reproducible part
     aggregate: str = "mean"  # "mean" (with a CI over seeds) or "sum" (a count over seeds)
+    #: a metric recorded with this one, which says why a value is missing (``converge_s`` is
+    #: null where the error never converged, and ``never_converged`` is then 1)
+    companion: str | None = None
 
 
 METRICS: dict[str, Metric] = {
@@ -57,6 +72,19 @@ METRICS: dict[str, Metric] = {
         Metric("rms_mm", "mm", "tracking RMS of the true tool-point error (judged steps)"),
         Metric("max_mm", "mm", "maximum true tool-point error (judged steps)"),
         Metric("rms_settled_mm", "mm", "tracking RMS after the settling time"),
+        Metric("max_settled_mm", "mm", "maximum true tool-point error after the settling time"),
+        Metric(
+            "converge_s",
+            "s",
+            "time after which the true error stays below the convergence threshold",
+            companion="never_converged",
+        ),
+        Metric(
+            "never_converged",
+            "1",
+            "episodes whose error never stayed below the convergence threshold",
+            aggregate="sum",
+        ),
         Metric("effort_rms", "1", "RMS of the normalised joint-velocity commands"),
         Metric("effort_rate_rms", "1/s", "RMS rate of change of the normalised commands"),
         Metric(
@@ -71,14 +99,23 @@ METRICS: dict[str, Metric] = {
 
 DEFAULT_METRICS = (
     "rms_mm",
-    "max_mm",
     "rms_settled_mm",
+    "converge_s",
+    "never_converged",
+    "max_mm",
+    "max_settled_mm",
     "effort_rms",
     "calib_rms_mm",
     "diverged",
     "solve_time_median_ms",
     "solve_time_p95_ms",
 )
+
+#: the convergence threshold (mm) unless a config sets ``converge_mm``: well above the tracker's
+#: noise floor (0.026 mm RMS in 3-D), well below the nominal arm's errors (about 2.5 mm)
+DEFAULT_CONVERGE_MM = 0.25
+#: the settling time (s) unless a config sets ``settle_seconds``; see experiments.config
+DEFAULT_SETTLE_SECONDS = 2.0
 
 CALIBRATION_POSES = 64
 CALIBRATION_POSE_SEED = 20240611  # fixed: every agent and run is judged at the same poses
@@ -88,20 +125,40 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
 
 
+def convergence_time(t: np.ndarray, err: np.ndarray, threshold_mm: float, t0: float = 0.0) -> float:
+    """The time (s, from ``t0``) after which ``err`` stays below ``threshold_mm`` to the end:
+    the end time ``t`` of the last step at or above it (a NaN, a diverged step, counts as above),
+    0 if no step is; ``inf`` if the last step is (never converged) or there is no step."""
+    t = np.asarray(t, dtype=float)
+    err = np.asarray(err, dtype=float)
+    if err.size == 0:
+        return math.inf
+    above = ~(err < threshold_mm)  # NaN is above
+    if above[-1]:
+        return math.inf
+    hits = np.flatnonzero(above)
+    return 0.0 if hits.size == 0 else float(t[hits[-1]] - t0)
+
+
 def episode_metrics(
     result: Any,
     names: Iterable[str],
-    settle_seconds: float = 3.0,
+    settle_seconds: float = DEFAULT_SETTLE_SECONDS,
     calib_rms_mm: float | None = None,
+    converge_mm: float = DEFAULT_CONVERGE_MM,
 ) -> tuple[dict[str, float], dict[str, float]]:
     """The metrics ``names`` of one episode, split into ``(reproducible, timing)``.
 
     ``result`` is an :class:`agents.runner.EpisodeResult` (or anything with its arrays);
-    ``calib_rms_mm`` comes from :func:`calibration_error_mm` (it needs the truth's model)."""
+    ``calib_rms_mm`` comes from :func:`calibration_error_mm` (it needs the truth's model);
+    ``converge_mm`` is the threshold of ``converge_s``. A metric's companion (``never_converged``
+    of ``converge_s``) is returned with it. ``converge_s`` is NaN (null in a record) when the error
+    never converged."""
     names = list(names)
     unknown = [n for n in names if n not in METRICS]
     if unknown:
         raise KeyError(f"unknown metric(s) {unknown}; known: {', '.join(METRICS)}")
+    names += [c for n in names if (c := METRICS[n].companion) is not None and c not in names]
     judged = np.asarray(result.judged, dtype=bool)
     t = np.asarray(result.time, dtype=float)
     err = np.asarray(result.true_error_mm, dtype=float)
@@ -113,7 +170,9 @@ def episode_metrics(
         t0 = t[judged][0] - (dt if np.isfinite(dt) else 0.0)
         settled = err[judged & (t - t0 > settle_seconds + 1e-9)]
     else:
+        t0 = 0.0
         settled = np.empty(0)
+    converge = convergence_time(t[judged], e, converge_mm, t0) if e.size else math.nan
     a = act[judged]
     rate = np.diff(act, axis=0)[judged[1:]] / dt if len(act) > 1 else np.empty((0, 6))
     solve = np.asarray(result.solve_time_s, dtype=float)
@@ -122,6 +181,9 @@ def episode_metrics(
         "rms_mm": _rms(e),
         "max_mm": float(np.max(e)) if e.size else float("nan"),
         "rms_settled_mm": _rms(settled),
+        "max_settled_mm": float(np.max(settled)) if settled.size else float("nan"),
+        "converge_s": converge if math.isfinite(converge) else float("nan"),
+        "never_converged": math.nan if math.isnan(converge) else float(math.isinf(converge)),
         "effort_rms": _rms(a),
         "effort_rate_rms": _rms(rate),
         "diverged": 1.0 if bool(result.diverged) else 0.0,
@@ -217,16 +279,29 @@ def calibration_error_mm(
     return float(np.sqrt(np.mean(np.sum((x_est - x_true) ** 2, axis=1)))) * 1e3
 
 
+#: fewer finite values than this and a summary shows the minimum and maximum, not a t-interval
+#: (with two seeds the 95 % t factor is 12.7: the interval spans far beyond anything observed)
+MIN_VALUES_FOR_CI = 3
+
+
 @dataclass(frozen=True)
 class Summary:
     """A metric over seeds: mean, the half-width of its 95 % Student-t confidence interval (NaN
-    with fewer than two values), standard deviation and count of finite values."""
+    with fewer than two values), standard deviation, count of finite values, their sum, minimum
+    and maximum. :attr:`has_ci` says whether the interval is worth showing."""
 
     mean: float
     ci95: float
     std: float
     n: int
     total: float
+    min: float = float("nan")
+    max: float = float("nan")
+
+    @property
+    def has_ci(self) -> bool:
+        """Enough values (:data:`MIN_VALUES_FOR_CI`) for the t-interval to be shown."""
+        return self.n >= MIN_VALUES_FOR_CI and math.isfinite(self.ci95)
 
     @property
     def low(self) -> float:
@@ -248,8 +323,9 @@ def summarize(values: Iterable[float], confidence: float = 0.95) -> Summary:
         return Summary(float("nan"), float("nan"), float("nan"), 0, float("nan"))
     mean = float(np.mean(x))
     total = float(np.sum(x))
+    lo, hi = float(np.min(x)), float(np.max(x))
     if n < 2:
-        return Summary(mean, float("nan"), float("nan"), n, total)
+        return Summary(mean, float("nan"), float("nan"), n, total, lo, hi)
     std = float(np.std(x, ddof=1))
     half = float(stats.t.ppf(0.5 + confidence / 2, n - 1)) * std / math.sqrt(n)
-    return Summary(mean, half, std, n, total)
+    return Summary(mean, half, std, n, total, lo, hi)

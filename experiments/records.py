@@ -35,6 +35,8 @@ __all__ = [
     "environment_info",
     "jsonable",
     "load_record",
+    "repo_path",
+    "source_root",
     "without_timing",
 ]
 
@@ -157,9 +159,27 @@ def environment_info() -> dict[str, Any]:
     return {"versions": versions, "git": git_state()}
 
 
+def source_root() -> Path:
+    """The directory this package's source tree lives in (the repository, for a checkout)."""
+    return Path(__file__).resolve().parents[1]
+
+
+def repo_path(path: str | Path | None) -> str | None:
+    """``path`` relative to the repository this package runs from, when it is an existing file
+    inside it (so that a record names the config as any checkout of the repository can find it);
+    otherwise as given."""
+    if path is None:
+        return None
+    p = Path(path)
+    try:
+        return p.resolve().relative_to(source_root()).as_posix() if p.exists() else str(path)
+    except (ValueError, OSError):
+        return str(path)
+
+
 def git_state(root: str | Path | None = None) -> dict[str, Any]:
     """The commit of the source tree this package runs from, and whether it has local changes."""
-    root = Path(root) if root is not None else Path(__file__).resolve().parents[1]
+    root = Path(root) if root is not None else source_root()
 
     def git(*args: str) -> str | None:
         try:

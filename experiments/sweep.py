@@ -35,7 +35,7 @@ from typing import Any
 
 from arm.errors import SixAxisError
 from experiments.config import ExperimentConfig, RunSpec
-from experiments.records import RECORD_SCHEMA, RunStore, environment_info, jsonable
+from experiments.records import RECORD_SCHEMA, RunStore, environment_info, jsonable, repo_path
 
 __all__ = [
     "SweepError",
@@ -143,10 +143,15 @@ def execute_run(spec: RunSpec) -> dict[str, Any]:
                 log.warning("%s: no calibration error: %s", spec.run_key, exc)
                 calibration["calib_rms_error"] = f"{type(exc).__name__}: {exc}"
     metrics, timing_metrics = episode_metrics(
-        result, spec.metrics, settle_seconds=spec.settle_seconds, calib_rms_mm=calib_mm
+        result,
+        spec.metrics,
+        settle_seconds=spec.settle_seconds,
+        calib_rms_mm=calib_mm,
+        converge_mm=spec.converge_mm,
     )
     timed = {k: v for k, v in report.items() if "time" in k}
     return {
+        "oracle": bool(agent.needs_truth),
         "metrics": metrics,
         "timing_metrics": timing_metrics | {"report": timed},
         "report": {k: v for k, v in report.items() if k not in timed},
@@ -284,9 +289,10 @@ def build_record(
             "run_hash": spec.run_hash,
             "config_name": spec.config_name,
             "config_hash": config.hash if config is not None else None,
-            "config_path": config.path if config is not None else None,
+            "config_path": repo_path(config.path) if config is not None else None,
             "spec": spec.to_dict(),
             "status": result.get("status", "failed"),
+            "oracle": bool(outcome.pop("oracle", False)),
             "error": result.get("error"),
             "metrics": outcome.pop("metrics", {}),
             "report": outcome.pop("report", {}),
@@ -386,7 +392,7 @@ def run_sweep(
         {
             "config_name": config.name,
             "config_hash": config.hash,
-            "config_path": config.path,
+            "config_path": repo_path(config.path),
             "command": command,
             "config": config.to_dict(),
             "runs": {s.run_key: s.run_hash for s in config.runs()},

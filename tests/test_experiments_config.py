@@ -18,6 +18,7 @@ GOOD = {
     "name": "t",
     "seeds": [0, 1],
     "episode_seconds": 2.0,
+    "settle_seconds": 1.0,
     "scenarios": ["nominal", "geometric"],
     "agents": ["hold", {"name": "nominal", "settings": {"gain": 0.4}}],
 }
@@ -181,7 +182,7 @@ def test_file_errors_name_the_file(tmp_path):
 def test_cli_refuses_a_bad_config_before_any_run_starts(tmp_path):
     cfg = tmp_path / "bad.toml"
     cfg.write_text(
-        'seeds = [0]\nepisode_seconds = 1.0\nscenarios = ["geometric"]\n'
+        'seeds = [0]\nepisode_seconds = 1.0\nsettle_seconds = 0.5\nscenarios = ["geometric"]\n'
         'agents = ["hold", { name = "nominal", settings = { gain = "fast" } }]\n'
     )
     out = tmp_path / "runs"
@@ -219,3 +220,48 @@ def test_calibrated_each_phase_is_how_a_config_says_none():
     assert make_agent("calibrated", calibration_seconds="each_phase").calibration_seconds is None
     with pytest.raises(ValueError, match="'sometimes'"):
         make_agent("calibrated", calibration_seconds="sometimes")
+
+
+def test_settling_window_must_leave_part_of_the_judged_episode():
+    msg = refused(settle_seconds=2.0)  # GOOD's episode is 2 s
+    assert "- settle_seconds: 2 s is not shorter than the judged episode (2 s)" in msg
+    # the default (2 s) against a 1 s episode is refused the same way
+    assert "settle_seconds: 2 s" in refused(settle_seconds=None, episode_seconds=1.0)
+    assert "- converge_mm: must be positive" in refused(converge_mm=0.0)
+
+
+def test_default_settling_time_is_no_shipped_calibration_window():
+    import inspect
+
+    from agents.reference import CalibratedAgent
+    from experiments.metrics import DEFAULT_SETTLE_SECONDS
+
+    cfg = parse(settle_seconds=None, episode_seconds=5.0)
+    assert cfg.settle_seconds == DEFAULT_SETTLE_SECONDS
+    windows = {inspect.signature(CalibratedAgent).parameters["calibration_seconds"].default}
+    for name in ("quick", "full"):
+        for a in load_config(CONFIGS / f"{name}.toml").agents:
+            if "calibration_seconds" in a.settings:
+                windows.add(a.settings["calibration_seconds"])
+    assert DEFAULT_SETTLE_SECONDS not in windows
+
+
+def test_a_calibration_window_equal_to_the_settling_time_is_warned_about(caplog):
+    agents = [{"name": "calibrated", "settings": {"calibration_seconds": 1.0}}]
+    with caplog.at_level("WARNING", logger="experiments.config"):
+        parse(agents=agents)
+    assert "calibrated calibrates at 1 s, the settling time" in caplog.text
+
+
+def test_convergence_comes_with_its_never_count_and_the_threshold_is_in_each_run():
+    cfg = parse(metrics=["rms_mm", "converge_s"], converge_mm=0.1)
+    assert cfg.metrics == ("rms_mm", "converge_s", "never_converged")
+    assert all(r.converge_mm == 0.1 for r in cfg.runs())
+    assert parse().runs()[0].run_hash != cfg.runs()[0].run_hash
+
+
+@pytest.mark.parametrize("name", ["quick", "full", "compliance_story"])
+def test_shipped_configs_have_three_seeds_and_the_whole_episode_metrics(name):
+    cfg = load_config(CONFIGS / f"{name}.toml")
+    assert len(cfg.seeds) >= 3
+    assert {"rms_mm", "rms_settled_mm", "converge_s", "max_settled_mm"} <= set(cfg.metrics)

@@ -15,10 +15,31 @@ from typer.testing import CliRunner
 
 from experiments.cli import app
 from experiments.config import parse_config
-from experiments.leaderboard import build_leaderboard, to_csv, to_markdown, write_leaderboard
-from experiments.records import RunStore, load_record
+from experiments.leaderboard import (
+    build_leaderboard,
+    runs_csv,
+    to_csv,
+    to_markdown,
+    write_leaderboard,
+)
+from experiments.records import RecordError, RunStore, environment_info, load_record
 from experiments.sweep import run_sweep
 from tests.test_experiments_sweep import fake_run
+
+CLEAN = {"commit": "c0ffee" * 6 + "c0ff", "dirty": False}
+
+
+def with_git(git: dict):
+    """The environment a record states, with the given git state: the records of these tests must
+    not depend on whether the checkout running them has local changes."""
+    env = dict(environment_info())
+    return lambda: env | {"git": dict(git)}
+
+
+@pytest.fixture(autouse=True)
+def clean_tree(monkeypatch):
+    monkeypatch.setattr("experiments.sweep.environment_info", with_git(CLEAN))
+
 
 T975_2DOF = 4.302653  # Student t, 97.5 % quantile, 2 degrees of freedom (tables)
 
@@ -28,6 +49,7 @@ def fake_config(**changes):
         "name": "board",
         "seeds": [0, 1, 2],
         "episode_seconds": 1.0,
+        "settle_seconds": 0.5,
         "metrics": ["rms_mm", "max_mm", "solve_time_median_ms"],
         "scenarios": ["nominal", "geometric"],
         "agents": ["hold", "nominal", "calibrated"],
@@ -118,6 +140,7 @@ def test_write_leaderboard_makes_the_files_and_plots(runs, tmp_path):
     assert {p.name for p in out.iterdir()} == {
         "leaderboard.md",
         "leaderboard.csv",
+        "leaderboard_runs.csv",
         "leaderboard_error_over_time.png",
         "leaderboard_by_scenario.png",
     }
@@ -135,6 +158,8 @@ def test_write_leaderboard_makes_the_files_and_plots(runs, tmp_path):
 @pytest.fixture(scope="module")
 def real_record(tmp_path_factory):
     root = tmp_path_factory.mktemp("real")
+    patch = pytest.MonkeyPatch()
+    patch.setattr("experiments.sweep.environment_info", with_git(CLEAN))
     cfg = parse_config(
         {
             "name": "real",
@@ -148,7 +173,10 @@ def real_record(tmp_path_factory):
         },
         source="real.toml",
     )
-    summary = run_sweep(cfg, root / "runs", workers=0)
+    try:
+        summary = run_sweep(cfg, root / "runs", workers=0)
+    finally:
+        patch.undo()
     assert not summary.failed
     return root / "runs"
 
@@ -181,6 +209,124 @@ def test_leaderboard_command_writes_results(real_record, tmp_path):
     md = (tmp_path / "leaderboard.md").read_text()
     assert f"leaderboard {real_record} --out {tmp_path}" in md
     assert rows((tmp_path / "leaderboard.csv").read_text())[0]["agent"] == "calibrated"
+
+
+def test_fewer_than_three_seeds_show_the_range_not_a_t_interval(tmp_path):
+    run_sweep(fake_config(seeds=[0, 1]), tmp_path, workers=0, run_fn=fake_run)
+    board = build_leaderboard(tmp_path)
+    md = to_markdown(board)
+    store = RunStore(tmp_path)
+    vals = [store.load(f"nominal__geometric__seed{s}")["metrics"]["rms_mm"] for s in (0, 1)]
+    lo, hi = sorted(vals)
+    assert "±" not in md and "minimum–maximum" in md
+    row = next(ln for ln in md.splitlines() if ln.startswith("| nominal | geometric |"))
+    assert f"({lo:.3g}–" in row and f"–{hi:.3g})" in row.replace(f"{hi:.3f}", f"{hi:.3g}")
+    line = next(
+        r for r in rows(to_csv(board)) if r["agent"] == "nominal" and r["scenario"] == "geometric"
+    )
+    assert line["rms_mm_ci95"] == ""  # no interval from two values
+    assert float(line["rms_mm_min"]) == lo and float(line["rms_mm_max"]) == hi
+
+
+def converging_run(spec):
+    """``calibrated`` converges in 1-2 s, ``nominal`` only in seed 0, ``hold`` never; and
+    ``calibrated`` says it is an oracle."""
+    conv = {"calibrated": 1.0 + 0.5 * spec.seed, "nominal": 2.0 if spec.seed == 0 else None}
+    c = conv.get(spec.agent_label)
+    return {
+        "oracle": spec.agent_label == "calibrated",
+        "metrics": {
+            "rms_mm": 1.0 + spec.seed,
+            "rms_settled_mm": 0.5 + spec.seed,
+            "converge_s": c,
+            "never_converged": 0.0 if c is not None else 1.0,
+        },
+    }
+
+
+def test_convergence_never_reached_is_marked_not_zero_and_oracles_are_marked(tmp_path):
+    cfg = fake_config(metrics=["rms_mm", "rms_settled_mm", "converge_s"])
+    assert cfg.metrics[-1] == "never_converged"
+    run_sweep(cfg, tmp_path, workers=0, run_fn=converging_run)
+    board = build_leaderboard(tmp_path)
+    md = to_markdown(board)
+    lines = md.splitlines()
+    head = lines.index(next(ln for ln in lines if ln.startswith("## rms_mm (mm) · rms_settled_mm")))
+    grid = lines[head : head + 8]
+    hold = next(ln for ln in grid if ln.startswith("| hold |"))
+    assert hold.count("never (3/3)") == 2  # both scenarios; no number, no zero
+    nominal = next(ln for ln in grid if ln.startswith("| nominal |"))
+    assert "· 2.00 (2/3 never) |" in nominal
+    calibrated = next(ln for ln in grid if ln.startswith("| calibrated (oracle) |"))
+    assert "· 1.50 |" in calibrated  # mean of 1.0, 1.5, 2.0
+    assert "(oracle) are given the plant's truth" in md
+    table = rows(to_csv(board))
+    by = {(r["agent"], r["scenario"]): r for r in table}
+    assert by["hold", "geometric"]["converge_s_n"] == "0"
+    assert by["hold", "geometric"]["never_converged_count"] == "3"
+    assert by["calibrated", "nominal"]["oracle"] == "1" and by["hold", "nominal"]["oracle"] == "0"
+
+
+def test_records_with_local_changes_are_refused_unless_allowed_and_then_marked(
+    tmp_path, monkeypatch
+):
+    cfg = fake_config()
+    run_sweep(cfg, tmp_path, workers=0, run_fn=fake_run)
+    # one record made from a tree with local changes
+    monkeypatch.setattr("experiments.sweep.environment_info", with_git(CLEAN | {"dirty": True}))
+    store = RunStore(tmp_path)
+    store.path("nominal__geometric__seed1").unlink()
+    run_sweep(cfg, tmp_path, workers=0, run_fn=fake_run)
+    with pytest.raises(
+        RecordError,
+        match=r"1 record\(s\) .*local changes.*nominal__geometric__seed1.*--allow-dirty",
+    ):
+        build_leaderboard(tmp_path)
+    res = CliRunner().invoke(app, ["leaderboard", str(tmp_path), "--out", str(tmp_path / "r")])
+    assert res.exit_code == 2 and "--allow-dirty" in res.output
+    assert not (tmp_path / "r").exists()  # nothing written
+    board = build_leaderboard(tmp_path, allow_dirty=True)
+    md = to_markdown(board)
+    assert "**1 run(s) made with local changes**" in md
+    assert "| nominal (local changes) | geometric |" in md
+    assert "| nominal | nominal |" in md  # the clean rows are not marked
+    table = {(r["agent"], r["scenario"]): r for r in rows(to_csv(board))}
+    assert (
+        table["nominal", "geometric"]["dirty"] == "1" and table["hold", "geometric"]["dirty"] == "0"
+    )
+    # a record from no git checkout is no better
+    monkeypatch.setattr(
+        "experiments.sweep.environment_info", with_git({"commit": None, "dirty": None})
+    )
+    store.path("hold__nominal__seed0").unlink()
+    run_sweep(cfg, tmp_path, workers=0, run_fn=fake_run)
+    with pytest.raises(RecordError, match=r"2 record\(s\)"):
+        build_leaderboard(tmp_path)
+
+
+def test_the_runs_csv_lists_every_run_with_its_commit_and_metrics(runs):
+    cfg, path = runs
+    board = build_leaderboard(path)
+    table = rows(runs_csv(board))
+    assert len(table) == 24  # 3 agents x 2 scenarios x 4 seeds, the failed ones too
+    store = RunStore(path)
+    for row in table:
+        rec = store.load(row["run_key"])
+        assert row["commit"] == CLEAN["commit"] and row["dirty"] == "0"
+        assert row["config_hash"] == cfg.hash and row["run_hash"] == rec["run_hash"]
+        assert (row["agent"], row["scenario"], int(row["seed"])) == (
+            rec["spec"]["agent_label"],
+            rec["spec"]["scenario_label"],
+            rec["spec"]["seed"],
+        )
+        if rec["status"] == "ok":
+            assert float(row["rms_mm"]) == rec["metrics"]["rms_mm"]  # exactly: repr round-trips
+            assert float(row["solve_time_median_ms"]) == rec["timing"]["solve_time_median_ms"]
+        else:
+            assert row["status"] == "failed" and row["rms_mm"] == ""
+    out = write_leaderboard(board, path.parent / "results", plots=False)
+    assert out["runs_csv"].name == "leaderboard_runs.csv"
+    assert out["runs_csv"].read_text() == runs_csv(board)
 
 
 def test_leaderboard_of_a_missing_directory_is_a_clear_error(tmp_path):

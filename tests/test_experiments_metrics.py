@@ -146,3 +146,52 @@ def test_summary_of_one_or_no_value_and_missing_values():
     none = summarize([float("nan"), None])
     assert none.n == 0 and math.isnan(none.mean)
     assert summarize([1.0, None, 3.0]).n == 2
+
+
+# -- the whole episode: convergence and the maximum after settling ------------------------------
+
+
+def test_convergence_time_by_hand():
+    # 0.02 s steps: 3 mm for 1 s (50 steps), then 0.1 mm, one 0.3 mm spike at step 100 (t = 2.02 s)
+    err = np.where(np.arange(200) < 50, 3.0, 0.1)
+    err[100] = 0.3
+    m, _ = episode_metrics(
+        result(err), ["converge_s", "max_settled_mm"], settle_seconds=1.0, converge_mm=0.25
+    )
+    # the error stays below 0.25 mm after the end of the spike's step
+    assert m["converge_s"] == pytest.approx(101 * 0.02, rel=1e-12)
+    assert m["never_converged"] == 0.0  # the companion comes with it
+    assert m["max_settled_mm"] == 0.3  # the first 50 steps are the settling time
+    # a looser threshold ignores the spike: converged at the end of step 50 (t = 1.0 s)
+    m, _ = episode_metrics(result(err), ["converge_s"], converge_mm=0.5)
+    assert m["converge_s"] == pytest.approx(1.0, rel=1e-12)
+    # below the threshold from the first step: converged at once, a true zero
+    m, _ = episode_metrics(result(np.full(10, 0.1)), ["converge_s"])
+    assert m["converge_s"] == 0.0 and m["never_converged"] == 0.0
+
+
+def test_never_converged_is_missing_and_counted_not_zero():
+    err = np.r_[np.full(50, 0.1), np.full(5, 0.4)]  # converged, then lost it at the end
+    m, _ = episode_metrics(result(err), ["converge_s"], converge_mm=0.25)
+    assert math.isnan(m["converge_s"]) and m["never_converged"] == 1.0
+    # a diverged episode (NaN error at the end) never converged either
+    m, _ = episode_metrics(result(np.r_[np.full(5, 0.1), np.nan]), ["converge_s"])
+    assert math.isnan(m["converge_s"]) and m["never_converged"] == 1.0
+    # no judged step: nothing to say, neither converged nor not
+    m, _ = episode_metrics(result(np.ones(3), judged=np.zeros(3, bool)), ["converge_s"])
+    assert math.isnan(m["converge_s"]) and math.isnan(m["never_converged"])
+
+
+def test_convergence_counts_from_the_start_of_the_judged_steps():
+    # 1 s of unjudged calibration far off, then judged: 0.5 s at 1 mm, then 0.1 mm
+    err = np.r_[np.full(50, 100.0), np.full(25, 1.0), np.full(75, 0.1)]
+    judged = np.r_[np.zeros(50, bool), np.ones(100, bool)]
+    m, _ = episode_metrics(result(err, judged), ["converge_s"], converge_mm=0.25)
+    assert m["converge_s"] == pytest.approx(0.5, rel=1e-9)
+
+
+def test_summary_keeps_the_range_and_shows_an_interval_only_from_three_values():
+    two = summarize([1.0, 3.0])
+    assert (two.min, two.max) == (1.0, 3.0) and not two.has_ci
+    three = summarize([1.0, 3.0, 2.0])
+    assert (three.min, three.max) == (1.0, 3.0) and three.has_ci
