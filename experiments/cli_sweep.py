@@ -239,12 +239,43 @@ def leaderboard(
 
 
 def reproduce(
-    record: Annotated[Path, typer.Argument(help="A run record (runs/<config>/<run-key>.json).")],
+    record: Annotated[
+        Path,
+        typer.Argument(
+            help="A run record (runs/<config>/<run-key>.json) or a per-run summary "
+            "(results/leaderboard_runs.csv)."
+        ),
+    ],
     rtol: Annotated[
         float, typer.Option(help="Relative tolerance of the comparison (0: exact).")
     ] = 0.0,
+    run: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--run", help="A summary's row by run key (agent__scenario__seedN); repeatable."
+        ),
+    ] = None,
+    line: Annotated[
+        list[int] | None,
+        typer.Option("--line", help="A summary's row by its line in the file; repeatable."),
+    ] = None,
+    every: Annotated[bool, typer.Option("--all", help="Every row of the summary.")] = False,
+    isolated: Annotated[
+        bool,
+        typer.Option(
+            help="Rerun in an export of the row's commit even when this checkout is at it."
+        ),
+    ] = False,
 ) -> None:
-    """Rerun the run a record describes and compare its metrics with the recorded ones."""
+    """Rerun a run and compare its metrics with the recorded ones.
+
+    A record (JSON) is rerun with the code of this checkout. A row of a per-run summary (CSV) is
+    rerun from the config and the commit it names: in this checkout when it is at that commit
+    without local changes, else in an export of the commit (git archive) to a temporary
+    directory. Rows made with local changes are refused."""
+    if record.suffix.lower() == ".csv":
+        _reproduce_rows(record, run or [], line or [], every, rtol, isolated)
+        return
     from experiments.config import RunSpec
     from experiments.records import RecordError, environment_info, load_record
     from experiments.sweep import build_record, execute_run, run_in_worker
@@ -308,6 +339,49 @@ def reproduce(
         err_console.print(f"[red]not reproduced:[/red] {', '.join(differ)} differ")
         raise typer.Exit(1)
     console.print("[green]reproduced:[/green] every metric and the error series are the same")
+
+
+def _reproduce_rows(
+    path: Path, runs: list[str], lines: list[int], every: bool, rtol: float, isolated: bool
+) -> None:
+    from experiments.reproduce import ReproduceError, read_runs_csv, reproduce_rows, select_rows
+
+    try:
+        picked = select_rows(read_runs_csv(path), runs, lines, every, source=str(path))
+        console.print(f"rerunning {len(picked)} row(s) of {path} from the commits they name...")
+        t0 = time.perf_counter()
+        with console.status("rerunning..."):
+            outcomes = reproduce_rows(picked, path, rtol=rtol, isolated=isolated)
+    except ReproduceError as exc:
+        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        raise typer.Exit(2) from None
+    table = Table(title=f"{path}: recorded vs reproduced ({time.perf_counter() - t0:.1f} s)")
+    for c in ("run", "metric", "recorded", "reproduced", "difference", ""):
+        table.add_column(
+            c, justify="right" if c in ("recorded", "reproduced", "difference") else "left"
+        )
+    failed = []
+    for o in outcomes:
+        if o.error is not None:
+            failed.append(o.run_key)
+            table.add_row(o.run_key, "", "", "", "", f"[red]{o.error}[/red]")
+            continue
+        bad = o.differences()
+        if bad:
+            failed.append(o.run_key)
+        for m, a in o.recorded.items():
+            b = o.reproduced.get(m)
+            diff = "" if a is None or b is None else f"{b - a:+.3g}"
+            mark = "[red]DIFFERS[/red]" if m in bad else "[green]same[/green]"
+            table.add_row(o.run_key, m, _show(a), _show(b), diff, mark)
+        table.add_section()
+    console.print(table)
+    for o in outcomes:
+        console.print(f"{o.run_key} (line {o.line}): rerun in {o.where}", highlight=False)
+    if failed:
+        err_console.print(f"[red]not reproduced:[/red] {', '.join(failed)}", highlight=False)
+        raise typer.Exit(1)
+    console.print(f"[green]reproduced:[/green] every metric of {len(outcomes)} row(s) is the same")
 
 
 def _show(v) -> str:
