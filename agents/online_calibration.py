@@ -39,7 +39,7 @@ import numpy as np
 import scipy.linalg
 
 from arm.errormodel import ErrorModel
-from arm.sampling import _range, sample_poses
+from arm.sampling import sample_poses
 
 __all__ = [
     "RecursiveLeastSquares",
@@ -62,7 +62,7 @@ def prior_scales(model: ErrorModel) -> np.ndarray:
     for e in model.effects:
         sl = model.layout.slice(e.name)
         for k, name in zip(range(sl.start, sl.stop), model.layout.names[sl], strict=True):
-            rg = _range(e, name)
+            rg = e.typical_range(name)
             if rg is not None:
                 s[k] = rg[1]
     return s

@@ -23,7 +23,7 @@ from typing import Any
 from agents.base import Agent
 from arm.errors import SixAxisError
 
-__all__ = ["AGENTS", "AgentError", "agent_names", "make_agent"]
+__all__ = ["AGENTS", "AgentError", "agent_names", "check_settings", "make_agent", "resolve_agent"]
 
 
 class AgentError(SixAxisError, ValueError):
@@ -94,7 +94,7 @@ def agent_names() -> list[str]:
     return list(AGENTS)
 
 
-def _target(name: str) -> tuple[Callable[..., Agent], Callable[..., Any]]:
+def resolve_agent(name: str) -> tuple[Callable[..., Agent], Callable[..., Any]]:
     """The factory of ``name`` and the callable whose signature its settings must fit."""
     if name in AGENTS:
         from agents import mpc, ppo, reference
@@ -129,7 +129,7 @@ def _target(name: str) -> tuple[Callable[..., Agent], Callable[..., Any]]:
 
 def check_settings(name: str, settings: dict[str, Any]) -> None:
     """Refuse settings that the agent does not take, before any run starts."""
-    _, cls = _target(name)
+    _, cls = resolve_agent(name)
     sig = inspect.signature(cls.__init__)
     params = sig.parameters
     if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
@@ -145,7 +145,7 @@ def check_settings(name: str, settings: dict[str, Any]) -> None:
 
 def make_agent(name: str, **settings: Any) -> Agent:
     """An agent by registered name or ``package.module:Class`` with its settings."""
-    factory, _ = _target(name)
+    factory, _ = resolve_agent(name)
     check_settings(name, settings)
     try:
         agent = factory(**settings)

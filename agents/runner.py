@@ -42,6 +42,7 @@ __all__ = [
     "Phase",
     "calibrate_then_blind",
     "calibration_campaign",
+    "make_env",
     "run_episode",
     "workspace_campaign",
 ]
@@ -263,7 +264,9 @@ class EpisodeResult:
         return out
 
 
-def _make_env(env_id: str, kwargs: Mapping[str, Any], steps: int | None):
+def make_env(env_id: str, kwargs: Mapping[str, Any], steps: int | None):
+    """``gym.make(env_id, **kwargs)`` with SixAxisTrack-v0 registered; ``steps`` replaces the
+    registered episode limit."""
     import gymnasium as gym
 
     import envs  # noqa: F401  (registers SixAxisTrack-v0)
@@ -307,7 +310,7 @@ def run_episode(
         env = None
         try:
             # the phase's length is counted here, so lift the registered time limit
-            env = _make_env(env_id, kw, None if ph.seconds is None else 10**9)
+            env = make_env(env_id, kw, None if ph.seconds is None else 10**9)
             obs, info = env.reset(seed=int(seed))
             task = env.unwrapped.task
             dt = float(task.dt)

@@ -49,14 +49,14 @@ from typing import Literal
 import numpy as np
 
 from arm.errors import SixAxisError
+from arm.so3 import rotation_matrix
 
 __all__ = [
     "DescriptionError",
     "Joint",
     "RobotDescription",
+    "as_robot",
     "load_robot",
-    "rotation_matrix",
-    "rotation_vector",
     "seed_robot",
 ]
 
@@ -413,6 +413,11 @@ def _from_dict(doc: dict, source: str) -> RobotDescription:
         raise DescriptionError(f"{source}: {exc}") from None
 
 
+def as_robot(robot: RobotDescription | str | Path | None) -> RobotDescription:
+    """``robot`` itself if it is a description, else :func:`load_robot` of it."""
+    return robot if isinstance(robot, RobotDescription) else load_robot(robot)
+
+
 def load_robot(name_or_path: str | Path | None = None) -> RobotDescription:
     """A shipped robot by name (``"seed"``) or a TOML file by path; ``None`` gives the seed arm."""
     if name_or_path is None:
@@ -433,19 +438,3 @@ def load_robot(name_or_path: str | Path | None = None) -> RobotDescription:
 def seed_robot() -> RobotDescription:
     """The seed arm of SPEC section 1."""
     return load_robot("seed")
-
-
-# -- rotations (rotation vectors <-> matrices), used by base transforms ---------------------------
-def rotation_matrix(r: np.ndarray) -> np.ndarray:
-    """Rodrigues: rotation vector(s) (..., 3) -> matrices (..., 3, 3)."""
-    from scipy.spatial.transform import Rotation
-
-    r = np.asarray(r, dtype=float)
-    return Rotation.from_rotvec(r.reshape(-1, 3)).as_matrix().reshape(*r.shape[:-1], 3, 3)
-
-
-def rotation_vector(R: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    R = np.asarray(R, dtype=float)
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(*R.shape[:-2], 3)

@@ -21,19 +21,17 @@ from __future__ import annotations
 import importlib.metadata
 import importlib.util
 import logging
-import math
 import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
 from arm.description import RobotDescription
-from arm.errors import SixAxisError
-
-if TYPE_CHECKING:  # pragma: no cover
-    from arm.errormodel import ChainState, ModelInputs, Sensitivities
+from arm.effect_api import ChainState, EffectError, ModelInputs, Sensitivities
+from arm.params import parse_parameter_name
+from arm.so3 import rotation_matrix
 
 __all__ = [
     "EFFECTS",
@@ -41,7 +39,6 @@ __all__ = [
     "ChainEffect",
     "Compliance",
     "Effect",
-    "EffectError",
     "Geometric",
     "JointAngleEffect",
     "JointScale",
@@ -57,10 +54,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 REFERENCE_TEMPERATURE = 20.0  # degC, where thermal growth is zero
-
-
-class EffectError(SixAxisError, ValueError):
-    """An unknown effect, a bad effect specification or a missing measured column."""
 
 
 class Effect:
@@ -94,6 +87,14 @@ class Effect:
     def parameter_names(self, robot: RobotDescription, targets: Sequence[int]) -> list[str]:
         """Names of the parameters; ``targets`` are the ids of the measured tool points."""
         raise NotImplementedError
+
+    def typical_range(self, name: str) -> tuple[float, float] | None:
+        """The typical magnitude range of parameter ``name`` (by the longest prefix of
+        :attr:`typical` it starts with), or None where the effect states none."""
+        for prefix in sorted(self.typical, key=len, reverse=True):
+            if name.startswith(prefix):
+                return self.typical[prefix]
+        return None
 
     def nominal(self, robot: RobotDescription, names: Sequence[str]) -> np.ndarray:
         """Starting values: those the description carries for this effect, else zero."""
@@ -266,36 +267,6 @@ class ChainEffect(Effect):
         return out.transpose(2, 1, 0)
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """[v]x for vectors (..., 3) -> (..., 3, 3)."""
-    v = np.asarray(v, dtype=float)
-    K = np.zeros((*v.shape[:-1], 3, 3))
-    x, y, z = v[..., 0], v[..., 1], v[..., 2]
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -z, y, -x
-    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = z, -y, x
-    return K
-
-
-def _rodrigues(r: np.ndarray) -> np.ndarray:
-    """The rotation matrix of one rotation vector (3,)."""
-    r = np.asarray(r, dtype=float)
-    th = math.sqrt(float(r @ r))
-    K = _skew(r)
-    if th < 1e-8:
-        return np.eye(3) + K + 0.5 * (K @ K)
-    return np.eye(3) + math.sin(th) / th * K + (1 - math.cos(th)) / th**2 * (K @ K)
-
-
-def so3_left_jacobian(r: np.ndarray) -> np.ndarray:
-    """J_l(r) with exp(r + dr) = exp(J_l(r) dr) exp(r) to first order."""
-    r = np.asarray(r, dtype=float)
-    th = math.sqrt(float(r @ r))
-    K = _skew(r)
-    if th < 1e-8:
-        return np.eye(3) + 0.5 * K
-    return np.eye(3) + (1 - math.cos(th)) / th**2 * K + (th - math.sin(th)) / th**3 * (K @ K)
-
-
 class Geometric(ChainEffect):
     """DH errors of every row, Hayati's beta on parallel consecutive axes (replacing that row's d),
     the base transform (measurement frame <- robot base) and the tool offset of each target.
@@ -366,7 +337,7 @@ class Geometric(ChainEffect):
                 src = slice(int(src[0]), int(src[-1]) + 1)
             return dst, src
 
-        tool = [idx[n] for n in names if re.fullmatch(r"t[xyz][0-9]*", n)]
+        tool = [idx[n] for n in names if (p := parse_parameter_name(n)) and p.kind == "tool"]
         return {
             "alpha": rows("dalpha"),
             "a": rows("da"),
@@ -396,7 +367,7 @@ class Geometric(ChainEffect):
         b = values[s["base"]]
         tools = state.tools + values[s["tool"]]
         return state.replace(
-            chain=chain, base_t=b[:3], base_r=b[3:], base_R=_rodrigues(b[3:]), tools=tools
+            chain=chain, base_t=b[:3], base_r=b[3:], base_R=rotation_matrix(b[3:]), tools=tools
         )
 
     def jacobian(self, inputs, values, sens):

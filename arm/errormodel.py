@@ -14,180 +14,27 @@ through the frames and the base transform into the measurement frame.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
-from functools import cached_property
-from typing import Any
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
 
 import numpy as np
 
 from arm.description import RobotDescription
-from arm.effects import (
-    ChainEffect,
-    Effect,
-    EffectError,
-    JointAngleEffect,
-    parse_effects,
-    so3_left_jacobian,
-)
+from arm.effect_api import ChainState, EffectError, ModelInputs, Sensitivities
+from arm.effects import ChainEffect, Effect, JointAngleEffect, parse_effects
 from arm.kinematics import (
     Chain,
     ColumnFrames,
     Workspace,
     column_frames,
-    cross_columns,
     gravity_torques,
     tool_points,
 )
 from arm.params import ParameterLayout
 
-__all__ = ["ChainState", "ErrorModel", "ModelInputs", "Sensitivities"]
+__all__ = ["ErrorModel"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class ModelInputs:
-    """Everything per pose that the model needs besides the parameters, computed once per data set.
-
-    ``tau`` are the gravity torques of the nominal arm at the encoder reading (payload included);
-    ``target`` is each pose's index into the model's targets.
-    """
-
-    robot: RobotDescription
-    targets: tuple[int, ...]
-    q: np.ndarray
-    tau: np.ndarray
-    target: np.ndarray
-    columns: dict[str, np.ndarray] = field(default_factory=dict)
-    _cache: dict = field(default_factory=dict, repr=False)
-
-    @property
-    def n(self) -> int:
-        return self.q.shape[0]
-
-    def column(self, name: str) -> np.ndarray:
-        try:
-            return self.columns[name]
-        except KeyError:
-            raise EffectError(
-                f"column {name!r} is needed but the data has only: {', '.join(sorted(self.columns)) or 'q, x, y, z'}"
-            ) from None
-
-    def cached(self, owner: Any, fn: Callable[[ModelInputs], Any]) -> Any:
-        """``fn(self)`` computed once per (owner, fn) for these inputs."""
-        key = (id(owner), getattr(fn, "__qualname__", id(fn)))
-        if key not in self._cache:
-            self._cache[key] = fn(self)
-        return self._cache[key]
-
-    def subset(self, idx: np.ndarray) -> ModelInputs:
-        """The inputs of some poses only (for cross-validation and held-out tests)."""
-        return ModelInputs(
-            robot=self.robot,
-            targets=self.targets,
-            q=self.q[idx],
-            tau=self.tau[idx],
-            target=self.target[idx],
-            columns={k: v[idx] for k, v in self.columns.items()},
-        )
-
-
-@dataclass(frozen=True)
-class ChainState:
-    """The chain as the effects leave it: DH arrays, base transform, tool points per target."""
-
-    robot: RobotDescription
-    targets: tuple[int, ...]
-    chain: Chain
-    base_R: np.ndarray
-    base_t: np.ndarray
-    base_r: np.ndarray
-    tools: np.ndarray  # (n_targets, 3), in the last frame
-    length_scale: np.ndarray | None = None  # (N,) product of length scalings (thermal)
-
-    def replace(self, **kw) -> ChainState:
-        return replace(self, **kw)
-
-
-class Sensitivities:
-    """Elementary derivatives of the measured point, in the measurement frame, computed on first
-    use from the frames of one evaluation.
-
-    Component-major blocks, pose index last (what the catalogue's effects use): ``rows_alpha[i]``
-    (3, N) is d p / d alpha of row i+1 (likewise ``rows_beta``, ``rows_a``, ``rows_theta``,
-    ``rows_d``, all at the state's values), ``base_cols`` (6, 3, N) d p / d (bx, by, bz, brx, bry,
-    brz) and ``tool_cols`` (3, 3, N) d p / d the tool point of the pose's own target. The same as
-    (N, 3, k) views: ``d_alpha[:, :, i]``, ``d_beta``, ``d_a``, ``d_theta``, ``d_d``, ``d_base``,
-    ``d_tool``.
-    """
-
-    def __init__(
-        self,
-        state: ChainState,
-        frames: ColumnFrames,
-        point: np.ndarray,
-        work: Workspace | None = None,
-    ) -> None:
-        self.state = state
-        self._f = frames
-        self._p = point  # (3, N), measurement frame
-        self._new = (lambda name, shape: np.empty(shape)) if work is None else work
-
-    @cached_property
-    def _lever(self) -> np.ndarray:
-        """p - o_i for frames 0..6, (7, 3, N)."""
-        return np.subtract(self._p[None], self._f.o, out=self._new("sens.lever", self._f.o.shape))
-
-    @cached_property
-    def rows_alpha(self) -> np.ndarray:
-        out = self._new("sens.alpha", self._f.x_a.shape)
-        return cross_columns(self._f.axes[:6, 0], self._lever[:6], out=out)
-
-    @cached_property
-    def rows_beta(self) -> np.ndarray:
-        return cross_columns(self._f.y_beta, self._lever[:6])
-
-    def beta_rows(self, rows) -> np.ndarray:
-        """``rows_beta[rows]``, computing only those rows."""
-        if "rows_beta" in self.__dict__:
-            return self.rows_beta[rows]
-        return cross_columns(self._f.y_beta[rows], self._lever[:6][rows])
-
-    @property
-    def rows_a(self) -> np.ndarray:
-        return self._f.x_a
-
-    @cached_property
-    def rows_theta(self) -> np.ndarray:
-        out = self._new("sens.theta", self._f.x_a.shape)
-        return cross_columns(self._f.axes[1:, 2], self._lever[1:], out=out)
-
-    @property
-    def rows_d(self) -> np.ndarray:
-        return self._f.axes[1:, 2]
-
-    @cached_property
-    def base_cols(self) -> np.ndarray:
-        st = self.state
-        out = np.zeros((6, 3, self._p.shape[1]))
-        out[0, 0] = out[1, 1] = out[2, 2] = 1.0
-        # d(R(r) p_b)/dr = -[R p_b]x J_l(r): column j is J_l[:, j] x (p - t_b)
-        Jl = so3_left_jacobian(st.base_r)
-        out[3:] = cross_columns(Jl.T[:, :, None], (self._p - st.base_t[:, None])[None])
-        return out
-
-    @property
-    def tool_cols(self) -> np.ndarray:
-        return self._f.axes[6]
-
-    d_alpha = property(lambda self: self.rows_alpha.transpose(2, 1, 0))
-    d_beta = property(lambda self: self.rows_beta.transpose(2, 1, 0))
-    d_a = property(lambda self: self.rows_a.transpose(2, 1, 0))
-    d_theta = property(lambda self: self.rows_theta.transpose(2, 1, 0))
-    d_d = property(lambda self: self.rows_d.transpose(2, 1, 0))
-    d_base = property(lambda self: self.base_cols.transpose(2, 1, 0))
-    d_tool = property(lambda self: self.tool_cols.transpose(2, 1, 0))
 
 
 class ErrorModel:

@@ -58,9 +58,10 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from arm.description import RobotDescription, rotation_vector
+from arm.description import RobotDescription
 from arm.errors import SixAxisError
 from arm.kinematics import Chain, link_frames
+from arm.so3 import rot_x, rot_y, rot_z, rotation_vector
 
 if TYPE_CHECKING:  # pragma: no cover
     from arm.errormodel import ErrorModel
@@ -104,29 +105,6 @@ class IKResult(NamedTuple):
     iterations: np.ndarray
 
 
-# -- small rotations ----------------------------------------------------------------------------
-def _rot_x(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def _rot_y(b: float) -> np.ndarray:
-    c, s = math.cos(b), math.sin(b)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _rot_z(t: np.ndarray) -> np.ndarray:
-    """RotZ of every angle in ``t`` (...,) -> (..., 3, 3)."""
-    c, s = np.cos(t), np.sin(t)
-    R = np.zeros((*np.shape(t), 3, 3))
-    R[..., 0, 0] = c
-    R[..., 0, 1] = -s
-    R[..., 1, 0] = s
-    R[..., 1, 1] = c
-    R[..., 2, 2] = 1.0
-    return R
-
-
 def _wrap(x: np.ndarray) -> np.ndarray:
     """Angles to [-pi, pi)."""
     return (np.asarray(x) + math.pi) % TWO_PI - math.pi
@@ -151,7 +129,7 @@ def flange_transform(robot: RobotDescription) -> np.ndarray:
     standard row's ``TransX(a_6) RotX(alpha_6)`` for a standard-DH one (see ``to_modified``)."""
     a, alpha = robot.to_modified().flange
     T = np.eye(4)
-    T[:3, :3] = _rot_x(alpha)
+    T[:3, :3] = rot_x(alpha)
     T[0, 3] = a
     return T
 
@@ -420,7 +398,7 @@ def _snap(chain: Chain) -> Chain:
 def _structure(chain: Chain) -> WristStructure:
     al, a, d = chain.alpha, chain.a, chain.d
     pre = np.eye(4)
-    pre[:3, :3] = _rot_x(al[0]) @ _rot_y(chain.beta[0])
+    pre[:3, :3] = rot_x(al[0]) @ rot_y(chain.beta[0])
     pre[:3, 3] = pre[:3, :3] @ np.array([a[0], 0.0, 0.0]) + pre[:3, 2] * d[0]
     s2 = 1.0 if math.cos(al[2]) > 0 else -1.0
     w3 = np.array([a[3], -math.sin(al[3]) * d[3], math.cos(al[3]) * d[3]])
@@ -457,8 +435,8 @@ def _branches(
     w = Tp[:, :3, 3] - ws.d6 * R6[:, :, 2]
     wx, wy, wz = w[:, 0], w[:, 1], w[:, 2]
     al = ws.alpha
-    Rx1, Rx2, Rx3t = _rot_x(al[1]), _rot_x(al[2]), _rot_x(al[3]).T
-    Rx4, Rx5 = _rot_x(al[4]), _rot_x(al[5])
+    Rx1, Rx2, Rx3t = rot_x(al[1]), rot_x(al[2]), rot_x(al[3]).T
+    Rx4, Rx5 = rot_x(al[4]), rot_x(al[5])
     ca4, sa4, ca5, sa5 = math.cos(al[4]), math.sin(al[4]), math.cos(al[5]), math.sin(al[5])
     rho = math.hypot(ws.w3[0], ws.w3[1])
     phi = math.atan2(ws.w3[1], ws.w3[0])
@@ -479,7 +457,7 @@ def _branches(
             px = ws.a2 + np.cos(th3) * ws.w3[0] - np.sin(th3) * ws.w3[1]
             py = ws.s2 * (np.sin(th3) * ws.w3[0] + np.cos(th3) * ws.w3[1])
             th2 = np.arctan2(Y, X) - np.arctan2(py, px)
-            R3 = _rot_z(th1) @ Rx1 @ _rot_z(th2) @ Rx2 @ _rot_z(th3)
+            R3 = rot_z(th1) @ Rx1 @ rot_z(th2) @ Rx2 @ rot_z(th3)
             M = Rx3t @ np.swapaxes(R3, 1, 2) @ R6
             W = M[:, :, 2]
             c5 = (ca4 * ca5 - W[:, 2]) / (sa4 * sa5)
@@ -494,7 +472,7 @@ def _branches(
                     q4_hint + ws.offset[3],
                     np.arctan2(W[:, 1], W[:, 0]) - np.arctan2(v, u),
                 )
-                Mw = _rot_z(th4) @ Rx4 @ _rot_z(th5) @ Rx5
+                Mw = rot_z(th4) @ Rx4 @ rot_z(th5) @ Rx5
                 Nz = np.swapaxes(Mw, 1, 2) @ M
                 th6 = np.arctan2(Nz[:, 1, 0], Nz[:, 0, 0])
                 theta[:, k] = np.stack([th1, th2, th3, th4, th5, th6], axis=-1)

@@ -26,6 +26,7 @@ __all__ = [
     "MeasurementError",
     "MeasurementSet",
     "NumericTable",
+    "as_measurements",
     "atomic_path",
     "atomic_write_text",
     "parse_numeric_csv",
@@ -269,6 +270,11 @@ def parse_numeric_csv(
             values[i, j] = v
     rows = np.array([k for k, _ in lines[1:]], dtype=int)
     return NumericTable([header[k] for k in read], values, rows, hline)
+
+
+def as_measurements(data: MeasurementSet | str | Path) -> MeasurementSet:
+    """``data`` itself if it is a measurement set, else the file it names (in SI units)."""
+    return data if isinstance(data, MeasurementSet) else read_measurements(data)
 
 
 def read_measurements(

@@ -1,14 +1,35 @@
 """Named parameter vectors: one small type maps names to positions and effects to slices, so a
-table row, a Jacobian column and a JSON key all say ``dalpha2``, never "index 7"."""
+table row, a Jacobian column and a JSON key all say ``dalpha2``, never "index 7"; and the one
+parser of the catalogue's parameter names (their grammar is in docs/format.md).
+
+    dalpha{i} da{i} dtheta{i} dd{i}   row i of the DH table (i = 1..6): alpha_{i-1}, a_{i-1},
+                                      theta_i, d_i
+    beta{k}                           Hayati's rotation about y_k, in row k+1 in place of dd{k+1}
+    bx by bz brx bry brz              the base transform (translation, rotation vector)
+    tx ty tz, tx{k} ty{k} tz{k}       the tool offset (of target k when there are several)
+    c{i} ts{i} tc{i} g{i} bl{i} lb{i} per-joint effects (i = 1..6)
+    kappa                             thermal expansion
+
+Any other name belongs to a user's effect.
+"""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
-__all__ = ["ParameterLayout", "parameter_unit"]
+__all__ = [
+    "BASE_NAMES",
+    "ROW_FAMILIES",
+    "ParameterLayout",
+    "ParameterName",
+    "parameter_unit",
+    "parse_parameter_name",
+]
 
 
 @dataclass(frozen=True)
@@ -90,35 +111,100 @@ class ParameterLayout:
         return out
 
 
-# Units of the catalogue's parameter families (SPEC section 2), by name prefix.
-_UNITS = (
-    ("dalpha", "rad"),
-    ("dtheta", "rad"),
-    ("beta", "rad"),
-    ("da", "m"),
-    ("dd", "m"),
-    ("brx", "rad"),
-    ("bry", "rad"),
-    ("brz", "rad"),
-    ("bx", "m"),
-    ("by", "m"),
-    ("bz", "m"),
-    ("tx", "m"),
-    ("ty", "m"),
-    ("tz", "m"),
-    ("c", "rad/(N·m)"),
-    ("ts", "rad"),
-    ("tc", "rad"),
-    ("g", "1"),
-    ("bl", "rad"),
-    ("lb", "rad"),
-    ("kappa", "1/K"),
+# --------------------------------------------------------------------------------------------------
+ParameterKind = Literal["row", "beta", "base", "tool", "joint", "global"]
+
+#: the DH row families in the order of the table's columns (alpha, a, theta, d)
+ROW_FAMILIES = ("dalpha", "da", "dtheta", "dd")
+#: the base transform's parameters, translation then rotation vector
+BASE_NAMES = ("bx", "by", "bz", "brx", "bry", "brz")
+
+_GRAMMAR = re.compile(
+    r"(?P<row>dalpha|dtheta|da|dd)(?P<row_i>[1-6])"
+    r"|beta(?P<beta_k>[0-5])"
+    r"|(?P<base>brx|bry|brz|bx|by|bz)"
+    r"|(?P<tool>tx|ty|tz)(?P<target>[0-9]*)"
+    r"|(?P<joint>ts|tc|bl|lb|c|g)(?P<joint_i>[1-6])"
+    r"|(?P<global>kappa)"
 )
+
+# SI units of the catalogue's parameter families (docs/format.md, the parameter names)
+_UNITS = {
+    "dalpha": "rad",
+    "dtheta": "rad",
+    "beta": "rad",
+    "da": "m",
+    "dd": "m",
+    "brx": "rad",
+    "bry": "rad",
+    "brz": "rad",
+    "bx": "m",
+    "by": "m",
+    "bz": "m",
+    "tx": "m",
+    "ty": "m",
+    "tz": "m",
+    "c": "rad/(N·m)",
+    "ts": "rad",
+    "tc": "rad",
+    "g": "1",
+    "bl": "rad",
+    "lb": "rad",
+    "kappa": "1/K",
+}
+
+
+@dataclass(frozen=True)
+class ParameterName:
+    """A catalogued parameter's name, parsed.
+
+    ``kind``: ``row`` (a DH row's error), ``beta`` (Hayati's), ``base``, ``tool``, ``joint`` (a
+    per-joint effect's) or ``global``; ``family``: the name without its number (``dalpha``,
+    ``beta``, ``brx``, ``tx``, ``c``, ``kappa``...); ``number``: the number as written (the row
+    for ``row``, k of ``beta{k}``, the target of ``tx{k}``, the joint for ``joint``), or None.
+    """
+
+    name: str
+    kind: ParameterKind
+    family: str
+    number: int | None = None
+
+    @property
+    def row(self) -> int | None:
+        """The DH row (1..6) a ``row`` or ``beta`` parameter corrects (``beta{k}`` sits in row
+        k+1, in place of ``dd{k+1}``); None for the others."""
+        if self.kind == "row":
+            return self.number
+        if self.kind == "beta":
+            return None if self.number is None else self.number + 1
+        return None
+
+    @property
+    def unit(self) -> str:
+        """The SI unit of the family."""
+        return _UNITS[self.family]
+
+
+def parse_parameter_name(name: str) -> ParameterName | None:
+    """The parsed name of a catalogued parameter, or None for any other (a user effect's)."""
+    m = _GRAMMAR.fullmatch(name)
+    if m is None:
+        return None
+    g = m.groupdict()
+    if g["row"] is not None:
+        return ParameterName(name, "row", g["row"], int(g["row_i"]))
+    if g["beta_k"] is not None:
+        return ParameterName(name, "beta", "beta", int(g["beta_k"]))
+    if g["base"] is not None:
+        return ParameterName(name, "base", g["base"])
+    if g["tool"] is not None:
+        return ParameterName(name, "tool", g["tool"], int(g["target"]) if g["target"] else None)
+    if g["joint"] is not None:
+        return ParameterName(name, "joint", g["joint"], int(g["joint_i"]))
+    return ParameterName(name, "global", g["global"])
 
 
 def parameter_unit(name: str) -> str:
     """The SI unit of a catalogued parameter (``""`` for a user effect's)."""
-    for prefix, unit in _UNITS:
-        if name.startswith(prefix) and (name[len(prefix) :].isdigit() or name == prefix):
-            return unit
-    return ""
+    parsed = parse_parameter_name(name)
+    return "" if parsed is None else parsed.unit

@@ -16,13 +16,6 @@ __all__ = ["MIN_TOOL_HEIGHT", "sample_parameters", "sample_poses"]
 MIN_TOOL_HEIGHT = 0.15  # m: samplers keep the tool point above this plane (SPEC section 1)
 
 
-def _range(effect, name: str) -> tuple[float, float] | None:
-    for prefix in sorted(effect.typical, key=len, reverse=True):
-        if name.startswith(prefix):
-            return effect.typical[prefix]
-    return None
-
-
 def sample_parameters(
     model: ErrorModel,
     rng: np.random.Generator,
@@ -40,7 +33,7 @@ def sample_parameters(
         for k, name in zip(range(sl.start, sl.stop), model.layout.names[sl], strict=True):
             if wanted is not None and name not in wanted:
                 continue
-            rg = _range(e, name)
+            rg = e.typical_range(name)
             if rg is None:
                 continue
             lo, hi = rg

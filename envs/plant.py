@@ -49,9 +49,10 @@ if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
 import mujoco
 import numpy as np
 
-from arm.description import RobotDescription, rotation_matrix
+from arm.description import RobotDescription
 from arm.effects import REFERENCE_TEMPERATURE
 from arm.kinematics import gravity_torques
+from arm.so3 import rot_x, rot_y, rot_z, rotation_matrix
 
 __all__ = [
     "RIGID_STIFFNESS",
@@ -167,21 +168,6 @@ class HiddenEffects:
 
 
 # -- geometry -----------------------------------------------------------------------------------
-def _rx(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def _ry(b: float) -> np.ndarray:
-    c, s = math.cos(b), math.sin(b)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _rz(t: float) -> np.ndarray:
-    c, s = math.cos(t), math.sin(t)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def _quat(R: np.ndarray) -> np.ndarray:
     q = np.empty(4)
     mujoco.mju_mat2Quat(q, np.ascontiguousarray(R).reshape(9))
@@ -194,9 +180,9 @@ def row_frames(robot: RobotDescription) -> tuple[np.ndarray, np.ndarray]:
     pos = np.empty((6, 3))
     quat = np.empty((6, 4))
     for i, j in enumerate(m.joints):
-        Rab = _rx(j.alpha) @ _ry(j.beta)
+        Rab = rot_x(j.alpha) @ rot_y(j.beta)
         pos[i] = Rab @ np.array([j.a, 0.0, j.d])
-        quat[i] = _quat(Rab @ _rz(j.theta_offset))
+        quat[i] = _quat(Rab @ rot_z(j.theta_offset))
     return pos, quat
 
 
@@ -214,7 +200,7 @@ def _link_segments(robot: RobotDescription) -> list[np.ndarray]:
     for i in range(6):
         if i < 5:
             nxt = m.joints[i + 1]
-            out.append(_rx(nxt.alpha) @ _ry(nxt.beta) @ np.array([nxt.a, 0.0, nxt.d]))
+            out.append(rot_x(nxt.alpha) @ rot_y(nxt.beta) @ np.array([nxt.a, 0.0, nxt.d]))
         else:
             out.append(m.tool_points[0].copy())
     return out

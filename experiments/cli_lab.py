@@ -133,7 +133,7 @@ def _user_errors() -> tuple[type[Exception], ...]:
     """The library's bad-input exceptions: each message already names file, line, column or
     parameter, so the CLI prints it as one line."""
     from arm.description import DescriptionError
-    from arm.effects import EffectError
+    from arm.effect_api import EffectError
     from arm.measurements import MeasurementError
     from lab.identification import FitError
 
@@ -184,7 +184,8 @@ def _check_loss(loss: str) -> None:
 
 def _load_modules(modules: Sequence[Path] | None) -> list[str]:
     """Register the effects of every ``--effect-module`` file; returns their names."""
-    from arm.effects import EffectError, load_effect_module
+    from arm.effect_api import EffectError
+    from arm.effects import load_effect_module
 
     names: list[str] = []
     for m in modules or ():
@@ -196,7 +197,8 @@ def _load_modules(modules: Sequence[Path] | None) -> list[str]:
 
 
 def _parse_effects(effects: str) -> None:
-    from arm.effects import EffectError, parse_effects
+    from arm.effect_api import EffectError
+    from arm.effects import parse_effects
 
     try:
         if not parse_effects(effects):

@@ -180,11 +180,11 @@ def leaderboard(
     and 95 % CI over seeds), leaderboard_runs.csv (every run, with its commit) and the plots.
     Records from a tree with local changes are refused unless --allow-dirty."""
     from experiments.leaderboard import (
-        _cell,
-        _spread_words,
         build_leaderboard,
+        cell_text,
         headline_cell,
         headline_metrics,
+        spread_words,
         write_leaderboard,
     )
     from experiments.metrics import METRICS
@@ -231,7 +231,7 @@ def leaderboard(
                 lambda r: headline_cell(board, r),
             )
         )
-    console.print(grid(f"{m}: {_spread_words(board)}", lambda r: _cell(r.stats[m], m, r)))
+    console.print(grid(f"{m}: {spread_words(board)}", lambda r: cell_text(r.stats[m], m, r)))
     if board.failed:
         console.print(f"[red]{len(board.failed)} failed run(s)[/red] (listed in the markdown)")
     for p in paths.values():

@@ -719,10 +719,10 @@ def _check_env_kwargs(env: Mapping[str, Any], where: str, info, bad) -> None:
 
 
 def _check_agent(agent: str, settings: dict, where: str, bad, construct: bool) -> bool:
-    from agents.registry import AgentError, _target, check_settings, make_agent
+    from agents.registry import AgentError, check_settings, make_agent, resolve_agent
 
     try:
-        _, cls = _target(agent)
+        _, cls = resolve_agent(agent)
     except AgentError as exc:
         bad(f"{where}.name: {exc}")
         return False

@@ -40,9 +40,11 @@ __all__ = [
     "Leaderboard",
     "Row",
     "build_leaderboard",
+    "cell_text",
     "is_clean",
     "is_oracle",
     "runs_csv",
+    "spread_words",
     "to_csv",
     "to_markdown",
     "write_leaderboard",
@@ -250,7 +252,7 @@ def _fmt(v: float, digits: int = 3) -> str:
     return f"{v:.{decimals}f}"
 
 
-def _cell(s: Summary, metric: str, row: Row | None = None, spread: bool = True) -> str:
+def cell_text(s: Summary, metric: str, row: Row | None = None, spread: bool = True) -> str:
     """A summary as text: ``mean ± ci95`` (three values or more), ``mean (min–max)`` (two),
     ``mean`` (one), ``k/n`` for counts. A metric with a companion count of runs where it is
     missing (``converge_s``/``never_converged``) says so: ``never (3/3)``, ``1.2 ± 0.4 (1/4
@@ -365,7 +367,7 @@ def _num(v: float) -> str:
     return "" if v is None or not math.isfinite(v) else repr(float(v))
 
 
-def _spread_words(board: Leaderboard) -> str:
+def spread_words(board: Leaderboard) -> str:
     ns = {r.stats[board.rank_by].n for r in board.rows if r.stats[board.rank_by].n}
     if ns and min(ns) >= MIN_VALUES_FOR_CI:
         return "mean ± half-width of the 95 % Student-t confidence interval over seeds"
@@ -388,7 +390,9 @@ def headline_metrics(board: Leaderboard) -> list[str]:
 
 def headline_cell(board: Leaderboard, row: Row) -> str:
     """``whole · settled · convergence`` means of one row (the first table)."""
-    return " · ".join(_cell(row.stats[m], m, row, spread=False) for m in headline_metrics(board))
+    return " · ".join(
+        cell_text(row.stats[m], m, row, spread=False) for m in headline_metrics(board)
+    )
 
 
 def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[str] = ()) -> str:
@@ -421,8 +425,7 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
         )
         lines.append("")
     lines.append(
-        f"Cells of the other tables: {_spread_words(board)} ({len(seeds)} seed(s)); lower is "
-        "better."
+        f"Cells of the other tables: {spread_words(board)} ({len(seeds)} seed(s)); lower is better."
     )
     lines += ["", "Made by:", "", "```"]
     if man.get("command"):
@@ -500,7 +503,7 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
             "## " + " · ".join(f"{m} ({METRICS[m].unit})" for m in head) + " (means)",
             lambda r: headline_cell(board, r),
         )
-    grid(f"## {m0} ({meta.unit})", lambda r: _cell(r.stats[m0], m0, r))
+    grid(f"## {m0} ({meta.unit})", lambda r: cell_text(r.stats[m0], m0, r))
 
     # every metric, long format
     lines.append("## All metrics")
@@ -512,7 +515,7 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
     )
     lines.append("|---|---|---:|" + "---:|" * len(board.metrics))
     for r in board.rows:
-        cells = [_cell(r.stats[m], m, r) for m in board.metrics]
+        cells = [cell_text(r.stats[m], m, r) for m in board.metrics]
         name = f"**{r.display}**" if r.best else r.display
         lines.append(f"| {name} | {r.scenario} | {r.n} | " + " | ".join(cells) + " |")
     lines.append("")

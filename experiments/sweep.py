@@ -167,9 +167,9 @@ def execute_run(spec: RunSpec) -> dict[str, Any]:
 
 def _truth(spec: RunSpec):
     """The plant's truth for this spec and seed (a fresh env, reset with the run's seed)."""
-    from agents.runner import _make_env
+    from agents.runner import make_env
 
-    env = _make_env(spec.env_id, spec.env_kwargs, None)
+    env = make_env(spec.env_id, spec.env_kwargs, None)
     try:
         env.reset(seed=int(spec.seed))
         return env.unwrapped.truth

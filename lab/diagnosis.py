@@ -58,9 +58,10 @@ import numpy as np
 from scipy import stats
 
 from arm.description import RobotDescription
-from arm.effects import EFFECTS, Effect, EffectError, JointAngleEffect, make_effect
+from arm.effect_api import EffectError
+from arm.effects import EFFECTS, Effect, JointAngleEffect, make_effect
 from arm.errormodel import ErrorModel
-from arm.measurements import MeasurementSet
+from arm.measurements import MeasurementSet, as_measurements
 from lab.identifiability import (
     gram_factor,
     lower_inverse,
@@ -73,9 +74,8 @@ from lab.identification import (
     SCHEMA_VERSION,
     FitError,
     FitResult,
-    _as_data,
-    _robust_sigma,
     fit,
+    robust_sigma,
 )
 
 __all__ = ["Candidate", "Diagnosis", "Hint", "diagnose"]
@@ -317,7 +317,7 @@ def diagnose(
         raise FitError(f"alpha must lie in (0, 1), got {alpha}")
     if noise_mm is not None and not noise_mm > 0:
         raise FitError(f"noise_mm must be positive, got {noise_mm}")
-    data = _as_data(data)
+    data = as_measurements(data)
     res = base if base is not None else fit(data, robot, effects, loss=loss, noise_mm=noise_mm)
     if res.n_points != len(data):
         raise FitError(f"the fit given has {res.n_points} points, the data {len(data)}")
@@ -465,13 +465,13 @@ def _outliers(e: np.ndarray, X: np.ndarray, iterations: int = 20) -> np.ndarray:
             A = Q * w[:, None]
             c = np.linalg.lstsq(A.T @ Q, A.T @ e, rcond=None)[0]
             r = e - Q @ c
-            f = HUBER_K * _robust_sigma(r)
+            f = HUBER_K * robust_sigma(r)
             w_new = np.minimum(1.0, f / np.maximum(np.abs(r), 1e-300))
             if np.max(np.abs(w_new - w)) < 1e-6:
                 break
             w = w_new
     dist = np.linalg.norm(r.reshape(n, 3), axis=1)
-    return np.flatnonzero(dist > OUTLIER_RADIUS * _robust_sigma(r))
+    return np.flatnonzero(dist > OUTLIER_RADIUS * robust_sigma(r))
 
 
 def _label(g: _Group) -> str:

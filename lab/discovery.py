@@ -56,12 +56,12 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from arm.description import RobotDescription
+from arm.description import RobotDescription, as_robot
 from arm.effects import REFERENCE_TEMPERATURE, Effect, JointAngleEffect
-from arm.measurements import MeasurementSet, atomic_write_text
+from arm.measurements import MeasurementSet, as_measurements, atomic_write_text
 from lab.diagnosis import _hat_blocks, _press, _Selection
 from lab.identifiability import orthonormal_basis
-from lab.identification import SCHEMA_VERSION, FitError, FitResult, _as_data, _as_robot, fit
+from lab.identification import SCHEMA_VERSION, FitError, FitResult, fit
 
 __all__ = [
     "DEFAULT_ORDER",
@@ -603,8 +603,8 @@ def discover(
         raise FitError(f"order (the highest harmonic) must lie in 1..12, got {order}")
     if not _NAME.fullmatch(name) or keyword.iskeyword(name):
         raise FitError(f"effect name {name!r} must be lower-case letters, digits and _")
-    data = _as_data(data)
-    robot = _as_robot(robot)
+    data = as_measurements(data)
+    robot = as_robot(robot)
     res = base if base is not None else fit(data, robot, effects, noise_mm=noise_mm)
     if res.n_points != len(data):
         raise FitError(f"the fit given has {res.n_points} points, the data {len(data)}")
@@ -665,7 +665,7 @@ def discover(
         if chi2_p is not None and chi2_p < CHI2_SHARE * alpha:
             disc.verdict = "unexplained"
         if validate is not None:
-            disc.base = res.validate(_as_data(validate))
+            disc.base = res.validate(as_measurements(validate))
         log.info("%s", disc.summary())
         return disc
 

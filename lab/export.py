@@ -42,8 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-from arm.description import RobotDescription, load_robot, rotation_matrix
-from arm.effects import EFFECTS, EffectError
+from arm.description import RobotDescription, load_robot
+from arm.effect_api import EffectError
+from arm.effects import EFFECTS
 from arm.errormodel import ErrorModel
 from arm.errors import SixAxisError
 from arm.ik import solve_point, solve_position
@@ -56,6 +57,7 @@ from arm.measurements import (
     parse_numeric_csv,
     read_text,
 )
+from arm.so3 import rotation_matrix
 from lab.identification import SCHEMA_VERSION, FitResult
 
 __all__ = [

@@ -24,14 +24,15 @@ unit no longer matters, only how its effect on the measured points differs from 
 from __future__ import annotations
 
 import logging
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import lapack
 
-from arm.errormodel import ErrorModel, ModelInputs
+from arm.effect_api import ModelInputs
+from arm.errormodel import ErrorModel
+from arm.params import BASE_NAMES, ROW_FAMILIES, parse_parameter_name
 
 __all__ = [
     "CONDITION_WARNING",
@@ -160,10 +161,6 @@ def format_combination(
 
 
 # --------------------------------------------------------------------------------------------------
-_BASE = ("bx", "by", "bz", "brx", "bry", "brz")
-_TOOL = re.compile(r"t[xyz][0-9]*")
-_ROW = re.compile(r"(dalpha|da|dtheta|dd)([1-6])|beta([0-5])")
-_KIND = {"dalpha": 0, "da": 1, "dtheta": 2, "dd": 3}
 
 
 def priority_order(names: Sequence[str], geometric: Sequence[str] = ()) -> np.ndarray:
@@ -175,16 +172,16 @@ def priority_order(names: Sequence[str], geometric: Sequence[str] = ()) -> np.nd
 
     def key(k: int) -> tuple:
         n = names[k]
-        if n in geo:
-            if n in _BASE:
-                return (0, _BASE.index(n), 0)
-            if _TOOL.fullmatch(n):
+        p = parse_parameter_name(n) if n in geo else None
+        if p is not None:
+            if p.kind == "base":
+                return (0, BASE_NAMES.index(n), 0)
+            if p.kind == "tool":
                 return (1, k, 0)
-            m = _ROW.fullmatch(n)
-            if m:
-                if m.group(3) is not None:  # beta_{i-1} sits in row i in place of dd_i
-                    return (2, int(m.group(3)) + 1, 3)
-                return (2, int(m.group(2)), _KIND[m.group(1)])
+            if p.kind == "beta":  # beta_{i-1} sits in row i in place of dd_i
+                return (2, p.row, 3)
+            if p.kind == "row":
+                return (2, p.row, ROW_FAMILIES.index(p.family))
         return (3, k, 0)
 
     return np.array(sorted(range(len(names)), key=key), dtype=int)
@@ -196,12 +193,10 @@ def typical_magnitudes(model: ErrorModel) -> np.ndarray:
     out = np.ones(len(model.layout))
     for e in model.effects:
         sl = model.layout.slice(e.name)
-        prefixes = sorted(e.typical, key=len, reverse=True)
         for k, name in zip(range(sl.start, sl.stop), model.layout.names[sl], strict=True):
-            for pre in prefixes:
-                if name.startswith(pre):
-                    out[k] = e.typical[pre][1]
-                    break
+            rg = e.typical_range(name)
+            if rg is not None:
+                out[k] = rg[1]
     return out
 
 

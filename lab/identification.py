@@ -45,13 +45,15 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from arm.description import RobotDescription, load_robot, rotation_vector
-from arm.effects import Effect, EffectError
-from arm.errormodel import ErrorModel, ModelInputs
+from arm.description import RobotDescription, as_robot
+from arm.effect_api import EffectError, ModelInputs
+from arm.effects import Effect
+from arm.errormodel import ErrorModel
 from arm.errors import SixAxisError
 from arm.kinematics import link_frames
-from arm.measurements import MeasurementSet, read_measurements
-from arm.params import parameter_unit
+from arm.measurements import MeasurementSet, as_measurements
+from arm.params import ROW_FAMILIES, parameter_unit, parse_parameter_name
+from arm.so3 import rotation_vector
 from lab.identifiability import Identifiability, analyse_jacobian
 
 __all__ = [
@@ -63,6 +65,7 @@ __all__ = [
     "identifiability_of",
     "reference_values",
     "register_base",
+    "robust_sigma",
 ]
 
 log = logging.getLogger(__name__)
@@ -173,7 +176,7 @@ class FitResult:
         deviations (median absolute deviation of the residual's coordinates): a point of
         Gaussian noise lies that far out once in 1,000. A robust fit's outliers."""
         r = np.linalg.norm(self.residuals, axis=1)
-        return np.flatnonzero(r > OUTLIER_RADIUS * _robust_sigma(self.residuals))
+        return np.flatnonzero(r > OUTLIER_RADIUS * robust_sigma(self.residuals))
 
     def parameters(self) -> dict[str, float]:
         return self.model.layout.as_dict(self.params)
@@ -316,37 +319,24 @@ def reference_values(model: ErrorModel) -> np.ndarray:
     tools = np.array([tp[k] if k < len(tp) else tp[0] for k in range(len(model.targets))])
     nominal = model.nominal()
     out = np.zeros(len(model.layout))
-    fields = {"dalpha": "alpha", "da": "a", "dtheta": "theta_offset", "dd": "d"}
+    fields = dict(zip(ROW_FAMILIES, ("alpha", "a", "theta_offset", "d"), strict=True))
     geo = (
         set(model.layout.names[model.layout.slice("geometric")])
         if ("geometric" in model.layout.effects)
         else set()
     )
     for k, n in enumerate(model.layout.names):
-        if n not in geo:
+        p = parse_parameter_name(n) if n in geo else None
+        if p is not None and p.kind == "row" and p.number is not None:
+            out[k] = getattr(rob.joints[p.number - 1], fields[p.family])
+        elif p is not None and p.kind == "beta" and p.number is not None:
+            out[k] = rob.joints[p.number].beta
+        elif p is not None and p.kind == "tool":
+            idx = p.number if p.number is not None else model.targets[0]
+            out[k] = tools[model.targets.index(idx), "xyz".index(p.family[1])]
+        else:  # the base, and every other effect: the parameter is the value itself
             out[k] = nominal[k]
-            continue
-        for pre, key in fields.items():
-            if n.startswith(pre) and n[len(pre) :].isdigit():
-                out[k] = getattr(rob.joints[int(n[len(pre) :]) - 1], key)
-                break
-        else:
-            if n.startswith("beta") and n[4:].isdigit():
-                out[k] = rob.joints[int(n[4:])].beta
-            elif n[:1] == "t" and n[1:2] in ("x", "y", "z"):
-                idx = int(n[2:]) if n[2:] else model.targets[0]
-                out[k] = tools[model.targets.index(idx), "xyz".index(n[1])]
-            else:  # base: the parameter is the value itself
-                out[k] = nominal[k]
     return out
-
-
-def _as_data(data: MeasurementSet | str | Path) -> MeasurementSet:
-    return data if isinstance(data, MeasurementSet) else read_measurements(data)
-
-
-def _as_robot(robot: RobotDescription | str | Path | None) -> RobotDescription:
-    return robot if isinstance(robot, RobotDescription) else load_robot(robot)
 
 
 def _inputs(model: ErrorModel, data: MeasurementSet) -> ModelInputs:
@@ -550,7 +540,9 @@ def _solve(model, inputs, xyz, p0, free, scale, loss, f_scale, max_nfev, solver=
     return _Solution(prob.params(u), prob._r.reshape(-1, 3), prob._J, it, nfev)
 
 
-def _robust_sigma(r: np.ndarray) -> float:
+def robust_sigma(r: np.ndarray) -> float:
+    """The standard deviation of normal residuals, estimated robustly (scaled median absolute
+    deviation)."""
     r = np.asarray(r).reshape(-1)
     return float(MAD_TO_SIGMA * np.median(np.abs(r - np.median(r))))
 
@@ -597,8 +589,8 @@ def fit(
         raise FitError(f"loss must be one of {', '.join(LOSSES)}, got {loss!r}")
     if solver not in ("lm", "minpack"):
         raise FitError(f"solver must be 'lm' or 'minpack', got {solver!r}")
-    data = _as_data(data)
-    robot = _as_robot(robot)
+    data = as_measurements(data)
+    robot = as_robot(robot)
     model, inputs = build_model(data, robot, effects)
     lay = model.layout
     xyz = data.xyz
@@ -632,7 +624,7 @@ def fit(
     if loss == "linear":
         sigma = float(np.sqrt(np.sum(sol.residuals**2) / max(sol.residuals.size - free.sum(), 1)))
     else:
-        sigma = _robust_sigma(sol.residuals)
+        sigma = robust_sigma(sol.residuals)
     fitted_rms = _rms(sol.residuals)
     if fitted_rms > IMPLAUSIBLE_RMS:
         raise FitError(
@@ -659,7 +651,7 @@ def fit(
             sol = solve(sol.params, free, ident.scale, loss, f_scale)
             iterations, evaluations = iterations + sol.iterations, evaluations + sol.evaluations
             if not f_scale_mm:
-                f_scale = HUBER_K * _robust_sigma(sol.residuals)
+                f_scale = HUBER_K * robust_sigma(sol.residuals)
 
     r, J = sol.residuals, sol.jacobian
     w = _weights(r, loss, f_scale) if f_scale is not None else None
@@ -682,7 +674,7 @@ def fit(
         source=data.source,
     )
     if validate is not None:
-        result = result.validate(_as_data(validate))
+        result = result.validate(as_measurements(validate))
     log.info("%s", result.summary())
     return result
 
@@ -729,10 +721,10 @@ def identifiability_of(
     (N, 6) alone) can identify, at ``params`` (default nominal): rank, named unidentifiable
     combinations, condition number, O1 and O4. With ``noise_mm`` parameters whose typical-size
     error moves the points by less than the noise are counted unidentifiable too."""
-    robot = _as_robot(robot)
+    robot = as_robot(robot)
     if isinstance(data, np.ndarray):
         data = MeasurementSet(data, np.zeros((len(np.atleast_2d(data)), 3)), source="poses")
-    data = _as_data(data)
+    data = as_measurements(data)
     try:
         model = ErrorModel(robot, effects, targets=data.targets)
     except EffectError as exc:

@@ -32,12 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
-from arm.description import RobotDescription
-from arm.effects import Effect, EffectError
+from arm.description import RobotDescription, as_robot
+from arm.effect_api import EffectError
+from arm.effects import Effect
 from arm.errormodel import ErrorModel
 from arm.sampling import sample_poses
 from lab.identifiability import Identifiability, analyse_jacobian
-from lab.identification import SCHEMA_VERSION, FitError, _as_robot
+from lab.identification import SCHEMA_VERSION, FitError
 
 __all__ = ["CRITERIA", "Plan", "observability", "plan"]
 
@@ -130,7 +131,7 @@ def plan(
     poses on directions no calibration resolves."""
     if criterion not in CRITERIA:
         raise FitError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
-    robot = _as_robot(robot)
+    robot = as_robot(robot)
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     if isinstance(candidates, int | np.integer):
         cand = sample_poses(robot, int(candidates), rng)

@@ -30,15 +30,16 @@ from pathlib import Path
 
 import numpy as np
 
-from arm.description import RobotDescription
+from arm.description import RobotDescription, as_robot
+from arm.effect_api import ModelInputs
 from arm.effects import Effect
-from arm.errormodel import ErrorModel, ModelInputs
-from arm.measurements import MeasurementSet, atomic_write_text
-from arm.params import parameter_unit
+from arm.errormodel import ErrorModel
+from arm.measurements import MeasurementSet, as_measurements, atomic_write_text
+from arm.params import ROW_FAMILIES, parameter_unit, parse_parameter_name
 from lab import plots
 from lab.diagnosis import Diagnosis, diagnose, hint_variables
 from lab.identifiability import CONDITION_WARNING, typical_magnitudes
-from lab.identification import FitResult, _as_data, _as_robot, fit, register_base
+from lab.identification import FitResult, fit, register_base
 
 __all__ = [
     "LabReport",
@@ -121,17 +122,19 @@ def error_sensitivity(
     )
 
 
-_BASE = re.compile(r"b[xyz]|br[xyz]")
+def _kind(name: str) -> str | None:
+    """The kind of a catalogued parameter (``row``, ``beta``, ``base``...), None for a user's."""
+    parsed = parse_parameter_name(name)
+    return None if parsed is None else parsed.kind
 
 
 def arm_parameters(names: Sequence[str]) -> list[int]:
     """Indices of the parameters that belong to the arm (DH rows, tool offsets, other effects),
     not to where it stands: the base transform is a registration, arbitrary for a tracker."""
-    return [k for k, n in enumerate(names) if not _BASE.fullmatch(n)]
+    return [k for k, n in enumerate(names) if _kind(n) != "base"]
 
 
-_ROW = re.compile(r"(dalpha|da|dtheta|dd)([1-6])|beta([0-5])")
-COLUMNS = (("dalpha", "alpha"), ("da", "a"), ("dtheta", "theta"), ("dd", "d"))
+COLUMNS = tuple(zip(ROW_FAMILIES, ("alpha", "a", "theta", "d"), strict=True))
 
 
 def geometric_table(result: FitResult) -> list[dict]:
@@ -235,9 +238,9 @@ def build_report(
     """Fit ``effects``, diagnose, and while the verdict names a missing catalogued effect (at most
     ``rounds`` times) fit the suggested model and diagnose again; see the module docstring."""
     step = progress or (lambda msg: None)
-    data = _as_data(data)
-    val = None if validate is None else _as_data(validate)
-    robot = _as_robot(robot)
+    data = as_measurements(data)
+    val = None if validate is None else as_measurements(validate)
+    robot = as_robot(robot)
 
     step(f"fitting {effects if isinstance(effects, str) else ','.join(map(str, effects))}")
     first = fit(data, robot, effects, loss=loss, validate=val, noise_mm=noise_mm)
@@ -597,8 +600,9 @@ def _parameter_tables(fit: FitResult) -> str:
             for _, key in COLUMNS:
                 c = row[key]
                 nom, err = _cell(c)
-                if c is not None and c["name"].startswith("beta"):
-                    nom, err = f"β{c['name'][4:]} {nom}", err
+                parsed = None if c is None else parse_parameter_name(c["name"])
+                if parsed is not None and parsed.kind == "beta":
+                    nom = f"β{parsed.number} {nom}"
                 cells += [nom, err]
             rows.append(cells)
         out.append(
@@ -609,7 +613,7 @@ def _parameter_tables(fit: FitResult) -> str:
             '<p class="note">Errors are identified minus nominal; <i>fixed</i>: not identifiable '
             "from these poses (see Identifiability), held at nominal.</p>"
         )
-    other = [r for r in fit.rows() if not (_ROW.fullmatch(r["name"]))]
+    other = [r for r in fit.rows() if _kind(r["name"]) not in ("row", "beta")]
     if other:
         rows = []
         for r in other:

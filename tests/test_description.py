@@ -14,9 +14,8 @@ from arm.description import (
     Joint,
     RobotDescription,
     load_robot,
-    rotation_matrix,
-    rotation_vector,
 )
+from arm.so3 import rotation_matrix, rotation_vector
 from tests.conftest import puma_arm, rokae_arm
 
 # SPEC section 1, transcribed: alpha_{i-1} (deg), a_{i-1} (m), d_i (m), limits (rad), mass (kg), com.

@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from arm.description import seed_robot
-from arm.effects import CATALOGUE, EffectError
+from arm.effect_api import EffectError
+from arm.effects import CATALOGUE
 from arm.errormodel import ErrorModel
 from arm.kinematics import Chain, gravity_torques, tool_points
 from arm.sampling import sample_parameters

@@ -8,10 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from arm.description import load_robot, rotation_matrix
+from arm.description import load_robot
 from arm.effects import JointAngleEffect
 from arm.kinematics import Chain, gravity_torques, tool_points
 from arm.sampling import sample_poses
+from arm.so3 import rotation_matrix
 from lab import fit
 from lab.export import (
     CompensationError,

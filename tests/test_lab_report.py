@@ -14,9 +14,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from arm.description import rotation_matrix
 from arm.kinematics import Chain, gravity_torques, tool_points
 from arm.measurements import read_measurements
+from arm.so3 import rotation_matrix
 from lab.report import arm_parameters, build_report
 from tests._lab_data import REAL, campaign, real_arm, requires_real_data
 

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from arm import seed_robot
-from arm.description import replace, rotation_matrix
+from arm.description import replace
 from arm.kinematics import Chain, gravity_torques, tool_points
 from arm.sampling import sample_poses
+from arm.so3 import rotation_matrix
 from envs.plant import HiddenEffects, Plant, PlantError
 from envs.scenarios import draw_truth
 
