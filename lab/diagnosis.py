@@ -77,13 +77,13 @@ from lab.identification import (
     fit,
     robust_sigma,
 )
+from lab.selection import DEPENDENT, ForwardSelection, f_test, hat_blocks, holm, press_rms
 
 __all__ = ["Candidate", "Diagnosis", "Hint", "diagnose"]
 
 log = logging.getLogger(__name__)
 
 HARMONICS = 3  # sin/cos(k q), k = 1..HARMONICS, for the angle hints
-_DEPENDENT = 1e-6  # a candidate column this much outside the model's span is dependent on it
 MAX_EFFECT_STEPS = 6  # forward selection adds at most this many candidates
 
 
@@ -210,38 +210,6 @@ class Diagnosis:
 
 
 # --------------------------------------------------------------------------------------------------
-def _hat_blocks(Q: np.ndarray) -> np.ndarray:
-    """The (N, 3, 3) diagonal blocks of the hat matrix of orthonormal regressors ``Q`` (3N, m)."""
-    Qb = Q.reshape(Q.shape[0] // 3, 3, -1)
-    return np.matmul(Qb, Qb.transpose(0, 2, 1))
-
-
-def _press(e: np.ndarray, H: np.ndarray) -> float:
-    """Leave-one-pose-out RMS (3-D) of a linear least-squares fit whose residual is ``e`` (3N)
-    and whose hat matrix has the diagonal blocks ``H`` (N, 3, 3): e_(-i) = (I - H_ii)^-1 e_i."""
-    n = H.shape[0]
-    loo = np.linalg.solve(np.eye(3) - H, e.reshape(n, 3, 1))[:, :, 0]
-    return float(np.sqrt(np.mean(np.sum(loo**2, axis=1))))
-
-
-def _holm(p: np.ndarray, alpha: float) -> np.ndarray:
-    """Holm's step-down: which hypotheses are rejected at family-wise level ``alpha``."""
-    m = len(p)
-    sig = np.zeros(m, dtype=bool)
-    for i, k in enumerate(np.argsort(p, kind="stable")):
-        if p[k] > alpha / (m - i):
-            break
-        sig[k] = True
-    return sig
-
-
-def _f_test(ss: float, k: int, rss: float, dof: int) -> tuple[float, float]:
-    if k <= 0 or dof <= 0 or rss <= 0:
-        return 0.0, 1.0
-    F = (ss / k) / (rss / dof)
-    return float(F), float(stats.f.sf(F, k, dof))
-
-
 @dataclass(frozen=True)
 class _Group:
     effect: str
@@ -350,11 +318,11 @@ def diagnose(
     rss0 = float(e0 @ e0)
     dof0 = 3 * n - Q0.shape[1]
     sigma = noise_mm * 1e-3 if noise_mm is not None else math.sqrt(rss0 / max(dof0, 1))
-    H0 = _hat_blocks(Q0)
-    cv0 = _press(e0, H0)
+    H0 = hat_blocks(Q0)
+    cv0 = press_rms(e0, H0)
     alpha_c = alpha / 2 if noise_mm is not None else alpha
 
-    sel = _Selection(e0, rss0, dof0, H0, cv0)
+    sel = ForwardSelection(e0, rss0, dof0, H0, cv0)
     Jp = Jk - Q0 @ (Q0.T @ Jk)  # every candidate column with the model's span projected out
     norms, norms_p = np.linalg.norm(Jk, axis=0), np.linalg.norm(Jp, axis=0)
     tested: list[np.ndarray] = []  # each candidate's orthonormal columns, the model's projected out
@@ -363,7 +331,7 @@ def diagnose(
         idx = full.layout.indices(g.names)
         Xp = Jp[:, idx]
         nx, nxp = norms[idx], norms_p[idx]
-        keep = (nxp > _DEPENDENT * nx) & (nxp * typ[idx] > sigma)
+        keep = (nxp > DEPENDENT * nx) & (nxp * typ[idx] > sigma)
         if not keep.any():
             skipped[_label(g)] = "unidentifiable given the model"
             continue
@@ -373,7 +341,7 @@ def diagnose(
             skipped[_label(g)] = "unidentifiable given the model"
             continue
         cv, pv, (Qc, _, ss, _) = t
-        F, _ = _f_test(ss, Qc.shape[1], rss0 - ss, dof0 - Qc.shape[1])
+        F, _ = f_test(ss, Qc.shape[1], rss0 - ss, dof0 - Qc.shape[1])
         joints = g.joints
         if joints is not None and len(joints) > 1:  # the joints that were testable
             kept = {nm for nm, ok in zip(g.names, keep, strict=True) if ok}
@@ -392,7 +360,7 @@ def diagnose(
             )
         )
     pvals = np.array([c.p_value for c in rows])
-    sig = _holm(pvals, alpha_c) if rows else np.zeros(0, dtype=bool)
+    sig = holm(pvals, alpha_c) if rows else np.zeros(0, dtype=bool)
     cands = [
         Candidate(**{**c.__dict__, "significant": bool(s), "confirmed": c.cv_rms_mm < 1e3 * cv0})
         for c, s in zip(rows, sig, strict=True)
@@ -478,46 +446,7 @@ def _label(g: _Group) -> str:
     return g.effect if g.joints is None else f"{g.effect}[{','.join(map(str, g.joints))}]"
 
 
-class _Selection:
-    """Forward selection state: the residual and hat blocks after the chosen columns."""
-
-    def __init__(self, e, rss, dof, H, cv):
-        self.e, self.rss, self.dof, self.H, self.cv = e, rss, dof, H, cv
-        self.Q = np.empty((e.size, 0))
-        self._first: dict[int, tuple | None] = {}  # trials before anything is chosen, by key
-
-    def trial(self, basis: np.ndarray, key: int | None = None):
-        """(held-out RMS, p-value, state pieces) of adding ``basis`` (orthonormal, model-free);
-        None if it adds nothing. Trials on the initial state are remembered by ``key``."""
-        first = self.Q.shape[1] == 0 and key is not None
-        if first and key in self._first:
-            return self._first[key]
-        out = self._trial(basis)
-        if first:
-            self._first[key] = out
-        return out
-
-    def _trial(self, basis: np.ndarray):
-        X = basis - self.Q @ (self.Q.T @ basis)
-        X = X[:, np.linalg.norm(X, axis=0) > _DEPENDENT]  # the columns had norm 1
-        Qc = orthonormal_basis(X)
-        k = Qc.shape[1]
-        if k == 0 or self.dof - k <= 0:
-            return None
-        proj = Qc.T @ self.e
-        ss = float(proj @ proj)
-        _, pv = _f_test(ss, k, self.rss - ss, self.dof - k)
-        H = self.H + _hat_blocks(Qc)
-        return _press(self.e - Qc @ proj, H), pv, (Qc, proj, ss, H)
-
-    def add(self, cv, pieces) -> None:
-        Qc, proj, ss, H = pieces
-        self.e = self.e - Qc @ proj
-        self.rss, self.dof, self.H, self.cv = self.rss - ss, self.dof - Qc.shape[1], H, cv
-        self.Q = np.hstack([self.Q, Qc])
-
-
-def _forward(cands, bases, keys, sel: _Selection, alpha) -> list[Candidate]:
+def _forward(cands, bases, keys, sel: ForwardSelection, alpha) -> list[Candidate]:
     """Effect-level forward selection. Each step tries every candidate of the effects not yet
     chosen given those chosen, takes the one that predicts held-out poses best among those whose
     F-test is significant at ``alpha`` over all the candidates (Bonferroni, at every step, so
@@ -569,7 +498,7 @@ def _forward(cands, bases, keys, sel: _Selection, alpha) -> list[Candidate]:
         if not joints:  # no single joint carries it alone: take the whole group
             sel.add(best[0][0], best[0][2])
             names = list(c.parameters)
-        F, pv = _f_test(rss_before - sel.rss, dof_before - sel.dof, sel.rss, sel.dof)
+        F, pv = f_test(rss_before - sel.rss, dof_before - sel.dof, sel.rss, sel.dof)
         chosen.append(
             Candidate(
                 effect=c.effect,
@@ -684,13 +613,13 @@ def _hints(res, data, Q0, e0, rss0, dof0, inlier) -> list[Hint]:
         G0b = Call[c : c + K].transpose(1, 0, 2).reshape(r0, K * nd)
         b = ball[c : c + K].reshape(K * nd)
         c, g = c + K, g + K * K
-        idx, L = gram_factor(Gbb - G0b.T @ G0b, _DEPENDENT)
+        idx, L = gram_factor(Gbb - G0b.T @ G0b, DEPENDENT)
         k = idx.size
         if k == 0 or dof0 - k <= 0:
             continue
         z = lower_inverse(L) @ b[idx]
         ss = min(float(z @ z), rss0)
-        _, pv = _f_test(ss, k, rss0 - ss, dof0 - k)
+        _, pv = f_test(ss, k, rss0 - ss, dof0 - k)
         adj = 1.0 - ((rss0 - ss) / (dof0 - k)) / (rss0 / dof0)
         out.append(Hint(name, max(float(adj), 0.0), pv))
     out.sort(key=lambda h: (-h.score, h.p_value))

@@ -59,9 +59,9 @@ from scipy import stats
 from arm.description import RobotDescription, as_robot
 from arm.effects import REFERENCE_TEMPERATURE, Effect, JointAngleEffect
 from arm.measurements import MeasurementSet, as_measurements, atomic_write_text
-from lab.diagnosis import _hat_blocks, _press, _Selection
 from lab.identifiability import orthonormal_basis
 from lab.identification import SCHEMA_VERSION, FitError, FitResult, fit
+from lab.selection import ForwardSelection, hat_blocks, press_rms
 
 __all__ = [
     "DEFAULT_ORDER",
@@ -615,15 +615,15 @@ def discover(
     e0, X, kept, groups = prob.residual, prob.columns, prob.terms, prob.groups
     rss0 = float(e0 @ e0)
     dof0 = 3 * N - prob.model_basis.shape[1]
-    H0 = _hat_blocks(prob.model_basis)
-    cv0 = _press(e0, H0)
+    H0 = hat_blocks(prob.model_basis)
+    cv0 = press_rms(e0, H0)
     Jq, tau = prob.joint_jacobian, res.inputs.tau
     bases = {g: orthonormal_basis(X[:, idx]) for g, idx in groups.items()}
     bases = {g: b for g, b in bases.items() if b.shape[1]}
     M = len(bases)
     level_terms = TERMS_SHARE * alpha / max(M, 1)
 
-    sel = _Selection(e0, rss0, dof0, H0, cv0)
+    sel = ForwardSelection(e0, rss0, dof0, H0, cv0)
     chosen: list[str] = []
     first_p = 1.0  # the first step's smallest p-value among terms that predict better
     while len(chosen) < MAX_STEPS:
