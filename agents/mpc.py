@@ -36,18 +36,25 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
 import numpy as np
+import scipy.linalg
 
 from agents.base import Agent, measurement_columns, solve_time_stats
-from agents.online_calibration import RecursiveLeastSquares
-from agents.tool_model import ToolModel, cached_tool_model
+from agents.online_calibration import (
+    MeasurementBuffer,
+    RecursiveLeastSquares,
+    cached_identifiable,
+    merge_effects,
+)
+from agents.tool_model import BufferedFunction, ToolModel, cached_tool_model
 from arm.errormodel import ErrorModel
 from envs.task import Observation, TaskInfo, Truth
 
-__all__ = ["QP_SOLVERS", "KinematicMPC", "MPCAgent"]
+__all__ = ["QP_SOLVERS", "KinematicMPC", "MPCAgent", "Widening"]
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +81,21 @@ def _qp_options(solver: str) -> dict:
     return {"error_on_fail": False}
 
 
+def _inv3(S):
+    """The inverse of a 3 x 3 CasADi SX matrix by its adjugate (closed form, a few dozen
+    operations; S here is symmetric positive definite, its determinant at least 1)."""
+    a, b, c = S[0, 0], S[0, 1], S[0, 2]
+    d, e, f = S[1, 0], S[1, 1], S[1, 2]
+    g, h, k = S[2, 0], S[2, 1], S[2, 2]
+    A, B, C = e * k - f * h, -(d * k - f * g), d * h - e * g
+    adj = ca.vertcat(
+        ca.horzcat(A, -(b * k - c * h), b * f - c * e),
+        ca.horzcat(B, a * k - c * g, -(a * f - c * d)),
+        ca.horzcat(C, -(a * h - b * g), a * e - b * d),
+    )
+    return adj / (a * A + b * B + c * C)
+
+
 class KinematicMPC:
     """The optimal-control problem of the module docstring for one arm and one model.
 
@@ -97,6 +119,7 @@ class KinematicMPC:
         error_decay: float = 0.3,
         limit_margin: float = 0.02,
         velocity_margin: float = 0.98,
+        fast: bool = True,
     ) -> None:
         if solver not in (*QP_SOLVERS, "ipopt"):
             raise ValueError(
@@ -139,12 +162,16 @@ class KinematicMPC:
         # iteration limit on hard problems, and the servo clips what little is left
         self._tolerance = 1e-3 if solver in ("osqp", "proxqp") else 1e-6
         self.n_fail = 0
+        self.n_constrained = 0  # QP steps on which a constraint bound (the solver ran)
         self.last_status = ""
         self.reset()
+        self._fast: BufferedFunction | None = None
         if solver == "ipopt":
             self._build_nlp()
         else:
             self._build_qp()
+            if fast:
+                self._build_fast()
 
     def reset(self) -> None:
         self.plan = np.zeros((self.N, 6))
@@ -268,6 +295,57 @@ class KinematicMPC:
             out += [sol["lam_x"], sol["lam_a"]]
         self._step = ca.Function("mpc_qp_step", [w], [ca.vertcat(*out)])
 
+    def _build_fast(self) -> None:
+        """The QP's unconstrained minimiser in closed form, and how far it violates the
+        constraints, in one compiled function (called through its own buffers).
+
+        With ``M = J'J`` the Hessian is ``R_N (x) I_6 + dt^2 C (x) M`` (``R_N`` the N x N weights
+        of the move, speed and posture terms): the plan ``V`` (6 x N, v_k its columns) solves
+        ``V R_N + M V C' = -G`` (``C' = dt^2 C``). Multiplying by ``J`` gives a 3 x N equation for
+        ``Y = J V``, ``Y R_N + (J J') Y C' = -J G``, which the generalised eigenvectors ``T`` of
+        ``(C', R_N)`` (``T' R_N T = I``, ``T' C' T = diag(mu)``, constant) split into N
+        independent 3 x 3 systems ``(I + mu_k J J') z_k = (-J G T)_k``, ``Y = Z T'``; then
+        ``V = (-G - J' Y C') R_N^-1``. A few thousand scalar operations instead of a 60 x 60
+        factorisation. When no constraint binds this *is* the QP's solution (the problem is
+        convex), and it is what the tracking steps almost always are: the solver runs only when
+        the minimiser violates a bound (a few steps of an episode, at the first corrections)."""
+        N, dt = self.N, self.dt
+        tm = self.tm
+        nz = tm.n_inputs
+        Dn = np.eye(N) - np.eye(N, k=-1)
+        C2 = dt * dt * self._C
+        RN = self.rho_dv * Dn.T @ Dn + self.rho_v * np.eye(N) + self.rho_q * dt * dt * self._C
+        mu, T = scipy.linalg.eigh(C2, RN)
+        w = ca.SX.sym("w", nz + 3 * N + 15)
+        o = nz + 3 * N
+        z, refs, v_prev = w[:nz], w[nz:o], w[o : o + 6]
+        q_post, r0 = w[o + 6 : o + 12], w[o + 12 :]
+        q0 = z[:6]
+        P, nc = len(tm.layout), len(tm.column_names)
+        x = tm.expression(q0, z[6 : 6 + P], z[6 + P : 6 + P + nc], z[6 + P + nc :])
+        Jm = ca.jacobian(x, q0) * MM
+        E = (ca.repmat(x, 1, N) - ca.reshape(refs, 3, N)) * MM
+        E = E - ca.mtimes(x - r0, ca.DM(self._decay).T) * MM
+        S = ca.mtimes(E, ca.DM(np.tril(np.ones((N, N)))))
+        G = dt * ca.mtimes(Jm.T, S)  # (6, N): the gradient, column k for v_k
+        G[:, 0] = G[:, 0] - self.rho_dv * v_prev
+        G = G + self.rho_q * dt * ca.mtimes(q0 - q_post, ca.DM(N - np.arange(N)).T)
+        F = -ca.mtimes(ca.mtimes(Jm, G), ca.DM(T))
+        JJ = ca.mtimes(Jm, Jm.T)
+        Z = ca.horzcat(
+            *(ca.mtimes(_inv3(ca.SX.eye(3) + float(mu[k]) * JJ), F[:, k]) for k in range(N))
+        )
+        Y = ca.mtimes(Z, ca.DM(T.T))
+        V = ca.mtimes(-G - ca.mtimes(ca.mtimes(Jm.T, Y), ca.DM(C2)), ca.DM(np.linalg.inv(RN)))
+        v = ca.vec(V)
+        Av = ca.vertcat(ca.vec(ca.mtimes(V, ca.DM(Dn.T))), dt * ca.vec(ca.cumsum(V, 1)))
+        lba, uba = self._symbolic_bounds(q0, v_prev)
+        violation = ca.mmax(
+            ca.vertcat(Av - uba, lba - Av, v - ca.DM(self._ubx), ca.DM(self._lbx) - v)
+        )
+        f = ca.Function("mpc_unconstrained", [w], [ca.densify(ca.vertcat(v, violation))])
+        self._fast = BufferedFunction(f)
+
     def solve(
         self,
         q0: np.ndarray,
@@ -291,10 +369,19 @@ class KinematicMPC:
         if self.solver == "ipopt":
             return self._solve_nlp(z, v_prev, refs, qp_, r0)
         parts = [z, refs.reshape(-1), v_prev, qp_, r0]
+        n = 6 * self.N
+        if self._fast is not None:
+            out = self._fast(np.concatenate(parts))
+            if out[n] <= 0.0:  # no constraint binds (NaN does not pass)
+                self.last_status = "ok"
+                if self._warm_start:
+                    self._lam_x[:] = 0.0
+                    self._lam_a[:] = 0.0
+                return self._accept(True, out[:n].copy(), v_prev)
+            self.n_constrained += 1
         if self._warm_start:
             parts += [self._warm(), self._lam_x, self._lam_a]
         out = self._step(np.concatenate(parts)).full().reshape(-1)
-        n = 6 * self.N
         v, violation = out[:n], out[n]
         ok = bool(np.all(np.isfinite(v)) and violation < self._tolerance)
         self.last_status = "ok" if ok else f"failed (constraint violation {violation:.3g})"
@@ -386,6 +473,21 @@ class KinematicMPC:
         return self._accept(ok, v, v_prev)
 
 
+@dataclass(frozen=True)
+class Widening:
+    """What :meth:`MPCAgent.prepare_widening` built: the wider model, its tool model, the MPC on
+    it and the estimator's free parameters (None without an estimator)."""
+
+    model: ErrorModel
+    tool_model: ToolModel
+    mpc: KinematicMPC
+    free: list[str] | None
+
+    @property
+    def tm(self) -> ToolModel:
+        return self.tool_model
+
+
 class MPCAgent(Agent):
     """Kinematic MPC on a model that online least squares keeps calibrated.
 
@@ -393,8 +495,13 @@ class MPCAgent(Agent):
     (what the model and the estimator can express), ``online`` (estimate from measurements),
     ``oracle`` (use the plant's true model; needs ``truth``), ``forgetting`` and ``sigma`` (m, default
     the task's instrument noise) of the estimator, ``free`` (names to estimate; default the
-    identifiable ones), and the cost weights ``rho_dv``, ``rho_v``, ``rho_q`` (posture: the
-    redundant directions keep to the posture of the phase's start).
+    identifiable ones), the cost weights ``rho_dv``, ``rho_v``, ``rho_q`` (posture: the
+    redundant directions keep to the posture of the phase's start), and ``buffer`` (how many
+    tracker points to keep with their inputs, :class:`~agents.online_calibration.
+    MeasurementBuffer`; 0: none).
+
+    :meth:`widen` adds effects during an episode: the model, the MPC and the estimator continue
+    with them, keeping what the estimator learned.
     """
 
     name = "mpc"
@@ -413,9 +520,14 @@ class MPCAgent(Agent):
         rho_v: float = 1e-3,
         rho_q: float = 1e-1,
         error_decay: float = 0.3,
+        buffer: int = 0,
         name: str | None = None,
     ) -> None:
         super().__init__()
+        if int(buffer) < 0:
+            raise ValueError(f"buffer must be >= 0 points, got {buffer}")
+        self.buffer_points = int(buffer)
+        self.buffer: MeasurementBuffer | None = None
         self.solver = solver
         self.horizon = int(horizon)
         self.effects = effects
@@ -449,7 +561,27 @@ class MPCAgent(Agent):
             self.model = ErrorModel(task.robot, self.effects)
             self.p = self.model.nominal()
         tm = cached_tool_model(self.model)
-        self.mpc = KinematicMPC(
+        self.mpc = self._make_mpc(tm)
+        self.tm = tm
+        self.buffer = MeasurementBuffer(self.buffer_points) if self.buffer_points else None
+        if self.online:
+            noise = task.noise_mm
+            sigma = self.sigma if self.sigma is not None else max(noise * 1e-3, 2e-6)
+            self.rls = RecursiveLeastSquares(
+                self.model,
+                free=self.free if self.free is not None else cached_identifiable(self.model),
+                sigma=sigma,
+                forgetting=self.forgetting,
+                tool_model=tm,
+            )
+            self.p = self.rls.params
+        self._times: list[float] = []
+        self._update_times: list[float] = []
+        self._start_phase()
+
+    def _make_mpc(self, tm: ToolModel) -> KinematicMPC:
+        task = self.task
+        return KinematicMPC(
             tm,
             task.dt,
             task.v_max,
@@ -463,25 +595,55 @@ class MPCAgent(Agent):
             rho_q=self.rho_q,
             error_decay=self.error_decay,
         )
-        self.tm = tm
-        if self.online:
-            noise = task.noise_mm
-            sigma = self.sigma if self.sigma is not None else max(noise * 1e-3, 2e-6)
-            self.rls = RecursiveLeastSquares(
-                self.model,
-                free=self.free if self.free is not None else _cached_free(self.model),
-                sigma=sigma,
-                forgetting=self.forgetting,
-                tool_model=tm,
-            )
-            self.p = self.rls.params
-        self._times: list[float] = []
-        self._update_times: list[float] = []
-        self._start_phase()
 
     def next_phase(self, task: TaskInfo, truth: Truth | None = None) -> None:
         self.task = task
         self._start_phase()
+
+    # -- widening ----------------------------------------------------------------------------------
+    def prepare_widening(self, effects: str | Sequence[str]) -> Widening:
+        """Everything :meth:`widen` builds, without touching the running controller: the model
+        with ``effects`` added to the current ones (joints of a per-joint effect merged), its
+        CasADi tool model, the MPC on it, the estimator's free parameters and its compiled
+        update. The CasADi builds take a fraction of a second (once per process for each effect
+        set); a controller that must keep its deadlines builds this off the control path (a
+        thread) and hands it to :meth:`adopt_widening`."""
+        if self.model is None or self.oracle:
+            raise ValueError("widen needs a running, non-oracle MPCAgent (call reset first)")
+        model = ErrorModel(
+            self.model.robot, merge_effects(self.model, effects), targets=self.model.targets
+        )
+        tm = cached_tool_model(model)
+        mpc = self._make_mpc(tm)
+        free = None
+        if self.rls is not None:
+            free = self.rls.widened_free(model)
+            self.rls.prepare_widening(model, free, tm)
+        return Widening(model, tm, mpc, free)
+
+    def adopt_widening(self, w: Widening) -> list[str]:
+        """Continue with a prepared :class:`Widening`; returns the parameters added to the
+        estimator. Takes milliseconds: the plan in progress carries over."""
+        added: list[str] = []
+        old = self.model
+        assert old is not None and self.p is not None
+        w.mpc.plan = self.mpc.plan.copy()
+        w.mpc.n_fail, w.mpc.n_constrained = self.mpc.n_fail, self.mpc.n_constrained
+        if self.rls is not None:
+            added = self.rls.widen(w.model, w.free, tool_model=w.tm)
+            p = self.rls.params
+        else:
+            p = w.model.nominal()
+            p[w.model.layout.indices(list(old.layout.names))] = self.p
+        self.model, self.tm, self.mpc, self.p = w.model, w.tm, w.mpc, p
+        return added
+
+    def widen(self, effects: str | Sequence[str]) -> list[str]:
+        """Add ``effects`` (e.g. ``"backlash[1,5]"`` or a diagnosis's suggestion
+        ``"geometric,backlash[1,5]"``) to the model during an episode; returns the parameters
+        the estimator added. What the estimator learned is kept
+        (:meth:`~agents.online_calibration.RecursiveLeastSquares.widen`)."""
+        return self.adopt_widening(self.prepare_widening(effects))
 
     def _start_phase(self) -> None:
         self.v_prev = np.zeros(6)
@@ -502,12 +664,15 @@ class MPCAgent(Agent):
         if t_meas is not None and t_meas == self._last_meas_time:
             return  # the same measurement again
         self._last_meas_time = t_meas
-        y = np.asarray(info.get("measurement", np.full(3, np.nan)), dtype=float)
+        y = info.get("measurement")
         q_meas = info.get("measurement_q")
-        if q_meas is None:
+        if y is None or q_meas is None:
             return
-        self.rls.update(np.asarray(q_meas, dtype=float), y, cols)
-        self.p = self.rls.params
+        accepted = self.rls.update(q_meas, y, cols)
+        if accepted:
+            self.p = self.rls.params
+        if self.buffer is not None:
+            self.buffer.append(q_meas, y, cols, accepted)
 
     def _columns(self, o: Observation) -> np.ndarray:
         if o.payload is not None:
@@ -544,15 +709,3 @@ class MPCAgent(Agent):
             out["parameter_names"] = list(self.model.layout.names)
             out["parameters"] = [float(v) for v in self.p]
         return out
-
-
-_FREE_CACHE: dict[tuple, list[str]] = {}
-
-
-def _cached_free(model: ErrorModel) -> list[str]:
-    from agents.online_calibration import identifiable_parameters
-
-    key = (model.robot.to_toml(), tuple(model.effect_names), model.targets)
-    if key not in _FREE_CACHE:
-        _FREE_CACHE[key] = identifiable_parameters(model)
-    return list(_FREE_CACHE[key])

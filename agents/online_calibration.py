@@ -32,24 +32,36 @@ survives:
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 from collections.abc import Mapping, Sequence
 
+import casadi as ca
 import numpy as np
 import scipy.linalg
+from scipy.linalg import lapack
 
+from agents.tool_model import BufferedFunction, ToolModel
+from arm.effects import Effect, parse_effects
 from arm.errormodel import ErrorModel
+from arm.kinematics import gravity_torques
+from arm.measurements import MeasurementSet
 from arm.sampling import sample_poses
 
 __all__ = [
+    "MeasurementBuffer",
     "RecursiveLeastSquares",
+    "cached_identifiable",
     "identifiable_parameters",
+    "merge_effects",
     "prior_scales",
     "qr_identifiable",
     "random_columns",
 ]
 
 log = logging.getLogger(__name__)
+
+_I3 = np.eye(3)
 
 #: chi-square(3) quantile for p = 1e-5: a Gaussian innovation is rejected once in 100,000
 CHI2_3_GATE = 25.9
@@ -115,6 +127,125 @@ def identifiable_parameters(
     return list(ident.identifiable_names)
 
 
+def merge_effects(model: ErrorModel, effects: str | Sequence[str | Effect]) -> list[str]:
+    """The effect labels of ``model`` with ``effects`` added: a per-joint effect that the model
+    has already takes the union of the joints (``backlash[1]`` + ``backlash[5]`` =
+    ``backlash[1,5]``; on all joints it stays on all), a new one is appended. A diagnosis's
+    suggestion (``geometric,backlash[1,5]``), which repeats the model's effects, merges to
+    itself."""
+    order: list[str] = []
+    joints: dict[str, set[int] | None] = {}
+    for e in [*model.effects, *parse_effects(effects)]:
+        if e.name not in joints:
+            order.append(e.name)
+            joints[e.name] = None if e.joints is None else set(e.joints)
+        elif joints[e.name] is not None:
+            if e.joints is None:
+                joints[e.name] = None
+            else:
+                joints[e.name] |= set(e.joints)  # type: ignore[operator]
+    out = []
+    for name in order:
+        js = joints[name]
+        out.append(name if js is None else f"{name}[{','.join(map(str, sorted(js)))}]")
+    return out
+
+
+class MeasurementBuffer:
+    """The last ``capacity`` tracker points with the inputs the model's effects need, as the lab's
+    measurement files have them (SPEC section 3): the encoder reading ``q`` when the point was
+    sampled, the point ``x, y, z``, and the columns ``t`` (s), ``temperature`` (the sensor's,
+    degC), ``payload`` (the declared load, kg) and ``dir1..dir6`` (the commanded direction of each
+    joint, +-1); the gravity torques follow from q and the payload
+    (:meth:`gravity_torques`, the nominal arm's, as the lab computes them). Each point also
+    says whether the estimator accepted it.
+
+    Points are numbered from the first ever appended (:attr:`total`), so a window survives the
+    oldest points being dropped: ``buffer.to_measurements(since=k)``.
+    """
+
+    COLUMNS = ("t", "temperature", "payload", *(f"dir{i}" for i in range(1, 7)))
+
+    def __init__(self, capacity: int = 1000) -> None:
+        if capacity < 1:
+            raise ValueError(f"buffer capacity must be >= 1, got {capacity}")
+        self.capacity = int(capacity)
+        self._q = np.empty((capacity, 6))
+        self._xyz = np.empty((capacity, 3))
+        self._cols = np.full((capacity, len(self.COLUMNS)), np.nan)
+        self._accepted = np.zeros(capacity, dtype=bool)
+        self.total = 0  # points ever appended
+
+    def __len__(self) -> int:
+        return min(self.total, self.capacity)
+
+    @property
+    def first(self) -> int:
+        """The number of the oldest point still held."""
+        return self.total - len(self)
+
+    def append(
+        self, q: np.ndarray, xyz: np.ndarray, columns: Mapping[str, float], accepted: bool = True
+    ) -> None:
+        k = self.total % self.capacity
+        self._q[k] = q
+        self._xyz[k] = xyz
+        row = self._cols[k]
+        for j, name in enumerate(self.COLUMNS):
+            v = columns.get(name)
+            row[j] = math.nan if v is None else v
+        self._accepted[k] = accepted
+        self.total += 1
+
+    def _rows(self, since: int, until: int | None) -> np.ndarray:
+        lo = max(int(since), self.first)
+        hi = self.total if until is None else min(int(until), self.total)
+        return np.arange(lo, max(hi, lo)) % self.capacity
+
+    def count(self, since: int = 0, until: int | None = None, accepted_only: bool = True) -> int:
+        rows = self._rows(since, until)
+        return int(self._accepted[rows].sum()) if accepted_only else len(rows)
+
+    def to_measurements(
+        self,
+        since: int = 0,
+        until: int | None = None,
+        accepted_only: bool = True,
+        source: str = "tracker buffer",
+    ) -> MeasurementSet:
+        """Points ``since`` .. ``until`` (numbers as :attr:`total` counts them) as a
+        :class:`~arm.measurements.MeasurementSet`; a column with a missing value among them is
+        left out (the effects that need it cannot be tested on these points)."""
+        rows = self._rows(since, until)
+        if accepted_only:
+            rows = rows[self._accepted[rows]]
+        cols = {}
+        for j, name in enumerate(self.COLUMNS):
+            v = self._cols[rows, j]
+            if v.size and np.all(np.isfinite(v)):
+                cols[name] = v.copy()
+        return MeasurementSet(self._q[rows].copy(), self._xyz[rows].copy(), cols, source)
+
+    def gravity_torques(self, robot, since: int = 0, until: int | None = None) -> np.ndarray:
+        """(N, 6) gravity torques of the nominal arm at the points' q with the declared payload
+        (N*m), as :meth:`arm.errormodel.ErrorModel.inputs` computes them for the lab."""
+        data = self.to_measurements(since, until, accepted_only=False)
+        payload = data.columns.get("payload")
+        return gravity_torques(robot.to_modified(), data.q, payload=payload)
+
+
+_FREE_CACHE: dict[tuple, list[str]] = {}
+
+
+def cached_identifiable(model: ErrorModel) -> list[str]:
+    """:func:`identifiable_parameters` of ``model`` on its default random poses, computed once
+    per process for each (description, effects, targets)."""
+    key = (model.robot.to_toml(), tuple(model.effect_names), model.targets)
+    if key not in _FREE_CACHE:
+        _FREE_CACHE[key] = identifiable_parameters(model)
+    return list(_FREE_CACHE[key])
+
+
 def qr_identifiable(
     model: ErrorModel, inputs, p: np.ndarray | None = None, tol: float = 1e-8
 ) -> list[str]:
@@ -135,6 +266,89 @@ def qr_identifiable(
     return [model.layout.names[k] for k in keep]
 
 
+class _CompiledUpdate:
+    """One measurement's update of :class:`RecursiveLeastSquares` as one compiled CasADi
+    function, called through its own buffers (:class:`~agents.tool_model.BufferedFunction`).
+
+    In: the tool model's packed input at the measurement, the measured point ``y``, the scaled
+    estimate ``z`` and the information matrix. Out: the innovation ``e``, and the estimate (scaled
+    and in SI units) and the information after accepting the point (the caller keeps them or not,
+    by its gate). The tool point and its derivative by the free parameters, the information
+    update and the gradient are scalar expressions (SX); the step ``info^-1 grad`` is solved by
+    CasADi's own sparse LDL' (no dependency, 5 us for 25 parameters).
+
+    The information is refactored at every update, not updated: the regularised forgetting adds
+    ``(1 - lam) I``, a full-rank term that a rank-one (or rank-3) Cholesky update cannot take;
+    the factorisation's flops cost microseconds. What the numpy version spent (0.3 ms) was the
+    dispatch of some thirty small calls; this is one call.
+    """
+
+    def __init__(
+        self,
+        tm: ToolModel,
+        idx: np.ndarray,
+        scale: np.ndarray,
+        p0_free: np.ndarray,
+        sigma: float,
+        lam: float,
+    ) -> None:
+        n = len(idx)
+        P, nc = len(tm.layout), len(tm.column_names)
+        zq = ca.SX.sym("zq", tm.n_inputs)
+        y, z = ca.SX.sym("y", 3), ca.SX.sym("z", n)
+        info = ca.SX.sym("info", n, n)
+        p = zq[6 : 6 + P]
+        x = tm.expression(zq[:6], p, zq[6 + P : 6 + P + nc], zq[6 + P + nc :])
+        ps = ca.vertcat(*(p[int(k)] for k in idx))
+        H = ca.jacobian(x, ps) @ ca.diag(ca.DM(scale))  # (3, n): scaled parameters
+        e = y - x
+        r_inv = 1.0 / sigma**2
+        # lam info + (1 - lam) I + r_inv H'H, each entry below the diagonal built once and used
+        # twice: a symmetric matrix at half the operations
+        rows: list[list] = [[None] * n for _ in range(n)]
+        for i in range(n):
+            for j in range(i + 1):
+                v = lam * info[i, j] + r_inv * (
+                    H[0, i] * H[0, j] + H[1, i] * H[1, j] + H[2, i] * H[2, j]
+                )
+                rows[i][j] = rows[j][i] = v + (1.0 - lam) if i == j else v
+        info1 = ca.vertcat(*(ca.horzcat(*r) for r in rows))
+        grad = r_inv * ca.mtimes(H.T, e) - (1.0 - lam) * z
+        core = ca.Function("rls_core", [zq, y, z, info], [e, ca.densify(info1), ca.densify(grad)])
+        nz = tm.n_inputs
+        w = ca.MX.sym("w", nz + 3 + n + n * n)
+        z_mx = w[nz + 3 : nz + 3 + n]
+        e_, info_, grad_ = core(w[:nz], w[nz : nz + 3], z_mx, ca.reshape(w[nz + 3 + n :], n, n))
+        z1 = z_mx + ca.solve(info_, grad_, "ldl")
+        out = ca.vertcat(e_, z1, ca.DM(p0_free) + ca.DM(scale) * z1, ca.vec(info_))
+        self.function = ca.Function("rls_update", [w], [out])
+        self.n = n
+
+
+_UPDATE_CACHE: dict[tuple, _CompiledUpdate] = {}
+
+
+def _compiled_update(
+    tm: ToolModel, idx: np.ndarray, scale: np.ndarray, p0_free: np.ndarray, sigma: float, lam: float
+) -> BufferedFunction:
+    """A buffered :class:`_CompiledUpdate`, its function built once per process for each (tool
+    model, free set, prior, noise, forgetting)."""
+    key = (
+        id(tm._f_p),
+        tuple(int(k) for k in idx),
+        tuple(map(float, scale)),
+        tuple(map(float, p0_free)),
+        float(sigma),
+        float(lam),
+    )
+    cu = _UPDATE_CACHE.get(key)
+    if cu is None:
+        if len(_UPDATE_CACHE) > 64:
+            _UPDATE_CACHE.clear()
+        cu = _UPDATE_CACHE[key] = _CompiledUpdate(tm, idx, scale, p0_free, sigma, lam)
+    return BufferedFunction(cu.function)
+
+
 class RecursiveLeastSquares:
     """Online estimate of an error model's parameters from single tracker measurements.
 
@@ -142,6 +356,8 @@ class RecursiveLeastSquares:
     ``sigma``: the instrument's per-axis noise (m); ``forgetting``: lam per accepted measurement
     (1 = none; 0.99 remembers about 100 measurements); ``p0``: starting values (default nominal);
     ``scales``: prior standard deviations (default :func:`prior_scales`, times ``prior_factor``).
+
+    :meth:`widen` adds effects during an episode, keeping what was learned.
     """
 
     def __init__(
@@ -156,12 +372,22 @@ class RecursiveLeastSquares:
         gate: float = CHI2_3_GATE,
         robust_factor: float = 6.0,
         max_rejections: int = 5,
-        tool_model=None,
+        tool_model: ToolModel | None = None,
     ) -> None:
         if not 0.0 < forgetting <= 1.0:
             raise ValueError(f"forgetting must be in (0, 1], got {forgetting}")
         if sigma <= 0:
             raise ValueError(f"sigma must be positive, got {sigma}")
+        self.sigma = float(sigma)
+        self.forgetting = float(forgetting)
+        self.gate = float(gate)
+        self.robust_factor = float(robust_factor)
+        self.max_rejections = int(max_rejections)
+        self.prior_factor = float(prior_factor)
+        self._set_model(model, free, p0, scales, tool_model)
+        self.reset()
+
+    def _set_model(self, model, free, p0, scales, tool_model) -> None:
         self.model = model
         self.layout = model.layout
         self.free = list(identifiable_parameters(model) if free is None else free)
@@ -170,12 +396,8 @@ class RecursiveLeastSquares:
         if self.p0.shape != (len(self.layout),):
             raise ValueError(f"p0 must have {len(self.layout)} values, got {self.p0.shape}")
         s = prior_scales(model) if scales is None else np.asarray(scales, dtype=float)
-        self.scale = prior_factor * s[self.idx]
-        self.sigma = float(sigma)
-        self.forgetting = float(forgetting)
-        self.gate = float(gate)
-        self.robust_factor = float(robust_factor)
-        self.max_rejections = int(max_rejections)
+        self.scale = self.prior_factor * s[self.idx]
+        self._p0_free = self.p0[self.idx]
         if tool_model is None:
             from agents.tool_model import ToolModel, UnsupportedEffectError
 
@@ -184,25 +406,39 @@ class RecursiveLeastSquares:
             except UnsupportedEffectError:
                 tool_model = None
         self._tm = tool_model
-        self.reset()
+        self._compiled: BufferedFunction | None = None
+        if tool_model is not None:
+            self._compiled = _compiled_update(
+                tool_model, self.idx, self.scale, self._p0_free, self.sigma, self.forgetting
+            )
 
     def reset(self) -> None:
         n = len(self.idx)
-        self.z = np.zeros(n)
-        self.info = np.eye(n)
-        self._chol = np.eye(n)  # lower Cholesky factor of ``info``
+        self._z = np.zeros(n)
+        self._info = np.eye(n)  # the information of the scaled parameters
         self._p = self.p0.copy()
         self.n_updates = 0
         self.n_rejected = 0
         self._run_rejected = 0
-        self._recent = deque(maxlen=25)
+        self._recent: deque[float] = deque(maxlen=25)
         self.last_innovation = np.full(3, np.nan)
+        self.widenings: list[dict] = []
 
     # -- state ---------------------------------------------------------------------------------
     @property
     def params(self) -> np.ndarray:
         """The full parameter vector: estimates for the free ones, ``p0`` for the rest."""
         return self._p.copy()
+
+    @property
+    def z(self) -> np.ndarray:
+        """The estimate of the free parameters, scaled: ``(p - p0) / scale``."""
+        return self._z.copy()
+
+    @property
+    def info(self) -> np.ndarray:
+        """The information matrix of the scaled free parameters ``(p - p0) / scale`` (a copy)."""
+        return self._info.copy()
 
     @property
     def std(self) -> np.ndarray:
@@ -213,6 +449,84 @@ class RecursiveLeastSquares:
     def estimate(self) -> dict[str, float]:
         """The free parameters by name."""
         return dict(zip(self.free, map(float, self.params[self.idx]), strict=True))
+
+    # -- widening ------------------------------------------------------------------------------
+    def _check_wider(self, model: ErrorModel) -> None:
+        missing = [nm for nm in self.layout.names if nm not in model.layout.names]
+        if missing:
+            raise ValueError(
+                f"widen: the new model ({', '.join(model.effect_names)}) lacks parameter(s) "
+                f"{', '.join(missing[:5])}; it must have every parameter of the current one "
+                f"({', '.join(self.model.effect_names)})"
+            )
+
+    def widened_free(self, model: ErrorModel) -> list[str]:
+        """The free parameters after widening to ``model``: the current ones, then those of the
+        new parameters that the model's identifiability analysis keeps (it offers the geometric
+        parameters first), in the model's order."""
+        self._check_wider(model)
+        keep, old = set(self.free), set(self.layout.names)
+        new = {nm for nm in cached_identifiable(model) if nm not in old}
+        return [nm for nm in model.layout.names if nm in keep or nm in new]
+
+    def prepare_widening(
+        self, model: ErrorModel, free: Sequence[str], tool_model: ToolModel | None
+    ) -> None:
+        """Build (and cache) the compiled update that :meth:`widen` to ``model`` will use, without
+        changing this estimator: the slow part of widening, for a thread off the control path."""
+        if tool_model is None:
+            return
+        idx = model.layout.indices(list(free))
+        scales = prior_scales(model)
+        scales[model.layout.indices(self.free)] = self.scale / self.prior_factor
+        p0 = model.nominal()
+        p0[model.layout.indices(list(self.layout.names))] = self.p0
+        _compiled_update(
+            tool_model, idx, self.prior_factor * scales[idx], p0[idx], self.sigma, self.forgetting
+        )
+
+    def widen(
+        self,
+        model: ErrorModel,
+        free: Sequence[str] | None = None,
+        tool_model: ToolModel | None = None,
+    ) -> list[str]:
+        """Continue with ``model``, which has every parameter of the current one and more (effects
+        added, e.g. by a diagnosis), keeping what was learned: the estimates and the information
+        of the parameters already estimated (cross-information included) stay as they are; the
+        new free parameters start from ``model``'s nominal values with their prior information,
+        uncorrelated with the rest. ``free``: the names to estimate (default: the current ones,
+        then those of the new parameters that the model's identifiability analysis keeps, which
+        offers the geometric parameters first). Returns the names added.
+        """
+        old_names = list(self.layout.names)
+        self._check_wider(model)
+        free = self.widened_free(model) if free is None else list(free)
+        lost = [nm for nm in self.free if nm not in free]
+        if lost:
+            raise ValueError(f"widen: free parameter(s) {', '.join(lost)} would be dropped")
+        added = [nm for nm in free if nm not in self.free]
+        p_full = model.nominal()
+        p_full[model.layout.indices(old_names)] = self._p
+        p0 = model.nominal()
+        p0[model.layout.indices(old_names)] = self.p0
+        z, info = self.z, self.info
+        old_free = list(self.free)
+        scales = prior_scales(model)  # the prior of the parameters kept is kept too
+        scales[model.layout.indices(old_free)] = self.scale / self.prior_factor
+        self._set_model(model, free, p0, scales, tool_model)
+        n = len(self.free)
+        pos = np.array([self.free.index(nm) for nm in old_free], dtype=int)
+        self._z = np.zeros(n)
+        self._z[pos] = z
+        self._info = np.eye(n)
+        self._info[np.ix_(pos, pos)] = info
+        # the estimate stays where it was; new free parameters from their nominal (prior) value
+        self._p = p_full
+        self._p[self.idx] = self.p0[self.idx] + self.scale * self._z
+        self.widenings.append({"updates": self.n_updates, "added": added})
+        log.info("estimator widened to %s: +%s", ", ".join(model.effect_names), ", ".join(added))
+        return added
 
     # -- measurements --------------------------------------------------------------------------
     def _predict(self, q: np.ndarray, columns: Mapping[str, float], p: np.ndarray):
@@ -235,51 +549,81 @@ class RecursiveLeastSquares:
         return np.asarray(y, dtype=float) - x
 
     def update(
-        self, q: np.ndarray, y: np.ndarray, columns: Mapping[str, float] | None = None
+        self,
+        q: np.ndarray,
+        y: np.ndarray,
+        columns: Mapping[str, float] | None = None,
     ) -> bool:
         """Fold in one measurement ``y`` (3,) of the tool point at encoder reading ``q`` (6,);
-        returns whether it was accepted. Non-finite input is ignored (returns False)."""
-        q = np.asarray(q, dtype=float).reshape(6)
-        y = np.asarray(y, dtype=float).reshape(3)
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(y))):
+        returns whether it was accepted. Non-finite input is ignored (returns False).
+
+        With a CasADi form of the model the whole update is one compiled call
+        (:class:`_CompiledUpdate`); without one (a user's chain effect), numpy and LAPACK."""
+        if not (isinstance(q, np.ndarray) and q.shape == (6,) and q.dtype == float):
+            q = np.asarray(q, dtype=float).reshape(6)
+        if not (isinstance(y, np.ndarray) and y.shape == (3,) and y.dtype == float):
+            y = np.asarray(y, dtype=float).reshape(3)
+        if not math.isfinite(q @ q + y @ y):  # one scalar test: NaN and inf propagate
             return False
         columns = columns or {}
-        x, Jp = self._predict(q, columns, self._p)
-        e = y - x
-        H = Jp[:, self.idx] * self.scale  # (3, n) in scaled parameters
-        r_inv = 1.0 / self.sigma**2
-        # innovation covariance H info^-1 H' + R, with the Cholesky factor of the last update
-        # (cho_solve, not solve_triangular: OpenBLAS's threaded trsm took 9 ms here for 25x3)
-        S = H @ scipy.linalg.cho_solve((self._chol, True), H.T, check_finite=False)
-        S[np.diag_indices(3)] += self.sigma**2
-        d2 = float(e @ np.linalg.solve(S, e))
-        enorm = float(np.sqrt(e @ e))
+        n = len(self.idx)
+        if self._compiled is not None and self._tm is not None:
+            zq = self._tm.pack(q, self._p, columns)
+            out = self._compiled(np.concatenate([zq, y, self._z, self._info.reshape(-1)]))
+            e = out[:3].copy()
+        else:
+            out = None
+            x, Jp = self._predict(q, columns, self._p)
+            e = y - x
+        enorm = math.sqrt(e @ e)
         recent = sorted(self._recent)
-        typical = max(recent[len(recent) // 2] if recent else 0.0, np.sqrt(3) * self.sigma)
+        typical = max(recent[len(recent) // 2] if recent else 0.0, math.sqrt(3.0) * self.sigma)
         self.last_innovation = e
-        if (
-            d2 > self.gate
-            and enorm > self.robust_factor * typical
-            and self._run_rejected < self.max_rejections
-        ):
-            self.n_rejected += 1
-            self._run_rejected += 1
-            log.debug("measurement rejected: innovation %.3g mm, d2 %.3g", enorm * 1e3, d2)
-            return False
+        # the gate rejects a point far above the recent typical innovation *and* beyond the
+        # chi-square gate; the normalised innovation is computed only for the first kind
+        if enorm > self.robust_factor * typical and self._run_rejected < self.max_rejections:
+            if self.normalised_innovation(q, columns, e) > self.gate:
+                self.n_rejected += 1
+                self._run_rejected += 1
+                log.debug("measurement rejected: innovation %.3g mm", enorm * 1e3)
+                return False
         self._run_rejected = 0
         self._recent.append(enorm)
-        lam = self.forgetting
-        info = self.info
-        info *= lam
-        info[np.diag_indices_from(info)] += 1.0 - lam
-        info += r_inv * (H.T @ H)
-        self._chol = np.linalg.cholesky(info)
-        grad = r_inv * (H.T @ e) - (1.0 - lam) * self.z
-        self.z = self.z + scipy.linalg.cho_solve((self._chol, True), grad, check_finite=False)
-        self._p = self.p0.copy()
-        self._p[self.idx] += self.scale * self.z
+        if out is not None:
+            self._z = out[3 : 3 + n].copy()
+            p = self.p0.copy()
+            p[self.idx] = out[3 + n : 3 + 2 * n]
+            self._info = out[3 + 2 * n :].reshape(n, n).copy()
+        else:
+            lam, r_inv = self.forgetting, 1.0 / self.sigma**2
+            H = Jp[:, self.idx] * self.scale
+            info = lam * self._info + (1.0 - lam) * np.eye(n) + r_inv * (H.T @ H)
+            grad = r_inv * (H.T @ e) - (1.0 - lam) * self._z
+            _, dz, bad = lapack.dposv(info, grad, lower=1)
+            if bad:
+                raise np.linalg.LinAlgError(f"estimator information not positive definite ({bad})")
+            self._info, self._z = info, self._z + dz
+            p = self.p0.copy()
+            p[self.idx] = self._p0_free + self.scale * self._z
+        self._p = p
         self.n_updates += 1
         return True
+
+    def normalised_innovation(
+        self, q: np.ndarray, columns: Mapping[str, float], e: np.ndarray | None = None
+    ) -> float:
+        """``e' S^-1 e`` of the innovation ``e`` at pose ``q`` (default ``y - f(q, p)`` is not
+        known here: pass ``e``), with ``S = H info^-1 H' + sigma^2 I`` its covariance under the
+        current estimate: chi-square with 3 degrees of freedom when the model is right."""
+        _, Jp = self._predict(np.asarray(q, dtype=float).reshape(6), columns, self._p)
+        H = Jp[:, self.idx] * self.scale
+        X = scipy.linalg.cho_solve((np.linalg.cholesky(self._info), True), H.T)
+        S = H @ X + self.sigma**2 * _I3
+        e = np.asarray(e, dtype=float).reshape(3)
+        try:
+            return float(e @ np.linalg.solve(S, e))
+        except np.linalg.LinAlgError:
+            return math.inf
 
     def report(self) -> dict[str, float | list]:
         return {

@@ -22,6 +22,7 @@ effect is refused with a clear error.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -44,7 +45,13 @@ from arm.errormodel import ErrorModel
 from arm.errors import SixAxisError
 from arm.kinematics import Chain
 
-__all__ = ["ToolEval", "ToolModel", "UnsupportedEffectError", "cached_tool_model"]
+__all__ = [
+    "BufferedFunction",
+    "ToolEval",
+    "ToolModel",
+    "UnsupportedEffectError",
+    "cached_tool_model",
+]
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +67,52 @@ class ToolEval:
     x: np.ndarray
     Jq: np.ndarray
     Jp: np.ndarray
+
+
+_NO_OFFSET = np.zeros(6)
+_NO_OFFSET.flags.writeable = False
+
+
+class BufferedFunction:
+    """A CasADi function of one vector input and one vector output, called through buffers of
+    its own (``Function.buffer``): the argument and the result are numpy arrays that CasADi reads
+    and writes in place. A plain call converts numpy to CasADi's matrices and back, which costs
+    30-40 us whatever the size (more than evaluating the tool point and its Jacobian); this costs
+    about 1 us plus the evaluation.
+
+    ``f(x)`` returns the result array itself, overwritten by the next call: copy what you keep.
+    One instance is not to be called from two threads at once.
+    """
+
+    def __init__(self, f: ca.Function) -> None:
+        if f.n_in() != 1 or f.n_out() != 1:
+            raise ValueError(f"{f.name()}: expected one input and one output")
+        if not (f.sparsity_in(0).is_dense() and f.sparsity_out(0).is_dense()):
+            raise ValueError(f"{f.name()}: input and output must be dense (ca.densify)")
+        self.function = f
+        self.arg = np.zeros(f.nnz_in(0))
+        self.res = np.zeros(f.nnz_out(0))
+        self._buf, self._eval = f.buffer()
+        self._buf.set_arg(0, memoryview(self.arg))
+        self._buf.set_res(0, memoryview(self.res))
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        self.arg[:] = x
+        self._eval()
+        return self.res
+
+    # buffers hold raw pointers into this instance's arrays: copies get their own
+    def __copy__(self) -> BufferedFunction:
+        return BufferedFunction(self.function)
+
+    def __deepcopy__(self, memo) -> BufferedFunction:
+        return BufferedFunction(self.function)
+
+    def __getstate__(self):
+        return {"function": self.function}
+
+    def __setstate__(self, state) -> None:
+        self.__init__(state["function"])
 
 
 def _rot_x(a):
@@ -146,9 +199,15 @@ class ToolModel:
         # costs tens of microseconds, whatever its size
         z = ca.vertcat(q, p, c, extra)
         self.n_inputs = z.shape[0]
-        self._f_q = ca.Function("tool_point_dq", [z], [ca.vertcat(x, ca.vec(ca.jacobian(x, q)))])
-        self._f_p = ca.Function("tool_point_dp", [z], [ca.vertcat(x, ca.vec(ca.jacobian(x, p)))])
+        self._f_q = ca.Function(
+            "tool_point_dq", [z], [ca.densify(ca.vertcat(x, ca.vec(ca.jacobian(x, q))))]
+        )
+        self._f_p = ca.Function(
+            "tool_point_dp", [z], [ca.densify(ca.vertcat(x, ca.vec(ca.jacobian(x, p))))]
+        )
         self._f_point = ca.Function("tool_point", [z], [x])
+        self._b_q = BufferedFunction(self._f_q)
+        self._b_p = BufferedFunction(self._f_p)
 
     def __repr__(self) -> str:
         return f"ToolModel({self.model!r})"
@@ -158,17 +217,16 @@ class ToolModel:
         """The model's per-pose columns in this model's order; missing ones take defaults
         (temperature 20 degC, the description's payload, direction 0 = unknown)."""
         columns = columns or {}
-        out = np.empty(len(self.column_names))
-        for k, name in enumerate(self.column_names):
+        out = []
+        for name in self.column_names:
             v = columns.get(name)
-            if v is None or not np.isfinite(v):
-                v = self._defaults.get(name, 0.0)
-            out[k] = float(v)
-        return out
+            v = float(v) if v is not None else math.nan
+            out.append(v if math.isfinite(v) else self._defaults.get(name, 0.0))
+        return np.array(out)
 
     def _offsets(self, q: np.ndarray, p: np.ndarray, cvec: np.ndarray) -> np.ndarray:
         if not self._custom:
-            return np.zeros(6)
+            return _NO_OFFSET
         inputs = self.model.inputs(
             q[None, :], dict(zip(self.column_names, cvec[:, None], strict=True))
         )
@@ -193,26 +251,25 @@ class ToolModel:
         """Point, d point / d q and d point / d p at one pose (``columns`` a mapping or a vector
         from :meth:`column_vector`)."""
         z = self.pack(q, p, columns)
-        x, Jq = self._split(self._f_q(z), 6)
-        _, Jp = self._split(self._f_p(z), len(self.layout))
+        x, Jq = self._split(self._b_q(z), 6)
+        _, Jp = self._split(self._b_p(z), len(self.layout))
         return ToolEval(x, Jq, Jp)
 
     @staticmethod
-    def _split(out, n: int) -> tuple[np.ndarray, np.ndarray]:
-        v = out.full().reshape(-1)
+    def _split(v: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
         return v[:3].copy(), v[3:].reshape(n, 3).T.copy()
 
     def point_dq(
         self, q: np.ndarray, p: np.ndarray, columns: Mapping[str, float] | np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """The point (3,) and its derivative by the joint angles (3, 6): the MPC's linearisation."""
-        return self._split(self._f_q(self.pack(q, p, columns)), 6)
+        return self._split(self._b_q(self.pack(q, p, columns)), 6)
 
     def point_dp(
         self, q: np.ndarray, p: np.ndarray, columns: Mapping[str, float] | np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """The point (3,) and its derivative by the parameters (3, P): the estimator's regressor."""
-        return self._split(self._f_p(self.pack(q, p, columns)), len(self.layout))
+        return self._split(self._b_p(self.pack(q, p, columns)), len(self.layout))
 
     def point(
         self, q: np.ndarray, p: np.ndarray, columns: Mapping[str, float] | np.ndarray | None = None
@@ -373,4 +430,6 @@ def _rebind(tm: ToolModel, model: ErrorModel) -> ToolModel:
     clone._custom = [
         e for e in model.effects if isinstance(e, JointAngleEffect) and type(e) not in _BASIS
     ]
+    clone._b_q = BufferedFunction(tm._f_q)  # buffers of its own
+    clone._b_p = BufferedFunction(tm._f_p)
     return clone

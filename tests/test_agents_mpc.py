@@ -95,6 +95,26 @@ def test_compiled_step_solves_the_qp(setup, solver):
     assert np.any(np.abs(A @ ref - uba) < 1e-8)  # the acceleration limit binds
     # OSQP (ADMM) stops at its iteration limit on this hard problem, within 1e-3 rad/s
     np.testing.assert_allclose(v0, ref[:6], atol=3e-3 if solver == "osqp" else 1e-6)
+    assert mpc.n_constrained == 1  # the closed form violated a bound: the solver ran
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_unconstrained_step_is_the_qp_minimiser(setup, fast):
+    """Near the reference no constraint binds: the closed-form step (structured solve of the
+    Hessian's Kronecker form) is the minimiser of the numpy QP, H v = -g, solved densely."""
+    _, tm, p = setup
+    mpc = _mpc(tm, fast=fast)
+    rng = np.random.default_rng(3)
+    x0, J = tm.point_dq(Q_START, p)
+    for _ in range(5):
+        refs = x0 + rng.normal(0, 5e-5, (mpc.N, 3))
+        v_prev = rng.normal(0, 0.01, 6)
+        q_post, r0 = Q_START + rng.normal(0, 0.01, 6), x0 + rng.normal(0, 3e-5, 3)
+        mpc.solve(Q_START, v_prev, refs, p, None, q_post, r0)
+        H, g = mpc.qp_matrices(x0, J, refs, v_prev, Q_START, q_post, r0)
+        v = -np.linalg.solve(H, g)
+        np.testing.assert_allclose(mpc.plan.reshape(-1), v, atol=1e-9 * np.abs(v).max())
+    assert mpc.n_constrained == 0 and mpc.n_fail == 0
 
 
 def test_qp_and_ipopt_agree_near_the_reference(setup):
@@ -160,6 +180,41 @@ def test_online_calibration_survives_latency_dropouts_and_outliers(kin_env):
     assert r.report["rls_rejected"] >= 1
     assert r.rms_mm(start=5.0) < 2.0 * clean.rms_mm(start=5.0) + 0.01
     assert r.rms_mm(start=5.0) < 0.05
+
+
+def test_widening_mid_episode_continues_with_the_wider_model(kin_env):
+    """An MPC on the geometric model, widened half-way through an episode on an elastic arm:
+    the model, the MPC's tool model and the estimator take compliance, what was learned stays,
+    and it tracks on, as well as an MPC that had compliance from the start (on this kinematic
+    plant the geometric model's compromise is close too; the MuJoCo must-shows are in
+    test_agents_diagnose.py)."""
+
+    class WidenAt(make_agent("mpc").__class__):
+        def act(self, obs, info):
+            self.k = getattr(self, "k", 0) + 1
+            if self.k == 250:
+                self.before = self.rls.params
+                self.added = self.widen("compliance")
+            return super().act(obs, info)
+
+    env = {"scenario": "compliance", "trajectory": "wide"}
+    a = WidenAt(buffer=200, forgetting=1.0)
+    r = run_episode(a, env, seed=3, env_id=kin_env)
+    told = run_episode(
+        make_agent("mpc", effects="geometric,compliance", forgetting=1.0),
+        env,
+        seed=3,
+        env_id=kin_env,
+    )
+    narrow = run_episode(make_agent("mpc", forgetting=1.0), env, seed=3, env_id=kin_env)
+    assert a.model.effect_names == ["geometric", "compliance"]
+    assert a.mpc.tm.model is a.model and a.rls.model is a.model
+    assert set(a.added) <= {f"c{j}" for j in range(1, 7)} and "c2" in a.added
+    assert len(a.buffer) == 99  # every tracker point it saw (the 100th comes with the end)
+    assert a.mpc.n_fail == 0
+    assert r.rms_mm(start=6.0) < 1.1 * narrow.rms_mm(start=6.0)
+    assert r.rms_mm(start=6.0) < 1.1 * told.rms_mm(start=6.0)
+    assert r.rms_mm(start=6.0) < 0.02  # the tracker's noise is 15 um per axis
 
 
 def test_unknown_solver_and_bad_horizon_are_refused(setup):

@@ -7,8 +7,10 @@ import numpy as np
 import pytest
 
 from agents.online_calibration import (
+    MeasurementBuffer,
     RecursiveLeastSquares,
     identifiable_parameters,
+    merge_effects,
     prior_scales,
     qr_identifiable,
     random_columns,
@@ -133,3 +135,135 @@ def test_bad_input_is_ignored_or_refused():
         RecursiveLeastSquares(model, forgetting=1.5)
     with pytest.raises(KeyError, match="nope"):
         RecursiveLeastSquares(model, free=["nope"])
+
+
+def test_update_is_the_regularised_forgetting_filter():
+    """The compiled update against the filter of the module docstring written out in numpy,
+    with a forgetting and a noise at which the prior's (1 - lam) I term matters."""
+    model = ErrorModel(seed_robot(), "geometric")
+    rng = np.random.default_rng(5)
+    truth = sample_parameters(model, rng)
+    sigma, lam = 3e-3, 0.9
+    q, y = _data(model, truth, 40, rng, noise=1e-5)
+    rls = RecursiveLeastSquares(model, sigma=sigma, forgetting=lam)
+    n = len(rls.free)
+    info, z = np.eye(n), np.zeros(n)
+    for k in range(len(q)):
+        p = model.nominal()
+        p[rls.idx] += rls.scale * z
+        x, J = model.predict(model.inputs(q[k : k + 1], {"payload": np.zeros(1)}), p, jacobian=True)
+        H = J[0][:, rls.idx] * rls.scale
+        e = y[k] - x[0]
+        assert rls.update(q[k], y[k], {"payload": 0.0})
+        info = lam * info + (1 - lam) * np.eye(n) + H.T @ H / sigma**2
+        z = z + np.linalg.solve(info, H.T @ e / sigma**2 - (1 - lam) * z)
+        np.testing.assert_allclose(rls.info, info, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(rls.z, z, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(rls.params[rls.idx], model.nominal()[rls.idx] + rls.scale * z)
+
+
+def test_widen_keeps_what_was_learned_and_starts_the_new_from_the_prior():
+    narrow = ErrorModel(seed_robot(), "geometric")
+    wide = ErrorModel(seed_robot(), merge_effects(narrow, "backlash[1,5]"))
+    assert wide.effect_names == ["geometric", "backlash[1,5]"]
+    rng = np.random.default_rng(6)
+    truth = sample_parameters(wide, rng)
+    cols = {"payload": 0.0, **{f"dir{j}": float(rng.choice((-1, 1))) for j in range(1, 7)}}
+    q = sample_poses(wide.robot, 60, rng)
+    rls = RecursiveLeastSquares(narrow, sigma=15e-6)
+    for k in range(30):
+        c = {k_: np.array([v]) for k_, v in cols.items()}
+        rls.update(q[k], wide.predict(wide.inputs(q[k : k + 1], c), truth)[0], cols)
+    before_p, before_info, before_free = rls.params, rls.info, list(rls.free)
+    added = rls.widen(wide)
+    assert added == ["bl1", "bl5"]
+    assert rls.free == [*before_free, "bl1", "bl5"]
+    names = list(wide.layout.names)
+    np.testing.assert_array_equal(
+        rls.params[wide.layout.indices(list(narrow.layout.names))], before_p
+    )
+    np.testing.assert_array_equal(rls.params[wide.layout.indices(["bl1", "bl5"])], 0.0)
+    n = len(before_free)
+    np.testing.assert_array_equal(rls.info[:n, :n], before_info)
+    np.testing.assert_array_equal(rls.info[n:, n:], np.eye(2))  # the prior, in scaled units
+    np.testing.assert_array_equal(rls.info[:n, n:], 0.0)
+    assert names.index("bl1") > names.index("tz")
+    with pytest.raises(ValueError, match="lacks parameter"):
+        rls.widen(narrow)
+
+
+def test_a_widened_estimator_learns_the_new_effect():
+    """Data with backlash: geometric only, the estimator is left with the direction-dependent
+    error; widened half-way to backlash, it predicts new poses at the noise level."""
+    narrow = ErrorModel(seed_robot(), "geometric")
+    wide = ErrorModel(seed_robot(), "geometric,backlash")
+    rng = np.random.default_rng(7)
+    truth = sample_parameters(wide, rng)
+    sigma = 15e-6
+    n = 600
+    q = sample_poses(wide.robot, n, rng)
+    dirs = rng.choice((-1.0, 1.0), (n, 6))
+    cols = {"payload": np.zeros(n), **{f"dir{j + 1}": dirs[:, j] for j in range(6)}}
+    y = wide.predict(wide.inputs(q, cols), truth) + rng.normal(0.0, sigma, (n, 3))
+
+    def row(k):
+        return {c: float(v[k]) for c, v in cols.items()}
+
+    kept, widened = (
+        RecursiveLeastSquares(narrow, sigma=sigma),
+        RecursiveLeastSquares(narrow, sigma=sigma),
+    )
+    for k in range(n):
+        if k == n // 2:
+            widened.widen(wide)
+        kept.update(q[k], y[k], row(k))
+        widened.update(q[k], y[k], row(k))
+    qt = sample_poses(wide.robot, 200, rng)
+    dt = rng.choice((-1.0, 1.0), (200, 6))
+    ct = {"payload": np.zeros(200), **{f"dir{j + 1}": dt[:, j] for j in range(6)}}
+    yt = wide.predict(wide.inputs(qt, ct), truth)
+
+    def rms(model, p):
+        e = model.predict(model.inputs(qt, ct), p) - yt
+        return np.sqrt(np.mean(np.sum(e**2, axis=1)))
+
+    assert rms(wide, widened.params) < sigma * np.sqrt(3)
+    assert rms(narrow, kept.params) > 5 * rms(wide, widened.params)
+
+
+def test_merge_effects_unions_joints():
+    m = ErrorModel(seed_robot(), "geometric,backlash[1]")
+    assert merge_effects(m, "backlash[5],compliance[2]") == [
+        "geometric",
+        "backlash[1,5]",
+        "compliance[2]",
+    ]
+    assert merge_effects(m, "geometric,backlash[1]") == ["geometric", "backlash[1]"]
+    assert merge_effects(ErrorModel(seed_robot(), "geometric,backlash"), "backlash[2]") == [
+        "geometric",
+        "backlash",
+    ]
+
+
+def test_buffer_keeps_points_with_the_lab_columns_and_drops_the_oldest():
+    buf = MeasurementBuffer(capacity=4)
+    robot = seed_robot()
+    rng = np.random.default_rng(8)
+    q = sample_poses(robot, 6, rng)
+    for k in range(6):
+        cols = {"t": 0.1 * k, "temperature": 20.0, "payload": 1.5, "dir2": -1.0}
+        cols |= {f"dir{j}": 1.0 for j in (1, 3, 4, 5, 6)}
+        buf.append(q[k], np.full(3, float(k)), cols, accepted=k != 4)
+    assert (len(buf), buf.total, buf.first) == (4, 6, 2)
+    d = buf.to_measurements(since=0)
+    np.testing.assert_array_equal(d.xyz[:, 0], [2.0, 3.0, 5.0])  # 4 was rejected
+    assert set(d.columns) == set(MeasurementBuffer.COLUMNS)
+    np.testing.assert_array_equal(d.columns["dir2"], -1.0)
+    assert len(buf.to_measurements(since=3, accepted_only=False)) == 3
+    tau = buf.gravity_torques(robot, since=2)
+    model = ErrorModel(robot, "geometric")
+    ref = model.inputs(q[2:], {"payload": np.full(4, 1.5)}).tau  # the lab's own computation
+    np.testing.assert_allclose(tau, ref)
+    # a column missing at some point is left out of the set, not filled in
+    buf.append(q[0], np.zeros(3), {"t": 1.0}, accepted=True)
+    assert set(buf.to_measurements(since=5).columns) == {"t"}

@@ -3,11 +3,18 @@ against finite differences."""
 
 from __future__ import annotations
 
+import copy
+
 import casadi as ca
 import numpy as np
 import pytest
 
-from agents.tool_model import ToolModel, UnsupportedEffectError, cached_tool_model
+from agents.tool_model import (
+    BufferedFunction,
+    ToolModel,
+    UnsupportedEffectError,
+    cached_tool_model,
+)
 from arm import ErrorModel, seed_robot
 from arm.effects import ChainEffect, JointAngleEffect
 from arm.sampling import sample_parameters, sample_poses
@@ -116,3 +123,18 @@ def test_cached_tool_model_is_reused_for_an_equal_model():
 def test_wrong_parameter_count_is_refused(tool):
     with pytest.raises(ValueError, match="parameters"):
         tool.point(np.zeros(6), np.zeros(3))
+
+
+def test_buffered_call_equals_the_plain_call_and_copies_have_their_own_buffers():
+    x = ca.SX.sym("x", 3)
+    f = ca.Function("f", [x], [ca.vertcat(ca.sin(x[0]) * x[1], x[2] ** 2, ca.dot(x, x))])
+    b = BufferedFunction(f)
+    c = copy.deepcopy(b)
+    u, v = np.array([0.3, -1.2, 2.0]), np.array([1.0, 2.0, 3.0])
+    out_b = b(u).copy()
+    out_c = c(v).copy()
+    np.testing.assert_array_equal(out_b, np.asarray(f(u)).ravel())
+    np.testing.assert_array_equal(out_c, np.asarray(f(v)).ravel())
+    np.testing.assert_array_equal(b.res, out_b)  # the other's call did not write here
+    with pytest.raises(ValueError, match="dense"):
+        BufferedFunction(ca.Function("g", [x], [ca.jacobian(ca.vertcat(x[0], x[1] * x[2]), x)]))
