@@ -496,9 +496,10 @@ class MPCAgent(Agent):
     ``oracle`` (use the plant's true model; needs ``truth``), ``forgetting`` and ``sigma`` (m, default
     the task's instrument noise) of the estimator, ``free`` (names to estimate; default the
     identifiable ones), the cost weights ``rho_dv``, ``rho_v``, ``rho_q`` (posture: the
-    redundant directions keep to the posture of the phase's start), and ``buffer`` (how many
+    redundant directions keep to the posture of the phase's start), ``buffer`` (how many
     tracker points to keep with their inputs, :class:`~agents.online_calibration.
-    MeasurementBuffer`; 0: none).
+    MeasurementBuffer`; 0: none) and ``closed_form`` (False: the QP solver on every step, not only
+    when the closed-form step violates a bound; for comparison).
 
     :meth:`widen` adds effects during an episode: the model, the MPC and the estimator continue
     with them, keeping what the estimator learned.
@@ -521,9 +522,11 @@ class MPCAgent(Agent):
         rho_q: float = 1e-1,
         error_decay: float = 0.3,
         buffer: int = 0,
+        closed_form: bool = True,
         name: str | None = None,
     ) -> None:
         super().__init__()
+        self.closed_form = bool(closed_form)
         if int(buffer) < 0:
             raise ValueError(f"buffer must be >= 0 points, got {buffer}")
         self.buffer_points = int(buffer)
@@ -581,6 +584,8 @@ class MPCAgent(Agent):
 
     def _make_mpc(self, tm: ToolModel) -> KinematicMPC:
         task = self.task
+        if task is None:
+            raise ValueError("the MPC needs the task (call reset first)")
         return KinematicMPC(
             tm,
             task.dt,
@@ -594,6 +599,7 @@ class MPCAgent(Agent):
             rho_v=self.rho_v,
             rho_q=self.rho_q,
             error_decay=self.error_decay,
+            fast=self.closed_form,
         )
 
     def next_phase(self, task: TaskInfo, truth: Truth | None = None) -> None:
@@ -658,7 +664,8 @@ class MPCAgent(Agent):
         cols = measurement_columns(info)
         if "payload" in cols and np.isfinite(cols["payload"]):
             self.payload = cols["payload"]
-        if not self.online or not info.get("measurement_valid", False):
+        rls = self.rls
+        if rls is None or not info.get("measurement_valid", False):
             return
         t_meas = info.get("measurement_time")
         if t_meas is not None and t_meas == self._last_meas_time:
@@ -668,9 +675,9 @@ class MPCAgent(Agent):
         q_meas = info.get("measurement_q")
         if y is None or q_meas is None:
             return
-        accepted = self.rls.update(q_meas, y, cols)
+        accepted = rls.update(q_meas, y, cols)
         if accepted:
-            self.p = self.rls.params
+            self.p = rls.params
         if self.buffer is not None:
             self.buffer.append(q_meas, y, cols, accepted)
 

@@ -93,8 +93,9 @@ class BufferedFunction:
         self.arg = np.zeros(f.nnz_in(0))
         self.res = np.zeros(f.nnz_out(0))
         self._buf, self._eval = f.buffer()
-        self._buf.set_arg(0, memoryview(self.arg))
-        self._buf.set_res(0, memoryview(self.res))
+        # (CasADi's stubs ask for a size; the binding takes the buffer's own)
+        self._buf.set_arg(0, memoryview(self.arg))  # type: ignore[call-arg, arg-type]
+        self._buf.set_res(0, memoryview(self.res))  # type: ignore[call-arg, arg-type]
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         self.arg[:] = x
@@ -112,7 +113,7 @@ class BufferedFunction:
         return {"function": self.function}
 
     def __setstate__(self, state) -> None:
-        self.__init__(state["function"])
+        BufferedFunction.__init__(self, state["function"])
 
 
 def _rot_x(a):

@@ -182,6 +182,7 @@ def test_online_calibration_survives_latency_dropouts_and_outliers(kin_env):
     assert r.rms_mm(start=5.0) < 0.05
 
 
+@pytest.mark.slow
 def test_widening_mid_episode_continues_with_the_wider_model(kin_env):
     """An MPC on the geometric model, widened half-way through an episode on an elastic arm:
     the model, the MPC's tool model and the estimator take compliance, what was learned stays,
