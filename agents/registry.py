@@ -9,6 +9,7 @@
 | `mpc`          | kinematic MPC (QP, daqp) with online recursive least-squares calibration    |
 | `mpc-ipopt`    | the same MPC as a nonlinear program solved by IPOPT                         |
 | `mpc-oracle`   | the MPC given the plant's true model (needs the env's truth)                |
+| `mpc-diagnose` | the MPC that diagnoses its own model with the lab and widens it             |
 | `ppo`          | the shipped PPO policy (stable-baselines3)                                  |
 | `ppo-residual` | the shipped residual PPO policy on top of the nominal controller            |
 """
@@ -66,6 +67,12 @@ def _mpc_oracle(**kw):
     return MPCAgent(**({"oracle": True} | kw))
 
 
+def _mpc_diagnose(**kw):
+    from agents.self_diagnosis import DiagnosingMPCAgent
+
+    return DiagnosingMPCAgent(**kw)
+
+
 def _ppo(**kw):
     from agents.ppo import PPOAgent
 
@@ -85,6 +92,7 @@ AGENTS: dict[str, Callable[..., Agent]] = {
     "mpc": _mpc,
     "mpc-ipopt": _mpc_ipopt,
     "mpc-oracle": _mpc_oracle,
+    "mpc-diagnose": _mpc_diagnose,
     "ppo": _ppo,
     "ppo-residual": _ppo_residual,
 }
@@ -97,7 +105,7 @@ def agent_names() -> list[str]:
 def resolve_agent(name: str) -> tuple[Callable[..., Agent], Callable[..., Any]]:
     """The factory of ``name`` and the callable whose signature its settings must fit."""
     if name in AGENTS:
-        from agents import mpc, ppo, reference
+        from agents import mpc, ppo, reference, self_diagnosis
 
         cls = {
             "hold": reference.HoldAgent,
@@ -106,6 +114,7 @@ def resolve_agent(name: str) -> tuple[Callable[..., Agent], Callable[..., Any]]:
             "mpc": mpc.MPCAgent,
             "mpc-ipopt": mpc.MPCAgent,
             "mpc-oracle": mpc.MPCAgent,
+            "mpc-diagnose": self_diagnosis.DiagnosingMPCAgent,
             "ppo": ppo.PPOAgent,
             "ppo-residual": ppo.PPOAgent,
         }[name]

@@ -87,11 +87,14 @@ def test_registry_names_settings_and_user_classes():
         "mpc",
         "mpc-ipopt",
         "mpc-oracle",
+        "mpc-diagnose",
         "ppo",
         "ppo-residual",
     }
     assert make_agent("mpc-ipopt").name == "mpc-ipopt"
     assert make_agent("mpc-oracle").needs_truth
+    assert make_agent("mpc-diagnose").name == "mpc-diagnose"
+    assert not make_agent("mpc-diagnose").needs_truth
     user = make_agent("tests.test_agents_runner:ConstantAgent", value=0.2)
     assert isinstance(user, ConstantAgent) and user.value == 0.2
     with pytest.raises(AgentError, match="unknown agent 'mpcc'"):
