@@ -20,6 +20,7 @@ single run starts, naming the file and the key.
     name = "mpc"                         # a registered agent, or "package.module:Class"
     label = "mpc-h20"                    # optional: how it shows in records and the leaderboard
     settings = { horizon = 20 }          # keyword arguments of the agent
+    scenario_settings = { backlash = { effects = "geometric,backlash" } }   # per scenario, on top
     env = { preview_steps = 20 }         # optional env overrides for this agent
 
     campaign = { kind = "workspace", judge_posture = "reach" }   # or: phases of a named campaign
@@ -119,6 +120,11 @@ class AgentEntry:
     agent: str
     settings: dict[str, Any] = field(default_factory=dict)
     env: dict[str, Any] = field(default_factory=dict)
+    scenario_settings: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def settings_for(self, scenario_label: str) -> dict[str, Any]:
+        """The agent's settings on one scenario: ``settings``, then that scenario's own."""
+        return dict(self.settings) | dict(self.scenario_settings.get(scenario_label, {}))
 
 
 @dataclass(frozen=True)
@@ -242,6 +248,7 @@ class ExperimentConfig:
             "env": dict(self.env),
             "agents": [
                 {"label": a.label, "name": a.agent, "settings": a.settings, "env": a.env}
+                | ({"scenario_settings": a.scenario_settings} if a.scenario_settings else {})
                 for a in self.agents
             ],
             "scenarios": [
@@ -266,7 +273,7 @@ class ExperimentConfig:
                             config_name=self.name,
                             agent_label=a.label,
                             agent=a.agent,
-                            settings=dict(a.settings),
+                            settings=a.settings_for(s.label),
                             scenario_label=s.label,
                             scenario=s.scenario,
                             env_id=self.env_id,
@@ -301,7 +308,7 @@ _TOP_KEYS = {
     "campaign": dict,
 }
 _REQUIRED = ("seeds", "agents", "scenarios")
-_AGENT_KEYS = {"name", "label", "settings", "env"}
+_AGENT_KEYS = {"name", "label", "settings", "env", "scenario_settings"}
 _SCENARIO_KEYS = {"name", "scenario", "env"}
 _PHASE_KEYS = {"name", "seconds", "judged", "env"}
 
@@ -503,8 +510,39 @@ def parse_config(
             bad(f"{where}.env: expected a table, got {_tname(aenv)}")
             aenv = {}
         _check_env_kwargs(aenv, f"{where}.env", env_info, bad)
-        if _check_agent(agent, settings, where, bad, construct=check_agents):
-            agents.append(AgentEntry(label, agent, dict(settings), dict(aenv)))
+        per = a.get("scenario_settings", {})
+        if not _is(per, dict) or not all(_is(v, dict) for v in per.values()):
+            bad(f"{where}.scenario_settings: expected a table of tables (scenario -> settings)")
+            per = {}
+        known = {s.label for s in scenarios}
+        for sc in per:
+            if sc not in known:
+                bad(
+                    f"{where}.scenario_settings.{sc}: not a scenario of this config "
+                    f"({', '.join(sorted(known))})"
+                )
+        ok = _check_agent(agent, settings, where, bad, construct=check_agents)
+        for sc, extra in per.items():
+            ok = (
+                _check_agent(
+                    agent,
+                    dict(settings) | dict(extra),
+                    f"{where}.scenario_settings.{sc}",
+                    bad,
+                    construct=check_agents,
+                )
+                and ok
+            )
+        if ok:
+            agents.append(
+                AgentEntry(
+                    label,
+                    agent,
+                    dict(settings),
+                    dict(aenv),
+                    {k: dict(v) for k, v in per.items()},
+                )
+            )
     labels = [a.label for a in agents]
     for dup in sorted({x for x in labels if labels.count(x) > 1}):
         bad(f"agents: the label {dup!r} appears twice (give one a 'label')")

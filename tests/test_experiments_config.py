@@ -265,3 +265,32 @@ def test_shipped_configs_have_three_seeds_and_the_whole_episode_metrics(name):
     cfg = load_config(CONFIGS / f"{name}.toml")
     assert len(cfg.seeds) >= 3
     assert {"rms_mm", "rms_settled_mm", "converge_s", "max_settled_mm"} <= set(cfg.metrics)
+
+
+def test_scenario_settings_are_merged_per_scenario_and_checked(tmp_path):
+    cfg = tmp_path / "informed.toml"
+    cfg.write_text(
+        """
+seeds = 1
+episode_seconds = 4.0
+scenarios = ["geometric", "backlash"]
+[[agents]]
+name = "mpc"
+label = "mpc-informed"
+settings = { horizon = 8 }
+scenario_settings = { backlash = { effects = "geometric,backlash" } }
+"""
+    )
+    runs = {r.scenario_label: r.settings for r in load_config(cfg).runs()}
+    assert runs == {
+        "geometric": {"horizon": 8},
+        "backlash": {"horizon": 8, "effects": "geometric,backlash"},
+    }
+    cfg.write_text(cfg.read_text().replace("backlash = {", "thermal = {"))
+    with pytest.raises(ConfigError, match=r"scenario_settings\.thermal: not a scenario"):
+        load_config(cfg)
+    cfg.write_text(
+        cfg.read_text().replace('thermal = { effects = "geometric,backlash" }', "backlash = 3")
+    )
+    with pytest.raises(ConfigError, match="table of tables"):
+        load_config(cfg)
