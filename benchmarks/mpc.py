@@ -1,10 +1,11 @@
 """Kinematic MPC solve time per control step, QP against IPOPT, with the tracking error of each,
 in one run: the same seeded SixAxisTrack-v0 episodes driven by the MPC with online calibration,
-its linearised QP solved by DAQP, qpOASES and OSQP through CasADi, and the full nonlinear program
-solved by IPOPT. A step's time is everything the agent does in ``act``: the recursive
-least-squares update when a measurement arrives, the model's point and Jacobian, the QP and its
-solution (so the "model update" is included). Targets: QP median under 0.5 ms, at least 10x
-faster than IPOPT, at equal tracking error. Writes section ``mpc`` of results/benchmarks.md.
+its linearised QP (the closed-form step with DAQP when a bound binds, the default; DAQP on every
+step; qpOASES and OSQP) and the full nonlinear program solved by IPOPT. A step's time is
+everything the agent does in ``act``: the estimator's update when a tracker point arrives, the
+model's point and Jacobian, the QP and its solution (so the "model update" is included).
+Targets (issue 12): the default's median step at least 60x faster than IPOPT's median, its p95
+at most 2x its median, at equal tracking error. Writes section ``mpc`` of results/benchmarks.md.
 
     python benchmarks/mpc.py [--seeds 3] [--scenario geometric]
 """
@@ -23,16 +24,23 @@ from agents.registry import make_agent
 from agents.runner import run_episode
 from benchmarks._report import machine, write_section
 
-SOLVERS = ("daqp", "qpoases", "osqp", "ipopt")
-TARGET_MEDIAN_S = 0.5e-3
-TARGET_SPEEDUP = 10.0
-SETTLE_S = 3.0
+#: (row name, MPCAgent settings): the default first
+SOLVERS = {
+    "daqp": {"solver": "daqp"},
+    "daqp-every-step": {"solver": "daqp", "closed_form": False},
+    "qpoases": {"solver": "qpoases"},
+    "osqp": {"solver": "osqp"},
+    "ipopt": {"solver": "ipopt"},
+}
+TARGET_SPEEDUP = 60.0
+TARGET_P95 = 2.0
+SETTLE_S = 2.0
 
 
 def measure(solver: str, seed: int, scenario: str) -> dict:
     """One episode: per-step times, the estimator's update on the steps that had a tracker
     point (``act`` at step k sees the info of step k-1), and the tracking RMS."""
-    agent = make_agent("mpc", solver=solver)
+    agent = make_agent("mpc", **SOLVERS[solver])
     r = run_episode(agent, {"scenario": scenario}, seed=seed)
     t = r.solve_time_s
     u = np.asarray(agent._update_times)
@@ -42,6 +50,8 @@ def measure(solver: str, seed: int, scenario: str) -> dict:
         "p95": float(np.percentile(t, 95)),
         "update_median": float(np.median(u[had_point])),
         "rms": r.rms_mm(start=SETTLE_S),
+        "rms_whole": r.rms_mm(),
+        "constrained": int(getattr(agent.mpc, "n_constrained", 0)),
     }
 
 
@@ -66,11 +76,16 @@ def main() -> None:
         p95 = float(np.median([m["p95"] for m in ms]))
         upd = float(np.median([m["update_median"] for m in ms]))
         rms = np.array([m["rms"] for m in ms])
-        rows.append((s, median, p95, upd, ipopt_median / median, rms.mean(), rms - ipopt_rms))
+        whole = np.array([m["rms_whole"] for m in ms])
+        rows.append(
+            (s, median, p95, upd, ipopt_median / median, rms.mean(), whole.mean(), rms - ipopt_rms)
+        )
     qp = {r[0]: r for r in rows}
-    ok_median = qp["daqp"][1] < TARGET_MEDIAN_S
-    ok_speed = qp["daqp"][4] >= TARGET_SPEEDUP
-    ok_equal = np.all(np.abs(qp["daqp"][6]) <= 0.1 * ipopt_rms + 1e-3)
+    d = qp["daqp"]
+    ok_speed = d[4] >= TARGET_SPEEDUP
+    ok_p95 = d[2] <= TARGET_P95 * d[1]
+    ok_equal = np.all(np.abs(d[7]) <= 0.1 * ipopt_rms + 1e-3)
+    constrained = sum(m["constrained"] for m in res["daqp"])
     lines = [
         "## Kinematic MPC: solve time per control step, QP vs IPOPT",
         "",
@@ -82,29 +97,38 @@ def main() -> None:
         "steps (60 variables, 120 constraint rows). A step's time is the whole `act`: the "
         "estimator's update when a tracker point arrives, the model's point and Jacobian, the "
         "QP's data and its solution. Times are medians over seeds of per-episode statistics; "
-        f"the tracking RMS is after the first {SETTLE_S:g} s, mean over seeds.",
+        f"the tracking RMS after the first {SETTLE_S:g} s and over the whole episode, mean over "
+        "seeds. `daqp` is the default: the QP's unconstrained minimiser in closed form, DAQP "
+        "when it violates a bound; `daqp-every-step` runs DAQP (through CasADi, cold) on every "
+        "step, as the MPC did before.",
         "",
-        "| solver | median (ms) | p95 (ms) | estimator update on a tracker step, median (ms) | "
-        "speed-up vs IPOPT (medians) | tracking RMS (mm) | max abs difference to IPOPT's RMS "
-        "(mm) |",
-        "|---|---|---|---|---|---|---|",
+        "| solver | median (ms) | p95 (ms) | p95 / median | estimator update on a tracker step, "
+        "median (ms) | speed-up vs IPOPT (medians) | tracking RMS settled / whole (mm) | max abs "
+        "difference to IPOPT's settled RMS (mm) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
-    for s, median, p95, upd, speed, rms, diff in rows:
+    for s, median, p95, upd, speed, rms, whole, diff in rows:
         name = "IPOPT (full NLP)" if s == "ipopt" else f"QP, {s}"
         lines.append(
-            f"| {name} | {median * 1e3:.3f} | {p95 * 1e3:.3f} | {upd * 1e3:.3f} | "
-            f"{speed:.1f}x | {rms:.4f} | {np.abs(diff).max():.4f} |"
+            f"| {name} | {median * 1e3:.3f} | {p95 * 1e3:.3f} | {p95 / median:.2f} | "
+            f"{upd * 1e3:.3f} | {speed:.1f}x | {rms:.4f} / {whole:.4f} | {np.abs(diff).max():.4f} |"
         )
     lines += [
         "",
-        f"Targets (DAQP, the default): median under {TARGET_MEDIAN_S * 1e3:.1f} ms including "
-        f"the model update: **{'met' if ok_median else 'not met'}** "
-        f"({qp['daqp'][1] * 1e3:.3f} ms); at least {TARGET_SPEEDUP:g}x faster than IPOPT: "
-        f"**{'met' if ok_speed else 'not met'}** ({qp['daqp'][4]:.1f}x); equal tracking error "
-        f"(within 10 % of IPOPT's or 1 um, every seed): **{'met' if ok_equal else 'not met'}**.",
-        "The p95 falls on the steps where a tracker point arrives (every 5th) and the estimator "
-        "updates (its own time is the fourth column). OSQP (ADMM) stops at its iteration limit "
-        "when many acceleration limits bind (the initial transient). IPOPT's p95 is its first, "
+        f"Targets (the default, `daqp`): median step at least {TARGET_SPEEDUP:g}x faster than "
+        f"IPOPT's: **{'met' if ok_speed else 'not met'}** ({d[4]:.1f}x, {d[1] * 1e3:.3f} ms); "
+        f"p95 at most {TARGET_P95:g}x the median: **{'met' if ok_p95 else 'not met'}** "
+        f"({d[2] / d[1]:.2f}x); equal tracking error (within 10 % of IPOPT's or 1 um, every "
+        f"seed): **{'met' if ok_equal else 'not met'}**. A bound bound on {constrained} of "
+        f"{500 * args.seeds} steps (the solver ran there).",
+        "Where the time goes: every CasADi function is called through its own buffers "
+        "(`Function.buffer`; a plain call's numpy conversions cost 30-40 us, more than the "
+        "evaluation); the QP's step is one compiled function (the model's point and Jacobian, the "
+        "gradient, the closed-form minimiser from the Hessian's Kronecker structure, the "
+        "constraint check); the estimator's update is one compiled function (its information "
+        "refactored by CasADi's LDL: the regularised forgetting's (1 - lam) I term is full rank, "
+        "so a rank-one factor update cannot take it). The p95 falls on the tracker steps (every "
+        "5th), which add the estimator's update (fourth column). IPOPT's p95 is its first, "
         "cold, solves and the transient.",
     ]
     path = write_section("mpc", "\n".join(lines))
