@@ -9,21 +9,21 @@ truth, no scenario name.
 **When.** After ``first_points`` tracker points it runs the lab's diagnosis
 (:func:`lab.diagnose`, with the instrument's noise and a family-wise level ``alpha``) on the
 buffer. If the model is adequate (verdict ``none``) it stops and watches its innovations; if not,
-it tries again after half as many points again (15, 23, 35, ... by default), so that a short
-buffer that cannot yet separate an effect gets more data, at a cost that grows slowly. It
+it tries again on 30 % more points (15, 20, 26, 34, ... by default), so that a short buffer
+that cannot yet separate an effect gets more data, at a cost that grows slowly; after widening it
+looks again at the wider model. It
 diagnoses again when the innovations say the model has become insufficient (a payload change,
 say): the last ``monitor_points`` innovations, normalised by the noise, beyond their chi-square
 level ``monitor_p``.
 
 **What it uses.** The diagnosis's explanation (its ``suggestion``), also when the verdict is
 ``unexplained`` (on backlash the catalogue explains part of the residual only: the plant's gap
-closes over time, the model flips it at once), each effect **guarded by a held-out test**:
-estimators of the current model and of the model with the effect added are re-run over the
-buffer from their priors, and the effect is kept only if the wider one predicts the points
-better, each point before it has seen it (one-step-ahead, prequential: the squared prediction
-errors after a burn-in must fall to at most ``guard`` of the narrower model's). Extra parameters
-cost prediction error until they are learned, so an effect the data do not support (a spurious
-compliance term next to backlash, a gear-ratio term where compliance is) does not pass.
+closes over time, the model flips it at once). The first effect the diagnosis chose is
+significant and predicts left-out poses (the lab's own confirmation); each further one must
+pass a **held-out test** against spurious extras (a compliance term beside backlash, a
+gear-ratio term where compliance is): the model with and without it is fitted on the buffer
+but its last ``holdout`` fraction, and the effect is kept only if it predicts those later points
+better (RMS at most ``guard`` of the model without it).
 
 **How it widens.** The model, the MPC and the estimator take the kept effects; the estimator
 continues from the one re-run over the buffer (``relearn``, default), which is what an estimator
@@ -86,9 +86,8 @@ for _name in ("lab.identifiability", "lab.identification", "lab.diagnosis"):
 @dataclass
 class DiagnosisRecord:
     """One diagnosis of the agent's model: when it started and was adopted, on how many points,
-    the lab's verdict and suggestion, what the held-out test kept (with the ratio of squared
-    one-step-ahead prediction errors, wider over narrower, of each effect tried), and the
-    model's effects after it."""
+    the lab's verdict and suggestion, the effects it kept (with the held-out RMS ratio, with over
+    without, of each extra effect tried), and the model's effects after it."""
 
     step: int
     time_s: float
@@ -140,9 +139,8 @@ class DiagnosingMPCAgent(MPCAgent):
     Settings beyond :class:`~agents.mpc.MPCAgent`'s: ``first_points`` (tracker points before the
     first diagnosis), ``growth`` (each retry waits for this factor more points), ``lag_steps``
     (control steps from a diagnosis's start to its adoption), ``alpha`` (the lab's family-wise
-    false-alarm level per diagnosis), ``guard`` (the held-out test's ratio),
-    ``burn_in`` (points the held-out test skips while both estimators leave their prior),
-    ``window`` (the most recent points a diagnosis uses), ``monitor_points`` and ``monitor_p``
+    false-alarm level per diagnosis), ``guard`` and ``holdout`` (the held-out test: the RMS ratio
+    an extra effect must reach on the buffer's last ``holdout`` fraction), ``window`` (the most recent points a diagnosis uses), ``monitor_points`` and ``monitor_p``
     (the innovation test that starts a new diagnosis), ``candidates`` (effects to test; default
     the lab's catalogue), ``relearn`` (re-run the widened estimator over the buffer).
     """
