@@ -551,10 +551,12 @@ class MPCAgent(Agent):
         self.rls: RecursiveLeastSquares | None = None
         self.model: ErrorModel | None = None
         self.p: np.ndarray | None = None
+        self.truth: Truth | None = None  # oracles only
 
     # -- episode ---------------------------------------------------------------------------------
     def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
         self.task = task
+        self.truth = truth
         if self.oracle:
             if truth is None:
                 raise ValueError("mpc-oracle needs the plant's truth (env.unwrapped.truth)")
@@ -604,6 +606,7 @@ class MPCAgent(Agent):
 
     def next_phase(self, task: TaskInfo, truth: Truth | None = None) -> None:
         self.task = task
+        self.truth = truth
         self._start_phase()
 
     # -- widening ----------------------------------------------------------------------------------
@@ -682,9 +685,12 @@ class MPCAgent(Agent):
             self.buffer.append(q_meas, y, cols, accepted)
 
     def _columns(self, o: Observation) -> np.ndarray:
-        if o.payload is not None:
-            self.payload = o.payload
-        cols = {"temperature": o.temperature, "payload": self.payload}
+        if self.oracle and self.truth is not None:  # the plant's exact conditions, not sensors
+            cols = dict(self.truth.conditions())
+        else:
+            if o.payload is not None:
+                self.payload = o.payload
+            cols = {"temperature": o.temperature, "payload": self.payload}
         cols.update({f"dir{i + 1}": float(self.dirs[i]) for i in range(6)})
         return self.tm.column_vector(cols)
 

@@ -17,6 +17,13 @@ Because every phase is reset with the same seed, phases that differ only in traj
 their paths around the same random posture; :func:`workspace_campaign` sets each phase's
 ``posture`` so that calibration covers the workspace and the judged region is a new one.
 
+What the agent is given is what a real controller has: the observation, the env's ``task`` (which
+does not name the scenario) and, of each step's ``info``, only :data:`envs.task.CONTROLLER_INFO_KEYS`
+(the tracker's measurement, the reference, the time, the divergence flag). The true tool point and
+error, the reward's parts and the plant's exact temperature and payload stay here, for the
+metrics. The plant's truth (:class:`envs.task.Truth`) is handed to agents that declare
+``needs_truth = True`` (oracles) and to no other.
+
 Deterministic: the same agent settings, env settings and seed give the same arrays (timings
 aside). Inputs and outputs are plain data, so runs can be farmed out to other processes.
 """
@@ -32,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from agents.base import Agent
-from envs.task import Truth
+from envs.task import Truth, controller_info
 
 __all__ = [
     "ENV_ID",
@@ -328,7 +335,7 @@ def run_episode(
                 agent.next_phase(task, truth=truth if agent.needs_truth else None)
             n = 0
             while True:
-                action = agent.act(obs, info)
+                action = agent.act(obs, controller_info(info))
                 solve = float(getattr(agent, "last_solve_time", 0.0))
                 obs, _, terminated, truncated, info = env.step(action)
                 n += 1

@@ -4,11 +4,19 @@ steps, adds independent Gaussian noise of ``noise_mm`` per axis, loses a sample 
 (``enabled=False``) it models production running blind.
 
 A measurement carries what an estimator needs to use it late: the encoder reading, the time and
-the lab's columns (temperature, payload, dir1..dir6) *at the instant it was sampled*.
+the lab's columns (temperature, payload, dir1..dir6) *at the instant it was sampled*, as the
+controller had them: the temperature sensor's reading and the declared payload.
+
+The arm's temperature is read by a :class:`TemperatureSensor`: a first-order lag behind the
+structure's temperature (``lag`` seconds, its time constant: a probe in the casting warms more
+slowly than the links) plus independent Gaussian noise of ``noise`` kelvin per reading, one
+reading per control step. At the start of an episode the arm has stood still, so the probe is
+at the structure's temperature.
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -16,7 +24,13 @@ import numpy as np
 
 from arm.errors import SixAxisError
 
-__all__ = ["InstrumentError", "LaserTracker", "Measurement", "TrackerConfig"]
+__all__ = [
+    "InstrumentError",
+    "LaserTracker",
+    "Measurement",
+    "TemperatureSensor",
+    "TrackerConfig",
+]
 
 
 class InstrumentError(SixAxisError, ValueError):
@@ -118,3 +132,34 @@ class LaserTracker:
         while q and q[0][0] <= step:
             out = q.popleft()[1]
         return out
+
+
+class TemperatureSensor:
+    """See the module docstring: ``reset(rng, temperature)`` at each episode (the probe settled at
+    the structure's temperature), ``read(temperature, dt)`` once per control step with the
+    structure's temperature now (degC): the probe follows it with time constant ``lag`` (s; 0: no
+    lag) and each reading adds noise of standard deviation ``noise`` (K)."""
+
+    def __init__(self, noise: float = 0.1, lag: float = 3.0) -> None:
+        if not (np.isfinite(noise) and noise >= 0):
+            raise InstrumentError(f"temperature_noise must be >= 0 K, got {noise}")
+        if not (np.isfinite(lag) and lag >= 0):
+            raise InstrumentError(f"temperature_lag must be >= 0 s, got {lag}")
+        self.noise = float(noise)
+        self.lag = float(lag)
+        self._probe = 20.0
+        self._rng = np.random.default_rng(0)
+        self.reading = 20.0
+
+    def reset(self, rng: np.random.Generator, temperature: float) -> float:
+        self._rng = rng
+        self._probe = float(temperature)
+        self.reading = self._probe + self.noise * float(rng.normal())
+        return self.reading
+
+    def read(self, temperature: float, dt: float) -> float:
+        # the exact step response of a first-order lag over dt, the input held over the step
+        a = 1.0 if self.lag == 0 else 1.0 - math.exp(-dt / self.lag)
+        self._probe += a * (float(temperature) - self._probe)
+        self.reading = self._probe + self.noise * float(self._rng.normal())
+        return self.reading

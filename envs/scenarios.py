@@ -12,11 +12,17 @@ Overrides: ``{effect: {name: value}}`` where ``name`` is one parameter (``c2``, 
 where the effect's sign is not physical). ``{"geometric": {"scale": 0}}`` gives a perfect
 geometry. Every draw is made whether or not it is overridden, so an override never shifts the other
 draws of the same seed.
+
+The ``payload`` scenario also draws how the operator *declares* the change to the controller (the
+observation's payload): the start's payload is declared right, the change ``declare_delay``
+seconds late (0.5-3 s) and off by ``declare_error`` kg (0-0.5 kg, either sign; the declared mass
+is never below 0). ``overrides={"payload": {"declare_delay": 0, "declare_error": 0}}`` declares
+it at once and right. These draws come last, so the arm of a seed is what it was without them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -128,12 +134,15 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
         "payload0": (0.0, 2.0),  # kg at the start
         "payload1": (0.0, 3.0),  # kg after the change
         "change_time": (3.0, 7.0),  # s
+        # the operator's declaration of the change to the controller: late and wrong
+        "declare_delay": (0.5, 3.0),  # s after the change
+        "declare_error": (0.0, 0.5),  # kg, either sign
     },
 }
 # Link-side bearing friction (N*m) of the seed arm's class, joints 1..6: holds a link in its gap
 # where gravity does not (an override of "bf"/"bf3" gives N*m directly).
 BEARING_FRICTION = (4.0, 4.0, 3.0, 2.0, 2.0, 0.5)
-_SIGNED = {"ts", "tc", "g"}
+_SIGNED = {"ts", "tc", "g", "declare_error"}
 _PER_JOINT = {"c", "ts", "tc", "g", "bl", "bf"}
 
 
@@ -147,7 +156,11 @@ class EpisodeTruth:
     plant's (geometric plus compliance ``c_i = 1/k_i``, transmission and joint_scale, backlash
     where friction holds a link and load_backlash where gravity does, thermal) and its true
     parameter vector laid out by ``model.layout``; ``hidden``: the plant's physical magnitudes;
-    ``magnitudes``: the same as plain values by name (stiffness, gap, kappa, payload schedule...).
+    ``magnitudes``: the same as plain values by name (stiffness, gap, kappa, payload schedule...);
+    ``declared_payload``: what the operator declares to the controller, ``((time, kg), ...)`` from
+    time 0 (in the ``payload`` scenario late and wrong, see the module docstring).
+    :meth:`conditions` gives the plant's exact temperature and payload now, once the env has bound
+    it to its plant (:meth:`bind`), for oracle controllers.
 
     The model is exact (to about a micrometre) for a settled arm in the geometric, compliance,
     transmission, thermal and payload scenarios. It is an approximation where physics does more
@@ -163,10 +176,34 @@ class EpisodeTruth:
     params: np.ndarray
     hidden: HiddenEffects
     magnitudes: dict[str, Any] = field(default_factory=dict)
+    declared_payload: tuple[tuple[float, float], ...] = ((0.0, 0.0),)
+    _live: Callable[[], Mapping[str, float]] | None = field(default=None, repr=False, compare=False)
 
     def parameters(self) -> dict[str, float]:
         """The true parameters by name."""
         return self.model.layout.as_dict(self.params)
+
+    def bind(self, live: Callable[[], Mapping[str, float]]) -> None:
+        """Make :meth:`conditions` read the plant's state through ``live`` (the env does)."""
+        self._live = live
+
+    def conditions(self) -> dict[str, float]:
+        """The plant's exact ``temperature`` (degC) and ``payload`` (kg) now; the episode's start
+        values if no plant is bound."""
+        if self._live is not None:
+            return dict(self._live())
+        return {
+            "temperature": float(self.hidden.temperature0),
+            "payload": float(self.true_robot.payload),
+        }
+
+    def declared_payload_at(self, t: float) -> float:
+        """The payload (kg) declared to the controller at time ``t`` (s)."""
+        mass = self.declared_payload[0][1]
+        for when, m in self.declared_payload:
+            if t + 1e-9 >= when:
+                mass = m
+        return float(mass)
 
 
 def get_scenario(scenario: str | Scenario) -> Scenario:
@@ -299,6 +336,10 @@ def draw_truth(
     payload0 = _draw(rng, "payload", "payload0", po)
     payload1 = _draw(rng, "payload", "payload1", po)
     change = _draw(rng, "payload", "change_time", po)
+    declare_delay = _draw(rng, "payload", "declare_delay", po)
+    declare_error = _draw(rng, "payload", "declare_error", po)
+    if declare_delay < 0:
+        raise ScenarioError(f"payload declare_delay must be >= 0 s, got {declare_delay}")
 
     compliant = "compliance" in on
     if compliant and np.any(c <= 0):
@@ -364,9 +405,15 @@ def draw_truth(
             "heating": heating,
             "cooling_time": cooling,
         }
+    declared: tuple[tuple[float, float], ...] = ((0.0, hidden.payload0),)
     if "payload" in on:
-        mags |= {"payload0": payload0, "payload_schedule": hidden.payload_schedule}
-    return EpisodeTruth(sc.name, true_robot, model, params, hidden, mags)
+        declared += ((change + declare_delay, max(0.0, payload1 + declare_error)),)
+        mags |= {
+            "payload0": payload0,
+            "payload_schedule": hidden.payload_schedule,
+            "declared_payload": declared,
+        }
+    return EpisodeTruth(sc.name, true_robot, model, params, hidden, mags, declared)
 
 
 def _backlash_kinds(

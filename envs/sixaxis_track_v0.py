@@ -19,7 +19,7 @@ import numpy as np
 from gymnasium import spaces
 
 from arm.description import RobotDescription, load_robot
-from envs.instrument import LaserTracker, TrackerConfig
+from envs.instrument import LaserTracker, TemperatureSensor, TrackerConfig
 from envs.plant import MAX_SPEED, Plant
 from envs.scenarios import EpisodeTruth, Scenario, draw_truth, get_scenario
 from envs.task import TaskInfo
@@ -97,11 +97,20 @@ class SixAxisTrackEnv(gym.Env):
     | 45-47      | last laser-tracker measurement (zeros before one)   | -Inf | Inf | meas              | m       |
     | 48         | age of that measurement (10 before the first)       | 0    | 10  | meas_age          | s       |
     | 49         | 1 if a new measurement arrived this step, else 0    | 0    | 1   | meas_valid        | 0/1     |
-    | 50         | arm temperature                                     | -Inf | Inf | temperature       | degC    |
-    | 51         | payload mass (declared to the controller)           | 0    | Inf | payload           | kg      |
+    | 50         | arm temperature, as its sensor reads it (see below) | -Inf | Inf | temperature       | degC    |
+    | 51         | payload mass, as the operator declared it           | 0    | Inf | payload           | kg      |
 
     (indices for ``preview_steps=10``; with P preview steps the preview spans 15..15+3P-1 and the
     rest shifts.)
+
+    The two conditions are sensors, not the plant's state. ``temperature`` is a probe on the arm:
+    a first-order lag of ``temperature_lag`` (3 s) behind the structure's temperature, plus
+    Gaussian noise of ``temperature_noise`` (0.1 K, one standard deviation) on every reading
+    (``task.temperature_noise``/``task.temperature_lag``). ``payload`` is what the operator
+    declared: right at the start; in the ``payload`` scenario the change is declared 0.5-3 s late
+    and 0-0.5 kg off (drawn per episode; ``overrides={"payload": {"declare_delay": 0,
+    "declare_error": 0}}`` declares it at once and right), so a controller must notice the change
+    in its measurements.
 
     ## Rewards
     ``reward = reward_tracking + reward_jerk`` with ``reward_tracking = -|p_true - p_ref|`` in mm
@@ -113,13 +122,25 @@ class SixAxisTrackEnv(gym.Env):
     ## Info
     Every step (and reset) gives: ``true_error_mm`` (float), ``true_tool`` (3,), ``reference``
     (3,), ``measurement_valid`` (bool: a new measurement arrived this step), ``reward_tracking``,
-    ``reward_jerk``, ``diverged``, ``time`` (s), ``temperature`` (degC), ``payload`` (kg),
-    ``trajectory`` (kind). When ``measurement_valid`` is True it also gives ``measurement`` (3,)
-    the measured point, ``measurement_q`` (6,) the encoder reading at the instant that point was
-    sampled (it differs from the current one with latency), ``measurement_time`` (s, when sampled)
-    and ``measurement_columns`` {t, temperature, payload, dir1..dir6} at that instant; without a
-    new measurement these keys are absent (use ``info.get``; Gymnasium's vector envs mask them),
-    never NaN, so that equal seeds give equal infos.
+    ``reward_jerk``, ``diverged``, ``time`` (s), ``temperature`` (degC) and ``payload`` (kg) (the
+    plant's exact values), ``trajectory`` (kind). When ``measurement_valid`` is True it also
+    gives ``measurement`` (3,) the measured point, ``measurement_q`` (6,) the encoder reading at
+    the instant that point was sampled (it differs from the current one with latency),
+    ``measurement_time`` (s, when sampled) and ``measurement_columns`` {t, temperature, payload,
+    dir1..dir6} at that instant as the controller had them (the sensor's temperature, the
+    declared payload, the commanded directions); without a new measurement these keys are absent
+    (use ``info.get``; Gymnasium's vector envs mask them), never NaN, so that equal seeds give
+    equal infos.
+
+    | info key                                   | who gets it                                    |
+    |--------------------------------------------|------------------------------------------------|
+    | `measurement`, `measurement_q`, `measurement_time`, `measurement_valid`, `measurement_columns` | controllers |
+    | `reference`, `time`, `diverged`            | controllers                                    |
+    | `true_error_mm`, `true_tool`, `reward_tracking`, `reward_jerk`, `temperature`, `payload`, `trajectory` | evaluation only |
+
+    The benchmark's runner (``agents.runner.run_episode``) hands a controller's ``act`` only the
+    controllers' keys (``envs.task.controller_info``); an RL policy learns from the reward, which
+    is the true error, like any Gymnasium env's.
 
     ## Scenarios
     Magnitudes are drawn per episode from the seed (SPEC section 2; ``envs.scenarios.RANGES``)
@@ -137,10 +158,11 @@ class SixAxisTrackEnv(gym.Env):
     | `all`          | everything at once                                                            |
 
     ## Hidden truth
-    ``env.unwrapped.task`` (:class:`~envs.task.TaskInfo`) is what an agent may use. ``env.unwrapped.truth``
-    (:class:`~envs.scenarios.EpisodeTruth`) is for evaluation and oracle controllers only: the true
-    description, an ``ErrorModel`` approximating the plant with its true ``params``, and the raw
-    magnitudes.
+    ``env.unwrapped.task`` (:class:`~envs.task.TaskInfo`) is what an agent may use; it does not
+    name the scenario. ``env.unwrapped.truth`` (:class:`~envs.scenarios.EpisodeTruth`) is for
+    evaluation and oracle controllers only: the scenario, the true description, an
+    ``ErrorModel`` approximating the plant with its true ``params``, the raw magnitudes, and
+    ``truth.conditions()``, the plant's exact temperature and payload now.
 
     ## Starting State
     ``reset(seed=...)`` draws the truth (scenario magnitudes), the trajectory and the instrument
@@ -167,6 +189,8 @@ class SixAxisTrackEnv(gym.Env):
     | `dropout`       | float       | `0.0`         | probability that a sample is lost                            |
     | `latency_steps` | int         | `0`           | delivery delay of a sample, control steps                    |
     | `measurements`  | bool        | `True`        | False: no tracker (production running blind)                 |
+    | `temperature_noise` | float   | `0.1`         | temperature sensor noise per reading (1 sigma), K            |
+    | `temperature_lag` | float     | `3.0`         | time constant of the temperature sensor's first-order lag, s |
     | `preview_steps` | int         | `10`          | reference points ahead in the observation                    |
     | `jerk_weight`   | float       | `0.01`        | weight of the command-jerk penalty                           |
     | `robot`         | str or RobotDescription | `"seed"` | the nominal arm (needs a mass model)                  |
@@ -175,7 +199,10 @@ class SixAxisTrackEnv(gym.Env):
     | `width`, `height` | int       | `640`, `480`  | rendered frame size                                          |
 
     ## Version History
-    * v0: initial version.
+    * v0: initial version (not released; changed in place). The observation's temperature is a
+      sensor (noise and lag) and its payload the operator's declaration (late and wrong in the
+      ``payload`` scenario), no longer the plant's exact values; ``TaskInfo`` no longer names the
+      scenario; controllers get only the controllers' info keys from the runner.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
@@ -191,6 +218,8 @@ class SixAxisTrackEnv(gym.Env):
         dropout: float = 0.0,
         latency_steps: int = 0,
         measurements: bool = True,
+        temperature_noise: float = 0.1,
+        temperature_lag: float = 3.0,
         preview_steps: int = 10,
         jerk_weight: float = 0.01,
         robot: str | RobotDescription = "seed",
@@ -232,6 +261,7 @@ class SixAxisTrackEnv(gym.Env):
                 enabled=bool(measurements),
             )
         )
+        self.thermometer = TemperatureSensor(float(temperature_noise), float(temperature_lag))
         drive = self.plant.drive
         P = int(preview_steps)
         slices = _layout(P)
@@ -249,7 +279,8 @@ class SixAxisTrackEnv(gym.Env):
             latency_steps=int(latency_steps),
             dropout=float(dropout),
             measurements=bool(measurements),
-            scenario=self.scenario.name,
+            temperature_noise=self.thermometer.noise,
+            temperature_lag=self.thermometer.lag,
             physics_dt=self.plant.physics_dt,
             substeps=self.plant.substeps,
             torque_max=drive.torque_max.copy(),
@@ -287,6 +318,8 @@ class SixAxisTrackEnv(gym.Env):
         self._a1 = np.zeros(6)
         self._a2 = np.zeros(6)
         self._k = 0
+        self._temperature = 20.0  # the sensor's reading and the declared payload of this step
+        self._payload = 0.0
         self._diverged = False
         self._meas_time = math.nan
         self._meas_points: list[np.ndarray] = []
@@ -312,7 +345,8 @@ class SixAxisTrackEnv(gym.Env):
                 f"options['trajectory'] must be one of {', '.join(KINDS)}, got {kind!r}"
             )
         posture = (options or {}).get("posture", self.posture)
-        truth_rng, traj_rng, noise_rng, start_rng = self.np_random.spawn(4)
+        # a fifth stream for the temperature sensor: the first four are what they always were
+        truth_rng, traj_rng, noise_rng, start_rng, sensor_rng = self.np_random.spawn(5)
         self.truth = draw_truth(self.scenario, self.nominal, truth_rng, self.overrides)
         self.trajectory, q0 = sample_trajectory(
             self.nominal,
@@ -328,6 +362,9 @@ class SixAxisTrackEnv(gym.Env):
         plant.configure(self.truth.true_robot, self.truth.hidden)
         plant.place(q0, dirs=start_rng.choice((-1.0, 1.0), 6))
         self.tracker.reset(noise_rng)
+        self.truth.bind(self._conditions)
+        self._temperature = self.thermometer.reset(sensor_rng, plant.temperature)
+        self._payload = self.truth.declared_payload_at(plant.time)
         self._k = 0
         self._diverged = False
         self._a1[:] = 0.0
@@ -353,6 +390,8 @@ class SixAxisTrackEnv(gym.Env):
             return self._on_divergence(a)
         tool = self.plant.tool_point()
         err_mm = self._error_mm(tool)
+        self._temperature = self.thermometer.read(self.plant.temperature, self.dt)
+        self._payload = self.truth.declared_payload_at(self.plant.time)
         meas = self._measure(tool)
         self._fill_obs(meas)
         reward, parts = self._get_rew(err_mm, a)
@@ -427,7 +466,8 @@ class SixAxisTrackEnv(gym.Env):
         k = self._k
         if tr.due(k):
             p = self.plant
-            cols = {"t": p.time, "temperature": p.temperature, "payload": p.payload}
+            # the columns as the controller has them: the sensor's reading, the declared payload
+            cols = {"t": p.time, "temperature": self._temperature, "payload": self._payload}
             for i in range(6):
                 cols[f"dir{i + 1}"] = float(p.dirs[i])
             tr.sample(k, p.time, tool, p.data.qpos[p.iq], cols)
@@ -451,8 +491,12 @@ class SixAxisTrackEnv(gym.Env):
             o[self._valid_i] = 0.0
         age = d.time - self._meas_time
         o[self._age_i] = MAX_MEASUREMENT_AGE if not age <= MAX_MEASUREMENT_AGE else age
-        o[self._temp_i] = p.temperature
-        o[self._payload_i] = p.payload
+        o[self._temp_i] = self._temperature
+        o[self._payload_i] = self._payload
+
+    def _conditions(self) -> dict[str, float]:
+        """The plant's exact temperature and payload now (``truth.conditions()``, for oracles)."""
+        return {"temperature": float(self.plant.temperature), "payload": float(self.plant.payload)}
 
     def _get_rew(self, err_mm: float, action: np.ndarray) -> tuple[float, dict[str, float]]:
         """The reward and its parts: minus the true tracking error (mm) and the jerk penalty

@@ -2,26 +2,55 @@
 
     task = env.unwrapped.task                 # TaskInfo: what any controller may know
     o = Observation.parse(task, obs)          # the flat observation by name
+    seen = controller_info(info)              # the part of a step's info a controller may use
     truth = env.unwrapped.truth               # satisfies Truth: for oracles and evaluation only
 
-:class:`TaskInfo` describes the *nominal* arm, the timing, the servo limits, the instrument's
-settings and the observation layout. :class:`Truth` is what an oracle controller may read of the
-plant's hidden arm; the env's :class:`envs.scenarios.EpisodeTruth` satisfies it. Importing this
-module loads neither the plant nor MuJoCo, so a controller can be written and tested against the
-contract alone.
+:class:`TaskInfo` describes the *nominal* arm, the timing, the servo limits, the instruments'
+settings and the observation layout; it does not name the scenario (which hidden effects the arm
+has is for the controller to find out). :data:`CONTROLLER_INFO_KEYS` are the keys of a step's
+``info`` a real controller has: the tracker's measurement, the reference, the time, the divergence
+flag; everything else in ``info`` (the true tool point and error, the reward's parts, the plant's
+exact temperature and payload) is for evaluation, and :func:`agents.runner.run_episode` hands
+controllers only :func:`controller_info` of it. :class:`Truth` is what an oracle controller may
+read of the plant's hidden arm; the env's :class:`envs.scenarios.EpisodeTruth` satisfies it.
+Importing this module loads neither the plant nor MuJoCo, so a controller can be written and
+tested against the contract alone.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
 from arm.description import RobotDescription
 from arm.errormodel import ErrorModel
 
-__all__ = ["Observation", "TaskInfo", "Truth"]
+__all__ = ["CONTROLLER_INFO_KEYS", "Observation", "TaskInfo", "Truth", "controller_info"]
+
+#: The keys of a step's ``info`` that a real controller has: the tracker's measurement (the point,
+#: the encoder reading, the time it was sampled and the columns as the sensors gave them then:
+#: the temperature sensor's reading, the declared payload, the directions of motion), the
+#: reference now, the time and whether the simulation diverged.
+CONTROLLER_INFO_KEYS = frozenset(
+    {
+        "measurement",
+        "measurement_q",
+        "measurement_time",
+        "measurement_valid",
+        "measurement_columns",
+        "reference",
+        "time",
+        "diverged",
+    }
+)
+
+
+def controller_info(info: Mapping[str, Any]) -> dict[str, Any]:
+    """The part of a step's ``info`` a controller may use (:data:`CONTROLLER_INFO_KEYS`)."""
+    return {k: v for k, v in info.items() if k in CONTROLLER_INFO_KEYS}
 
 
 @dataclass(frozen=True, eq=False)
@@ -34,7 +63,9 @@ class TaskInfo:
     ``a_max * dt`` per step); ``q_lower``/``q_upper`` (6,) joint limits; ``preview_steps``;
     ``obs_slices`` {name: slice} into the observation; ``noise_mm`` per-axis tracker noise;
     ``measure_every`` (steps), ``latency_steps``, ``dropout``, ``measurements`` (False: blind);
-    ``scenario``; ``physics_dt`` and ``substeps``; ``torque_max`` (6,); ``jerk_weight``.
+    ``temperature_noise`` (K, one standard deviation) and ``temperature_lag`` (s, the time
+    constant of its first-order lag) of the temperature sensor; ``physics_dt`` and ``substeps``;
+    ``torque_max`` (6,); ``jerk_weight``. Not the scenario: that is hidden.
     """
 
     robot: RobotDescription
@@ -50,7 +81,8 @@ class TaskInfo:
     latency_steps: int
     dropout: float
     measurements: bool
-    scenario: str
+    temperature_noise: float
+    temperature_lag: float
     physics_dt: float
     substeps: int
     torque_max: np.ndarray
@@ -67,8 +99,15 @@ class Truth(Protocol):
     ``true_robot``: the description with the true geometric errors folded in; ``model`` and
     ``params``: an error model on the *nominal* arm and its true parameter vector (laid out by
     ``model.layout``), whose tool point is the plant's (exactly for a settled arm where the
-    scenario's physics is the lab's formulas).
+    scenario's physics is the lab's formulas); ``scenario``: its name; :meth:`conditions`: the
+    plant's exact temperature (degC) and payload (kg) now, which an oracle takes from here rather
+    than from the observation's sensor reading and declared payload.
     """
+
+    @property
+    def scenario(self) -> str: ...
+
+    def conditions(self) -> Mapping[str, float]: ...
 
     @property
     def true_robot(self) -> RobotDescription: ...
@@ -91,8 +130,8 @@ class Observation:
     meas: np.ndarray  # the last tracker measurement (3,), m
     meas_age: float  # its age, s
     meas_valid: bool
-    temperature: float  # degC
-    payload: float | None = None  # kg, as declared to the controller (None: not observed)
+    temperature: float  # degC, as the arm's temperature sensor reads it (noisy, lagging)
+    payload: float | None = None  # kg, as the operator declared it (None: not observed)
 
     @classmethod
     def parse(cls, task: TaskInfo, obs: np.ndarray) -> Observation:

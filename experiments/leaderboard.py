@@ -534,8 +534,10 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
             "|---|---|---|---|",
         ]
         for label, s in board.agent_settings.items():
+            oracle = any(r.oracle for r in board.rows if r.agent == label)
             lines.append(
-                f"| {label} | `{s['name']}` | `{s['settings'] or {}}` | `{s['env'] or {}}` |"
+                f"| {label}{ORACLE_MARK if oracle else ''} | `{s['name']}` | "
+                f"`{s['settings'] or {}}` | `{s['env'] or {}}` |"
             )
         lines.append("")
 

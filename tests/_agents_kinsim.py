@@ -79,7 +79,8 @@ class KinematicTrackEnv(gym.Env):
             latency_steps=latency_steps,
             dropout=dropout,
             measurements=measurements,
-            scenario=scenario,
+            temperature_noise=0.0,  # the kinematic stand-in's temperature is exact and constant
+            temperature_lag=0.0,
             physics_dt=self.dt,  # the servo is integrated once per control step
             substeps=1,
             torque_max=np.full(6, np.inf),  # an ideal servo
