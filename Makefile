@@ -14,7 +14,7 @@ export OMP_NUM_THREADS ?= 1
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[test,bench,cluster,dev]"
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[test,bench,cluster,dev,video]"
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -298,8 +298,10 @@ def run_episode(
     episode_seconds: float | None = None,
     phases: Sequence[Phase] | None = None,
     env_id: str = ENV_ID,
+    on_step: Callable[[Any], None] | None = None,
 ) -> EpisodeResult:
-    """Run ``agent`` on one seeded episode; see the module docstring."""
+    """Run ``agent`` on one seeded episode; see the module docstring. ``on_step(env)`` is called
+    after every step (e.g. to render a frame: give ``render_mode`` in ``env_kwargs``)."""
     env_kwargs = dict(env_kwargs or {})
     if phases is None:
         phases = [Phase("track", episode_seconds, {}, judged=True)]
@@ -348,6 +350,8 @@ def run_episode(
                 valid = bool(info.get("measurement_valid", False)) and m is not None
                 cols["meas"].append(np.asarray(m, dtype=float) if valid else np.full(3, np.nan))
                 cols["solve"].append(solve)
+                if on_step is not None:
+                    on_step(env)
                 if info.get("diverged", False):
                     diverged = True
                 if terminated or truncated or diverged or (steps is not None and n >= steps):

@@ -195,7 +195,7 @@ class SixAxisTrackEnv(gym.Env):
     | `jerk_weight`   | float       | `0.01`        | weight of the command-jerk penalty                           |
     | `robot`         | str or RobotDescription | `"seed"` | the nominal arm (needs a mass model)                  |
     | `episode_seconds` | float     | `10.0`        | length of the reference computed per reset (the TimeLimit ends episodes) |
-    | `render_mode`   | str or None | `None`        | `"rgb_array"`                                                |
+    | `render_mode`   | str or None | `None`        | `"rgb_array"`: the arm, the reference path (green), the true tool path (blue), the measured points (red) |
     | `width`, `height` | int       | `640`, `480`  | rendered frame size                                          |
 
     ## Version History
@@ -323,6 +323,7 @@ class SixAxisTrackEnv(gym.Env):
         self._diverged = False
         self._meas_time = math.nan
         self._meas_points: list[np.ndarray] = []
+        self._tool_trail: list[np.ndarray] = []  # the true tool points, kept when rendering
         self._renderer: mujoco.Renderer | None = None
         self._camera: mujoco.MjvCamera | None = None  # free camera; adjust it at will
         self._camera_target: Trajectory | None = None
@@ -374,6 +375,7 @@ class SixAxisTrackEnv(gym.Env):
         self._meas_time = math.nan
         self._meas_points = []
         tool = plant.tool_point()
+        self._tool_trail = [tool] if self.render_mode is not None else []
         err_mm = self._error_mm(tool)
         self._fill_obs(None)
         info = self._info(tool, err_mm, None, 0.0, 0.0)
@@ -389,6 +391,8 @@ class SixAxisTrackEnv(gym.Env):
         if not healthy:
             return self._on_divergence(a)
         tool = self.plant.tool_point()
+        if self.render_mode is not None:
+            self._tool_trail.append(tool)
         err_mm = self._error_mm(tool)
         self._temperature = self.thermometer.read(self.plant.temperature, self.dt)
         self._payload = self.truth.declared_payload_at(self.plant.time)
@@ -404,6 +408,7 @@ class SixAxisTrackEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
+            self.plant.model.vis.quality.offsamples = 0  # no multisampling: software GL is slow
             self._renderer = mujoco.Renderer(self.plant.model, self.height, self.width)
             cam = mujoco.MjvCamera()
             cam.type = mujoco.mjtCamera.mjCAMERA_FREE
@@ -541,8 +546,9 @@ class SixAxisTrackEnv(gym.Env):
         return self._obs.astype(np.float32), DIVERGENCE_REWARD, True, False, info
 
     def _draw_overlays(self, scn: mujoco.MjvScene) -> None:
-        """The reference path (green), the reference now (large green) and the measured points
-        (red) as extra scene geoms."""
+        """The reference path (green), the reference now (large green), the measured points
+        (red) and the true tool point's path of the last 3 s and where it is now (blue) as extra
+        scene geoms."""
         eye = np.eye(3).reshape(-1)
 
         def add(kind, size, pos, rgba):
@@ -564,3 +570,12 @@ class SixAxisTrackEnv(gym.Env):
         red = np.array([0.85, 0.05, 0.05, 1.0], dtype=np.float32)
         for pt in self._meas_points[-25:]:
             add(mujoco.mjtGeom.mjGEOM_SPHERE, (0.005, 0, 0), pt, red)
+        # the true tool point's path over the last 3 s, and where it is now
+        blue = np.array([0.1, 0.3, 0.95, 1.0], dtype=np.float32)
+        trail = self._tool_trail[-151:]
+        for a, b in itertools.pairwise(trail[::-2][::-1]):
+            g = add(mujoco.mjtGeom.mjGEOM_CAPSULE, (0.0025, 0, 0), a, blue)
+            if g is not None:
+                mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_CAPSULE, 0.0025, a, b)
+        if trail:
+            add(mujoco.mjtGeom.mjGEOM_SPHERE, (0.008, 0, 0), trail[-1], blue)

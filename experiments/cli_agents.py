@@ -148,7 +148,72 @@ def evaluate(
     console.print(table)
 
 
+def render(
+    agent: Annotated[str, typer.Argument(help="An agent name or package.module:Class.")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="The video file (MP4).")] = Path(
+        "run.mp4"
+    ),
+    scenario: Annotated[str, typer.Option(help="The scenario.")] = "geometric",
+    seed: Annotated[int, typer.Option(help="The episode's seed.")] = 0,
+    seconds: Annotated[float, typer.Option(help="Episode length, s.")] = 10.0,
+    every: Annotated[
+        int, typer.Option(help="One frame every N control steps (50 / N frames per second).")
+    ] = 1,
+    width: Annotated[int, typer.Option(help="Frame width, pixels (even).")] = 640,
+    height: Annotated[int, typer.Option(help="Frame height, pixels (even).")] = 480,
+    settings: Annotated[
+        str, typer.Option(help="Agent settings as JSON, e.g. '{\"horizon\": 15}'.")
+    ] = "{}",
+    trajectory: Annotated[
+        str | None, typer.Option(help="circle, lemniscate, lines or spline (default: drawn).")
+    ] = None,
+) -> None:
+    """Write a video of AGENT's episode: the arm, the reference path (green), the true tool path
+    (blue) and the tracker's measured points (red), in real time."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+
+    from agents.registry import AgentError, make_agent
+    from experiments.video import VideoError, render_episode
+
+    try:
+        a = make_agent(agent, **json.loads(settings))
+    except (json.JSONDecodeError, AgentError) as exc:
+        err_console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(2) from None
+    env = {} if trajectory is None else {"trajectory": trajectory}
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=console,
+    ) as bar:
+        job = bar.add_task(f"{agent} on {scenario}, seed {seed}", total=None)
+        try:
+            info = render_episode(
+                a,
+                scenario,
+                seed,
+                output,
+                seconds=seconds,
+                every=every,
+                width=width,
+                height=height,
+                env_kwargs=env,
+                progress=lambda n, total: bar.update(job, completed=n, total=total),
+            )
+        except (VideoError, ValueError) as exc:
+            err_console.print(f"[red]error:[/red] {exc}")
+            raise typer.Exit(2) from None
+    console.print(
+        f"wrote {info.path}: {info.frames} frames, {info.seconds:.2f} s at {info.fps:g} fps, "
+        f"{info.width}x{info.height}",
+        highlight=False,
+    )
+
+
 def register(app: typer.Typer) -> None:
     """Mount this module's commands on the main app."""
     app.add_typer(train_app, name="train")
     app.command("evaluate")(evaluate)
+    app.command("render")(render)
