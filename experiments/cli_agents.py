@@ -98,6 +98,16 @@ def ship(
         console.print(f"  {sc:13s} {v:.4f} mm")
 
 
+EVALUATE_METRICS = (
+    "rms_mm",
+    "rms_settled_mm",
+    "converge_s",
+    "max_settled_mm",
+    "diverged",
+    "solve_time_median_ms",
+)
+
+
 def evaluate(
     agent: Annotated[str, typer.Argument(help="An agent name or package.module:Class.")],
     scenario: Annotated[list[str], typer.Option(help="Scenario(s).")] = ["geometric"],  # noqa: B006
@@ -105,14 +115,20 @@ def evaluate(
     settings: Annotated[
         str, typer.Option(help="Agent settings as JSON, e.g. '{\"horizon\": 15}'.")
     ] = "{}",
-    settle: Annotated[float, typer.Option(help="RMS after this many seconds.")] = 3.0,
+    settle: Annotated[
+        float, typer.Option(help="The settled metrics count after this many seconds.")
+    ] = 2.0,
+    converge_mm: Annotated[
+        float, typer.Option(help="converge_s: when the true error stays below this, mm.")
+    ] = 0.25,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
-    """Run an agent on seeded episodes and print its tracking error (mm, true tool point)."""
-    import numpy as np
-
+    """Run an agent on seeded episodes and print its tracking error (mm, true tool point): over
+    the whole episode, after the settling time, and when it converged (as the leaderboard)."""
     from agents.registry import AgentError, make_agent
     from agents.runner import run_episode
+    from experiments.metrics import episode_metrics
+    from experiments.records import jsonable
 
     try:
         kw = json.loads(settings)
@@ -126,25 +142,29 @@ def evaluate(
             for s in range(seeds):
                 status.update(f"{agent} on {sc}, seed {s}")
                 r = run_episode(make_agent(agent, **kw), {"scenario": sc}, seed=s)
-                rows.append(
-                    {
-                        "scenario": sc,
-                        "seed": s,
-                        "rms_mm": r.rms_mm(),
-                        f"rms_after_{settle:g}s_mm": r.rms_mm(start=settle),
-                        "max_mm": r.max_mm(),
-                        "solve_time_median_ms": 1e3 * float(np.median(r.solve_time_s)),
-                        "diverged": r.diverged,
-                    }
+                m, timing = episode_metrics(
+                    r,
+                    EVALUATE_METRICS,
+                    settle_seconds=settle,
+                    converge_mm=converge_mm,
                 )
+                rows.append({"scenario": sc, "seed": s} | m | timing)
     if as_json:
-        print(json.dumps(rows, indent=2))
+        print(json.dumps(jsonable(rows), indent=2))  # NaN (e.g. never converged) as null
         return
-    table = Table(title=f"{agent} {kw or ''}")
+    table = Table(
+        title=f"{agent} {kw or ''}: settled after {settle:g} s, converged below {converge_mm:g} mm"
+    )
     for k in rows[0]:
         table.add_column(k)
     for row in rows:
-        table.add_row(*(f"{v:.4f}" if isinstance(v, float) else str(v) for v in row.values()))
+        cells = []
+        for k, v in row.items():
+            if k == "converge_s" and row.get("never_converged") == 1.0:
+                cells.append("never")
+            else:
+                cells.append(f"{v:.4f}" if isinstance(v, float) else str(v))
+        table.add_row(*cells)
     console.print(table)
 
 

@@ -17,6 +17,9 @@ def test_evaluate_prints_json_rows():
     assert res.exit_code == 0, res.output
     rows = json.loads(res.output)
     assert rows[0]["scenario"] == "geometric" and rows[0]["rms_mm"] > 1.0
+    # hold never converges: no number, and said so
+    assert rows[0]["converge_s"] is None and rows[0]["never_converged"] == 1.0
+    assert rows[0]["rms_settled_mm"] > 1.0
 
 
 def test_evaluate_refuses_unknown_agents_and_settings():
