@@ -168,8 +168,8 @@ class DiagnosingMPCAgent(MPCAgent):
         if mpc_settings.get("oracle"):
             raise ValueError("mpc-diagnose is not an oracle: it diagnoses its own model")
         super().__init__(effects=effects, buffer=buffer, name=name, **mpc_settings)
-        if first_points < 5:
-            raise ValueError(f"first_points must be >= 5, got {first_points}")
+        if first_points < 12:  # 3 equations a point; the geometric model has 33 parameters
+            raise ValueError(f"first_points must be >= 12, got {first_points}")
         if growth <= 1.0:
             raise ValueError(f"growth must be > 1, got {growth}")
         if lag_steps < 1:
@@ -387,7 +387,7 @@ class DiagnosingMPCAgent(MPCAgent):
                 self.adopt_widening(job.widening)
             self._adequate = False  # look again with the wider model
             self._next_points = self.buffer.count() + self.first_points if self.buffer else 0
-        elif rec.verdict == "none" or rec.error is not None:
+        elif rec.verdict == "none":
             self._adequate = True
         else:
             self._adequate = False

@@ -44,7 +44,7 @@ def test_same_seed_same_numbers_and_a_record_of_what_it_found():
 
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match="first_points"):
-        make_agent("mpc-diagnose", first_points=2)
+        make_agent("mpc-diagnose", first_points=5)
     with pytest.raises(ValueError, match="oracle"):
         make_agent("mpc-diagnose", oracle=True)
     with pytest.raises(ValueError, match="guard"):
