@@ -18,12 +18,13 @@ level ``monitor_p``.
 
 **What it uses.** The diagnosis's explanation (its ``suggestion``), also when the verdict is
 ``unexplained`` (on backlash the catalogue explains part of the residual only: the plant's gap
-closes over time, the model flips it at once). The first effect the diagnosis chose is
-significant and predicts left-out poses (the lab's own confirmation); each further one must
-pass a **held-out test** against spurious extras (a compliance term beside backlash, a
-gear-ratio term where compliance is): the model with and without it is fitted on the buffer
-but its last ``holdout`` fraction, and the effect is kept only if it predicts those later points
-better (RMS at most ``guard`` of the model without it).
+closes over time, the model flips it at once). Each effect of it, in the order the diagnosis
+chose them, must pass a **held-out test** against spurious extras (a compliance term beside
+backlash, a gear-ratio term where compliance is): the model with and without it is fitted on the
+buffer but its last ``holdout`` fraction, and the effect is kept only if it predicts those later
+points better (RMS at most ``guard`` of the model without it). The lab already confirms each
+effect on left-out poses; later points are the stricter test on a trajectory, where neighbouring
+poses resemble each other. (``test_first=False`` takes the first effect on the lab's word.)
 
 **How it widens.** The model, the MPC and the estimator take the kept effects; the estimator
 continues from the one re-run over the buffer (``relearn``, default), which is what an estimator
@@ -142,7 +143,8 @@ class DiagnosingMPCAgent(MPCAgent):
     false-alarm level per diagnosis), ``guard`` and ``holdout`` (the held-out test: the RMS ratio
     an extra effect must reach on the buffer's last ``holdout`` fraction), ``window`` (the most recent points a diagnosis uses), ``monitor_points`` and ``monitor_p``
     (the innovation test that starts a new diagnosis), ``candidates`` (effects to test; default
-    the lab's catalogue), ``relearn`` (re-run the widened estimator over the buffer).
+    the lab's catalogue), ``relearn`` (re-run the widened estimator over the buffer),
+    ``test_first`` (the held-out test for the first effect too, not only the extras).
     """
 
     name = "mpc-diagnose"
@@ -160,6 +162,7 @@ class DiagnosingMPCAgent(MPCAgent):
         monitor_p: float = 1e-4,
         candidates: Sequence[str] | None = None,
         relearn: bool = True,
+        test_first: bool = True,
         buffer: int = 2000,
         effects: str | Sequence[str] = "geometric",
         name: str | None = None,
@@ -195,6 +198,7 @@ class DiagnosingMPCAgent(MPCAgent):
         self.monitor_p = float(monitor_p)
         self.candidates = None if candidates is None else list(candidates)
         self.relearn = bool(relearn)
+        self.test_first = bool(test_first)
 
     # -- episode ----------------------------------------------------------------------------------
     def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
@@ -306,17 +310,20 @@ class DiagnosingMPCAgent(MPCAgent):
         # confirmation); each further one must also predict the buffer's last points from a fit
         # on the points before them (the held-out test against spurious extras)
         first, *extras = d.explanation
-        kept = [first.label]
-        if extras:
+        kept: list[str] = [] if self.test_first else [first.label]
+        tested = list(d.explanation) if self.test_first else extras
+        if tested:
             cut = round(len(data) * (1.0 - self.holdout))
             train, test = data.subset(np.arange(cut)), data.subset(np.arange(cut, len(data)))
             base_rms = self._held_out_rms(model, kept, train, test)
-            for c in extras:
+            for c in tested:
                 rms = self._held_out_rms(model, [*kept, c.label], train, test)
                 rec.tried[c.label] = rms / base_rms if base_rms > 0 else math.inf
                 if rms <= self.guard * base_rms:
                     kept.append(c.label)
                     base_rms = rms
+        if not kept:
+            return
         rec.kept = kept
         wide = ErrorModel(model.robot, merge_effects(model, kept), targets=model.targets)
         job.widening = self.prepare_widening(wide.effect_names)
