@@ -140,11 +140,12 @@ class DiagnosingMPCAgent(MPCAgent):
     Settings beyond :class:`~agents.mpc.MPCAgent`'s: ``first_points`` (tracker points before the
     first diagnosis), ``growth`` (each retry waits for this factor more points), ``lag_steps``
     (control steps from a diagnosis's start to its adoption), ``alpha`` (the lab's family-wise
-    false-alarm level per diagnosis), ``guard`` and ``holdout`` (the held-out test: the RMS ratio
-    an extra effect must reach on the buffer's last ``holdout`` fraction), ``window`` (the most recent points a diagnosis uses), ``monitor_points`` and ``monitor_p``
-    (the innovation test that starts a new diagnosis), ``candidates`` (effects to test; default
-    the lab's catalogue), ``relearn`` (re-run the widened estimator over the buffer),
-    ``test_first`` (the held-out test for the first effect too, not only the extras).
+    false-alarm level per diagnosis), ``guard`` and ``holdout`` (the held-out test: the RMS
+    ratio an effect must reach on the buffer's last ``holdout`` fraction), ``window`` (the most
+    recent points a diagnosis uses; re-learning uses all the buffer holds), ``monitor_points``
+    and ``monitor_p`` (the innovation test that starts a new diagnosis), ``candidates`` (effects
+    to test; default the lab's catalogue), ``relearn`` (re-run the widened estimator over the
+    buffer), ``test_first`` (the held-out test for the first effect too, not only the extras).
     """
 
     name = "mpc-diagnose"
@@ -157,13 +158,13 @@ class DiagnosingMPCAgent(MPCAgent):
         alpha: float = 0.02,
         guard: float = 0.95,
         holdout: float = 0.3,
-        window: int = 300,
+        window: int = 1000,
         monitor_points: int = 10,
         monitor_p: float = 1e-4,
         candidates: Sequence[str] | None = None,
         relearn: bool = True,
         test_first: bool = True,
-        buffer: int = 2000,
+        buffer: int = 5000,
         effects: str | Sequence[str] = "geometric",
         name: str | None = None,
         **mpc_settings: Any,
@@ -269,28 +270,44 @@ class DiagnosingMPCAgent(MPCAgent):
         self._since_diagnosis = 0
         self._innov.clear()
         job, model, total = self._job, self.model, self.buffer.total
+        # everything the buffer holds, for re-learning (the diagnosis takes the window)
+        held = self.buffer.to_measurements(since=self.buffer.first, source="mpc-diagnose buffer")
         self._thread = threading.Thread(
             target=self._work,
-            args=(job, data, model, total),
+            args=(job, data, held, model, total),
             name=f"{WORKER} step {self._k}",
             daemon=True,
         )
         self._thread.start()
 
     # -- the worker ---------------------------------------------------------------------------------
-    def _work(self, job: _Outcome, data: MeasurementSet, model: ErrorModel, total: int) -> None:
+    def _work(
+        self,
+        job: _Outcome,
+        data: MeasurementSet,
+        held: MeasurementSet,
+        model: ErrorModel,
+        total: int,
+    ) -> None:
         """The diagnosis, the held-out test and the builds of the widening (in the worker
         thread; reads the agent's settings only, changes nothing the control path uses)."""
         t0 = time.thread_time()
         try:
-            self._diagnose(job, data, model, total)
+            self._diagnose(job, data, held, model, total)
         except Exception as exc:  # a failed diagnosis changes nothing: it is reported
             log.warning("mpc-diagnose: diagnosis at step %d failed: %s", job.record.step, exc)
             job.record.error = f"{type(exc).__name__}: {exc}"
             job.widening = job.estimator = None
         job.cost_s = time.thread_time() - t0
 
-    def _diagnose(self, job: _Outcome, data: MeasurementSet, model: ErrorModel, total: int):
+    def _diagnose(
+        self,
+        job: _Outcome,
+        data: MeasurementSet,
+        held: MeasurementSet,
+        model: ErrorModel,
+        total: int,
+    ) -> None:
         from lab import diagnose
 
         assert self.task is not None and self.rls is not None
@@ -328,7 +345,7 @@ class DiagnosingMPCAgent(MPCAgent):
         wide = ErrorModel(model.robot, merge_effects(model, kept), targets=model.targets)
         job.widening = self.prepare_widening(wide.effect_names)
         if self.relearn:
-            job.estimator = self._relearned(job.widening.model, data)
+            job.estimator = self._relearned(job.widening.model, held)
         job.replayed = total
 
     def _held_out_rms(
