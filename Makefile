@@ -35,6 +35,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/lab.py
 	$(BIN)/python benchmarks/env.py
 	$(BIN)/python benchmarks/mpc.py
+	$(BIN)/python benchmarks/mpc_diagnose.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache build *.egg-info

@@ -8,7 +8,9 @@
 
 Modules: :mod:`agents.base` (the ``Agent`` interface), :mod:`agents.reference` (hold, nominal,
 calibrated), :mod:`agents.mpc` (kinematic MPC: QP or IPOPT), :mod:`agents.online_calibration`
-(recursive least squares), :mod:`agents.tool_model` (the error model in CasADi),
+(recursive least squares that can widen, the tracker buffer), :mod:`agents.self_diagnosis`
+(``mpc-diagnose``: the MPC that diagnoses its own model with the lab), :mod:`agents.tool_model`
+(the error model in CasADi),
 :mod:`agents.ppo` (stable-baselines3 PPO: training, shipped policies), :mod:`agents.registry`
 (agents by name or ``package.module:Class``), :mod:`agents.runner` (the episode loop, phases).
 Importing this package loads neither MuJoCo nor torch.
