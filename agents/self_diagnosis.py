@@ -70,6 +70,9 @@ __all__ = ["DiagnosingMPCAgent", "DiagnosisRecord"]
 
 log = logging.getLogger(__name__)
 
+#: the fewest poses the lab fits the geometric model to (33 parameters, 3 equations a pose)
+MIN_FIT_POINTS = 12
+
 #: the worker threads' names start with this; their lab warnings (a short buffer is a "poor pose
 #: set" by the lab's standard, and it says so) are the agent's business, not the user's
 WORKER = "mpc-diagnose"
@@ -172,7 +175,7 @@ class DiagnosingMPCAgent(MPCAgent):
         if mpc_settings.get("oracle"):
             raise ValueError("mpc-diagnose is not an oracle: it diagnoses its own model")
         super().__init__(effects=effects, buffer=buffer, name=name, **mpc_settings)
-        if first_points < 12:  # 3 equations a point; the geometric model has 33 parameters
+        if first_points < MIN_FIT_POINTS:
             raise ValueError(f"first_points must be >= 12, got {first_points}")
         if growth <= 1.0:
             raise ValueError(f"growth must be > 1, got {growth}")
@@ -329,8 +332,13 @@ class DiagnosingMPCAgent(MPCAgent):
         first, *extras = d.explanation
         kept: list[str] = [] if self.test_first else [first.label]
         tested = list(d.explanation) if self.test_first else extras
+        cut = round(len(data) * (1.0 - self.holdout))
+        if tested and cut < MIN_FIT_POINTS:  # too few points to fit without the held-out ones
+            rec.error = (
+                f"not tested: the held-out test needs {MIN_FIT_POINTS} points before the last"
+            )
+            tested = []
         if tested:
-            cut = round(len(data) * (1.0 - self.holdout))
             train, test = data.subset(np.arange(cut)), data.subset(np.arange(cut, len(data)))
             base_rms = self._held_out_rms(model, kept, train, test)
             for c in tested:
