@@ -4,6 +4,10 @@ Required columns ``q1..q6`` (rad) and ``x, y, z`` (m); optional ``t`` (s), ``tem
 ``payload`` (kg), ``dir1..dir6`` (+-1), ``target`` (integer). Other numeric columns are kept and
 offered to custom effects. Foreign data in mm or degrees is read with explicit unit options, never
 guessed. Bad input is refused with the file, line and column named; files are written atomically.
+
+Pose files (the poses to measure, as ``sixaxis lab plan`` writes them) are the same CSV with only
+``q1..q6`` required, after a ``#`` line naming their schema version and angle unit; a
+measurement file is a pose file too.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import numpy as np
 from arm.errors import SixAxisError
 
 __all__ = [
+    "POSES_SCHEMA_VERSION",
     "MeasurementError",
     "MeasurementSet",
     "NumericTable",
@@ -30,9 +35,12 @@ __all__ = [
     "atomic_path",
     "atomic_write_text",
     "parse_numeric_csv",
+    "poses_csv",
     "read_measurements",
+    "read_poses",
     "read_text",
     "write_measurements",
+    "write_poses",
 ]
 
 JOINTS = tuple(f"q{i}" for i in range(1, 7))
@@ -40,6 +48,7 @@ POSITION = ("x", "y", "z")
 DIRS = tuple(f"dir{i}" for i in range(1, 7))
 OPTIONAL = ("t", "temperature", "payload", *DIRS, "target")
 SCHEMA_VERSION = 1
+POSES_SCHEMA_VERSION = 1
 
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
@@ -328,3 +337,33 @@ def parse_measurements(
     xyz = np.column_stack([col[c] for c in POSITION]) * L
     other = {h: col[h] for h in header if h not in (*JOINTS, *POSITION)}
     return MeasurementSet(q, xyz, other, source)
+
+
+# -- pose files -------------------------------------------------------------------------------------
+def poses_csv(q: np.ndarray, angle_unit: str = "rad") -> str:
+    """Joint angles (N, 6) as a poses file: a ``#`` line with the schema version and unit, a
+    header q1..q6, one pose per row."""
+    f = 1.0 / ANGLE_UNITS[angle_unit]
+    buf = io.StringIO()
+    buf.write(
+        f"# sixaxis-track poses to measure, schema_version {POSES_SCHEMA_VERSION}, "
+        f"q1..q6 in {angle_unit}\n"
+    )
+    buf.write(",".join(JOINTS) + "\n")
+    for row in np.asarray(q, dtype=float) * f:
+        buf.write(",".join(repr(float(v)) for v in row) + "\n")
+    return buf.getvalue()
+
+
+def write_poses(q: np.ndarray, path: str | Path, angle_unit: str = "rad") -> None:
+    """Write joint angles (N, 6) as a poses file, atomically."""
+    atomic_write_text(Path(path), poses_csv(q, angle_unit))
+
+
+def read_poses(path: str | Path, angle_unit: str = "rad") -> np.ndarray:
+    """Joint angles (N, 6) in rad from a CSV with columns q1..q6 (other columns, and lines
+    starting with ``#``, are ignored: a measurement file is a poses file too)."""
+    table = parse_numeric_csv(read_text(path), str(path), JOINTS, comments=True, columns=JOINTS)
+    if not len(table.values):
+        raise MeasurementError(f"{path}: no pose rows")
+    return table.values[:, [table.header.index(c) for c in JOINTS]] * ANGLE_UNITS[angle_unit]

@@ -9,11 +9,9 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
-console = Console()
-err_console = Console(stderr=True, soft_wrap=True)
+from experiments.cli_output import console, fail
 
 train_app = typer.Typer(help="Train learning agents.", no_args_is_help=True)
 
@@ -43,8 +41,7 @@ def train_ppo(
     try:
         cfg = load_config(config)
     except ValueError as exc:
-        err_console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(2) from None
+        fail(exc)
     if timesteps is not None:
         cfg.total_timesteps = int(timesteps)
     if output is not None:
@@ -134,8 +131,7 @@ def evaluate(
         kw = json.loads(settings)
         make_agent(agent, **kw)
     except (json.JSONDecodeError, AgentError) as exc:
-        err_console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(2) from None
+        fail(exc)
     rows = []
     with console.status("running episodes...") as status:
         for sc in scenario:

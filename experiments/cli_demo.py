@@ -14,14 +14,11 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 from rich.panel import Panel
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from experiments.cli_lab import p_value_text
-
-console = Console()
+from experiments.cli_output import console, fail, p_value_text
 
 NOISE_MM = 0.015  # per axis, a good laser tracker
 
@@ -149,12 +146,7 @@ def register(app: typer.Typer) -> None:
         from envs.scenarios import SCENARIOS
 
         if scenario not in SCENARIOS:
-            Console(stderr=True).print(
-                f"[red]error:[/red] --scenario: unknown scenario {scenario!r}; known: "
-                + ", ".join(SCENARIOS),
-                highlight=False,
-            )
-            raise typer.Exit(2)
+            fail(f"--scenario: unknown scenario {scenario!r}; known: " + ", ".join(SCENARIOS))
         lab_story(scenario, poses, seed, out)
         if sweep:
             _quick_sweep(out)

@@ -17,17 +17,14 @@ stays fast and only ``collect`` loads MuJoCo.
 from __future__ import annotations
 
 import contextlib
-import io
 import json
 import math
-import shlex
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Annotated, Any, NoReturn
+from typing import Annotated, Any
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 from rich.progress import (
     BarColumn,
@@ -38,15 +35,24 @@ from rich.progress import (
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
-from rich.table import Table
+
+from experiments.cli_output import (
+    candidates_table,
+    command_line,
+    compensation_table,
+    console,
+    discovery_table,
+    err_console,
+    fail,
+    fit_table,
+    hints_table,
+    plan_table,
+)
 
 app = typer.Typer(
     help="The model lab: compare the model with measurements, find what it misses.",
     no_args_is_help=True,
 )
-
-console = Console()
-err_console = Console(stderr=True, soft_wrap=True)
 
 
 @app.callback()
@@ -62,10 +68,8 @@ def _lab() -> None:
             h.console = err_console
 
 
-POSES_SCHEMA_VERSION = 1
 LENGTH_UNITS = ("m", "mm")
 ANGLE_UNITS = ("rad", "deg")
-JOINTS = tuple(f"q{i}" for i in range(1, 7))
 
 
 # -- shared options -------------------------------------------------------------------------------
@@ -140,18 +144,13 @@ def _user_errors() -> tuple[type[Exception], ...]:
     return (DescriptionError, EffectError, MeasurementError, FitError)
 
 
-def _fail(message: str) -> NoReturn:
-    err_console.print(f"[red]error:[/red] {escape(str(message))}", highlight=False)
-    raise typer.Exit(2)
-
-
 @contextlib.contextmanager
 def _guard(*extra: type[Exception]) -> Iterator[None]:
     """The library's bad-input exceptions (and ``extra``) become ``error: ...``, exit code 2."""
     try:
         yield
     except (*_user_errors(), *extra) as exc:
-        _fail(str(exc))
+        fail(str(exc))
 
 
 @contextlib.contextmanager
@@ -160,26 +159,26 @@ def _writing(path: Path) -> Iterator[None]:
     try:
         yield
     except OSError as exc:
-        _fail(f"{path}: cannot write ({exc.strerror or exc})")
+        fail(f"{path}: cannot write ({exc.strerror or exc})")
 
 
 def _check_units(length_unit: str, angle_unit: str) -> None:
     if length_unit not in LENGTH_UNITS:
-        _fail(f"--length-unit must be one of {', '.join(LENGTH_UNITS)}, got {length_unit!r}")
+        fail(f"--length-unit must be one of {', '.join(LENGTH_UNITS)}, got {length_unit!r}")
     if angle_unit not in ANGLE_UNITS:
-        _fail(f"--angle-unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
+        fail(f"--angle-unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
 
 
 def _check_noise(noise_mm: float | None) -> None:
     if noise_mm is not None and not (math.isfinite(noise_mm) and noise_mm > 0):
-        _fail(f"--noise-mm must be a positive number of millimetres, got {noise_mm}")
+        fail(f"--noise-mm must be a positive number of millimetres, got {noise_mm}")
 
 
 def _check_loss(loss: str) -> None:
     from lab.identification import LOSSES
 
     if loss not in LOSSES:
-        _fail(f"--loss must be one of {', '.join(LOSSES)}, got {loss!r}")
+        fail(f"--loss must be one of {', '.join(LOSSES)}, got {loss!r}")
 
 
 def _load_modules(modules: Sequence[Path] | None) -> list[str]:
@@ -192,7 +191,7 @@ def _load_modules(modules: Sequence[Path] | None) -> list[str]:
         try:
             names += load_effect_module(m)
         except EffectError as exc:
-            _fail(f"--effect-module: {exc}")
+            fail(f"--effect-module: {exc}")
     return names
 
 
@@ -202,9 +201,9 @@ def _parse_effects(effects: str) -> None:
 
     try:
         if not parse_effects(effects):
-            _fail("--effects: no effect given")
+            fail("--effects: no effect given")
     except EffectError as exc:
-        _fail(f"--effects: {exc}")
+        fail(f"--effects: {exc}")
 
 
 def _robot(robot: str):
@@ -213,7 +212,7 @@ def _robot(robot: str):
     try:
         return load_robot(robot)
     except DescriptionError as exc:
-        _fail(f"--robot: {exc}")
+        fail(f"--robot: {exc}")
 
 
 def _read(path: Path, length_unit: str, angle_unit: str):
@@ -222,7 +221,7 @@ def _read(path: Path, length_unit: str, angle_unit: str):
     try:
         return read_measurements(path, length_unit=length_unit, angle_unit=angle_unit)
     except MeasurementError as exc:
-        _fail(str(exc))
+        fail(str(exc))
 
 
 def _prepare(
@@ -284,74 +283,9 @@ def _emit_json(obj: dict, as_json: bool, out: Path | None) -> None:
         console.print(f"wrote {out}", highlight=False, soft_wrap=True)
 
 
-def _command(*words: object, **options: object) -> str:
-    """The command line these arguments and (non-default) options spell, for reports."""
-    out = ["sixaxis", "lab", *map(str, words)]
-    for flag, value in options.items():
-        if value is None or value is False or value == []:
-            continue
-        for v in value if isinstance(value, list) else [value]:
-            out.append(flag)
-            if v is not True:
-                out.append(str(v))
-    return shlex.join(out)
-
-
-def p_value_text(p: float | None) -> str:
-    """A p-value as text: below double precision's smallest normal a bound, not 0."""
-    if p is None or not math.isfinite(p):
-        return "-"
-    return f"{p:.2g}" if p >= 1e-300 else "< 1e-300"
-
-
-def _mm(v: float | None, digits: int = 4) -> str:
-    return "-" if v is None else f"{v:.{digits}f}"
-
-
 # -- fit --------------------------------------------------------------------------------------------
-def _signed(x: float, digits: int = 4) -> str:
-    """``x`` with a sign and ``digits`` significant digits, trailing zeros kept (+10.00, +3300)."""
-    if x == 0 or not math.isfinite(x):
-        return f"{x:+.{digits - 1}f}"
-    decimals = max(0, digits - 1 - math.floor(math.log10(abs(x))))
-    return f"{x:+.{decimals}f}"
-
-
-def _fit_table(result) -> Table:
-    """The paper's Table 3 and more: nominal, identified error and its standard error per
-    parameter (lengths in mm; angles: nominal in deg, errors in mrad)."""
-    table = Table(
-        title=f"identified parameters ({result.rank} of {result.n_parameters} fitted)",
-        title_justify="left",
-    )
-    for c, j in (
-        ("parameter", "left"),
-        ("effect", "left"),
-        ("nominal", "right"),
-        ("error", "right"),
-        ("std", "right"),
-        ("unit", "left"),
-    ):
-        table.add_column(c, justify=j)
-    for row in result.rows():
-        unit = row["unit"]
-        if unit == "m":
-            nom, f, shown = f"{row['nominal'] * 1e3:.3f} mm", 1e3, "mm"
-        elif unit == "rad":
-            nom, f, shown = f"{math.degrees(row['nominal']):.3f} deg", 1e3, "mrad"
-        else:
-            nom, f, shown = f"{row['nominal']:.4g}", 1.0, unit
-        if row["identifiable"]:
-            err = _signed(row["error"] * f) if shown in ("mm", "mrad") else f"{row['error']:+.4g}"
-            std = "-" if row["std"] is None else f"{row['std'] * f:.2g}"
-        else:
-            err, std = "[dim]fixed[/dim]", ""
-        table.add_row(row["name"], row["effect"], nom, err, std, shown)
-    return table
-
-
 def _print_fit(result) -> None:
-    console.print(_fit_table(result))
+    console.print(fit_table(result))
     console.print(escape(result.summary()), highlight=False, soft_wrap=True)
 
 
@@ -406,7 +340,7 @@ def _print_diagnosis(d, data: Path) -> None:
     elif d.verdict == "unexplained":
         line += " (the residual is above the noise and no catalogued effect explains it)"
     if d.suggestion:
-        then = escape(shlex.join(["sixaxis", "lab", "fit", str(data), "--effects", d.suggestion]))
+        then = escape(command_line("lab", "fit", data, **{"--effects": d.suggestion}))
         if d.verdict == "unexplained":
             line += f"; the catalogue's best, which explains part: {then}"
         else:
@@ -423,39 +357,13 @@ def _print_diagnosis(d, data: Path) -> None:
         console.print(
             f"{len(d.outliers)} outlier(s) left out of the tests", highlight=False, soft_wrap=True
         )
-    table = Table(
-        title="candidate effects, best first (RMS after adding each)", title_justify="left"
-    )
-    for c, j in (
-        ("candidate", "left"),
-        ("RMS mm", "right"),
-        ("held-out mm", "right"),
-        ("p-value", "right"),
-        ("significant", "left"),
-    ):
-        table.add_column(c, justify=j)
     shown = d.candidates[:10]
-    for c in shown:
-        sig = "[bold]yes[/bold]" if c.significant else "no"
-        table.add_row(
-            escape(c.label), _mm(c.rms_mm), _mm(c.cv_rms_mm), p_value_text(c.p_value), sig
-        )
     if shown:
-        table.columns[0].min_width = max(len(c.label) for c in shown)
-        console.print(table)
+        console.print(candidates_table(shown))
     if len(d.candidates) > len(shown):
         console.print(f"... and {len(d.candidates) - len(shown)} more (--json lists all)")
     if d.hints:
-        hints = Table(
-            title="what the residual depends on",
-            title_justify="left",
-        )
-        hints.add_column("variable")
-        hints.add_column("score (adjusted R^2)", justify="right")
-        hints.add_column("p-value", justify="right")
-        for h in d.hints[:6]:
-            hints.add_row(escape(h.variable), f"{h.score:.3f}", p_value_text(h.p_value))
-        console.print(hints)
+        console.print(hints_table(d.hints[:6]))
 
 
 def discover_command(data: Path, d) -> str:
@@ -463,7 +371,8 @@ def discover_command(data: Path, d) -> str:
     the diagnosed model (not the catalogue's partial explanation, whose approximating terms would
     hide the form), with its noise."""
     effects = ",".join(d.effects)
-    return _command(
+    return command_line(
+        "lab",
         "discover",
         data,
         **{
@@ -499,7 +408,7 @@ def diagnose_cmd(
         data, robot, effects, effect_module, None, loss, length_unit, angle_unit, noise_mm
     )
     if not 0 < alpha < 1:
-        _fail(f"--alpha must lie in (0, 1), got {alpha}")
+        fail(f"--alpha must lie in (0, 1), got {alpha}")
     with _guard():
         with console.status("fitting and testing the candidate effects..."):
             d = diagnose(meas, arm, effects, noise_mm=noise_mm, loss=loss, alpha=alpha)
@@ -533,24 +442,7 @@ def _print_discovery(d, output: Path | None) -> None:
         return
     for f in d.formulas.values():
         console.print(f"  [bold]{escape(f)}[/bold]", highlight=False, soft_wrap=True)
-    table = Table(title="discovered terms (refitted with the model)", title_justify="left")
-    for c, j in (
-        ("joint", "right"),
-        ("term", "left"),
-        ("coefficient", "right"),
-        ("std", "right"),
-        ("parameter", "left"),
-    ):
-        table.add_column(c, justify=j)
-    for t in d.terms:
-        table.add_row(
-            str(t.joint),
-            escape(t.expression),
-            f"{t.coefficient:.4g}",
-            "-" if t.std is None else f"{t.std:.2g}",
-            t.name,
-        )
-    console.print(table)
+    console.print(discovery_table(d.terms))
     for reading in dict.fromkeys(t.reading for t in d.terms):
         terms = ", ".join(t.expression for t in d.terms if t.reading == reading)
         console.print(f"  {escape(terms)}: {escape(reading)}", highlight=False, soft_wrap=True)
@@ -562,17 +454,11 @@ def _print_discovery(d, output: Path | None) -> None:
         console.print(
             f"wrote the effect to {escape(str(output))}; fit it with: "
             + escape(
-                shlex.join(
-                    [
-                        "sixaxis",
-                        "lab",
-                        "fit",
-                        "DATA.csv",
-                        "--effect-module",
-                        str(output),
-                        "--effects",
-                        d.suggestion,
-                    ]
+                command_line(
+                    "lab",
+                    "fit",
+                    "DATA.csv",
+                    **{"--effect-module": str(output), "--effects": d.suggestion},
                 )
             ),
             highlight=False,
@@ -632,11 +518,11 @@ def discover_cmd(
         data, robot, effects, effect_module, validate, "linear", length_unit, angle_unit, noise_mm
     )
     if not 0 < alpha < 1:
-        _fail(f"--alpha must lie in (0, 1), got {alpha}")
+        fail(f"--alpha must lie in (0, 1), got {alpha}")
     if output is not None and output.is_dir():
-        _fail(f"{output}: is a directory; -o takes the Python file to write")
+        fail(f"{output}: is a directory; -o takes the Python file to write")
     if output is not None and output.suffix != ".py":
-        _fail(f"{output}: the effect module must be a .py file")
+        fail(f"{output}: the effect module must be a .py file")
     with _guard():
         with console.status("fitting the model and searching the library..."):
             d = discover(
@@ -687,8 +573,9 @@ def report_cmd(
         data, robot, effects, effect_module, validate, loss, length_unit, angle_unit, noise_mm
     )
     if rounds < 0:
-        _fail(f"--rounds must be >= 0, got {rounds}")
-    command = _command(
+        fail(f"--rounds must be >= 0, got {rounds}")
+    command = command_line(
+        "lab",
         "report",
         data,
         **{
@@ -764,34 +651,6 @@ def report_cmd(
 
 
 # -- plan -------------------------------------------------------------------------------------------
-def poses_csv(q, angle_unit: str = "rad") -> str:
-    """Joint angles (N, 6) as a poses file: a ``#`` line with the schema version and unit, a
-    header q1..q6, one pose per row."""
-    import numpy as np
-
-    f = 1.0 if angle_unit == "rad" else 180.0 / math.pi
-    buf = io.StringIO()
-    buf.write(
-        f"# sixaxis-track poses to measure, schema_version {POSES_SCHEMA_VERSION}, "
-        f"q1..q6 in {angle_unit}\n"
-    )
-    buf.write(",".join(JOINTS) + "\n")
-    for row in np.asarray(q, dtype=float) * f:
-        buf.write(",".join(repr(float(v)) for v in row) + "\n")
-    return buf.getvalue()
-
-
-def read_poses(path: Path, angle_unit: str = "rad"):
-    """Joint angles (N, 6) in rad from a CSV with columns q1..q6 (other columns, and lines
-    starting with ``#``, are ignored: a measurement file is a poses file too)."""
-    from arm.measurements import ANGLE_UNITS, MeasurementError, parse_numeric_csv, read_text
-
-    table = parse_numeric_csv(read_text(path), str(path), JOINTS, comments=True, columns=JOINTS)
-    if not len(table.values):
-        raise MeasurementError(f"{path}: no pose rows")
-    return table.values[:, [table.header.index(c) for c in JOINTS]] * ANGLE_UNITS[angle_unit]
-
-
 @app.command("plan")
 def plan_cmd(
     n: Annotated[int, typer.Option("--n", "-n", help="How many poses to choose.")] = 30,
@@ -825,18 +684,18 @@ def plan_cmd(
 
     O1 (Borm & Menq) is D-optimality over all identifiable parameters, O4 (Nahvi & Hollerbach)
     the noise amplification of the weakest one; both are printed beside random pose sets."""
-    from arm.measurements import atomic_write_text
+    from arm.measurements import write_poses
     from lab import plan
 
     _check_units("m", angle_unit)
     _check_noise(noise_mm)
     crit = criterion.lower()
     if crit not in ("o1", "o4"):
-        _fail(f"--criterion must be O1 or O4, got {criterion!r}")
+        fail(f"--criterion must be O1 or O4, got {criterion!r}")
     if n < 1:
-        _fail(f"--n must be at least 1, got {n}")
+        fail(f"--n must be at least 1, got {n}")
     if candidates < n:
-        _fail(f"--candidates ({candidates}) must be at least --n ({n})")
+        fail(f"--candidates ({candidates}) must be at least --n ({n})")
     _load_modules(effect_module)
     _parse_effects(effects)
     arm = _robot(robot)
@@ -846,17 +705,11 @@ def plan_cmd(
                 n, arm, effects, criterion=crit, candidates=candidates, noise_mm=noise_mm, seed=seed
             )
     with _writing(output):
-        atomic_write_text(output, poses_csv(p.q, angle_unit))
+        write_poses(p.q, output, angle_unit)
     if as_json:
         print(_dump(p.to_dict() | {"output": str(output), "angle_unit": angle_unit}))
         return
-    table = Table(title=f"{p.n_poses} poses chosen by {crit.upper()}", title_justify="left")
-    table.add_column("", style="bold")
-    table.add_column("planned", justify="right")
-    table.add_column(f"{p.n_poses} random poses (mean of 20)", justify="right")
-    table.add_row("O1", f"{p.o1:.4g}", f"{p.random_o1:.4g}")
-    table.add_row("O4", f"{p.o4:.4g}", f"{p.random_o4:.4g}")
-    console.print(table)
+    console.print(plan_table(p, crit))
     ident = p.identifiability
     console.print(
         f"{ident.rank} of {ident.n_parameters} parameters identifiable, condition number "
@@ -911,17 +764,18 @@ def collect_cmd(
     noise; the CSV (SPEC section 3) has every optional column."""
     import numpy as np
 
+    from arm.measurements import read_poses
     from envs.scenarios import SCENARIOS, ScenarioError, draw_truth
 
     _check_units("m", angle_unit)
     if output.is_dir():
-        _fail(f"{output}: is a directory; -o takes the CSV file to write")
+        fail(f"{output}: is a directory; -o takes the CSV file to write")
     if scenario not in SCENARIOS:
-        _fail(f"--scenario: unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
+        fail(f"--scenario: unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
     if not (math.isfinite(noise_mm) and noise_mm >= 0):
-        _fail(f"--noise-mm must be >= 0, got {noise_mm}")
+        fail(f"--noise-mm must be >= 0, got {noise_mm}")
     if poses is None and n < 1:
-        _fail(f"--n must be at least 1, got {n}")
+        fail(f"--n must be at least 1, got {n}")
     arm = _robot(robot)
     q = None
     if poses is not None:
@@ -930,7 +784,7 @@ def collect_cmd(
         outside = ~arm.within_limits(q)
         if outside.any():
             i = int(np.flatnonzero(outside)[0])
-            _fail(f"{poses}: pose {i + 1} is outside the joint limits of {arm.name}: {q[i]}")
+            fail(f"{poses}: pose {i + 1} is outside the joint limits of {arm.name}: {q[i]}")
     from envs.collect import collect_measurements  # MuJoCo is loaded only here
 
     with _guard(ScenarioError):
@@ -1052,13 +906,13 @@ def compensate_cmd(
 
     _check_units(length_unit, angle_unit)
     if nominal_base not in ("auto", "nominal", "calibrated"):
-        _fail(f"--nominal-base must be auto, nominal or calibrated, got {nominal_base!r}")
+        fail(f"--nominal-base must be auto, nominal or calibrated, got {nominal_base!r}")
     ids = None
     if target_ids is not None:
         try:
             ids = [int(t) for t in target_ids.split(",") if t.strip()]
         except ValueError:
-            _fail(f"--target-ids must be integers separated by commas, got {target_ids!r}")
+            fail(f"--target-ids must be integers separated by commas, got {target_ids!r}")
     _load_modules(effect_module)
     cal = _robot(robot)
     nom = _robot(nominal)
@@ -1073,20 +927,7 @@ def compensate_cmd(
     if as_json:
         print(_dump(summary))
         return
-    table = Table(
-        title=f"error of {cal.name!r} at {comp.n} targets (mm)",
-        title_justify="left",
-    )
-    table.add_column("joint angles commanded")
-    table.add_column("RMS", justify="right")
-    table.add_column("max", justify="right")
-    table.add_row(
-        f"nominal inverse kinematics ({nom.name})",
-        _mm(summary["nominal_rms_mm"]),
-        _mm(summary["nominal_max_mm"]),
-    )
-    table.add_row("compensated", _mm(summary["rms_mm"], 6), _mm(summary["max_mm"], 6))
-    console.print(table)
+    console.print(compensation_table(cal.name, nom.name, comp.n, summary))
     console.print(
         f"compensation removes {summary['nominal_rms_mm'] - summary['rms_mm']:.4f} mm RMS "
         f"(largest joint change {summary['max_joint_change_mrad']:.3f} mrad); "

@@ -4,13 +4,11 @@ layers over :mod:`experiments.sweep`, :mod:`experiments.leaderboard` and :mod:`e
 from __future__ import annotations
 
 import math
-import shlex
 import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -21,20 +19,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
-console = Console()
-err_console = Console(stderr=True, soft_wrap=True)
-
-
-def _command(*args: object, **options: object) -> str:
-    """The command line that these arguments and (non-default) options spell."""
-    words = ["sixaxis", *map(str, args)]
-    for flag, value in options.items():
-        if value is None or value is False:
-            continue
-        words.append(flag)
-        if value is not True:
-            words.append(str(value))
-    return shlex.join(words)
+from experiments.cli_output import command_line, console, err_console, fail, leaderboard_grid
 
 
 def sweep(
@@ -76,15 +61,13 @@ def sweep(
     try:
         cfg = load_config(config)
     except ConfigError as exc:
-        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
-        raise typer.Exit(2) from None
+        fail(exc)
     out_dir = out if out is not None else Path("runs") / cfg.name
     if dry_run:
         try:
             pending, finished = plan_sweep(cfg, RunStore(out_dir), retry_failed, overwrite)
         except (SweepError, RecordError) as exc:
-            err_console.print(f"[red]error:[/red] {exc}", highlight=False)
-            raise typer.Exit(2) from None
+            fail(exc)
         console.print(
             f"{cfg.name}: {len(cfg.agents)} agents x {len(cfg.scenarios)} scenarios x "
             f"{len(cfg.seeds)} seeds = {len(pending) + len(finished)} runs; "
@@ -124,7 +107,7 @@ def sweep(
                 address=address,
                 retry_failed=retry_failed,
                 overwrite=overwrite,
-                command=_command(
+                command=command_line(
                     "sweep",
                     config,
                     **{
@@ -139,8 +122,7 @@ def sweep(
                 progress=on_progress,
             )
         except (SweepError, RecordError, ValueError) as exc:
-            err_console.print(f"[red]error:[/red] {exc}", highlight=False)
-            raise typer.Exit(2) from None
+            fail(exc)
     console.print(
         f"{summary.done} runs in {summary.wall_time_s:.1f} s ({summary.skipped} already finished, "
         f"{len(summary.failed)} failed); records in {summary.out_dir}"
@@ -193,9 +175,8 @@ def leaderboard(
     try:
         board = build_leaderboard(runs_dir, rank_by=rank_by, allow_dirty=allow_dirty)
     except RecordError as exc:
-        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
-        raise typer.Exit(2) from None
-    command = _command(
+        fail(exc)
+    command = command_line(
         "leaderboard",
         runs_dir,
         **{
@@ -209,29 +190,20 @@ def leaderboard(
     m = board.rank_by
     head = headline_metrics(board)
 
-    def grid(title: str, cell) -> Table:
-        table = Table(title=title)
-        table.add_column("agent", style="bold")
-        for s in board.scenarios:
-            table.add_column(s, justify="right")
-        for a in board.agents:
-            rows = [board.row(a, s) for s in board.scenarios]
-            cells = []
-            for r in rows:
-                c = "" if r is None else cell(r)
-                cells.append(f"[bold green]{c}[/bold green]" if r is not None and r.best else c)
-            table.add_row(next(r for r in rows if r is not None).display, *cells)
-        return table
-
     if head:
         console.print(
-            grid(
+            leaderboard_grid(
+                board,
                 " · ".join(f"{h} ({METRICS[h].unit})" for h in head)
                 + f": means (bold: best by {m})",
                 lambda r: headline_cell(board, r),
             )
         )
-    console.print(grid(f"{m}: {spread_words(board)}", lambda r: cell_text(r.stats[m], m, r)))
+    console.print(
+        leaderboard_grid(
+            board, f"{m}: {spread_words(board)}", lambda r: cell_text(r.stats[m], m, r)
+        )
+    )
     if board.failed:
         console.print(f"[red]{len(board.failed)} failed run(s)[/red] (listed in the markdown)")
     for p in paths.values():
@@ -278,13 +250,13 @@ def reproduce(
         return
     from experiments.config import RunSpec
     from experiments.records import RecordError, environment_info, load_record
+    from experiments.reproduce import same_value
     from experiments.sweep import build_record, execute_run, run_in_worker
 
     try:
         rec = load_record(record)
     except RecordError as exc:
-        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
-        raise typer.Exit(2) from None
+        fail(exc)
     spec = RunSpec.from_dict(rec["spec"])
     here = environment_info()
     for key in ("versions", "git"):
@@ -317,7 +289,7 @@ def reproduce(
     old_m, new_m = rec.get("metrics") or {}, new.get("metrics") or {}
     for k in sorted(set(old_m) | set(new_m)):
         a, b = old_m.get(k), new_m.get(k)
-        same = _same(a, b, rtol)
+        same = same_value(a, b, rtol)
         if not same:
             differ.append(k)
         diff = "" if a is None or b is None else f"{b - a:+.3g}"
@@ -353,8 +325,7 @@ def _reproduce_rows(
         with console.status("rerunning..."):
             outcomes = reproduce_rows(picked, path, rtol=rtol, isolated=isolated)
     except ReproduceError as exc:
-        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
-        raise typer.Exit(2) from None
+        fail(exc)
     table = Table(title=f"{path}: recorded vs reproduced ({time.perf_counter() - t0:.1f} s)")
     for c in ("run", "metric", "recorded", "reproduced", "difference", ""):
         table.add_column(
@@ -386,14 +357,6 @@ def _reproduce_rows(
 
 def _show(v) -> str:
     return "–" if v is None else f"{v:.9g}" if isinstance(v, float) else str(v)
-
-
-def _same(a, b, rtol: float) -> bool:
-    if a is None or b is None:
-        return a is b
-    if rtol == 0:
-        return a == b
-    return math.isclose(a, b, rel_tol=rtol, abs_tol=0.0)
 
 
 def _close_tree(a, b, rtol: float) -> bool:

@@ -43,6 +43,7 @@ __all__ = [
     "ReproduceError",
     "read_runs_csv",
     "reproduce_rows",
+    "same_value",
     "select_rows",
 ]
 
@@ -80,11 +81,13 @@ class Outcome:
         return [
             m
             for m in self.recorded
-            if not _same(self.recorded[m], self.reproduced.get(m, float("nan")), self.rtol)
+            if not same_value(self.recorded[m], self.reproduced.get(m, float("nan")), self.rtol)
         ]
 
 
-def _same(a: float | None, b: float | None, rtol: float) -> bool:
+def same_value(a: float | None, b: float | None, rtol: float) -> bool:
+    """Whether two recorded metric values agree: equal (``rtol`` 0) or within ``rtol`` relative;
+    a missing value agrees only with a missing value."""
     if a is None or b is None:
         return a is None and b is None
     if rtol == 0:

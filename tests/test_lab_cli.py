@@ -21,9 +21,8 @@ from typer.testing import CliRunner
 
 from arm.description import load_robot, seed_robot
 from arm.effects import load_effect_module
-from arm.measurements import read_measurements, write_measurements
+from arm.measurements import read_measurements, read_poses, write_measurements
 from experiments.cli import app
-from experiments.cli_lab import read_poses
 from lab import diagnose, fit
 from tests._lab_data import (
     FLOOR_MM,
