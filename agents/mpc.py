@@ -29,6 +29,9 @@ energy into elastic links after a load change and diverged. Two ways to solve it
 :class:`MPCAgent` wires it to the environment and to :class:`~agents.online_calibration.
 RecursiveLeastSquares`, which updates the model from tracker measurements (``"mpc"``), or hands it
 the plant's true model (``"mpc-oracle"``, the floor that model knowledge can reach).
+
+It is one module, longer than most, because the condensed QP, its solvers and the agent that feeds
+it the calibrated model share the horizon's layout.
 """
 
 from __future__ import annotations

@@ -21,6 +21,9 @@ the policy (``agents/policies/<variant>.npz``, no pickle) next to the SB3 zip.
 
 Torch runs on one thread (``torch.set_num_threads(1)``): small networks on two shared cores ran
 30x slower with two.
+
+It is one module, longer than most, because training, shipping and the agent share the feature
+pipeline, which must be the same code in training and in evaluation.
 """
 
 from __future__ import annotations

@@ -14,6 +14,10 @@ Two kinds:
 A user's effect is one such class in a Python file, loaded by ``--effect-module FILE.py`` (every
 :class:`Effect` subclass with a ``name`` in the file is registered) or from another package through
 the ``sixaxis.effects`` entry-point group.
+
+It is one module, longer than most, because the effect base classes, the catalogue built on them and
+the registry that finds a user's effects (``--effect-module``, entry points) are one plug-in
+interface.
 """
 
 from __future__ import annotations

@@ -46,6 +46,10 @@ A description that is close to this structure (a calibrated arm, whose small err
 solved on its nearest structured arm, and every branch is then finished by damped least squares on
 the true chain. Other arms use damped least squares from several starts; that finds the solutions
 its starts lead to, not necessarily all.
+
+It is one module, longer than most, because its derivation is its documentation, and the closed form
+and the damped least-squares solver that refines or replaces it share their pose and joint-limit
+handling.
 """
 
 from __future__ import annotations

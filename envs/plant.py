@@ -31,6 +31,9 @@ point that may change during an episode.
 
 The ``discrete`` integrator (implicit in position and velocity) keeps stiff joints and servos stable
 at 1 kHz with light wrist links.
+
+It is one module, longer than most, because the plant is one MjSpec model: building it, driving its
+servos and its hidden physics share the layout of its bodies, hinges and tendons.
 """
 
 from __future__ import annotations

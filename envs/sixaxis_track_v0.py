@@ -1,5 +1,9 @@
 """``SixAxisTrack-v0``: track a reference path with the tool point of a six-axis arm whose true
-geometry and physics differ from its description, seen through encoders and a laser tracker."""
+geometry and physics differ from its description, seen through encoders and a laser tracker.
+
+It is one module, longer than most, because the environment's docstring is its reference (spaces,
+reward, termination, info) and stays beside the code that makes them.
+"""
 
 from __future__ import annotations
 

@@ -12,6 +12,10 @@ Bad input (a missing file, a bad CSV cell, an unknown effect or unit) prints one
 ``error: ...`` naming the file, line, column or option on stderr and exits with code 2; a
 traceback means a bug. Library modules are imported inside each command, so ``sixaxis --help``
 stays fast and only ``collect`` loads MuJoCo.
+
+It is one module, longer than most, because it is one typer app: its commands are thin layers over
+the lab's functions that share the options, the input checks and the JSON output; what they print is
+built in :mod:`experiments.cli_output`.
 """
 
 from __future__ import annotations

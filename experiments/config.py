@@ -45,6 +45,9 @@ Student-t interval (the loader warns): give at least 3.
 
 A config expands into :class:`RunSpec` s, one per agent x scenario x seed: plain data that says
 everything a run needs, so a record that carries it can be rerun anywhere.
+
+It is one module, longer than most, because the config's schema and every check of it belong
+together: whoever reads an error message finds the rule beside the key it names.
 """
 
 from __future__ import annotations
@@ -58,7 +61,7 @@ import re
 import tomllib
 import types
 import typing
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -440,143 +443,31 @@ def parse_config(
         bad("env.scenario: scenarios are chosen by the top-level 'scenarios' list")
     _check_env_kwargs(env, "env", env_info, bad)
 
-    # scenarios
-    scenarios: list[ScenarioEntry] = []
-    for i, s in enumerate(raw["scenarios"]):
-        where = f"scenarios[{i}]"
-        if _is(s, str):
-            s = {"name": s}
-        if not _is(s, dict):
-            bad(f"{where}: expected a scenario name or a table, got {_tname(s)} {s!r}")
-            continue
-        for k in s:
-            if k not in _SCENARIO_KEYS:
-                bad(f"{where}.{k}: unknown key; known: {', '.join(sorted(_SCENARIO_KEYS))}")
-        label = s.get("name")
-        scen = s.get("scenario", label)
-        if not _is(label, str):
-            bad(f"{where}.name: expected a string, got {_tname(label)} {label!r}")
-            continue
-        if not _is(scen, str):
-            bad(f"{where}.scenario: expected a string, got {_tname(scen)} {scen!r}")
-            continue
-        if not LABEL_RE.match(label):
-            bad(f"{where}.name: {label!r} must be letters, digits and _ . + -")
-        if scenarios_known is not None and scen not in scenarios_known:
-            key = "scenario" if "scenario" in s else "name"
-            bad(f"{where}.{key}: unknown scenario {scen!r}; known: {', '.join(scenarios_known)}")
-        senv = s.get("env", {})
-        if not _is(senv, dict):
-            bad(f"{where}.env: expected a table, got {_tname(senv)}")
-            senv = {}
-        if "scenario" in senv:
-            bad(f"{where}.env.scenario: give the scenario as {where}.scenario")
-        _check_env_kwargs(senv, f"{where}.env", env_info, bad)
-        scenarios.append(ScenarioEntry(label, scen, dict(senv)))
-    labels = [s.label for s in scenarios]
-    for dup in sorted({x for x in labels if labels.count(x) > 1}):
-        bad(f"scenarios: the name {dup!r} appears twice (give one a different name)")
+    scenarios = [
+        e
+        for _, where, s in _entries(
+            raw["scenarios"], "scenarios", _SCENARIO_KEYS, bad, "a scenario"
+        )
+        if (e := _scenario_entry(s, where, scenarios_known, env_info, bad)) is not None
+    ]
+    _no_repeats([s.label for s in scenarios], "scenarios", "name", "give one a different name", bad)
     if not raw["scenarios"]:
         bad("scenarios: empty")
 
-    # agents
-    agents: list[AgentEntry] = []
-    for i, a in enumerate(raw["agents"]):
-        where = f"agents[{i}]"
-        if _is(a, str):
-            a = {"name": a}
-        if not _is(a, dict):
-            bad(f"{where}: expected an agent name or a table, got {_tname(a)} {a!r}")
-            continue
-        for k in a:
-            if k not in _AGENT_KEYS:
-                bad(f"{where}.{k}: unknown key; known: {', '.join(sorted(_AGENT_KEYS))}")
-        agent = a.get("name")
-        if not _is(agent, str):
-            bad(
-                f"{where}.name: expected a string (an agent name or 'package.module:Class'), got {_tname(agent)} {agent!r}"
-            )
-            continue
-        label = a.get("label", agent.rpartition(":")[2] if ":" in agent else agent)
-        if not _is(label, str) or not LABEL_RE.match(label):
-            bad(f"{where}.label: {label!r} must be letters, digits and _ . + -")
-            continue
-        settings = a.get("settings", {})
-        if not _is(settings, dict):
-            bad(f"{where}.settings: expected a table, got {_tname(settings)}")
-            settings = {}
-        aenv = a.get("env", {})
-        if not _is(aenv, dict):
-            bad(f"{where}.env: expected a table, got {_tname(aenv)}")
-            aenv = {}
-        _check_env_kwargs(aenv, f"{where}.env", env_info, bad)
-        per = a.get("scenario_settings", {})
-        if not _is(per, dict) or not all(_is(v, dict) for v in per.values()):
-            bad(f"{where}.scenario_settings: expected a table of tables (scenario -> settings)")
-            per = {}
-        known = {s.label for s in scenarios}
-        for sc in per:
-            if sc not in known:
-                bad(
-                    f"{where}.scenario_settings.{sc}: not a scenario of this config "
-                    f"({', '.join(sorted(known))})"
-                )
-        ok = _check_agent(agent, settings, where, bad, construct=check_agents)
-        for sc, extra in per.items():
-            ok = (
-                _check_agent(
-                    agent,
-                    dict(settings) | dict(extra),
-                    f"{where}.scenario_settings.{sc}",
-                    bad,
-                    construct=check_agents,
-                )
-                and ok
-            )
-        if ok:
-            agents.append(
-                AgentEntry(
-                    label,
-                    agent,
-                    dict(settings),
-                    dict(aenv),
-                    {k: dict(v) for k, v in per.items()},
-                )
-            )
-    labels = [a.label for a in agents]
-    for dup in sorted({x for x in labels if labels.count(x) > 1}):
-        bad(f"agents: the label {dup!r} appears twice (give one a 'label')")
+    scenario_labels = {s.label for s in scenarios}
+    agents = [
+        e
+        for _, where, a in _entries(raw["agents"], "agents", _AGENT_KEYS, bad, "an agent")
+        if (e := _agent_entry(a, where, env_info, scenario_labels, check_agents, bad)) is not None
+    ]
+    _no_repeats([a.label for a in agents], "agents", "label", "give one a 'label'", bad)
     if not raw["agents"]:
         bad("agents: empty")
 
-    # phases
-    phases: list[PhaseEntry] = []
-    for i, ph in enumerate(raw.get("phases", [])):
-        where = f"phases[{i}]"
-        if not _is(ph, dict):
-            bad(f"{where}: expected a table, got {_tname(ph)}")
-            continue
-        for k in ph:
-            if k not in _PHASE_KEYS:
-                bad(f"{where}.{k}: unknown key; known: {', '.join(sorted(_PHASE_KEYS))}")
-        pname = ph.get("name", f"phase{i}")
-        secs = ph.get("seconds")
-        judged = ph.get("judged", True)
-        penv = ph.get("env", {})
-        if not _is(pname, str):
-            bad(f"{where}.name: expected a string, got {_tname(pname)}")
-        if not _is(secs, (int, float)) or secs <= 0:
-            bad(f"{where}.seconds: expected a positive number, got {_tname(secs)} {secs!r}")
-            secs = 1.0
-        if not _is(judged, bool):
-            bad(f"{where}.judged: expected a boolean, got {_tname(judged)} {judged!r}")
-        if not _is(penv, dict):
-            bad(f"{where}.env: expected a table, got {_tname(penv)}")
-            penv = {}
-        if "scenario" in penv:
-            bad(f"{where}.env.scenario: a phase keeps the episode's scenario")
-        _check_env_kwargs(penv, f"{where}.env", env_info, bad)
-        phases.append(PhaseEntry(str(pname), float(secs), bool(judged), dict(penv)))
+    phases = [
+        _phase_entry(ph, f"phase{i}", where, env_info, bad)
+        for i, where, ph in _entries(raw.get("phases", []), "phases", _PHASE_KEYS, bad)
+    ]
     if "campaign" in raw and _is(raw["campaign"], dict):
         if raw.get("phases"):
             bad("campaign: give either campaign or [[phases]], not both")
@@ -624,6 +515,135 @@ def parse_config(
         phases=tuple(phases),
         path=source,
     )
+
+
+# -- the entries of the scenarios, agents and phases lists ------------------------------------
+def _entries(
+    items: Sequence[Any], section: str, keys: Iterable[str], bad, shorthand: str | None = None
+) -> Iterator[tuple[int, str, dict[str, Any]]]:
+    """Each table of a config list with its index and where it is (``agents[2]``); a bare string
+    stands for ``{name = "..."}`` where ``shorthand`` says what it names. Entries that are not
+    tables, and unknown keys, are reported to ``bad``; the former are skipped."""
+    known = sorted(keys)
+    for i, item in enumerate(items):
+        where = f"{section}[{i}]"
+        if shorthand is not None and _is(item, str):
+            item = {"name": item}
+        if not _is(item, dict):
+            if shorthand is None:
+                bad(f"{where}: expected a table, got {_tname(item)}")
+            else:
+                bad(f"{where}: expected {shorthand} name or a table, got {_tname(item)} {item!r}")
+            continue
+        for k in item:
+            if k not in known:
+                bad(f"{where}.{k}: unknown key; known: {', '.join(known)}")
+        yield i, where, item
+
+
+def _entry_env(
+    entry: Mapping[str, Any], where: str, env_info, bad, scenario: str | None = None
+) -> dict[str, Any]:
+    """The entry's ``env`` table, checked against the env's keyword arguments; ``scenario``: why
+    it may not set the scenario (None: it may)."""
+    env = entry.get("env", {})
+    if not _is(env, dict):
+        bad(f"{where}.env: expected a table, got {_tname(env)}")
+        env = {}
+    if scenario is not None and "scenario" in env:
+        bad(f"{where}.env.scenario: {scenario}")
+    _check_env_kwargs(env, f"{where}.env", env_info, bad)
+    return dict(env)
+
+
+def _no_repeats(labels: Sequence[str], section: str, noun: str, remedy: str, bad) -> None:
+    for dup in sorted({x for x in labels if labels.count(x) > 1}):
+        bad(f"{section}: the {noun} {dup!r} appears twice ({remedy})")
+
+
+def _scenario_entry(
+    s: Mapping[str, Any], where: str, known: tuple[str, ...] | None, env_info, bad
+) -> ScenarioEntry | None:
+    label = s.get("name")
+    scen = s.get("scenario", label)
+    if not _is(label, str):
+        bad(f"{where}.name: expected a string, got {_tname(label)} {label!r}")
+        return None
+    if not _is(scen, str):
+        bad(f"{where}.scenario: expected a string, got {_tname(scen)} {scen!r}")
+        return None
+    if not LABEL_RE.match(label):
+        bad(f"{where}.name: {label!r} must be letters, digits and _ . + -")
+    if known is not None and scen not in known:
+        key = "scenario" if "scenario" in s else "name"
+        bad(f"{where}.{key}: unknown scenario {scen!r}; known: {', '.join(known)}")
+    env = _entry_env(s, where, env_info, bad, f"give the scenario as {where}.scenario")
+    return ScenarioEntry(label, scen, env)
+
+
+def _agent_entry(
+    a: Mapping[str, Any],
+    where: str,
+    env_info,
+    scenario_labels: set[str],
+    construct: bool,
+    bad,
+) -> AgentEntry | None:
+    agent = a.get("name")
+    if not _is(agent, str):
+        bad(
+            f"{where}.name: expected a string (an agent name or 'package.module:Class'), got {_tname(agent)} {agent!r}"
+        )
+        return None
+    label = a.get("label", agent.rpartition(":")[2] if ":" in agent else agent)
+    if not _is(label, str) or not LABEL_RE.match(label):
+        bad(f"{where}.label: {label!r} must be letters, digits and _ . + -")
+        return None
+    settings = a.get("settings", {})
+    if not _is(settings, dict):
+        bad(f"{where}.settings: expected a table, got {_tname(settings)}")
+        settings = {}
+    env = _entry_env(a, where, env_info, bad)
+    per = a.get("scenario_settings", {})
+    if not _is(per, dict) or not all(_is(v, dict) for v in per.values()):
+        bad(f"{where}.scenario_settings: expected a table of tables (scenario -> settings)")
+        per = {}
+    for sc in per:
+        if sc not in scenario_labels:
+            bad(
+                f"{where}.scenario_settings.{sc}: not a scenario of this config "
+                f"({', '.join(sorted(scenario_labels))})"
+            )
+    ok = _check_agent(agent, settings, where, bad, construct=construct)
+    for sc, extra in per.items():
+        ok = (
+            _check_agent(
+                agent,
+                dict(settings) | dict(extra),
+                f"{where}.scenario_settings.{sc}",
+                bad,
+                construct=construct,
+            )
+            and ok
+        )
+    if not ok:
+        return None
+    return AgentEntry(label, agent, dict(settings), env, {k: dict(v) for k, v in per.items()})
+
+
+def _phase_entry(ph: Mapping[str, Any], default_name: str, where: str, env_info, bad) -> PhaseEntry:
+    pname = ph.get("name", default_name)
+    secs = ph.get("seconds")
+    judged = ph.get("judged", True)
+    if not _is(pname, str):
+        bad(f"{where}.name: expected a string, got {_tname(pname)}")
+    if not _is(secs, (int, float)) or secs <= 0:
+        bad(f"{where}.seconds: expected a positive number, got {_tname(secs)} {secs!r}")
+        secs = 1.0
+    if not _is(judged, bool):
+        bad(f"{where}.judged: expected a boolean, got {_tname(judged)} {judged!r}")
+    env = _entry_env(ph, where, env_info, bad, "a phase keeps the episode's scenario")
+    return PhaseEntry(str(pname), float(secs), bool(judged), env)
 
 
 # -- checks against the env and the agents ----------------------------------------------------

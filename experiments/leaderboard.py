@@ -17,6 +17,9 @@ table lists every run (agent, scenario, seed, commit, config, every metric) so t
 
 The CSV has one row per agent and scenario with ``<metric>_mean``, ``<metric>_ci95`` (half-width;
 empty with fewer than three values), ``<metric>_min``, ``<metric>_max`` and ``<metric>_n``.
+
+It is one module, longer than most, because building the board from the records and writing its
+files share the cell formatting, so that the markdown, the CSVs and the CLI show the same numbers.
 """
 
 from __future__ import annotations

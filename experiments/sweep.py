@@ -15,6 +15,9 @@ traceback and the sweep goes on.
 
 A record with the same run key but another spec (the config changed under the same output
 directory) is refused before anything runs, unless ``overwrite=True``.
+
+It is one module, longer than most, because planning, running on either backend and recording share
+the record's layout and the rule that resumes a sweep.
 """
 
 from __future__ import annotations

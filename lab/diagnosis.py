@@ -44,6 +44,9 @@ functions of it explain (adjusted R^2, with the F-test's p-value): harmonics 1-3
 linear and quadratic terms of other variables, the sign of a direction; each function enters
 times a fixed direction in the measurement frame and times the sensitivity of the point to each
 joint angle, so both a Cartesian and a joint-angle error that depend on the variable show up.
+
+It is one module, longer than most, because the method above is one test: its candidates, hints and
+result types are built in the order it runs.
 """
 
 from __future__ import annotations

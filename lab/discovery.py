@@ -41,6 +41,9 @@ Verdict: ``discovered`` when terms were selected and, with the noise known, the 
 residual is consistent with it; ``unexplained`` when the residual stays above the noise (with
 the terms found, if any, explaining part); ``none`` when nothing was selected and the residual
 is noise (or the noise is not known).
+
+It is one module, longer than most, because the steps above are one method: the library, the
+selection, the refit and the effect module written from it read top to bottom.
 """
 
 from __future__ import annotations

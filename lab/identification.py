@@ -29,6 +29,9 @@ The steps, each a pure function of arrays:
    it; then a short refit.
 5. **Standard errors** from the scaled Jacobian at the solution: ``cov = s^2 (J^T J)^-1`` with
    ``s^2 = sum r^2 / (3N - rank)`` (robust fits: IRLS weights in both).
+
+It is one module, longer than most, because the steps above are one fit: each is short, and
+:func:`fit` runs them in this order.
 """
 
 from __future__ import annotations

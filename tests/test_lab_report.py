@@ -17,7 +17,8 @@ import pytest
 from arm.kinematics import Chain, gravity_torques, tool_points
 from arm.measurements import read_measurements
 from arm.so3 import rotation_matrix
-from lab.report import arm_parameters, build_report
+from lab.report import build_report
+from lab.report_html import arm_parameters
 from tests._lab_data import REAL, campaign, real_arm, requires_real_data
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
