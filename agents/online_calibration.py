@@ -27,6 +27,9 @@ survives:
   a chi-square gate *and* far above the recent typical innovation (so that an unmodelled effect,
   which makes every innovation large, does not lock the estimator out); after a run of rejections
   the next one is accepted anyway (a real change of the arm, e.g. a payload).
+
+It is one module, longer than most, because the estimator, the choice of what it may estimate and
+the buffer of measurements it widens its model over share the scaled parameter vector.
 """
 
 from __future__ import annotations
