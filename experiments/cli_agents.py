@@ -194,8 +194,7 @@ def render(
     try:
         a = make_agent(agent, **json.loads(settings))
     except (json.JSONDecodeError, AgentError) as exc:
-        err_console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(2) from None
+        fail(exc)
     env = {} if trajectory is None else {"trajectory": trajectory}
     with Progress(
         "[progress.description]{task.description}",
@@ -219,8 +218,7 @@ def render(
                 progress=lambda n, total: bar.update(job, completed=n, total=total),
             )
         except (VideoError, ValueError) as exc:
-            err_console.print(f"[red]error:[/red] {exc}")
-            raise typer.Exit(2) from None
+            fail(exc)
     console.print(
         f"wrote {info.path}: {info.frames} frames, {info.seconds:.2f} s at {info.fps:g} fps, "
         f"{info.width}x{info.height}",
