@@ -259,14 +259,15 @@ def cell_text(s: Summary, metric: str, row: Row | None = None, spread: bool = Tr
     """A summary as text: ``mean ± ci95`` (three values or more), ``mean (min–max)`` (two),
     ``mean`` (one), ``k/n`` for counts. A metric with a companion count of runs where it is
     missing (``converge_s``/``never_converged``) says so: ``never (3/3)``, ``1.2 ± 0.4 (1/4
-    never)``, the mean being over the runs that converged. ``spread=False``: the mean alone."""
+    never)``, the mean being over the runs that converged. ``spread=False``: the mean alone (and
+    ``never`` without the count when no run converged)."""
     if METRICS[metric].aggregate == "sum":
         return "–" if s.n == 0 else f"{round(s.total)}/{s.n}"
     companion = METRICS[metric].companion
     never = row.stats.get(companion) if row is not None and companion else None
     k = round(never.total) if never is not None and never.n else 0
     if s.n == 0:
-        return f"never ({k}/{never.n})" if k else "–"
+        return ("never" if not spread else f"never ({k}/{never.n})") if k else "–"
     if not spread:
         text = _fmt(s.mean)
     elif s.has_ci:

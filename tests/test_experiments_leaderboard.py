@@ -254,12 +254,13 @@ def test_convergence_never_reached_is_marked_not_zero_and_oracles_are_marked(tmp
     head = lines.index(next(ln for ln in lines if ln.startswith("## rms_mm (mm) · rms_settled_mm")))
     grid = lines[head : head + 8]
     hold = next(ln for ln in grid if ln.startswith("| hold |"))
-    assert hold.count("never (3/3)") == 2  # both scenarios; no number, no zero
+    assert hold.count("· never** |") == 2  # both scenarios (best: tied); no number, no zero
     nominal = next(ln for ln in grid if ln.startswith("| nominal |"))
     assert "· 2.00 (2/3 never) |" in nominal
     calibrated = next(ln for ln in grid if ln.startswith("| calibrated (oracle) |"))
     assert "· 1.50 |" in calibrated  # mean of 1.0, 1.5, 2.0
     assert "(oracle) are given the plant's truth" in md
+    assert "| **hold** | nominal | 3 | 2.00 ± 2.5 | 1.50 ± 2.5 | never (3/3) | 3/3 |" in md
     table = rows(to_csv(board))
     by = {(r["agent"], r["scenario"]): r for r in table}
     assert by["hold", "geometric"]["converge_s_n"] == "0"
