@@ -26,7 +26,11 @@ points better (RMS at most ``guard`` of the model without it). The lab already c
 effect on left-out poses; later points are the stricter test on a trajectory, where neighbouring
 poses resemble each other. (``test_first=False`` takes the first effect on the lab's word.)
 
-**How it widens.** The model, the MPC and the estimator take the kept effects; the estimator
+**How it widens.** When it adds an effect it also asks whether one it added earlier is still
+needed: an effect whose removal leaves the held-out points predicted about as well (``prune``)
+goes; on a campaign over the workspace a load-backlash or gear term taken early, before the
+compliance that explains the postures appeared, otherwise stays and extrapolates badly to a new
+region. The model, the MPC and the estimator take the resulting effects; the estimator
 continues from the one re-run over the buffer (``relearn``, default), which is what an estimator
 told the effects from the start would have learned from the same points: the geometric
 parameters that had absorbed the missing effect are re-estimated with it. (With
@@ -103,6 +107,7 @@ class DiagnosisRecord:
     chi2_p_value: float | None = None
     tried: dict[str, float] = field(default_factory=dict)
     kept: list[str] = field(default_factory=list)
+    dropped: list[str] = field(default_factory=list)
     effects_after: list[str] = field(default_factory=list)
     reason: str = "start"
     error: str | None = None
@@ -119,6 +124,7 @@ class DiagnosisRecord:
             "chi2_p_value": self.chi2_p_value,
             "tried": dict(self.tried),
             "kept": list(self.kept),
+            "dropped": list(self.dropped),
             "effects_before": list(self.effects_before),
             "effects_after": list(self.effects_after),
             "error": self.error,
@@ -148,7 +154,9 @@ class DiagnosingMPCAgent(MPCAgent):
     recent points a diagnosis uses; re-learning uses all the buffer holds), ``monitor_points``
     and ``monitor_p`` (the innovation test that starts a new diagnosis), ``candidates`` (effects
     to test; default the lab's catalogue), ``relearn`` (re-run the widened estimator over the
-    buffer), ``test_first`` (the held-out test for the first effect too, not only the extras).
+    buffer), ``test_first`` (the held-out test for the first effect too, not only the extras),
+    ``prune`` (drop effects added earlier that a later, wider model no longer needs; with
+    ``relearn`` only).
     """
 
     name = "mpc-diagnose"
@@ -167,6 +175,7 @@ class DiagnosingMPCAgent(MPCAgent):
         candidates: Sequence[str] | None = None,
         relearn: bool = True,
         test_first: bool = True,
+        prune: bool = True,
         buffer: int = 5000,
         effects: str | Sequence[str] = "geometric",
         name: str | None = None,
@@ -203,6 +212,7 @@ class DiagnosingMPCAgent(MPCAgent):
         self.candidates = None if candidates is None else list(candidates)
         self.relearn = bool(relearn)
         self.test_first = bool(test_first)
+        self.prune = bool(prune)
 
     # -- episode ----------------------------------------------------------------------------------
     def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
@@ -333,13 +343,13 @@ class DiagnosingMPCAgent(MPCAgent):
         kept: list[str] = [] if self.test_first else [first.label]
         tested = list(d.explanation) if self.test_first else extras
         cut = round(len(data) * (1.0 - self.holdout))
+        train, test = data.subset(np.arange(cut)), data.subset(np.arange(cut, len(data)))
         if tested and cut < MIN_FIT_POINTS:  # too few points to fit without the held-out ones
             rec.error = (
                 f"not tested: the held-out test needs {MIN_FIT_POINTS} points before the last"
             )
             tested = []
         if tested:
-            train, test = data.subset(np.arange(cut)), data.subset(np.arange(cut, len(data)))
             base_rms = self._held_out_rms(model, kept, train, test)
             for c in tested:
                 rms = self._held_out_rms(model, [*kept, c.label], train, test)
@@ -350,11 +360,46 @@ class DiagnosingMPCAgent(MPCAgent):
         if not kept:
             return
         rec.kept = kept
-        wide = ErrorModel(model.robot, merge_effects(model, kept), targets=model.targets)
-        job.widening = self.prepare_widening(wide.effect_names)
+        labels = merge_effects(model, kept)
+        if self.prune and self.relearn and cut >= MIN_FIT_POINTS:
+            labels = self._pruned(model, labels, train, test, rec)
+        job.widening = self._prepare(model, labels)
         if self.relearn:
             job.estimator = self._relearned(job.widening.model, held)
         job.replayed = total
+
+    def _pruned(
+        self,
+        model: ErrorModel,
+        labels: list[str],
+        train: MeasurementSet,
+        test: MeasurementSet,
+        rec: DiagnosisRecord,
+    ) -> list[str]:
+        """Drop effects added earlier that the wider model no longer needs: each in turn, if the
+        model without it predicts the held-out points about as well (RMS at most 1 / guard of the
+        model's with it), it goes (the estimator is re-learned over the buffer anyway)."""
+        # the model's first effect (the geometric one) is never dropped
+        old = [e for e in model.effect_names[1:] if e in labels[1:]]
+        base = ErrorModel(model.robot, labels[:1], targets=model.targets)
+        full = self._held_out_rms(base, labels[1:], train, test)
+        for e in old:
+            trial = [x for x in labels if x != e]
+            rms = self._held_out_rms(base, trial[1:], train, test)
+            if rms <= full / self.guard:
+                rec.dropped.append(e)
+                labels, full = trial, min(rms, full)
+        return labels
+
+    def _prepare(self, model: ErrorModel, labels: list[str]) -> Widening:
+        """The model, tool model and MPC of exactly ``labels`` (wider, or pruned)."""
+        from agents.tool_model import cached_tool_model
+
+        if set(labels) >= set(model.effect_names) and not self.relearn:
+            return self.prepare_widening(labels)
+        new = ErrorModel(model.robot, labels, targets=model.targets)
+        tm = cached_tool_model(new)
+        return Widening(new, tm, self._make_mpc(tm), None)
 
     def _held_out_rms(
         self, model: ErrorModel, added: list[str], train: MeasurementSet, test: MeasurementSet
