@@ -67,6 +67,8 @@ class Identifiability:
     listed in ``combinations`` with the null-space direction it spans (coefficients in SI units,
     its own coefficient 1; an empty dict for a parameter that moves nothing at all).
     ``singular_values`` are those of the scaled Jacobian restricted to the identifiable columns.
+    ``held`` names the parameters the caller holds at known values (``lab.fit``'s ``fixed``):
+    neither identified nor unidentifiable, the others are judged without their columns.
     """
 
     names: tuple[str, ...]
@@ -78,6 +80,7 @@ class Identifiability:
     n_poses: int
     weak: tuple[str, ...] = ()
     noise: float | None = None
+    held: tuple[str, ...] = ()
 
     @property
     def rank(self) -> int:
@@ -93,7 +96,14 @@ class Identifiability:
 
     @property
     def fixed_names(self) -> tuple[str, ...]:
-        return tuple(n for n, ok in zip(self.names, self.identifiable, strict=True) if not ok)
+        """The parameters fixed at nominal because the data cannot identify them (not those
+        held)."""
+        held = set(self.held)
+        return tuple(
+            n
+            for n, ok in zip(self.names, self.identifiable, strict=True)
+            if not ok and n not in held
+        )
 
     @property
     def condition_number(self) -> float:
@@ -137,6 +147,8 @@ class Identifiability:
         ]
         if self.fixed_names:
             lines.append("fixed at nominal: " + "; ".join(self.unidentifiable))
+        if self.held:
+            lines.append("held at the values given: " + ", ".join(self.held))
         return "\n".join(lines)
 
 

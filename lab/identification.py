@@ -39,7 +39,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -205,8 +205,6 @@ class FitResult:
 
     def validate(self, data: MeasurementSet) -> FitResult:
         """This result with validation metrics on ``data`` (held-out poses)."""
-        from dataclasses import replace
-
         return replace(self, validation_residuals=self.residuals_of(data))
 
     def description(self, name: str | None = None) -> RobotDescription:
@@ -607,6 +605,7 @@ def fit(
     if register and "geometric" in lay.effects:
         before = _rms(model.predict(inputs, p) - xyz)
         p_reg = register_base(model, inputs, xyz, p, tools=not held[_tool_idx(model)].any())
+        p_reg[held] = p[held]  # a held base keeps the value given: registration is a start only
         after = _rms(model.predict(inputs, p_reg) - xyz)
         if after < before:
             log.debug("registration: RMS %.4g mm -> %.4g mm", before * 1e3, after * 1e3)
@@ -637,6 +636,8 @@ def fit(
         )
     noise = noise_mm * 1e-3 if noise_mm is not None else sigma
     ident = analyse_jacobian(model, _without(sol.jacobian, held), noise=noise, warn=True)
+    if held.any():
+        ident = replace(ident, held=tuple(np.asarray(lay.names)[held]))
     free2 = ident.identifiable & ~held
     if not free2.any():
         raise FitError(

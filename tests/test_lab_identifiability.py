@@ -12,8 +12,9 @@ import pytest
 
 from arm.description import RobotDescription
 from arm.errormodel import ErrorModel
-from arm.sampling import sample_poses
-from lab import identifiability_of
+from arm.measurements import MeasurementSet
+from arm.sampling import sample_parameters, sample_poses
+from lab import fit, identifiability_of
 from lab.identifiability import analyse, gram_factor, orthonormal_basis
 
 NAME = re.compile(r"[a-z]+[0-9]*")
@@ -165,3 +166,64 @@ def test_orthonormal_basis_spans_the_independent_columns():
     assert np.allclose(Q @ (Q.T @ A), A, atol=1e-10)
     idx, L = gram_factor(A.T @ A)
     assert len(idx) == 6 and np.allclose(L @ L.T, (A.T @ A)[np.ix_(idx, idx)])
+
+
+BASE = ("bx", "by", "bz", "brx", "bry", "brz")
+
+
+def test_a_held_base_leaves_row_1_identifiable_as_an_independent_svd_says(seed):
+    """With the base known (``fit(..., fixed=base)``: the measurement frame is the robot's),
+    nothing absorbs row 1: the others' identifiability is that of the finite-difference
+    Jacobian without the base's columns, the row-1 errors are identified, and the base keeps the
+    values given (the closed-form registration is only a start)."""
+    model = ErrorModel(seed, "geometric")
+    rng = np.random.default_rng(10)
+    p = sample_parameters(model, rng)
+    for n in ("dtheta6", "dd6", "dalpha6", "da6"):  # unidentifiable either way: no truth in them
+        p[model.layout.index(n)] = 0.0
+    q = sample_poses(seed, 200, rng)
+    sigma = 15e-6
+    data = MeasurementSet(q, model.predict(model.inputs(q), p) + rng.normal(0, sigma, (200, 3)))
+    start = {b: float(p[model.layout.index(b)]) for b in BASE}
+    res = fit(data, seed, "geometric", fixed=BASE, start=start, noise_mm=1e3 * sigma)
+    assert all(res[b] == start[b] for b in BASE)  # held exactly
+
+    names = model.layout.names
+    others = [k for k, n in enumerate(names) if n not in BASE]
+    # the structure at the starting arm, where the first-order dependencies are exact
+    p0 = model.layout.vector(start, default=model.nominal())
+    J = fd_jacobian(model, model.inputs(q), p0)
+    rank, zero, involved = svd_structure(J[:, others], [names[k] for k in others])
+    assert res.rank == rank == 23  # 25 with the base free, less its 6, plus row 1's 4
+    assert {"dalpha1", "da1", "dtheta1", "dd1"} <= set(res.identifiability.identifiable_names)
+    ident = res.identifiability
+    assert set(ident.held) == set(BASE)
+    assert not set(BASE) & (set(ident.fixed_names) | named(ident.unidentifiable))
+    # the fixed ones are one per null direction, each taking part in one; the kept are independent
+    assert set(ident.fixed_names) <= involved | zero
+    assert len(ident.fixed_names) == len(others) - rank
+    kept = [k for k, n in enumerate(names) if n in ident.identifiable_names]
+    assert svd_structure(J[:, kept], kept)[0] == len(kept)
+    # and the fit finds row 1 where it is, at the noise floor
+    for n in ("dalpha1", "da1", "dtheta1", "dd1"):
+        k = model.layout.index(n)
+        assert abs(res.params[k] - p[k]) <= 4 * res.std[k], n
+        assert res.std[k] < 0.05 * abs(p[k]) or res.std[k] < 2e-6, n
+    assert res.sigma == pytest.approx(sigma, rel=0.1)
+
+
+def test_a_free_base_absorbs_row_1(seed):
+    """The same arm with the base free: the finite-difference Jacobian has row 1 in the base's
+    span, and the fit names the pairs."""
+    model = ErrorModel(seed, "geometric")
+    rng = np.random.default_rng(10)
+    p = sample_parameters(model, rng)
+    q = sample_poses(seed, 200, rng)
+    data = MeasurementSet(q, model.predict(model.inputs(q), p) + rng.normal(0, 15e-6, (200, 3)))
+    res = fit(data, seed, "geometric", noise_mm=0.015)
+    J = fd_jacobian(model, model.inputs(q), model.nominal())
+    rank, _, involved = svd_structure(J, model.layout.names)
+    assert res.rank == rank == 25
+    assert {"dalpha1", "da1", "dtheta1", "dd1"} <= involved
+    assert {"dd1 - bz", "dtheta1 - brz"} <= set(res.unidentifiable)
+    assert res.identifiability.held == ()
