@@ -22,8 +22,10 @@ construction allows at most 2 %, this counts only chance terms); on each hidden 
 share in which it picks exactly the true terms (joint and form). The thresholds of the peers
 are set the way their documentation suggests for known noise: BIC with the true noise
 variance; STLSQ and SR3 with the coefficient threshold at the Bonferroni z-value of the
-library's size times the noise (a coefficient of a unit-norm column has the noise's standard
-deviation); OMP's number of terms by 5-fold cross-validation.
+library's size times the noise, either on unit-norm columns (where a coefficient has the
+noise's standard deviation only if the columns are orthogonal) or on columns scaled so that
+each coefficient of the full fit has it (a t-test of each term given all the others); OMP's
+number of terms by 5-fold cross-validation.
 """
 
 from __future__ import annotations
@@ -87,6 +89,11 @@ def _peers():
     def threshold(X, sigma):
         return stats.norm.isf(ALPHA / 2 / X.shape[1]) * sigma
 
+    def by_standard_error(X):
+        """The columns scaled so that each coefficient of the full least-squares fit has the
+        noise's standard deviation: a threshold on them is a t-test of each term."""
+        return X * np.sqrt(np.diag(np.linalg.inv(X.T @ X)))
+
     def stlsq(X, y, sigma):
         opt = ps.STLSQ(threshold=threshold(X, sigma), alpha=0.0)
         return np.ravel(opt.fit(X, y[:, None]).coef_)
@@ -99,11 +106,18 @@ def _peers():
 
     import sklearn
 
+    sk, sindy = f"scikit-learn {sklearn.__version__}", f"pysindy {_version('pysindy')}"
     return {
-        f"scikit-learn {sklearn.__version__} LassoLarsIC (BIC)": lasso_bic,
-        f"scikit-learn {sklearn.__version__} OrthogonalMatchingPursuitCV": omp_cv,
-        f"pysindy {_version('pysindy')} STLSQ": stlsq,
-        f"pysindy {_version('pysindy')} SR3 (L0)": sr3,
+        f"{sk} LassoLarsIC (BIC)": lasso_bic,
+        f"{sk} OrthogonalMatchingPursuitCV": omp_cv,
+        f"{sindy} STLSQ, unit-norm columns": stlsq,
+        f"{sindy} STLSQ, threshold per standard error": lambda X, y, s: stlsq(
+            by_standard_error(X), y, s
+        ),
+        f"{sindy} SR3 (L0), unit-norm columns": sr3,
+        f"{sindy} SR3 (L0), threshold per standard error": lambda X, y, s: sr3(
+            by_standard_error(X), y, s
+        ),
     }
 
 
