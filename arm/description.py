@@ -49,6 +49,7 @@ from typing import Literal
 import numpy as np
 
 from arm.errors import SixAxisError
+from arm.ranges import payload_problem
 from arm.so3 import rotation_matrix
 
 __all__ = [
@@ -119,6 +120,9 @@ class RobotDescription:
                 )
             if j.mass < 0:
                 raise DescriptionError(f"robot {self.name!r}: joint {i} mass {j.mass} < 0")
+        why = payload_problem(self.payload)  # the rule of the measurement reader too
+        if why:
+            raise DescriptionError(f"robot {self.name!r}: {why}")
 
     # -- arrays -------------------------------------------------------------------------------
     def column(self, key: str) -> np.ndarray:

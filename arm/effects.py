@@ -51,6 +51,7 @@ __all__ = [
     "Transmission",
     "load_effect_module",
     "make_effect",
+    "missing_inputs",
     "parse_effects",
     "register_effect",
 ]
@@ -71,11 +72,19 @@ class Effect:
     # its sign is physical (always positive) rather than either way.
     typical: ClassVar[dict[str, tuple[float, float]]] = {}
     positive: ClassVar[bool] = False
+    # What the effect cannot be fitted without, besides ``columns``: the arm's mass model (an
+    # effect driven by gravity torques; without masses they are zero and it moves nothing).
+    needs_masses: ClassVar[bool] = False
 
     def __init__(self, joints: Sequence[int] | None = None) -> None:
         if joints is not None and not self.per_joint:
             raise EffectError(f"effect {self.name!r} is not per joint; it takes no joint list")
         self.joints: tuple[int, ...] | None = None if joints is None else tuple(sorted(set(joints)))
+        if self.joints == ():
+            raise EffectError(
+                f"effect {self.name!r}: an empty joint list; name the joints "
+                f"({self.name}[2,3]) or leave out the brackets for all of them"
+            )
         if self.joints is not None and any(not 1 <= j <= 6 for j in self.joints):
             raise EffectError(
                 f"effect {self.name!r}: joints must be within 1..6, got {self.joints}"
@@ -98,6 +107,11 @@ class Effect:
         for prefix in sorted(self.typical, key=len, reverse=True):
             if name.startswith(prefix):
                 return self.typical[prefix]
+        return None
+
+    def ambiguity_note(self, inputs: ModelInputs, i: int) -> str | None:
+        """Why this effect's law cannot say how pose ``i`` is affected (a load-dependent
+        effect at zero load), or None: a pose that misses there is explained, not suspect."""
         return None
 
     def nominal(self, robot: RobotDescription, names: Sequence[str]) -> np.ndarray:
@@ -183,6 +197,7 @@ class Compliance(JointAngleEffect):
     terms = ("c",)
     typical = {"c": (3e-6, 1e-5)}
     positive = True
+    needs_masses = True
     description = "elastic joints: theta_i = q_i + c_i * tau_i(q), tau the gravity torque"
 
     def basis(self, inputs, joint, term):
@@ -223,12 +238,25 @@ class Backlash(JointAngleEffect):
 
 
 class LoadBacklash(JointAngleEffect):
+    """Where gravity loads a joint, its link rests against the side of the gap that the gravity
+    torque pushes it to: ``theta_i = q_i + lb_i/2 sign(tau_i(q))``.
+
+    Near zero torque gravity picks no side (friction and the last motion do): a pose whose
+    torque about an active joint lies within :attr:`torque_band` (0.5 N·m) is *ambiguous*
+    (:meth:`ambiguous`). The law keeps the sign there: a pose that landed on the other side
+    misses by the whole gap, stands out, and the lab's outlier screening leaves it out and names
+    it as ambiguous. (A smooth transition, ``tanh(tau / tau0)``, was measured to do worse: it
+    halves such a pose's miss, into the range where it is neither fitted nor flagged, and
+    mis-models every pose within the band of an arm whose gravity does pick the side.)"""
+
     name = "load_backlash"
     terms = ("lb",)
     typical = {"lb": (3e-4, 6e-4)}
     positive = True
+    needs_masses = True
     description = "gravity-loaded backlash: theta_i = q_i + lb_i/2 sign(tau_i(q))"
 
+    torque_band: ClassVar[float] = 0.5  # N·m: within it gravity does not pick the side
     # Below this the gravity torque is rounding noise (tau_1 and tau_6 of the seed arm are zero
     # by construction but come out as +-1e-15): its sign must not pick a side of the gap.
     zero_torque: ClassVar[float] = 1e-9  # N·m
@@ -236,6 +264,26 @@ class LoadBacklash(JointAngleEffect):
     def basis(self, inputs, joint, term):
         tau = inputs.tau[:, joint - 1]
         return 0.5 * np.where(np.abs(tau) < self.zero_torque, 0.0, np.sign(tau))
+
+    def ambiguous(self, inputs: ModelInputs) -> np.ndarray:
+        """(N, 6): the poses whose gravity torque about an active joint lies within the band
+        (and is not zero by construction): which side of the gap they rest on, gravity does
+        not say."""
+        out = np.zeros((inputs.n, 6), dtype=bool)
+        for j in self.active_joints():
+            t = np.abs(inputs.tau[:, j - 1])
+            out[:, j - 1] = (t >= self.zero_torque) & (t < self.torque_band)
+        return out
+
+    def ambiguity_note(self, inputs: ModelInputs, i: int) -> str | None:
+        amb = np.flatnonzero(self.ambiguous(inputs)[i])
+        if not amb.size:
+            return None
+        taus = ", ".join(f"tau{j + 1} = {inputs.tau[i, j]:+.3g} N·m" for j in amb)
+        return (
+            f"ambiguous for {self.name}: {taus}, within +-{self.torque_band:g} N·m, where "
+            "gravity does not pick the side of the gap"
+        )
 
 
 # --------------------------------------------------------------------------------------------------
@@ -445,6 +493,20 @@ class Thermal(ChainEffect):
         return True
 
 
+def missing_inputs(effect: Effect, robot: RobotDescription, columns: Sequence[str]) -> str | None:
+    """What ``effect`` cannot be fitted without and the data or the arm lack, as a phrase
+    ("the measured column temperature", "the arm's mass model: ..."), or None."""
+    missing = [c for c in effect.columns if c not in columns]
+    if missing:
+        return f"the measured column(s) {', '.join(missing)}"
+    if effect.needs_masses and not robot.has_mass_model:
+        return (
+            f"the arm's mass model: robot {robot.name!r} has no link masses, so its gravity "
+            "torques are zero (give masses and centres of mass in its TOML)"
+        )
+    return None
+
+
 # --------------------------------------------------------------------------------------------------
 EFFECTS: dict[str, type[Effect]] = {}
 
@@ -530,6 +592,11 @@ def make_effect(spec: str | Effect) -> Effect:
         js = [int(j) for j in joints.split(",") if j.strip()]
     except ValueError:
         raise EffectError(f"bad joint list in effect specification {spec!r}") from None
+    if not js:
+        raise EffectError(
+            f"effect specification {spec!r} has an empty joint list; name the joints "
+            f"({name}[2,3]) or leave out the brackets for all of them"
+        )
     return cls(joints=js)
 
 

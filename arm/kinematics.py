@@ -285,6 +285,9 @@ def geometric_jacobian(chain: Chain, q: np.ndarray, point: np.ndarray) -> np.nda
     return J[0] if single else J
 
 
+TORQUE_BLOCK = 4096  # poses per block of gravity_torques
+
+
 def gravity_torques(
     robot: RobotDescription,
     q: np.ndarray,
@@ -302,6 +305,14 @@ def gravity_torques(
     m = robot.to_modified()
     if chain is None:
         chain = Chain.from_description(m)
+    if q.ndim == 2 and len(q) > TORQUE_BLOCK and np.ndim(chain.a) == 1:
+        # block by block: the seven frames of 200k poses take 130 MB, their torques 10 MB
+        out = np.empty((len(q), 6))
+        pay = None if payload is None else np.broadcast_to(np.asarray(payload, float), len(q))
+        for a in range(0, len(q), TORQUE_BLOCK):
+            b = slice(a, a + TORQUE_BLOCK)
+            out[b] = gravity_torques(robot, q[b], None if pay is None else pay[b], chain)
+        return out
     f = link_frames(chain, q)
     n = f.o.shape[0]
     masses = np.broadcast_to(m.masses, (n, 6)).astype(float)

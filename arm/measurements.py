@@ -18,6 +18,7 @@ import io
 import math
 import os
 import tempfile
+import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,20 +26,25 @@ from pathlib import Path
 import numpy as np
 
 from arm.errors import SixAxisError
+from arm.ranges import out_of_range, payload_problem, range_text
 
 __all__ = [
     "POSES_SCHEMA_VERSION",
     "MeasurementError",
     "MeasurementSet",
     "NumericTable",
+    "OutputError",
     "as_measurements",
     "atomic_path",
     "atomic_write_text",
+    "check_output",
+    "check_ranges",
     "parse_numeric_csv",
     "poses_csv",
     "read_measurements",
     "read_poses",
     "read_text",
+    "remove_stale_temporaries",
     "write_measurements",
     "write_poses",
 ]
@@ -60,12 +66,16 @@ class MeasurementError(SixAxisError, ValueError):
 
 @dataclass
 class MeasurementSet:
-    """Joint readings ``q`` (N, 6) in rad, measured points ``xyz`` (N, 3) in m, other columns."""
+    """Joint readings ``q`` (N, 6) in rad, measured points ``xyz`` (N, 3) in m, other columns.
+
+    ``lines``: the file's line number of each row when read from a file (None in memory), so that
+    a row is named as the user sees it in an editor (:meth:`row_name`)."""
 
     q: np.ndarray
     xyz: np.ndarray
     columns: dict[str, np.ndarray] = field(default_factory=dict)
     source: str = "<memory>"
+    lines: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.q = np.asarray(self.q, dtype=float).reshape(-1, 6)
@@ -80,6 +90,29 @@ class MeasurementSet:
                 raise MeasurementError(
                     f"{self.source}: column {k!r} has {len(v)} rows, not {len(self.q)}"
                 )
+        if self.lines is not None:
+            self.lines = np.asarray(self.lines, dtype=int).reshape(-1)
+            if len(self.lines) != len(self.q):
+                raise MeasurementError(
+                    f"{self.source}: {len(self.lines)} line numbers for {len(self.q)} rows"
+                )
+        # the readers' rule, for data built in memory too: finite, within physical range
+        named = {c: self.q[:, k] for k, c in enumerate(JOINTS)}
+        named |= {c: self.xyz[:, k] for k, c in enumerate(POSITION)}
+        for k, v in (*named.items(), *self.columns.items()):
+            bad = np.flatnonzero(out_of_range(k, v))
+            if bad.size:
+                r = int(bad[0])
+                raise MeasurementError(
+                    f"{self.source}, {self.row_name(r)}, column {k!r}: {v[r]!r} is outside the "
+                    f"physical range {range_text(k)}"
+                )
+
+    def row_name(self, i: int) -> str:
+        """Row ``i`` (0-based) as the user finds it: ``line 57`` of the file, else ``row 3``."""
+        if self.lines is not None:
+            return f"line {int(self.lines[i])}"
+        return f"row {int(i) + 1}"
 
     def __len__(self) -> int:
         return len(self.q)
@@ -94,7 +127,11 @@ class MeasurementSet:
     def subset(self, idx) -> MeasurementSet:
         idx = np.asarray(idx)
         return MeasurementSet(
-            self.q[idx], self.xyz[idx], {k: v[idx] for k, v in self.columns.items()}, self.source
+            self.q[idx],
+            self.xyz[idx],
+            {k: v[idx] for k, v in self.columns.items()},
+            self.source,
+            None if self.lines is None else self.lines[idx],
         )
 
     def split(
@@ -151,14 +188,66 @@ def _umask() -> int:
     return mask
 
 
+STALE_LEGACY_SECONDS = 3600.0  # a temporary without a writer's pid, older than this, is stale
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True  # another user's process, or we cannot tell: leave its file alone
+    return True
+
+
+def remove_stale_temporaries(path: str | Path) -> list[Path]:
+    """Remove the temporaries that :func:`atomic_path` left beside ``path`` when its process was
+    killed (SIGKILL runs no cleanup): ``.NAME.PID.XXXX.tmp`` whose writer PID no longer runs, and
+    those of older versions without a PID once an hour old. A live writer's file is kept.
+    Returns the paths removed."""
+    path = Path(path)
+    prefix = f".{path.name}."
+    removed: list[Path] = []
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return removed
+    now = time.time()
+    for entry in entries:
+        name = entry.name
+        if not (name.startswith(prefix) and name.endswith(".tmp")):
+            continue
+        middle = name[len(prefix) : -len(".tmp")]
+        pid_text, _, rest = middle.partition(".")
+        try:
+            if rest and pid_text.isdigit():
+                pid = int(pid_text)
+                if pid == os.getpid() or _pid_alive(pid):
+                    continue
+            elif now - entry.stat(follow_symlinks=False).st_mtime < STALE_LEGACY_SECONDS:
+                continue
+            os.unlink(entry.path)
+            removed.append(Path(entry.path))
+        except OSError:
+            continue
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path`` to write to; renamed onto ``path`` when the block ends
     without error, removed otherwise. Readers see the old or the whole new file, never a part,
-    and the file gets the permissions of a plain ``open`` (the umask's), not mkstemp's 0600."""
+    and the file gets the permissions of a plain ``open`` (the umask's), not mkstemp's 0600.
+
+    The temporary is ``.NAME.PID.XXXX.tmp``: a process killed while writing leaves it, and the
+    next write of the same file removes it (:func:`remove_stale_temporaries`)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    remove_stale_temporaries(path)
+    fd, tmp = tempfile.mkstemp(
+        dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp"
+    )
     os.close(fd)
     try:
         yield Path(tmp)
@@ -168,6 +257,50 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+class OutputError(SixAxisError, ValueError):
+    """An output path that would replace an input, or that cannot be written."""
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+    except OSError:
+        pass
+    return a.resolve() == b.resolve()
+
+
+def check_output(
+    path: str | Path, inputs: Sequence[str | Path | None] = (), option: str = "--output"
+) -> None:
+    """Refuse, before any work, an output that would replace one of ``inputs`` (the same file by
+    path or by link) or that cannot be written: a directory, a path through a file, a folder
+    where no file can be created. Raises :class:`OutputError` naming ``option`` and the path."""
+    path = Path(path)
+    for inp in inputs:
+        if inp is not None and _same_file(path, Path(inp)):
+            raise OutputError(
+                f"{option} {path}: is the input {inp}; writing it would replace that file "
+                "(choose another output path)"
+            )
+    if path.is_dir():
+        raise OutputError(f"{option} {path}: is a directory; give the file to write")
+    # the nearest folder that exists must be a folder where a file can be created
+    parent = path.absolute().parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise OutputError(f"{option} {path}: {parent} is not a directory")
+    try:
+        fd, probe = tempfile.mkstemp(dir=parent, prefix=".sixaxis-probe.", suffix=".tmp")
+    except OSError as exc:
+        raise OutputError(
+            f"{option} {path}: cannot write in {parent} ({exc.strerror or exc})"
+        ) from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -330,13 +463,41 @@ def parse_measurements(
             check(d, np.isin(col[d], (-1.0, 1.0)), "must be -1 or +1")
     if "target" in col:
         check("target", col["target"] == np.round(col["target"]), "must be an integer")
-    if "payload" in col:
-        check("payload", col["payload"] >= 0, "must be >= 0 kg")
     A, L = ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit]
+    check_ranges(table, source, {angle_unit: (A, JOINTS), length_unit: (L, POSITION)})
     q = np.column_stack([col[c] for c in JOINTS]) * A
     xyz = np.column_stack([col[c] for c in POSITION]) * L
     other = {h: col[h] for h in header if h not in (*JOINTS, *POSITION)}
-    return MeasurementSet(q, xyz, other, source)
+    return MeasurementSet(q, xyz, other, source, table.lines)
+
+
+def check_ranges(
+    table: NumericTable,
+    source: str,
+    units: dict[str, tuple[float, Sequence[str]]] | None = None,
+    error: type[Exception] = MeasurementError,
+) -> None:
+    """Refuse the first value outside its physical range (:mod:`arm.ranges`), naming the line and
+    the column, the range in the file's unit. ``units``: unit name -> (SI per unit, columns)."""
+    factor: dict[str, tuple[float, str | None]] = {}
+    for unit, (f, cols) in (units or {}).items():
+        factor |= {c: (f, unit) for c in cols}
+    for k, h in enumerate(table.header):
+        f, unit = factor.get(h, (1.0, None))
+        bad = np.flatnonzero(out_of_range(h, table.values[:, k] * f))
+        if bad.size:
+            r = int(bad[0])
+            v = table.values[r, k]
+            why = payload_problem(v) if h == "payload" else None
+            hint = ""
+            if h in JOINTS and unit == "rad":
+                hint = " (degrees read as radians? say --angle-unit deg)"
+            elif h in POSITION and unit == "m":
+                hint = " (millimetres read as metres? say --length-unit mm)"
+            raise error(
+                f"{source}, line {table.lines[r]}, column {h!r}: "
+                + (why or f"{v:g} is outside the physical range {range_text(h, f, unit)}{hint}")
+            )
 
 
 # -- pose files -------------------------------------------------------------------------------------
@@ -366,4 +527,5 @@ def read_poses(path: str | Path, angle_unit: str = "rad") -> np.ndarray:
     table = parse_numeric_csv(read_text(path), str(path), JOINTS, comments=True, columns=JOINTS)
     if not len(table.values):
         raise MeasurementError(f"{path}: no pose rows")
+    check_ranges(table, str(path), {angle_unit: (ANGLE_UNITS[angle_unit], JOINTS)})
     return table.values[:, [table.header.index(c) for c in JOINTS]] * ANGLE_UNITS[angle_unit]

@@ -26,7 +26,7 @@ import math
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, NoReturn
 
 import typer
 from rich.markup import escape
@@ -59,17 +59,28 @@ app = typer.Typer(
 )
 
 
+def _terminated(signum: int, frame: object) -> NoReturn:
+    raise SystemExit(128 + signum)
+
+
 @app.callback()
-def _lab() -> None:
+def _lab(ctx: typer.Context) -> None:
     # Log records (e.g. lab's "poor pose set" warning) go to stderr, so that stdout carries only
     # the command's output: with --json, one JSON object.
     import logging
+    import signal
+    import threading
 
     from rich.logging import RichHandler
 
     for h in logging.getLogger().handlers:
         if isinstance(h, RichHandler):
             h.console = err_console
+    # SIGTERM stops a command like Ctrl-C: cleanup runs (a half-written file's temporary is
+    # removed); SIGKILL runs nothing, and the next write of that file removes what it left
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _terminated)
+        ctx.call_on_close(lambda: signal.signal(signal.SIGTERM, previous))
 
 
 LENGTH_UNITS = ("m", "mm")
@@ -228,6 +239,26 @@ def _read(path: Path, length_unit: str, angle_unit: str):
         fail(str(exc))
 
 
+def _check_outputs(outputs: Sequence[tuple[Path | None, str]], inputs: Sequence[object]) -> None:
+    """Before any work: every output can be written and replaces no input (data, held-out data,
+    a robot file, an effect module, a poses or targets file)."""
+    from arm.measurements import OutputError, check_output
+
+    files = [Path(str(i)) for i in inputs if i is not None and Path(str(i)).is_file()]
+    seen: dict[Path, str] = {}
+    for path, option in outputs:
+        if path is None:
+            continue
+        try:
+            check_output(path, files, option)
+        except OutputError as exc:
+            fail(str(exc))
+        key = path.absolute()
+        if key in seen:
+            fail(f"{option} {path}: also given as {seen[key]}; one file cannot hold both")
+        seen[key] = option
+
+
 def _prepare(
     data: Path,
     robot: str,
@@ -238,11 +269,14 @@ def _prepare(
     length_unit: str,
     angle_unit: str,
     noise_mm: float | None,
+    outputs: Sequence[tuple[Path | None, str]] = (),
 ):
-    """Check the options (cheap ones first), register effect modules, read the robot and data."""
+    """Check the options (cheap ones first) and the output places, register effect modules, read
+    the robot and data."""
     _check_units(length_unit, angle_unit)
     _check_loss(loss)
     _check_noise(noise_mm)
+    _check_outputs(outputs, [data, validate, robot, *(modules or ())])
     _load_modules(modules)
     _parse_effects(effects)
     arm = _robot(robot)
@@ -314,7 +348,16 @@ def fit_cmd(
     from lab import fit
 
     arm, meas, val = _prepare(
-        data, robot, effects, effect_module, validate, loss, length_unit, angle_unit, noise_mm
+        data,
+        robot,
+        effects,
+        effect_module,
+        validate,
+        loss,
+        length_unit,
+        angle_unit,
+        noise_mm,
+        outputs=[(out, "--out")],
     )
     with _guard():
         result = fit(meas, arm, effects, loss=loss, validate=val, noise_mm=noise_mm)
@@ -409,7 +452,16 @@ def diagnose_cmd(
     from lab import diagnose
 
     arm, meas, _ = _prepare(
-        data, robot, effects, effect_module, None, loss, length_unit, angle_unit, noise_mm
+        data,
+        robot,
+        effects,
+        effect_module,
+        None,
+        loss,
+        length_unit,
+        angle_unit,
+        noise_mm,
+        outputs=[(out, "--out")],
     )
     if not 0 < alpha < 1:
         fail(f"--alpha must lie in (0, 1), got {alpha}")
@@ -574,7 +626,16 @@ def report_cmd(
     from lab.report import build_report
 
     arm, meas, val = _prepare(
-        data, robot, effects, effect_module, validate, loss, length_unit, angle_unit, noise_mm
+        data,
+        robot,
+        effects,
+        effect_module,
+        validate,
+        loss,
+        length_unit,
+        angle_unit,
+        noise_mm,
+        outputs=[(output, "--output")],
     )
     if rounds < 0:
         fail(f"--rounds must be >= 0, got {rounds}")
@@ -700,6 +761,7 @@ def plan_cmd(
         fail(f"--n must be at least 1, got {n}")
     if candidates < n:
         fail(f"--candidates ({candidates}) must be at least --n ({n})")
+    _check_outputs([(output, "--output")], [robot, *(effect_module or ())])
     _load_modules(effect_module)
     _parse_effects(effects)
     arm = _robot(robot)
@@ -772,8 +834,7 @@ def collect_cmd(
     from envs.scenarios import SCENARIOS, ScenarioError, draw_truth
 
     _check_units("m", angle_unit)
-    if output.is_dir():
-        fail(f"{output}: is a directory; -o takes the CSV file to write")
+    _check_outputs([(output, "--output")], [poses, robot])
     if scenario not in SCENARIOS:
         fail(f"--scenario: unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
     if not (math.isfinite(noise_mm) and noise_mm >= 0):
@@ -854,7 +915,16 @@ def export_cmd(
     from lab.export import ExportError, export_robot
 
     arm, meas, val = _prepare(
-        data, robot, effects, effect_module, validate, loss, length_unit, angle_unit, noise_mm
+        data,
+        robot,
+        effects,
+        effect_module,
+        validate,
+        loss,
+        length_unit,
+        angle_unit,
+        noise_mm,
+        outputs=[(output, "--output")],
     )
     with _guard():
         result = fit(meas, arm, effects, loss=loss, validate=val, noise_mm=noise_mm)
@@ -917,6 +987,7 @@ def compensate_cmd(
             ids = [int(t) for t in target_ids.split(",") if t.strip()]
         except ValueError:
             fail(f"--target-ids must be integers separated by commas, got {target_ids!r}")
+    _check_outputs([(output, "--output")], [targets, robot, nominal, *(effect_module or ())])
     _load_modules(effect_module)
     cal = _robot(robot)
     nom = _robot(nominal)

@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -62,9 +62,10 @@ from scipy import stats
 
 from arm.description import RobotDescription
 from arm.effect_api import EffectError
-from arm.effects import EFFECTS, Effect, JointAngleEffect, make_effect
+from arm.effects import Effect, JointAngleEffect
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet, as_measurements
+from lab.blocks import BLOCK, Blocks
 from lab.identifiability import (
     gram_factor,
     lower_inverse,
@@ -79,6 +80,16 @@ from lab.identification import (
     FitResult,
     fit,
     robust_sigma,
+)
+from lab.screening import (
+    MAX_OUTLIER_FRACTION,
+    MAX_ROUNDS,
+    OUTLIER_MODES,
+    Outlier,
+    annotate,
+    candidate_model,
+    explained_residual,
+    judge,
 )
 from lab.selection import DEPENDENT, ForwardSelection, f_test, hat_blocks, holm, press_rms
 
@@ -154,6 +165,11 @@ class Diagnosis:
     outliers: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=int))
     n_tested: int = 0
     skipped: dict[str, str] = field(default_factory=dict)
+    # every pose left out: by the fit (its own residual) and by the tests (the residual beyond
+    # what the model and every candidate explain); ``outliers`` are their indices in the data
+    outlier_list: list[Outlier] = field(default_factory=list)
+    outliers_mode: str = "keep"
+    outlier_rule: str | None = None
 
     @property
     def effects(self) -> list[str]:
@@ -190,13 +206,21 @@ class Diagnosis:
             "alpha": self.alpha,
             "suggestion": self.suggestion,
             "skipped": dict(self.skipped),
-            "outliers": [int(i) for i in self.outliers],
+            "outliers": [o.to_dict() for o in self.outlier_list],
+            "outliers_mode": self.outliers_mode,
+            "outlier_rule": self.outlier_rule,
+            "duplicates": [d.to_dict() for d in self.fit.duplicates],
+            "n_rows": self.fit.to_dict()["n_rows"],
             "n_tested": self.n_tested,
         }
 
     def summary(self) -> str:
         floor = f", noise floor {self.noise_floor_mm:.4f} mm" if self.noise_floor_mm else ""
-        left = f" ({len(self.outliers)} outliers left out)" if len(self.outliers) else ""
+        left = ""
+        if self.outlier_list:
+            shown = ", ".join(o.where for o in self.outlier_list[:10])
+            more = ", ..." if len(self.outlier_list) > 10 else ""
+            left = f" ({len(self.outlier_list)} outlier(s) left out: {shown}{more})"
         lines = [
             f"model {', '.join(self.effects)}: RMS {self.rms_mm:.4f} mm, held-out "
             f"{self.cv_rms_mm:.4f} mm{floor}{left}",
@@ -227,25 +251,10 @@ def _candidate_model(
 ) -> tuple[ErrorModel, list[_Group], dict[str, str]]:
     """One model holding the fitted effects (all joints) and every testable candidate effect, the
     candidate parameter groups, and the effects skipped with the reason."""
-    skipped: dict[str, str] = {}
-    have = {e.name: e for e in model.effects}
-    effects: list[Effect] = []
-    for e in model.effects:  # a per-joint effect fitted on some joints: the others are candidates
-        effects.append(type(e)() if e.per_joint and e.joints is not None else e)
-    names = list(EFFECTS) if candidates is None else list(candidates)
-    for spec in names:
-        try:
-            e = make_effect(spec)
-        except EffectError as exc:
-            raise FitError(str(exc)) from None
-        if e.name in have:
-            continue
-        missing = [c for c in e.columns if c not in data.columns]
-        if missing:
-            skipped[e.label] = f"needs column(s) {', '.join(missing)}"
-            continue
-        effects.append(e)
-    full = ErrorModel(model.robot, effects, targets=model.targets)
+    try:
+        full, skipped = candidate_model(model, data, candidates)
+    except EffectError as exc:
+        raise FitError(str(exc)) from None
     base_names = set(model.layout.names)
     groups: list[_Group] = []
     for e in full.effects:
@@ -276,47 +285,65 @@ def diagnose(
     candidates: Sequence[str] | None = None,
     alpha: float = 0.02,
     base: FitResult | None = None,
+    outliers: str = "auto",
 ) -> Diagnosis:
     """Fit ``effects`` and test what they miss; see the module docstring.
 
     ``noise_mm``: the instrument's per-axis standard uncertainty (mm), for the ``none`` /
     ``unexplained`` decision. ``candidates``: effect names to test (default: every registered
     effect). ``alpha``: the family-wise false-alarm rate. ``base``: an existing fit of ``data``
-    to diagnose instead of fitting ``effects`` again.
+    to diagnose instead of fitting ``effects`` again. ``outliers``: ``auto`` leaves gross
+    outliers out of the fit and of the tests (:mod:`lab.screening`: first those of the fit's own
+    residual, then those of the residual beyond the model and every candidate, so that a
+    missing effect is not mistaken for outliers); ``keep`` tests every pose (a robust ``loss``
+    still leaves its far points out of the tests).
     """
     if not 0 < alpha < 1:
         raise FitError(f"alpha must lie in (0, 1), got {alpha}")
     if noise_mm is not None and not noise_mm > 0:
         raise FitError(f"noise_mm must be positive, got {noise_mm}")
-    data = as_measurements(data)
-    res = base if base is not None else fit(data, robot, effects, loss=loss, noise_mm=noise_mm)
+    if outliers not in OUTLIER_MODES:
+        raise FitError(f"outliers must be one of {', '.join(OUTLIER_MODES)}, got {outliers!r}")
+    given = as_measurements(data)
+    res = (
+        base
+        if base is not None
+        else fit(given, robot, effects, loss=loss, noise_mm=noise_mm, outliers=outliers)
+    )
+    data = res.fitted_data(given)
     if res.n_points != len(data):
         raise FitError(f"the fit given has {res.n_points} points, the data {len(data)}")
     model = res.model
-    free = res.identifiable
-    scale = res.identifiability.scale
     N = res.n_points
     full, groups, skipped = _candidate_model(model, data, candidates)
     inputs = full.inputs(data.q, data.columns, source=data.source)
     p = full.nominal()
     p[full.layout.indices(model.layout.names)] = res.params
-    _, Jf = full.predict(inputs, p, jacobian=True)
-    Jf = Jf.reshape(3 * N, -1)
     typ = typical_magnitudes(full)
-    J0 = res.jacobian[:, :, free].reshape(3 * N, -1) * scale[free]
+    # the model's identifiable columns (scaled) and every candidate's, block by block: the
+    # whole catalogue's Jacobian of 200k poses is 340 MB, and no copy of it is made
+    cand = np.array(sorted({int(i) for g in groups for i in full.layout.indices(g.names)}))
+    cand = cand.astype(int)
+    column = {int(j): k for k, j in enumerate(cand)}
+    J0, Jc = _columns(res, full, inputs, p, cand)
+    e = res.residuals.reshape(-1).copy()
 
-    # a robust fit's outliers take no part in the tests: they would look like a missing effect
-    outliers = np.empty(0, dtype=int)
-    if res.loss != "linear":
-        outliers = _outliers(res.residuals.reshape(-1), np.hstack([J0, Jf]))
+    # outliers take no part in the tests: they would look like a missing effect
+    far = np.empty(0, dtype=int)
+    rule = res.outlier_rule
+    if outliers == "auto":
+        far, rule = _test_outliers(e, J0, Jc, rule)
+    elif res.loss != "linear":
+        far = _outliers(e, J0, Jc)
     inlier = np.ones(N, dtype=bool)
-    inlier[outliers] = False
+    inlier[far] = False
     n = int(inlier.sum())
-    keep3 = np.repeat(inlier, 3)
+    if far.size:
+        keep3 = np.repeat(inlier, 3)
+        J0, Jc, e = _compact(J0, keep3), _compact(Jc, keep3), e[keep3]
 
-    J0, Jk = J0[keep3], Jf[keep3]
-    Q0 = orthonormal_basis(J0)
-    e = res.residuals.reshape(-1)[keep3]
+    Q0 = orthonormal_basis(J0, overwrite=True)
+    del J0
     e0 = e - Q0 @ (Q0.T @ e)
     rss0 = float(e0 @ e0)
     dof0 = 3 * n - Q0.shape[1]
@@ -326,31 +353,36 @@ def diagnose(
     alpha_c = alpha / 2 if noise_mm is not None else alpha
 
     sel = ForwardSelection(e0, rss0, dof0, H0, cv0)
-    Jp = Jk - Q0 @ (Q0.T @ Jk)  # every candidate column with the model's span projected out
-    norms, norms_p = np.linalg.norm(Jk, axis=0), np.linalg.norm(Jp, axis=0)
-    tested: list[np.ndarray] = []  # each candidate's orthonormal columns, the model's projected out
+    norms = np.sqrt(np.einsum("ij,ij->j", Jc, Jc))
+    _project_out(Jc, Q0)  # every candidate column with the model's span projected out
+    norms_p = np.sqrt(np.einsum("ij,ij->j", Jc, Jc))
+    hints = _hints(res, data, Q0, e0, rss0, dof0, inlier)
+    del Q0  # the candidates' columns are model-free now
+    tested: list[np.ndarray] = []  # each candidate's columns (of Jc) that were tested
     rows = []
     for g in groups:
-        idx = full.layout.indices(g.names)
-        Xp = Jp[:, idx]
+        idx = np.array([column[int(i)] for i in full.layout.indices(g.names)], dtype=int)
         nx, nxp = norms[idx], norms_p[idx]
-        keep = (nxp > DEPENDENT * nx) & (nxp * typ[idx] > sigma)
+        keep = (nxp > DEPENDENT * nx) & (nxp * typ[cand[idx]] > sigma)
         if not keep.any():
             skipped[_label(g)] = "unidentifiable given the model"
             continue
-        Qc = orthonormal_basis(Xp[:, keep])
-        t = sel.trial(Qc, key=len(rows))
+        cols = idx[keep]
+        t = sel.trial(
+            lambda cols=cols: orthonormal_basis(Jc[:, cols], overwrite=True), key=len(rows)
+        )
         if t is None:
             skipped[_label(g)] = "unidentifiable given the model"
             continue
         cv, pv, (Qc, _, ss, _) = t
-        F, _ = f_test(ss, Qc.shape[1], rss0 - ss, dof0 - Qc.shape[1])
+        k = Qc.shape[1]
+        F, _ = f_test(ss, k, rss0 - ss, dof0 - k)
         joints = g.joints
         if joints is not None and len(joints) > 1:  # the joints that were testable
             kept = {nm for nm, ok in zip(g.names, keep, strict=True) if ok}
             joints = tuple(j for j in joints if any(nm.endswith(str(j)) for nm in kept))
         names = tuple(nm for nm, ok in zip(g.names, keep, strict=True) if ok)
-        tested.append(Qc)
+        tested.append(cols)
         rows.append(
             Candidate(
                 effect=g.effect,
@@ -380,7 +412,8 @@ def diagnose(
     tested = [tested[i] for i in order]
     keys = list(order)  # each candidate's key in the selection's remembered first trials
     n_tested = len(cands)
-    chosen = _forward(cands, tested, keys, sel, alpha_c) if cands and cands[0].significant else []
+    bases = [lambda cols=cols: orthonormal_basis(Jc[:, cols], overwrite=True) for cols in tested]
+    chosen = _forward(cands, bases, keys, sel, alpha_c) if cands and cands[0].significant else []
     # the explanation first (each given the ones before it), then every other candidate
     picked = {(c.effect, c.joints) for c in chosen}
     cands = chosen + [c for c in cands if (c.effect, c.joints) not in picked]
@@ -400,7 +433,21 @@ def diagnose(
     else:
         verdict = "none"
 
-    hints = _hints(res, data, Q0, e0, rss0, dof0, inlier)
+    # every pose left out, by its index in the data given
+    rows = np.arange(N) if res.fitted_rows is None else res.fitted_rows
+    dist = np.linalg.norm(res.residuals, axis=1)
+    scale = robust_sigma(res.residuals[inlier])
+    left_out = list(res.outlier_list) + [
+        Outlier(
+            int(rows[i]),
+            None if data.lines is None else int(data.lines[i]),
+            1e3 * float(dist[i]),
+            float(dist[i] / scale) if scale > 0 else float("inf"),
+        )
+        for i in far
+    ]
+    left_out.sort(key=lambda o: o.index)
+    left_out = annotate(left_out, full, given)
     d = Diagnosis(
         fit=res,
         verdict=verdict,
@@ -413,29 +460,104 @@ def diagnose(
         chi2_p_value_after=chi2_after,
         suggestion=suggestion,
         explanation=chosen,
-        outliers=outliers,
+        outliers=np.array(sorted(o.index for o in left_out), dtype=int),
         n_tested=n_tested,
         skipped=skipped,
+        outlier_list=left_out,
+        outliers_mode=outliers,
+        outlier_rule=rule,
     )
     log.info("%s", d.summary())
     return d
 
 
-def _outliers(e: np.ndarray, X: np.ndarray, iterations: int = 20) -> np.ndarray:
-    """The points a robust fit should leave out of the tests: Huber IRLS of the residual ``e``
-    (3N) on every column the model and all candidates have (``X``), so that a missing effect
-    is explained, not mistaken for outliers; then the points farther off than
-    :data:`~lab.identification.OUTLIER_RADIUS` robust standard deviations."""
+def _columns(
+    res: FitResult, full: ErrorModel, inputs, p: np.ndarray, cand: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted model's identifiable Jacobian columns, scaled (3N, r0), and the candidate
+    columns ``cand`` of the full model at ``p`` (3N, m), block by block."""
+    free = np.flatnonzero(res.identifiable)
+    s = res.identifiability.scale[free]
+    N = res.n_points
+    J0 = np.empty((3 * N, free.size))
+    Jc = np.empty((3 * N, cand.size))
+    for sl, _, J in Blocks(res.model, res.inputs).jacobians(res.params, keep_cache=False):
+        J0[3 * sl.start : 3 * sl.stop] = J[:, :, free].reshape(-1, free.size) * s
+    for sl, _, J in Blocks(full, inputs).jacobians(p, keep_cache=False):
+        Jc[3 * sl.start : 3 * sl.stop] = J[:, :, cand].reshape(-1, cand.size)
+    return J0, Jc
+
+
+def _row_blocks(m: int) -> list[slice]:
+    step = 3 * BLOCK
+    return [slice(a, min(a + step, m)) for a in range(0, m, step)]
+
+
+def _compact(A: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The rows ``keep`` of ``A``, moved up in place (a view of the first rows of A)."""
+    idx = np.flatnonzero(keep)
+    for b in _row_blocks(idx.size):  # rows only move up: in order, nothing is overwritten early
+        A[b] = A[idx[b]]
+    return A[: idx.size]
+
+
+def _project_out(A: np.ndarray, Q: np.ndarray) -> None:
+    """``A -= Q (Q^T A)`` in place, block by block."""
+    C = Q.T @ A
+    for b in _row_blocks(A.shape[0]):
+        A[b] -= Q[b] @ C
+
+
+def _explained(e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, w: np.ndarray | None):
+    """``e`` minus its (weighted) least-squares fit on the columns of the model and of every
+    candidate, and the number of columns fitted (:func:`lab.screening.explained_residual`)."""
+
+    def columns():
+        for b in _row_blocks(e.size):
+            yield b, np.hstack([J0[b], Jc[b]])
+
+    return explained_residual(e, columns, w)
+
+
+def _test_outliers(
+    e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, rule: str | None
+) -> tuple[np.ndarray, str | None]:
+    """The poses that stay gross outliers once the model *and every candidate* may explain the
+    residual ``e`` (3N): least squares on their columns, the rule of :mod:`lab.screening`,
+    iterated. Returns their indices and the rule as applied."""
     n = e.size // 3
-    Q = orthonormal_basis(X)
-    if Q.shape[1] > e.size // 2:  # too few poses for the catalogue: the fit's residual as it is
+    keep = np.ones(n, dtype=bool)
+    far = np.zeros(n, dtype=bool)
+    radius = s = float("nan")
+    for _ in range(MAX_ROUNDS + 1):
+        r, k = _explained(e, J0, Jc, np.repeat(keep, 3).astype(float))
+        far, s, radius = judge(r.reshape(n, 3), keep, k)
+        if not np.isfinite(s) or far.sum() > MAX_OUTLIER_FRACTION * n:
+            return np.empty(0, dtype=int), rule
+        if np.array_equal(~far, keep):
+            break
+        keep = ~far
+    if far.any():
+        rule = (
+            f"3-D residual above {radius:.2f} robust sigmas ({1e3 * radius * s:.4g} mm) beyond "
+            "the model and every candidate"
+        ) + (f"; the fit's: {rule}" if rule else "")
+    return np.flatnonzero(far), rule
+
+
+def _outliers(e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, iterations: int = 20) -> np.ndarray:
+    """The points a robust fit should leave out of the tests (``outliers="keep"`` with a robust
+    loss): Huber IRLS of the residual ``e`` (3N) on every column the model and all candidates
+    have, so that a missing effect is explained, not mistaken for outliers; then the points
+    farther off than :data:`~lab.identification.OUTLIER_RADIUS` robust standard deviations."""
+    n = e.size // 3
+    r, k = _explained(e, J0, Jc, None)
+    if k > e.size // 2:  # too few poses for the catalogue: the fit's residual as it is
         r = e
     else:
         w = np.ones_like(e)
         for _ in range(iterations):
-            A = Q * w[:, None]
-            c = np.linalg.lstsq(A.T @ Q, A.T @ e, rcond=None)[0]
-            r = e - Q @ c
+            r, _ = _explained(e, J0, Jc, w)
             f = HUBER_K * robust_sigma(r)
             w_new = np.minimum(1.0, f / np.maximum(np.abs(r), 1e-300))
             if np.max(np.abs(w_new - w)) < 1e-6:
@@ -494,12 +616,12 @@ def _forward(cands, bases, keys, sel: ForwardSelection, alpha) -> list[Candidate
                         pick = (t, i)
             if pick is None:
                 break
-            sel.add(pick[0][0], pick[0][2])
+            sel.add(pick[0][0], pick[0][2], bases[pick[1]])
             joints.append(cands[pick[1]].joints[0])
             names += cands[pick[1]].parameters
             singles.remove(pick[1])
         if not joints:  # no single joint carries it alone: take the whole group
-            sel.add(best[0][0], best[0][2])
+            sel.add(best[0][0], best[0][2], bases[best[1]])
             names = list(c.parameters)
         F, pv = f_test(rss_before - sel.rss, dof_before - sel.dof, sel.rss, sel.dof)
         chosen.append(
@@ -549,69 +671,97 @@ def _standardise(v: np.ndarray) -> np.ndarray | None:
 
 def hint_variables(res: FitResult, data: MeasurementSet) -> dict[str, np.ndarray]:
     """The measured variables and their smooth functions (N, K) that the hints regress on."""
-    out: dict[str, np.ndarray] = {}
+    return dict(_hint_variables(res, data))
+
+
+def _hint_variables(res: FitResult, data: MeasurementSet) -> Iterator[tuple[str, np.ndarray]]:
     q = data.q
     for j in range(6):
         kq = np.outer(q[:, j], np.arange(1, HARMONICS + 1))  # sin q, cos q, sin 2q, cos 2q...
-        out[f"q{j + 1}"] = np.stack([np.sin(kq), np.cos(kq)], axis=2).reshape(len(q), -1)
+        yield f"q{j + 1}", np.stack([np.sin(kq), np.cos(kq)], axis=2).reshape(len(q), -1)
     tau = res.inputs.tau
     for j in range(6):
         z = _standardise(tau[:, j])
         if z is not None:
-            out[f"tau{j + 1}"] = np.column_stack([z, z**2])
+            yield f"tau{j + 1}", np.column_stack([z, z**2])
     for name, v in data.columns.items():
         if name == "target":
             ids = np.unique(v)
             if len(ids) > 1:
-                out[name] = np.column_stack([(v == t).astype(float) for t in ids[1:]])
+                yield name, np.column_stack([(v == t).astype(float) for t in ids[1:]])
             continue
         if name.startswith("dir") and name[3:].isdigit():
             if np.std(v) > 0:
-                out[name] = (v - np.mean(v))[:, None]
+                yield name, (v - np.mean(v))[:, None]
             continue
         z = _standardise(v)
         if z is not None:
-            out[name] = np.column_stack([z, z**2])
-    return out
+            yield name, np.column_stack([z, z**2])
+
+
+def _max_hint_width(data: MeasurementSet) -> int:
+    """An upper bound of the number of hint functions of ``data``'s variables."""
+    width = 6 * 2 * HARMONICS + 6 * 2  # harmonics of q, tau and tau^2
+    for name, v in data.columns.items():
+        width += len(np.unique(v)) - 1 if name == "target" else 2
+    return width
 
 
 def _hints(res, data, Q0, e0, rss0, dof0, inlier) -> list[Hint]:
     """Score each variable's block ``phi_k(v) * direction_d`` by the F-test of adding it to the
     fitted model. The block's Gram matrices come from the Kronecker structure (per pose
     ``D^T D``, ``Q0^T D``, ``e^T D``), so no (3N, K * 9) matrix is formed, and all variables go
-    through three matrix products together (many small multithreaded BLAS calls stall on a
-    busy machine)."""
+    through three matrix products together, summed over blocks of poses (many small
+    multithreaded BLAS calls stall on a busy machine; one product of 200k poses holds GBs)."""
     n = int(inlier.sum())
-    _, Jq = res.model.joint_jacobian(res.inputs, res.params)  # (N, 3, 6)
-    Jq = Jq[inlier]
+    Jq = np.empty((res.n_points, 3, 6))  # d point / d theta, block by block
+    for sl, part in Blocks(res.model, res.inputs):
+        Jq[sl] = res.model.joint_jacobian(part, res.params)[1]
+    if n < res.n_points:
+        Jq = Jq[inlier]
     rms = np.sqrt(np.mean(np.sum(Jq**2, axis=1), axis=0))
-    dirs = [np.broadcast_to(np.eye(3)[a], (n, 3)) for a in range(3)]
-    dirs += [Jq[:, :, j] / rms[j] for j in range(6) if rms[j] > 0]
-    D = np.stack(dirs, axis=-1)  # (N, 3, nd)
-    nd = D.shape[2]
-    Dt = D.transpose(0, 2, 1)
-    M = np.matmul(Dt, D).reshape(n, nd * nd)
+    js = [j for j in range(6) if rms[j] > 0]
+    nd = 3 + len(js)
     r0 = Q0.shape[1]
-    Q0D = np.matmul(Q0.reshape(n, 3, r0).transpose(0, 2, 1), D).reshape(n, r0 * nd)
-    eD = np.matmul(Dt, e0.reshape(n, 3, 1))[:, :, 0]  # (N, nd)
 
-    names, blocks = [], []
-    for name, phi in hint_variables(res, data).items():
+    names, spans = [], []
+    width = 0
+    Phi = np.empty((n, _max_hint_width(data)))  # the functions of every variable, side by side
+    for name, phi in _hint_variables(res, data):
         # few poses: the lowest-order functions only, at most half the degrees of freedom
         K = min(phi.shape[1], max(1, dof0 // (2 * nd)))
         names.append(name)
-        blocks.append(phi[inlier][:, :K])
-    if not blocks:
+        spans.append((width, K))
+        Phi[:, width : width + K] = phi[inlier][:, :K] if n < res.n_points else phi[:, :K]
+        width += K
+    if not names:
         return []
-    Phi = np.hstack(blocks)  # (N, sum K)
-    pairs = np.hstack([(b[:, :, None] * b[:, None, :]).reshape(n, -1) for b in blocks])
-    Gall = pairs.T @ M  # (sum K^2, nd^2)
-    Call = (Phi.T @ Q0D).reshape(-1, r0, nd)  # (sum K, r0, nd)
-    ball = Phi.T @ eD  # (sum K, nd)
+    Phi = Phi[:, :width]
+    n_pairs = sum(K * K for _, K in spans)
+    Gall = np.zeros((n_pairs, nd * nd))
+    Call = np.zeros((width, r0 * nd))
+    ball = np.zeros((width, nd))
+    for b in (slice(a, min(a + BLOCK, n)) for a in range(0, n, BLOCK)):
+        m = b.stop - b.start
+        dirs = [np.broadcast_to(np.eye(3)[a], (m, 3)) for a in range(3)]
+        dirs += [Jq[b, :, j] / rms[j] for j in js]
+        D = np.stack(dirs, axis=-1)  # (m, 3, nd)
+        Dt = D.transpose(0, 2, 1)
+        M = np.matmul(Dt, D).reshape(m, nd * nd)
+        Qb = Q0[3 * b.start : 3 * b.stop].reshape(m, 3, r0).transpose(0, 2, 1)
+        Q0D = np.matmul(Qb, D).reshape(m, r0 * nd)
+        eD = np.matmul(Dt, e0[3 * b.start : 3 * b.stop].reshape(m, 3, 1))[:, :, 0]  # (m, nd)
+        P = Phi[b]
+        pairs = np.hstack(
+            [(P[:, c : c + K, None] * P[:, None, c : c + K]).reshape(m, -1) for c, K in spans]
+        )
+        Gall += pairs.T @ M  # (sum K^2, nd^2)
+        Call += P.T @ Q0D
+        ball += P.T @ eD  # (sum K, nd)
+    Call = Call.reshape(-1, r0, nd)  # (sum K, r0, nd)
     out = []
     c = g = 0
-    for name, blk in zip(names, blocks, strict=True):
-        K = blk.shape[1]
+    for name, (_, K) in zip(names, spans, strict=True):
         Gbb = Gall[g : g + K * K].reshape(K, K, nd, nd).transpose(0, 2, 1, 3).reshape(K * nd, -1)
         G0b = Call[c : c + K].transpose(1, 0, 2).reshape(r0, K * nd)
         b = ball[c : c + K].reshape(K * nd)

@@ -620,6 +620,7 @@ def discover(
     data = as_measurements(data)
     robot = as_robot(robot)
     res = base if base is not None else fit(data, robot, effects, noise_mm=noise_mm)
+    data = res.fitted_data(data)  # without the rows the fit left out (duplicates, outliers)
     if res.n_points != len(data):
         raise FitError(f"the fit given has {res.n_points} points, the data {len(data)}")
     if name in res.model.layout.effects:

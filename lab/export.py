@@ -54,6 +54,7 @@ from arm.measurements import (
     LENGTH_UNITS,
     POSITION,
     atomic_write_text,
+    check_ranges,
     parse_numeric_csv,
     read_text,
 )
@@ -237,6 +238,12 @@ def read_targets(path: str | Path, length_unit: str = "m", angle_unit: str = "ra
                 f"{path}, line {table.lines[bad[0]]}, column 'target': {col['target'][bad[0]]:g} must be an integer"
             )
     L, A = LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit]
+    check_ranges(
+        table,
+        str(path),
+        {length_unit: (L, POSITION), angle_unit: (A, JOINTS)},
+        error=CompensationError,
+    )
     xyz = np.column_stack([col[c] for c in POSITION]) * L
     q = np.column_stack([col[c] for c in JOINTS]) * A if qcols else None
     other = {h: col[h] for h in header if h not in (*POSITION, *JOINTS)}

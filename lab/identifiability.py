@@ -222,8 +222,11 @@ def analyse(
     noise: float | None = None,
     tol: float = RANK_TOL,
     warn: bool = True,
+    n_poses: int | None = None,
 ) -> Identifiability:
-    """Identifiability from an identification Jacobian ``J`` (N, 3, P) (or (3N, P)).
+    """Identifiability from an identification Jacobian ``J`` (N, 3, P) (or (3N, P)), or from
+    the R of its QR decomposition with ``n_poses`` given (only inner products of its columns
+    count, and they are the same).
 
     ``typical`` (P,) are typical error sizes (default 1 in SI units): a parameter is fixed when its
     typical-size error moves the points by less than :data:`ZERO_COLUMN_M` RMS per pose and, given
@@ -236,7 +239,8 @@ def analyse(
     names = tuple(names)
     P = len(names)
     A = np.asarray(J, dtype=float)
-    n_poses = A.shape[0] if A.ndim == 3 else A.shape[0] // 3
+    if n_poses is None:
+        n_poses = A.shape[0] if A.ndim == 3 else A.shape[0] // 3
     A = A.reshape(-1, P)
     norms = np.linalg.norm(A, axis=0)
     typ = np.ones(P) if typical is None else np.asarray(typical, dtype=float)
@@ -343,6 +347,7 @@ def analyse_jacobian(
     noise: float | None = None,
     tol: float = RANK_TOL,
     warn: bool = True,
+    n_poses: int | None = None,
 ) -> Identifiability:
     """:func:`analyse` with the model's names, typical magnitudes and priority order."""
     names = model.layout.names
@@ -358,6 +363,7 @@ def analyse_jacobian(
         noise=noise,
         tol=tol,
         warn=warn,
+        n_poses=n_poses,
     )
 
 
@@ -380,13 +386,25 @@ def gram_factor(G: np.ndarray, rtol: float = 1e-6) -> tuple[np.ndarray, np.ndarr
     return ok[sel], L
 
 
-def orthonormal_basis(A: np.ndarray, rtol: float = 1e-6) -> np.ndarray:
+def orthonormal_basis(A: np.ndarray, rtol: float = 1e-6, overwrite: bool = False) -> np.ndarray:
     """Orthonormal columns spanning the numerically independent columns of ``A`` (M, k) (see
     :func:`gram_factor`): Cholesky QR of the rank-revealing factor, applied twice (CholeskyQR2)
     for orthogonality to round-off. Multithreaded LAPACK QR/SVD of a tall matrix is several times
-    slower than these two products (OpenBLAS)."""
+    slower than these two products (OpenBLAS). ``overwrite=True`` computes in ``A``'s own memory,
+    block by block of rows (no copy of a tall matrix), and returns a view of its first columns."""
     A = np.asarray(A, dtype=float)
     if A.shape[1] == 0:
+        return A
+    if overwrite:
+        for tol in (rtol, 0.0):
+            idx, L = gram_factor(A.T @ A, tol)
+            Li = lower_inverse(L)
+            for a in range(0, A.shape[0], _ROWS):
+                b = slice(a, a + _ROWS)
+                A[b, : idx.size] = A[b][:, idx] @ Li.T
+            A = A[:, : idx.size]
+            if not idx.size:
+                break
         return A
     idx, L = gram_factor(A.T @ A, rtol)
     if not idx.size:
@@ -394,6 +412,9 @@ def orthonormal_basis(A: np.ndarray, rtol: float = 1e-6) -> np.ndarray:
     Q = A[:, idx] @ lower_inverse(L).T  # A L^-T, by gemm
     idx2, L2 = gram_factor(Q.T @ Q, 0.0)
     return Q[:, idx2] @ lower_inverse(L2).T
+
+
+_ROWS = 3 * 4096  # rows per block of an in-place orthonormalisation
 
 
 def lower_inverse(L: np.ndarray) -> np.ndarray:

@@ -50,17 +50,31 @@ from scipy.stats import chi2
 
 from arm.description import RobotDescription, as_robot
 from arm.effect_api import EffectError, ModelInputs
-from arm.effects import Effect
+from arm.effects import Effect, missing_inputs
 from arm.errormodel import ErrorModel
 from arm.errors import SixAxisError
 from arm.kinematics import link_frames
 from arm.measurements import MeasurementSet, as_measurements
 from arm.params import ROW_FAMILIES, parameter_unit, parse_parameter_name
 from arm.so3 import rotation_vector
+from lab.blocks import Blocks
 from lab.identifiability import Identifiability, analyse_jacobian
+from lab.screening import (
+    OUTLIER_MODES,
+    Duplicate,
+    Outlier,
+    OutlierScreen,
+    annotate,
+    candidate_model,
+    duplicate_rows,
+    explained_residual,
+    robust_sigma,
+    screen_outliers,
+)
 
 __all__ = [
     "LOSSES",
+    "OUTLIER_MODES",
     "SCHEMA_VERSION",
     "FitError",
     "FitResult",
@@ -81,7 +95,6 @@ LOSSES = ("linear", "huber", "soft_l1")
 # restores every one that the data determine (RANK_TOL and the noise criterion) and refits.
 START_TOL = 1e-2
 HUBER_K = 1.345  # Huber's tuning constant: 95 % efficiency on Gaussian noise
-MAD_TO_SIGMA = 1.4826
 OUTLIER_RADIUS = math.sqrt(chi2.ppf(0.999, 3))  # 4.03 sigma: the 99.9 % radius of 3-D noise
 
 
@@ -111,10 +124,17 @@ class FitResult:
     sigma: float
     initial_rms: float
     inputs: ModelInputs = field(repr=False)
-    jacobian: np.ndarray = field(repr=False)
     weights: np.ndarray | None = field(default=None, repr=False)
     validation_residuals: np.ndarray | None = field(default=None, repr=False)
     source: str = "<memory>"
+    # what the fit left out of the data given (see lab.screening): ``fitted_rows`` are the
+    # indices of the poses fitted (None: all, in order), ``n_rows`` how many the data had
+    fitted_rows: np.ndarray | None = field(default=None, repr=False)
+    n_rows: int | None = None
+    outlier_list: list[Outlier] = field(default_factory=list)
+    duplicates: list[Duplicate] = field(default_factory=list)
+    outliers_mode: str = "keep"
+    screen: OutlierScreen | None = field(default=None, repr=False)
 
     # -- metrics ---------------------------------------------------------------------------------
     @property
@@ -174,12 +194,36 @@ class FitResult:
         return self.identifiability.unidentifiable
 
     @property
+    def jacobian(self) -> np.ndarray:
+        """The identification Jacobian (N, 3, P) at the solution, computed on demand (it is not
+        kept: 200,000 poses of geometric + compliance make 190 MB)."""
+        _, J = self.model.predict(self.inputs, self.params, jacobian=True)
+        return J
+
+    @property
     def outliers(self) -> np.ndarray:
-        """Indices of points farther off the fit than :data:`OUTLIER_RADIUS` robust standard
-        deviations (median absolute deviation of the residual's coordinates): a point of
-        Gaussian noise lies that far out once in 1,000. A robust fit's outliers."""
+        """Indices (into the data given to :func:`fit`) of the poses left out as gross outliers
+        (``outliers="auto"``; :mod:`lab.screening` states the rule)."""
+        return np.array([o.index for o in self.outlier_list], dtype=int)
+
+    @property
+    def far_points(self) -> np.ndarray:
+        """Indices of fitted points farther off the fit than :data:`OUTLIER_RADIUS` robust
+        standard deviations: a point of Gaussian noise lies that far out once in 1,000."""
         r = np.linalg.norm(self.residuals, axis=1)
         return np.flatnonzero(r > OUTLIER_RADIUS * robust_sigma(self.residuals))
+
+    @property
+    def outlier_rule(self) -> str | None:
+        return None if self.screen is None else self.screen.rule()
+
+    def fitted_data(self, data: MeasurementSet) -> MeasurementSet:
+        """The poses of ``data`` (the data given to :func:`fit`) that this fit used."""
+        if self.n_rows is not None and len(data) != self.n_rows:
+            raise FitError(
+                f"{data.source}: {len(data)} rows, but the fit was made on data of {self.n_rows}"
+            )
+        return data if self.fitted_rows is None else data.subset(self.fitted_rows)
 
     def parameters(self) -> dict[str, float]:
         return self.model.layout.as_dict(self.params)
@@ -197,7 +241,7 @@ class FitResult:
     def predict(self, data: MeasurementSet | ModelInputs) -> np.ndarray:
         """Predicted tool points (M, 3) of other poses with the identified parameters."""
         inputs = data if isinstance(data, ModelInputs) else _inputs(self.model, data)
-        return self.model.predict(inputs, self.params)
+        return Blocks(self.model, inputs).predict(self.params)
 
     def residuals_of(self, data: MeasurementSet) -> np.ndarray:
         """Predicted minus measured points (M, 3) of another measurement set, m."""
@@ -271,7 +315,38 @@ class FitResult:
                 f"{self.validation_rms_mm:.4f} mm, median {self.validation_median_mm:.4f} mm"
             )
         out.append(self.identifiability.summary())
+        out += self.screening_lines()
         return "\n".join(out)
+
+    def screening_lines(self, limit: int = 10) -> list[str]:
+        """What was left out of the fit and why, for people: duplicates, outliers."""
+        out = []
+        if self.duplicates:
+            shown = "; ".join(d.where for d in self.duplicates[:limit])
+            more = (
+                f"; ... {len(self.duplicates) - limit} more" if len(self.duplicates) > limit else ""
+            )
+            out.append(
+                f"{len(self.duplicates)} duplicate row(s) counted once ({shown}{more}): a copy of "
+                "a measurement is not a second measurement"
+            )
+        if self.outlier_list:
+            shown = ", ".join(
+                f"{o.where} ({o.residual_mm:.3g} mm{'; ' + o.note if o.note else ''})"
+                for o in self.outlier_list[:limit]
+            )
+            more = (
+                f", ... {len(self.outlier_list) - limit} more"
+                if len(self.outlier_list) > limit
+                else ""
+            )
+            out.append(
+                f"{len(self.outlier_list)} outlier(s) left out of the fit: {shown}{more}; rule: "
+                f"{self.outlier_rule} (--outliers keep fits them)"
+            )
+        elif self.screen is not None and self.screen.note:
+            out.append(f"outliers: {self.screen.note}")
+        return out
 
     def to_dict(self) -> dict:
         """The JSON object of ``sixaxis lab fit --json`` (SPEC section 4)."""
@@ -300,6 +375,11 @@ class FitResult:
             "robot": self.model.robot.name,
             "targets": list(self.model.targets),
             "source": self.source,
+            "n_rows": self.n_points if self.n_rows is None else self.n_rows,
+            "outliers_mode": self.outliers_mode,
+            "outliers": [o.to_dict() for o in self.outlier_list],
+            "outlier_rule": self.outlier_rule,
+            "duplicates": [d.to_dict() for d in self.duplicates],
         }
 
 
@@ -357,6 +437,10 @@ def build_model(
         model = ErrorModel(robot, effects, targets=data.targets)
     except EffectError as exc:
         raise FitError(str(exc)) from None
+    for e in model.effects:
+        why = missing_inputs(e, model.robot, list(data.columns))
+        if why:
+            raise FitError(f"{data.source}: {e.label} cannot be fitted without {why}")
     inputs = _inputs(model, data)
     n, P = len(data), len(model.layout)
     if 3 * n <= P:
@@ -386,8 +470,12 @@ def register_base(
     lay = model.layout
     p = np.array(params, dtype=float)
     st = model.state(inputs, p)
-    f = link_frames(st.chain, model.joint_angles(inputs, p))
-    o6, R6 = f.o[:, 6], f.R[:, 6]
+    # the last frame of every pose, block by block (all seven frames of 200k poses: 130 MB)
+    o6, R6 = np.empty((inputs.n, 3)), np.empty((inputs.n, 3, 3))
+    for sl, part in Blocks(model, inputs):
+        st_b = model.state(part, p)
+        f = link_frames(st_b.chain, model.joint_angles(part, p))
+        o6[sl], R6[sl] = f.o[:, 6], f.R[:, 6]
     tool = st.tools.copy()
     tgt = inputs.target
     n, K = inputs.n, len(model.targets)
@@ -433,54 +521,81 @@ def register_base(
 
 # --------------------------------------------------------------------------------------------------
 class _Problem:
-    """The scaled least-squares problem on the free parameters, caching each Jacobian."""
+    """The scaled least-squares problem on the free parameters, evaluated block by block
+    (:class:`lab.blocks.Blocks`): an evaluation gives the residual (3N) and the Gram matrix and
+    gradient of the scaled Jacobian of the free parameters, never the whole Jacobian."""
 
-    def __init__(self, model, inputs, xyz, p0, free, scale):
-        self.model, self.inputs, self.xyz = model, inputs, xyz
+    def __init__(self, blocks: Blocks, xyz, p0, free, scale):
+        self.blocks, self.xyz = blocks, xyz
         self.p0 = p0
         self.idx = np.flatnonzero(free)
         self.s = scale[self.idx]
-        self._u = self._J = self._r = None
+        self._u: np.ndarray | None = None
+        self._r = self._G = self._g = None
+        self._J: np.ndarray | None = None  # the whole Jacobian, kept when there is one block
 
     def params(self, u: np.ndarray) -> np.ndarray:
         p = self.p0.copy()
         p[self.idx] += u * self.s
         return p
 
+    def evaluate(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(r (3N), G = A^T A, g = A^T r) at ``u``, A the scaled Jacobian of the free columns."""
+        if self._u is not None and np.array_equal(self._u, u):
+            return self._r, self._G, self._g
+        p = self.params(u)
+        k = self.idx.size
+        r = np.empty(3 * self.blocks.n)
+        G, g = np.zeros((k, k)), np.zeros(k)
+        for sl, pred, J in self.blocks.jacobians(p):
+            rb = (pred - self.xyz[sl]).reshape(-1)
+            A = J[:, :, self.idx].reshape(-1, k) * self.s
+            if self.blocks.single:
+                G, g = A.T @ A, A.T @ rb
+                self._J = J
+            else:
+                G += A.T @ A
+                g += A.T @ rb
+            r[3 * sl.start : 3 * sl.stop] = rb
+        self._u, self._r, self._G, self._g = u.copy(), r, G, g
+        return r, G, g
+
     def fun(self, u: np.ndarray) -> np.ndarray:
-        pred, J = self.model.predict(self.inputs, self.params(u), jacobian=True)
-        self._u, self._J, self._r = u.copy(), J, (pred - self.xyz).reshape(-1)
-        return self._r
+        return self.evaluate(u)[0]
 
     def jac(self, u: np.ndarray) -> np.ndarray:
-        if self._u is None or not np.array_equal(self._u, u):
-            self.fun(u)
-        return self._J[:, :, self.idx].reshape(-1, self.idx.size) * self.s
+        """The whole scaled Jacobian (3N, k), for scipy's solvers (MINPACK, robust losses)."""
+        p = self.params(u)
+        k = self.idx.size
+        out = np.empty((3 * self.blocks.n, k))
+        for sl, _, J in self.blocks.jacobians(p):
+            out[3 * sl.start : 3 * sl.stop] = J[:, :, self.idx].reshape(-1, k) * self.s
+        return out
 
 
 def levenberg_marquardt(
-    fun: Callable[[np.ndarray], np.ndarray],
-    jac: Callable[[np.ndarray], np.ndarray],
+    evaluate: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]],
     u0: np.ndarray,
     max_evaluations: int = 200,
     ftol: float = 1e-10,
 ) -> tuple[np.ndarray, int, int]:
-    """Minimise ``|fun(u)|^2`` from ``u0``: Gauss-Newton steps, damped (Marquardt's diagonal
+    """Minimise ``|r(u)|^2`` from ``u0``: Gauss-Newton steps, damped (Marquardt's diagonal
     scaling) only when a step fails to lower the sum of squares.
 
-    For well-scaled, nearly linear problems (a calibration after registration) this takes 2-4
-    evaluations where MINPACK's ``lmder``, which always starts damped, takes 7-10; every
+    ``evaluate(u)`` returns the residual ``r``, the Gram matrix ``G = A^T A`` and the gradient
+    ``g = A^T r`` of the Jacobian ``A`` at ``u`` (summed block by block: the tall ``A`` is never
+    needed). For well-scaled, nearly linear problems (a calibration after registration) this
+    takes 2-4 evaluations where MINPACK's ``lmder``, which always starts damped, takes 7-10; every
     evaluation here costs a full Jacobian. Steps come from the normal equations of the small
-    (P, P) Gram matrix: ``(G + lam diag G) du = -J^T r`` (the columns are scaled and the
-    identifiable ones well conditioned). Stops when a step would lower the sum of squares by less
-    than ``ftol`` of itself. Returns ``(u, iterations, evaluations)``.
+    (P, P) Gram matrix: ``(G + lam diag G) du = -g`` (the columns are scaled and the identifiable
+    ones well conditioned). Stops when a step would lower the sum of squares by less than
+    ``ftol`` of itself. Returns ``(u, iterations, evaluations)``.
     """
     u = np.array(u0, dtype=float)
-    r, A = fun(u), jac(u)
+    r, G, g = evaluate(u)
     cost = float(r @ r)
     lam, nu, nfev, it = 0.0, 2.0, 1, 0
     while nfev < max_evaluations:
-        G, g = A.T @ A, A.T @ r
         d = np.maximum(np.diag(G), 1e-12 * max(float(np.max(np.diag(G), initial=0.0)), 1.0))
         while True:
             try:
@@ -492,12 +607,12 @@ def levenberg_marquardt(
             predicted = -(2.0 * g @ step + step @ G @ step)
             if predicted <= ftol * cost or nfev >= max_evaluations:
                 return u, it, nfev
-            r_new = fun(u + step)
+            r_new, G_new, g_new = evaluate(u + step)
             nfev += 1
             cost_new = float(r_new @ r_new)
             if cost_new < cost:
                 rho = (cost - cost_new) / predicted
-                u, r, A = u + step, r_new, jac(u + step)
+                u, r, G, g = u + step, r_new, G_new, g_new
                 cost = cost_new
                 it += 1
                 # Nielsen's update: a good model lowers the damping smoothly; GN stays GN
@@ -515,16 +630,18 @@ def levenberg_marquardt(
 class _Solution:
     params: np.ndarray
     residuals: np.ndarray  # (N, 3)
-    jacobian: np.ndarray  # (N, 3, P) at params
+    gram: np.ndarray  # A^T A of the scaled free columns at params
+    scale: np.ndarray  # the scale of those columns
+    jacobian: np.ndarray | None  # (N, 3, P) at params, when the data are one block
     iterations: int
     evaluations: int
 
 
-def _solve(model, inputs, xyz, p0, free, scale, loss, f_scale, max_nfev, solver="lm"):
-    prob = _Problem(model, inputs, xyz, p0, free, scale)
+def _solve(blocks, xyz, p0, free, scale, loss, f_scale, max_nfev, solver="lm"):
+    prob = _Problem(blocks, xyz, p0, free, scale)
     u0 = np.zeros(prob.idx.size)
     if loss == "linear" and solver == "lm":
-        u, it, nfev = levenberg_marquardt(prob.fun, prob.jac, u0, max_nfev)
+        u, it, nfev = levenberg_marquardt(prob.evaluate, u0, max_nfev)
     else:
         kw = dict(x_scale=1.0, max_nfev=max_nfev)
         if loss == "linear":  # MINPACK's lmder, kept for comparison (benchmarks/lab.py)
@@ -536,16 +653,9 @@ def _solve(model, inputs, xyz, p0, free, scale, loss, f_scale, max_nfev, solver=
         if res.status <= 0:
             log.warning("the fit did not converge: %s", res.message)
         u, it, nfev = res.x, int(res.njev or 0), int(res.nfev)
-    if prob._u is None or not np.array_equal(prob._u, u):
-        prob.fun(u)
-    return _Solution(prob.params(u), prob._r.reshape(-1, 3), prob._J, it, nfev)
-
-
-def robust_sigma(r: np.ndarray) -> float:
-    """The standard deviation of normal residuals, estimated robustly (scaled median absolute
-    deviation)."""
-    r = np.asarray(r).reshape(-1)
-    return float(MAD_TO_SIGMA * np.median(np.abs(r - np.median(r))))
+    r, G, _ = prob.evaluate(u)
+    J = prob._J if blocks.single else None
+    return _Solution(prob.params(u), r.reshape(-1, 3), G, scale, J, it, nfev)
 
 
 def _weights(r: np.ndarray, loss: str, f_scale: float) -> np.ndarray:
@@ -558,7 +668,7 @@ def _weights(r: np.ndarray, loss: str, f_scale: float) -> np.ndarray:
     return np.ones_like(z)
 
 
-IMPLAUSIBLE_RMS = 0.1  # m: after a fit, no real arm's model is this far from its measurements
+IMPLAUSIBLE_RMS = 0.1  # m: after a fit, no real arm's model is this far from most measurements
 
 
 def fit(
@@ -575,6 +685,7 @@ def fit(
     register: bool = True,
     max_evaluations: int = 100,
     solver: str = "lm",
+    outliers: str = "auto",
 ) -> FitResult:
     """Identify ``effects`` of ``robot`` (default the seed arm) from ``data``.
 
@@ -585,13 +696,117 @@ def fit(
     values by name; ``fixed``: names to hold at their starting value. ``register``: initialise a
     geometric model's base and tool offsets in closed form first. ``solver``: ``lm`` (this
     module's Levenberg-Marquardt) or ``minpack`` (scipy's ``lmder``), for linear loss.
+    ``outliers``: ``auto`` leaves gross outliers out by the rule of :mod:`lab.screening` (the
+    result names them, ``result.outlier_list``), ``keep`` fits every pose. Rows repeated exactly
+    are counted once either way (``result.duplicates``).
     """
     if loss not in LOSSES:
         raise FitError(f"loss must be one of {', '.join(LOSSES)}, got {loss!r}")
     if solver not in ("lm", "minpack"):
         raise FitError(f"solver must be 'lm' or 'minpack', got {solver!r}")
+    if outliers not in OUTLIER_MODES:
+        raise FitError(f"outliers must be one of {', '.join(OUTLIER_MODES)}, got {outliers!r}")
     data = as_measurements(data)
     robot = as_robot(robot)
+    kw = dict(
+        noise_mm=noise_mm,
+        f_scale_mm=f_scale_mm,
+        start=start,
+        fixed=fixed,
+        register=register,
+        max_evaluations=max_evaluations,
+        solver=solver,
+    )
+    distinct, dups = duplicate_rows(data)
+    if dups:
+        log.warning(
+            "%s: %d row(s) repeat an earlier row exactly (%s%s); each is counted once",
+            data.source,
+            len(dups),
+            "; ".join(d.where for d in dups[:5]),
+            "; ..." if len(dups) > 5 else "",
+        )
+        unique = data.subset(distinct)
+    else:
+        unique = data
+    result = _fit_points(unique, robot, effects, loss, **kw)
+    screen = None
+    if outliers == "auto":
+        result, screen = screen_outliers(
+            unique,
+            result,
+            refit=lambda keep: _fit_points(unique.subset(keep), robot, effects, loss, **kw),
+            residuals=lambda r: r.residuals_of(unique),
+            rank=lambda r: r.rank,
+            explain=lambda r, keep: _explain_with_candidates(r, unique, keep),
+        )
+        kept = distinct[screen.keep]
+        found = [replace(o, index=int(distinct[o.index])) for o in screen.outliers]
+        found = annotate(found, result.model, data)
+        if found:
+            log.warning(
+                "%s: %d outlier(s) left out of the fit (%s)",
+                data.source,
+                len(found),
+                ", ".join(o.where for o in found[:5]),
+            )
+    else:
+        kept, found = distinct, []
+    result = replace(
+        result,
+        fitted_rows=None if len(kept) == len(data) else kept,
+        n_rows=len(data),
+        outlier_list=found,
+        duplicates=dups,
+        outliers_mode=outliers,
+        screen=screen,
+        source=data.source,
+    )
+    if validate is not None:
+        result = result.validate(as_measurements(validate))
+    log.info("%s", result.summary())
+    return result
+
+
+def _explain_with_candidates(
+    res: FitResult, data: MeasurementSet, keep: np.ndarray
+) -> tuple[np.ndarray, int]:
+    """The residual (N, 3) of every pose of ``data`` that is left once the model's parameters
+    *and every candidate effect* (:func:`lab.screening.candidate_model`) have explained what
+    they can, to first order, on the poses of ``keep``; and the number of columns fitted."""
+    try:
+        full, _ = candidate_model(res.model, data)
+    except EffectError:  # a user's effect that cannot be built here: the model alone
+        full = res.model
+    p = full.nominal()
+    p[full.layout.indices(res.model.layout.names)] = res.params
+    blocks = Blocks(full, _inputs(full, data))
+    e = (blocks.predict(p) - data.xyz).reshape(-1)  # the model's residual: candidates are zero
+
+    def columns():
+        for sl, _, J in blocks.jacobians(p, keep_cache=False):
+            yield slice(3 * sl.start, 3 * sl.stop), J.reshape(-1, J.shape[2])
+
+    r, k = explained_residual(e, columns, np.repeat(keep, 3).astype(float))
+    return r.reshape(-1, 3), k
+
+
+def _fit_points(
+    data: MeasurementSet,
+    robot: RobotDescription,
+    effects: str | Sequence[str | Effect],
+    loss: str,
+    *,
+    noise_mm: float | None,
+    f_scale_mm: float | None,
+    start: Mapping[str, float] | None,
+    fixed: Iterable[str],
+    register: bool,
+    max_evaluations: int,
+    solver: str,
+) -> FitResult:
+    """The fit of every pose of ``data``: registration, identifiability, Levenberg-Marquardt,
+    identifiability again with the noise known, standard errors (the module docstring)."""
     model, inputs = build_model(data, robot, effects)
     lay = model.layout
     xyz = data.xyz
@@ -611,15 +826,31 @@ def fit(
             log.debug("registration: RMS %.4g mm -> %.4g mm", before * 1e3, after * 1e3)
             p = p_reg
 
+    blocks = Blocks(model, inputs)
+
     def solve(p, free, scale, loss="linear", f_scale=1.0):
-        return _solve(model, inputs, xyz, p, free, scale, loss, f_scale, max_evaluations, solver)
+        return _solve(blocks, xyz, p, free, scale, loss, f_scale, max_evaluations, solver)
+
+    def identifiability(p, J, **kw):
+        """At ``p``: from the whole Jacobian ``J`` when there is one block, else from the R of
+        its QR decomposition (the same inner products, :mod:`lab.blocks`); held parameters'
+        columns zeroed."""
+        if J is None:
+            R = _without(blocks.r_factor(p), held)
+            return analyse_jacobian(model, R, n_poses=blocks.n, **kw)
+        return analyse_jacobian(model, _without(J, held), **kw)
 
     # identifiability at the start (the structure), fit, again with the noise known, refit
-    pred, J = model.predict(inputs, p, jacobian=True)
+    if blocks.single:
+        pred, J = model.predict(inputs, p, jacobian=True)
+    else:
+        pred, J = blocks.predict(p), None
     initial_rms = _rms(pred - xyz)
     # held parameters are known: the others' identifiability is judged without their columns
     # (with the base held, row 1 is identifiable; with it free, the base absorbs row 1)
-    ident = analyse_jacobian(model, _without(J, held), tol=START_TOL, warn=False)
+    ident = identifiability(p, J, tol=START_TOL, warn=False)
+    del J
+    _check_effects_identifiable(model, ident, held, data.source)
     free = ident.identifiable & ~held
     sol = solve(p, free, ident.scale)
     iterations, evaluations = sol.iterations, sol.evaluations
@@ -627,15 +858,17 @@ def fit(
         sigma = float(np.sqrt(np.sum(sol.residuals**2) / max(sol.residuals.size - free.sum(), 1)))
     else:
         sigma = robust_sigma(sol.residuals)
-    fitted_rms = _rms(sol.residuals)
-    if fitted_rms > IMPLAUSIBLE_RMS:
+    # the median pose, not the RMS: a few gross outliers must not condemn the model
+    typical_miss = float(np.median(np.linalg.norm(sol.residuals, axis=1)))
+    if typical_miss > IMPLAUSIBLE_RMS:
         raise FitError(
-            f"{data.source}: the model cannot follow these measurements (RMS {fitted_rms * 1e3:.4g}"
-            f" mm after fitting {', '.join(lay.effects)}); are they in other units (length in mm,"
-            " angles in deg: say so when reading) or of another robot?"
+            f"{data.source}: the model cannot follow these measurements (RMS "
+            f"{_rms(sol.residuals) * 1e3:.4g} mm, median {typical_miss * 1e3:.4g} mm after fitting "
+            f"{', '.join(lay.effects)}); are they in other units (length in mm, angles in deg: "
+            "say so when reading) or of another robot?"
         )
     noise = noise_mm * 1e-3 if noise_mm is not None else sigma
-    ident = analyse_jacobian(model, _without(sol.jacobian, held), noise=noise, warn=True)
+    ident = identifiability(sol.params, sol.jacobian, noise=noise, warn=True)
     if held.any():
         ident = replace(ident, held=tuple(np.asarray(lay.names)[held]))
     free2 = ident.identifiable & ~held
@@ -657,9 +890,12 @@ def fit(
             if not f_scale_mm:
                 f_scale = HUBER_K * robust_sigma(sol.residuals)
 
-    r, J = sol.residuals, sol.jacobian
+    r = sol.residuals
     w = _weights(r, loss, f_scale) if f_scale is not None else None
-    std, sigma = _standard_errors(J, r, free, ident.scale, w)
+    gram, scale = sol.gram, sol.scale  # the Gram matrix of the columns as scaled in the solve
+    if w is not None:  # the robust fit's IRLS weights in the Gram matrix
+        gram = _weighted_gram(blocks, sol.params, free, scale, w)
+    std, sigma = _standard_errors(gram, r, free, scale, w)
     result = FitResult(
         model=model,
         params=sol.params,
@@ -673,22 +909,46 @@ def fit(
         sigma=sigma,
         initial_rms=initial_rms,
         inputs=inputs,
-        jacobian=J,
         weights=w,
         source=data.source,
     )
-    if validate is not None:
-        result = result.validate(as_measurements(validate))
-    log.info("%s", result.summary())
     return result
 
 
+def _check_effects_identifiable(
+    model: ErrorModel, ident: Identifiability, held: np.ndarray, source: str
+) -> None:
+    """An effect asked for whose every parameter the data cannot identify (a constant column,
+    a joint that gravity never loads) is an error, not parameters quietly held at nominal."""
+    lay = model.layout
+    for e in model.effects:
+        if e.name == "geometric":
+            continue
+        sl = lay.slice(e.name)
+        if (ident.identifiable[sl] | held[sl]).any():
+            continue
+        names = lay.names[sl]
+        moves = [n for n in names if ident.combinations.get(n)]
+        why = (
+            "they move no measured point with these data"
+            if not moves
+            else "they move the points only as other parameters do ("
+            + "; ".join(ident.labels[n] for n in moves[:4])
+            + ")"
+        )
+        raise FitError(
+            f"{source}: {e.label} cannot be fitted from these data: none of its parameters "
+            f"({', '.join(names)}) is identifiable; {why}"
+        )
+
+
 def _without(J: np.ndarray, held: np.ndarray) -> np.ndarray:
-    """``J`` with the columns of held (known) parameters zeroed."""
+    """``J`` with the columns of held (known) parameters zeroed (the last axis: a Jacobian
+    (N, 3, P) or the R factor (P, P) of one, whose inner products are the same)."""
     if not held.any():
         return J
     J = J.copy()
-    J[:, :, held] = 0.0
+    J[..., held] = 0.0
     return J
 
 
@@ -697,18 +957,29 @@ def _tool_idx(model: ErrorModel) -> np.ndarray:
     return model.layout.indices([n for n in names if n[:1] == "t" and n[1:2] in ("x", "y", "z")])
 
 
-def _standard_errors(J, r, free, scale, w=None) -> tuple[np.ndarray, float]:
+def _weighted_gram(blocks: Blocks, p, free, scale, w) -> np.ndarray:
+    """``A^T W A`` of the scaled free columns at ``p``, W the IRLS weights (N, 3)."""
     idx = np.flatnonzero(free)
-    A = J[:, :, idx].reshape(-1, idx.size) * scale[idx]
+    G = np.zeros((idx.size, idx.size))
+    for sl, _, J in blocks.jacobians(p):
+        A = J[:, :, idx].reshape(-1, idx.size) * scale[idx]
+        A = A * np.sqrt(w[sl].reshape(-1))[:, None]
+        G += A.T @ A
+    return G
+
+
+def _standard_errors(G, r, free, scale, w=None) -> tuple[np.ndarray, float]:
+    """Standard errors from the Gram matrix ``G`` of the scaled free columns (weighted for a
+    robust fit): ``cov = s^2 G^-1``, ``s^2 = sum w r^2 / (3N - rank)``."""
+    idx = np.flatnonzero(free)
     rr = r.reshape(-1)
     if w is not None:
-        sw = np.sqrt(w.reshape(-1))
-        A, rr = A * sw[:, None], rr * sw
+        rr = rr * np.sqrt(w.reshape(-1))
     dof = max(rr.size - idx.size, 1)
     sigma = float(np.sqrt(rr @ rr / dof))
-    std = np.full(J.shape[2], np.nan)
+    std = np.full(len(free), np.nan)
     if idx.size:
-        cov = cho_solve(cho_factor(A.T @ A), np.eye(idx.size))
+        cov = cho_solve(cho_factor(G), np.eye(idx.size))
         std[idx] = sigma * np.sqrt(np.diag(cov)) * scale[idx]
     return std, sigma
 
@@ -733,6 +1004,10 @@ def identifiability_of(
         model = ErrorModel(robot, effects, targets=data.targets)
     except EffectError as exc:
         raise FitError(str(exc)) from None
+    for e in model.effects:
+        why = missing_inputs(e, model.robot, list(data.columns))
+        if why:
+            raise FitError(f"{data.source}: {e.label} cannot be fitted without {why}")
     inputs = _inputs(model, data)
     p = model.nominal() if not params else model.layout.vector(params, default=model.nominal())
     _, J = model.predict(inputs, p, jacobian=True)

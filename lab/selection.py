@@ -5,6 +5,8 @@ of a linear least-squares fit from its hat matrix (PRESS), updated column block 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from scipy import stats
 
@@ -51,28 +53,38 @@ def f_test(ss: float, k: int, rss: float, dof: int) -> tuple[float, float]:
 
 class ForwardSelection:
     """Forward selection state: the residual, its sum of squares and degrees of freedom, the hat
-    blocks and the held-out RMS after the chosen columns (``Q``, orthonormal)."""
+    blocks and the held-out RMS after the chosen columns (``Q``, orthonormal).
+
+    A candidate's columns are given as an orthonormal, model-free array, or as a function that
+    builds one: then no copy of them outlives the trial (200,000 poses of a dozen columns are
+    20 MB a candidate), and the trials before anything is chosen are remembered by key as
+    their outcome only."""
 
     def __init__(self, e, rss, dof, H, cv):
         self.e, self.rss, self.dof, self.H, self.cv = e, rss, dof, H, cv
         self.Q = np.empty((e.size, 0))
         self._first: dict[int, tuple | None] = {}  # trials before anything is chosen, by key
 
-    def trial(self, basis: np.ndarray, key: int | None = None):
-        """(held-out RMS, p-value, state pieces) of adding ``basis`` (orthonormal, model-free);
-        None if it adds nothing. Trials on the initial state are remembered by ``key``."""
+    def trial(self, basis: np.ndarray | Callable[[], np.ndarray], key: int | None = None):
+        """(held-out RMS, p-value, state pieces) of adding ``basis``; None if it adds nothing.
+        Trials on the initial state are remembered by ``key`` (without the pieces when the
+        basis is built by a function: :meth:`add` builds them again)."""
         first = self.Q.shape[1] == 0 and key is not None
         if first and key in self._first:
             return self._first[key]
         out = self._trial(basis)
         if first:
-            self._first[key] = out
+            self._first[key] = (out[0], out[1], None) if out and callable(basis) else out
         return out
 
-    def _trial(self, basis: np.ndarray):
-        X = basis - self.Q @ (self.Q.T @ basis)
+    def _trial(self, basis):
+        fresh = callable(basis)
+        X = basis() if fresh else basis
+        if self.Q.shape[1]:  # in place when the basis is this trial's own
+            proj_Q = self.Q @ (self.Q.T @ X)
+            X = np.subtract(X, proj_Q, out=X if fresh else None)
         X = X[:, np.linalg.norm(X, axis=0) > DEPENDENT]  # the columns had norm 1
-        Qc = orthonormal_basis(X)
+        Qc = orthonormal_basis(X, overwrite=True)  # X is a copy: fancy indexing
         k = Qc.shape[1]
         if k == 0 or self.dof - k <= 0:
             return None
@@ -82,7 +94,15 @@ class ForwardSelection:
         H = self.H + hat_blocks(Qc)
         return press_rms(self.e - Qc @ proj, H), pv, (Qc, proj, ss, H)
 
-    def add(self, cv, pieces) -> None:
+    def add(self, cv, pieces, basis: np.ndarray | Callable[[], np.ndarray] | None = None) -> None:
+        """Add a trial's columns: its ``pieces``, or those that ``basis`` builds again."""
+        if pieces is None:
+            if basis is None:
+                raise ValueError("a remembered trial has no pieces: give its basis")
+            out = self._trial(basis)
+            if out is None:
+                return
+            cv, _, pieces = out
         Qc, proj, ss, H = pieces
         self.e = self.e - Qc @ proj
         self.rss, self.dof, self.H, self.cv = self.rss - ss, self.dof - Qc.shape[1], H, cv

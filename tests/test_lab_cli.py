@@ -335,7 +335,7 @@ def test_plan_writes_n_poses_that_read_back(files):
     res = lab("plan", "--criterion", "O2", "-o", out)
     assert res.exit_code == 2 and "--criterion" in res.stderr
     res = lab("plan", "--n", 15, "--candidates", 400, "-o", files["dir"])  # a directory
-    assert res.exit_code == 2 and "cannot write" in res.stderr
+    assert res.exit_code == 2 and "is a directory" in res.stderr
 
 
 # -- report -----------------------------------------------------------------------------------------

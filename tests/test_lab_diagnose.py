@@ -112,12 +112,17 @@ def test_a_robust_diagnosis_leaves_outliers_out(seed):
     xyz = d.xyz.copy()
     xyz[planted] += [1e-3, -0.6e-3, 0.8e-3]
     data = MeasurementSet(d.q, xyz, d.columns)
-    plain = diagnose(data, seed, "geometric", noise_mm=NOISE_MM)
+    plain = diagnose(data, seed, "geometric", noise_mm=NOISE_MM, outliers="keep")
     assert plain.verdict == "unexplained"  # least squares: the outliers swamp the tests
-    robust = diagnose(data, seed, "geometric", noise_mm=NOISE_MM, loss="huber")
+    robust = diagnose(data, seed, "geometric", noise_mm=NOISE_MM, loss="huber", outliers="keep")
     assert set(planted) <= set(robust.outliers) and len(robust.outliers) <= 6
     assert robust.verdict == "compliance"
-    assert robust.to_dict()["outliers"] == [int(i) for i in robust.outliers]
+    assert [o["row"] for o in robust.to_dict()["outliers"]] == [int(i) + 1 for i in robust.outliers]
+    # the default leaves them out of the fit and the tests: exactly those, by row
+    auto = diagnose(data, seed, "geometric", noise_mm=NOISE_MM)
+    assert auto.verdict == "compliance"
+    assert list(auto.outliers) == list(planted)
+    assert [o["row"] for o in auto.to_dict()["outliers"]] == [int(i) + 1 for i in planted]
 
 
 def test_json_shape(seed):

@@ -148,12 +148,12 @@ def test_units_round_trip(tmp_path, length_unit, angle_unit):
 
 def test_units_are_applied_as_stated(tmp_path):
     """Foreign data: q in degrees and x, y, z in mm, read with explicit options."""
-    path = _file(tmp_path, f"{HEADER}\n90,-45,0,0,180,0,1000,-250,1500\n")
+    path = _file(tmp_path, f"{HEADER}\n90,-45,0,0,36,0,900,-250,150\n")
     data = read_measurements(path, length_unit="mm", angle_unit="deg")
-    np.testing.assert_allclose(data.q[0], [math.pi / 2, -math.pi / 4, 0, 0, math.pi, 0])
-    np.testing.assert_allclose(data.xyz[0], [1.0, -0.25, 1.5])
+    np.testing.assert_allclose(data.q[0], [math.pi / 2, -math.pi / 4, 0, 0, math.pi / 5, 0])
+    np.testing.assert_allclose(data.xyz[0], [0.9, -0.25, 0.15])
     si = read_measurements(path)  # never guessed: the same file read as SI
-    assert si.q[0, 0] == 90.0 and si.xyz[0, 0] == 1000.0
+    assert si.q[0, 0] == 90.0 and si.xyz[0, 0] == 900.0
 
 
 def test_columns_in_any_order_extra_columns_kept_whitespace_and_bom(tmp_path):
