@@ -39,6 +39,7 @@ from arm.so3 import rotation_matrix
 
 __all__ = [
     "EFFECTS",
+    "PLAUSIBLE_FACTOR",
     "Backlash",
     "ChainEffect",
     "Compliance",
@@ -59,6 +60,10 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 REFERENCE_TEMPERATURE = 20.0  # degC, where thermal growth is zero
+# An identified parameter is implausible beyond this many times the top of its typical range:
+# a compliance ten times that of a soft harmonic drive, a gap of 20 arcmin, kappa of 2.3e-4/K
+# (ten times aluminium's) come from the data's units or another robot, not from the arm.
+PLAUSIBLE_FACTOR = 10.0
 
 
 class Effect:
@@ -75,6 +80,11 @@ class Effect:
     # What the effect cannot be fitted without, besides ``columns``: the arm's mass model (an
     # effect driven by gravity torques; without masses they are zero and it moves nothing).
     needs_masses: ClassVar[bool] = False
+    # The largest plausible magnitude of each parameter family (name prefix), SI units; None
+    # exempts a family. A family without one is bounded by PLAUSIBLE_FACTOR times the top of its
+    # typical range; an identified value beyond its bound is an error (units, another robot,
+    # another convention) unless the user accepts it (lab.plausibility).
+    bounds: ClassVar[dict[str, float | None]] = {}
 
     def __init__(self, joints: Sequence[int] | None = None) -> None:
         if joints is not None and not self.per_joint:
@@ -108,6 +118,16 @@ class Effect:
             if name.startswith(prefix):
                 return self.typical[prefix]
         return None
+
+    def plausible_bound(self, name: str) -> float | None:
+        """The largest plausible magnitude of parameter ``name`` (SI): from :attr:`bounds` by
+        the longest prefix, else :data:`PLAUSIBLE_FACTOR` times the top of its typical range;
+        None where the effect states neither, or exempts the family."""
+        for prefix in sorted(self.bounds, key=len, reverse=True):
+            if name.startswith(prefix):
+                return self.bounds[prefix]
+        rg = self.typical_range(name)
+        return None if rg is None else PLAUSIBLE_FACTOR * rg[1]
 
     def ambiguity_note(self, inputs: ModelInputs, i: int) -> str | None:
         """Why this effect's law cannot say how pose ``i`` is affected (a load-dependent
@@ -341,6 +361,16 @@ class Geometric(ChainEffect):
         "t": (1e-4, 3e-4),  # tool offsets
     }
     description = "DH errors (Hayati beta on parallel axes), base transform and tool offsets"
+    # 10 mm for a length error, 50 mrad (2.9 deg) for an angle error: a machined arm is never
+    # that far from its drawing. The base and the tool are exempt: a tracker stands metres from
+    # the base, anyhow rotated, and a reflector may sit hundreds of millimetres off the flange.
+    bounds = {"da": 0.01, "dd": 0.01, "dalpha": 0.05, "dtheta": 0.05, "beta": 0.05}
+
+    def plausible_bound(self, name: str) -> float | None:
+        parsed = parse_parameter_name(name)
+        if parsed is None or parsed.kind in ("base", "tool"):
+            return None
+        return self.bounds.get(parsed.family)
 
     def parameter_names(self, robot: RobotDescription, targets: Sequence[int]) -> list[str]:
         parallel = robot.parallel_rows()

@@ -141,6 +141,25 @@ NoiseOpt = Annotated[
         "RMS is this times sqrt(3). Default: estimated from the residual.",
     ),
 ]
+OutliersOpt = Annotated[
+    str,
+    typer.Option(
+        "--outliers",
+        help="auto: leave gross outliers out of the fit and the tests, named by line (a 3-D "
+        "residual beyond the radius that Gaussian noise of the robust scale exceeds in 1 % of "
+        "clean data sets, once the model and every catalogued effect explain what they can); "
+        "keep: fit every pose.",
+    ),
+]
+AcceptLargeOpt = Annotated[
+    bool,
+    typer.Option(
+        "--accept-large",
+        help="Keep a model whose identified parameters exceed the plausible bound of their "
+        "kind (10 mm for a DH length error, 50 mrad for a DH angle error, ten times an "
+        "effect's typical size) instead of refusing it; base and tool are never bounded.",
+    ),
+]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the JSON object only.")]
 JsonOutOpt = Annotated[
     Path | None,
@@ -187,6 +206,13 @@ def _check_units(length_unit: str, angle_unit: str) -> None:
 def _check_noise(noise_mm: float | None) -> None:
     if noise_mm is not None and not (math.isfinite(noise_mm) and noise_mm > 0):
         fail(f"--noise-mm must be a positive number of millimetres, got {noise_mm}")
+
+
+def _check_outliers(outliers: str) -> None:
+    from lab.screening import OUTLIER_MODES
+
+    if outliers not in OUTLIER_MODES:
+        _fail(f"--outliers must be one of {', '.join(OUTLIER_MODES)}, got {outliers!r}")
 
 
 def _check_loss(loss: str) -> None:
@@ -338,6 +364,8 @@ def fit_cmd(
     length_unit: LengthOpt = "m",
     angle_unit: AngleOpt = "rad",
     noise_mm: NoiseOpt = None,
+    outliers: OutliersOpt = "auto",
+    accept_large: AcceptLargeOpt = False,
     as_json: JsonOpt = False,
     out: JsonOutOpt = None,
 ) -> None:
@@ -347,6 +375,7 @@ def fit_cmd(
     parameters the poses cannot identify; --json prints the SPEC section 4 object (SI units)."""
     from lab import fit
 
+    _check_outliers(outliers)
     arm, meas, val = _prepare(
         data,
         robot,
@@ -360,7 +389,16 @@ def fit_cmd(
         outputs=[(out, "--out")],
     )
     with _guard():
-        result = fit(meas, arm, effects, loss=loss, validate=val, noise_mm=noise_mm)
+        result = fit(
+            meas,
+            arm,
+            effects,
+            loss=loss,
+            validate=val,
+            noise_mm=noise_mm,
+            outliers=outliers,
+            accept_large=accept_large,
+        )
     if not as_json:
         _print_fit(result)
     _emit_json(result.to_dict(), as_json, out)
@@ -400,9 +438,23 @@ def _print_diagnosis(d, data: Path) -> None:
             highlight=False,
             soft_wrap=True,
         )
-    if len(d.outliers):
+    for text in _left_out_lines(d.fit.duplicates, d.outlier_list, d.outlier_rule):
+        console.print(escape(text), highlight=False, soft_wrap=True)
+    lack = {k: v for k, v in d.skipped.items() if v.startswith("needs")}
+    if lack:
         console.print(
-            f"{len(d.outliers)} outlier(s) left out of the tests", highlight=False, soft_wrap=True
+            "[yellow]not tested[/yellow] (the data or the arm lack what they need): "
+            + escape("; ".join(f"{k} {v}" for k, v in lack.items())),
+            highlight=False,
+            soft_wrap=True,
+        )
+    rest = len(d.skipped) - len(lack)
+    if rest:
+        console.print(
+            f"{rest} candidate(s) not testable given the model (no effect beyond it, or below "
+            "the noise; --json lists them under skipped)",
+            highlight=False,
+            soft_wrap=True,
         )
     shown = d.candidates[:10]
     if shown:
@@ -411,6 +463,28 @@ def _print_diagnosis(d, data: Path) -> None:
         console.print(f"... and {len(d.candidates) - len(shown)} more (--json lists all)")
     if d.hints:
         console.print(hints_table(d.hints[:6]))
+
+
+def _left_out_lines(duplicates, outliers, rule: str | None, limit: int = 10) -> list[str]:
+    """What a fit or a diagnosis left out, by line, for people."""
+    out = []
+    if duplicates:
+        from lab.screening import duplicates_text
+
+        out.append(
+            f"{len(duplicates)} duplicate row(s) counted once: {duplicates_text(duplicates)}"
+        )
+    if outliers:
+        shown = ", ".join(
+            f"{o.where} ({o.residual_mm:.3g} mm{'; ' + o.note if o.note else ''})"
+            for o in outliers[:limit]
+        )
+        more = f", ... {len(outliers) - limit} more" if len(outliers) > limit else ""
+        out.append(
+            f"{len(outliers)} outlier(s) left out of the fit and the tests: {shown}{more} "
+            f"(rule: {rule}; --outliers keep fits them)"
+        )
+    return out
 
 
 def discover_command(data: Path, d) -> str:
@@ -441,6 +515,8 @@ def diagnose_cmd(
     length_unit: LengthOpt = "m",
     angle_unit: AngleOpt = "rad",
     alpha: Annotated[float, typer.Option(help="Family-wise false-alarm rate of the tests.")] = 0.02,
+    outliers: OutliersOpt = "auto",
+    accept_large: AcceptLargeOpt = False,
     as_json: JsonOpt = False,
     out: JsonOutOpt = None,
 ) -> None:
@@ -451,6 +527,7 @@ def diagnose_cmd(
     the residual still depends on."""
     from lab import diagnose
 
+    _check_outliers(outliers)
     arm, meas, _ = _prepare(
         data,
         robot,
@@ -467,7 +544,16 @@ def diagnose_cmd(
         fail(f"--alpha must lie in (0, 1), got {alpha}")
     with _guard():
         with console.status("fitting and testing the candidate effects..."):
-            d = diagnose(meas, arm, effects, noise_mm=noise_mm, loss=loss, alpha=alpha)
+            d = diagnose(
+                meas,
+                arm,
+                effects,
+                noise_mm=noise_mm,
+                loss=loss,
+                alpha=alpha,
+                outliers=outliers,
+                accept_large=accept_large,
+            )
     if not as_json:
         _print_diagnosis(d, data)
     _emit_json(d.to_dict(), as_json, out)
@@ -618,6 +704,8 @@ def report_cmd(
     rounds: Annotated[
         int, typer.Option(help="At most this many rounds of diagnose-and-refit.")
     ] = 3,
+    outliers: OutliersOpt = "auto",
+    accept_large: AcceptLargeOpt = False,
 ) -> None:
     """Fit, diagnose, refit what the diagnosis suggests; write an HTML report.
 
@@ -625,6 +713,7 @@ def report_cmd(
     --rounds times); the report has the tables and plots of every model."""
     from lab.report import build_report
 
+    _check_outliers(outliers)
     arm, meas, val = _prepare(
         data,
         robot,
@@ -654,6 +743,8 @@ def report_cmd(
             "--length-unit": None if length_unit == "m" else length_unit,
             "--angle-unit": None if angle_unit == "rad" else angle_unit,
             "--rounds": None if rounds == 3 else rounds,
+            "--outliers": None if outliers == "auto" else outliers,
+            "--accept-large": accept_large,
         },
     )
     t0 = time.perf_counter()
@@ -690,11 +781,15 @@ def report_cmd(
                 rounds=rounds,
                 command=command,
                 progress=step,
+                outliers=outliers,
+                accept_large=accept_large,
             )
         step("writing the HTML")
         with _writing(output):
             rep.write(output)
         step(None)
+    for text in _left_out_lines(rep.duplicates, rep.outliers, rep.outlier_rule):
+        console.print(escape(text), highlight=False, soft_wrap=True)
     for run in rep.runs:
         verdict = f", verdict {run.diagnosis.verdict}" if run.diagnosis is not None else ""
         held = (
@@ -906,6 +1001,8 @@ def export_cmd(
     name: Annotated[
         str | None, typer.Option(help="The calibrated arm's name (default: <robot>-calibrated).")
     ] = None,
+    outliers: OutliersOpt = "auto",
+    accept_large: AcceptLargeOpt = False,
 ) -> None:
     """Fit, then write the calibrated arm as a robot TOML.
 
@@ -914,6 +1011,7 @@ def export_cmd(
     from lab import fit
     from lab.export import ExportError, export_robot
 
+    _check_outliers(outliers)
     arm, meas, val = _prepare(
         data,
         robot,
@@ -927,7 +1025,16 @@ def export_cmd(
         outputs=[(output, "--output")],
     )
     with _guard():
-        result = fit(meas, arm, effects, loss=loss, validate=val, noise_mm=noise_mm)
+        result = fit(
+            meas,
+            arm,
+            effects,
+            loss=loss,
+            validate=val,
+            noise_mm=noise_mm,
+            outliers=outliers,
+            accept_large=accept_large,
+        )
     console.print(escape(result.summary()), highlight=False, soft_wrap=True)
     with _guard(ExportError), _writing(output):
         cal = export_robot(result, output, name=name)

@@ -27,8 +27,9 @@ BLOCK = 4096  # poses per block: the Jacobian of 70 parameters is then 6.9 MB
 class Blocks:
     """The inputs of ``model`` cut into consecutive blocks of at most ``size`` poses."""
 
-    def __init__(self, model: ErrorModel, inputs: ModelInputs, size: int = BLOCK) -> None:
+    def __init__(self, model: ErrorModel, inputs: ModelInputs, size: int | None = None) -> None:
         self.model, self.inputs = model, inputs
+        size = BLOCK if size is None else size
         n = inputs.n
         self.slices = [slice(a, min(a + size, n)) for a in range(0, max(n, 1), size)]
         self.parts = (

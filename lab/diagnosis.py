@@ -65,7 +65,8 @@ from arm.effect_api import EffectError
 from arm.effects import Effect, JointAngleEffect
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet, as_measurements
-from lab.blocks import BLOCK, Blocks
+from lab import blocks as _blocks
+from lab.blocks import Blocks
 from lab.identifiability import (
     gram_factor,
     lower_inverse,
@@ -286,6 +287,7 @@ def diagnose(
     alpha: float = 0.02,
     base: FitResult | None = None,
     outliers: str = "auto",
+    accept_large: bool = False,
 ) -> Diagnosis:
     """Fit ``effects`` and test what they miss; see the module docstring.
 
@@ -296,7 +298,8 @@ def diagnose(
     outliers out of the fit and of the tests (:mod:`lab.screening`: first those of the fit's own
     residual, then those of the residual beyond the model and every candidate, so that a
     missing effect is not mistaken for outliers); ``keep`` tests every pose (a robust ``loss``
-    still leaves its far points out of the tests).
+    still leaves its far points out of the tests). ``accept_large``: diagnose a model whose
+    identified parameters exceed the plausible bound of their kind (:func:`lab.fit`).
     """
     if not 0 < alpha < 1:
         raise FitError(f"alpha must lie in (0, 1), got {alpha}")
@@ -308,7 +311,15 @@ def diagnose(
     res = (
         base
         if base is not None
-        else fit(given, robot, effects, loss=loss, noise_mm=noise_mm, outliers=outliers)
+        else fit(
+            given,
+            robot,
+            effects,
+            loss=loss,
+            noise_mm=noise_mm,
+            outliers=outliers,
+            accept_large=accept_large,
+        )
     )
     data = res.fitted_data(given)
     if res.n_points != len(data):
@@ -489,7 +500,7 @@ def _columns(
 
 
 def _row_blocks(m: int) -> list[slice]:
-    step = 3 * BLOCK
+    step = 3 * _blocks.BLOCK
     return [slice(a, min(a + step, m)) for a in range(0, m, step)]
 
 
@@ -741,7 +752,8 @@ def _hints(res, data, Q0, e0, rss0, dof0, inlier) -> list[Hint]:
     Gall = np.zeros((n_pairs, nd * nd))
     Call = np.zeros((width, r0 * nd))
     ball = np.zeros((width, nd))
-    for b in (slice(a, min(a + BLOCK, n)) for a in range(0, n, BLOCK)):
+    size = _blocks.BLOCK
+    for b in (slice(a, min(a + size, n)) for a in range(0, n, size)):
         m = b.stop - b.start
         dirs = [np.broadcast_to(np.eye(3)[a], (m, 3)) for a in range(3)]
         dirs += [Jq[b, :, j] / rms[j] for j in js]

@@ -59,6 +59,7 @@ from arm.params import ROW_FAMILIES, parameter_unit, parse_parameter_name
 from arm.so3 import rotation_vector
 from lab.blocks import Blocks
 from lab.identifiability import Identifiability, analyse_jacobian
+from lab.plausibility import Implausible, implausible, likely_cause
 from lab.screening import (
     OUTLIER_MODES,
     Duplicate,
@@ -67,6 +68,7 @@ from lab.screening import (
     annotate,
     candidate_model,
     duplicate_rows,
+    duplicates_text,
     explained_residual,
     robust_sigma,
     screen_outliers,
@@ -135,6 +137,8 @@ class FitResult:
     duplicates: list[Duplicate] = field(default_factory=list)
     outliers_mode: str = "keep"
     screen: OutlierScreen | None = field(default=None, repr=False)
+    # parameters beyond the plausible bound of their kind, accepted (fit(accept_large=True))
+    implausible: list[Implausible] = field(default_factory=list)
 
     # -- metrics ---------------------------------------------------------------------------------
     @property
@@ -322,13 +326,9 @@ class FitResult:
         """What was left out of the fit and why, for people: duplicates, outliers."""
         out = []
         if self.duplicates:
-            shown = "; ".join(d.where for d in self.duplicates[:limit])
-            more = (
-                f"; ... {len(self.duplicates) - limit} more" if len(self.duplicates) > limit else ""
-            )
             out.append(
-                f"{len(self.duplicates)} duplicate row(s) counted once ({shown}{more}): a copy of "
-                "a measurement is not a second measurement"
+                f"{len(self.duplicates)} duplicate row(s) counted once: "
+                f"{duplicates_text(self.duplicates)} (a copy of a measurement is not a second one)"
             )
         if self.outlier_list:
             shown = ", ".join(
@@ -346,6 +346,11 @@ class FitResult:
             )
         elif self.screen is not None and self.screen.note:
             out.append(f"outliers: {self.screen.note}")
+        if self.implausible:
+            out.append(
+                "accepted beyond the plausible bound of their kind: "
+                + "; ".join(b.text() for b in self.implausible)
+            )
         return out
 
     def to_dict(self) -> dict:
@@ -380,6 +385,7 @@ class FitResult:
             "outliers": [o.to_dict() for o in self.outlier_list],
             "outlier_rule": self.outlier_rule,
             "duplicates": [d.to_dict() for d in self.duplicates],
+            "implausible": [b.to_dict() for b in self.implausible],
         }
 
 
@@ -686,6 +692,7 @@ def fit(
     max_evaluations: int = 100,
     solver: str = "lm",
     outliers: str = "auto",
+    accept_large: bool = False,
 ) -> FitResult:
     """Identify ``effects`` of ``robot`` (default the seed arm) from ``data``.
 
@@ -698,7 +705,9 @@ def fit(
     module's Levenberg-Marquardt) or ``minpack`` (scipy's ``lmder``), for linear loss.
     ``outliers``: ``auto`` leaves gross outliers out by the rule of :mod:`lab.screening` (the
     result names them, ``result.outlier_list``), ``keep`` fits every pose. Rows repeated exactly
-    are counted once either way (``result.duplicates``).
+    are counted once either way (``result.duplicates``). ``accept_large``: keep a
+    model whose identified parameters exceed the plausible bound of their kind
+    (:mod:`lab.plausibility`; listed in ``result.implausible``) instead of refusing it.
     """
     if loss not in LOSSES:
         raise FitError(f"loss must be one of {', '.join(LOSSES)}, got {loss!r}")
@@ -720,16 +729,21 @@ def fit(
     distinct, dups = duplicate_rows(data)
     if dups:
         log.warning(
-            "%s: %d row(s) repeat an earlier row exactly (%s%s); each is counted once",
+            "%s: %d row(s) repeat an earlier row exactly: %s; each is counted once",
             data.source,
             len(dups),
-            "; ".join(d.where for d in dups[:5]),
-            "; ..." if len(dups) > 5 else "",
+            duplicates_text(dups),
         )
         unique = data.subset(distinct)
     else:
         unique = data
-    result = _fit_points(unique, robot, effects, loss, **kw)
+    try:
+        result = _fit_points(unique, robot, effects, loss, **kw)
+    except FitError as exc:
+        if dups:
+            raise FitError(f"{exc} ({len(dups)} duplicate row(s) counted once)") from None
+        raise
+    _check_plausible(result, accept_large)  # before screening: no refits of an absurd model
     screen = None
     if outliers == "auto":
         result, screen = screen_outliers(
@@ -752,8 +766,10 @@ def fit(
             )
     else:
         kept, found = distinct, []
+    bad = _check_plausible(result, accept_large)
     result = replace(
         result,
+        implausible=bad,
         fitted_rows=None if len(kept) == len(data) else kept,
         n_rows=len(data),
         outlier_list=found,
@@ -766,6 +782,26 @@ def fit(
         result = result.validate(as_measurements(validate))
     log.info("%s", result.summary())
     return result
+
+
+def _check_plausible(result: FitResult, accept: bool) -> list[Implausible]:
+    """The identified parameters beyond the plausible bound of their kind: an error naming them
+    and the likely cause, unless ``accept`` (then logged and returned)."""
+    bad = implausible(result.model, result.params, result.identifiable)
+    if not bad:
+        return bad
+    shown = "; ".join(b.text() for b in bad[:4])
+    if len(bad) > 4:
+        shown += f"; and {len(bad) - 4} more"
+    cause = likely_cause(result.model, bad)
+    if not accept:
+        raise FitError(
+            f"{result.source}: not a plausible model of {result.model.robot.name!r}: {shown}, "
+            f"beyond the bound of its kind; likely cause: {cause}. Check the data and the "
+            "arm's file, or keep it anyway with --accept-large (accept_large=True)"
+        )
+    log.warning("%s: accepted beyond the plausible bound: %s (%s)", result.source, shown, cause)
+    return bad
 
 
 def _explain_with_candidates(
@@ -979,7 +1015,14 @@ def _standard_errors(G, r, free, scale, w=None) -> tuple[np.ndarray, float]:
     sigma = float(np.sqrt(rr @ rr / dof))
     std = np.full(len(free), np.nan)
     if idx.size:
-        cov = cho_solve(cho_factor(G), np.eye(idx.size))
+        try:
+            cov = cho_solve(cho_factor(G), np.eye(idx.size))
+        except np.linalg.LinAlgError:  # singular where the fit stopped: nothing is determined
+            log.warning(
+                "the parameters are not determined where the fit stopped (singular "
+                "Gram matrix): their standard errors are infinite"
+            )
+            cov = np.diag(np.full(idx.size, np.inf))
         std[idx] = sigma * np.sqrt(np.diag(cov)) * scale[idx]
     return std, sigma
 

@@ -37,6 +37,7 @@ from lab.diagnosis import diagnose, hint_variables
 from lab.identifiability import CONDITION_WARNING, typical_magnitudes
 from lab.identification import FitResult, fit, register_base
 from lab.report_html import HINT_PLOT_P, LabReport, ModelRun, Sensitivity, arm_parameters
+from lab.screening import Outlier
 
 __all__ = [
     "build_report",
@@ -95,16 +96,40 @@ def build_report(
     title: str | None = None,
     command: str | None = None,
     progress: Callable[[str], None] | None = None,
+    outliers: str = "auto",
+    accept_large: bool = False,
 ) -> LabReport:
     """Fit ``effects``, diagnose, and while the verdict names a missing catalogued effect (at most
-    ``rounds`` times) fit the suggested model and diagnose again; see the module docstring."""
+    ``rounds`` times) fit the suggested model and diagnose again; see the module docstring.
+
+    ``outliers="auto"``: the first model's fit and diagnosis screen the rows once
+    (:mod:`lab.screening`), and every model is then fitted to the same rows, so that the models
+    compare pose by pose; the report names what was left out. ``accept_large``: see
+    :func:`lab.fit`."""
     step = progress or (lambda msg: None)
-    data = as_measurements(data)
+    given = as_measurements(data)
     val = None if validate is None else as_measurements(validate)
     robot = as_robot(robot)
 
     step(f"fitting {effects if isinstance(effects, str) else ','.join(map(str, effects))}")
-    first = fit(data, robot, effects, loss=loss, validate=val, noise_mm=noise_mm)
+    kw = dict(loss=loss, validate=val, noise_mm=noise_mm, accept_large=accept_large)
+    first = fit(given, robot, effects, outliers=outliers, **kw)
+    data = first.fitted_data(given)
+    left_out: list[Outlier] = list(first.outlier_list)
+    rule = first.outlier_rule
+    d0 = None
+    if outliers == "auto":  # the rows beyond what the model and every candidate explain too
+        step(f"screening the rows against {', '.join(first.effects)} and every candidate")
+        d0 = diagnose(given, noise_mm=noise_mm, loss=loss, base=first)
+        more = [o for o in d0.outlier_list if o.index not in {x.index for x in left_out}]
+        if more:
+            left_out = sorted(left_out + more, key=lambda o: o.index)
+            rule = d0.outlier_rule
+            drop = {o.index for o in more}
+            rows = first.fitted_rows if first.fitted_rows is not None else np.arange(len(given))
+            data = given.subset(np.array([i for i in rows if i not in drop], dtype=int))
+            first = fit(data, robot, effects, outliers="keep", **kw)
+            d0 = None  # diagnosed again below, on the rows kept
     p0 = nominal_parameters(first.model, first.inputs, data.xyz)
     runs = [
         ModelRun(
@@ -117,7 +142,10 @@ def build_report(
     seen = {",".join(res.effects)}
     for k in range(max(rounds, 0) + 1):
         step(f"diagnosing {', '.join(res.effects)}")
-        d = diagnose(data, noise_mm=noise_mm, loss=loss, base=res)
+        if k == 0 and d0 is not None:
+            d = d0  # the screening's diagnosis of the first model: nothing more left out
+        else:
+            d = diagnose(data, noise_mm=noise_mm, loss=loss, base=res, outliers="keep")
         runs.append(
             ModelRun(
                 ", ".join(res.effects),
@@ -133,7 +161,7 @@ def build_report(
             break
         seen.add(nxt)
         step(f"fitting {nxt}")
-        res = fit(data, robot, nxt, loss=loss, validate=val, noise_mm=noise_mm)
+        res = fit(data, robot, nxt, outliers="keep", **kw)
 
     final = runs[-1].fit
     step("error-factor sensitivity")
@@ -147,6 +175,10 @@ def build_report(
         sensitivity=sens,
         title=title or f"Calibration report: {Path(data.source).name}",
         command=command,
+        outliers=left_out,
+        duplicates=list(first.duplicates),
+        outlier_rule=rule,
+        n_rows=len(given),
     )
     step("plotting")
     report.figures = _figures(report)

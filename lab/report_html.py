@@ -31,6 +31,7 @@ from arm.params import ROW_FAMILIES, parse_parameter_name
 from lab.diagnosis import Diagnosis
 from lab.identifiability import CONDITION_WARNING
 from lab.identification import FitResult
+from lab.screening import Duplicate, Outlier, duplicates_text
 
 __all__ = [
     "HINT_PLOT_P",
@@ -164,6 +165,11 @@ class LabReport:
     title: str = "Calibration report"
     command: str | None = None
     figures: dict[str, bytes] = field(default_factory=dict, repr=False)
+    # the rows of the file every model leaves out (lab.screening), and the rule applied
+    outliers: list[Outlier] = field(default_factory=list)
+    duplicates: list[Duplicate] = field(default_factory=list)
+    outlier_rule: str | None = None
+    n_rows: int | None = None
 
     @property
     def final(self) -> ModelRun:
@@ -415,6 +421,30 @@ def _diagnosis_html(run: ModelRun, r: LabReport, k: int) -> str:
     return "\n".join(out)
 
 
+def _left_out_html(r: LabReport) -> str:
+    """What every model left out of the file, by line, and why."""
+    out = []
+    if r.duplicates:
+        out.append(
+            f'<p class="warn">{len(r.duplicates)} row(s) repeat an earlier row exactly and are '
+            f"counted once: {_e(duplicates_text(r.duplicates, 20))}.</p>"
+        )
+    if r.outliers:
+        items = "".join(
+            f"<li>{_e(o.where)}: {o.residual_mm:.4g} mm ({o.sigmas:.3g} σ)"
+            + (f"; {_e(o.note)}" if o.note else "")
+            + "</li>"
+            for o in r.outliers[:50]
+        )
+        more = f"<li>… {len(r.outliers) - 50} more</li>" if len(r.outliers) > 50 else ""
+        out.append(
+            f'<p class="warn">{len(r.outliers)} gross outlier(s) left out of every model and '
+            f"every test (rule: {_e(r.outlier_rule or '')}; <code>--outliers keep</code> fits "
+            f"them):</p><ul>{items}{more}</ul>"
+        )
+    return "".join(out)
+
+
 def _render(r: LabReport) -> str:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -517,7 +547,7 @@ def _render(r: LabReport) -> str:
             if r.validation is not None
             else ""
         )
-        + f"; nominal arm <code>{_e(r.robot.name)}</code>.</p></header>",
+        + f"; nominal arm <code>{_e(r.robot.name)}</code>.</p>{_left_out_html(r)}</header>",
         f'<div class="cards">{"".join(cards)}</div>',
         "<h2>1. Error before and after each model</h2>",
         "<p>The nominal arm (its base transform and tool offsets registered to the measurements), "

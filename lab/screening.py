@@ -50,6 +50,7 @@ __all__ = [
     "annotate",
     "candidate_model",
     "duplicate_rows",
+    "duplicates_text",
     "explained_residual",
     "judge",
     "outlier_radius",
@@ -127,6 +128,35 @@ class Duplicate:
             "first_row": self.first + 1,
             "first_line": self.first_line,
         }
+
+
+def _ranges(values: list[int]) -> str:
+    """``3-11, 13``: sorted integers as ranges."""
+    out, start, prev = [], None, None
+    for v in [*sorted(values), None]:
+        if start is not None and (v is None or v != prev + 1):
+            out.append(str(start) if start == prev else f"{start}-{prev}")
+            start = None
+        if v is not None and start is None:
+            start = v
+        prev = v
+    return ", ".join(out)
+
+
+def duplicates_text(dups: list[Duplicate], limit: int = 5) -> str:
+    """The copies grouped by the row they repeat: ``line 2 (copied on lines 3-11)``."""
+    groups: dict[tuple[int, int | None], list[int]] = {}
+    for d in dups:
+        key = (d.first, d.first_line)
+        groups.setdefault(key, []).append(d.line if d.line is not None else d.index + 1)
+    word = "line" if all(d.line is not None for d in dups) else "row"
+    parts = []
+    for (first, first_line), copies in list(groups.items())[:limit]:
+        where = f"{word} {first_line if first_line is not None else first + 1}"
+        parts.append(f"{where} (copied on {word}s {_ranges(copies)})")
+    if len(groups) > limit:
+        parts.append(f"... {len(groups) - limit} more rows copied")
+    return "; ".join(parts)
 
 
 def _line(data: MeasurementSet, i: int) -> int | None:

@@ -219,3 +219,179 @@ def test_json_out_is_written_only_after_the_checks(d, tmp_path):
     res = lab("fit", d / "data.csv", "--out", out)
     assert res.exit_code == 0, res.output
     assert json.loads(out.read_text())["n_points"] == 60
+
+
+# -- outliers, duplicates -------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def dirty(d):
+    """200 poses with a hidden compliance and 2 % gross outliers (lines 4, 51, 121, 178)."""
+    import numpy as np
+
+    from arm.measurements import MeasurementSet
+
+    c = campaign(seed_robot(), "geometric,compliance[2,3]", seed=404)
+    m = c.measure(200)
+    xyz = m.xyz.copy()
+    rows = np.array([2, 49, 119, 176])
+    xyz[rows] += [1e-3, -0.6e-3, 0.8e-3]
+    write_measurements(MeasurementSet(m.q, xyz, m.columns), d / "dirty.csv")
+    return d / "dirty.csv", [int(r) + 2 for r in rows]
+
+
+def test_outliers_are_named_by_line_left_out_and_kept_on_request(dirty):
+    path, lines = dirty
+    got = json.loads(lab("diagnose", path, "--noise-mm", "0.015", "--json").stdout)
+    assert got["verdict"] == "compliance" and got["outliers_mode"] == "auto"
+    assert [o["line"] for o in got["outliers"]] == lines
+    assert "robust sigmas" in got["outlier_rule"]
+    text = lab("diagnose", path, "--noise-mm", "0.015").stdout
+    assert "4 outlier(s) left out of the fit and the tests: line 4 (" in text
+    assert "--outliers keep fits them" in text
+    keep = json.loads(
+        lab("diagnose", path, "--noise-mm", "0.015", "--outliers", "keep", "--json").stdout
+    )
+    assert keep["verdict"] == "unexplained" and keep["outliers"] == []
+    fitted = json.loads(lab("fit", path, "--json").stdout)
+    assert fitted["n_points"] == 196 and fitted["n_rows"] == 200
+    assert [o["line"] for o in fitted["outliers"]] == lines
+    assert "4 outlier(s) left out of the fit" in lab("fit", path).stdout
+    one_error_line(lab("fit", path, "--outliers", "drop"), "--outliers", "auto, keep")
+
+
+def test_the_report_names_what_every_model_left_out(dirty, tmp_path):
+    path, lines = dirty
+    out = tmp_path / "r.html"
+    res = lab("report", path, "--noise-mm", "0.015", "-o", out, "--rounds", 1)
+    assert res.exit_code == 0, res.output
+    html = out.read_text()
+    assert "4 gross outlier(s) left out of every model" in html
+    assert all(f"line {k}:" in html for k in lines)
+    assert "verdict compliance" in res.stdout and "4 outlier(s) left out" in res.stdout
+
+
+def test_duplicates_are_counted_once_at_the_cli(d, tmp_path):
+    import numpy as np
+
+    from arm.measurements import read_measurements
+
+    data = read_measurements(d / "data.csv")
+    write_measurements(data.subset(np.zeros(200, dtype=int)), tmp_path / "same.csv")
+    for command in ("fit", "diagnose"):
+        one_error_line(lab(command, tmp_path / "same.csv"), "199 duplicate row(s)")
+    write_measurements(data.subset(np.repeat(np.arange(60), 10)), tmp_path / "ten.csv")
+    ten = json.loads(lab("fit", tmp_path / "ten.csv", "--json").stdout)
+    once = json.loads(lab("fit", d / "data.csv", "--json").stdout)
+    assert ten["parameters"] == once["parameters"] and ten["std"] == once["std"]
+    assert ten["condition_number"] == once["condition_number"]
+    assert len(ten["duplicates"]) == 540 and ten["duplicates"][0]["first_line"] == 2
+    assert (
+        "540 duplicate row(s) counted once: line 2 (copied on lines 3-11)"
+        in lab("fit", tmp_path / "ten.csv").stdout
+    )
+
+
+# -- plausibility of the identified model ---------------------------------------------------------
+PUMA560 = """
+name = "puma560"
+convention = "standard"
+length_unit = "m"
+angle_unit = "deg"
+
+[[joints]]
+alpha = 90.0
+a = 0.0
+d = 0.0
+limits = [-160, 160]
+[[joints]]
+alpha = 0.0
+a = 0.4318
+d = 0.0
+limits = [-225, 45]
+[[joints]]
+alpha = -90.0
+a = 0.0203
+d = 0.15005
+limits = [-45, 225]
+[[joints]]
+alpha = 90.0
+a = 0.0
+d = 0.4318
+limits = [-110, 170]
+[[joints]]
+alpha = -90.0
+a = 0.0
+d = 0.0
+limits = [-100, 100]
+[[joints]]
+alpha = 0.0
+a = 0.0
+d = 0.0
+limits = [-266, 266]
+
+[[tools]]
+point = [0.0, 0.0, 0.0]
+"""
+
+
+def test_data_in_metres_read_as_millimetres_is_refused(d, tmp_path):
+    out = tmp_path / "cal.toml"
+    for args in (
+        ["fit", d / "data.csv", "--length-unit", "mm"],
+        ["diagnose", d / "data.csv", "--length-unit", "mm", "--noise-mm", "0.015"],
+        ["export", d / "data.csv", "--length-unit", "mm", "-o", out],
+    ):
+        one_error_line(
+            lab(*args),
+            "not a plausible model of 'seed'",
+            "da3 = -6",
+            "(bound 10 mm)",
+            "1000 times smaller",
+            "--length-unit m",
+            "--accept-large",
+        )
+    assert not out.exists()  # nothing a compensation could use
+
+
+def test_another_robots_standard_dh_file_is_refused(d, tmp_path):
+    arm = tmp_path / "puma560.toml"
+    arm.write_text(PUMA560)
+    err = one_error_line(lab("fit", d / "data.csv", "--robot", arm), "data.csv")
+    assert "not a plausible model of 'puma560'" in err or "cannot follow" in err, err
+    assert "robot" in err
+
+
+def test_accept_large_lets_an_expert_through(d):
+    got = json.loads(
+        lab("fit", d / "data.csv", "--length-unit", "mm", "--accept-large", "--json").stdout
+    )
+    big = {b["name"]: b for b in got["implausible"]}
+    assert big["da3"]["bound"] == 0.01 and big["da3"]["value"] < -0.6
+    assert "bx" not in big and "tz" not in big  # base and tool are never bounded
+
+
+@pytest.mark.parametrize("effect", ["compliance", "load_backlash"])
+def test_an_effect_without_the_data_it_needs_is_refused(d, tmp_path, effect):
+    import re
+
+    arm = tmp_path / "massless.toml"
+    arm.write_text(re.sub(r"mass = [0-9.]+", "mass = 0.0", seed_robot().to_toml()))
+    one_error_line(
+        lab("fit", d / "data.csv", "--robot", arm, "--effects", f"geometric,{effect}"),
+        f"{effect} cannot be fitted without the arm's mass model",
+        "no link masses",
+    )
+    text = lab("diagnose", d / "data.csv", "--robot", arm).stdout
+    assert "not tested (the data or the arm lack what they need)" in text
+    assert f"{effect} needs the arm's mass model" in text
+    got = json.loads(lab("diagnose", d / "data.csv", "--robot", arm, "--json").stdout)
+    assert "mass model" in got["skipped"][effect]
+
+
+def test_an_effect_that_no_data_can_identify_is_refused(d, tmp_path):
+    """compliance on joint 1 of the seed arm: gravity has no torque about a vertical axis."""
+    one_error_line(
+        lab("fit", d / "data.csv", "--effects", "geometric,compliance[1]"),
+        "compliance[1] cannot be fitted from these data",
+        "c1",
+        "move no measured point",
+    )
