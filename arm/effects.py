@@ -531,8 +531,8 @@ def missing_inputs(effect: Effect, robot: RobotDescription, columns: Sequence[st
         return f"the measured column(s) {', '.join(missing)}"
     if effect.needs_masses and not robot.has_mass_model:
         return (
-            f"the arm's mass model: robot {robot.name!r} has no link masses, so its gravity "
-            "torques are zero (give masses and centres of mass in its TOML)"
+            f"the arm's mass model: robot {robot.name!r} has no link masses, its gravity "
+            "torques are zero; give each joint's mass and com in its TOML"
         )
     return None
 

@@ -212,7 +212,7 @@ def _check_outliers(outliers: str) -> None:
     from lab.screening import OUTLIER_MODES
 
     if outliers not in OUTLIER_MODES:
-        _fail(f"--outliers must be one of {', '.join(OUTLIER_MODES)}, got {outliers!r}")
+        fail(f"--outliers must be one of {', '.join(OUTLIER_MODES)}, got {outliers!r}")
 
 
 def _check_loss(loss: str) -> None:
@@ -440,19 +440,14 @@ def _print_diagnosis(d, data: Path) -> None:
         )
     for text in _left_out_lines(d.fit.duplicates, d.outlier_list, d.outlier_rule):
         console.print(escape(text), highlight=False, soft_wrap=True)
-    lack = {k: v for k, v in d.skipped.items() if v.startswith("needs")}
+    lack: dict[str, list[str]] = {}  # what is missing -> the candidates that need it
+    for label, why in d.skipped.items():
+        if why.startswith("needs "):
+            lack.setdefault(why[len("needs ") :], []).append(label)
     if lack:
         console.print(
-            "[yellow]not tested[/yellow] (the data or the arm lack what they need): "
-            + escape("; ".join(f"{k} {v}" for k, v in lack.items())),
-            highlight=False,
-            soft_wrap=True,
-        )
-    rest = len(d.skipped) - len(lack)
-    if rest:
-        console.print(
-            f"{rest} candidate(s) not testable given the model (no effect beyond it, or below "
-            "the noise; --json lists them under skipped)",
+            "[yellow]not tested[/yellow], for lack of data: "
+            + escape("; ".join(f"{', '.join(k)} (needs {v})" for v, k in lack.items())),
             highlight=False,
             soft_wrap=True,
         )
@@ -656,15 +651,22 @@ def discover_cmd(
     are refitted with the model and written as an effect class (-o MODULE.py)."""
     from lab.discovery import discover
 
+    if output is not None and output.suffix != ".py" and not output.is_dir():
+        fail(f"{output}: the effect module must be a .py file")
     arm, meas, val = _prepare(
-        data, robot, effects, effect_module, validate, "linear", length_unit, angle_unit, noise_mm
+        data,
+        robot,
+        effects,
+        effect_module,
+        validate,
+        "linear",
+        length_unit,
+        angle_unit,
+        noise_mm,
+        outputs=[(output, "--output"), (out, "--out")],
     )
     if not 0 < alpha < 1:
         fail(f"--alpha must lie in (0, 1), got {alpha}")
-    if output is not None and output.is_dir():
-        fail(f"{output}: is a directory; -o takes the Python file to write")
-    if output is not None and output.suffix != ".py":
-        fail(f"{output}: the effect module must be a .py file")
     with _guard():
         with console.status("fitting the model and searching the library..."):
             d = discover(

@@ -38,6 +38,13 @@ over 200 simulated campaigns); the effects of SPEC section 2 at the low end of t
 out at p-values below 1e-50 with 200 poses, so the stricter level costs them nothing. Without
 ``noise_mm`` the verdict comes from the candidate tests alone.
 
+**Outliers** (``outliers="auto"``): the fit leaves out those of its own residual, and the tests
+those that stay beyond the rule of :mod:`lab.screening` once the model and every candidate may
+explain the residual; both are named by row. A candidate the data or the arm cannot support (a
+missing column, no mass model) is listed in ``skipped`` with the reason. The candidates' columns
+are held once and tested in turn; none is kept between trials (:class:`lab.selection.
+ForwardSelection`), so the memory stays a few KB per pose for the whole catalogue.
+
 **Hints** score every measured variable (q1..q6, gravity torques tau1..tau6, t, temperature,
 payload, dir1..dir6, target, and any other column) by how much of the remaining residual smooth
 functions of it explain (adjusted R^2, with the F-test's p-value): harmonics 1-3 of an angle,

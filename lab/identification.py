@@ -32,6 +32,12 @@ The steps, each a pure function of arrays:
 
 It is one module, longer than most, because the steps above are one fit: each is short, and
 :func:`fit` runs them in this order.
+Around these steps (:func:`fit`): rows repeated exactly are counted once, gross outliers are left
+out by the stated rule of :mod:`lab.screening` and the model refitted (``outliers="auto"``), and
+the identified parameters are checked against the plausible bound of their kind
+(:mod:`lab.plausibility`). The model is evaluated block by block (:mod:`lab.blocks`): each step
+needs only the small Gram matrix ``J^T J`` and gradient ``J^T r``, and identifiability the R
+factor of ``J``, so a whole Jacobian of 200,000 poses is never held.
 """
 
 from __future__ import annotations

@@ -14,9 +14,14 @@ against a robust noise scale, by a stated rule:
   (``sqrt(3N / (3N - rank))``);
 * a pose is an outlier when its 3-D residual exceeds ``r_N * s``, with ``r_N`` the radius that
   Gaussian noise of that scale exceeds anywhere among the N poses with probability
-  :data:`OUTLIER_ALPHA` (1 %): ``r_N^2 = chi2.isf(alpha / N, 3)`` (Bonferroni). That is 4.98 sigma
-  for 200 poses, 5.6 for 2,000, 6.2 for 200,000. On clean data a false flag is that rare for a
-  whole data set (measured in ``benchmarks/lab_outliers.py``);
+  :data:`OUTLIER_ALPHA` (1 %): ``r_N^2 = chi2.isf(alpha / N, 3)`` (Bonferroni). That is 4.75
+  sigma for 200 poses, 5.23 for 2,000, 6.07 for 200,000. On clean data a false flag is that rare
+  for a whole data set (measured in ``benchmarks/lab.py outliers``);
+* the residual judged is the one left once the model *and every catalogued effect the data
+  allow* (:func:`candidate_model`) have explained what they can, to first order: a missing
+  effect's largest deviations (its residual has heavy tails) are then not taken for outliers.
+  :func:`lab.fit` judges it when the model's own residual flags a pose; :func:`lab.diagnose`
+  always (a gross error hidden in a missing effect's spread shows only there);
 * the outliers are left out and the model refitted; the residuals of every pose are judged
   again, until the set no longer changes (:data:`MAX_ROUNDS` at most).
 
@@ -64,6 +69,9 @@ MAX_OUTLIER_FRACTION = 0.1
 MAX_ROUNDS = 5
 MAD_TO_SIGMA = 1.4826
 MIN_DOF = 30  # fewer residual degrees of freedom: no scale to judge by, nothing is flagged
+# The scale never goes below 1 nm: far under any instrument, far above the round-off of noise-
+# free data (1e-15 m), whose residual is not noise and has no outliers to find.
+MIN_SCALE = 1e-9  # m
 
 
 def outlier_radius(n: int, alpha: float = OUTLIER_ALPHA) -> float:
@@ -243,7 +251,7 @@ def judge(
     dof = 3 * m - rank
     if dof < MIN_DOF:
         return np.zeros(n, dtype=bool), float("nan"), float("nan")
-    s = robust_sigma(r[keep]) * math.sqrt(3 * m / dof)
+    s = max(robust_sigma(r[keep]) * math.sqrt(3 * m / dof), MIN_SCALE)
     radius = outlier_radius(n, alpha)
     if not s > 0:
         return np.zeros(n, dtype=bool), s, radius

@@ -130,9 +130,14 @@ def test_an_output_that_is_an_input_is_refused_and_the_input_kept(d, tmp_path):
     module = tmp_path / "mine.py"
     module.write_text("")
     one_error_line(lab("plan", "--n", 5, "--effect-module", module, "-o", module), "is the input")
+    one_error_line(
+        lab("discover", data, "--effect-module", module, "-o", module), "--output", "is the input"
+    )
 
 
-@pytest.mark.parametrize("command", ["fit", "diagnose", "report", "export", "plan", "collect"])
+@pytest.mark.parametrize(
+    "command", ["fit", "diagnose", "report", "export", "plan", "collect", "discover"]
+)
 def test_an_unwritable_output_is_refused_before_any_work(d, command, monkeypatch):
     import lab as lab_api
 
@@ -143,6 +148,7 @@ def test_an_unwritable_output_is_refused_before_any_work(d, command, monkeypatch
     monkeypatch.setattr(lab_api, "diagnose", no_work)
     monkeypatch.setattr(lab_api, "plan", no_work)
     monkeypatch.setattr("lab.report.build_report", no_work)
+    monkeypatch.setattr("lab.discovery.discover", no_work)
     blocked = d / "data.csv" / "sub" / "out.file"  # a path through a file
     args = {
         "fit": ["fit", d / "data.csv", "--out", blocked],
@@ -151,6 +157,7 @@ def test_an_unwritable_output_is_refused_before_any_work(d, command, monkeypatch
         "export": ["export", d / "data.csv", "-o", blocked],
         "plan": ["plan", "-o", blocked],
         "collect": ["collect", "-o", blocked],
+        "discover": ["discover", d / "data.csv", "--out", blocked],
     }[command]
     one_error_line(lab(*args), str(blocked), "not a directory")
     if Path("/proc/self").is_dir():  # a folder where no file can be created, even by root
@@ -381,8 +388,7 @@ def test_an_effect_without_the_data_it_needs_is_refused(d, tmp_path, effect):
         "no link masses",
     )
     text = lab("diagnose", d / "data.csv", "--robot", arm).stdout
-    assert "not tested (the data or the arm lack what they need)" in text
-    assert f"{effect} needs the arm's mass model" in text
+    assert "not tested, for lack of data: compliance, load_backlash (needs the arm's mass" in text
     got = json.loads(lab("diagnose", d / "data.csv", "--robot", arm, "--json").stdout)
     assert "mass model" in got["skipped"][effect]
 
