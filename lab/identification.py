@@ -749,7 +749,6 @@ def fit(
         if dups:
             raise FitError(f"{exc} ({len(dups)} duplicate row(s) counted once)") from None
         raise
-    _check_plausible(result, accept_large)  # before screening: no refits of an absurd model
     screen = None
     if outliers == "auto":
         result, screen = screen_outliers(
@@ -909,7 +908,11 @@ def _fit_points(
             f"{', '.join(lay.effects)}); are they in other units (length in mm, angles in deg: "
             "say so when reading) or of another robot?"
         )
-    noise = noise_mm * 1e-3 if noise_mm is not None else sigma
+    if noise_mm is not None:
+        noise = noise_mm * 1e-3
+    else:  # the residual's, unless a few gross errors inflate it (then its robust scale)
+        rs = robust_sigma(sol.residuals)
+        noise = sigma if sigma <= 3.0 * rs else rs
     ident = identifiability(sol.params, sol.jacobian, noise=noise, warn=True)
     if held.any():
         ident = replace(ident, held=tuple(np.asarray(lay.names)[held]))

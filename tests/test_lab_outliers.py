@@ -78,6 +78,20 @@ def test_the_fit_without_its_outliers_is_the_fit_of_the_other_rows(seed):
     assert "4.75 robust sigmas" in out["outlier_rule"]
 
 
+@pytest.mark.parametrize("typo_m", [1.0, 0.05])
+def test_a_typo_in_one_cell_is_an_outlier_not_a_failed_fit(seed, typo_m):
+    """x of one row off by a metre (a digit typed twice): without noise_mm the fit's first noise
+    estimate would be 40 mm and fix every parameter; the robust scale keeps the fit, and the row
+    is left out by line."""
+    d = campaign(seed, "geometric", seed=5).measure(200)
+    xyz = d.xyz.copy()
+    xyz[17, 0] += typo_m
+    lines = np.arange(2, 202)
+    res = fit(MeasurementSet(d.q, xyz, d.columns, "typo.csv", lines), seed, "geometric")
+    assert list(res.outliers) == [17] and res.outlier_list[0].line == 19
+    assert res.rank == 25 and res.rms_mm < FLOOR_MM
+
+
 def test_no_outliers_where_the_model_misses_an_effect(seed):
     """A geometric fit of data with a hidden effect has a residual with heavy tails; its largest
     deviations are the effect, not outliers: judged beyond what every catalogued effect could
