@@ -555,6 +555,8 @@ def _test_outliers(
         if np.array_equal(~far, keep):
             break
         keep = ~far
+    else:  # still changing: a spread peeled away round by round, not gross errors
+        return np.empty(0, dtype=int), rule
     if far.any():
         rule = (
             f"3-D residual above {radius:.2f} robust sigmas ({1e3 * radius * s:.4g} mm) beyond "

@@ -23,7 +23,9 @@ against a robust noise scale, by a stated rule:
   :func:`lab.fit` judges it when the model's own residual flags a pose; :func:`lab.diagnose`
   always (a gross error hidden in a missing effect's spread shows only there);
 * the outliers are left out and the model refitted; the residuals of every pose are judged
-  again, until the set no longer changes (:data:`MAX_ROUNDS` at most).
+  again, until the set no longer changes. Gross errors settle in one or two rounds; a set still
+  growing after :data:`MAX_ROUNDS` is the spread of an effect the model and the catalogue lack,
+  peeled away round by round, and nothing is left out.
 
 A data set whose "outliers" would be more than :data:`MAX_OUTLIER_FRACTION` of its poses does not
 have outliers: its model does not fit. Then nothing is left out, and the lab says so.
@@ -66,7 +68,7 @@ __all__ = [
 OUTLIER_MODES = ("auto", "keep")
 OUTLIER_ALPHA = 0.01  # the family-wise rate of a false flag on a clean data set
 MAX_OUTLIER_FRACTION = 0.1
-MAX_ROUNDS = 5
+MAX_ROUNDS = 3  # gross errors settle in one or two rounds
 MAD_TO_SIGMA = 1.4826
 MIN_DOF = 30  # fewer residual degrees of freedom: no scale to judge by, nothing is flagged
 # The scale never goes below 1 nm: far under any instrument, far above the round-off of noise-
@@ -361,6 +363,13 @@ def screen_outliers(
         if rounds:  # the poses once flagged are back within the radius: every pose is fitted
             return first, OutlierScreen(np.ones(n, dtype=bool), [], s, radius, rounds)
         return res, OutlierScreen(keep, [], s, radius, rounds)
+    if not np.array_equal(~far, keep):
+        note = (
+            f"the poses beyond the rule kept changing with the fit ({int((~keep).sum())}, then "
+            f"{int(far.sum())}): the spread of an effect no candidate has, not gross errors; "
+            "none left out"
+        )
+        return first, OutlierScreen(np.ones(n, dtype=bool), [], s, radius, rounds, note)
     d = np.sqrt(np.sum(r**2, axis=1))
     outs = [
         Outlier(int(i), _line(data, int(i)), 1e3 * float(d[i]), float(d[i] / s))

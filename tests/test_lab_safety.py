@@ -401,3 +401,66 @@ def test_an_effect_that_no_data_can_identify_is_refused(d, tmp_path):
         "c1",
         "move no measured point",
     )
+
+
+# -- load_backlash near zero torque ---------------------------------------------------------------
+def test_one_pose_on_the_far_side_of_the_gap_at_the_cli(tmp_path):
+    """The issue's case at the CLI: a pose at -0.05 N·m about joint 2 rests on the other side of
+    the gap; the diagnosis names load_backlash, and says why that pose was left out."""
+    from tests.test_lab_outliers import _gravity_loaded_campaign
+
+    data, _ = _gravity_loaded_campaign(seed_robot(), 900, 200, odd_tau=-0.05)
+    write_measurements(data, tmp_path / "lb.csv")
+    got = json.loads(lab("diagnose", tmp_path / "lb.csv", "--noise-mm", "0.015", "--json").stdout)
+    assert got["verdict"] == "load_backlash"
+    odd = next(o for o in got["outliers"] if o["line"] == 2)  # the first pose
+    assert "ambiguous for load_backlash: tau2 = -0.05 N·m" in odd["note"]
+    text = lab("diagnose", tmp_path / "lb.csv", "--noise-mm", "0.015").stdout
+    assert "verdict: load_backlash" in text and "line 2 (" in text and "ambiguous" in text
+
+
+# -- memory ---------------------------------------------------------------------------------------
+@pytest.mark.slow
+def test_memory_grows_by_at_most_a_few_kb_per_pose_at_the_cli(tmp_path):
+    """``sixaxis lab fit`` of geometric + compliance and ``diagnose`` of the whole catalogue, in a
+    fresh interpreter each, on 8,000 and 32,000 poses: the peak resident memory grows by at most
+    2 KB and 4 KB per added pose (issue 13; was 6 and 22 KB). benchmarks/lab.py measures the
+    sizes up to 200,000."""
+    import numpy as np
+
+    c = campaign(seed_robot(), "geometric,compliance[2,3]", seed=77)
+    files = {}
+    for n in (8_000, 32_000):
+        files[n] = tmp_path / f"d{n}.csv"
+        write_measurements(c.measure(n), files[n])
+    code = (
+        "import resource, sys\n"
+        "from experiments.cli import app\n"
+        "try:\n"
+        "    app(sys.argv[2:], standalone_mode=False)\n"
+        "finally:\n"
+        "    with open(sys.argv[1], 'w') as fh:\n"
+        "        fh.write(str(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss))\n"
+    )
+
+    def peak(*args: object) -> float:
+        out = tmp_path / "rss.txt"
+        res = subprocess.run(
+            [sys.executable, "-c", code, str(out), "lab", *map(str, args), "--json"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+        assert res.returncode == 0, res.stderr[-2000:]
+        return 1024.0 * float(out.read_text())  # bytes
+
+    for command, effects, per_pose in (
+        ("fit", "geometric,compliance", 2048),
+        ("diagnose", "geometric", 4096),
+    ):
+        small = peak(command, files[8_000], "--effects", effects)
+        large = peak(command, files[32_000], "--effects", effects)
+        slope = (large - small) / 24_000
+        assert slope <= per_pose, (command, slope)
+        assert np.isfinite(slope)
