@@ -44,6 +44,7 @@ from agents.base import Agent, solve_time_stats
 from agents.reference import NominalAgent
 from agents.tool_model import cached_tool_model
 from arm.errormodel import ErrorModel
+from arm.errors import SixAxisError
 from envs.task import Observation, TaskInfo, Truth
 
 __all__ = [
@@ -51,6 +52,7 @@ __all__ = [
     "VARIANTS",
     "PPOAgent",
     "PPOConfig",
+    "PPOConfigError",
     "PolicyEnv",
     "PolicyFeatures",
     "evaluate_policy",
@@ -63,6 +65,11 @@ log = logging.getLogger(__name__)
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
 VARIANTS = ("plain", "residual")
 MM = 1e3
+
+
+class PPOConfigError(SixAxisError, ValueError):
+    """A bad PPO setting: an unknown variant, or a config file that is missing, not TOML, or has
+    unknown or mistyped keys."""
 
 
 # --------------------------------------------------------------------------------------------------
@@ -123,7 +130,9 @@ class ActionMap:
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
-            raise ValueError(f"unknown PPO variant {self.variant!r}; choose {', '.join(VARIANTS)}")
+            raise PPOConfigError(
+                f"unknown PPO variant {self.variant!r}; choose {', '.join(VARIANTS)}"
+            )
 
     @property
     def size(self) -> int:
@@ -220,7 +229,7 @@ class PPOConfig:
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
-            raise ValueError(f"ppo.variant must be one of {VARIANTS}, got {self.variant!r}")
+            raise PPOConfigError(f"ppo.variant must be one of {VARIANTS}, got {self.variant!r}")
         self.scenarios = tuple(self.scenarios)
         self.net_arch = tuple(int(x) for x in self.net_arch)
 
@@ -234,16 +243,16 @@ def load_config(path: str | Path) -> PPOConfig:
     try:
         doc = tomllib.loads(path.read_text())
     except FileNotFoundError:
-        raise ValueError(f"{path}: config file not found") from None
+        raise PPOConfigError(f"{path}: config file not found") from None
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML: {exc}") from exc
+        raise PPOConfigError(f"{path}: not valid TOML: {exc}") from exc
     table = doc.get("ppo")
     if not isinstance(table, dict):
-        raise ValueError(f"{path}: needs a [ppo] table")
+        raise PPOConfigError(f"{path}: needs a [ppo] table")
     known = {f.name: f for f in dataclasses.fields(PPOConfig)}
     unknown = sorted(set(table) - set(known))
     if unknown:
-        raise ValueError(f"{path}: [ppo] has unknown key(s) {', '.join(unknown)}")
+        raise PPOConfigError(f"{path}: [ppo] has unknown key(s) {', '.join(unknown)}")
     defaults = PPOConfig()
     for k, v in table.items():
         want = type(getattr(defaults, k))
@@ -253,7 +262,7 @@ def load_config(path: str | Path) -> PPOConfig:
         if want is tuple and isinstance(v, list):
             ok = True
         if not ok:
-            raise ValueError(
+            raise PPOConfigError(
                 f"{path}: [ppo] {k} must be {want.__name__}, got {type(v).__name__} {v!r}"
             )
     return PPOConfig(**table)
@@ -478,7 +487,7 @@ class PPOAgent(Agent):
     ) -> None:
         super().__init__()
         if variant not in VARIANTS:
-            raise ValueError(f"unknown PPO variant {variant!r}; choose {', '.join(VARIANTS)}")
+            raise PPOConfigError(f"unknown PPO variant {variant!r}; choose {', '.join(VARIANTS)}")
         self.variant = variant
         self.name = "ppo" if variant == "plain" else "ppo-residual"
         self.path = Path(path) if path else POLICY_DIR / f"ppo-{variant}.zip"

@@ -21,15 +21,21 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from arm.description import RobotDescription, load_robot
+from arm.errors import SixAxisError
 from arm.measurements import MeasurementSet, write_measurements
 from arm.sampling import sample_poses
 
 if TYPE_CHECKING:
     from envs.scenarios import EpisodeTruth
 
-__all__ = ["collect_measurements"]
+__all__ = ["CollectError", "collect_measurements"]
 
 log = logging.getLogger(__name__)
+
+
+class CollectError(SixAxisError, ValueError):
+    """Poses or payloads that cannot be measured: a wrong shape, NaN, outside the joint limits."""
+
 
 APPROACH = 0.03  # rad: each joint's last move towards the pose
 APPROACH_SPEED = 0.05  # rad/s
@@ -97,15 +103,15 @@ def collect_measurements(
         poses = sample_poses(nominal, int(n), pose_rng)
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
     if poses.ndim != 2 or poses.shape[1] != 6:
-        raise ValueError(f"poses must have shape (N, 6), got {poses.shape}")
+        raise CollectError(f"poses must have shape (N, 6), got {poses.shape}")
     if not np.all(np.isfinite(poses)):
-        raise ValueError("poses contain NaN or inf")
+        raise CollectError("poses contain NaN or inf")
     outside = ~nominal.within_limits(poses)
     if outside.any():
         i = int(np.flatnonzero(outside)[0])
-        raise ValueError(f"pose {i} is outside the joint limits: {poses[i]}")
+        raise CollectError(f"pose {i} is outside the joint limits: {poses[i]}")
     if payloads is not None and len(payloads) != len(poses):
-        raise ValueError(f"{len(payloads)} payloads for {len(poses)} poses")
+        raise CollectError(f"{len(payloads)} payloads for {len(poses)} poses")
 
     plant = Plant(nominal, elastic=truth.hidden.needs_elastic)
     plant.configure(truth.true_robot, truth.hidden)

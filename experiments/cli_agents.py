@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from experiments.cli_output import console, fail
+from experiments.cli_output import console, user_errors
 
 train_app = typer.Typer(help="Train learning agents.", no_args_is_help=True)
 
@@ -38,10 +38,8 @@ def train_ppo(
     """Train PPO on SixAxisTrack-v0: checkpoints, evaluations and CSV logs in the output dir."""
     from agents.ppo import load_config, ship_policy, train
 
-    try:
+    with user_errors():
         cfg = load_config(config)
-    except ValueError as exc:
-        fail(exc)
     if timesteps is not None:
         cfg.total_timesteps = int(timesteps)
     if output is not None:
@@ -122,16 +120,14 @@ def evaluate(
 ) -> None:
     """Run an agent on seeded episodes and print its tracking error (mm, true tool point): over
     the whole episode, after the settling time, and when it converged (as the leaderboard)."""
-    from agents.registry import AgentError, make_agent
+    from agents.registry import make_agent
     from agents.runner import run_episode
     from experiments.metrics import episode_metrics
     from experiments.records import jsonable
 
-    try:
+    with user_errors(json.JSONDecodeError):
         kw = json.loads(settings)
         make_agent(agent, **kw)
-    except (json.JSONDecodeError, AgentError) as exc:
-        fail(exc)
     rows = []
     with console.status("running episodes...") as status:
         for sc in scenario:
@@ -188,13 +184,11 @@ def render(
     (blue) and the tracker's measured points (red), in real time."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
-    from agents.registry import AgentError, make_agent
-    from experiments.video import VideoError, render_episode
+    from agents.registry import make_agent
+    from experiments.video import render_episode
 
-    try:
+    with user_errors(json.JSONDecodeError):
         a = make_agent(agent, **json.loads(settings))
-    except (json.JSONDecodeError, AgentError) as exc:
-        fail(exc)
     env = {} if trajectory is None else {"trajectory": trajectory}
     with Progress(
         "[progress.description]{task.description}",
@@ -204,7 +198,7 @@ def render(
         console=console,
     ) as bar:
         job = bar.add_task(f"{agent} on {scenario}, seed {seed}", total=None)
-        try:
+        with user_errors():
             info = render_episode(
                 a,
                 scenario,
@@ -217,8 +211,6 @@ def render(
                 env_kwargs=env,
                 progress=lambda n, total: bar.update(job, completed=n, total=total),
             )
-        except (VideoError, ValueError) as exc:
-            fail(exc)
     console.print(
         f"wrote {info.path}: {info.frames} frames, {info.seconds:.2f} s at {info.fps:g} fps, "
         f"{info.width}x{info.height}",

@@ -51,6 +51,7 @@ from experiments.cli_output import (
     fit_table,
     hints_table,
     plan_table,
+    user_errors,
 )
 
 app = typer.Typer(
@@ -167,26 +168,6 @@ JsonOutOpt = Annotated[
 ]
 
 
-def _user_errors() -> tuple[type[Exception], ...]:
-    """The library's bad-input exceptions: each message already names file, line, column or
-    parameter, so the CLI prints it as one line."""
-    from arm.description import DescriptionError
-    from arm.effect_api import EffectError
-    from arm.measurements import MeasurementError
-    from lab.identification import FitError
-
-    return (DescriptionError, EffectError, MeasurementError, FitError)
-
-
-@contextlib.contextmanager
-def _guard(*extra: type[Exception]) -> Iterator[None]:
-    """The library's bad-input exceptions (and ``extra``) become ``error: ...``, exit code 2."""
-    try:
-        yield
-    except (*_user_errors(), *extra) as exc:
-        fail(str(exc))
-
-
 @contextlib.contextmanager
 def _writing(path: Path) -> Iterator[None]:
     """An OSError while writing ``path`` becomes one error line."""
@@ -224,61 +205,49 @@ def _check_loss(loss: str) -> None:
 
 def _load_modules(modules: Sequence[Path] | None) -> list[str]:
     """Register the effects of every ``--effect-module`` file; returns their names."""
-    from arm.effect_api import EffectError
     from arm.effects import load_effect_module
 
     names: list[str] = []
     for m in modules or ():
-        try:
+        with user_errors(prefix="--effect-module: "):
             names += load_effect_module(m)
-        except EffectError as exc:
-            fail(f"--effect-module: {exc}")
     return names
 
 
 def _parse_effects(effects: str) -> None:
-    from arm.effect_api import EffectError
     from arm.effects import parse_effects
 
-    try:
+    with user_errors(prefix="--effects: "):
         if not parse_effects(effects):
             fail("--effects: no effect given")
-    except EffectError as exc:
-        fail(f"--effects: {exc}")
 
 
 def _robot(robot: str):
-    from arm.description import DescriptionError, load_robot
+    from arm.description import load_robot
 
-    try:
+    with user_errors(prefix="--robot: "):
         return load_robot(robot)
-    except DescriptionError as exc:
-        fail(f"--robot: {exc}")
 
 
 def _read(path: Path, length_unit: str, angle_unit: str):
-    from arm.measurements import MeasurementError, read_measurements
+    from arm.measurements import read_measurements
 
-    try:
+    with user_errors():
         return read_measurements(path, length_unit=length_unit, angle_unit=angle_unit)
-    except MeasurementError as exc:
-        fail(str(exc))
 
 
 def _check_outputs(outputs: Sequence[tuple[Path | None, str]], inputs: Sequence[object]) -> None:
     """Before any work: every output can be written and replaces no input (data, held-out data,
     a robot file, an effect module, a poses or targets file)."""
-    from arm.measurements import OutputError, check_output
+    from arm.measurements import check_output
 
     files = [Path(str(i)) for i in inputs if i is not None and Path(str(i)).is_file()]
     seen: dict[Path, str] = {}
     for path, option in outputs:
         if path is None:
             continue
-        try:
+        with user_errors():
             check_output(path, files, option)
-        except OutputError as exc:
-            fail(str(exc))
         key = path.absolute()
         if key in seen:
             fail(f"{option} {path}: also given as {seen[key]}; one file cannot hold both")
@@ -388,7 +357,7 @@ def fit_cmd(
         noise_mm,
         outputs=[(out, "--out")],
     )
-    with _guard():
+    with user_errors():
         result = fit(
             meas,
             arm,
@@ -537,7 +506,7 @@ def diagnose_cmd(
     )
     if not 0 < alpha < 1:
         fail(f"--alpha must lie in (0, 1), got {alpha}")
-    with _guard():
+    with user_errors():
         with console.status("fitting and testing the candidate effects..."):
             d = diagnose(
                 meas,
@@ -667,7 +636,7 @@ def discover_cmd(
     )
     if not 0 < alpha < 1:
         fail(f"--alpha must lie in (0, 1), got {alpha}")
-    with _guard():
+    with user_errors():
         with console.status("fitting the model and searching the library..."):
             d = discover(
                 meas,
@@ -772,7 +741,7 @@ def report_cmd(
             if message is not None:
                 bar.update(task, description=escape(message))
 
-        with _guard():
+        with user_errors():
             rep = build_report(
                 meas,
                 arm,
@@ -862,7 +831,7 @@ def plan_cmd(
     _load_modules(effect_module)
     _parse_effects(effects)
     arm = _robot(robot)
-    with _guard():
+    with user_errors():
         with console.status(f"choosing {n} of {candidates} poses by {crit.upper()}..."):
             p = plan(
                 n, arm, effects, criterion=crit, candidates=candidates, noise_mm=noise_mm, seed=seed
@@ -928,7 +897,7 @@ def collect_cmd(
     import numpy as np
 
     from arm.measurements import read_poses
-    from envs.scenarios import SCENARIOS, ScenarioError, draw_truth
+    from envs.scenarios import SCENARIOS, draw_truth
 
     _check_units("m", angle_unit)
     _check_outputs([(output, "--output")], [poses, robot])
@@ -941,7 +910,7 @@ def collect_cmd(
     arm = _robot(robot)
     q = None
     if poses is not None:
-        with _guard():
+        with user_errors():
             q = read_poses(poses, angle_unit)
         outside = ~arm.within_limits(q)
         if outside.any():
@@ -949,7 +918,7 @@ def collect_cmd(
             fail(f"{poses}: pose {i + 1} is outside the joint limits of {arm.name}: {q[i]}")
     from envs.collect import collect_measurements  # MuJoCo is loaded only here
 
-    with _guard(ScenarioError):
+    with user_errors():
         truth = draw_truth(
             scenario, arm, np.random.default_rng(seed if arm_seed is None else arm_seed)
         )
@@ -965,7 +934,7 @@ def collect_cmd(
         console=console,
     ) as bar:
         task = bar.add_task(f"measuring ({scenario})", total=total)
-        with _guard(ScenarioError, ValueError), _writing(output):
+        with user_errors(), _writing(output):
             meas = collect_measurements(
                 truth=truth,
                 poses=q,
@@ -1011,7 +980,7 @@ def export_cmd(
     The geometric errors are folded into the DH table, base and tool, other effects' values
     kept; the file works as --robot anywhere."""
     from lab import fit
-    from lab.export import ExportError, export_robot
+    from lab.export import export_robot
 
     _check_outliers(outliers)
     arm, meas, val = _prepare(
@@ -1026,7 +995,7 @@ def export_cmd(
         noise_mm,
         outputs=[(output, "--output")],
     )
-    with _guard():
+    with user_errors():
         result = fit(
             meas,
             arm,
@@ -1038,7 +1007,7 @@ def export_cmd(
             accept_large=accept_large,
         )
     console.print(escape(result.summary()), highlight=False, soft_wrap=True)
-    with _guard(ExportError), _writing(output):
+    with user_errors(), _writing(output):
         cal = export_robot(result, output, name=name)
     console.print(
         f"wrote the calibrated arm {cal.name!r} to {output}; use it with --robot {output}",
@@ -1085,7 +1054,7 @@ def compensate_cmd(
     """Joint angles that put the calibrated arm's tool point on each target.
 
     Also prints the error that commanding the nominal inverse kinematics would leave."""
-    from lab.export import CompensationError, compensate, read_targets, write_joints
+    from lab.export import compensate, read_targets, write_joints
 
     _check_units(length_unit, angle_unit)
     if nominal_base not in ("auto", "nominal", "calibrated"):
@@ -1100,9 +1069,9 @@ def compensate_cmd(
     _load_modules(effect_module)
     cal = _robot(robot)
     nom = _robot(nominal)
-    with _guard(CompensationError):
+    with user_errors():
         tset = read_targets(targets, length_unit=length_unit, angle_unit=angle_unit)
-    with _guard(CompensationError):
+    with user_errors():
         with console.status(f"solving {len(tset)} targets..."):
             comp = compensate(cal, tset, nom, nominal_base=nominal_base, target_ids=ids)
     with _writing(output):

@@ -3,20 +3,23 @@ exit, numbers as text, the command lines a user copies, and the rich tables of t
 (fit, diagnosis, discovery, plan, compensation) and of the leaderboard.
 
 The command modules (``cli_lab``, ``cli_sweep``, ``cli_agents``, ``cli_demo``) parse options, call
-the library and print with these; nothing here computes a result.
+the library inside :func:`user_errors` and print with these; nothing here computes a result.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import shlex
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any, NoReturn
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
+
+from arm.errors import SixAxisError
 
 __all__ = [
     "candidates_table",
@@ -33,6 +36,7 @@ __all__ = [
     "p_value_text",
     "plan_table",
     "signed_text",
+    "user_errors",
 ]
 
 console = Console()
@@ -43,6 +47,17 @@ def fail(message: object) -> NoReturn:
     """Print ``error: message`` on stderr and exit with code 2 (bad input, not a bug)."""
     err_console.print(f"[red]error:[/red] {escape(str(message))}", highlight=False)
     raise typer.Exit(2)
+
+
+@contextlib.contextmanager
+def user_errors(*extra: type[BaseException], prefix: str = "") -> Iterator[None]:
+    """The project's own errors (:class:`~arm.errors.SixAxisError`: bad input, with the file,
+    line, column, key or parameter named) and ``extra`` become one line ``error: {prefix}...``
+    and exit code 2; anything else is a bug and keeps its traceback."""
+    try:
+        yield
+    except (SixAxisError, *extra) as exc:
+        fail(f"{prefix}{exc}")
 
 
 # -- numbers and commands as text -------------------------------------------------------------------

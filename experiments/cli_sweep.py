@@ -19,7 +19,13 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from experiments.cli_output import command_line, console, err_console, fail, leaderboard_grid
+from experiments.cli_output import (
+    command_line,
+    console,
+    err_console,
+    leaderboard_grid,
+    user_errors,
+)
 
 
 def sweep(
@@ -54,20 +60,16 @@ def sweep(
     ] = False,
 ) -> None:
     """Run every agent x scenario x seed of CONFIG; finished runs are skipped, so rerunning resumes."""
-    from experiments.config import ConfigError, load_config
-    from experiments.records import RecordError, RunStore
-    from experiments.sweep import SweepError, plan_sweep, run_sweep
+    from experiments.config import load_config
+    from experiments.records import RunStore
+    from experiments.sweep import plan_sweep, run_sweep
 
-    try:
+    with user_errors():
         cfg = load_config(config)
-    except ConfigError as exc:
-        fail(exc)
     out_dir = out if out is not None else Path("runs") / cfg.name
     if dry_run:
-        try:
+        with user_errors():
             pending, finished = plan_sweep(cfg, RunStore(out_dir), retry_failed, overwrite)
-        except (SweepError, RecordError) as exc:
-            fail(exc)
         console.print(
             f"{cfg.name}: {len(cfg.agents)} agents x {len(cfg.scenarios)} scenarios x "
             f"{len(cfg.seeds)} seeds = {len(pending) + len(finished)} runs; "
@@ -98,7 +100,7 @@ def sweep(
                 failed=state.failed,
             )
 
-        try:
+        with user_errors():
             summary = run_sweep(
                 cfg,
                 out_dir,
@@ -121,8 +123,6 @@ def sweep(
                 ),
                 progress=on_progress,
             )
-        except (SweepError, RecordError, ValueError) as exc:
-            fail(exc)
     console.print(
         f"{summary.done} runs in {summary.wall_time_s:.1f} s ({summary.skipped} already finished, "
         f"{len(summary.failed)} failed); records in {summary.out_dir}"
@@ -170,12 +170,9 @@ def leaderboard(
         write_leaderboard,
     )
     from experiments.metrics import METRICS
-    from experiments.records import RecordError
 
-    try:
+    with user_errors():
         board = build_leaderboard(runs_dir, rank_by=rank_by, allow_dirty=allow_dirty)
-    except RecordError as exc:
-        fail(exc)
     command = command_line(
         "leaderboard",
         runs_dir,
@@ -249,14 +246,12 @@ def reproduce(
         _reproduce_rows(record, run or [], line or [], every, rtol, isolated)
         return
     from experiments.config import RunSpec
-    from experiments.records import RecordError, environment_info, load_record
+    from experiments.records import environment_info, load_record
     from experiments.reproduce import same_value
     from experiments.sweep import build_record, execute_run, run_in_worker
 
-    try:
+    with user_errors():
         rec = load_record(record)
-    except RecordError as exc:
-        fail(exc)
     spec = RunSpec.from_dict(rec["spec"])
     here = environment_info()
     for key in ("versions", "git"):
@@ -316,16 +311,14 @@ def reproduce(
 def _reproduce_rows(
     path: Path, runs: list[str], lines: list[int], every: bool, rtol: float, isolated: bool
 ) -> None:
-    from experiments.reproduce import ReproduceError, read_runs_csv, reproduce_rows, select_rows
+    from experiments.reproduce import read_runs_csv, reproduce_rows, select_rows
 
-    try:
+    with user_errors():
         picked = select_rows(read_runs_csv(path), runs, lines, every, source=str(path))
         console.print(f"rerunning {len(picked)} row(s) of {path} from the commits they name...")
         t0 = time.perf_counter()
         with console.status("rerunning..."):
             outcomes = reproduce_rows(picked, path, rtol=rtol, isolated=isolated)
-    except ReproduceError as exc:
-        fail(exc)
     table = Table(title=f"{path}: recorded vs reproduced ({time.perf_counter() - t0:.1f} s)")
     for c in ("run", "metric", "recorded", "reproduced", "difference", ""):
         table.add_column(

@@ -386,7 +386,7 @@ def run_sweep(
     ``processes=False`` makes the LocalCluster's workers threads of this process. ``run_fn``
     replaces :func:`execute_run` (it must be picklable: a module-level function)."""
     if backend not in ("local", "dask"):
-        raise ValueError(f"unknown backend {backend!r}; use 'local' or 'dask'")
+        raise SweepError(f"unknown backend {backend!r}; use 'local' or 'dask'")
     run_fn = run_fn or execute_run
     store = RunStore(out_dir if out_dir is not None else Path("runs") / config.name)
     pending, finished = plan_sweep(config, store, retry_failed, overwrite)

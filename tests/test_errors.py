@@ -1,0 +1,70 @@
+"""One error family: every error the project raises on purpose derives from SixAxisError and keeps
+its built-in parent, and the CLI turns any of them into one ``error:`` line with exit code 2."""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import pkgutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from arm.errors import SixAxisError
+from experiments.cli import app
+
+PACKAGES = ("arm", "envs", "lab", "agents", "experiments")
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _project_errors() -> list[type[BaseException]]:
+    found = []
+    for pkg in PACKAGES:
+        for info in pkgutil.walk_packages([str(ROOT / pkg)], prefix=f"{pkg}."):
+            module = importlib.import_module(info.name)
+            for _, obj in inspect.getmembers(module, inspect.isclass):
+                if issubclass(obj, BaseException) and obj.__module__ == module.__name__:
+                    found.append(obj)
+    return found
+
+
+ERRORS = _project_errors()
+
+
+def test_the_project_has_its_error_classes():
+    names = {e.__name__ for e in ERRORS}
+    # a sample of the family across the layers: if these vanish, the walk above finds nothing
+    assert {"DescriptionError", "MeasurementError", "FitError", "ScenarioError"} <= names
+    assert {"AgentError", "ConfigError", "SweepError", "CollectError"} <= names
+
+
+@pytest.mark.parametrize("cls", ERRORS, ids=lambda c: f"{c.__module__}.{c.__name__}")
+def test_every_error_is_a_sixaxis_error_with_its_builtin_parent(cls):
+    if cls is SixAxisError:
+        return
+    assert issubclass(cls, SixAxisError), f"{cls.__name__} does not derive from SixAxisError"
+    builtin = [
+        b
+        for b in cls.__mro__
+        if b.__module__ == "builtins" and b not in (Exception, BaseException, object)
+    ]
+    assert builtin, f"{cls.__name__} has no built-in parent (ValueError, RuntimeError...)"
+
+
+def test_the_known_parents_are_kept():
+    by_name = {e.__name__: e for e in ERRORS}
+    assert issubclass(by_name["SweepError"], RuntimeError)
+    for name in ("DescriptionError", "EffectError", "MeasurementError", "FitError", "ConfigError"):
+        assert issubclass(by_name[name], ValueError)
+
+
+def test_the_cli_reports_any_project_error_as_one_line(tmp_path):
+    # a SweepError (a RuntimeError, not a ValueError): an unknown backend
+    config = ROOT / "experiments" / "configs" / "quick.toml"
+    res = CliRunner().invoke(
+        app, ["sweep", str(config), "--backend", "nope", "--out", str(tmp_path / "runs")]
+    )
+    assert res.exit_code == 2, res.output
+    assert "error: unknown backend 'nope'" in res.output
+    assert "Traceback" not in res.output
