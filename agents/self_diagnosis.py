@@ -48,6 +48,9 @@ in real time (``lag_steps * dt``).
 
 The record (``report()``) lists every diagnosis: when (step, time, points), the verdict, the
 suggestion, what the held-out test kept and the ratios, and the effects it ended with.
+
+It is one module, longer than most, because the schedule of diagnoses, the worker that runs them and
+the held-out test that adopts their result share the agent's buffer and step count.
 """
 
 from __future__ import annotations
