@@ -68,8 +68,19 @@ class Agent(abc.ABC):
     needs_truth: bool = False
 
     def __init__(self) -> None:
-        self.task: TaskInfo | None = None
+        self._task: TaskInfo | None = None
         self.last_solve_time: float = 0.0  # s, the computation of the last act()
+
+    @property
+    def task(self) -> TaskInfo:
+        """The task of the current episode, as :meth:`reset` (or :meth:`next_phase`) set it."""
+        if self._task is None:
+            raise RuntimeError(f"{self.name}: no task yet; call reset(task) first")
+        return self._task
+
+    @task.setter
+    def task(self, task: TaskInfo) -> None:
+        self._task = task
 
     @abc.abstractmethod
     def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:

@@ -271,13 +271,15 @@ class KinematicMPC:
         n_in = nz + 3 * N + 15
         w = ca.MX.sym("w", n_in + (12 * N + nA if self._warm_start else 0))
         o = nz + 3 * N
-        H, g, lba, uba = data(w[:nz], w[nz:o], w[o : o + 6], w[o + 6 : o + 12], w[o + 12 : n_in])
-        args = {
-            "h": H,
-            "g": g,
+        Hw, gw, lbaw, ubaw = data(
+            w[:nz], w[nz:o], w[o : o + 6], w[o + 6 : o + 12], w[o + 12 : n_in]
+        )
+        args: dict[str, ca.MX | ca.DM] = {
+            "h": Hw,
+            "g": gw,
             "a": A,
-            "lba": lba,
-            "uba": uba,
+            "lba": lbaw,
+            "uba": ubaw,
             "lbx": ca.DM(self._lbx),
             "ubx": ca.DM(self._ubx),
         }
@@ -291,7 +293,7 @@ class KinematicMPC:
         v = sol["x"]
         Av = ca.mtimes(A, v)
         violation = ca.mmax(
-            ca.vertcat(Av - uba, lba - Av, v - ca.DM(self._ubx), ca.DM(self._lbx) - v)
+            ca.vertcat(Av - ubaw, lbaw - Av, v - ca.DM(self._ubx), ca.DM(self._lbx) - v)
         )
         out = [v, violation]
         if self._warm_start:
@@ -438,8 +440,13 @@ class KinematicMPC:
             cost += 0.5 * self.rho_dv * ca.sumsqr(vk - prev) + 0.5 * self.rho_v * ca.sumsqr(vk)
             cost += 0.5 * self.rho_q * ca.sumsqr(q - q_post)
         g = ca.mtimes(ca.DM(self.A), V)
-        nlp = {"x": V, "p": ca.vertcat(z, refs, v_prev, q_post, r0), "f": cost, "g": g}
-        opts = {
+        nlp: dict[str, ca.SX | float] = {
+            "x": V,
+            "p": ca.vertcat(z, refs, v_prev, q_post, r0),
+            "f": cost,
+            "g": g,
+        }
+        opts: dict[str, Any] = {
             "ipopt": {
                 "print_level": 0,
                 "sb": "yes",
@@ -589,8 +596,6 @@ class MPCAgent(Agent):
 
     def _make_mpc(self, tm: ToolModel) -> KinematicMPC:
         task = self.task
-        if task is None:
-            raise ValueError("the MPC needs the task (call reset first)")
         return KinematicMPC(
             tm,
             task.dt,
@@ -658,6 +663,7 @@ class MPCAgent(Agent):
         return self.adopt_widening(self.prepare_widening(effects))
 
     def _start_phase(self) -> None:
+        assert self.model is not None, "reset() makes the model"
         self.v_prev = np.zeros(6)
         self.dirs = np.zeros(6)
         self.payload = float(self.model.robot.payload)
@@ -705,6 +711,7 @@ class MPCAgent(Agent):
         refs = o.references(self.horizon)
         if self.q_posture is None:  # the posture of the phase's start
             self.q_posture = np.array(o.q, dtype=float)
+        assert self.p is not None, "reset() sets the parameters"
         v = self.mpc.solve(o.q, self.v_prev, refs, self.p, self._columns(o), self.q_posture, o.ref)
         moving = np.abs(v) > 1e-6
         self.dirs[moving] = np.sign(v[moving])

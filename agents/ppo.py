@@ -35,7 +35,7 @@ from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -46,6 +46,9 @@ from agents.tool_model import cached_tool_model
 from arm.errormodel import ErrorModel
 from arm.errors import SixAxisError
 from envs.task import Observation, TaskInfo, Truth
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.policies import BasePolicy
 
 __all__ = [
     "POLICY_DIR",
@@ -87,7 +90,7 @@ class PolicyFeatures:
         self.tm = cached_tool_model(self.model)
         self.dt = float(task.dt)
         self.P = int(task.preview_steps)
-        self._q = deque(maxlen=max(2, round(self.history_s / self.dt) + 1))
+        self._q: deque[np.ndarray] = deque(maxlen=max(2, round(self.history_s / self.dt) + 1))
         self._model_error = np.zeros(3)
 
     @property
@@ -168,6 +171,14 @@ class ActionMap:
         return np.clip(v / np.asarray(self.task.v_max, dtype=float), -1.0, 1.0)
 
 
+def _task_of(env: gym.Env) -> TaskInfo:
+    """The :class:`TaskInfo` that SixAxisTrack-v0 (or a stand-in) publishes as ``unwrapped.task``."""
+    task = getattr(env.unwrapped, "task", None)
+    if not isinstance(task, TaskInfo):
+        raise TypeError(f"{env.unwrapped!r} publishes no TaskInfo as env.unwrapped.task")
+    return task
+
+
 class PolicyEnv(gym.Wrapper):
     """SixAxisTrack-v0 as the policy sees it: :class:`PolicyFeatures` in, :class:`ActionMap` out."""
 
@@ -175,23 +186,25 @@ class PolicyEnv(gym.Wrapper):
         super().__init__(env)
         self.features = PolicyFeatures()
         self.actions = ActionMap(variant, offset_mm)
-        task = env.unwrapped.task
+        task = _task_of(env)
         self.features.reset(task)
         n = self.features.size
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (n,), np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, (self.actions.size,), np.float32)
-        self._obs = None
+        self._obs: np.ndarray | None = None
         self._info: Mapping[str, Any] = {}
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
-        task = self.env.unwrapped.task
+        task = _task_of(self.env)
         self.features.reset(task)
         self.actions.reset(task)
         self._obs, self._info = obs, info
         return self.features(obs), info
 
     def step(self, action):
+        if self._obs is None:
+            raise RuntimeError("PolicyEnv: call reset() before step()")
         env_action = self.actions(action, self._obs, self._info)
         obs, reward, terminated, truncated, info = self.env.step(env_action)
         self._obs, self._info = obs, info
@@ -296,6 +309,7 @@ def train(cfg: PPOConfig, progress=None, resume: str | Path | None = None) -> Pa
     from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
     out = Path(cfg.output)
@@ -333,8 +347,10 @@ def train(cfg: PPOConfig, progress=None, resume: str | Path | None = None) -> Pa
         resume = Path(resume)
         model = PPO.load(resume / "model.zip", env=venv, device="cpu")
         norm = np.load(resume / "vecnormalize.npz")
-        venv.obs_rms.mean, venv.obs_rms.var = norm["mean"].copy(), norm["var"].copy()
-        venv.obs_rms.count = float(norm["count"]) if "count" in norm.files else 1e6
+        rms = venv.obs_rms
+        assert isinstance(rms, RunningMeanStd), "a Box observation has one running mean"
+        rms.mean, rms.var = norm["mean"].copy(), norm["var"].copy()
+        rms.count = float(norm["count"]) if "count" in norm.files else 1e6
         log.info("resuming %s at %d steps", resume, model.num_timesteps)
     logger = configure(str(out), ["csv", "log"])
     model.set_logger(logger)
@@ -453,7 +469,7 @@ def ship_policy(run_dir: str | Path, variant: str, which: str = "best") -> Path:
     POLICY_DIR.mkdir(exist_ok=True)
     dst = POLICY_DIR / f"ppo-{variant}"
     model.save(dst.with_suffix(".zip"), exclude=["env", "_last_obs", "_last_original_obs"])
-    np.savez(dst.with_suffix(".npz"), **stats)
+    np.savez(dst.with_suffix(".npz"), allow_pickle=False, **stats)
     cfg = json.loads((run_dir / "config.json").read_text())
     meta = {
         "variant": variant,
@@ -493,7 +509,7 @@ class PPOAgent(Agent):
         self.path = Path(path) if path else POLICY_DIR / f"ppo-{variant}.zip"
         self.deterministic = bool(deterministic)
         self._offset_mm = offset_mm
-        self._policy = None
+        self._policy: BasePolicy | None = None
 
     def _load(self) -> None:
         _set_threads()
@@ -535,8 +551,10 @@ class PPOAgent(Agent):
         t0 = time.perf_counter()
         f = self.features(obs)
         x = np.clip((f - self._mean) / np.sqrt(self._var + self._eps), -self._clip, self._clip)
+        policy = self._policy
+        assert policy is not None, "reset() loads the policy"
         with torch.no_grad():
-            a, _ = self._policy.predict(x.astype(np.float32), deterministic=self.deterministic)
+            a, _ = policy.predict(x.astype(np.float32), deterministic=self.deterministic)
         out = self.actions(a, obs, info)
         self.last_solve_time = time.perf_counter() - t0
         self._times.append(self.last_solve_time)

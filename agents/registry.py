@@ -125,12 +125,12 @@ def resolve_agent(name: str) -> tuple[Callable[..., Agent], Callable[..., Any]]:
             mod = importlib.import_module(module)
         except ImportError as exc:
             raise AgentError(f"agent {name!r}: cannot import module {module!r}: {exc}") from exc
-        cls = getattr(mod, attr, None)
-        if cls is None:
+        found = getattr(mod, attr, None)
+        if found is None:
             raise AgentError(f"agent {name!r}: module {module!r} has no {attr!r}")
-        if not (isinstance(cls, type) and issubclass(cls, Agent)):
+        if not (isinstance(found, type) and issubclass(found, Agent)):
             raise AgentError(f"agent {name!r}: {attr} is not a subclass of agents.base.Agent")
-        return cls, cls
+        return found, found
     raise AgentError(
         f"unknown agent {name!r}; known: {', '.join(AGENTS)}, or a class as 'package.module:Class'"
     )

@@ -285,10 +285,7 @@ def make_env(env_id: str, kwargs: Mapping[str, Any], steps: int | None):
 
 
 def _truth_parameters(truth: Truth | None) -> dict[str, float]:
-    try:
-        return truth.model.layout.as_dict(truth.params)
-    except Exception:
-        return {}
+    return {} if truth is None else truth.model.layout.as_dict(truth.params)
 
 
 def run_episode(
@@ -392,7 +389,6 @@ def run_episode(
 
 
 def _same_truth(a: Truth | None, b: Truth | None) -> bool:
-    try:
-        return np.array_equal(np.asarray(a.params), np.asarray(b.params))
-    except Exception:
+    if a is None or b is None:
         return True
+    return np.array_equal(np.asarray(a.params), np.asarray(b.params))

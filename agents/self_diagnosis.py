@@ -87,7 +87,9 @@ WORKER = "mpc-diagnose"
 
 class _QuietWorkers(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
-        return not (record.levelno <= logging.WARNING and record.threadName.startswith(WORKER))
+        return not (
+            record.levelno <= logging.WARNING and (record.threadName or "").startswith(WORKER)
+        )
 
 
 for _name in ("lab.identifiability", "lab.identification", "lab.diagnosis"):
@@ -271,7 +273,7 @@ class DiagnosingMPCAgent(MPCAgent):
 
     def _start(self) -> None:
         reason = self._due() or "more data"
-        assert self.buffer is not None and self.model is not None and self.task is not None
+        assert self.buffer is not None and self.model is not None
         since = max(self.buffer.total - self.window, 0)
         data = self.buffer.to_measurements(since=since, source="mpc-diagnose buffer")
         rec = DiagnosisRecord(
@@ -326,7 +328,7 @@ class DiagnosingMPCAgent(MPCAgent):
     ) -> None:
         from lab import diagnose
 
-        assert self.task is not None and self.rls is not None
+        assert self.rls is not None
         rec = job.record
         d = diagnose(
             data,
@@ -410,7 +412,6 @@ class DiagnosingMPCAgent(MPCAgent):
         """RMS (mm) on ``test`` of the model with ``added`` effects fitted on ``train``."""
         from lab import fit
 
-        assert self.task is not None
         spec = merge_effects(model, added)
         res = fit(train, model.robot, spec, noise_mm=float(self.task.noise_mm), validate=test)
         return float(res.validation_rms_mm or math.inf)
@@ -447,7 +448,7 @@ class DiagnosingMPCAgent(MPCAgent):
         waited = self._join_worker()
         job = self._job
         self._thread, self._job = None, None
-        assert job is not None and self.model is not None and self.task is not None
+        assert job is not None and self.model is not None
         self._waits.append(waited)
         self._costs.append(job.cost_s)
         if job.cost_s > self.lag_steps * float(self.task.dt):
@@ -500,7 +501,7 @@ class DiagnosingMPCAgent(MPCAgent):
         out["diagnosed_effects"] = list(self.model.effect_names) if self.model is not None else []
         widened = [r for r in self.records if r.kept]
         out["widened_at_s"] = (
-            [r.adopt_step * float(self.task.dt) for r in widened] if self.task else []
+            [r.adopt_step * float(self.task.dt) for r in widened] if self._task is not None else []
         )
         out["diagnosis_cost_time_s"] = list(self._costs)
         out["diagnosis_wait_time_s"] = list(self._waits)

@@ -137,7 +137,7 @@ def _skew(v):
     )
 
 
-def rodrigues(r):
+def rodrigues(r: ca.SX) -> ca.SX:
     """Rotation matrix of a rotation vector, smooth (with derivatives) at r = 0."""
     th2 = ca.dot(r, r)
     small = th2 < 1e-8
@@ -317,23 +317,23 @@ class ToolModel:
             v = p[self.layout.slice(e.name)]
             if isinstance(e, Geometric):
                 # by name (SPEC section 2): row i has dalpha_i, da_i, dtheta_i, dd_i or beta_{i-1}
-                k = {n: j for j, n in enumerate(self.layout.names[self.layout.slice(e.name)])}
+                pos = {n: j for j, n in enumerate(self.layout.names[self.layout.slice(e.name)])}
                 for i in range(6):
                     r = i + 1
-                    if f"dalpha{r}" in k:
-                        alpha[i] = alpha[i] + v[k[f"dalpha{r}"]]
-                    if f"da{r}" in k:
-                        a[i] = a[i] + v[k[f"da{r}"]]
-                    if f"dtheta{r}" in k:
-                        toff[i] = toff[i] + v[k[f"dtheta{r}"]]
-                    if f"dd{r}" in k:
-                        d[i] = d[i] + v[k[f"dd{r}"]]
-                    if f"beta{r - 1}" in k:
-                        beta[i] = beta[i] + v[k[f"beta{r - 1}"]]
-                base_t = ca.vertcat(*(v[k[n]] for n in ("bx", "by", "bz")))
-                base_R = rodrigues(ca.vertcat(*(v[k[n]] for n in ("brx", "bry", "brz"))))
-                suffix = "" if "tx" in k else str(self.model.targets[self.target])
-                tool = tool + ca.vertcat(*(v[k[f"t{c}{suffix}"]] for c in "xyz"))
+                    if f"dalpha{r}" in pos:
+                        alpha[i] = alpha[i] + v[pos[f"dalpha{r}"]]
+                    if f"da{r}" in pos:
+                        a[i] = a[i] + v[pos[f"da{r}"]]
+                    if f"dtheta{r}" in pos:
+                        toff[i] = toff[i] + v[pos[f"dtheta{r}"]]
+                    if f"dd{r}" in pos:
+                        d[i] = d[i] + v[pos[f"dd{r}"]]
+                    if f"beta{r - 1}" in pos:
+                        beta[i] = beta[i] + v[pos[f"beta{r - 1}"]]
+                base_t = ca.vertcat(*(v[pos[n]] for n in ("bx", "by", "bz")))
+                base_R = rodrigues(ca.vertcat(*(v[pos[n]] for n in ("brx", "bry", "brz"))))
+                suffix = "" if "tx" in pos else str(self.model.targets[self.target])
+                tool = tool + ca.vertcat(*(v[pos[f"t{c}{suffix}"]] for c in "xyz"))
             else:  # Thermal
                 scale = 1 + v[0] * (col["temperature"] - REFERENCE_TEMPERATURE)
                 a = [ai * scale for ai in a]
@@ -357,9 +357,9 @@ class ToolModel:
         masses = robot.masses
         coms = robot.coms
         tool_pt = os_[5] + Rs[5] @ ca.SX(robot.tool_points[0])
-        M = 0
+        M: float | ca.SX = 0.0
         MC = ca.SX.zeros(3)
-        tau = [None] * 6
+        tau_last_first = []
         for i in range(5, -1, -1):
             M = M + float(masses[i])
             MC = MC + float(masses[i]) * (os_[i] + Rs[i] @ ca.SX(coms[i]))
@@ -367,8 +367,8 @@ class ToolModel:
                 M = M + payload
                 MC = MC + payload * tool_pt
             lever = MC - M * os_[i]
-            tau[i] = ca.dot(Rs[i][:, 2], ca.cross(lever, g))
-        return tau
+            tau_last_first.append(ca.dot(Rs[i][:, 2], ca.cross(lever, g)))
+        return tau_last_first[::-1]
 
 
 # d theta_j / d parameter of each catalogued joint-angle effect, as CasADi expressions

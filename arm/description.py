@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -59,9 +60,11 @@ __all__ = [
     "as_robot",
     "load_robot",
     "seed_robot",
+    "vec3",
 ]
 
 Convention = Literal["modified", "standard"]
+Vec3 = tuple[float, float, float]
 
 _LENGTH = {"m": 1.0, "mm": 1e-3}
 _ANGLE = {"rad": 1.0, "deg": math.pi / 180.0}
@@ -192,14 +195,11 @@ class RobotDescription:
                     j,
                     alpha=prev.alpha if prev else 0.0,
                     a=prev.a if prev else 0.0,
-                    com=tuple(float(c) for c in com),
+                    com=vec3(com),
                 )
             )
         last = std[-1]
-        tools = tuple(
-            tuple(float(c) for c in _std_to_mod_point(last.a, last.alpha, np.array(t)))
-            for t in self.tools
-        )
+        tools = tuple(vec3(_std_to_mod_point(last.a, last.alpha, np.array(t))) for t in self.tools)
         return replace(
             self,
             joints=tuple(rows),
@@ -260,6 +260,12 @@ class RobotDescription:
         except tomllib.TOMLDecodeError as exc:
             raise DescriptionError(f"{source}: not valid TOML: {exc}") from exc
         return _from_dict(doc, source)
+
+
+def vec3(values: Iterable[float]) -> Vec3:
+    """Three numbers as the plain float triple a description stores."""
+    x, y, z = (float(c) for c in values)
+    return (x, y, z)
 
 
 def _std_to_mod_point(a: float, alpha: float, p: np.ndarray) -> np.ndarray:

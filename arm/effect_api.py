@@ -68,7 +68,7 @@ class ModelInputs:
             self._cache[key] = fn(self)
         return self._cache[key]
 
-    def subset(self, idx: np.ndarray) -> ModelInputs:
+    def subset(self, idx: np.ndarray | slice) -> ModelInputs:
         """The inputs of some poses only (for cross-validation and held-out tests)."""
         return ModelInputs(
             robot=self.robot,

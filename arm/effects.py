@@ -27,6 +27,7 @@ import importlib.util
 import logging
 import re
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
@@ -312,7 +313,11 @@ class ChainEffect(Effect):
 
     order: ClassVar[int] = 100
 
-    def apply(self, inputs: ModelInputs, values: np.ndarray, state: ChainState) -> ChainState:
+    def apply(
+        self, inputs: ModelInputs | None, values: np.ndarray, state: ChainState
+    ) -> ChainState:
+        """The chain with this effect applied; ``inputs`` is None where no poses are given (an
+        effect without measured ``columns`` must not need them)."""
         raise NotImplementedError
 
     def jacobian(
@@ -337,6 +342,20 @@ class ChainEffect(Effect):
         out = np.empty((len(values), 3, inputs.n))
         self.jacobian_into(inputs, values, sens, out)
         return out.transpose(2, 1, 0)
+
+
+_Index = np.ndarray | slice  # positions as an index array, or a slice where consecutive
+
+
+@dataclass(frozen=True)
+class _Slots:
+    """Where the geometric parameters sit: per DH family (``alpha``, ``a``, ``theta``, ``d``,
+    ``beta``) the positions in the effect's vector and the chain rows they correct; the base's six
+    positions; the tool offsets' positions, one row of three per target."""
+
+    rows: dict[str, tuple[_Index, _Index]]
+    base: np.ndarray
+    tool: np.ndarray
 
 
 class Geometric(ChainEffect):
@@ -391,7 +410,7 @@ class Geometric(ChainEffect):
         base |= dict(zip(("brx", "bry", "brz"), robot.base_rotation, strict=True))
         return np.array([base.get(n, 0.0) for n in names], dtype=float)
 
-    def _slots(self, state: ChainState) -> dict[str, np.ndarray]:
+    def _slots(self, state: ChainState) -> _Slots:
         """Where each row's parameters sit in this effect's vector, once per (robot, targets)."""
         key = (state.robot.parallel_rows(), state.targets)
         cache = self.__dict__.setdefault("_slot_cache", {})
@@ -400,10 +419,10 @@ class Geometric(ChainEffect):
         return cache[key]
 
     @staticmethod
-    def _compute_slots(names: Sequence[str]) -> dict[str, np.ndarray]:
+    def _compute_slots(names: Sequence[str]) -> _Slots:
         idx = {n: k for k, n in enumerate(names)}
 
-        def rows(prefix, offset=0):
+        def rows(prefix: str, offset: int = 0) -> tuple[_Index, _Index]:
             """(positions in the vector, DH rows 0..5) of the parameters present; a slice when
             the positions are consecutive, so the columns are written without a gather."""
             pairs = [
@@ -411,30 +430,34 @@ class Geometric(ChainEffect):
                 for i in range(1, 7)
                 if f"{prefix}{i + offset}" in idx
             ]
-            dst = np.array([d for d, _ in pairs], dtype=int)
-            src = np.array([r for _, r in pairs], dtype=int)
-            if len(dst) and np.all(np.diff(dst) == 1):
-                dst = slice(int(dst[0]), int(dst[-1]) + 1)
-            if len(src) and np.all(np.diff(src) == 1):
-                src = slice(int(src[0]), int(src[-1]) + 1)
+            at = np.array([d for d, _ in pairs], dtype=int)
+            of = np.array([r for _, r in pairs], dtype=int)
+            dst: _Index = at
+            src: _Index = of
+            if len(at) and np.all(np.diff(at) == 1):
+                dst = slice(int(at[0]), int(at[-1]) + 1)
+            if len(of) and np.all(np.diff(of) == 1):
+                src = slice(int(of[0]), int(of[-1]) + 1)
             return dst, src
 
         tool = [idx[n] for n in names if (p := parse_parameter_name(n)) and p.kind == "tool"]
-        return {
-            "alpha": rows("dalpha"),
-            "a": rows("da"),
-            "theta": rows("dtheta"),
-            "d": rows("dd"),
-            "beta": rows("beta", -1),
-            "base": np.array([idx[n] for n in ("bx", "by", "bz", "brx", "bry", "brz")]),
-            "tool": np.array(tool, dtype=int).reshape(-1, 3),
-        }
+        return _Slots(
+            rows={
+                "alpha": rows("dalpha"),
+                "a": rows("da"),
+                "theta": rows("dtheta"),
+                "d": rows("dd"),
+                "beta": rows("beta", -1),
+            },
+            base=np.array([idx[n] for n in ("bx", "by", "bz", "brx", "bry", "brz")]),
+            tool=np.array(tool, dtype=int).reshape(-1, 3),
+        )
 
     def apply(self, inputs, values, state):
         s = self._slots(state)
 
         def add(base, key):
-            dst, src = s[key]
+            dst, src = s.rows[key]
             out = np.array(base, dtype=float, copy=True)
             out[..., src] += values[dst]
             return out
@@ -446,8 +469,8 @@ class Geometric(ChainEffect):
             d=add(state.chain.d, "d"),
             beta=add(state.chain.beta, "beta"),
         )
-        b = values[s["base"]]
-        tools = state.tools + values[s["tool"]]
+        b = values[s.base]
+        tools = state.tools + values[s.tool]
         return state.replace(
             chain=chain, base_t=b[:3], base_r=b[3:], base_R=rotation_matrix(b[3:]), tools=tools
         )
@@ -463,22 +486,22 @@ class Geometric(ChainEffect):
             ("theta", "rows_theta"),
             ("d", "rows_d"),
         ):
-            dst, src = s[key]
+            dst, src = s.rows[key]
             if isinstance(dst, slice) or len(dst):
                 out[dst] = getattr(sens, rows)[src]
-        dst, src = s["beta"]  # only the few parallel rows have one
+        dst, src = s.rows["beta"]  # only the few parallel rows have one
         if isinstance(dst, slice) or len(dst):
             out[dst] = sens.beta_rows(src)
         # lengths a and d scale with thermal growth: d p / d(da) = s * d p / d(a)
         if sens.state.length_scale is not None:
             for key in ("a", "d"):
-                out[s[key][0]] *= sens.state.length_scale
-        out[s["base"]] = sens.base_cols
+                out[s.rows[key][0]] *= sens.state.length_scale
+        out[s.base] = sens.base_cols
         tool = sens.tool_cols
-        if len(s["tool"]) == 1:
-            out[s["tool"][0]] = tool
+        if len(s.tool) == 1:
+            out[s.tool[0]] = tool
         else:
-            for k, cols in enumerate(s["tool"]):
+            for k, cols in enumerate(s.tool):
                 out[cols] = tool * (inputs.target == k)
         return True
 
@@ -578,6 +601,8 @@ def load_effect_module(path: str | Path) -> list[str]:
     if not path.is_file():
         raise EffectError(f"{path}: effect module not found")
     spec = importlib.util.spec_from_file_location(f"sixaxis_user_effects_{path.stem}", path)
+    if spec is None or spec.loader is None:
+        raise EffectError(f"{path}: not a Python file that can be imported")
     mod = importlib.util.module_from_spec(spec)
     try:
         spec.loader.exec_module(mod)

@@ -16,10 +16,11 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
+from typing import Literal, overload
 
 import numpy as np
 
-from arm.description import RobotDescription
+from arm.description import RobotDescription, vec3
 from arm.effect_api import ChainState, EffectError, ModelInputs, Sensitivities
 from arm.effects import ChainEffect, Effect, JointAngleEffect, parse_effects
 from arm.kinematics import (
@@ -175,6 +176,21 @@ class ErrorModel:
         p += f.axes[6, 2] * tool[2]
         return p
 
+    @overload
+    def predict(
+        self, inputs: ModelInputs, p: np.ndarray, jacobian: Literal[False] = False
+    ) -> np.ndarray: ...
+
+    @overload
+    def predict(
+        self, inputs: ModelInputs, p: np.ndarray, jacobian: Literal[True]
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+    @overload
+    def predict(
+        self, inputs: ModelInputs, p: np.ndarray, jacobian: bool
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]: ...
+
     def predict(
         self, inputs: ModelInputs, p: np.ndarray, jacobian: bool = False
     ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
@@ -197,6 +213,8 @@ class ErrorModel:
             v = p[sl]
             if isinstance(e, JointAngleEffect):
                 e.jacobian_into(inputs, v, sens, JT[sl])
+            elif not isinstance(e, ChainEffect):
+                raise EffectError(f"effect {e.name!r} is neither a joint-angle nor a chain effect")
             elif not e.jacobian_into(inputs, v, sens, JT[sl]):
                 JT[sl] = self._numeric_columns(inputs, p, sl).transpose(2, 1, 0)
         return point.T.copy(), np.ascontiguousarray(JT.transpose(2, 1, 0))
@@ -226,9 +244,9 @@ class ErrorModel:
         """The arm with the parameters ``p`` folded in: a description that reproduces this model's
         predictions with zero errors (non-geometric effect values go to ``effects``)."""
         st = self._initial_state()
-        for e in self._chain_effects:  # per-pose effects (thermal) stay effects, not geometry
-            if not e.columns:
-                st = e.apply(None, self._values(p, e), st)
+        for ce in self._chain_effects:  # per-pose effects (thermal) stay effects, not geometry
+            if not ce.columns:
+                st = ce.apply(None, self._values(p, ce), st)
         ch = st.chain
         joints = tuple(
             replace(
@@ -252,8 +270,8 @@ class ErrorModel:
             self.robot,
             name=name or f"{self.robot.name}-calibrated",
             joints=joints,
-            tools=tuple(tuple(float(c) for c in t) for t in st.tools),
-            base_translation=tuple(float(c) for c in st.base_t),
-            base_rotation=tuple(float(c) for c in st.base_r),
+            tools=tuple(vec3(t) for t in st.tools),
+            base_translation=vec3(st.base_t),
+            base_rotation=vec3(st.base_r),
             effects=effects,
         )

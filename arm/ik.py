@@ -538,6 +538,7 @@ class InverseKinematics:
         exact, reason = wrist_structure(robot)
         near = exact or wrist_structure(robot, _STRUCTURE_NEAR)[0]
         self.reason = reason
+        self._ws: WristStructure | None
         if exact:
             self.method = "closed_form"
             self._ws = _structure(self.chain)

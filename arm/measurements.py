@@ -521,20 +521,23 @@ def check_ranges(
     for unit, (f, cols) in (units or {}).items():
         factor |= {c: (f, unit) for c in cols}
     for k, h in enumerate(table.header):
-        f, unit = factor.get(h, (1.0, None))
+        f, unit_name = factor.get(h, (1.0, None))
         bad = np.flatnonzero(out_of_range(h, table.values[:, k] * f))
         if bad.size:
             r = int(bad[0])
             v = table.values[r, k]
             why = payload_problem(v) if h == "payload" else None
             hint = ""
-            if h in JOINTS and unit == "rad":
+            if h in JOINTS and unit_name == "rad":
                 hint = " (degrees read as radians? say --angle-unit deg)"
-            elif h in POSITION and unit == "m":
+            elif h in POSITION and unit_name == "m":
                 hint = " (millimetres read as metres? say --length-unit mm)"
             raise error(
                 f"{source}, line {table.lines[r]}, column {h!r}: "
-                + (why or f"{v:g} is outside the physical range {range_text(h, f, unit)}{hint}")
+                + (
+                    why
+                    or f"{v:g} is outside the physical range {range_text(h, f, unit_name)}{hint}"
+                )
             )
 
 

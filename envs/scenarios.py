@@ -279,6 +279,8 @@ def _draw(
     """One magnitude: drawn from the range (always, to keep the stream), then overridden."""
     lo, hi = RANGES[effect][family]
     if family == "bf":
+        if joint is None:
+            raise ScenarioError("bearing friction (bf) is drawn per joint")
         lo, hi = lo * BEARING_FRICTION[joint - 1], hi * BEARING_FRICTION[joint - 1]
     value = rng.uniform(lo, hi)
     sign = rng.choice((-1.0, 1.0)) if family in _SIGNED else 1.0

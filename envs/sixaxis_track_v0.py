@@ -399,7 +399,7 @@ class SixAxisTrackEnv(gym.Env):
             self._tool_trail.append(tool)
         err_mm = self._error_mm(tool)
         self._temperature = self.thermometer.read(self.plant.temperature, self.dt)
-        self._payload = self.truth.declared_payload_at(self.plant.time)
+        self._payload = self._episode_truth().declared_payload_at(self.plant.time)
         meas = self._measure(tool)
         self._fill_obs(meas)
         reward, parts = self._get_rew(err_mm, a)
@@ -420,9 +420,11 @@ class SixAxisTrackEnv(gym.Env):
             cam.azimuth = 150.0
             cam.elevation = -18.0
             self._camera = cam
-        if self._camera_target is not self.trajectory:  # a new path: look between it and the base
-            self._camera.lookat[:] = 0.6 * self.trajectory.centre + np.array([0.0, 0.0, 0.15])
-            self._camera_target = self.trajectory
+        cam, path = self._camera, self.trajectory
+        if cam is not None and path is not None and self._camera_target is not path:
+            # a new path: look between it and the base
+            cam.lookat[:] = 0.6 * path.centre + np.array([0.0, 0.0, 0.15])
+            self._camera_target = path
         r = self._renderer
         r.update_scene(self.plant.data, camera=self._camera)
         scn = r.scene
@@ -459,11 +461,21 @@ class SixAxisTrackEnv(gym.Env):
         np.maximum(a, -1.0, out=a)
         return a
 
+    def _episode_truth(self) -> EpisodeTruth:
+        if self.truth is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        return self.truth
+
+    def _path(self) -> Trajectory:
+        if self.trajectory is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        return self.trajectory
+
     def _reference(self, k: int) -> np.ndarray:
         need = k + self.task.preview_steps + 1
         if need > len(self.references):  # past the planned horizon: extend the path
             n = max(need, 2 * len(self.references))
-            self.references = self.trajectory.positions(np.arange(n) * self.dt)
+            self.references = self._path().positions(np.arange(n) * self.dt)
         return self.references[k]
 
     def _error_mm(self, tool: np.ndarray) -> float:
@@ -531,7 +543,7 @@ class SixAxisTrackEnv(gym.Env):
             "time": p.time,
             "temperature": p.temperature,
             "payload": p.payload,
-            "trajectory": self.trajectory.kind,
+            "trajectory": self._path().kind,
         }
         if meas is not None:
             info["measurement"] = meas.xyz.copy()

@@ -103,8 +103,13 @@ class Trajectory:
             return self._spline()(np.mod(u / (2.0 * math.pi), 1.0) * self._spline_length())
         raise TrajectoryError(f"unknown trajectory kind {self.kind!r}")
 
+    def _points(self) -> np.ndarray:
+        if self.waypoints is None:
+            raise TrajectoryError(f"a {self.kind!r} trajectory needs waypoints")
+        return self.waypoints
+
     def _lines(self, t: np.ndarray) -> np.ndarray:
-        w = self.waypoints
+        w = self._points()
         seg = np.roll(w, -1, axis=0) - w
         durations = 1.875 * np.linalg.norm(seg, axis=1) / self.speed  # peak speed = speed
         ends = np.cumsum(durations)
@@ -115,13 +120,13 @@ class Trajectory:
         return w[k] + s[:, None] * seg[k]
 
     def _spline_length(self) -> float:
-        w = self.waypoints
+        w = self._points()
         return float(np.linalg.norm(np.roll(w, -1, axis=0) - w, axis=1).sum())
 
     def _spline(self) -> CubicSpline:
         cached = self.__dict__.get("_cs")
         if cached is None:
-            w = self.waypoints
+            w = self._points()
             closed = np.vstack([w, w[:1]])
             knots = np.concatenate(
                 [[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))]

@@ -71,11 +71,12 @@ class Blocks:
     def r_factor(self, p: np.ndarray, columns: np.ndarray | None = None) -> np.ndarray:
         """The upper-triangular R (k, k) of a QR decomposition of the Jacobian (3N, k) at ``p``
         (its ``columns``, default all), accumulated block by block."""
-        R = None
+        R: np.ndarray | None = None
         for _, _, J in self.jacobians(p):
             A = J.reshape(-1, J.shape[2]) if columns is None else J[:, :, columns]
             A = A.reshape(-1, A.shape[-1])
             stacked = A if R is None else np.vstack([R, A])
-            R = np.linalg.qr(stacked, mode="r")
+            # mode='r' returns the array R (numpy's stub types every mode as QRResult)
+            R = np.asarray(np.linalg.qr(stacked, mode="r"))
         assert R is not None
         return R

@@ -270,14 +270,14 @@ def _candidate_model(
         if not new:
             continue
         if isinstance(e, JointAngleEffect):
-            per = []
+            per: list[tuple[int, _Group]] = []
             for j in e.active_joints():
                 js = tuple(n for n in (f"{t}{j}" for t in e.terms) if n in new)
                 if js:
-                    per.append(_Group(e.name, (j,), js))
-            groups += per
+                    per.append((j, _Group(e.name, (j,), js)))
+            groups += [g for _, g in per]
             if len(per) > 1:
-                groups.append(_Group(e.name, tuple(g.joints[0] for g in per), tuple(new)))
+                groups.append(_Group(e.name, tuple(j for j, _ in per), tuple(new)))
         else:
             groups.append(_Group(e.name, None, tuple(new)))
     return full, groups, skipped
@@ -377,7 +377,7 @@ def diagnose(
     hints = _hints(res, data, Q0, e0, rss0, dof0, inlier)
     del Q0  # the candidates' columns are model-free now
     tested: list[np.ndarray] = []  # each candidate's columns (of Jc) that were tested
-    rows = []
+    rows: list[Candidate] = []
     for g in groups:
         idx = np.array([column[int(i)] for i in full.layout.indices(g.names)], dtype=int)
         nx, nxp = norms[idx], norms_p[idx]
@@ -386,9 +386,11 @@ def diagnose(
             skipped[_label(g)] = "unidentifiable given the model"
             continue
         cols = idx[keep]
-        t = sel.trial(
-            lambda cols=cols: orthonormal_basis(Jc[:, cols], overwrite=True), key=len(rows)
-        )
+
+        def basis(cols: np.ndarray = cols) -> np.ndarray:
+            return orthonormal_basis(Jc[:, cols], overwrite=True)
+
+        t = sel.trial(basis, key=len(rows))
         if t is None:
             skipped[_label(g)] = "unidentifiable given the model"
             continue
@@ -452,12 +454,12 @@ def diagnose(
         verdict = "none"
 
     # every pose left out, by its index in the data given
-    rows = np.arange(N) if res.fitted_rows is None else res.fitted_rows
+    given_rows = np.arange(N) if res.fitted_rows is None else res.fitted_rows
     dist = np.linalg.norm(res.residuals, axis=1)
     scale = robust_sigma(res.residuals[inlier])
     left_out = list(res.outlier_list) + [
         Outlier(
-            int(rows[i]),
+            int(given_rows[i]),
             None if data.lines is None else int(data.lines[i]),
             1e3 * float(dist[i]),
             float(dist[i] / scale) if scale > 0 else float("inf"),
@@ -670,10 +672,11 @@ def _suggestion(model: ErrorModel, chosen: list[Candidate]) -> str:
         if c.effect not in joints:
             order.append(c.effect)
             joints[c.effect] = set()
-        if c.joints is None or joints[c.effect] is None:
-            joints[c.effect] = None if c.joints is None else joints[c.effect]
+        current = joints[c.effect]
+        if c.joints is None or current is None:  # the whole effect
+            joints[c.effect] = None
         else:
-            joints[c.effect] |= set(c.joints)
+            current |= set(c.joints)
     out = []
     for name in order:
         js = joints[name]
@@ -762,17 +765,17 @@ def _hints(res, data, Q0, e0, rss0, dof0, inlier) -> list[Hint]:
     Call = np.zeros((width, r0 * nd))
     ball = np.zeros((width, nd))
     size = _blocks.BLOCK
-    for b in (slice(a, min(a + size, n)) for a in range(0, n, size)):
-        m = b.stop - b.start
+    for blk in (slice(a, min(a + size, n)) for a in range(0, n, size)):
+        m = blk.stop - blk.start
         dirs = [np.broadcast_to(np.eye(3)[a], (m, 3)) for a in range(3)]
-        dirs += [Jq[b, :, j] / rms[j] for j in js]
+        dirs += [Jq[blk, :, j] / rms[j] for j in js]
         D = np.stack(dirs, axis=-1)  # (m, 3, nd)
         Dt = D.transpose(0, 2, 1)
         M = np.matmul(Dt, D).reshape(m, nd * nd)
-        Qb = Q0[3 * b.start : 3 * b.stop].reshape(m, 3, r0).transpose(0, 2, 1)
+        Qb = Q0[3 * blk.start : 3 * blk.stop].reshape(m, 3, r0).transpose(0, 2, 1)
         Q0D = np.matmul(Qb, D).reshape(m, r0 * nd)
-        eD = np.matmul(Dt, e0[3 * b.start : 3 * b.stop].reshape(m, 3, 1))[:, :, 0]  # (m, nd)
-        P = Phi[b]
+        eD = np.matmul(Dt, e0[3 * blk.start : 3 * blk.stop].reshape(m, 3, 1))[:, :, 0]  # (m, nd)
+        P = Phi[blk]
         pairs = np.hstack(
             [(P[:, c : c + K, None] * P[:, None, c : c + K]).reshape(m, -1) for c, K in spans]
         )

@@ -488,7 +488,7 @@ def _module_source(d: Discovery) -> str:
     codes = {t.key: t.code for t in d.selected}
     # typical: the size found, so that sample_parameters draws it and the fit keeps it
     # (a harmonic's sine and cosine share the pair's amplitude: one of them may be near zero)
-    amp = {}
+    amp: dict[str, float] = {}
     for t in d.selected:
         amp[t.group] = max(amp.get(t.group, 0.0), abs(coef[t.name].coefficient))
     typical = {}
@@ -759,7 +759,7 @@ def library_problem(
     _, Jq = res.model.joint_jacobian(res.inputs, res.params)  # (N, 3, 6)
     tau = res.inputs.tau
     groups: dict[str, list[int]] = {}
-    cols = []
+    cols: list[np.ndarray] = []
     kept: list[LibraryTerm] = []
     for term in library_terms(data, tau, order):
         f = _evaluate(term.code, data.q, tau, data.columns, term.joint)

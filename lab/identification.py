@@ -520,10 +520,10 @@ def register_base(
             break
     names = lay.names
     geo = lay.slice("geometric")
-    for k, v in zip(("bx", "by", "bz"), t, strict=True):
-        p[lay.index(k)] = v
-    for k, v in zip(("brx", "bry", "brz"), rotation_vector(R), strict=True):
-        p[lay.index(k)] = v
+    for name, v in zip(("bx", "by", "bz"), t, strict=True):
+        p[lay.index(name)] = v
+    for name, v in zip(("brx", "bry", "brz"), rotation_vector(R), strict=True):
+        p[lay.index(name)] = v
     if tools:
         tool_names = [x for x in names[geo] if x[:1] == "t" and x[1:2] in ("x", "y", "z")]
         idx = lay.indices(tool_names).reshape(K, 3)
@@ -543,7 +543,7 @@ class _Problem:
         self.idx = np.flatnonzero(free)
         self.s = scale[self.idx]
         self._u: np.ndarray | None = None
-        self._r = self._G = self._g = None
+        self._r, self._G, self._g = np.empty(0), np.empty((0, 0)), np.empty(0)
         self._J: np.ndarray | None = None  # the whole Jacobian, kept when there is one block
 
     def params(self, u: np.ndarray) -> np.ndarray:
@@ -723,15 +723,22 @@ def fit(
         raise FitError(f"outliers must be one of {', '.join(OUTLIER_MODES)}, got {outliers!r}")
     data = as_measurements(data)
     robot = as_robot(robot)
-    kw = dict(
-        noise_mm=noise_mm,
-        f_scale_mm=f_scale_mm,
-        start=start,
-        fixed=fixed,
-        register=register,
-        max_evaluations=max_evaluations,
-        solver=solver,
-    )
+
+    def fit_points(d: MeasurementSet) -> FitResult:
+        return _fit_points(
+            d,
+            robot,
+            effects,
+            loss,
+            noise_mm=noise_mm,
+            f_scale_mm=f_scale_mm,
+            start=start,
+            fixed=fixed,
+            register=register,
+            max_evaluations=max_evaluations,
+            solver=solver,
+        )
+
     distinct, dups = duplicate_rows(data)
     if dups:
         log.warning(
@@ -744,7 +751,7 @@ def fit(
     else:
         unique = data
     try:
-        result = _fit_points(unique, robot, effects, loss, **kw)
+        result = fit_points(unique)
     except FitError as exc:
         if dups:
             raise FitError(f"{exc} ({len(dups)} duplicate row(s) counted once)") from None
@@ -754,7 +761,7 @@ def fit(
         result, screen = screen_outliers(
             unique,
             result,
-            refit=lambda keep: _fit_points(unique.subset(keep), robot, effects, loss, **kw),
+            refit=lambda keep: fit_points(unique.subset(keep)),
             residuals=lambda r: r.residuals_of(unique),
             rank=lambda r: r.rank,
             explain=lambda r, keep: _explain_with_candidates(r, unique, keep),

@@ -17,10 +17,14 @@ from __future__ import annotations
 import io
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
+
+if TYPE_CHECKING:
+    from matplotlib.typing import RcKeyType
 
 __all__ = [
     "MODEL_COLORS",
@@ -37,7 +41,7 @@ __all__ = [
 # nominal grey, then the models in the order they were fitted
 MODEL_COLORS = ("#8c8c8c", "#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e")
 _FLOOR = "#2ca02c"
-_STYLE = {
+_STYLE: dict[RcKeyType, Any] = {
     "axes.spines.top": False,
     "axes.spines.right": False,
     "axes.grid": True,
@@ -142,7 +146,7 @@ def rms_figure(
     )
     for yy, v in zip(y, rms_mm, strict=True):
         ax.text(v, yy + (h / 2 if has_val else 0), f" {v:.4f}", va="center", fontsize=8)
-    if has_val:
+    if has_val and validation_rms_mm is not None:
         vals = [np.nan if v is None else v for v in validation_rms_mm]
         ax.barh(
             y - h / 2,

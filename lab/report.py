@@ -112,8 +112,20 @@ def build_report(
     robot = as_robot(robot)
 
     step(f"fitting {effects if isinstance(effects, str) else ','.join(map(str, effects))}")
-    kw = dict(loss=loss, validate=val, noise_mm=noise_mm, accept_large=accept_large)
-    first = fit(given, robot, effects, outliers=outliers, **kw)
+
+    def fitted(d: MeasurementSet, model: str | Sequence[str | Effect], rows: str) -> FitResult:
+        return fit(
+            d,
+            robot,
+            model,
+            loss=loss,
+            validate=val,
+            noise_mm=noise_mm,
+            accept_large=accept_large,
+            outliers=rows,
+        )
+
+    first = fitted(given, effects, outliers)
     data = first.fitted_data(given)
     left_out: list[Outlier] = list(first.outlier_list)
     rule = first.outlier_rule
@@ -128,7 +140,7 @@ def build_report(
             drop = {o.index for o in more}
             rows = first.fitted_rows if first.fitted_rows is not None else np.arange(len(given))
             data = given.subset(np.array([i for i in rows if i not in drop], dtype=int))
-            first = fit(data, robot, effects, outliers="keep", **kw)
+            first = fitted(data, effects, "keep")
             d0 = None  # diagnosed again below, on the rows kept
     p0 = nominal_parameters(first.model, first.inputs, data.xyz)
     runs = [
@@ -161,9 +173,9 @@ def build_report(
             break
         seen.add(nxt)
         step(f"fitting {nxt}")
-        res = fit(data, robot, nxt, outliers="keep", **kw)
+        res = fitted(data, nxt, "keep")
 
-    final = runs[-1].fit
+    final = runs[-1].fitted
     step("error-factor sensitivity")
     sens = error_sensitivity(final.model, final.inputs, final.params)
     report = LabReport(
@@ -240,6 +252,8 @@ def _hint_projection(
             r2 = _r2(y[use], None if phi is None else phi[use])
             if r2 > best + 1e-9:
                 best, direction = r2, name
+    if direction is None:
+        raise ValueError(f"no direction to project the residual on for {variable!r}")
     use, y, label = options[direction]
     return use, x, y, label, direction
 
@@ -248,7 +262,7 @@ def _design(phi: np.ndarray | None, n: int) -> np.ndarray:
     return np.ones((n, 1)) if phi is None else np.column_stack([np.ones(n), phi])
 
 
-def _r2(v: np.ndarray, phi: np.ndarray) -> float:
+def _r2(v: np.ndarray, phi: np.ndarray | None) -> float:
     A = _design(phi, len(v))
     coef, *_ = np.linalg.lstsq(A, v, rcond=None)
     ss = float(np.sum((v - v.mean()) ** 2))
@@ -276,9 +290,9 @@ def hint_panels(report: LabReport, top: int = 3) -> list[plots.HintPanel]:
         y_label = x_label = h.variable
         for _, run in models:
             use, x, y, y_label, direction = _hint_projection(
-                run.fit, report.data, h.variable, direction
+                run.fitted, report.data, h.variable, direction
             )
-            yfit = _smooth(run.fit, report.data, h.variable, y, use)
+            yfit = _smooth(run.fitted, report.data, h.variable, y, use)
             series.append((run.label, x[use], y[use], yfit))
         x_label = _variable_label(h.variable)
         discrete = h.variable.startswith("dir") or h.variable == "target"
@@ -312,7 +326,11 @@ def _figures(r: LabReport) -> dict[str, bytes]:
     if r.validation is not None:
         figs["residuals_validation"] = plots.png(
             plots.residuals_figure(
-                [(run.label, run.validation_residuals) for run in r.runs],
+                [
+                    (run.label, run.validation_residuals)
+                    for run in r.runs
+                    if run.validation_residuals is not None
+                ],
                 f"held-out poses ({len(r.validation)}, {Path(r.validation.source).name})",
                 colors,
                 r.noise_floor_mm,
@@ -344,7 +362,7 @@ def _figures(r: LabReport) -> dict[str, bytes]:
                 )
             )
     s = r.sensitivity
-    final = r.final.fit
+    final = r.final.fitted
     keep = arm_parameters(s.names)
     figs["sensitivity"] = plots.png(
         plots.sensitivity_figure(

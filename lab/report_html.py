@@ -135,8 +135,22 @@ class ModelRun:
         return 1e3 * float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
 
     @property
+    def fitted(self) -> FitResult:
+        """The fit: every run but the nominal arm's has one."""
+        if self.fit is None:
+            raise ValueError(f"{self.label}: the nominal arm has no fit")
+        return self.fit
+
+    @property
+    def diagnosed(self) -> Diagnosis:
+        """The diagnosis: every run but the nominal arm's has one."""
+        if self.diagnosis is None:
+            raise ValueError(f"{self.label}: the nominal arm has no diagnosis")
+        return self.diagnosis
+
+    @property
     def rms_mm(self) -> float:
-        return self._rms(self.residuals)
+        return 1e3 * float(np.sqrt(np.mean(np.sum(self.residuals**2, axis=1))))
 
     @property
     def max_mm(self) -> float:
@@ -249,7 +263,10 @@ def _mm(v: float | None, digits: int = 4) -> str:
     return "-" if v is None else f"{v:.{digits}f}"
 
 
-def _table(head: Sequence[str], rows: Sequence[Sequence[str]], left: int = 1) -> str:
+Cell = str | tuple[str, str]  # html, or (html, css class)
+
+
+def _table(head: Sequence[str], rows: Sequence[Sequence[Cell]], left: int = 1) -> str:
     th = "".join(
         f'<th class="l">{h}</th>' if k < left else f"<th>{h}</th>" for k, h in enumerate(head)
     )
@@ -258,7 +275,7 @@ def _table(head: Sequence[str], rows: Sequence[Sequence[str]], left: int = 1) ->
         cells = []
         for k, c in enumerate(row):
             cls = ' class="l"' if k < left else ""
-            if isinstance(c, tuple):  # (html, css class)
+            if isinstance(c, tuple):
                 c, extra = c
                 cls = f' class="{extra}{" l" if k < left else ""}"'
             cells.append(f"<td{cls}>{c}</td>")
@@ -307,9 +324,9 @@ def _parameter_tables(fit: FitResult) -> str:
             "d<sub>i</sub> (mm) / β",
             "Δd (mm) / Δβ (mrad)",
         ]
-        rows = []
+        rows: list[list[Cell]] = []
         for row in table:
-            cells = [str(row["joint"])]
+            cells: list[Cell] = [str(row["joint"])]
             for _, key in COLUMNS:
                 c = row[key]
                 nom, err = _cell(c)
@@ -367,7 +384,7 @@ def _parameter_tables(fit: FitResult) -> str:
 
 
 def _diagnosis_html(run: ModelRun, r: LabReport, k: int) -> str:
-    d = run.diagnosis
+    d = run.diagnosed
     out = [f"<h3>Model {_e(run.label)}: verdict {_verdict(d.verdict)}</h3>"]
     facts = [
         f"RMS {d.rms_mm:.4f} mm on the fitted poses, {d.cv_rms_mm:.4f} mm leave-one-out",
@@ -384,7 +401,7 @@ def _diagnosis_html(run: ModelRun, r: LabReport, k: int) -> str:
             '<p class="warn">The residual is above the noise floor and no catalogued effect '
             "explains it: look at the hints, and consider a user effect (--effect-module).</p>"
         )
-    rows = []
+    rows: list[list[Cell]] = []
     for c in d.candidates[:10]:
         ok = c.significant and c.confirmed
         rows.append(
@@ -453,14 +470,14 @@ def _render(r: LabReport) -> str:
     except PackageNotFoundError:  # pragma: no cover
         ver = "dev"
     nominal, final = r.runs[0], r.final
-    fit = final.fit
+    fit = final.fitted
     ident = fit.identifiability
-    first_d = r.runs[1].diagnosis
+    first_d = r.runs[1].diagnosed
     cards = [
         _card("nominal RMS", f"{nominal.rms_mm:.3f} mm", f"max {nominal.max_mm:.3f} mm"),
         _card("calibrated RMS", f"{final.rms_mm:.4f} mm", f"max {final.max_mm:.4f} mm"),
     ]
-    if final.validation_rms_mm is not None:
+    if r.validation is not None and final.validation_rms_mm is not None:
         cards.append(
             _card(
                 "held-out RMS",
@@ -478,7 +495,7 @@ def _render(r: LabReport) -> str:
             _verdict(first_d.verdict),
             "of "
             + _e(r.runs[1].label)
-            + (f" → final {_verdict(final.diagnosis.verdict)}" if len(r.runs) > 2 else ""),
+            + (f" → final {_verdict(final.diagnosed.verdict)}" if len(r.runs) > 2 else ""),
         )
     )
 

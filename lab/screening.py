@@ -142,9 +142,11 @@ class Duplicate:
 
 def _ranges(values: list[int]) -> str:
     """``3-11, 13``: sorted integers as ranges."""
-    out, start, prev = [], None, None
+    out: list[str] = []
+    start: int | None = None
+    prev: int | None = None
     for v in [*sorted(values), None]:
-        if start is not None and (v is None or v != prev + 1):
+        if start is not None and (v is None or prev is None or v != prev + 1):
             out.append(str(start) if start == prev else f"{start}-{prev}")
             start = None
         if v is not None and start is None:

@@ -69,12 +69,12 @@ class ForwardSelection:
         """(held-out RMS, p-value, state pieces) of adding ``basis``; None if it adds nothing.
         Trials on the initial state are remembered by ``key`` (without the pieces when the
         basis is built by a function: :meth:`add` builds them again)."""
-        first = self.Q.shape[1] == 0 and key is not None
-        if first and key in self._first:
+        if self.Q.shape[1] > 0 or key is None:
+            return self._trial(basis)
+        if key in self._first:
             return self._first[key]
         out = self._trial(basis)
-        if first:
-            self._first[key] = (out[0], out[1], None) if out and callable(basis) else out
+        self._first[key] = (out[0], out[1], None) if out and callable(basis) else out
         return out
 
     def _trial(self, basis):
