@@ -1,10 +1,123 @@
-"""The layers stay apart: the arm model and the lab load no simulator, and the task contract loads
-no plant."""
+"""The import rules of docs/architecture.md hold: each package imports only the layers below it,
+the arm model and the lab load no simulator, the task contract loads no plant, no module imports
+another's private names, and no modules import each other in a circle."""
 
 from __future__ import annotations
 
+import ast
 import subprocess
 import sys
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("arm", "envs", "lab", "agents", "experiments")
+
+# docs/architecture.md, "Layers": the project packages each package may import
+ALLOWED = {
+    "arm": set(),
+    "lab": {"arm"},
+    "envs": {"arm"},
+    "agents": {"arm", "envs", "lab"},
+    "experiments": {"arm", "envs", "lab", "agents"},
+}
+# ... and the simulators the arm model and the lab never import
+NO_SIMULATOR = {"mujoco", "gymnasium"}
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for f in sorted((ROOT / pkg).rglob("*.py")):
+            parts = f.relative_to(ROOT).with_suffix("").parts
+            out[".".join(parts).removesuffix(".__init__")] = f
+    return out
+
+
+MODULES = _modules()
+
+
+def _imports(path: Path) -> list[tuple[int, str, list[str]]]:
+    """(line, module, names) of every absolute import in a file, at any depth (lazy imports in
+    functions and TYPE_CHECKING blocks included); ``names`` empty for ``import x``."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name, []) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out.append((node.lineno, node.module, [a.name for a in node.names]))
+    return out
+
+
+def _project_module(name: str) -> str | None:
+    """The project module an import resolves to (the longest known prefix), or None."""
+    while name and name not in MODULES:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def test_the_module_walk_finds_every_package():
+    assert {m.split(".")[0] for m in MODULES} == set(PACKAGES)
+    assert "arm.errormodel" in MODULES and "envs.task" in MODULES
+
+
+@pytest.mark.parametrize("pkg", PACKAGES)
+def test_each_package_imports_only_the_layers_below_it(pkg):
+    bad = []
+    for mod, path in MODULES.items():
+        if mod.split(".")[0] != pkg:
+            continue
+        for line, name, _ in _imports(path):
+            top = name.split(".")[0]
+            if top in PACKAGES and top != pkg and top not in ALLOWED[pkg]:
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
+            if pkg in ("arm", "lab") and top in NO_SIMULATOR:
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
+    assert not bad, "\n".join(bad)
+
+
+def test_no_module_imports_a_private_name_from_another():
+    bad = []
+    for path in [*MODULES.values(), *sorted((ROOT / "tests").glob("*.py"))]:
+        for line, name, names in _imports(path):
+            if name.split(".")[0] not in PACKAGES:
+                continue
+            for n in names:
+                if n.startswith("_") and not n.startswith("__"):
+                    bad.append(f"{path.relative_to(ROOT)}:{line} imports {n} from {name}")
+    assert not bad, "\n".join(bad)
+
+
+def test_no_import_circle():
+    graph: dict[str, set[str]] = defaultdict(set)
+    for mod, path in MODULES.items():
+        for _, name, names in _imports(path):
+            for target in [f"{name}.{n}" for n in names] or [name]:
+                dep = _project_module(target)
+                if dep is not None and dep != mod and dep != mod.split(".")[0]:
+                    graph[mod].add(dep)
+    # depth-first search for a back edge
+    state: dict[str, int] = {}
+    path: list[str] = []
+
+    def visit(m: str) -> list[str] | None:
+        state[m] = 1
+        path.append(m)
+        for d in sorted(graph[m]):
+            if state.get(d) == 1:
+                return [*path[path.index(d) :], d]
+            if d not in state and (cycle := visit(d)):
+                return cycle
+        state[m] = 2
+        path.pop()
+        return None
+
+    for m in sorted(MODULES):
+        if m not in state:
+            cycle = visit(m)
+            assert cycle is None, " -> ".join(cycle)
 
 
 def _loaded_after(statement: str, modules: list[str]) -> list[str]:
