@@ -7,11 +7,12 @@
     result.rms_mm(start=3.0)            # tracking RMS after 3 s, mm (true tool point)
 
 Modules: :mod:`agents.base` (the ``Agent`` interface), :mod:`agents.reference` (hold, nominal,
-calibrated), :mod:`agents.mpc` (kinematic MPC: QP or IPOPT), :mod:`agents.online_calibration`
-(recursive least squares that can widen, the tracker buffer), :mod:`agents.self_diagnosis`
-(``mpc-diagnose``: the MPC that diagnoses its own model with the lab), :mod:`agents.tool_model`
-(the error model in CasADi),
-:mod:`agents.ppo` (stable-baselines3 PPO: training, shipped policies), :mod:`agents.registry`
+feedforward, calibrated), :mod:`agents.mpc` (kinematic MPC: QP or IPOPT),
+:mod:`agents.online_calibration` (recursive least squares that can widen, the tracker buffer),
+:mod:`agents.self_diagnosis` (``mpc-diagnose``: the MPC that diagnoses its own model with the
+lab), :mod:`agents.tool_model` (the error model in CasADi), :mod:`agents.policy` (learned
+policies: features, policy files, the agent), :mod:`agents.training` (stable-baselines3 PPO, SAC,
+TD3 training), :mod:`agents.registry`
 (agents by name or ``package.module:Class``), :mod:`agents.runner` (the episode loop, phases).
 Importing this package loads neither MuJoCo nor torch.
 """

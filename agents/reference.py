@@ -1,10 +1,14 @@
-"""Reference controllers: the floor (``hold``), the textbook (``nominal``) and the calibration
-engineer's (``calibrated``).
+"""Reference controllers: the floor (``hold``), the textbook (``nominal``), the no-learning
+measurement feed-forward (``feedforward``) and the calibration engineer's (``calibrated``).
 
 * ``hold`` commands zero velocity: the floor any agent must beat.
 * ``nominal``: resolved-rate tracking with the nominal kinematic model and no measurements,
   ``v = J^+ ((r_1 - r_0) / dt + gain (r_0 - x(q)) / dt)``, J^+ a damped pseudo-inverse, scaled
   into the velocity limits and the acceleration limits, stopped at joint limits.
+* ``feedforward``: the same tracking law, its target shifted by the model error that the last
+  tracker measurement revealed, ``e = y - x_nom(q at y's instant)``: it tracks ``r - e``, so the
+  true tool point (about ``x_nom + e``) lands on ``r``. No learning, no model identification: the
+  reference that learned residual policies must beat.
 * ``calibrated``: the same tracking law on a model identified from measurements. It records
   every tracker measurement (with the encoder reading and columns of its instant) while tracking
   with the nominal model; at ``calibration_seconds`` (or, with ``None``, at the start of every new
@@ -26,7 +30,13 @@ from agents.tool_model import cached_tool_model
 from arm.errormodel import ErrorModel
 from envs.task import Observation, TaskInfo, Truth
 
-__all__ = ["CalibratedAgent", "HoldAgent", "NominalAgent", "fit_measurements"]
+__all__ = [
+    "CalibratedAgent",
+    "FeedforwardAgent",
+    "HoldAgent",
+    "NominalAgent",
+    "fit_measurements",
+]
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +78,7 @@ class NominalAgent(Agent):
         self.model = ErrorModel(task.robot, self.effects)
         self.p = self.model.nominal()
         self.tm = cached_tool_model(self.model)
+        self._cache: tuple[bytes, np.ndarray, np.ndarray] | None = None
         self._times: list[float] = []
         self._start_phase()
 
@@ -90,11 +101,22 @@ class NominalAgent(Agent):
         cols.update({f"dir{i + 1}": float(self.dirs[i]) for i in range(6)})
         return cols
 
+    def point_dq(
+        self, q: np.ndarray, cols: Mapping[str, float] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The model's tool point and its derivative by q at ``q`` (remembered for the last ``q``
+        and columns: a residual policy's features and the command ask for the same pose)."""
+        cvec = self.tm.column_vector(cols)
+        key = np.asarray(q, dtype=float).tobytes() + self.p.tobytes() + cvec.tobytes()
+        if self._cache is None or self._cache[0] != key:
+            self._cache = (key, *self.tm.point_dq(q, self.p, cvec))
+        return self._cache[1], self._cache[2]
+
     def command(self, o: Observation, cols: Mapping[str, float]) -> np.ndarray:
         """The joint velocity (rad/s) of the resolved-rate law at observation ``o``."""
         task = self.task
         dt = float(task.dt)
-        x, J = self.tm.point_dq(o.q, self.p, cols)
+        x, J = self.point_dq(o.q, cols)
         r0 = o.ref
         r1 = o.references(1)[0]
         xd = (r1 - r0) / dt + self.gain * (r0 - x) / dt
@@ -118,17 +140,91 @@ class NominalAgent(Agent):
 
     def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
         t0 = time.perf_counter()
-        o = Observation.parse(self.task, obs)
-        v = self.command(o, self._columns(o, info))
+        out = self.track(Observation.parse(self.task, obs), info)
+        self.last_solve_time = time.perf_counter() - t0
+        self._times.append(self.last_solve_time)
+        return out
+
+    def track(
+        self, o: Observation, info: Mapping[str, Any], offset: np.ndarray | None = None
+    ) -> np.ndarray:
+        """One step of the tracking law towards the reference shifted by ``offset`` (3,) m (none:
+        the reference itself); updates the controller's state and returns the normalised
+        command."""
+        cols = self._columns(o, info)
+        if offset is not None:
+            o = o.shifted(offset)
+        v = self.command(o, cols)
         moving = np.abs(v) > 1e-6
         self.dirs[moving] = np.sign(v[moving])
         self.v_prev = v
-        self.last_solve_time = time.perf_counter() - t0
-        self._times.append(self.last_solve_time)
         return np.clip(v / np.asarray(self.task.v_max, dtype=float), -1.0, 1.0)
 
     def report(self) -> dict[str, float | list]:
         return solve_time_stats(self._times)
+
+
+class FeedforwardAgent(NominalAgent):
+    """The nominal tracking law plus the last measured model error as a feed-forward offset.
+
+    At every tracker measurement ``y`` (with the encoder reading ``q_y`` of its instant,
+    ``info["measurement_q"]``) the model error is ``e = y - x_nom(q_y)``; the controller then
+    tracks ``r - e``. The offset is held between measurements and through a blind phase (the last
+    one seen); measurements older than ``max_age`` seconds (a delivery delay) are still used.
+    No learning and no identification: the baseline learned residual policies are built on.
+    """
+
+    name = "feedforward"
+
+    def __init__(self, gain: float = 0.5, damping: float = 1e-3) -> None:
+        super().__init__(gain=gain, damping=damping, effects="geometric")
+
+    def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
+        super().reset(task, seed, truth)
+        self.error = np.zeros(3)  # m, the model error at the last measurement
+        self.error_change = np.zeros(3)  # m, how much the last measurement changed it
+        self.n_measurements = 0
+        self.last_measurement_time = -np.inf
+        self.measured_dirs = np.zeros(6)  # the joints' directions of motion at the last one
+
+    def observe(self, o: Observation, info: Mapping[str, Any]) -> bool:
+        """Update the model error from a new measurement in ``info``; True if there was one."""
+        if not info.get("measurement_valid", False):
+            return False
+        y = np.asarray(info.get("measurement"), dtype=float).reshape(-1)
+        q_y = info.get("measurement_q")
+        q_y = o.q if q_y is None else np.asarray(q_y, dtype=float).reshape(-1)
+        if (
+            y.shape != (3,)
+            or q_y.shape != (6,)
+            or not (np.isfinite(y).all() and np.isfinite(q_y).all())
+        ):
+            return False
+        e = y - self.tm.point(q_y, self.p)
+        cols = measurement_columns(info)
+        self.measured_dirs = np.array(
+            [cols.get(f"dir{i + 1}", self.dirs[i]) for i in range(6)], dtype=float
+        )
+        self.error_change = e - self.error if self.n_measurements else np.zeros(3)
+        self.error = e
+        self.n_measurements += 1
+        t = info.get("measurement_time", info.get("time"))
+        self.last_measurement_time = float(t) if t is not None else self.last_measurement_time
+        return True
+
+    def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
+        t0 = time.perf_counter()
+        o = Observation.parse(self.task, obs)
+        self.observe(o, info)
+        out = self.track(o, info, -self.error)
+        self.last_solve_time = time.perf_counter() - t0
+        self._times.append(self.last_solve_time)
+        return out
+
+    def report(self) -> dict[str, float | list]:
+        out = super().report()
+        out["measurements_used"] = self.n_measurements
+        return out
 
 
 def fit_measurements(

@@ -5,13 +5,21 @@
 |----------------|-----------------------------------------------------------------------------|
 | `hold`         | zero velocity: the floor                                                    |
 | `nominal`      | resolved-rate tracking on the nominal model, no measurements                |
+| `feedforward`  | nominal tracking of the reference minus the last measured model error       |
 | `calibrated`   | calibrate from a measurement phase (least squares), then track blind        |
 | `mpc`          | kinematic MPC (QP, daqp) with online recursive least-squares calibration    |
 | `mpc-ipopt`    | the same MPC as a nonlinear program solved by IPOPT                         |
 | `mpc-oracle`   | the MPC given the plant's true model (needs the env's truth)                |
 | `mpc-diagnose` | the MPC that diagnoses its own model with the lab and widens it             |
-| `ppo`          | the shipped PPO policy (stable-baselines3)                                  |
-| `ppo-residual` | the shipped residual PPO policy on top of the nominal controller            |
+| `sac`          | the shipped plain SAC policy (stable-baselines3): joint velocities          |
+| `ppo-residual` | the shipped residual PPO policy on top of ``feedforward`` (+-0.5 mm)        |
+| `sac-residual` | the shipped residual SAC policy on top of ``feedforward`` (+-0.5 mm)        |
+
+Every ``agents/policies/<name>.npz`` is registered as ``<name>``: a learned policy loads from that
+file (weights as arrays, no unpickling) or from ``path``, another such file.
+
+A class path (``package.module:Class``) imports that module: it runs the module's code, so name
+only classes you trust.
 """
 
 from __future__ import annotations
@@ -19,6 +27,7 @@ from __future__ import annotations
 import importlib
 import inspect
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from agents.base import Agent
@@ -41,6 +50,12 @@ def _nominal(**kw):
     from agents.reference import NominalAgent
 
     return NominalAgent(**kw)
+
+
+def _feedforward(**kw):
+    from agents.reference import FeedforwardAgent
+
+    return FeedforwardAgent(**kw)
 
 
 def _calibrated(**kw):
@@ -73,28 +88,31 @@ def _mpc_diagnose(**kw):
     return DiagnosingMPCAgent(**kw)
 
 
-def _ppo(**kw):
-    from agents.ppo import PPOAgent
+#: the learned policies shipped in agents/policies/ (<name>.npz), each registered by its name
+POLICIES = tuple(
+    sorted(p.stem for p in (Path(__file__).resolve().parent / "policies").glob("*.npz"))
+)
 
-    return PPOAgent(**kw)
 
+def _policy(name: str) -> Callable[..., Agent]:
+    def make(**kw):
+        from agents.policy import PolicyAgent
 
-def _ppo_residual(**kw):
-    from agents.ppo import PPOAgent
+        return PolicyAgent(name, **kw)
 
-    return PPOAgent(**({"variant": "residual"} | kw))
+    return make
 
 
 AGENTS: dict[str, Callable[..., Agent]] = {
     "hold": _hold,
     "nominal": _nominal,
+    "feedforward": _feedforward,
     "calibrated": _calibrated,
     "mpc": _mpc,
     "mpc-ipopt": _mpc_ipopt,
     "mpc-oracle": _mpc_oracle,
     "mpc-diagnose": _mpc_diagnose,
-    "ppo": _ppo,
-    "ppo-residual": _ppo_residual,
+    **{name: _policy(name) for name in POLICIES},
 }
 
 
@@ -105,18 +123,18 @@ def agent_names() -> list[str]:
 def resolve_agent(name: str) -> tuple[Callable[..., Agent], Callable[..., Any]]:
     """The factory of ``name`` and the callable whose signature its settings must fit."""
     if name in AGENTS:
-        from agents import mpc, ppo, reference, self_diagnosis
+        from agents import mpc, policy, reference, self_diagnosis
 
         cls = {
             "hold": reference.HoldAgent,
             "nominal": reference.NominalAgent,
+            "feedforward": reference.FeedforwardAgent,
             "calibrated": reference.CalibratedAgent,
             "mpc": mpc.MPCAgent,
             "mpc-ipopt": mpc.MPCAgent,
             "mpc-oracle": mpc.MPCAgent,
             "mpc-diagnose": self_diagnosis.DiagnosingMPCAgent,
-            "ppo": ppo.PPOAgent,
-            "ppo-residual": ppo.PPOAgent,
+            **{p: policy.PolicyAgent for p in POLICIES},
         }[name]
         return AGENTS[name], cls
     if ":" in name:
@@ -158,6 +176,6 @@ def make_agent(name: str, **settings: Any) -> Agent:
     check_settings(name, settings)
     try:
         agent = factory(**settings)
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:
         raise AgentError(f"agent {name!r}: bad settings {settings}: {exc}") from exc
     return agent

@@ -20,7 +20,7 @@ tested against the contract alone.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -156,6 +156,11 @@ class Observation:
             temperature=float(part("temperature", np.array([20.0]))[0]),
             payload=float(obs[sl["payload"]][0]) if "payload" in sl else None,
         )
+
+    def shifted(self, delta: np.ndarray) -> Observation:
+        """The same observation with the reference and its preview moved by ``delta`` (3,) m."""
+        d = np.asarray(delta, dtype=float).reshape(3)
+        return replace(self, ref=self.ref + d, preview=self.preview + d)
 
     def references(self, n: int) -> np.ndarray:
         """The next ``n`` reference points (n, 3), the last preview point repeated if short."""

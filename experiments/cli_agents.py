@@ -1,5 +1,6 @@
-"""``sixaxis train ppo --config FILE`` and ``sixaxis evaluate AGENT``: thin layers over
-:mod:`agents.ppo` and :mod:`agents.runner`."""
+"""``sixaxis train ppo|sac|td3 --config FILE``, ``sixaxis train ship RUN``, ``sixaxis evaluate
+AGENT`` and ``sixaxis render AGENT``: thin layers over :mod:`agents.training` and
+:mod:`agents.runner`."""
 
 from __future__ import annotations
 
@@ -11,45 +12,35 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from experiments.cli_output import console, user_errors
+from experiments.cli_output import console, fail, user_errors
 
 train_app = typer.Typer(help="Train learning agents.", no_args_is_help=True)
 
 
-@train_app.command("ppo")
-def train_ppo(
-    config: Annotated[
-        Path, typer.Option("--config", "-c", help="A TOML file with a [ppo] table.")
-    ] = Path("experiments/configs/ppo.toml"),
-    timesteps: Annotated[
-        int | None, typer.Option(help="Override total_timesteps (e.g. a short trial run).")
-    ] = None,
-    output: Annotated[Path | None, typer.Option(help="Override the output directory.")] = None,
-    variant: Annotated[str | None, typer.Option(help="Override the variant.")] = None,
-    ship: Annotated[
-        bool,
-        typer.Option(help="Copy the best policy into agents/policies/ when training ends."),
-    ] = False,
-    resume: Annotated[
-        Path | None,
-        typer.Option(help="Continue a previous run's final policy for --timesteps more steps."),
-    ] = None,
+def _train(
+    algo: str,
+    config: Path | None,
+    seed: int | None,
+    timesteps: int | None,
+    output: Path | None,
+    ship: bool,
+    resume: bool,
 ) -> None:
-    """Train PPO on SixAxisTrack-v0: checkpoints, evaluations and CSV logs in the output dir."""
-    from agents.ppo import load_config, ship_policy, train
+    from agents.training import load_train_config, ship_policy, train
 
+    config = config or Path(f"experiments/configs/{algo}-residual.toml")
     with user_errors():
-        cfg = load_config(config)
-    if timesteps is not None:
-        cfg.total_timesteps = int(timesteps)
-    if output is not None:
-        cfg.output = str(output)
-    if variant is not None:
-        cfg.variant = variant
-        cfg.__post_init__()
+        cfg = load_train_config(
+            config,
+            seed=seed,
+            total_timesteps=timesteps,
+            output=None if output is None else str(output),
+        )
+    if cfg.algo != algo:
+        fail(f"{config}: [train] algo is {cfg.algo!r}; use `sixaxis train {cfg.algo}`")
     console.print(
-        f"training PPO ({cfg.variant}) for {cfg.total_timesteps:,} steps on "
-        f"{', '.join(sorted(set(cfg.scenarios)))}; logs in {cfg.output}"
+        f"training {algo.upper()} ({cfg.variant}, seed {cfg.seed}) for {cfg.total_timesteps:,} "
+        f"steps on {', '.join(cfg.scenarios_unique())}; records in {cfg.output}"
     )
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
@@ -62,35 +53,90 @@ def train_ppo(
         console=console,
     ) as bar:
         job = bar.add_task("steps", total=cfg.total_timesteps)
-        start = [None]
 
-        def update(n, total):
-            start[0] = n if start[0] is None else start[0]
-            bar.update(job, completed=n - start[0])
+        def update(n: int, total: int) -> None:
+            bar.update(job, completed=n)
 
         out = train(cfg, progress=update, resume=resume)
-    console.print(f"done in {time.perf_counter() - t0:.0f} s: {out / 'model.zip'}")
+    console.print(f"done in {time.perf_counter() - t0:.0f} s: {out}")
     if ship:
-        dst = ship_policy(out, cfg.variant)
+        with console.status("evaluating the policy on the leaderboard's episodes..."):
+            dst = ship_policy(out)
         console.print(f"shipped {dst} ({dst.stat().st_size / 1024:.0f} KB)")
+
+
+_CONFIG_HELP = (
+    "A TOML file with a [train] table (default: experiments/configs/<algo>-residual.toml)."
+)
+_RESUME_HELP = (
+    "Continue the run in the output directory from its last checkpoint (SB3's own save, which "
+    "unpickles: resume only runs you made)."
+)
+
+
+def _make_train_command(algo: str) -> None:
+    @train_app.command(algo)
+    def command(
+        config: Annotated[Path | None, typer.Option("--config", "-c", help=_CONFIG_HELP)] = None,
+        seed: Annotated[
+            int | None,
+            typer.Option(help="The training seed (network, exploration, episode seeds)."),
+        ] = None,
+        timesteps: Annotated[
+            int | None, typer.Option(help="Override total_timesteps (e.g. a short trial run).")
+        ] = None,
+        output: Annotated[Path | None, typer.Option(help="Override the output directory.")] = None,
+        ship: Annotated[
+            bool,
+            typer.Option(help="Copy the best policy into agents/policies/ when training ends."),
+        ] = False,
+        resume: Annotated[bool, typer.Option(help=_RESUME_HELP)] = False,
+    ) -> None:
+        _train(algo, config, seed, timesteps, output, ship, resume)
+
+    command.__doc__ = (
+        f"Train {algo.upper()} (stable-baselines3) on SixAxisTrack-v0: evaluations (curve.csv), "
+        "checkpoints and the policy (best.npz, final.npz) in the output directory."
+    )
+
+
+for _algo in ("ppo", "sac", "td3"):
+    _make_train_command(_algo)
 
 
 @train_app.command("ship")
 def ship(
-    run: Annotated[Path, typer.Argument(help="A training output directory (runs/ppo-...).")],
-    variant: Annotated[str, typer.Option(help="residual or plain.")] = "residual",
-    which: Annotated[str, typer.Option(help="best, final, or a checkpoint's step count.")] = "best",
+    run: Annotated[Path, typer.Argument(help="A training output directory (runs/...).")],
+    which: Annotated[str, typer.Option(help="best or final.")] = "best",
+    name: Annotated[
+        str | None, typer.Option(help="The agent's name (default: the run's config name).")
+    ] = None,
 ) -> None:
-    """Copy a trained policy into agents/policies/ and record its deterministic leaderboard
-    evaluation next to it (ppo-<variant>.json)."""
-    from agents.ppo import ship_policy
+    """Copy a trained policy (.npz weights and .json) into agents/policies/ and record its
+    deterministic leaderboard evaluation in the .json."""
+    from agents.training import ship_policy
 
-    with console.status("evaluating the policy on the leaderboard's episodes..."):
-        dst = ship_policy(run, variant, which)
+    with (
+        user_errors(ValueError),
+        console.status("evaluating the policy on the leaderboard's episodes..."),
+    ):
+        dst = ship_policy(run, which, name)
     meta = json.loads(dst.with_suffix(".json").read_text())
     console.print(f"shipped {dst} ({dst.stat().st_size / 1024:.0f} KB)")
-    for sc, v in meta["leaderboard"]["rms_mm"].items():
-        console.print(f"  {sc:13s} {v:.4f} mm")
+    for sc, v in meta["leaderboard"]["episodes"].items():
+        console.print(
+            f"  {sc:13s} settled {sum(v['rms_settled_mm']) / len(v['rms_settled_mm']):.4f} mm"
+        )
+
+
+EVALUATE_METRICS = (
+    "rms_mm",
+    "rms_settled_mm",
+    "converge_s",
+    "max_settled_mm",
+    "diverged",
+    "solve_time_median_ms",
+)
 
 
 EVALUATE_METRICS = (
@@ -104,7 +150,12 @@ EVALUATE_METRICS = (
 
 
 def evaluate(
-    agent: Annotated[str, typer.Argument(help="An agent name or package.module:Class.")],
+    agent: Annotated[
+        str,
+        typer.Argument(
+            help="An agent name, or package.module:Class (imports that module: its code runs)."
+        ),
+    ],
     scenario: Annotated[list[str], typer.Option(help="Scenario(s).")] = ["geometric"],  # noqa: B006
     seeds: Annotated[int, typer.Option(help="Seeds 0..N-1.")] = 3,
     settings: Annotated[

@@ -115,7 +115,8 @@ ModuleOpt = Annotated[
     list[Path] | None,
     typer.Option(
         "--effect-module",
-        help="A Python file defining Effect subclasses to register (repeatable).",
+        help="A Python file defining Effect subclasses to register (repeatable). The file is "
+        "imported, so its code runs: give only files you trust.",
         metavar="FILE.py",
     ),
 ]

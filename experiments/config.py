@@ -18,6 +18,7 @@ single run starts, naming the file and the key.
 
     [[agents]]
     name = "mpc"                         # a registered agent, or "package.module:Class"
+                                         # (a class path imports its module: that code runs)
     label = "mpc-h20"                    # optional: how it shows in records and the leaderboard
     settings = { horizon = 20 }          # keyword arguments of the agent
     scenario_settings = { backlash = { effects = "geometric,backlash" } }   # per scenario, on top

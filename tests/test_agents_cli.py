@@ -1,5 +1,6 @@
-"""The agents' CLI commands: ``sixaxis evaluate`` and ``sixaxis train ppo`` (errors only; a
-training run is tested in test_agents_ppo.py)."""
+"""The agents' CLI commands: ``sixaxis evaluate`` and ``sixaxis train`` (errors, and that a
+policy file with a pickled payload runs nothing; a training run is tested in
+test_agents_training.py)."""
 
 from __future__ import annotations
 
@@ -31,6 +32,36 @@ def test_evaluate_refuses_unknown_agents_and_settings():
 
 def test_train_refuses_a_bad_config(tmp_path):
     bad = tmp_path / "bad.toml"
-    bad.write_text("[ppo]\nnet_arch = 64\n")
+    bad.write_text("[train]\nnet_arch = 64\n")
     res = runner.invoke(app, ["train", "ppo", "--config", str(bad)])
     assert res.exit_code == 2 and "net_arch" in res.output
+    res = runner.invoke(app, ["train", "sac", "--config", "experiments/configs/ppo-residual.toml"])
+    assert res.exit_code == 2 and "sixaxis train ppo" in res.output
+
+
+def test_a_policy_zip_with_a_pickled_payload_runs_nothing(tmp_path):
+    """A shared config, a command line or a run record naming a stable-baselines3 zip whose
+    pickle would run code: refused with one line, and the payload never runs."""
+    from tests.test_agents_policy import _evil_zip
+
+    marker = tmp_path / "pwned"
+    evil = _evil_zip(tmp_path, marker)
+    settings = json.dumps({"path": str(evil)})
+    res = runner.invoke(app, ["evaluate", "ppo-residual", "--settings", settings, "--seeds", "1"])
+    assert res.exit_code == 2 and "refusing" in res.output, res.output
+    cfg = tmp_path / "shared.toml"
+    text = 'name = "shared"\nseeds = [0]\nscenarios = ["geometric"]\nepisode_seconds = 1.0\nsettle_seconds = 0.5\n'
+    cfg.write_text(text + f'[[agents]]\nname = "ppo-residual"\nsettings = {{ path = "{evil}" }}\n')
+    res = runner.invoke(app, ["sweep", str(cfg), "--out", str(tmp_path / "runs"), "-w", "0"])
+    assert res.exit_code == 2 and "refusing" in res.output, res.output
+    # a run record (made by a harmless run) edited to name the zip
+    cfg.write_text(text + '[[agents]]\nname = "hold"\n')
+    res = runner.invoke(app, ["sweep", str(cfg), "--out", str(tmp_path / "ok"), "-w", "0"])
+    assert res.exit_code == 0, res.output
+    (record,) = (tmp_path / "ok").glob("hold__*.json")
+    rec = json.loads(record.read_text())
+    rec["spec"]["agent"], rec["spec"]["settings"] = "ppo-residual", {"path": str(evil)}
+    record.write_text(json.dumps(rec))
+    res = runner.invoke(app, ["reproduce", str(record)])
+    assert res.exit_code != 0 and "refusing" in res.output, res.output
+    assert not marker.exists()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from agents.base import Agent
-from agents.registry import AgentError, agent_names, make_agent
+from agents.registry import POLICIES, AgentError, agent_names, make_agent
 from agents.runner import EpisodeResult, Phase, calibrate_then_blind, run_episode
 from tests._agents_kinsim import register_kinematic_env
 
@@ -83,14 +83,15 @@ def test_registry_names_settings_and_user_classes():
     assert set(agent_names()) == {
         "hold",
         "nominal",
+        "feedforward",
         "calibrated",
         "mpc",
         "mpc-ipopt",
         "mpc-oracle",
         "mpc-diagnose",
-        "ppo",
-        "ppo-residual",
+        *POLICIES,
     }
+    assert {"ppo-residual"} <= set(POLICIES)
     assert make_agent("mpc-ipopt").name == "mpc-ipopt"
     assert make_agent("mpc-oracle").needs_truth
     assert make_agent("mpc-diagnose").name == "mpc-diagnose"

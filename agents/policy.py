@@ -1,0 +1,466 @@
+"""Learned policies as agents: what the policy observes, what its action means, and its network
+weights in a file that loads without unpickling.
+
+Two variants share one pipeline (:class:`PolicyIO`, a pure function of the env's observation and
+info stream, so the same code runs in training and in evaluation):
+
+* ``residual`` (residual RL, Johannink et al. 2019): the base is the ``feedforward`` reference
+  (:class:`~agents.reference.FeedforwardAgent`: nominal resolved-rate tracking of the reference
+  minus the last measured model error). The policy's action (3) in [-1, 1] moves the base's target
+  by up to ``offset_mm`` (0.5 mm) more; a zero action is the base itself.
+* ``plain``: the policy's action is the env's action, normalised joint velocities (6).
+
+What the residual policy observes (mm where lengths): the encoders (angles, velocities), the
+base's last command and the joints' last directions of motion, the joint velocities the path asks
+for a few steps ahead (where a joint will reverse and its backlash flip), the model error ``e``
+the base feeds forward, how the last measurement changed it and the errors of the three measurements before
+(relative to ``e``: their spread is the tracker's noise), the time since the last measurement,
+the base's target error ``(r - e) - x_nom(q)``, the previewed path relative to the reference,
+the nominal Jacobian (mm/mrad: how each joint's slack or backlash moves the tool) and its columns
+for the joints whose direction changed since the last measurement or that the path will reverse
+(where backlash moves the tool before any measurement shows it), the previous action, the declared payload and the temperature.
+The plain policy observes the encoders, the nominal tool point ``x_nom(q)`` and the reference and
+preview minus it (the env's :class:`~envs.wrappers.NominalToolObservation` option), the last
+measured model error and its age, the previous action, the declared payload and the temperature.
+
+A shipped policy is two files in ``agents/policies/``: ``<name>.npz`` (the actor's weights as
+arrays named by the network's parameters, and the observation normalisation: read with
+``numpy.load(allow_pickle=False)``) and ``<name>.json`` (algorithm, variant, network
+architecture, training config, the leaderboard evaluation). The weights are loaded into the
+stable-baselines3 network that the architecture describes; nothing is unpickled, so a policy file
+from a stranger cannot run code. A stable-baselines3 ``.zip`` (which unpickles) is refused.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+import zipfile
+from collections import deque
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.base import Agent, solve_time_stats
+from agents.reference import FeedforwardAgent
+from arm.errors import SixAxisError
+from envs.task import Observation, TaskInfo, Truth
+
+__all__ = [
+    "ALGOS",
+    "POLICY_DIR",
+    "VARIANTS",
+    "PolicyAgent",
+    "PolicyFileError",
+    "PolicyIO",
+    "PolicyNetwork",
+    "load_policy_file",
+    "save_policy_file",
+]
+
+log = logging.getLogger(__name__)
+
+POLICY_DIR = Path(__file__).resolve().parent / "policies"
+VARIANTS = ("residual", "plain")
+ALGOS = ("ppo", "sac", "td3")
+MM = 1e3
+#: preview steps the residual policy sees (relative to the reference now)
+RESIDUAL_PREVIEW = (0, 1, 2, 4, 9)
+#: preview steps at which the residual policy sees the joint velocities the path asks for
+#: (J^+ of the path's velocity there, with the Jacobian of now): where a joint will reverse
+PATH_JOINT_VELOCITY = (2, 6)
+#: measurements before the last one that the residual policy sees
+ERROR_HISTORY = 3
+#: activation functions a policy file may name (no class paths: a file is data, not code)
+ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu")
+
+
+class PolicyFileError(SixAxisError, ValueError):
+    """A policy file that is missing, unsafe to load, or does not fit its description."""
+
+
+# --------------------------------------------------------------------------------------------------
+class PolicyIO:
+    """The policy's side of SixAxisTrack-v0 for one episode: :meth:`features` of each observation
+    (call it once per step, before :meth:`action`), and :meth:`action`, the env's action from the
+    policy's."""
+
+    def __init__(self, variant: str = "residual", offset_mm: float = 0.5) -> None:
+        if variant not in VARIANTS:
+            raise ValueError(f"unknown policy variant {variant!r}; choose {', '.join(VARIANTS)}")
+        if not offset_mm > 0:
+            raise ValueError(f"offset_mm must be > 0, got {offset_mm}")
+        self.variant = variant
+        self.offset_mm = float(offset_mm)
+        self.base = FeedforwardAgent()
+        self.task: TaskInfo | None = None
+
+    @property
+    def action_size(self) -> int:
+        return 3 if self.variant == "residual" else 6
+
+    def observation_size(self, task: TaskInfo) -> int:
+        P = int(task.preview_steps)
+        if self.variant == "residual":
+            return (
+                6 * 4
+                + 6 * len(PATH_JOINT_VELOCITY)
+                + 3
+                + 3
+                + 3 * ERROR_HISTORY
+                + 1
+                + 3
+                + 3 * len(RESIDUAL_PREVIEW)
+                + 18 * 3
+                + 3
+                + 2
+            )
+        return 6 + 6 + 3 + 3 + 3 * P + 3 + 1 + 6 + 2
+
+    def reset(self, task: TaskInfo) -> None:
+        self.task = task
+        self.base.reset(task)
+        self._start_phase()
+
+    def next_phase(self, task: TaskInfo) -> None:
+        self.task = task
+        self.base.next_phase(task)
+        self._start_phase()
+
+    def _start_phase(self) -> None:
+        self.prev_action = np.zeros(self.action_size)
+        self.history: deque[np.ndarray] = deque(maxlen=ERROR_HISTORY + 1)
+        self._o: Observation | None = None
+        self._info: Mapping[str, Any] = {}
+
+    def features(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
+        o = Observation.parse(self.task, obs)
+        self._o, self._info = o, info
+        base = self.base
+        if base.observe(o, info):
+            self.history.append(base.error.copy())
+        t = info.get("time")
+        age = (float(t) - base.last_measurement_time) if t is not None else o.meas_age
+        age = float(min(age, 1.0)) if np.isfinite(age) else 1.0
+        payload = 0.0 if o.payload is None else float(o.payload)
+        if self.variant == "residual":
+            x, J = base.point_dq(o.q)
+            e = base.error
+            past = list(self.history)[:-1][::-1]  # the measurements before the last, newest first
+            hist = np.zeros((ERROR_HISTORY, 3))
+            for k, h in enumerate(past):
+                hist[k] = h - e
+            refs = o.references(max(max(RESIDUAL_PREVIEW), max(PATH_JOINT_VELOCITY) + 1) + 1)
+            pv = refs[list(RESIDUAL_PREVIEW)] - o.ref
+            v_max = np.asarray(self.task.v_max, dtype=float)
+            jj = J @ J.T + (base.damping**2) * np.eye(3)
+            path_v = [
+                J.T @ np.linalg.solve(jj, (refs[k + 1] - refs[k]) / float(self.task.dt)) / v_max
+                for k in PATH_JOINT_VELOCITY
+            ]
+            ahead = path_v[-1]
+            # the direction each joint will move in (its present one where the path barely moves it)
+            reverse = np.where(np.abs(ahead) > 1e-3, np.sign(ahead), base.dirs)
+            f = np.concatenate(
+                [
+                    o.q,
+                    o.qd,
+                    base.v_prev / v_max,
+                    base.dirs,
+                    *path_v,
+                    e * MM,
+                    base.error_change * MM,
+                    hist.reshape(-1) * MM,
+                    [age],
+                    ((o.ref - e) - x) * MM,
+                    pv.reshape(-1) * MM,
+                    J.reshape(-1),  # m/rad = mm/mrad
+                    # per joint: how the tool moves (mm per mrad) for the joints whose direction
+                    # changed since the last measurement, and for those the path will reverse
+                    (J * (base.dirs - base.measured_dirs) / 2.0).T.reshape(-1),
+                    (J * (reverse - base.dirs) / 2.0).T.reshape(-1),
+                    self.prev_action,
+                    [payload, o.temperature - 20.0],
+                ]
+            )
+        else:
+            x = base.tm.point(o.q, base.p)
+            pv = o.references(int(self.task.preview_steps)) - x
+            f = np.concatenate(
+                [
+                    o.q,
+                    o.qd,
+                    x,
+                    (o.ref - x) * MM,
+                    pv.reshape(-1) * MM,
+                    base.error * MM,
+                    [age],
+                    self.prev_action,
+                    [payload, o.temperature - 20.0],
+                ]
+            )
+        return f.astype(np.float32)
+
+    def action(self, a: np.ndarray) -> np.ndarray:
+        """The env's action (6,) for the policy's action ``a`` at the last observation."""
+        if self._o is None:
+            raise RuntimeError("PolicyIO.action before features(): no observation yet")
+        a = np.clip(np.asarray(a, dtype=float).reshape(-1), -1.0, 1.0)
+        self.prev_action = a
+        if self.variant == "plain":
+            return a
+        offset = -self.base.error + a * (self.offset_mm / MM)
+        return self.base.track(self._o, self._info, offset)
+
+
+# --------------------------------------------------------------------------------------------------
+def _activation(name: str) -> Any:
+    import torch.nn as nn
+
+    table = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}
+    try:
+        return table[name]
+    except KeyError:
+        raise PolicyFileError(
+            f"activation_fn {name!r} is not one of {', '.join(ACTIVATIONS)}"
+        ) from None
+
+
+def policy_kwargs_for_sb3(kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """A policy's architecture as data (JSON/TOML: the activation by name) into the keyword
+    arguments of stable-baselines3's policy classes."""
+    out = dict(kwargs)
+    if "activation_fn" in out:
+        out["activation_fn"] = _activation(str(out["activation_fn"]))
+    if isinstance(out.get("net_arch"), Mapping):
+        out["net_arch"] = {k: list(v) for k, v in out["net_arch"].items()}
+    elif "net_arch" in out:
+        out["net_arch"] = list(out["net_arch"])
+    return out
+
+
+def build_network(
+    algo: str, obs_size: int, act_size: int, policy_kwargs: Mapping[str, Any], use_sde: bool
+) -> Any:
+    """An untrained stable-baselines3 policy of the given architecture (torch, CPU)."""
+    import gymnasium as gym
+    import torch
+
+    torch.set_num_threads(1)
+    obs_space = gym.spaces.Box(-np.inf, np.inf, (obs_size,), np.float32)
+    act_space = gym.spaces.Box(-1.0, 1.0, (act_size,), np.float32)
+    kw = policy_kwargs_for_sb3(policy_kwargs)
+    if algo == "ppo":
+        from stable_baselines3.common.policies import ActorCriticPolicy
+
+        return ActorCriticPolicy(obs_space, act_space, lambda _: 0.0, use_sde=use_sde, **kw)
+    if algo == "sac":
+        from stable_baselines3.sac.policies import SACPolicy
+
+        return SACPolicy(obs_space, act_space, lambda _: 0.0, use_sde=use_sde, **kw)
+    if algo == "td3":
+        from stable_baselines3.td3.policies import TD3Policy
+
+        return TD3Policy(obs_space, act_space, lambda _: 0.0, **kw)
+    raise PolicyFileError(f"unknown algorithm {algo!r}; choose {', '.join(ALGOS)}")
+
+
+def acting_module(algo: str, policy: Any) -> Any:
+    """The part of an SB3 policy that acts (PPO: the whole actor-critic; SAC, TD3: the actor)."""
+    return policy if algo == "ppo" else policy.actor
+
+
+class PolicyNetwork:
+    """A policy's network with its observation normalisation: ``act(features)`` is the
+    deterministic action in [-1, 1]."""
+
+    def __init__(self, algo: str, policy: Any, norm: Mapping[str, Any]) -> None:
+        self.algo = algo
+        self.policy = policy
+        self.policy.set_training_mode(False)
+        self.mean = np.asarray(norm["obs_mean"], dtype=float)
+        self.var = np.asarray(norm["obs_var"], dtype=float)
+        self.clip = float(norm["obs_clip"])
+        self.eps = float(norm["obs_epsilon"])
+
+    def act(self, features: np.ndarray) -> np.ndarray:
+        import torch
+
+        x = np.clip((features - self.mean) / np.sqrt(self.var + self.eps), -self.clip, self.clip)
+        with torch.no_grad():
+            a, _ = self.policy.predict(x.astype(np.float32), deterministic=True)
+        return np.asarray(a, dtype=float).reshape(-1)
+
+
+def save_policy_file(
+    path: str | Path,
+    algo: str,
+    policy: Any,
+    norm: Mapping[str, Any],
+    meta: Mapping[str, Any],
+) -> Path:
+    """Write ``path`` (.npz: the acting network's weights and the observation normalisation) and
+    its ``.json`` description, both atomically. ``meta`` needs ``variant``, ``obs_size``,
+    ``act_size``, ``policy_kwargs`` (as data), ``use_sde`` and ``offset_mm``."""
+    from arm.measurements import atomic_path, atomic_write_text
+
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise PolicyFileError(f"{path}: a policy file ends in .npz")
+    arrays = {
+        f"weights/{k}": v.detach().cpu().numpy()
+        for k, v in acting_module(algo, policy).state_dict().items()
+    }
+    for k in ("obs_mean", "obs_var"):
+        arrays[k] = np.asarray(norm[k], dtype=np.float64)
+    arrays["obs_clip"] = np.asarray(float(norm["obs_clip"]))
+    arrays["obs_epsilon"] = np.asarray(float(norm["obs_epsilon"]))
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)
+    doc = {"format": "sixaxis-policy/1", "algo": algo, **meta}
+    atomic_write_text(path.with_suffix(".json"), json.dumps(doc, indent=2) + "\n")
+    return path
+
+
+def load_policy_file(path: str | Path) -> tuple[PolicyNetwork, dict[str, Any]]:
+    """The network and description of a policy file (``.npz`` with its ``.json``), loaded without
+    unpickling; anything else (a stable-baselines3 ``.zip``, a pickle) is refused."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise PolicyFileError(
+            f"{path}: refusing to load a policy that is not a .npz weight file (a "
+            f"stable-baselines3 .zip or a pickle would run code when loaded); export it with "
+            "`sixaxis train export`"
+        )
+    meta_path = path.with_suffix(".json")
+    if not path.exists():
+        raise PolicyFileError(f"{path}: no such policy file")
+    if not meta_path.exists():
+        raise PolicyFileError(f"{path}: its description {meta_path.name} is missing")
+    try:
+        meta = json.loads(meta_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise PolicyFileError(f"{meta_path}: not valid JSON: {exc}") from exc
+    if not isinstance(meta, dict):
+        raise PolicyFileError(f"{meta_path}: expected a JSON object")
+    for key in ("algo", "variant", "obs_size", "act_size", "policy_kwargs"):
+        if key not in meta:
+            raise PolicyFileError(f"{meta_path}: missing key {key!r}")
+    algo = meta["algo"]
+    if algo not in ALGOS:
+        raise PolicyFileError(f"{meta_path}: algo {algo!r} is not one of {', '.join(ALGOS)}")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (ValueError, OSError, zipfile.BadZipFile) as exc:  # object arrays, a foreign file
+        raise PolicyFileError(f"{path}: not a policy weight file ({exc})") from exc
+    foreign = sorted(k for k, v in arrays.items() if not isinstance(v, np.ndarray))
+    if foreign:
+        raise PolicyFileError(f"{path}: not a policy weight file (members {foreign[:3]})")
+    import torch
+
+    policy = build_network(
+        algo,
+        int(meta["obs_size"]),
+        int(meta["act_size"]),
+        meta["policy_kwargs"],
+        bool(meta.get("use_sde", False)),
+    )
+    module = acting_module(algo, policy)
+    expected = module.state_dict()
+    given = {k[len("weights/") :]: v for k, v in arrays.items() if k.startswith("weights/")}
+    missing = sorted(set(expected) - set(given))
+    extra = sorted(set(given) - set(expected))
+    if missing or extra:
+        raise PolicyFileError(
+            f"{path}: the weights do not fit the network of {meta_path.name} "
+            f"(missing {missing[:3]}, unexpected {extra[:3]})"
+        )
+    state = {}
+    for k, want in expected.items():
+        v = given[k]
+        if tuple(v.shape) != tuple(want.shape) or v.dtype.kind != "f":
+            raise PolicyFileError(
+                f"{path}: weight {k!r} has shape {v.shape} ({v.dtype}), the network needs "
+                f"{tuple(want.shape)}"
+            )
+        state[k] = torch.from_numpy(np.array(v, dtype=np.float32))
+    module.load_state_dict(state, strict=True)
+    for k in ("obs_mean", "obs_var", "obs_clip", "obs_epsilon"):
+        if k not in arrays:
+            raise PolicyFileError(f"{path}: missing the observation normalisation {k!r}")
+    if arrays["obs_mean"].shape != (int(meta["obs_size"]),):
+        raise PolicyFileError(
+            f"{path}: obs_mean has shape {arrays['obs_mean'].shape}, expected ({meta['obs_size']},)"
+        )
+    return PolicyNetwork(algo, policy, arrays), meta
+
+
+# --------------------------------------------------------------------------------------------------
+class PolicyAgent(Agent):
+    """A trained policy as an agent: the shipped ``policy`` of ``agents/policies/`` by name, or a
+    policy file (``path``, a ``.npz`` with its ``.json``); deterministic actions."""
+
+    def __init__(self, policy: str = "ppo-residual", path: str | None = None) -> None:
+        super().__init__()
+        self.name = policy
+        self.path = Path(path) if path else POLICY_DIR / f"{policy}.npz"
+        if self.path.suffix != ".npz":
+            raise PolicyFileError(
+                f"path {str(self.path)!r}: refusing to load a policy that is not a .npz weight "
+                "file (a stable-baselines3 .zip or a pickle would run code when loaded)"
+            )
+        if not self.path.exists():
+            raise PolicyFileError(
+                f"no trained policy at {self.path}; train one with `sixaxis train ppo --config "
+                "experiments/configs/ppo-residual.toml --ship`"
+            )
+        self.network: PolicyNetwork | None = None
+        self.meta: dict[str, Any] = {}
+
+    @classmethod
+    def from_network(
+        cls, name: str, network: PolicyNetwork, meta: Mapping[str, Any]
+    ) -> PolicyAgent:
+        """An agent around a network in memory (training's evaluations)."""
+        agent = cls.__new__(cls)
+        Agent.__init__(agent)
+        agent.name, agent.path = name, Path(f"{name}.npz")
+        agent.network, agent.meta = network, dict(meta)
+        return agent
+
+    def _load(self) -> None:
+        self.network, self.meta = load_policy_file(self.path)
+
+    def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
+        if self.network is None:
+            self._load()
+        self.task = task
+        self.io = PolicyIO(self.meta["variant"], float(self.meta.get("offset_mm", 0.5)))
+        self.io.reset(task)
+        n = self.io.observation_size(task)
+        if n != int(self.meta["obs_size"]):
+            raise PolicyFileError(
+                f"{self.path}: the policy takes {self.meta['obs_size']} features, this env gives "
+                f"{n} (another preview length?)"
+            )
+        self._times: list[float] = []
+
+    def next_phase(self, task: TaskInfo, truth: Truth | None = None) -> None:
+        self.task = task
+        self.io.next_phase(task)
+
+    def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
+        t0 = time.perf_counter()
+        assert self.network is not None
+        a = self.network.act(self.io.features(obs, info))
+        out = self.io.action(a)
+        self.last_solve_time = time.perf_counter() - t0
+        self._times.append(self.last_solve_time)
+        return out
+
+    def report(self) -> dict[str, float | list]:
+        return solve_time_stats(self._times)

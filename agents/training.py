@@ -1,0 +1,653 @@
+"""Training learned policies on SixAxisTrack-v0 with stable-baselines3 (PPO, SAC, TD3).
+
+    sixaxis train ppo --config experiments/configs/ppo-residual.toml --seed 1
+    sixaxis train sac --config experiments/configs/sac-residual.toml --seed 1 --ship
+
+A config's ``[train]`` table says what is learned (``algo``, ``variant``, ``scenarios``, the
+env's options in ``[train.env]``, the reward) and ``[train.hyperparameters]`` is handed to the SB3
+algorithm as it is (its keys are checked against the algorithm's signature; the network's
+architecture is ``policy_kwargs``, the activation by name).
+
+Seeds. The run's ``seed`` seeds the network and the exploration. Every training episode is reset
+with its own seed, ``episode_seed_base + SEED_STRIDE * seed + k`` for the k-th episode of the run
+(over all its envs), so no training episode is ever a leaderboard episode (those are seeds 0-4;
+the base must be at least 1000) and the runs of different seeds never share an episode.
+In-training evaluations use seeds ``eval_seed_base + i``, disjoint from both.
+
+Records (in ``output``, default ``runs/<name>-seed<seed>``): ``config.json``, ``curve.csv`` (every
+``eval_every`` steps: each evaluation scenario's settled tracking RMS, their mean, the mean
+return, the wall time and the env steps per second), ``best.npz``/``.json`` (the policy with the
+lowest mean log settled RMS so far, in the shipped format), ``final.npz``/``.json``, and
+``checkpoint.zip`` with ``checkpoint.npz`` (SB3's own save and the normalisation, for ``--resume``).
+
+Torch runs on one thread (``torch.set_num_threads(1)``): small networks on two shared cores ran
+30x slower with two.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import inspect
+import io
+import json
+import logging
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from agents.policy import (
+    ALGOS,
+    POLICY_DIR,
+    VARIANTS,
+    PolicyAgent,
+    PolicyIO,
+    PolicyNetwork,
+    policy_kwargs_for_sb3,
+    save_policy_file,
+)
+from arm.errors import SixAxisError
+
+__all__ = [
+    "LEADERBOARD_ENV",
+    "LEADERBOARD_SCENARIOS",
+    "LEADERBOARD_SEEDS",
+    "SEED_STRIDE",
+    "PolicyEnv",
+    "TrainConfig",
+    "TrainConfigError",
+    "evaluate_policy",
+    "load_train_config",
+    "ship_policy",
+    "train",
+]
+
+log = logging.getLogger(__name__)
+
+#: the leaderboard's episodes (experiments/configs/full.toml; a test keeps the two equal): what a
+#: shipped policy is judged on
+LEADERBOARD_SCENARIOS = (
+    "nominal",
+    "geometric",
+    "compliance",
+    "transmission",
+    "backlash",
+    "thermal",
+    "payload",
+    "all",
+)
+LEADERBOARD_SEEDS = (0, 1, 2, 3, 4)
+LEADERBOARD_ENV: dict[str, Any] = {"noise_mm": 0.015, "measure_every": 5}
+SETTLE_SECONDS = 2.0
+EPISODE_SECONDS = 10.0
+#: episode seeds of two training seeds are this far apart
+SEED_STRIDE = 100_000
+#: the lowest episode seed a training run may use
+MIN_EPISODE_SEED = 1000
+#: keys of [train.hyperparameters] that the trainer sets itself
+_RESERVED = {"policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model"}
+
+
+class TrainConfigError(SixAxisError, ValueError):
+    """A training config that cannot run, naming the file and the key."""
+
+
+@dataclass
+class TrainConfig:
+    """A training run (``[train]`` of a config file); see the module docstring."""
+
+    algo: str = "ppo"
+    variant: str = "residual"
+    name: str = ""
+    scenarios: tuple[str, ...] = LEADERBOARD_SCENARIOS
+    env: dict[str, Any] = field(default_factory=lambda: dict(LEADERBOARD_ENV))
+    total_timesteps: int = 300_000
+    n_envs: int = 8
+    seed: int = 1
+    episode_seed_base: int = 10_000
+    offset_mm: float = 0.5
+    reward: str = "log"
+    reward_scale_mm: float = 0.05
+    normalize_reward: bool = True
+    init_output_scale: float = 0.01
+    action_noise_std: float = 0.1
+    eval_every: int = 25_000
+    eval_seed_base: int = 900_000
+    eval_episodes: int = 1
+    checkpoint_every: int = 50_000
+    output: str = ""
+    hyperparameters: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            self.name = f"{self.algo}-residual" if self.variant == "residual" else self.algo
+        if not self.output:
+            self.output = f"runs/{self.name}-seed{self.seed}"
+        self.scenarios = tuple(self.scenarios)
+
+    @property
+    def episode_steps(self) -> int:
+        """Control steps of a training (and evaluation) episode."""
+        return round(float(self.env.get("episode_seconds", EPISODE_SECONDS)) / 0.02)
+
+    def scenarios_unique(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(self.scenarios))
+
+    def max_episodes(self) -> int:
+        """An upper bound of the episodes a run starts (each env's last one may be cut short)."""
+        return math.ceil(self.total_timesteps / self.episode_steps) + 2 * self.n_envs
+
+    def training_seeds(self) -> range:
+        """Every episode seed this run may reset an env with."""
+        start = self.episode_seed_base + SEED_STRIDE * self.seed
+        return range(start, start + self.max_episodes())
+
+    def evaluation_seeds(self) -> range:
+        return range(self.eval_seed_base, self.eval_seed_base + self.eval_episodes)
+
+    def check(self, source: str = "config") -> None:
+        """Refuse what cannot run, naming the key."""
+
+        def bad(msg: str) -> None:
+            raise TrainConfigError(f"{source}: [train] {msg}")
+
+        if self.algo not in ALGOS:
+            bad(f"algo must be one of {', '.join(ALGOS)}, got {self.algo!r}")
+        if self.variant not in VARIANTS:
+            bad(f"variant must be one of {', '.join(VARIANTS)}, got {self.variant!r}")
+        from envs.scenarios import SCENARIOS
+
+        for i, sc in enumerate(self.scenarios):
+            if sc not in SCENARIOS:
+                bad(f"scenarios[{i}]: unknown scenario {sc!r}; known: {', '.join(SCENARIOS)}")
+        if not self.scenarios:
+            bad("scenarios: empty")
+        for key in ("total_timesteps", "n_envs", "eval_every", "eval_episodes", "checkpoint_every"):
+            if getattr(self, key) < 1:
+                bad(f"{key} must be at least 1, got {getattr(self, key)}")
+        if self.seed < 0:
+            bad(f"seed must be >= 0, got {self.seed}")
+        if self.episode_seed_base < MIN_EPISODE_SEED:
+            bad(
+                f"episode_seed_base must be at least {MIN_EPISODE_SEED} (seeds below are the "
+                f"leaderboard's), got {self.episode_seed_base}"
+            )
+        if self.max_episodes() > SEED_STRIDE:
+            bad(f"total_timesteps: more than {SEED_STRIDE} episodes overlap the next seed's")
+        train = self.training_seeds()
+        ev = self.evaluation_seeds()
+        if ev.start < train.stop and train.start < ev.stop:
+            bad(f"eval_seed_base {self.eval_seed_base}: evaluation seeds overlap training seeds")
+        if self.eval_seed_base < MIN_EPISODE_SEED:
+            bad(f"eval_seed_base must be at least {MIN_EPISODE_SEED}, got {self.eval_seed_base}")
+        if not self.offset_mm > 0:
+            bad(f"offset_mm must be > 0, got {self.offset_mm}")
+        if not self.action_noise_std >= 0:
+            bad(f"action_noise_std must be >= 0, got {self.action_noise_std}")
+        if "action_noise" in self.hyperparameters:
+            bad("hyperparameters: action_noise is set by the trainer (action_noise_std)")
+        if not self.init_output_scale > 0:
+            bad(f"init_output_scale must be > 0, got {self.init_output_scale}")
+        if self.reward not in ("log", "env"):
+            bad(f"reward must be 'log' or 'env', got {self.reward!r}")
+        if not self.reward_scale_mm > 0:
+            bad(f"reward_scale_mm must be > 0, got {self.reward_scale_mm}")
+        cls = _algorithm(self.algo)
+        params = inspect.signature(cls.__init__).parameters
+        unknown = sorted(set(self.hyperparameters) - set(params) - _RESERVED)
+        reserved = sorted(set(self.hyperparameters) & _RESERVED)
+        if unknown:
+            bad(f"hyperparameters: {cls.__name__} takes no {', '.join(unknown)}")
+        if reserved:
+            bad(f"hyperparameters: {', '.join(reserved)} are set by the trainer")
+        try:
+            policy_kwargs_for_sb3(self.hyperparameters.get("policy_kwargs", {}))
+        except ValueError as exc:
+            bad(f"hyperparameters.policy_kwargs: {exc}")
+        try:
+            import envs  # noqa: F401
+
+            gym.make("SixAxisTrack-v0", scenario=self.scenarios[0], **self.env).close()
+        except (TypeError, ValueError) as exc:
+            bad(f"env: {exc}")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["scenarios"] = list(self.scenarios)
+        return d
+
+
+def _algorithm(algo: str) -> Any:
+    import stable_baselines3 as sb3
+
+    return {"ppo": sb3.PPO, "sac": sb3.SAC, "td3": sb3.TD3}[algo]
+
+
+def load_train_config(path: str | Path, **overrides: Any) -> TrainConfig:
+    """A checked :class:`TrainConfig` from the ``[train]`` table of a TOML file (with
+    ``overrides``: the CLI's ``--seed`` and the like); unknown keys and wrong types are
+    refused, naming the file and the key."""
+    import tomllib
+
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise TrainConfigError(f"{path}: config file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise TrainConfigError(f"{path}: not valid TOML: {exc}") from exc
+    table = doc.get("train")
+    if not isinstance(table, dict):
+        raise TrainConfigError(f"{path}: needs a [train] table")
+    fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
+    unknown = sorted(set(table) - set(fields))
+    if unknown:
+        raise TrainConfigError(f"{path}: [train] has unknown key(s) {', '.join(unknown)}")
+    defaults = TrainConfig()
+    for k, v in table.items():
+        want = type(getattr(defaults, k))
+        ok = isinstance(v, want) and not (want is int and isinstance(v, bool))
+        ok |= want is float and isinstance(v, int) and not isinstance(v, bool)
+        ok |= want is tuple and isinstance(v, list)
+        if not ok:
+            raise TrainConfigError(
+                f"{path}: [train] {k} must be {want.__name__}, got {type(v).__name__} {v!r}"
+            )
+    values = dict(table) | {k: v for k, v in overrides.items() if v is not None}
+    if "output" not in table and "output" not in values:
+        values["output"] = ""
+    cfg = TrainConfig(**values)
+    cfg.check(str(path))
+    return cfg
+
+
+# --------------------------------------------------------------------------------------------------
+class PolicyEnv(gym.Wrapper):
+    """SixAxisTrack-v0 as the policy sees it: :class:`~agents.policy.PolicyIO`'s features in, its
+    action out, and every reset seeded from the run's own sequence (``seeds``: a callable giving
+    the next episode's seed; none: the seed given to ``reset``).
+
+    The reward is the env's (``reward="env"``: minus the true error in mm, and the jerk penalty)
+    or ``-ln(1 + e / scale)`` of the true error ``e`` (``"log"``): it resolves 0.05-0.5 mm errors
+    as well as millimetres. The reward uses the plant's truth, as any simulated training may; the
+    policy's observation never does."""
+
+    def __init__(
+        self,
+        env: gym.Env,
+        variant: str = "residual",
+        offset_mm: float = 0.5,
+        reward: str = "log",
+        reward_scale_mm: float = 0.05,
+        seeds: Callable[[], int] | None = None,
+    ) -> None:
+        super().__init__(env)
+        self.io = PolicyIO(variant, offset_mm)
+        task = env.unwrapped.task  # type: ignore[attr-defined]
+        n = self.io.observation_size(task)
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (n,), np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (self.io.action_size,), np.float32)
+        self.reward_kind = reward
+        self.reward_scale_mm = float(reward_scale_mm)
+        self.seeds = seeds
+        self.last_seed: int | None = None
+
+    def reward(self, env_reward: float, info: Mapping[str, Any]) -> float:
+        if self.reward_kind == "env":
+            return float(env_reward)
+        e = float(info.get("true_error_mm", math.nan))
+        if not math.isfinite(e):  # diverged
+            e = 1e3
+        return -math.log1p(e / self.reward_scale_mm)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):  # type: ignore[override]
+        if self.seeds is not None:
+            seed = self.seeds()
+        self.last_seed = seed
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.io.reset(self.env.unwrapped.task)  # type: ignore[attr-defined]
+        return self.io.features(obs, info), info
+
+    def step(self, action):  # type: ignore[override]
+        obs, reward, terminated, truncated, info = self.env.step(self.io.action(action))
+        return (
+            self.io.features(obs, info),
+            self.reward(float(reward), info),
+            terminated,
+            truncated,
+            info,
+        )
+
+
+class _SeedSequence:
+    """The run's episode seeds: ``start, start + 1, ...`` shared by all its envs (one process)."""
+
+    def __init__(self, start: int, stop: int) -> None:
+        self.next, self.stop = start, stop
+
+    def __call__(self) -> int:
+        if self.next >= self.stop:
+            raise RuntimeError(f"training ran out of episode seeds at {self.next}")
+        s = self.next
+        self.next += 1
+        return s
+
+
+def make_policy_env(
+    cfg: TrainConfig, scenario: str, seeds: Callable[[], int] | None = None
+) -> PolicyEnv:
+    import envs  # noqa: F401
+
+    env = gym.make(
+        "SixAxisTrack-v0", scenario=scenario, max_episode_steps=cfg.episode_steps, **cfg.env
+    )
+    return PolicyEnv(env, cfg.variant, cfg.offset_mm, cfg.reward, cfg.reward_scale_mm, seeds)
+
+
+# --------------------------------------------------------------------------------------------------
+def _meta(cfg: TrainConfig, obs_size: int, act_size: int) -> dict[str, Any]:
+    hp = cfg.hyperparameters
+    return {
+        "name": cfg.name,
+        "variant": cfg.variant,
+        "obs_size": obs_size,
+        "act_size": act_size,
+        "offset_mm": cfg.offset_mm,
+        "policy_kwargs": dict(hp.get("policy_kwargs", {})),
+        "use_sde": bool(hp.get("use_sde", False)),
+        "config": cfg.to_dict(),
+    }
+
+
+def _normalisation(venv: Any) -> dict[str, np.ndarray]:
+    return {
+        "obs_mean": np.array(venv.obs_rms.mean, dtype=float),
+        "obs_var": np.array(venv.obs_rms.var, dtype=float),
+        "obs_count": np.array(venv.obs_rms.count, dtype=float),
+        "obs_clip": np.array(venv.clip_obs, dtype=float),
+        "obs_epsilon": np.array(venv.epsilon, dtype=float),
+        "ret_mean": np.array(venv.ret_rms.mean, dtype=float),
+        "ret_var": np.array(venv.ret_rms.var, dtype=float),
+        "ret_count": np.array(venv.ret_rms.count, dtype=float),
+    }
+
+
+def evaluate_network(
+    network: PolicyNetwork,
+    meta: Mapping[str, Any],
+    scenarios: tuple[str, ...],
+    seeds: tuple[int, ...],
+    env_kwargs: Mapping[str, Any],
+    reward_scale_mm: float = 0.05,
+    episode_seconds: float = EPISODE_SECONDS,
+    settle_seconds: float = SETTLE_SECONDS,
+) -> dict[str, dict[str, list[float]]]:
+    """Deterministic episodes of a policy: per scenario, per seed, the settled and whole-episode
+    tracking RMS (mm) and the return under the log reward."""
+    from agents.runner import run_episode
+
+    out: dict[str, dict[str, list[float]]] = {}
+    for sc in scenarios:
+        rows: dict[str, list[float]] = {"rms_settled_mm": [], "rms_mm": [], "return": []}
+        for s in seeds:
+            agent = PolicyAgent.from_network(str(meta.get("name", "policy")), network, meta)
+            r = run_episode(
+                agent, dict(env_kwargs) | {"scenario": sc}, seed=s, episode_seconds=episode_seconds
+            )
+            e = np.nan_to_num(r.true_error_mm, nan=1e3)
+            rows["rms_settled_mm"].append(r.rms_mm(start=settle_seconds))
+            rows["rms_mm"].append(r.rms_mm())
+            rows["return"].append(float(-np.log1p(e / reward_scale_mm).sum()))
+        out[sc] = rows
+    return out
+
+
+def train(
+    cfg: TrainConfig,
+    progress: Callable[[int, int], None] | None = None,
+    resume: bool = False,
+) -> Path:
+    """Train as configured (see the module docstring for what is written); ``progress(done,
+    total)`` is called as steps are taken; ``resume`` continues from ``output``'s checkpoint
+    (SB3's own save of this run, which unpickles: resume only runs you made). Returns the output
+    directory."""
+    import torch
+
+    torch.set_num_threads(1)
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.noise import NormalActionNoise
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    cfg.check()
+    out = Path(cfg.output)
+    out.mkdir(parents=True, exist_ok=True)
+    from arm.measurements import atomic_write_text
+
+    atomic_write_text(out / "config.json", json.dumps(cfg.to_dict(), indent=2) + "\n")
+    seeds = cfg.training_seeds()
+    sequence = _SeedSequence(seeds.start, seeds.stop)
+
+    def env_fn(scenario: str) -> Callable[[], gym.Env]:
+        return lambda: Monitor(make_policy_env(cfg, scenario, sequence))
+
+    fns = [env_fn(cfg.scenarios[k % len(cfg.scenarios)]) for k in range(cfg.n_envs)]
+    venv = VecNormalize(
+        DummyVecEnv(fns),  # type: ignore[arg-type]
+        gamma=float(cfg.hyperparameters.get("gamma", 0.99)),
+        norm_obs=True,
+        norm_reward=cfg.normalize_reward,
+    )
+    probe = venv.venv.envs[0]  # type: ignore[attr-defined]
+    obs_size = int(probe.observation_space.shape[0])
+    act_size = int(probe.action_space.shape[0])
+    meta = _meta(cfg, obs_size, act_size)
+    hp = dict(cfg.hyperparameters)
+    hp["policy_kwargs"] = policy_kwargs_for_sb3(hp.get("policy_kwargs", {}))
+    if cfg.algo == "td3":  # TD3 explores with Gaussian noise on its deterministic action
+        sigma = cfg.action_noise_std * np.ones(act_size)
+        hp["action_noise"] = NormalActionNoise(np.zeros(act_size), sigma)
+    cls = _algorithm(cfg.algo)
+    done_before = 0
+    if resume and (out / "checkpoint.zip").exists():
+        model = cls.load(out / "checkpoint.zip", env=venv, device="cpu")
+        state = np.load(out / "checkpoint.npz", allow_pickle=False)
+        venv.obs_rms.mean, venv.obs_rms.var = state["obs_mean"].copy(), state["obs_var"].copy()
+        venv.obs_rms.count = float(state["obs_count"])
+        venv.ret_rms.mean, venv.ret_rms.var = float(state["ret_mean"]), float(state["ret_var"])
+        venv.ret_rms.count = float(state["ret_count"])
+        sequence.next = int(state["next_seed"])
+        done_before = int(model.num_timesteps)
+        log.info("resuming %s at %d steps", out, done_before)
+    else:
+        model = cls("MlpPolicy", venv, seed=cfg.seed, device="cpu", verbose=0, **hp)
+        _shrink_output(model, cfg.algo, cfg.init_output_scale)
+
+    curve_path = out / "curve.csv"
+    columns = [
+        "steps",
+        "wall_s",
+        "steps_per_s",
+        *[f"rms_settled_mm/{sc}" for sc in cfg.scenarios_unique()],
+        "rms_settled_mm/mean",
+        "rms_mm/mean",
+        "return/mean",
+    ]
+    if not resume or not curve_path.exists():
+        with open(curve_path, "w", newline="") as fh:
+            csv.writer(fh).writerow(columns)
+    t_start = time.perf_counter()
+    best = [math.inf]
+    eval_seeds = tuple(cfg.evaluation_seeds())
+
+    def network_now() -> PolicyNetwork:
+        return PolicyNetwork(cfg.algo, model.policy, _normalisation(venv))
+
+    def evaluate_now(steps: int) -> None:
+        model.policy.set_training_mode(False)
+        res = evaluate_network(
+            network_now(),
+            meta,
+            cfg.scenarios_unique(),
+            eval_seeds,
+            cfg.env,
+            cfg.reward_scale_mm,
+            episode_seconds=cfg.episode_steps * 0.02,
+            settle_seconds=min(SETTLE_SECONDS, cfg.episode_steps * 0.02 / 2),
+        )
+        model.policy.set_training_mode(True)
+        settled = {sc: float(np.mean(v["rms_settled_mm"])) for sc, v in res.items()}
+        score = float(np.mean(np.log(list(settled.values()))))
+        wall = time.perf_counter() - t_start
+        row = [
+            steps,
+            f"{wall:.1f}",
+            f"{(steps - done_before) / max(wall, 1e-9):.1f}",
+            *[f"{settled[sc]:.6g}" for sc in cfg.scenarios_unique()],
+            f"{np.mean(list(settled.values())):.6g}",
+            f"{np.mean([np.mean(v['rms_mm']) for v in res.values()]):.6g}",
+            f"{np.mean([np.mean(v['return']) for v in res.values()]):.6g}",
+        ]
+        with open(curve_path, "a", newline="") as fh:
+            csv.writer(fh).writerow(row)
+        log.info("%d steps: settled RMS %s", steps, settled)
+        if score < best[0]:
+            best[0] = score
+            save_policy_file(
+                out / "best.npz",
+                cfg.algo,
+                model.policy,
+                _normalisation(venv),
+                meta | {"timesteps": steps, "selected_by": "lowest mean log settled RMS"},
+            )
+
+    def checkpoint() -> None:
+        buf = io.BytesIO()
+        model.save(buf)
+        from arm.measurements import atomic_path
+
+        with atomic_path(out / "checkpoint.zip") as tmp:
+            tmp.write_bytes(buf.getvalue())
+        state = _normalisation(venv) | {"next_seed": np.array(sequence.next)}
+        with atomic_path(out / "checkpoint.npz") as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, **state)
+
+    class _Callback(BaseCallback):
+        def _on_step(self) -> bool:
+            n = self.num_timesteps
+            k = cfg.n_envs
+            if n // cfg.eval_every != (n - k) // cfg.eval_every:
+                evaluate_now(n)
+            if n // cfg.checkpoint_every != (n - k) // cfg.checkpoint_every:
+                checkpoint()
+            if progress is not None:
+                progress(n, cfg.total_timesteps)
+            return True
+
+    if done_before == 0:
+        evaluate_now(0)
+    try:
+        model.learn(
+            total_timesteps=cfg.total_timesteps - done_before,
+            callback=_Callback(),
+            reset_num_timesteps=done_before == 0,
+        )
+        if model.num_timesteps % cfg.eval_every:
+            evaluate_now(int(model.num_timesteps))
+        checkpoint()
+        save_policy_file(
+            out / "final.npz",
+            cfg.algo,
+            model.policy,
+            _normalisation(venv),
+            meta | {"timesteps": int(model.num_timesteps)},
+        )
+        wall = time.perf_counter() - t_start
+        summary = {
+            "timesteps": int(model.num_timesteps),
+            "wall_s": wall,
+            "steps_per_s": (int(model.num_timesteps) - done_before) / wall,
+            "resumed_at": done_before,
+        }
+        atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+        log.info("trained %d steps in %.0f s", model.num_timesteps, wall)
+    finally:
+        venv.close()
+    return out
+
+
+def _shrink_output(model: Any, algo: str, scale: float) -> None:
+    """Scale the action layer's weights and bias by ``scale``: the policy starts with a
+    near-zero action (the residual: the base controller itself; plain: standing still)."""
+    import torch
+
+    head = model.policy.action_net if algo == "ppo" else model.policy.actor.mu
+    # SAC with gSDE and TD3 wrap the last Linear layer in a Sequential (with a squashing function)
+    modules = list(head.modules()) if isinstance(head, torch.nn.Sequential) else [head]
+    layers = [m for m in modules if isinstance(m, torch.nn.Linear)][-1:]
+    with torch.no_grad():
+        for layer in layers:
+            layer.weight.mul_(scale)
+            layer.bias.mul_(scale)
+    if algo == "td3":  # the actor's target starts as a copy
+        model.policy.actor_target.load_state_dict(model.policy.actor.state_dict())
+
+
+# --------------------------------------------------------------------------------------------------
+def evaluate_policy(
+    path: str | Path,
+    scenarios: tuple[str, ...] = LEADERBOARD_SCENARIOS,
+    seeds: tuple[int, ...] = LEADERBOARD_SEEDS,
+    env_kwargs: Mapping[str, Any] | None = None,
+    episode_seconds: float = EPISODE_SECONDS,
+    settle_seconds: float = SETTLE_SECONDS,
+) -> dict[str, dict[str, list[float]]]:
+    """A policy file's deterministic leaderboard episodes (per scenario, per seed: settled and
+    whole-episode RMS, mm); the same numbers every time on one machine."""
+    from agents.policy import load_policy_file
+
+    network, meta = load_policy_file(path)
+    env = dict(LEADERBOARD_ENV if env_kwargs is None else env_kwargs)
+    return evaluate_network(
+        network,
+        meta,
+        scenarios,
+        seeds,
+        env,
+        episode_seconds=episode_seconds,
+        settle_seconds=settle_seconds,
+    )
+
+
+def ship_policy(run_dir: str | Path, which: str = "best", name: str | None = None) -> Path:
+    """Copy a run's ``best`` or ``final`` policy into ``agents/policies/<name>.npz`` (and .json)
+    with its deterministic evaluation on the leaderboard's episodes recorded in the .json."""
+    from agents.policy import load_policy_file
+    from arm.measurements import atomic_path, atomic_write_text
+
+    run_dir = Path(run_dir)
+    if which not in ("best", "final"):
+        raise ValueError(f"which must be 'best' or 'final', got {which!r}")
+    src = run_dir / f"{which}.npz"
+    _, meta = load_policy_file(src)  # refuses anything unsafe or inconsistent
+    name = name or str(meta["name"])
+    dst = POLICY_DIR / f"{name}.npz"
+    meta = dict(meta) | {"name": name, "source": f"{run_dir.name}/{which}.npz"}
+    rows = evaluate_policy(src)  # the same weights
+    meta["leaderboard"] = {
+        "env": LEADERBOARD_ENV,
+        "seeds": list(LEADERBOARD_SEEDS),
+        "episode_seconds": EPISODE_SECONDS,
+        "settle_seconds": SETTLE_SECONDS,
+        "episodes": rows,
+    }
+    with atomic_path(dst) as tmp:
+        tmp.write_bytes(src.read_bytes())
+    atomic_write_text(dst.with_suffix(".json"), json.dumps(meta, indent=2) + "\n")
+    return dst

@@ -1,0 +1,103 @@
+"""Training runs: what they write, that the same seed gives the same policy, that a run resumes
+from its checkpoint, and that the shipped policies' configs are the files that made them."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from agents.policy import POLICY_DIR, load_policy_file
+from agents.registry import POLICIES
+from agents.training import TrainConfig, load_train_config, train
+
+
+def _tiny(tmp_path, algo="ppo", name="run", **kw):
+    hp = {
+        "ppo": {"n_steps": 64, "batch_size": 64, "n_epochs": 1},
+        "sac": {"learning_starts": 64, "batch_size": 32, "buffer_size": 2000},
+        "td3": {"learning_starts": 64, "batch_size": 32, "buffer_size": 2000},
+    }[algo]
+    hp["policy_kwargs"] = {"net_arch": [16, 16]}
+    return TrainConfig(
+        algo=algo,
+        scenarios=("geometric", "backlash"),
+        n_envs=2,
+        total_timesteps=256,
+        eval_every=128,
+        checkpoint_every=128,
+        env={"noise_mm": 0.015, "measure_every": 5, "episode_seconds": 1.0},
+        output=str(tmp_path / name),
+        hyperparameters=hp,
+        **kw,
+    )
+
+
+def _rows(path):
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    for r in rows:
+        r.pop("wall_s"), r.pop("steps_per_s")
+    return rows
+
+
+@pytest.mark.slow
+def test_a_training_run_writes_its_records_and_repeats_exactly(tmp_path):
+    out = train(_tiny(tmp_path, name="a"))
+    for f in ("config.json", "curve.csv", "best.npz", "best.json", "final.npz", "summary.json"):
+        assert (out / f).exists(), f
+    assert (out / "checkpoint.zip").exists() and (out / "checkpoint.npz").exists()
+    rows = _rows(out / "curve.csv")
+    assert [int(r["steps"]) for r in rows] == [0, 128, 256]
+    assert all(0 < float(r["rms_settled_mm/mean"]) < 10 for r in rows)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["timesteps"] == 256 and summary["steps_per_s"] > 0
+    again = train(_tiny(tmp_path, name="b"))
+    assert _rows(again / "curve.csv") == rows  # the same seed, the same numbers
+    a, b = np.load(out / "final.npz"), np.load(again / "final.npz")
+    for k in a.files:
+        np.testing.assert_array_equal(a[k], b[k])
+    other = train(_tiny(tmp_path, name="c", seed=2))
+    assert _rows(other / "curve.csv") != rows
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ["sac", "td3"])
+def test_off_policy_runs_write_loadable_policies(tmp_path, algo):
+    out = train(_tiny(tmp_path, algo))
+    net, meta = load_policy_file(out / "final.npz")
+    assert meta["algo"] == algo and meta["timesteps"] == 256
+    assert net.act(np.zeros(meta["obs_size"], dtype=np.float32)).shape == (3,)
+
+
+@pytest.mark.slow
+def test_a_run_resumes_from_its_checkpoint(tmp_path):
+    cfg = _tiny(tmp_path, name="r")
+    train(cfg)
+    cfg.total_timesteps = 512
+    out = train(cfg, resume=True)
+    steps = [int(r["steps"]) for r in _rows(out / "curve.csv")]
+    assert steps == [0, 128, 256, 384, 512]
+    assert json.loads((out / "summary.json").read_text())["resumed_at"] == 256
+
+
+def test_each_shipped_policy_names_the_config_that_made_it():
+    """``sixaxis train`` reproduces a shipped policy from its config: the policy records the
+    config it was trained with, and that is the repository's config file with the shipped seed.
+    (A run's learning rate and other settings do not depend on its total steps, so a run stopped
+    at step N is the first N steps of any longer one.)"""
+    from pathlib import Path
+
+    configs = Path(__file__).resolve().parents[1] / "experiments" / "configs"
+    for name in POLICIES:
+        _, meta = load_policy_file(POLICY_DIR / f"{name}.npz")
+        recorded = meta["config"]
+        source = configs / f"{name if 'residual' in name else name + '-plain'}.toml"
+        cfg = load_train_config(source, seed=recorded["seed"])
+        # the run may have been launched for more steps and stopped: its evaluations up to the
+        # file's total_timesteps, and so the policy selected among them, are the same
+        same = {"output": "", "total_timesteps": 0}
+        assert cfg.to_dict() | same == recorded | same, name
+        assert meta["timesteps"] <= cfg.total_timesteps <= recorded["total_timesteps"], name
