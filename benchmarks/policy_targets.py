@@ -14,7 +14,7 @@ learn"), on the settled RMS (``rms_settled_mm``), mean over the seeds:
 
 Writes ``results/policy_targets.md`` and ``.json``.
 
-    python benchmarks/policy_targets.py [--workers 2] [--policies ppo-residual sac-residual ppo]
+    python benchmarks/policy_targets.py [--workers 2] [--policies ppo-residual sac-residual sac]
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def _run(spec):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--policies", nargs="*", default=["ppo-residual", "sac-residual", "ppo"])
+    ap.add_argument("--policies", nargs="*", default=["ppo-residual", "sac-residual", "sac"])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--config", type=Path, default=ROOT / "experiments/configs/full.toml")
     args = ap.parse_args()
