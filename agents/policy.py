@@ -137,7 +137,10 @@ class PolicyIO:
         self._info: Mapping[str, Any] = {}
 
     def features(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
-        o = Observation.parse(self.task, obs)
+        task = self.task
+        if task is None:
+            raise RuntimeError("PolicyIO.features before reset(): no task yet")
+        o = Observation.parse(task, obs)
         self._o, self._info = o, info
         base = self.base
         if base.observe(o, info):
@@ -155,10 +158,10 @@ class PolicyIO:
                 hist[k] = h - e
             refs = o.references(max(max(RESIDUAL_PREVIEW), max(PATH_JOINT_VELOCITY) + 1) + 1)
             pv = refs[list(RESIDUAL_PREVIEW)] - o.ref
-            v_max = np.asarray(self.task.v_max, dtype=float)
+            v_max = np.asarray(task.v_max, dtype=float)
             jj = J @ J.T + (base.damping**2) * np.eye(3)
             path_v = [
-                J.T @ np.linalg.solve(jj, (refs[k + 1] - refs[k]) / float(self.task.dt)) / v_max
+                J.T @ np.linalg.solve(jj, (refs[k + 1] - refs[k]) / float(task.dt)) / v_max
                 for k in PATH_JOINT_VELOCITY
             ]
             ahead = path_v[-1]
@@ -188,7 +191,7 @@ class PolicyIO:
             )
         else:
             x = base.tm.point(o.q, base.p)
-            pv = o.references(int(self.task.preview_steps)) - x
+            pv = o.references(int(task.preview_steps)) - x
             f = np.concatenate(
                 [
                     o.q,

@@ -306,7 +306,7 @@ class PolicyEnv(gym.Wrapper):
             e = 1e3
         return -math.log1p(e / self.reward_scale_mm)
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):  # type: ignore[override]
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         if self.seeds is not None:
             seed = self.seeds()
         self.last_seed = seed
@@ -314,7 +314,7 @@ class PolicyEnv(gym.Wrapper):
         self.io.reset(self.env.unwrapped.task)  # type: ignore[attr-defined]
         return self.io.features(obs, info), info
 
-    def step(self, action):  # type: ignore[override]
+    def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(self.io.action(action))
         return (
             self.io.features(obs, info),
@@ -439,7 +439,7 @@ def train(
 
     fns = [env_fn(cfg.scenarios[k % len(cfg.scenarios)]) for k in range(cfg.n_envs)]
     venv = VecNormalize(
-        DummyVecEnv(fns),  # type: ignore[arg-type]
+        DummyVecEnv(fns),
         gamma=float(cfg.hyperparameters.get("gamma", 0.99)),
         norm_obs=True,
         norm_reward=cfg.normalize_reward,
@@ -458,10 +458,12 @@ def train(
     if resume and (out / "checkpoint.zip").exists():
         model = cls.load(out / "checkpoint.zip", env=venv, device="cpu")
         state = np.load(out / "checkpoint.npz", allow_pickle=False)
-        venv.obs_rms.mean, venv.obs_rms.var = state["obs_mean"].copy(), state["obs_var"].copy()
-        venv.obs_rms.count = float(state["obs_count"])
-        venv.ret_rms.mean, venv.ret_rms.var = float(state["ret_mean"]), float(state["ret_var"])
-        venv.ret_rms.count = float(state["ret_count"])
+        obs_rms: Any = venv.obs_rms  # one RunningMeanStd: the observation is a flat Box
+        ret_rms: Any = venv.ret_rms
+        obs_rms.mean, obs_rms.var = state["obs_mean"].copy(), state["obs_var"].copy()
+        obs_rms.count = float(state["obs_count"])
+        ret_rms.mean, ret_rms.var = float(state["ret_mean"]), float(state["ret_var"])
+        ret_rms.count = float(state["ret_count"])
         sequence.next = int(state["next_seed"])
         done_before = int(model.num_timesteps)
         log.info("resuming %s at %d steps", out, done_before)
@@ -534,7 +536,7 @@ def train(
 
         with atomic_path(out / "checkpoint.zip") as tmp:
             tmp.write_bytes(buf.getvalue())
-        state = _normalisation(venv) | {"next_seed": np.array(sequence.next)}
+        state: dict[str, Any] = _normalisation(venv) | {"next_seed": np.array(sequence.next)}
         with atomic_path(out / "checkpoint.npz") as tmp, open(tmp, "wb") as fh:
             np.savez(fh, **state)
 
