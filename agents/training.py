@@ -59,6 +59,7 @@ __all__ = [
     "LEADERBOARD_SCENARIOS",
     "LEADERBOARD_SEEDS",
     "SEED_STRIDE",
+    "EpisodeSeeds",
     "PolicyEnv",
     "TrainConfig",
     "TrainConfigError",
@@ -325,7 +326,7 @@ class PolicyEnv(gym.Wrapper):
         )
 
 
-class _SeedSequence:
+class EpisodeSeeds:
     """The run's episode seeds: ``start, start + 1, ...`` shared by all its envs (one process)."""
 
     def __init__(self, start: int, stop: int) -> None:
@@ -432,7 +433,7 @@ def train(
 
     atomic_write_text(out / "config.json", json.dumps(cfg.to_dict(), indent=2) + "\n")
     seeds = cfg.training_seeds()
-    sequence = _SeedSequence(seeds.start, seeds.stop)
+    sequence = EpisodeSeeds(seeds.start, seeds.stop)
 
     def env_fn(scenario: str) -> Callable[[], gym.Env]:
         return lambda: Monitor(make_policy_env(cfg, scenario, sequence))

@@ -27,10 +27,10 @@ from agents.registry import POLICIES, make_agent
 from agents.runner import run_episode
 from agents.training import (
     LEADERBOARD_SEEDS,
+    EpisodeSeeds,
     PolicyEnv,
     TrainConfig,
     TrainConfigError,
-    _SeedSequence,
     evaluate_policy,
     load_train_config,
     make_policy_env,
@@ -296,7 +296,7 @@ def test_shipped_policies_are_judged_on_the_leaderboards_episodes():
 def test_training_envs_are_reset_with_the_runs_seeds():
     cfg = TrainConfig(total_timesteps=2000, n_envs=2, seed=2)
     seeds = cfg.training_seeds()
-    seq = _SeedSequence(seeds.start, seeds.stop)
+    seq = EpisodeSeeds(seeds.start, seeds.stop)
     envs_ = [make_policy_env(cfg, sc, seq) for sc in ("nominal", "backlash")]
     used = []
     for env in envs_ * 2:
