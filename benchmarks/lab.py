@@ -265,7 +265,8 @@ def memory() -> None:
         "of the whole catalogue at most about 4 KB per pose, both linear in time. The memory per "
         "pose that the targets bound is the growth from one size to the next (the larger of the "
         "resident and the traced figure): a few MB of fixed scratch (the blocks of 4,096 poses) "
-        "dominate the per-pose figure of small data sets.",
+        "dominate the per-pose figure of small data sets, and from 2,000 to 20,000 poses the blocks "
+        "themselves grow to their full size, so the targets are judged from 20,000 to 200,000.",
         "",
         "| task | poses | resident peak | traced peak | per pose (traced) | growth per added "
         "pose | time (s) | time per pose | target | outcome |",
@@ -280,7 +281,7 @@ def memory() -> None:
             n0, r0, t0 = previous[task]
             slope = 2**20 * max(resident_mb - r0, traced_mb - t0) / (n - n0)
             growth = f"{slope / 1024:.2f} KB"
-            if task in targets:
+            if task in targets and n == SIZES[-1]:  # the blocks are full-sized from 20,000 on
                 ok = slope <= targets[task]
                 judged = f"{targets[task] / 1024:.0f} KB/pose {'met' if ok else 'missed'}"
         previous[task] = (n, resident_mb, traced_mb)
