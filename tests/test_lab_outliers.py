@@ -162,7 +162,7 @@ def test_duplicates_are_counted_once_and_named(seed):
 
 
 # -- load_backlash near zero torque -------------------------------------------------------------
-def _pose_with_torque(robot, q0: np.ndarray, joint: int, tau: float) -> np.ndarray | None:
+def pose_with_torque(robot, q0: np.ndarray, joint: int, tau: float) -> np.ndarray | None:
     """``q0`` with joint ``joint``'s own angle moved so that its gravity torque is ``tau``."""
     lo, hi = robot.lower[joint - 1] + 0.05, robot.upper[joint - 1] - 0.05
 
@@ -181,7 +181,7 @@ def _pose_with_torque(robot, q0: np.ndarray, joint: int, tau: float) -> np.ndarr
     return q
 
 
-def _gravity_loaded_campaign(robot, seed_: int, n: int, odd_tau: float | None):
+def gravity_loaded_campaign(robot, seed_: int, n: int, odd_tau: float | None):
     """Gravity-loaded backlash of 0.3 mrad on joints 2 and 3 and random geometric errors, made
     without the lab's effect: each link turned by half the gap to the side its gravity torque
     pushes it, the geometric model fed the turned angles. With ``odd_tau``, the first pose has
@@ -194,7 +194,7 @@ def _gravity_loaded_campaign(robot, seed_: int, n: int, odd_tau: float | None):
         q = sample_poses(robot, n, rng)
         if odd is not None:
             q[0] = next(
-                x for x in (_pose_with_torque(robot, qi, 2, odd) for qi in q) if x is not None
+                x for x in (pose_with_torque(robot, qi, 2, odd) for qi in q) if x is not None
             )
         side = np.sign(gravity_torques(robot, q))
         if odd is not None:
@@ -212,7 +212,7 @@ def test_one_pose_at_near_zero_torque_does_not_flip_the_verdict(seed):
     gap. The default diagnosis leaves it out, says why (ambiguous: gravity picks no side there),
     names load_backlash, and the fit it suggests reaches the noise floor on held-out poses."""
     for s in (0, 1, 2):
-        data, val = _gravity_loaded_campaign(seed, 900 + s, 200, odd_tau=-0.05)
+        data, val = gravity_loaded_campaign(seed, 900 + s, 200, odd_tau=-0.05)
         d = diagnose(data, seed, "geometric", noise_mm=NOISE_MM)
         assert d.verdict == "load_backlash", (s, d.summary())
         assert 0 in d.outliers

@@ -407,9 +407,9 @@ def test_an_effect_that_no_data_can_identify_is_refused(d, tmp_path):
 def test_one_pose_on_the_far_side_of_the_gap_at_the_cli(tmp_path):
     """The issue's case at the CLI: a pose at -0.05 N·m about joint 2 rests on the other side of
     the gap; the diagnosis names load_backlash, and says why that pose was left out."""
-    from tests.test_lab_outliers import _gravity_loaded_campaign
+    from tests.test_lab_outliers import gravity_loaded_campaign
 
-    data, _ = _gravity_loaded_campaign(seed_robot(), 900, 200, odd_tau=-0.05)
+    data, _ = gravity_loaded_campaign(seed_robot(), 900, 200, odd_tau=-0.05)
     write_measurements(data, tmp_path / "lb.csv")
     got = json.loads(lab("diagnose", tmp_path / "lb.csv", "--noise-mm", "0.015", "--json").stdout)
     assert got["verdict"] == "load_backlash"
