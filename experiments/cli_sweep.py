@@ -3,12 +3,17 @@ layers over :mod:`experiments.sweep`, :mod:`experiments.leaderboard` and :mod:`e
 
 from __future__ import annotations
 
+import contextlib
 import math
+import signal
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -28,6 +33,37 @@ from experiments.cli_output import (
 )
 
 
+class _Stopped(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised where the sweep is, so that it stops as it does on Ctrl-C."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def _stop_on_signals() -> Iterator[None]:
+    """SIGTERM and SIGHUP (a closed terminal) stop the sweep like SIGINT: the runs in flight are
+    ended, the finished records kept, the exit code 128 + the signal. A second signal ends the
+    process at once (its workers still die with it)."""
+    names = [n for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
+    if threading.current_thread() is not threading.main_thread():
+        yield  # only the main thread may set handlers
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        for n in names:
+            signal.signal(getattr(signal, n), signal.SIG_DFL)
+        raise _Stopped(signum)
+
+    old = {n: signal.signal(getattr(signal, n), handler) for n in names}
+    try:
+        yield
+    finally:
+        for n, h in old.items():
+            signal.signal(getattr(signal, n), h)
+
+
 def sweep(
     config: Annotated[
         Path,
@@ -42,6 +78,7 @@ def sweep(
         typer.Option(
             "--workers",
             "-w",
+            min=0,
             help="Parallel runs (default: the CPU count); 0 runs in this process.",
         ),
     ] = None,
@@ -88,10 +125,13 @@ def sweep(
         TextColumn("eta"),
         TimeRemainingColumn(),
     )
-    with Progress(*columns, console=console, transient=False) as bar:
+    last = None
+    with Progress(*columns, console=console, transient=False) as bar, _stop_on_signals():
         task = bar.add_task(f"sweep {cfg.name}", total=None, running=0, failed=0)
 
         def on_progress(state) -> None:
+            nonlocal last
+            last = state
             bar.update(
                 task,
                 total=state.total,
@@ -100,29 +140,41 @@ def sweep(
                 failed=state.failed,
             )
 
-        with user_errors():
-            summary = run_sweep(
-                cfg,
-                out_dir,
-                workers=workers,
-                backend=backend,
-                address=address,
-                retry_failed=retry_failed,
-                overwrite=overwrite,
-                command=command_line(
-                    "sweep",
-                    config,
-                    **{
-                        "--out": out,
-                        "--workers": workers,
-                        "--backend": None if backend == "local" else backend,
-                        "--address": address,
-                        "--keep-failed": not retry_failed,
-                        "--overwrite": overwrite,
-                    },
-                ),
-                progress=on_progress,
+        try:
+            with user_errors():
+                summary = run_sweep(
+                    cfg,
+                    out_dir,
+                    workers=workers,
+                    backend=backend,
+                    address=address,
+                    retry_failed=retry_failed,
+                    overwrite=overwrite,
+                    command=command_line(
+                        "sweep",
+                        config,
+                        **{
+                            "--out": out,
+                            "--workers": workers,
+                            "--backend": None if backend == "local" else backend,
+                            "--address": address,
+                            "--keep-failed": not retry_failed,
+                            "--overwrite": overwrite,
+                        },
+                    ),
+                    progress=on_progress,
+                )
+        except KeyboardInterrupt as exc:
+            signum = getattr(exc, "signum", signal.SIGINT)
+            bar.stop()
+            kept = "" if last is None else f"{last.skipped + last.done} of {last.total} runs "
+            err_console.print(
+                f"[yellow]interrupted[/yellow] ({signal.Signals(signum).name}): {kept}recorded "
+                f"in {escape(str(out_dir))}, the runs in flight stopped; run the same command "
+                "again to resume",
+                highlight=False,
             )
+            raise typer.Exit(128 + signum) from None
     console.print(
         f"{summary.done} runs in {summary.wall_time_s:.1f} s ({summary.skipped} already finished, "
         f"{len(summary.failed)} failed); records in {summary.out_dir}"

@@ -16,6 +16,13 @@ traceback and the sweep goes on.
 A record with the same run key but another spec (the config changed under the same output
 directory) is refused before anything runs, unless ``overwrite=True``.
 
+No process outlives its sweep. The local workers die with this process whatever ends it: on Linux
+the kernel kills them when it dies (``PR_SET_PDEATHSIG``), everywhere a watchdog thread in each
+worker exits when its parent's pid goes away; they ignore SIGINT, so that a Ctrl-C in a terminal
+stops the sweep here and this process ends them. An interrupt (``KeyboardInterrupt``, or any
+exception) ends the runs in flight at once instead of waiting for them; their records were never
+written, so a rerun does them again. A LocalCluster's Dask workers watch their nanny the same way.
+
 It is one module, longer than most, because planning, running on either backend and recording share
 the record's layout and the rule that resumes a sweep.
 """
@@ -23,11 +30,14 @@ the record's layout and the rule that resumes a sweep.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import datetime as _dt
 import logging
 import os
+import signal
 import socket
 import sys
+import threading
 import time
 import traceback
 from collections import deque
@@ -210,6 +220,57 @@ def _child_thread_env() -> Iterator[None]:
                 os.environ[v] = old
 
 
+#: how often a worker's watchdog looks for its parent (s): the longest a worker outlives it
+PARENT_POLL_SECONDS = 0.2
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """A pool worker's initializer: this process ends when ``parent_pid`` (the sweep) ends.
+
+    A spawned worker blocks on a queue whose other end it holds itself, so it would never see the
+    sweep die, and it keeps the sweep's stdout open (a caller reading it through a pipe would
+    hang). Linux kills it with the parent (``PR_SET_PDEATHSIG``); everywhere, a daemon thread
+    exits the process once its parent pid changes (the orphan was adopted). SIGINT is ignored: a
+    Ctrl-C reaches the whole process group, and the sweep decides what stops."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
+                log.debug("prctl(PR_SET_PDEATHSIG) failed: errno %d", ctypes.get_errno())
+        except (OSError, AttributeError) as exc:  # no libc symbol: the watchdog still works
+            log.debug("no PR_SET_PDEATHSIG: %s", exc)
+    if os.getppid() != parent_pid:  # the parent died before the guard was in place
+        os._exit(1)
+    threading.Thread(
+        target=_watch_parent, args=(parent_pid,), name="sixaxis-parent-watchdog", daemon=True
+    ).start()
+
+
+def _watch_parent(parent_pid: int) -> None:
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_POLL_SECONDS)
+    os._exit(1)  # nothing to save: a worker only computes, the parent writes every record
+
+
+def _stop_pool(pool: Any) -> None:
+    """End a process pool's workers now (their runs are lost, not recorded) and reap them.
+    ``shutdown(wait=True)`` would wait for every run in flight, minutes for a long episode."""
+    procs = dict(getattr(pool, "_processes", None) or {})  # terminate_workers() in Python 3.14
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs.values():
+        with contextlib.suppress(ValueError, OSError):  # closed or already gone
+            if p.is_alive():
+                p.terminate()
+    for p in procs.values():
+        with contextlib.suppress(ValueError, OSError):
+            p.join(timeout=5)
+            if p.is_alive():
+                p.kill()
+                p.join(timeout=5)
+
+
 class _WarningCollector(logging.Handler):
     """Keeps the warnings a run logs, for its record, instead of letting workers print them over
     the parent's progress bar."""
@@ -387,6 +448,10 @@ def run_sweep(
     replaces :func:`execute_run` (it must be picklable: a module-level function)."""
     if backend not in ("local", "dask"):
         raise SweepError(f"unknown backend {backend!r}; use 'local' or 'dask'")
+    if workers is not None and (
+        isinstance(workers, bool) or int(workers) != workers or workers < 0
+    ):
+        raise SweepError(f"workers must be an integer >= 0, got {workers!r}")
     run_fn = run_fn or execute_run
     store = RunStore(out_dir if out_dir is not None else Path("runs") / config.name)
     pending, finished = plan_sweep(config, store, retry_failed, overwrite)
@@ -467,7 +532,13 @@ def _run_local(
     ctx = mp.get_context("spawn")  # no forked copies of MuJoCo, CasADi or torch state
     with _child_thread_env():
         while queue:
-            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            pool = ProcessPoolExecutor(
+                max_workers=workers,
+                mp_context=ctx,
+                initializer=_die_with_parent,
+                initargs=(os.getpid(),),
+            )
+            try:
                 inflight: dict[Any, RunSpec] = {}
                 broken = False
                 while (queue or inflight) and not broken:
@@ -496,6 +567,10 @@ def _run_local(
                         report(spec, _failed_outcome(exc, "a worker process died"))
                     inflight.clear()
                     log.warning("a worker process died; starting a new pool")
+            except BaseException:  # an interrupt, or a record that cannot be written
+                _stop_pool(pool)
+                raise
+            pool.shutdown(wait=True)
     tick(0)
 
 

@@ -8,11 +8,13 @@ too); the real-run tests run hold/nominal and a user's class on SixAxisTrack-v0 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 import zlib
 from collections.abc import Mapping
@@ -241,7 +243,7 @@ def test_dask_backend_gives_the_same_records_as_local_processes(tiny):
     assert comparable(RunStore(root / "dask-address")) == first
 
 
-def _sweep_cmd(config: Path, out: Path) -> list[str]:
+def _sweep_cmd(config: Path, out: Path, workers: int = 1) -> list[str]:
     return [
         sys.executable,
         "-m",
@@ -251,7 +253,7 @@ def _sweep_cmd(config: Path, out: Path) -> list[str]:
         "--out",
         str(out),
         "--workers",
-        "1",
+        str(workers),
     ]
 
 
@@ -264,11 +266,23 @@ def _table(runs: Path) -> str:
     return "\n".join(",".join(row.split(",")[i] for i in keep) for row in lines)
 
 
-@pytest.mark.slow
-def test_killed_sweep_resumes_to_the_same_table(tiny, tmp_path):
+@pytest.fixture(scope="module")
+def tiny_long(tiny):
+    """The tiny config with two seeds (12 runs) and one whole sweep of it from the CLI: what a
+    sweep killed and resumed must end with."""
     _, root = tiny
     config_path = root / "tiny-long.toml"
     config_path.write_text(TINY.replace("seeds = [0]", "seeds = [0, 1]"))
+    whole = root / "whole"
+    subprocess.run(
+        _sweep_cmd(config_path, whole), cwd=ROOT, check=True, capture_output=True, timeout=300
+    )
+    return config_path, whole
+
+
+@pytest.mark.slow
+def test_killed_sweep_resumes_to_the_same_table(tiny_long, tmp_path):
+    config_path, whole = tiny_long
     killed = tmp_path / "killed"
     proc = subprocess.Popen(
         _sweep_cmd(config_path, killed),
@@ -300,12 +314,127 @@ def test_killed_sweep_resumes_to_the_same_table(tiny, tmp_path):
         assert final[name] == rec
     assert not [p for p in killed.iterdir() if p.name.startswith(".")]  # no temp files
 
-    whole = tmp_path / "whole"
-    subprocess.run(
-        _sweep_cmd(config_path, whole), cwd=ROOT, check=True, capture_output=True, timeout=300
-    )
     assert _table(killed) == _table(whole)
     assert (
         json.loads((killed / "_sweep.json").read_text())["config_hash"]
         == json.loads((whole / "_sweep.json").read_text())["config_hash"]
     )
+
+
+# -- no process outlives its sweep ----------------------------------------------------------------
+
+
+def _alive(procs) -> list:
+    """The processes still running (a zombie waiting for its new parent to reap it is dead)."""
+    import psutil
+
+    out = []
+    for p in procs:
+        try:
+            if p.is_running() and p.status() != psutil.STATUS_ZOMBIE:
+                out.append(p)
+        except psutil.NoSuchProcess:
+            pass
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM"])
+def test_a_signalled_sweep_leaves_no_process_and_resumes_exactly(tiny_long, tmp_path, sig):
+    """Only the sweep's own pid is signalled, its output read through pipes, as a caller does:
+    within 5 s no process of its tree runs and the pipes are closed; the rerun finishes exactly
+    the records an uninterrupted sweep writes, keeping those written before the signal."""
+    psutil = pytest.importorskip("psutil")
+    config_path, whole = tiny_long
+    out = tmp_path / "runs"
+    proc = subprocess.Popen(
+        _sweep_cmd(config_path, out, workers=2),
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    captured: dict[str, bytes] = {}
+    readers = [
+        threading.Thread(target=lambda k=k, f=f: captured.__setitem__(k, f.read()), daemon=True)
+        for k, f in (("out", proc.stdout), ("err", proc.stderr))
+    ]
+    for r in readers:
+        r.start()
+    parent = psutil.Process(proc.pid)
+    tree: dict[int, psutil.Process] = {}
+    deadline = time.monotonic() + 180
+    try:
+        while len(RunStore(out).paths()) < 2:
+            assert proc.poll() is None, "the sweep ended before it could be signalled"
+            assert time.monotonic() < deadline, "the sweep made no progress"
+            tree |= {c.pid: c for c in parent.children(recursive=True)}
+            time.sleep(0.01)
+        tree |= {c.pid: c for c in parent.children(recursive=True)}
+        # two workers and multiprocessing's resource tracker
+        assert len(_alive(tree.values())) >= 3, [c.cmdline() for c in tree.values()]
+        os.kill(proc.pid, getattr(signal, sig))
+        t0 = time.monotonic()
+        proc.wait(timeout=5)
+        psutil.wait_procs(_alive(tree.values()), timeout=max(0.0, 5 - (time.monotonic() - t0)))
+        survivors = _alive(tree.values())
+        assert not survivors, f"alive 5 s after {sig}: {[p.cmdline() for p in survivors]}"
+        for r in readers:  # the pipes closed: a caller reading them does not hang
+            r.join(timeout=max(0.1, 5 - (time.monotonic() - t0)))
+            assert not r.is_alive(), f"the sweep's output pipe is still open 5 s after {sig}"
+    finally:
+        for p in [parent, *tree.values()]:
+            with contextlib.suppress(psutil.NoSuchProcess):
+                p.kill()
+    err = captured["err"].decode()
+    if sig == "SIGTERM":  # stops as on Ctrl-C: one line, the exit code of a shell
+        assert proc.returncode == 128 + signal.SIGTERM, err
+        assert "interrupted (SIGTERM)" in err and "Traceback" not in err, err
+    else:
+        assert proc.returncode == -signal.SIGKILL
+    done_before = {p.name: load_record(p) for p in RunStore(out).paths()}
+    assert 2 <= len(done_before) < 12, "signalled too late to test a resume"
+
+    resumed = subprocess.run(
+        _sweep_cmd(config_path, out, workers=2),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"({len(done_before)} already finished, 0 failed)" in resumed.stdout
+    final = {p.name: load_record(p) for p in RunStore(out).paths()}
+    for name, rec in done_before.items():  # nothing finished before the signal was redone
+        assert final[name] == rec
+    assert comparable(RunStore(out)) == comparable(RunStore(whole))  # no run lost or doubled
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temp files
+
+
+def test_a_worker_exits_when_its_parent_dies_without_pdeathsig(tmp_path):
+    """The portable half of the guard (a watchdog on the parent's pid), alone: a middle process
+    starts a child that runs only the watchdog, then is SIGKILLed; the child must exit."""
+    psutil = pytest.importorskip("psutil")
+    child_code = (
+        "import os, time; from experiments.sweep import _watch_parent; "
+        "print(os.getpid(), flush=True); _watch_parent(os.getppid())"
+    )
+    middle_code = (
+        "import subprocess, sys, time; "
+        f"c = subprocess.Popen([sys.executable, '-c', {child_code!r}], stdout=sys.stdout); "
+        "time.sleep(600)"
+    )
+    middle = subprocess.Popen(
+        [sys.executable, "-c", middle_code], cwd=ROOT, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        child = psutil.Process(int(middle.stdout.readline()))
+        time.sleep(0.5)
+        assert _alive([child]), "the watchdog ended its process while the parent lived"
+        middle.kill()
+        middle.wait()
+        psutil.wait_procs([child], timeout=5)
+        assert not _alive([child]), "the child outlived its parent by 5 s"
+    finally:
+        middle.kill()
+        with contextlib.suppress(Exception):
+            child.kill()
