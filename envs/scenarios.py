@@ -22,6 +22,8 @@ it at once and right. These draws come last, so the arm of a seed is what it was
 
 from __future__ import annotations
 
+import math
+import numbers
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -235,12 +237,22 @@ def _check_overrides(
                 raise ScenarioError(
                     f"unknown {effect} parameter {name!r}; known: {', '.join(_names(effect))}"
                 )
-            vals = np.atleast_1d(np.asarray(v, dtype=float))
-            if vals.size not in (1, 2) or not np.all(np.isfinite(vals)):
-                raise ScenarioError(
-                    f"overrides[{effect!r}][{name!r}] must be a finite number or a (low, high) "
-                    f"pair, got {v!r}"
-                )
+            pair_ok = effect != "geometric"  # a DH error is set, not drawn from a range
+            if not _override_value_ok(v, pair_ok):
+                want = "a finite number or a (low, high) pair" if pair_ok else "a finite number"
+                raise ScenarioError(f"overrides[{effect!r}][{name!r}] must be {want}, got {v!r}")
+
+
+def _override_value_ok(v: Any, pair_ok: bool) -> bool:
+    """A finite number (not a string or a boolean that numpy would take), or a pair of them."""
+
+    def number(x: Any) -> bool:
+        return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
+
+    if number(v):
+        return True
+    pair = isinstance(v, (list, tuple, np.ndarray)) and len(v) == 2
+    return pair_ok and pair and all(map(number, v))
 
 
 def _names(effect: str) -> list[str]:
@@ -303,6 +315,11 @@ def draw_truth(
     """One episode's hidden arm: the scenario's effects with magnitudes drawn from ``rng``."""
     sc = get_scenario(scenario)
     nominal = robot.to_modified()
+    if overrides is not None and not isinstance(overrides, Mapping):
+        raise ScenarioError(
+            "overrides must be a mapping {effect: {parameter: value}}, e.g. "
+            f"{{'compliance': {{'c2': 8e-6}}}}; got {overrides!r}"
+        )
     overrides = dict(overrides or {})
     geo = ErrorModel(nominal, "geometric")
     _check_overrides(sc, overrides, set(geo.layout.names))

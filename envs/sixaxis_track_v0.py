@@ -7,8 +7,10 @@ reward, termination, info) and stays beside the code that makes them.
 
 from __future__ import annotations
 
+import inspect
 import itertools
 import math
+import numbers
 import os
 import sys
 from collections.abc import Sequence
@@ -21,20 +23,38 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 
 from arm.description import RobotDescription, load_robot
-from envs.instrument import LaserTracker, TemperatureSensor, TrackerConfig
-from envs.plant import MAX_SPEED, Plant
-from envs.scenarios import EpisodeTruth, Scenario, draw_truth, get_scenario
+from arm.errors import SixAxisError
+from envs.instrument import InstrumentError, LaserTracker, TemperatureSensor, TrackerConfig
+from envs.plant import MAX_SPEED, PHYSICS_DT, SUBSTEPS, Plant
+from envs.scenarios import SCENARIOS, EpisodeTruth, Scenario, draw_truth, get_scenario
 from envs.task import TaskInfo
 from envs.trajectories import KINDS, Trajectory, check_posture, sample_trajectory
 
-__all__ = ["SixAxisTrackEnv"]
+__all__ = ["EnvOptionError", "EnvStateError", "SixAxisTrackEnv"]
 
 MAX_MEASUREMENT_AGE = 10.0  # s, the age reported before the first measurement
 
 WORKSPACE = 5.0  # m, bound of every observed point
 DIVERGENCE_REWARD = -1000.0
+
+
+class EnvOptionError(SixAxisError, ValueError):
+    """Keyword arguments the env does not take; the message names every key at fault."""
+
+
+class EnvStateError(SixAxisError, ResetNeeded):
+    """A call the env cannot answer in its state (``step`` before ``reset``)."""
+
+
+def _integer(v: Any) -> bool:
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+
+def _real(v: Any) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _layout(preview: int) -> dict[str, slice]:
@@ -202,6 +222,11 @@ class SixAxisTrackEnv(gym.Env):
     | `render_mode`   | str or None | `None`        | `"rgb_array"`: the arm, the reference path (green), the true tool path (blue), the measured points (red) |
     | `width`, `height` | int       | `640`, `480`  | rendered frame size                                          |
 
+    An option out of range or of the wrong type is an ``EnvOptionError`` (a ``ValueError``) naming
+    every key at fault; ``SixAxisTrackEnv.check_options(**kwargs)`` returns the same problems
+    without building the simulation. ``step`` or ``render`` before ``reset`` is an
+    ``EnvStateError`` (Gymnasium's ``ResetNeeded``).
+
     ## Version History
     * v0: initial version (not released; changed in place). The observation's temperature is a
       sensor (noise and lag) and its payload the operator's declaration (late and wrong in the
@@ -232,18 +257,31 @@ class SixAxisTrackEnv(gym.Env):
         width: int = 640,
         height: int = 480,
     ) -> None:
+        problems = self.check_options(
+            scenario=scenario,
+            overrides=overrides,
+            trajectory=trajectory,
+            posture=posture,
+            noise_mm=noise_mm,
+            measure_every=measure_every,
+            dropout=dropout,
+            latency_steps=latency_steps,
+            measurements=measurements,
+            temperature_noise=temperature_noise,
+            temperature_lag=temperature_lag,
+            preview_steps=preview_steps,
+            jerk_weight=jerk_weight,
+            robot=robot,
+            episode_seconds=episode_seconds,
+            render_mode=render_mode,
+            width=width,
+            height=height,
+        )
+        if problems:
+            raise EnvOptionError(
+                "SixAxisTrack-v0: " + "; ".join(f"{k}: {m}" for k, m in problems.items())
+            )
         self.scenario = get_scenario(scenario)
-        if trajectory is not None and trajectory not in KINDS:
-            raise ValueError(
-                f"trajectory must be one of {', '.join(KINDS)} or None, got {trajectory!r}"
-            )
-        if int(preview_steps) != preview_steps or preview_steps < 0:
-            raise ValueError(f"preview_steps must be an integer >= 0, got {preview_steps}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode must be one of {self.metadata['render_modes']} or None, "
-                f"got {render_mode!r}"
-            )
         self.overrides = overrides
         self.trajectory_kind = trajectory
         self.render_mode = render_mode
@@ -253,8 +291,6 @@ class SixAxisTrackEnv(gym.Env):
         self.nominal = nominal.to_modified()
         # a region of the workspace for the path (checked now, not at the first reset)
         self.posture = None if posture is None else check_posture(self.nominal, posture)
-        # check the overrides once, now, rather than at the first reset
-        draw_truth(self.scenario, self.nominal, np.random.default_rng(0), overrides)
         self.plant = Plant(self.nominal, elastic=self.scenario.elastic)
         self.tracker = LaserTracker(
             TrackerConfig(
@@ -341,6 +377,103 @@ class SixAxisTrackEnv(gym.Env):
         self._P = P
         self._j = np.zeros(6)
 
+    @classmethod
+    def check_options(cls, **options: Any) -> dict[str, str]:
+        """What is wrong with these keyword arguments, ``{key: problem}`` (empty: the env takes
+        them), without building the simulation. The constructor refuses the same, and a sweep's
+        config checks every run's options with it before any run starts."""
+        params = inspect.signature(cls.__init__).parameters
+        defaults = {k: p.default for k, p in params.items() if k != "self"}
+        problems: dict[str, str] = {}
+        for k in options:
+            if k not in defaults:
+                problems[k] = f"unknown option; the env takes {', '.join(defaults)}"
+        o = defaults | {k: v for k, v in options.items() if k in defaults}
+
+        def need(key: str, ok: bool, want: str) -> None:
+            if not ok and key not in problems:
+                problems[key] = f"expected {want}, got {o[key]!r}"
+
+        sc = o["scenario"]
+        if not isinstance(sc, Scenario):
+            need("scenario", isinstance(sc, str), "a scenario name")
+            if isinstance(sc, str) and sc not in SCENARIOS:
+                problems["scenario"] = f"unknown scenario {sc!r}; known: {', '.join(SCENARIOS)}"
+        t = o["trajectory"]
+        need(
+            "trajectory",
+            t is None or (isinstance(t, str) and t in KINDS),
+            f"None or one of {', '.join(KINDS)}",
+        )
+        need("noise_mm", _real(o["noise_mm"]) and o["noise_mm"] >= 0, "a number >= 0 (mm)")
+        need(
+            "measure_every",
+            _integer(o["measure_every"]) and o["measure_every"] >= 1,
+            "an integer >= 1 (control steps)",
+        )
+        need("dropout", _real(o["dropout"]) and 0 <= o["dropout"] < 1, "a probability in [0, 1)")
+        need(
+            "latency_steps",
+            _integer(o["latency_steps"]) and o["latency_steps"] >= 0,
+            "an integer >= 0 (control steps)",
+        )
+        need("measurements", isinstance(o["measurements"], bool), "true or false")
+        for key, unit in (("temperature_noise", "K"), ("temperature_lag", "s")):
+            need(key, _real(o[key]) and o[key] >= 0, f"a number >= 0 ({unit})")
+        need(
+            "preview_steps",
+            _integer(o["preview_steps"]) and o["preview_steps"] >= 0,
+            "an integer >= 0",
+        )
+        need("jerk_weight", _real(o["jerk_weight"]) and o["jerk_weight"] >= 0, "a number >= 0")
+        dt = PHYSICS_DT * SUBSTEPS
+        need(
+            "episode_seconds",
+            _real(o["episode_seconds"]) and o["episode_seconds"] >= dt,
+            f"a duration of at least one control step ({dt:g} s)",
+        )
+        modes = cls.metadata["render_modes"]
+        need(
+            "render_mode",
+            o["render_mode"] is None or o["render_mode"] in modes,
+            f"None or one of {', '.join(modes)}",
+        )
+        for key in ("width", "height"):
+            need(key, _integer(o[key]) and o[key] >= 1, "a positive number of pixels")
+        if "noise_mm" not in problems and "measure_every" not in problems:
+            try:  # the instrument's own rules, by the key its message starts with
+                TrackerConfig(
+                    noise_mm=o["noise_mm"],
+                    measure_every=o["measure_every"],
+                    dropout=o["dropout"],
+                    latency_steps=o["latency_steps"],
+                )
+            except InstrumentError as exc:
+                key = str(exc).split(" ", 1)[0]
+                problems.setdefault(key if key in defaults else "noise_mm", str(exc))
+        robot = o["robot"]
+        nominal = None
+        if isinstance(robot, RobotDescription):
+            nominal = robot.to_modified()
+        elif not isinstance(robot, str):
+            need("robot", False, "a robot name, a TOML file or a RobotDescription")
+        else:
+            try:
+                nominal = load_robot(robot).to_modified()
+            except (SixAxisError, OSError) as exc:
+                problems["robot"] = str(exc)
+        if nominal is not None and o["posture"] is not None:
+            try:
+                check_posture(nominal, o["posture"])
+            except (SixAxisError, ValueError) as exc:
+                problems["posture"] = str(exc)
+        if nominal is not None and "scenario" not in problems:
+            try:  # the overrides, drawn once as a reset would
+                draw_truth(o["scenario"], nominal, np.random.default_rng(0), o["overrides"])
+            except (SixAxisError, ValueError) as exc:
+                problems["overrides"] = str(exc)
+        return problems
+
     # -- gymnasium API --------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
@@ -386,6 +519,8 @@ class SixAxisTrackEnv(gym.Env):
         return self._obs.astype(np.float32), info
 
     def step(self, action):
+        if self.trajectory is None:  # gym.make's wrapper says so too; the bare env must as well
+            raise EnvStateError("SixAxisTrack-v0: call reset() before step()")
         a = self._check_action(action)
         if self._diverged:  # stepped past the end: the same terminal transition again
             return self._on_divergence(a)
@@ -411,8 +546,15 @@ class SixAxisTrackEnv(gym.Env):
     def render(self):
         if self.render_mode != "rgb_array":
             return None
+        if self.trajectory is None:
+            raise EnvStateError("SixAxisTrack-v0: call reset() before render()")
         if self._renderer is None:
             self.plant.model.vis.quality.offsamples = 0  # no multisampling: software GL is slow
+            vis = self.plant.model.vis.global_  # an offscreen buffer as large as the frame
+            vis.offwidth, vis.offheight = (
+                max(vis.offwidth, self.width),
+                max(vis.offheight, self.height),
+            )
             self._renderer = mujoco.Renderer(self.plant.model, self.height, self.width)
             cam = mujoco.MjvCamera()
             cam.type = mujoco.mjtCamera.mjCAMERA_FREE

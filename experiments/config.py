@@ -88,6 +88,7 @@ __all__ = [
     "load_config",
     "parse_config",
     "short_hash",
+    "spec_problems",
 ]
 
 log = logging.getLogger(__name__)
@@ -497,6 +498,7 @@ def parse_config(
                 settle_seconds,
             )
     _check_lengths(env, scenarios, agents, phases, episode_seconds, raw, env_info, bad)
+    _check_env_options(env_id, env, scenarios, agents, phases, raw, problems)
 
     if problems:
         raise ConfigError(source, problems)
@@ -758,6 +760,89 @@ def _check_lengths(env, scenarios, agents, phases, episode_seconds, raw, env_inf
                     f"{key}: {ph.seconds:g} s is longer than the env's reference trajectory "
                     f"({limit:g} s); set env.episode_seconds = {ph.seconds:g}"
                 )
+
+
+def _check_env_options(env_id, env, scenarios, agents, phases, raw, problems) -> None:
+    """Every run's env options as the env itself judges them (its ``check_options``: a noise
+    below zero, an unknown trajectory, a sampling period of 0, overrides the scenario does not
+    have), so that a config the env would refuse fails here and not in every run. A problem is
+    named by the key where the config sets the value, once."""
+    try:
+        check = getattr(_env_class(env_id), "check_options", None)
+    except Exception:  # an env that cannot be imported: reported by the checks above
+        return
+    if check is None:
+        return
+    s_where = {}
+    for i, s in enumerate(raw.get("scenarios") or []):
+        s_where[s if _is(s, str) else s.get("name") if _is(s, dict) else None] = f"scenarios[{i}]"
+    a_where = {}
+    for i, a in enumerate(raw.get("agents") or []):
+        a = {"name": a} if _is(a, str) else a
+        if _is(a, dict) and _is(a.get("name"), str):
+            a_where[a.get("label", a["name"].rpartition(":")[2])] = f"agents[{i}]"
+    if raw.get("phases"):
+        p_where = [f"phases[{i}]" for i in range(len(phases))]
+    else:
+        p_where = [f"campaign (phase {i}: {ph.name})" for i, ph in enumerate(phases)]
+    runs = list(zip(phases, p_where, strict=True)) or [(None, None)]
+    seen, checked = set(), set()
+    for s in scenarios:
+        for a in agents:
+            for ph, ph_where in runs:
+                layers = [
+                    (ph.env if ph else {}, f"{ph_where}.env"),
+                    (a.env, f"{a_where.get(a.label, 'agents')}.env"),
+                    (s.env, f"{s_where.get(s.label, 'scenarios')}.env"),
+                    (env, "env"),
+                ]
+                kwargs = env | s.env | a.env | (ph.env if ph else {}) | {"scenario": s.scenario}
+                key = canonical_json({k: repr(v) for k, v in kwargs.items()})
+                if key in checked:
+                    continue
+                checked.add(key)
+                for k, why in check(**kwargs).items():
+                    if k == "scenario":  # the scenario names are checked on their own
+                        continue
+                    where = next((w for layer, w in layers if k in layer), None)
+                    if where is None:  # a default the other options do not fit
+                        where = f"env.{k} (scenario {s.label}, agent {a.label})"
+                    else:
+                        where = f"{where}.{k}"
+                    if where in seen or any(p.startswith(f"{where}:") for p in problems):
+                        continue
+                    seen.add(where)
+                    problems.append(f"{where}: {why}")
+
+
+def spec_problems(spec: RunSpec) -> list[str]:
+    """What would make a run spec (a record's, to rerun it) fail before its episode starts: the
+    agent and its settings, the env's options in every phase, as a config is checked at load."""
+    problems: list[str] = []
+    info = _env_signature(spec.env_id, problems.append)
+    _check_agent(
+        spec.agent,
+        dict(spec.settings),
+        "spec",
+        lambda m: problems.append(m.replace("spec.name:", "spec.agent:", 1)),
+        construct=False,
+    )
+    phases = spec.phases or ({"env": {}},)
+    for i, ph in enumerate(phases):
+        where = f"spec.phases[{i}].env" if spec.phases else "spec.env_kwargs"
+        kwargs = dict(spec.env_kwargs) | dict(ph.get("env") or {})
+        _check_env_kwargs(
+            {k: v for k, v in kwargs.items() if k != "scenario"}, where, info, problems.append
+        )
+        if problems:
+            break
+        try:
+            check = getattr(_env_class(spec.env_id), "check_options", None)
+        except Exception:
+            check = None
+        if check is not None:
+            problems += [f"{where}.{k}: {why}" for k, why in check(**kwargs).items()]
+    return problems
 
 
 def _check_env_kwargs(env: Mapping[str, Any], where: str, info, bad) -> None:

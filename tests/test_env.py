@@ -309,9 +309,92 @@ def test_the_env_class_is_reachable_from_envs_on_demand():
 def test_bad_arguments_are_refused():
     with pytest.raises(ValueError, match="unknown scenario"):
         _make(scenario="windy")
-    with pytest.raises(ValueError, match="trajectory must be one of"):
+    with pytest.raises(ValueError, match="trajectory: expected None or one of circle"):
         _make(trajectory="zigzag")
     with pytest.raises(ValueError, match="has no 'thermal' effect"):
         _make(scenario="geometric", overrides={"thermal": {"kappa": 1e-5}})
     with pytest.raises(ValueError, match="measure_every"):
         _make(measure_every=0)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        # an override given as a string, or with a string that numpy would have read as a number
+        ({"overrides": "compliance"}, "overrides: overrides must be a mapping {effect:"),
+        (
+            {"scenario": "compliance", "overrides": {"compliance": {"c2": "8e-6"}}},
+            "overrides: overrides['compliance']['c2'] must be a finite number or a (low, high) "
+            "pair, got '8e-6'",
+        ),
+        (
+            {"scenario": "compliance", "overrides": {"compliance": {"c2": True}}},
+            "overrides['compliance']['c2'] must be a finite number",
+        ),
+        (  # a DH error is a value, not a range (float() of the pair crashed at reset)
+            {"overrides": {"geometric": {"da2": [1e-4, 2e-4]}}},
+            "overrides['geometric']['da2'] must be a finite number, got [0.0001, 0.0002]",
+        ),
+        ({"render_mode": "rgb_array", "width": -5}, "width: expected a positive number of pixels"),
+        ({"height": 0}, "height: expected a positive number of pixels, got 0"),
+        ({"width": "640"}, "width: expected a positive number of pixels, got '640'"),
+        ({"noise_mm": -0.01}, "noise_mm: expected a number >= 0 (mm), got -0.01"),
+        ({"noise_mm": "0.01"}, "noise_mm: expected a number >= 0 (mm), got '0.01'"),
+        ({"measure_every": 2.5}, "measure_every: expected an integer >= 1"),  # was taken as 2
+        ({"dropout": 1.0}, "dropout: expected a probability in [0, 1), got 1.0"),
+        ({"latency_steps": -1}, "latency_steps: expected an integer >= 0"),
+        ({"jerk_weight": -1.0}, "jerk_weight: expected a number >= 0, got -1.0"),
+        ({"episode_seconds": 0.001}, "episode_seconds: expected a duration of at least one"),
+        ({"measurements": "yes"}, "measurements: expected true or false, got 'yes'"),
+        ({"temperature_lag": -3.0}, "temperature_lag: expected a number >= 0 (s), got -3.0"),
+        ({"robot": "no-such-arm"}, "robot: unknown robot 'no-such-arm'"),
+        ({"posture": [0.0] * 5}, "posture: posture must have 6 entries"),
+    ],
+)
+def test_bad_options_are_one_clear_error_naming_the_key(kwargs, message):
+    """At construction, before any MuJoCo model is built, an :class:`EnvOptionError` (a
+    ``ValueError``) whose message names the key; ``check_options`` says the same without
+    building anything."""
+    from arm.errors import SixAxisError
+    from envs.sixaxis_track_v0 import SixAxisTrackEnv
+
+    with pytest.raises(SixAxisError) as info:
+        _make(**kwargs)
+    assert isinstance(info.value, ValueError)
+    assert message in str(info.value)
+    (key,) = [k for k in kwargs if k in message.split(":")[0]] or ["overrides"]
+    assert key in SixAxisTrackEnv.check_options(**kwargs)
+    assert SixAxisTrackEnv.check_options(**{k: v for k, v in kwargs.items() if k != key}) == {}
+
+
+def test_every_bad_option_is_named_at_once():
+    from envs.sixaxis_track_v0 import SixAxisTrackEnv
+
+    problems = SixAxisTrackEnv.check_options(noise_mm=-1, measure_every=0, trajectory="zig", x=1)
+    assert sorted(problems) == ["measure_every", "noise_mm", "trajectory", "x"]
+    assert problems["x"].startswith("unknown option; the env takes scenario, overrides,")
+
+
+def test_the_bare_env_refuses_step_and_render_before_reset():
+    """``gym.make``'s order-enforcing wrapper says so; the unwrapped env crashed in an
+    attribute of None."""
+    from gymnasium.error import ResetNeeded
+
+    from arm.errors import SixAxisError
+
+    env = _make(render_mode="rgb_array").unwrapped
+    with pytest.raises(ResetNeeded, match=r"call reset\(\) before step\(\)") as info:
+        env.step(np.zeros(6))
+    assert isinstance(info.value, SixAxisError)
+    with pytest.raises(ResetNeeded, match=r"call reset\(\) before render\(\)"):
+        env.render()
+    env.reset(seed=0)
+    env.step(np.zeros(6))  # and then it works
+    env.close()
+
+
+def test_a_frame_larger_than_the_default_offscreen_buffer_renders():
+    env = _make(render_mode="rgb_array", width=800, height=600)
+    env.reset(seed=0)
+    assert env.render().shape == (600, 800, 3)
+    env.close()

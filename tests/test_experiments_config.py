@@ -134,6 +134,44 @@ def test_user_agent_by_class_path_is_accepted():
         ({"env": {"measurements": 1}}, "env.measurements", "expected a boolean"),
         ({"env": {"nosie_mm": 0.01}}, "env.nosie_mm", "unknown env option"),
         ({"env": {"scenario": "geometric"}}, "env.scenario", "top-level 'scenarios'"),
+        # values the env itself refuses: found at load, not in every run
+        ({"env": {"noise_mm": -0.01}}, "env.noise_mm", "expected a number >= 0 (mm), got -0.01"),
+        ({"env": {"trajectory": "zigzag"}}, "env.trajectory", "one of circle, lemniscate"),
+        ({"env": {"measure_every": 0}}, "env.measure_every", "expected an integer >= 1"),
+        ({"env": {"dropout": 1.5}}, "env.dropout", "a probability in [0, 1)"),
+        (
+            {
+                "scenarios": [
+                    "nominal",
+                    {"name": "s", "scenario": "nominal", "env": {"latency_steps": -2}},
+                ]
+            },
+            "scenarios[1].env.latency_steps",
+            "expected an integer >= 0",
+        ),
+        (
+            {"agents": ["hold", {"name": "nominal", "env": {"trajectory": "zig"}}]},
+            "agents[1].env.trajectory",
+            "got 'zig'",
+        ),
+        (
+            {"env": {"overrides": {"thermal": {"kappa": 1e-5}}}},
+            "env.overrides",
+            "scenario 'nominal' has no 'thermal' effect",
+        ),
+        (
+            {
+                "scenarios": ["compliance"],
+                "env": {"overrides": {"compliance": {"c2": "8e-6"}}},
+            },
+            "env.overrides",
+            "overrides['compliance']['c2'] must be a finite number",
+        ),
+        (
+            {"phases": [{"name": "a", "seconds": 1.0, "env": {"noise_mm": -1.0}}]},
+            "phases[0].env.noise_mm",
+            "expected a number >= 0",
+        ),
         ({"agents": ["hold", "hold"]}, "agents", "'hold' appears twice"),
         ({"scenarios": []}, "scenarios", "empty"),
         ({"agents": None}, "agents", "missing (required)"),
@@ -294,3 +332,46 @@ scenario_settings = { backlash = { effects = "geometric,backlash" } }
     )
     with pytest.raises(ConfigError, match="table of tables"):
         load_config(cfg)
+
+
+def test_cli_refuses_env_options_the_env_would_refuse_at_dry_run(tmp_path):
+    """Item 4 of issue 13: these passed ``--dry-run``, then every run failed."""
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(
+        'seeds = 3\nepisode_seconds = 2.0\nsettle_seconds = 0.5\nscenarios = ["geometric"]\n'
+        'agents = ["hold"]\n[env]\nnoise_mm = -0.01\ntrajectory = "zigzag"\nmeasure_every = 0\n'
+    )
+    out = tmp_path / "runs"
+    for extra in (["--dry-run"], []):
+        proc = subprocess.run(
+            [sys.executable, "-m", "experiments.cli", "sweep", str(cfg), "--out", str(out), *extra],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            timeout=120,
+        )
+        assert proc.returncode == 2, proc.stdout + proc.stderr
+        for key in ("env.noise_mm", "env.trajectory", "env.measure_every"):
+            assert f"- {key}: expected" in proc.stderr, proc.stderr
+        assert "Traceback" not in proc.stderr
+    assert not out.exists()
+
+
+def test_cli_refuses_a_negative_worker_count(tmp_path):
+    out = tmp_path / "runs"
+    cmd = [sys.executable, "-m", "experiments.cli", "sweep", str(CONFIGS / "quick.toml")]
+    proc = subprocess.run(
+        [*cmd, "--workers", "-3", "--out", str(out), "--dry-run"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
+    text = " ".join(proc.stderr.replace("│", " ").split())  # rich draws a box
+    assert proc.returncode == 2 and "'--workers'" in text, proc.stderr
+    assert "greater than or equal to 0" in text, proc.stderr
+    from experiments.sweep import run_sweep
+
+    with pytest.raises(ValueError, match="workers must be an integer >= 0, got -3"):
+        run_sweep(load_config(CONFIGS / "quick.toml"), tmp_path / "runs", workers=-3)
+    assert not (tmp_path / "runs").exists()
