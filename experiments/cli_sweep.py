@@ -104,9 +104,11 @@ def sweep(
     with user_errors():
         cfg = load_config(config)
     out_dir = out if out is not None else Path("runs") / cfg.name
+    with user_errors():  # every check before any work (and before the progress bar)
+        store = RunStore(out_dir)
+        pending, finished = plan_sweep(cfg, store, retry_failed, overwrite)
+        store.check_writable()
     if dry_run:
-        with user_errors():
-            pending, finished = plan_sweep(cfg, RunStore(out_dir), retry_failed, overwrite)
         console.print(
             f"{cfg.name}: {len(cfg.agents)} agents x {len(cfg.scenarios)} scenarios x "
             f"{len(cfg.seeds)} seeds = {len(pending) + len(finished)} runs; "
@@ -222,8 +224,10 @@ def leaderboard(
         write_leaderboard,
     )
     from experiments.metrics import METRICS
+    from experiments.records import check_writable_dir
 
     with user_errors():
+        check_writable_dir(out, "the leaderboard")
         board = build_leaderboard(runs_dir, rank_by=rank_by, allow_dirty=allow_dirty)
     command = command_line(
         "leaderboard",
@@ -297,14 +301,17 @@ def reproduce(
     if record.suffix.lower() == ".csv":
         _reproduce_rows(record, run or [], line or [], every, rtol, isolated)
         return
-    from experiments.config import RunSpec
-    from experiments.records import environment_info, load_record
+    from experiments.config import RunSpec, spec_problems
+    from experiments.records import RecordError, environment_info, load_record
     from experiments.reproduce import same_value
     from experiments.sweep import build_record, execute_run, run_in_worker
 
     with user_errors():
         rec = load_record(record)
-    spec = RunSpec.from_dict(rec["spec"])
+        spec = RunSpec.from_dict(rec["spec"])
+        problems = spec_problems(spec)
+        if problems:
+            raise RecordError(f"{record}: cannot rerun: " + "; ".join(problems))
     here = environment_info()
     for key in ("versions", "git"):
         mine, theirs = here[key], rec.get(key) or {}

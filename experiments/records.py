@@ -13,13 +13,17 @@ same record. A failed run is a record too, with ``status = "failed"`` and its tr
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import importlib.metadata
 import json
 import logging
 import math
+import os
 import platform
 import subprocess
+import tempfile
+import typing
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -32,9 +36,11 @@ __all__ = [
     "TIMING_FIELDS",
     "RecordError",
     "RunStore",
+    "check_writable_dir",
     "environment_info",
     "jsonable",
     "load_record",
+    "record_problem",
     "repo_path",
     "source_root",
     "without_timing",
@@ -88,6 +94,9 @@ def without_timing(record: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def load_record(path: str | Path) -> dict[str, Any]:
+    """A record file, checked: every field a reader uses (the spec that reruns it, the status, the
+    metrics, the provenance) has its type, else :class:`RecordError` names the file and the
+    field, so a hand-edited or damaged record fails here in one line, not later in a rerun."""
     p = Path(path)
     try:
         rec = json.loads(p.read_text(encoding="utf-8"))
@@ -99,11 +108,121 @@ def load_record(path: str | Path) -> dict[str, Any]:
         raise RecordError(f"{p}: not a run record (no 'spec' or 'run_key')")
     if rec.get("schema") != RECORD_SCHEMA:
         raise RecordError(f"{p}: record schema {rec.get('schema')!r}, expected {RECORD_SCHEMA}")
+    problem = record_problem(rec)
+    if problem:
+        raise RecordError(f"{p}: {problem}")
     return rec
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _field_problem(v: Any, hint: Any) -> str | None:
+    """What is wrong with a value of a :class:`RunSpec` field annotated ``hint`` (None: fine)."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is str:
+        return None if isinstance(v, str) else "expected a string"
+    if hint is int:
+        ok = isinstance(v, int) and not isinstance(v, bool)
+        return None if ok else "expected an integer"
+    if hint is float:
+        return None if _number(v) else "expected a finite number"
+    if hint is dict or origin is dict:
+        return None if isinstance(v, dict) else "expected an object"
+    if origin is tuple and args and args[-1] is Ellipsis:
+        if not isinstance(v, list):
+            return "expected an array"
+        for i, item in enumerate(v):
+            why = _field_problem(item, args[0])
+            if why:
+                return f"item {i}: {why}"
+        return None
+    return None  # an annotation this check does not know: the run will judge
+
+
+#: the spec fields with a range beyond their type
+_SPEC_RANGES: dict[str, tuple[Any, str]] = {
+    "seed": (lambda v: v >= 0, "must be >= 0"),
+    "episode_seconds": (lambda v: v > 0, "must be > 0"),
+    "settle_seconds": (lambda v: v >= 0, "must be >= 0"),
+    "converge_mm": (lambda v: v > 0, "must be > 0"),
+}
+
+
+#: a phase of a spec: key, check, what it must be (env may be left out)
+_PHASE_FIELDS = (
+    ("name", lambda v: isinstance(v, str), "a string"),
+    ("seconds", lambda v: _number(v) and v > 0, "a positive number"),
+    ("judged", lambda v: isinstance(v, bool), "true or false"),
+    ("env", lambda v: isinstance(v, dict), "an object"),
+)
+
+
+def record_problem(rec: Mapping[str, Any]) -> str | None:
+    """The first malformed field of a record, as ``field: what is wrong, got value``; None if
+    the record can be read, rerun and summarised."""
+    from experiments.config import RunSpec
+
+    spec = rec.get("spec")
+    if not isinstance(spec, dict):
+        return f"spec: expected an object, got {spec!r}"
+    hints = typing.get_type_hints(RunSpec)
+    for f in dataclasses.fields(RunSpec):
+        if f.name not in spec:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                if f.name != "phases":  # optional in every record written so far
+                    return f"spec.{f.name}: missing"
+            continue
+        v = spec[f.name]
+        why = _field_problem(v, hints[f.name])
+        if why is None and f.name in _SPEC_RANGES and not _SPEC_RANGES[f.name][0](v):
+            why = _SPEC_RANGES[f.name][1]
+        if why:
+            return f"spec.{f.name}: {why}, got {v!r}"
+    for i, ph in enumerate(spec.get("phases") or ()):
+        for key, ok, want in _PHASE_FIELDS:
+            if key in ph or key != "env":
+                v = ph.get(key)
+                if not ok(v):
+                    return f"spec.phases[{i}].{key}: expected {want}, got {v!r}"
+    run_key = RunSpec.from_dict(spec).run_key
+    if rec.get("run_key") != run_key:
+        return f"run_key: {rec.get('run_key')!r} is not its spec's run ({run_key!r})"
+    if rec.get("status") not in ("ok", "failed"):
+        return f"status: expected 'ok' or 'failed', got {rec.get('status')!r}"
+    for key in ("metrics", "timing", "versions", "git", "series", "report", "calibration"):
+        if key in rec and not isinstance(rec[key], dict):
+            return f"{key}: expected an object, got {rec[key]!r}"
+    for name, v in (rec.get("metrics") or {}).items():
+        if not (v is None or isinstance(v, bool) or _number(v)):
+            return f"metrics.{name}: expected a number, true/false or null, got {v!r}"
+    if rec.get("error") is not None and not isinstance(rec["error"], dict):
+        return f"error: expected an object or null, got {rec['error']!r}"
+    return None
 
 
 def dumps(record: Mapping[str, Any]) -> str:
     return json.dumps(jsonable(record), indent=1, sort_keys=True, allow_nan=False) + "\n"
+
+
+def check_writable_dir(folder: str | Path, what: str = "files") -> None:
+    """Prove, before any work, that files can be written in ``folder``: it, or the nearest folder
+    above it that exists (where it will be made), takes a new file. A read-only or impossible
+    place is a :class:`RecordError` naming it now, not a traceback once the work is done.
+    Creates nothing (a probe file is made and removed)."""
+    where = f"{folder}: cannot write {what} there"
+    parent = Path(folder).absolute()
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise RecordError(f"{where}: {parent} is a file, not a directory")
+    try:
+        fd, probe = tempfile.mkstemp(dir=parent, prefix=".write-check.", suffix=".tmp")
+    except OSError as exc:
+        raise RecordError(f"{where} ({exc.strerror or exc} in {parent})") from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 class RunStore:
@@ -111,6 +230,10 @@ class RunStore:
 
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root)
+
+    def check_writable(self) -> None:
+        """Prove, before any run, that the records can be written (:func:`check_writable_dir`)."""
+        check_writable_dir(self.root, "the sweep's records")
 
     def path(self, run_key: str) -> Path:
         return self.root / f"{run_key}.json"
@@ -120,9 +243,13 @@ class RunStore:
         return load_record(p) if p.exists() else None
 
     def write(self, record: Mapping[str, Any]) -> Path:
-        """Write (or replace) a record atomically: readers see the old file or the whole new one."""
+        """Write (or replace) a record atomically: readers see the old file or the whole new one.
+        A write that fails (a full disk) is a :class:`RecordError` naming the file."""
         p = self.path(record["run_key"])
-        atomic_write_text(p, dumps(record))
+        try:
+            atomic_write_text(p, dumps(record))
+        except OSError as exc:
+            raise RecordError(f"{p}: cannot write the record ({exc.strerror or exc})") from None
         return p
 
     def paths(self) -> list[Path]:
@@ -135,16 +262,26 @@ class RunStore:
             yield load_record(p)
 
     def write_manifest(self, manifest: Mapping[str, Any]) -> None:
-        atomic_write_text(self.root / MANIFEST, dumps(manifest))
+        p = self.root / MANIFEST
+        try:
+            atomic_write_text(p, dumps(manifest))
+        except OSError as exc:
+            raise RecordError(f"{p}: cannot write the manifest ({exc.strerror or exc})") from None
 
     def manifest(self) -> dict[str, Any] | None:
         p = self.root / MANIFEST
         if not p.exists():
             return None
         try:
-            return json.loads(p.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as exc:
+            manifest = json.loads(p.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise RecordError(f"{p}: not a readable sweep manifest: {exc}") from None
+        if not isinstance(manifest, dict):
+            raise RecordError(f"{p}: not a sweep manifest (expected an object)")
+        for key in ("runs", "config"):
+            if key in manifest and not isinstance(manifest[key], dict):
+                raise RecordError(f"{p}: {key}: expected an object, got {manifest[key]!r}")
+        return manifest
 
 
 @functools.lru_cache(maxsize=1)

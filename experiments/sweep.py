@@ -455,6 +455,7 @@ def run_sweep(
     run_fn = run_fn or execute_run
     store = RunStore(out_dir if out_dir is not None else Path("runs") / config.name)
     pending, finished = plan_sweep(config, store, retry_failed, overwrite)
+    store.check_writable()  # before any run: a read-only place fails now, in one line
     t0 = time.perf_counter()
     store.write_manifest(
         {

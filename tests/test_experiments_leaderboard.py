@@ -8,6 +8,7 @@ import csv
 import io
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -123,10 +124,9 @@ def test_markdown_states_the_commands_config_and_failures(runs):
 
 def test_records_of_another_config_are_ignored(runs, tmp_path):
     _, path = runs
-    other = fake_config(name="other", episode_seconds=2.0)
+    other = fake_config(name="other", seeds=[7], episode_seconds=2.0)
     run_sweep(other, tmp_path / "other", workers=0, run_fn=fake_run)
-    stray = load_record(tmp_path / "other" / "hold__nominal__seed0.json")
-    stray["run_key"] = "hold__nominal__seed7"
+    stray = load_record(tmp_path / "other" / "hold__nominal__seed7.json")  # not a run of path's
     RunStore(path).write(stray)
     board = build_leaderboard(path)
     assert board.ignored == 1
@@ -334,3 +334,77 @@ def test_leaderboard_of_a_missing_directory_is_a_clear_error(tmp_path):
     res = CliRunner().invoke(app, ["leaderboard", str(tmp_path / "nope")])
     assert res.exit_code == 2
     assert "no such runs directory" in res.output
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda r: r["spec"].update(seed="abc"), "spec.seed: expected an integer, got 'abc'"),
+        (lambda r: r["spec"].update(seed=1.5), "spec.seed: expected an integer, got 1.5"),
+        (lambda r: r["spec"].update(seed=-1), "spec.seed: must be >= 0, got -1"),
+        (lambda r: r["spec"].update(seed=True), "spec.seed: expected an integer, got True"),
+        (lambda r: r["spec"].pop("agent"), "spec.agent: missing"),
+        (lambda r: r["spec"].update(settings="x"), "spec.settings: expected an object"),
+        (lambda r: r["spec"].update(metrics=5), "spec.metrics: expected an array, got 5"),
+        (lambda r: r["spec"].update(metrics=["rms_mm", 3]), "spec.metrics: item 1: expected a str"),
+        (lambda r: r["spec"].update(episode_seconds="1"), "spec.episode_seconds: expected a fin"),
+        (lambda r: r["spec"].update(episode_seconds=0), "spec.episode_seconds: must be > 0"),
+        (lambda r: r["spec"].update(phases=[1]), "spec.phases: item 0: expected an object"),
+        (
+            lambda r: r["spec"].update(phases=[{"name": "a", "judged": True}]),
+            "spec.phases[0].seconds: expected a positive number, got None",
+        ),
+        (lambda r: r.update(spec=[1]), "spec: expected an object, got [1]"),
+        (lambda r: r.update(run_key="other"), "run_key: 'other' is not its spec's run"),
+        (lambda r: r.update(status="maybe"), "status: expected 'ok' or 'failed', got 'maybe'"),
+        (lambda r: r.update(metrics=[1]), "metrics: expected an object, got [1]"),
+        (lambda r: r["metrics"].update(rms_mm="1.2"), "metrics.rms_mm: expected a number"),
+    ],
+)
+def test_a_malformed_record_is_refused_in_one_line_naming_the_field(tmp_path, change, message):
+    """``sixaxis reproduce`` used to crash in ``int()`` on a bad seed; the leaderboard and a
+    resumed sweep read records the same way."""
+    runs = tmp_path / "runs"
+    run_sweep(fake_config(seeds=[0, 1, 2]), runs, workers=0, run_fn=fake_run)
+    path = runs / "hold__nominal__seed1.json"
+    rec = json.loads(path.read_text())
+    change(rec)
+    path.write_text(json.dumps(rec))
+    with pytest.raises(RecordError, match="^" + re.escape(f"{path}: {message}")):
+        load_record(path)
+    res = CliRunner().invoke(app, ["reproduce", str(path)])
+    assert res.exit_code == 2 and isinstance(res.exception, SystemExit), res.output
+    assert message in " ".join(res.output.split())  # rich may wrap the line
+    res = CliRunner().invoke(app, ["leaderboard", str(runs), "--out", str(tmp_path / "r")])
+    assert res.exit_code == 2 and message in " ".join(res.output.split()), res.output
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda s: s.update(agent="bogus"), "spec.agent: unknown agent 'bogus'"),
+        (
+            lambda s: s.update(settings={"gian": 1.0}),
+            "spec.settings: agent 'nominal': unknown setting(s) gian",
+        ),
+        (lambda s: s["env_kwargs"].update(noise_mm=-1.0), "spec.env_kwargs.noise_mm: expected"),
+        (lambda s: s["env_kwargs"].update(nosie=1), "spec.env_kwargs.nosie: unknown env option"),
+        (lambda s: s.update(scenario="windy"), "spec.env_kwargs.scenario: unknown scenario"),
+    ],
+)
+def test_reproduce_refuses_a_record_that_cannot_rerun_in_one_line(tmp_path, change, message):
+    """A well-formed record whose spec the agent or the env would refuse: one line before the
+    rerun, not a failed run's traceback."""
+    runs = tmp_path / "runs"
+    run_sweep(fake_config(seeds=[0, 1, 2]), runs, workers=0, run_fn=fake_run)
+    path = runs / "nominal__geometric__seed1.json"
+    rec = json.loads(path.read_text())
+    change(rec["spec"])
+    if "scenario" in rec["spec"]["env_kwargs"]:
+        rec["spec"]["env_kwargs"]["scenario"] = rec["spec"]["scenario"]
+    path.write_text(json.dumps(rec))
+    res = CliRunner().invoke(app, ["reproduce", str(path)])
+    assert res.exit_code == 2 and isinstance(res.exception, SystemExit), res.output
+    text = " ".join(res.output.split())
+    assert f"{path}: cannot rerun: {message}" in text, res.output
+    assert "rerunning" not in text

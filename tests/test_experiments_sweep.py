@@ -438,3 +438,66 @@ def test_a_worker_exits_when_its_parent_dies_without_pdeathsig(tmp_path):
         middle.kill()
         with contextlib.suppress(Exception):
             child.kill()
+
+
+# -- every output place is checked before any work ------------------------------------------------
+
+
+def _unwritable(tmp_path: Path, where: str, monkeypatch) -> Path:
+    """An output folder where no file can be written: inside a file, below a file, or a folder
+    that refuses new files (chmod, or for root, who ignores it, a probe that fails as the OS
+    would)."""
+    a_file = tmp_path / "a-file"
+    a_file.write_text("not a folder\n")
+    if where == "file":
+        return a_file
+    if where == "below a file":
+        return a_file / "runs" / "quick"
+    ro = tmp_path / "read-only"
+    ro.mkdir()
+    ro.chmod(0o555)
+    if where == "read-only" and os.access(ro, os.W_OK):
+        pytest.skip("this user writes in a read-only folder (root); see 'refusing'")
+    if where == "refusing":
+
+        def refuse(*args, **kwargs):
+            raise PermissionError(13, "Permission denied")
+
+        monkeypatch.setattr("experiments.records.tempfile.mkstemp", refuse)
+    return ro / "runs"
+
+
+@pytest.mark.parametrize("where", ["file", "below a file", "read-only", "refusing"])
+def test_sweep_refuses_an_unwritable_out_in_one_line_before_any_run(tmp_path, where, monkeypatch):
+    from typer.testing import CliRunner
+
+    from experiments.cli import app
+
+    config_path = tmp_path / "tiny.toml"
+    config_path.write_text(TINY)
+    out = _unwritable(tmp_path, where, monkeypatch)
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    for extra in ([], ["--dry-run"]):
+        res = CliRunner().invoke(app, ["sweep", str(config_path), "--out", str(out), *extra])
+        assert res.exit_code == 2 and isinstance(res.exception, SystemExit), res.output
+        text = " ".join(res.output.split())
+        assert f"{out}: cannot write the sweep's records there" in text, res.output
+        assert "running" not in text  # refused before the sweep started
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before  # nothing made
+    with pytest.raises(Exception, match="cannot write the sweep's records there"):
+        run_sweep(config(), out, workers=0, run_fn=fake_run)  # the Python API checks too
+
+
+def test_leaderboard_refuses_an_unwritable_out_before_reading_the_records(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from experiments.cli import app
+
+    runs = tmp_path / "runs"
+    run_sweep(config(), runs, workers=0, run_fn=fake_run)
+    for where in ("file", "below a file"):
+        (tmp_path / where).mkdir()
+        out = _unwritable(tmp_path / where, where, monkeypatch)
+        res = CliRunner().invoke(app, ["leaderboard", str(runs), "--out", str(out)])
+        assert res.exit_code == 2 and isinstance(res.exception, SystemExit), res.output
+        assert f"{out}: cannot write the leaderboard there" in " ".join(res.output.split())
