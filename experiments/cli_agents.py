@@ -157,12 +157,15 @@ def evaluate(
         ),
     ],
     scenario: Annotated[list[str], typer.Option(help="Scenario(s).")] = ["geometric"],  # noqa: B006
-    seeds: Annotated[int, typer.Option(help="Seeds 0..N-1.")] = 3,
+    seeds: Annotated[int, typer.Option(min=1, help="Seeds 0..N-1.")] = 3,
     settings: Annotated[
         str, typer.Option(help="Agent settings as JSON, e.g. '{\"horizon\": 15}'.")
     ] = "{}",
     settle: Annotated[
-        float, typer.Option(help="The settled metrics count after this many seconds.")
+        float,
+        typer.Option(
+            min=0.0, help="The settled metrics count after this many seconds (< the episode)."
+        ),
     ] = 2.0,
     converge_mm: Annotated[
         float, typer.Option(help="converge_s: when the true error stays below this, mm.")
@@ -173,18 +176,30 @@ def evaluate(
     the whole episode, after the settling time, and when it converged (as the leaderboard)."""
     from agents.registry import make_agent
     from agents.runner import run_episode
+    from arm.errors import SixAxisError
     from experiments.metrics import episode_metrics
     from experiments.records import jsonable
 
-    with user_errors(json.JSONDecodeError):
-        kw = json.loads(settings)
-        make_agent(agent, **kw)
+    kw = _agent_settings(agent, settings)
+    if not converge_mm > 0:
+        fail(f"--converge-mm: must be > 0, got {converge_mm:g}")
+    known = _scenarios()
+    for sc in scenario:
+        if sc not in known:
+            fail(f"--scenario: unknown scenario {sc!r}; known: {', '.join(known)}")
+    episode_s = _episode_seconds()
+    if not settle < episode_s:
+        fail(f"--settle: {settle:g} s leaves nothing of the {episode_s:g} s episode to measure")
     rows = []
     with console.status("running episodes...") as status:
         for sc in scenario:
             for s in range(seeds):
                 status.update(f"{agent} on {sc}, seed {s}")
-                r = run_episode(make_agent(agent, **kw), {"scenario": sc}, seed=s)
+                try:
+                    r = run_episode(make_agent(agent, **kw), {"scenario": sc}, seed=s)
+                except SixAxisError as exc:  # refused on purpose: say why, not where
+                    status.stop()
+                    fail(f"{agent} on {sc}, seed {s}: {exc}")
                 m, timing = episode_metrics(
                     r,
                     EVALUATE_METRICS,
@@ -238,8 +253,7 @@ def render(
     from agents.registry import make_agent
     from experiments.video import render_episode
 
-    with user_errors(json.JSONDecodeError):
-        a = make_agent(agent, **json.loads(settings))
+    a = make_agent(agent, **_agent_settings(agent, settings))
     env = {} if trajectory is None else {"trajectory": trajectory}
     with Progress(
         "[progress.description]{task.description}",
@@ -267,6 +281,42 @@ def render(
         f"{info.width}x{info.height}",
         highlight=False,
     )
+
+
+def _agent_settings(agent: str, settings: str) -> dict:
+    """``--settings`` as a dict the agent takes (it is made once to check), or a one-line error."""
+    from agents.registry import AgentError, make_agent
+
+    try:
+        kw = json.loads(settings)
+    except json.JSONDecodeError as exc:
+        fail(f"--settings: not JSON: {exc}")
+    if not isinstance(kw, dict):
+        fail(f"--settings: expected a JSON object of name: value, got {settings!r}")
+    try:
+        make_agent(agent, **kw)
+    except AgentError as exc:
+        fail(str(exc))
+    except (TypeError, ValueError) as exc:  # a setting the agent itself refuses
+        fail(f"--settings: agent {agent!r} refuses {kw}: {exc}")
+    return kw
+
+
+def _scenarios() -> tuple[str, ...]:
+    from envs.scenarios import SCENARIOS
+
+    return tuple(SCENARIOS)
+
+
+def _episode_seconds() -> float:
+    """The length of ``evaluate``'s episodes: the registered time limit of SixAxisTrack-v0."""
+    import gymnasium as gym
+
+    import envs  # noqa: F401  (registers it)
+    from agents.runner import ENV_ID
+    from envs.plant import PHYSICS_DT, SUBSTEPS
+
+    return gym.spec(ENV_ID).max_episode_steps * PHYSICS_DT * SUBSTEPS
 
 
 def register(app: typer.Typer) -> None:

@@ -65,3 +65,25 @@ def test_a_policy_zip_with_a_pickled_payload_runs_nothing(tmp_path):
     res = runner.invoke(app, ["reproduce", str(record)])
     assert res.exit_code != 0 and "refusing" in res.output, res.output
     assert not marker.exists()
+
+
+def test_evaluate_refuses_bad_options_in_one_line_before_any_episode():
+    """Each is one line naming the option, exit 2, no traceback (an unknown scenario used to
+    print the whole stack around the good message)."""
+    cases = [
+        (["--scenario", "foo"], "--scenario: unknown scenario 'foo'; known: nominal"),
+        (["--scenario", "geometric", "--scenario", "nope"], "unknown scenario 'nope'"),
+        (["--settle", "10"], "--settle: 10 s leaves nothing of the 10 s episode"),
+        (["--settle", "-1"], "--settle"),
+        (["--seeds", "0"], "--seeds"),
+        (["--settings", "[1]"], "--settings: expected a JSON object"),
+        (["--settings", '{"x"'], "--settings: not JSON"),
+        (["--converge-mm", "0"], "--converge-mm: must be > 0"),
+    ]
+    for args, message in cases:
+        res = runner.invoke(app, ["evaluate", "hold", *args])
+        assert res.exit_code == 2, (args, res.output)
+        assert message in res.output, (args, res.output)
+        assert isinstance(res.exception, SystemExit), (args, res.exception)  # no crash
+    res = runner.invoke(app, ["evaluate", "mpc", "--settings", '{"horizon": "x"}'])
+    assert res.exit_code == 2 and "agent 'mpc' refuses {'horizon': 'x'}" in res.output
