@@ -13,6 +13,7 @@ same record. A failed run is a record too, with ``status = "failed"`` and its tr
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import importlib.metadata
@@ -50,6 +51,7 @@ log = logging.getLogger(__name__)
 
 RECORD_SCHEMA = 1
 MANIFEST = "_sweep.json"
+LOCK = "_sweep.lock"
 #: the parts of a record that vary from run to run of the same spec
 TIMING_FIELDS = ("timing",)
 
@@ -234,6 +236,39 @@ class RunStore:
     def check_writable(self) -> None:
         """Prove, before any run, that the records can be written (:func:`check_writable_dir`)."""
         check_writable_dir(self.root, "the sweep's records")
+
+    @contextlib.contextmanager
+    def lock(self) -> Iterator[None]:
+        """Hold the directory for one sweep (an exclusive ``flock`` on ``_sweep.lock``, released
+        when this process ends, however it ends). A second sweep into it is a
+        :class:`RecordError` naming the first one's pid; and as no other writer can be at work,
+        the temporaries a killed sweep left (``.NAME.XXXX.tmp``) are removed. Where ``fcntl`` is
+        missing (Windows) it only yields."""
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not POSIX
+            yield
+            return
+        self.root.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.root / LOCK, os.O_RDWR | os.O_CREAT, 0o666)  # not inherited
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+                raise RecordError(
+                    f"{self.root}: another sweep (pid {holder}) is writing its records here; "
+                    "wait for it to end, or give another output directory"
+                ) from None
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            for tmp in self.root.glob(".*.tmp"):
+                with contextlib.suppress(OSError):
+                    tmp.unlink()
+                    log.info("removed %s, left by a sweep that was killed", tmp)
+            yield
+        finally:
+            os.close(fd)
 
     def path(self, run_key: str) -> Path:
         return self.root / f"{run_key}.json"

@@ -454,66 +454,67 @@ def run_sweep(
         raise SweepError(f"workers must be an integer >= 0, got {workers!r}")
     run_fn = run_fn or execute_run
     store = RunStore(out_dir if out_dir is not None else Path("runs") / config.name)
-    pending, finished = plan_sweep(config, store, retry_failed, overwrite)
     store.check_writable()  # before any run: a read-only place fails now, in one line
-    t0 = time.perf_counter()
-    store.write_manifest(
-        {
-            "config_name": config.name,
-            "config_hash": config.hash,
-            "config_path": repo_path(config.path),
-            "command": command,
-            "config": config.to_dict(),
-            "runs": {s.run_key: s.run_hash for s in config.runs()},
-        }
-    )
-    state = SweepProgress(total=len(pending) + len(finished), skipped=len(finished))
-    failed: list[str] = []
-    log.info(
-        "sweep %s: %d runs, %d already finished, %d to run (%s backend)",
-        config.name,
-        state.total,
-        state.skipped,
-        len(pending),
-        backend,
-    )
+    with store.lock():  # one sweep a directory; what a killed one left half-written goes
+        pending, finished = plan_sweep(config, store, retry_failed, overwrite)
+        t0 = time.perf_counter()
+        store.write_manifest(
+            {
+                "config_name": config.name,
+                "config_hash": config.hash,
+                "config_path": repo_path(config.path),
+                "command": command,
+                "config": config.to_dict(),
+                "runs": {s.run_key: s.run_hash for s in config.runs()},
+            }
+        )
+        state = SweepProgress(total=len(pending) + len(finished), skipped=len(finished))
+        failed: list[str] = []
+        log.info(
+            "sweep %s: %d runs, %d already finished, %d to run (%s backend)",
+            config.name,
+            state.total,
+            state.skipped,
+            len(pending),
+            backend,
+        )
 
-    def report(spec: RunSpec, result: Mapping[str, Any]) -> None:
-        rec = build_record(spec, result, config)
-        store.write(rec)
-        state.done += 1
-        state.last = spec.run_key
-        if rec["status"] != "ok":
-            state.failed += 1
-            failed.append(spec.run_key)
-            err = rec.get("error") or {}
-            log.warning("%s failed: %s: %s", spec.run_key, err.get("type"), err.get("message"))
+        def report(spec: RunSpec, result: Mapping[str, Any]) -> None:
+            rec = build_record(spec, result, config)
+            store.write(rec)
+            state.done += 1
+            state.last = spec.run_key
+            if rec["status"] != "ok":
+                state.failed += 1
+                failed.append(spec.run_key)
+                err = rec.get("error") or {}
+                log.warning("%s failed: %s: %s", spec.run_key, err.get("type"), err.get("message"))
 
-    def tick(running: int) -> None:
-        state.running = running
-        if progress is not None:
-            progress(state)
+        def tick(running: int) -> None:
+            state.running = running
+            if progress is not None:
+                progress(state)
 
-    tick(0)
-    if pending:
-        if backend == "dask":
-            _run_dask(pending, run_fn, workers, address, processes, report, tick)
-        elif workers == 0:
-            for spec in pending:
-                tick(1)
-                report(spec, run_in_worker(run_fn, spec.to_dict()))
-            tick(0)
-        else:
-            n = workers if workers is not None else (os.cpu_count() or 1)
-            _run_local(pending, run_fn, max(1, n), report, tick)
-    return SweepSummary(
-        out_dir=store.root,
-        total=state.total,
-        skipped=state.skipped,
-        done=state.done,
-        failed=failed,
-        wall_time_s=time.perf_counter() - t0,
-    )
+        tick(0)
+        if pending:
+            if backend == "dask":
+                _run_dask(pending, run_fn, workers, address, processes, report, tick)
+            elif workers == 0:
+                for spec in pending:
+                    tick(1)
+                    report(spec, run_in_worker(run_fn, spec.to_dict()))
+                tick(0)
+            else:
+                n = workers if workers is not None else (os.cpu_count() or 1)
+                _run_local(pending, run_fn, max(1, n), report, tick)
+        return SweepSummary(
+            out_dir=store.root,
+            total=state.total,
+            skipped=state.skipped,
+            done=state.done,
+            failed=failed,
+            wall_time_s=time.perf_counter() - t0,
+        )
 
 
 def _run_local(

@@ -28,7 +28,7 @@ from agents.base import Agent
 from envs.task import TaskInfo, Truth
 from experiments.config import RunSpec, parse_config
 from experiments.leaderboard import build_leaderboard, to_csv
-from experiments.records import RunStore, load_record, without_timing
+from experiments.records import RecordError, RunStore, load_record, without_timing
 from experiments.sweep import SweepError, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -158,6 +158,24 @@ def test_records_of_another_spec_are_refused_not_overwritten(tmp_path):
         config(episode_seconds=2.0), tmp_path, workers=0, run_fn=fake_run, overwrite=True
     )
     assert summary.done == 12
+
+
+def test_one_sweep_a_directory_and_a_killed_ones_temporaries_are_removed(tmp_path):
+    """A second sweep into a directory another one is writing is refused, naming its pid; once
+    the directory is free, temporaries a killed sweep left half-written are removed (with the
+    lock held no writer can own them)."""
+    store = RunStore(tmp_path)
+    with store.lock():
+        with pytest.raises(RecordError, match=rf"another sweep \(pid {os.getpid()}\)"):
+            run_sweep(config(), tmp_path, workers=0, run_fn=fake_run)
+        assert not store.paths()  # nothing ran
+    left = [tmp_path / ".hold__nominal__seed0.json.k2j4x9.tmp", tmp_path / "._sweep.json.a1.tmp"]
+    for p in left:
+        p.write_text('{"half": ')
+    summary = run_sweep(config(), tmp_path, workers=0, run_fn=fake_run)
+    assert summary.done == 12 and not any(p.exists() for p in left)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    run_sweep(config(), tmp_path, workers=0, run_fn=fake_run)  # the lock was released
 
 
 def test_process_pool_gives_the_same_records_as_in_process(tmp_path):
