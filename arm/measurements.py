@@ -42,6 +42,7 @@ __all__ = [
     "atomic_write_text",
     "check_output",
     "check_ranges",
+    "folder_problem",
     "parse_numeric_csv",
     "poses_csv",
     "read_measurements",
@@ -290,20 +291,27 @@ def check_output(
             )
     if path.is_dir():
         raise OutputError(f"{option} {path}: is a directory; give the file to write")
-    # the nearest folder that exists must be a folder where a file can be created
-    parent = path.absolute().parent
+    why = folder_problem(path.absolute().parent)
+    if why:
+        raise OutputError(f"{option} {path}: {why}")
+
+
+def folder_problem(folder: str | Path) -> str | None:
+    """Why no file can be created in ``folder``, or in the nearest folder above it that exists
+    (where it would be made): ``"... is not a directory"``, ``"cannot write in ... (reason)"``;
+    None when a probe file can be made there (it is removed at once)."""
+    parent = Path(folder).absolute()
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
     if not parent.is_dir():
-        raise OutputError(f"{option} {path}: {parent} is not a directory")
+        return f"{parent} is not a directory"
     try:
         fd, probe = tempfile.mkstemp(dir=parent, prefix=".sixaxis-probe.", suffix=".tmp")
     except OSError as exc:
-        raise OutputError(
-            f"{option} {path}: cannot write in {parent} ({exc.strerror or exc})"
-        ) from None
+        return f"cannot write in {parent} ({exc.strerror or exc})"
     os.close(fd)
     os.unlink(probe)
+    return None
 
 
 def atomic_write_text(path: Path, text: str) -> None:

@@ -23,14 +23,13 @@ import math
 import os
 import platform
 import subprocess
-import tempfile
 import typing
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 from arm.errors import SixAxisError
-from arm.measurements import atomic_write_text
+from arm.measurements import atomic_write_text, folder_problem
 
 __all__ = [
     "RECORD_SCHEMA",
@@ -212,19 +211,10 @@ def check_writable_dir(folder: str | Path, what: str = "files") -> None:
     """Prove, before any work, that files can be written in ``folder``: it, or the nearest folder
     above it that exists (where it will be made), takes a new file. A read-only or impossible
     place is a :class:`RecordError` naming it now, not a traceback once the work is done.
-    Creates nothing (a probe file is made and removed)."""
-    where = f"{folder}: cannot write {what} there"
-    parent = Path(folder).absolute()
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not parent.is_dir():
-        raise RecordError(f"{where}: {parent} is a file, not a directory")
-    try:
-        fd, probe = tempfile.mkstemp(dir=parent, prefix=".write-check.", suffix=".tmp")
-    except OSError as exc:
-        raise RecordError(f"{where} ({exc.strerror or exc} in {parent})") from None
-    os.close(fd)
-    os.unlink(probe)
+    Creates nothing."""
+    why = folder_problem(folder)
+    if why:
+        raise RecordError(f"{folder}: cannot write {what} there: {why}")
 
 
 class RunStore:

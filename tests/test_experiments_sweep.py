@@ -481,7 +481,7 @@ def _unwritable(tmp_path: Path, where: str, monkeypatch) -> Path:
         def refuse(*args, **kwargs):
             raise PermissionError(13, "Permission denied")
 
-        monkeypatch.setattr("experiments.records.tempfile.mkstemp", refuse)
+        monkeypatch.setattr("tempfile.mkstemp", refuse)
     return ro / "runs"
 
 
