@@ -370,8 +370,8 @@ def test_cli_refuses_a_negative_worker_count(tmp_path):
     text = " ".join(proc.stderr.replace("│", " ").split())  # rich draws a box
     assert proc.returncode == 2 and "'--workers'" in text, proc.stderr
     assert "greater than or equal to 0" in text, proc.stderr
-    from experiments.sweep import run_sweep
+    from experiments.sweep import SweepError, run_sweep
 
-    with pytest.raises(ValueError, match="workers must be an integer >= 0, got -3"):
+    with pytest.raises(SweepError, match="workers must be an integer >= 0, got -3"):
         run_sweep(load_config(CONFIGS / "quick.toml"), tmp_path / "runs", workers=-3)
     assert not (tmp_path / "runs").exists()
