@@ -45,7 +45,7 @@ class EnvOptionError(SixAxisError, ValueError):
     """Keyword arguments the env does not take; the message names every key at fault."""
 
 
-class EnvStateError(SixAxisError, ResetNeeded):
+class EnvStateError(SixAxisError, ResetNeeded, RuntimeError):
     """A call the env cannot answer in its state (``step`` before ``reset``)."""
 
 
@@ -605,12 +605,12 @@ class SixAxisTrackEnv(gym.Env):
 
     def _episode_truth(self) -> EpisodeTruth:
         if self.truth is None:
-            raise gym.error.ResetNeeded("call reset() before step()")
+            raise EnvStateError("SixAxisTrack-v0: call reset() before step()")
         return self.truth
 
     def _path(self) -> Trajectory:
         if self.trajectory is None:
-            raise gym.error.ResetNeeded("call reset() before step()")
+            raise EnvStateError("SixAxisTrack-v0: call reset() before step()")
         return self.trajectory
 
     def _reference(self, k: int) -> np.ndarray:

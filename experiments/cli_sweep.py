@@ -33,14 +33,6 @@ from experiments.cli_output import (
 )
 
 
-class _Stopped(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, raised where the sweep is, so that it stops as it does on Ctrl-C."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
 @contextlib.contextmanager
 def _stop_on_signals() -> Iterator[None]:
     """SIGTERM and SIGHUP (a closed terminal) stop the sweep like SIGINT: the runs in flight are
@@ -54,7 +46,9 @@ def _stop_on_signals() -> Iterator[None]:
     def handler(signum: int, frame: object) -> None:
         for n in names:
             signal.signal(getattr(signal, n), signal.SIG_DFL)
-        raise _Stopped(signum)
+        stop = KeyboardInterrupt(signal.Signals(signum).name)  # what Ctrl-C raises, and which
+        stop.signum = signum  # type: ignore[attr-defined]
+        raise stop
 
     old = {n: signal.signal(getattr(signal, n), handler) for n in names}
     try:

@@ -86,4 +86,4 @@ def test_evaluate_refuses_bad_options_in_one_line_before_any_episode():
         assert message in res.output, (args, res.output)
         assert isinstance(res.exception, SystemExit), (args, res.exception)  # no crash
     res = runner.invoke(app, ["evaluate", "mpc", "--settings", '{"horizon": "x"}'])
-    assert res.exit_code == 2 and "agent 'mpc' refuses {'horizon': 'x'}" in res.output
+    assert res.exit_code == 2 and "agent 'mpc': bad settings {'horizon': 'x'}" in res.output
