@@ -108,21 +108,24 @@ class SixAxisTrackEnv(gym.Env):
     rad/s^2.
 
     ## Observation Space
-    ``Box(-inf, inf, (22 + 3 * preview_steps,), float32)`` (52 with the default preview of 10);
-    ``task.obs_slices`` names each part. All points are in the measurement frame (the nominal
-    robot base frame, z up), in metres.
+    ``Box(low, high, (22 + 3 * preview_steps,), float32)`` (52 with the default preview of 10),
+    with the finite bounds below; ``task.obs_slices`` names each part. All points are in the
+    measurement frame (the nominal robot base frame, z up), in metres.
 
-    | Num        | Observation                                         | Min  | Max | Name (obs_slices) | Unit    |
-    |------------|-----------------------------------------------------|------|-----|-------------------|---------|
-    | 0-5        | encoder angles of axes 1-6 (motor side)             | -Inf | Inf | q                 | rad     |
-    | 6-11       | encoder velocities of axes 1-6                      | -Inf | Inf | qd                | rad/s   |
-    | 12-14      | reference tool point now (x, y, z)                  | -Inf | Inf | ref               | m       |
-    | 15-44      | the next ``preview_steps`` reference points         | -Inf | Inf | preview           | m       |
-    | 45-47      | last laser-tracker measurement (zeros before one)   | -Inf | Inf | meas              | m       |
-    | 48         | age of that measurement (10 before the first)       | 0    | 10  | meas_age          | s       |
-    | 49         | 1 if a new measurement arrived this step, else 0    | 0    | 1   | meas_valid        | 0/1     |
-    | 50         | arm temperature, as its sensor reads it (see below) | -Inf | Inf | temperature       | degC    |
-    | 51         | payload mass, as the operator declared it           | 0    | Inf | payload           | kg      |
+    | Num        | Observation                                         | Min           | Max           | Name (obs_slices) | Unit    |
+    |------------|-----------------------------------------------------|---------------|---------------|-------------------|---------|
+    | 0-5        | encoder angles of axes 1-6 (motor side)             | lower - pi    | upper + pi    | q                 | rad     |
+    | 6-11       | encoder velocities of axes 1-6                      | -100          | 100           | qd                | rad/s   |
+    | 12-14      | reference tool point now (x, y, z)                  | -5            | 5             | ref               | m       |
+    | 15-44      | the next ``preview_steps`` reference points         | -5            | 5             | preview           | m       |
+    | 45-47      | last laser-tracker measurement (zeros before one)   | -5            | 5             | meas              | m       |
+    | 48         | age of that measurement (10 before the first)       | 0             | 10            | meas_age          | s       |
+    | 49         | 1 if a new measurement arrived this step, else 0    | 0             | 1             | meas_valid        | 0/1     |
+    | 50         | arm temperature, as its sensor reads it (see below) | -50           | 200           | temperature       | degC    |
+    | 51         | payload mass, as the operator declared it           | 0             | 100           | payload           | kg      |
+
+    ``lower``/``upper`` are the description's joint limits (the bounds leave a half-turn either
+    way for the hard stops); 100 rad/s is the plant's ``MAX_SPEED``, 5 m the env's ``WORKSPACE``.
 
     (indices for ``preview_steps=10``; with P preview steps the preview spans 15..15+3P-1 and the
     rest shifts.)

@@ -53,6 +53,7 @@ from arm.description import RobotDescription, seed_robot
 from arm.errormodel import ErrorModel
 from arm.kinematics import Chain, tool_points
 from arm.measurements import MeasurementSet, atomic_write_text
+from arm.params import parse_parameter_name
 from arm.sampling import MIN_TOOL_HEIGHT
 from lab import fit, plan
 
@@ -333,7 +334,9 @@ def run(out_dir: Path) -> dict:
 
 
 def _is_length(name: str) -> bool:
-    return (name[:2] in ("da", "dd") and not name.startswith("dalpha")) or name[:1] == "t"
+    """A DH length error or a tool offset (shown in mm)."""
+    p = parse_parameter_name(name)
+    return p is not None and (p.family in ("da", "dd") or p.kind == "tool")
 
 
 def markdown(r: dict) -> str:
