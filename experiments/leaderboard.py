@@ -8,7 +8,8 @@ Each cell is the mean over seeds with the half-width of its 95 % Student-t confi
 (``scipy.stats.t``), or with the minimum and maximum over seeds when there are fewer than three;
 the best agent of each scenario (lowest mean of the config's ``rank_by`` metric) is marked. The
 whole-episode RMS, the settled RMS and the convergence time stand side by side in the first table.
-Oracles (agents given the plant's truth) are marked as such.
+Oracles (agents given the plant's truth) are marked as such, and so are informed agents (told the
+scenario's effects in their config: a model effect set beyond the geometric errors).
 
 Every row must be reproducible: records from a tree with local changes (or from no git checkout)
 are refused unless ``allow_dirty=True``, and then marked. ``leaderboard_runs.csv`` beside the
@@ -45,6 +46,7 @@ __all__ = [
     "build_leaderboard",
     "cell_text",
     "is_clean",
+    "is_informed",
     "is_oracle",
     "runs_csv",
     "spread_words",
@@ -61,6 +63,7 @@ RUNS_CSV_NAME = "leaderboard_runs.csv"
 #: the first table: the whole episode, the settled part and the convergence, side by side
 HEADLINE = ("rms_mm", "rms_settled_mm", "converge_s")
 ORACLE_MARK = " (oracle)"
+INFORMED_MARK = " (informed)"
 DIRTY_MARK = " (local changes)"
 PLOT_TIME = "leaderboard_error_over_time.png"
 PLOT_SCENARIO = "leaderboard_by_scenario.png"
@@ -76,13 +79,17 @@ class Row:
     best: bool = False
     oracle: bool = False
     dirty: int = 0  # records from a tree with local changes (allowed with allow_dirty)
+    informed: bool = False
 
     @property
     def display(self) -> str:
-        """The agent's label with its marks (oracle, local changes)."""
-        return (
-            self.agent + (ORACLE_MARK if self.oracle else "") + (DIRTY_MARK if self.dirty else "")
-        )
+        """The agent's label with its marks (oracle, informed, local changes)."""
+        return self.agent + marks(self.oracle, self.informed) + (DIRTY_MARK if self.dirty else "")
+
+
+def marks(oracle: bool, informed: bool) -> str:
+    """The marks of a label: (oracle) given the truth, (informed) told the effects."""
+    return (ORACLE_MARK if oracle else "") + (INFORMED_MARK if informed and not oracle else "")
 
 
 @dataclass
@@ -114,6 +121,22 @@ def is_clean(rec: dict[str, Any]) -> bool:
 def is_oracle(rec: dict[str, Any]) -> bool:
     """Whether the record's agent was given the plant's truth (``needs_truth``)."""
     return bool(rec.get("oracle"))
+
+
+def is_informed(rec: dict[str, Any]) -> bool:
+    """Whether the record's agent was told the scenario's effects in its config: its settings
+    for the run (``scenario_settings`` merged in) give a model effect set beyond the geometric
+    errors (``effects = "geometric,backlash[1,5]"``). It did not find them; it was told."""
+    effects = ((rec.get("spec") or {}).get("settings") or {}).get("effects")
+    if effects is None:
+        return False
+    from arm.effects import parse_effects
+
+    try:
+        names = {e.name for e in parse_effects(effects)}
+    except Exception:  # a setting the agent refused: the record says what it was told anyway
+        names = {str(effects)}
+    return bool(names - {"geometric"})
 
 
 def build_leaderboard(
@@ -207,6 +230,7 @@ def build_leaderboard(
                     stats,
                     oracle=any(is_oracle(r) for r in everyone),
                     dirty=sum(not is_clean(r) for r in everyone),
+                    informed=any(is_informed(r) for r in everyone),
                 )
             )
     for scen in scenarios:
@@ -284,8 +308,8 @@ def to_csv(board: Leaderboard) -> str:
     95 % Student-t interval; empty with fewer than three values), ``<metric>_min``,
     ``<metric>_max``, ``<metric>_n``; counts for sums (``diverged``, ``never_converged``);
     ``best`` by ``rank_by``; ``oracle`` (given the truth); ``dirty`` (records with local
-    changes)."""
-    header = ["agent", "scenario", "n", "failed", "best", "oracle", "dirty"]
+    changes); ``informed`` (told the scenario's effects)."""
+    header = ["agent", "scenario", "n", "failed", "best", "oracle", "dirty", "informed"]
     for m in board.metrics:
         header += [f"{m}_mean", f"{m}_ci95", f"{m}_min", f"{m}_max", f"{m}_n"]
         if METRICS[m].aggregate == "sum":
@@ -294,7 +318,16 @@ def to_csv(board: Leaderboard) -> str:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(header)
     for r in board.rows:
-        line: list[Any] = [r.agent, r.scenario, r.n, r.failed, int(r.best), int(r.oracle), r.dirty]
+        line: list[Any] = [
+            r.agent,
+            r.scenario,
+            r.n,
+            r.failed,
+            int(r.best),
+            int(r.oracle),
+            r.dirty,
+            int(r.informed),
+        ]
         for m in board.metrics:
             s = r.stats[m]
             ci = s.ci95 if s.has_ci else float("nan")
@@ -308,8 +341,8 @@ def to_csv(board: Leaderboard) -> str:
 def runs_csv(board: Leaderboard) -> str:
     """One row per run of the leaderboard (failed ones too): agent label and name, scenario,
     seed, whether it is an oracle, status, the commit and whether the tree was dirty, the config
-    (name, path, hash), the run key and hash, and every metric (timing metrics last; they vary
-    from run to run). ``sixaxis reproduce`` reruns any row."""
+    (name, path, hash), the run key and hash, whether it was informed, and every metric (timing
+    metrics last; they vary from run to run). ``sixaxis reproduce`` reruns any row."""
     timing = [m for m in board.metrics if METRICS[m].timing]
     plain = [m for m in board.metrics if not METRICS[m].timing]
     header = [
@@ -327,6 +360,7 @@ def runs_csv(board: Leaderboard) -> str:
         "config_hash",
         "run_key",
         "run_hash",
+        "informed",
         *plain,
         *timing,
     ]
@@ -360,6 +394,7 @@ def runs_csv(board: Leaderboard) -> str:
                 r.get("config_hash") or man.get("config_hash") or "",
                 r["run_key"],
                 r.get("run_hash", ""),
+                int(is_informed(r)),
                 *(_num(_value(r, m)) for m in plain),
                 *(_num(_value(r, m)) for m in timing),
             ]
@@ -426,6 +461,13 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
             + f". Ranked by `{m0}`; **bold**: the best agent of each scenario. Agents marked "
             "(oracle) are given the plant's truth: they show what knowing the arm is worth, not "
             "what a controller can do."
+            + (
+                " Agents marked (informed) are told the scenario's effects in their config (the "
+                "model's effect set): they show what knowing which effects are there is worth, "
+                "not what a controller finds."
+                if any(r.informed for r in board.rows)
+                else ""
+            )
         )
         lines.append("")
     lines.append(
@@ -497,7 +539,7 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
                 if r.failed:
                     c += f" ({r.failed} failed)"
                 cells.append(f"**{c}**" if r.best else c)
-            name = a + (ORACLE_MARK if shown.oracle else "")
+            name = a + marks(shown.oracle, any(r is not None and r.informed for r in mine))
             name += DIRTY_MARK if any(r is not None and r.dirty for r in mine) else ""
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
         lines.append("")
@@ -539,8 +581,9 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
         ]
         for label, s in board.agent_settings.items():
             oracle = any(r.oracle for r in board.rows if r.agent == label)
+            informed = any(r.informed for r in board.rows if r.agent == label)
             lines.append(
-                f"| {label}{ORACLE_MARK if oracle else ''} | `{s['name']}` | "
+                f"| {label}{marks(oracle, informed)} | `{s['name']}` | "
                 f"`{s['settings'] or {}}` | `{s['env'] or {}}` |"
             )
         lines.append("")

@@ -408,3 +408,36 @@ def test_reproduce_refuses_a_record_that_cannot_rerun_in_one_line(tmp_path, chan
     text = " ".join(res.output.split())
     assert f"{path}: cannot rerun: {message}" in text, res.output
     assert "rerunning" not in text
+
+
+def test_agents_told_the_scenarios_effects_are_marked_informed(tmp_path):
+    """An agent whose config gives it a model effect set beyond the geometric errors, for a
+    scenario, is marked (informed) there, like oracles; told only ``geometric``, it is not."""
+    cfg = fake_config(
+        scenarios=["nominal", "backlash"],
+        agents=[
+            "hold",
+            {
+                "name": "nominal",
+                "label": "told",
+                "scenario_settings": {"backlash": {"effects": "geometric,backlash[1,5]"}},
+            },
+            {"name": "calibrated", "settings": {"effects": "geometric"}},
+        ],
+    )
+    run_sweep(cfg, tmp_path, workers=0, run_fn=fake_run)
+    board = build_leaderboard(tmp_path)
+    assert board.row("told", "backlash").informed and not board.row("told", "nominal").informed
+    assert not board.row("calibrated", "backlash").informed
+    assert not board.row("hold", "backlash").informed
+    md = to_markdown(board)
+    assert any(ln.startswith("| told (informed) |") for ln in md.splitlines())
+    long = [ln.replace("**", "") for ln in md.splitlines()]
+    assert "| told (informed) | backlash |" in "\n".join(long)
+    assert "| told | nominal |" in "\n".join(long)
+    assert "(informed) are told the scenario's effects" in md
+    by = {(r["agent"], r["scenario"]): r for r in rows(to_csv(board))}
+    assert by["told", "backlash"]["informed"] == "1" and by["told", "nominal"]["informed"] == "0"
+    runs_table = rows(runs_csv(board))
+    told = [r for r in runs_table if r["agent"] == "told"]
+    assert {(r["scenario"], r["informed"]) for r in told} == {("backlash", "1"), ("nominal", "0")}
