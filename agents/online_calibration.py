@@ -284,6 +284,12 @@ class _CompiledUpdate:
     ``(1 - lam) I``, a full-rank term that a rank-one (or rank-3) Cholesky update cannot take;
     the factorisation's flops cost microseconds. What the numpy version spent (0.3 ms) was the
     dispatch of some thirty small calls; this is one call.
+
+    ``predictive=True`` also gives the point's predictive density under the estimate before it:
+    two more outputs, the normalised innovation ``e' S^-1 e`` and ``log det S``, with ``S = H
+    A^-1 H' + sigma^2 I`` the innovation's covariance (``A = lam info + (1 - lam) I``, the
+    information before the point). They come from the same factorisation, by the matrix
+    inversion lemma: ``S^-1 = (I - H info1^-1 H' / sigma^2) / sigma^2``.
     """
 
     def __init__(
@@ -294,6 +300,7 @@ class _CompiledUpdate:
         p0_free: np.ndarray,
         sigma: float,
         lam: float,
+        predictive: bool = False,
     ) -> None:
         n = len(idx)
         P, nc = len(tm.layout), len(tm.column_names)
@@ -317,13 +324,27 @@ class _CompiledUpdate:
                 rows[i][j] = rows[j][i] = v + (1.0 - lam) if i == j else v
         info1 = ca.vertcat(*(ca.horzcat(*r) for r in rows))
         grad = r_inv * ca.mtimes(H.T, e) - (1.0 - lam) * z
-        core = ca.Function("rls_core", [zq, y, z, info], [e, ca.densify(info1), ca.densify(grad)])
+        outs = [e, ca.densify(info1), ca.densify(grad)]
+        if predictive:
+            outs.append(ca.densify(H))
+        core = ca.Function("rls_core", [zq, y, z, info], outs)
         nz = tm.n_inputs
         w = ca.MX.sym("w", nz + 3 + n + n * n)
         z_mx = w[nz + 3 : nz + 3 + n]
-        e_, info_, grad_ = core(w[:nz], w[nz : nz + 3], z_mx, ca.reshape(w[nz + 3 + n :], n, n))
-        z1 = z_mx + ca.solve(info_, grad_, "ldl")
-        out = ca.vertcat(e_, z1, ca.DM(p0_free) + ca.DM(scale) * z1, ca.vec(info_))
+        e_, info_, grad_, *H_ = core(
+            w[:nz], w[nz : nz + 3], z_mx, ca.reshape(w[nz + 3 + n :], n, n)
+        )
+        if predictive:
+            # one factorisation, four right-hand sides: the step and info1^-1 H'
+            sol = ca.solve(info_, ca.horzcat(grad_, H_[0].T), "ldl")
+            dz, X = sol[:, 0], sol[:, 1:]
+            s_inv = (ca.DM.eye(3) - ca.mtimes(H_[0], X) * r_inv) * r_inv
+            s_inv = 0.5 * (s_inv + s_inv.T)
+            extra = [ca.bilin(s_inv, e_, e_), -ca.log(ca.det(s_inv))]
+        else:
+            dz, extra = ca.solve(info_, grad_, "ldl"), []
+        z1 = z_mx + dz
+        out = ca.vertcat(e_, z1, ca.DM(p0_free) + ca.DM(scale) * z1, ca.vec(info_), *extra)
         self.function = ca.Function("rls_update", [w], [out])
         self.n = n
 
@@ -332,10 +353,16 @@ _UPDATE_CACHE: dict[tuple, _CompiledUpdate] = {}
 
 
 def _compiled_update(
-    tm: ToolModel, idx: np.ndarray, scale: np.ndarray, p0_free: np.ndarray, sigma: float, lam: float
+    tm: ToolModel,
+    idx: np.ndarray,
+    scale: np.ndarray,
+    p0_free: np.ndarray,
+    sigma: float,
+    lam: float,
+    predictive: bool = False,
 ) -> BufferedFunction:
     """A buffered :class:`_CompiledUpdate`, its function built once per process for each (tool
-    model, free set, prior, noise, forgetting)."""
+    model, free set, prior, noise, forgetting, predictive or not)."""
     key = (
         id(tm._f_p),
         tuple(int(k) for k in idx),
@@ -343,12 +370,14 @@ def _compiled_update(
         tuple(map(float, p0_free)),
         float(sigma),
         float(lam),
+        bool(predictive),
     )
     cu = _UPDATE_CACHE.get(key)
     if cu is None:
-        if len(_UPDATE_CACHE) > 64:
+        if len(_UPDATE_CACHE) > 256:
             _UPDATE_CACHE.clear()
-        cu = _UPDATE_CACHE[key] = _CompiledUpdate(tm, idx, scale, p0_free, sigma, lam)
+        cu = _CompiledUpdate(tm, idx, scale, p0_free, sigma, lam, predictive)
+        _UPDATE_CACHE[key] = cu
     return BufferedFunction(cu.function)
 
 
@@ -410,10 +439,25 @@ class RecursiveLeastSquares:
                 tool_model = None
         self._tm = tool_model
         self._compiled: BufferedFunction | None = None
+        self._fast = False
         if tool_model is not None:
             self._compiled = _compiled_update(
                 tool_model, self.idx, self.scale, self._p0_free, self.sigma, self.forgetting
             )
+            self._bind(tool_model, self._compiled)
+
+    def _bind(self, tm: ToolModel, cf: BufferedFunction) -> None:
+        """Views of the compiled update's argument ``[q, p, columns, offsets, y, z, info]``: an
+        update writes the point and the state into it in place, without packing or
+        concatenating (the Python around the compiled call is most of an update's cost)."""
+        n, P, nc, nz = len(self.idx), len(tm.layout), len(tm.column_names), tm.n_inputs
+        a = cf.arg
+        self._a_q, self._a_p, self._a_c = a[:6], a[6 : 6 + P], a[6 + P : 6 + P + nc]
+        self._a_y, self._a_z, self._a_info = a[nz : nz + 3], a[nz + 3 : nz + 3 + n], a[nz + 3 + n :]
+        self._col_defaults = [
+            (k, c, tm.column_vector({})[k]) for k, c in enumerate(tm.column_names)
+        ]
+        self._fast = not tm._custom  # a user's effect needs its numpy offsets: pack()
 
     def reset(self) -> None:
         n = len(self.idx)
@@ -566,26 +610,46 @@ class RecursiveLeastSquares:
             q = np.asarray(q, dtype=float).reshape(6)
         if not (isinstance(y, np.ndarray) and y.shape == (3,) and y.dtype == float):
             y = np.asarray(y, dtype=float).reshape(3)
-        if not math.isfinite(q @ q + y @ y):  # one scalar test: NaN and inf propagate
-            return False
         columns = columns or {}
         n = len(self.idx)
-        if self._compiled is not None and self._tm is not None:
+        cf = self._compiled
+        if cf is not None and self._fast:
+            self._a_q[:] = q
+            self._a_p[:] = self._p
+            a_c = self._a_c
+            for k, name, default in self._col_defaults:
+                v = columns.get(name)
+                a_c[k] = v if v is not None and math.isfinite(v) else default
+            self._a_y[:] = y
+            self._a_z[:] = self._z
+            self._a_info[:] = self._info.reshape(-1)
+            out = cf.evaluate()
+            e = out[:3].copy()
+        elif not math.isfinite(q @ q + y @ y):  # one scalar test: NaN and inf propagate
+            return False
+        elif cf is not None and self._tm is not None:
             zq = self._tm.pack(q, self._p, columns)
-            out = self._compiled(np.concatenate([zq, y, self._z, self._info.reshape(-1)]))
+            out = cf(np.concatenate([zq, y, self._z, self._info.reshape(-1)]))
             e = out[:3].copy()
         else:
             out = None
             x, Jp = self._predict(q, columns, self._p)
             e = y - x
-        enorm = math.sqrt(e @ e)
-        recent = sorted(self._recent)
-        typical = max(recent[len(recent) // 2] if recent else 0.0, math.sqrt(3.0) * self.sigma)
+        e0, e1, e2 = e.tolist()
+        enorm = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        if not math.isfinite(enorm):  # a NaN or inf in q or y: the innovation says so
+            return False
         self.last_innovation = e
         # the gate rejects a point far above the recent typical innovation *and* beyond the
-        # chi-square gate; the normalised innovation is computed only for the first kind
-        if enorm > self.robust_factor * typical and self._run_rejected < self.max_rejections:
-            if self.normalised_innovation(q, columns, e) > self.gate:
+        # chi-square gate; the normalised innovation is computed only for the first kind (and
+        # the recent median only for a point above the least it can be)
+        floor = math.sqrt(3.0) * self.sigma
+        if enorm > self.robust_factor * floor and self._run_rejected < self.max_rejections:
+            recent = sorted(self._recent)
+            typical = max(recent[len(recent) // 2] if recent else 0.0, floor)
+            if enorm > self.robust_factor * typical and (
+                self.normalised_innovation(q, columns, e) > self.gate
+            ):
                 self.n_rejected += 1
                 self._run_rejected += 1
                 log.debug("measurement rejected: innovation %.3g mm", enorm * 1e3)
@@ -596,7 +660,7 @@ class RecursiveLeastSquares:
             self._z = out[3 : 3 + n].copy()
             p = self.p0.copy()
             p[self.idx] = out[3 + n : 3 + 2 * n]
-            self._info = out[3 + 2 * n :].reshape(n, n).copy()
+            self._info = out[3 + 2 * n : 3 + 2 * n + n * n].reshape(n, n).copy()
         else:
             lam, r_inv = self.forgetting, 1.0 / self.sigma**2
             H = Jp[:, self.idx] * self.scale

@@ -102,6 +102,11 @@ class BufferedFunction:
         self._eval()
         return self.res
 
+    def evaluate(self) -> np.ndarray:
+        """Evaluate on what :attr:`arg` holds now (written in place by the caller)."""
+        self._eval()
+        return self.res
+
     # buffers hold raw pointers into this instance's arrays: copies get their own
     def __copy__(self) -> BufferedFunction:
         return BufferedFunction(self.function)
