@@ -130,7 +130,9 @@ def test_bad_input_is_ignored_or_refused():
     model = ErrorModel(seed_robot(), "geometric")
     rls = RecursiveLeastSquares(model)
     assert not rls.update(np.zeros(6), np.full(3, np.nan))
-    assert rls.n_updates == 0
+    assert not rls.update(np.array([0.1, np.nan, 0, 0, 0, 0]), np.array([0.5, 0.0, 0.5]))
+    assert not rls.update(np.full(6, np.inf), np.array([0.5, 0.0, 0.5]))
+    assert rls.n_updates == 0 and np.all(np.isfinite(rls.params))
     with pytest.raises(ValueError, match="forgetting"):
         RecursiveLeastSquares(model, forgetting=1.5)
     with pytest.raises(KeyError, match="nope"):
@@ -267,3 +269,23 @@ def test_buffer_keeps_points_with_the_lab_columns_and_drops_the_oldest():
     # a column missing at some point is left out of the set, not filled in
     buf.append(q[0], np.zeros(3), {"t": 1.0}, accepted=True)
     assert set(buf.to_measurements(since=5).columns) == {"t"}
+
+
+def test_update_in_place_equals_the_packed_call():
+    """The update writes the point into the compiled function's argument in place; the same
+    update through ToolModel.pack (columns by name, missing ones at their defaults) gives the
+    same bits."""
+    model = ErrorModel(seed_robot(), "geometric,backlash,thermal")
+    rng = np.random.default_rng(11)
+    q = sample_poses(model.robot, 30, rng)
+    fast = RecursiveLeastSquares(model)
+    packed = RecursiveLeastSquares(model)
+    packed._fast = False
+    for k in range(len(q)):
+        cols = {f"dir{i}": float(rng.choice((-1.0, 1.0))) for i in range(1, 7)}
+        if k % 3:
+            cols["temperature"] = float(rng.uniform(15.0, 45.0))  # else the default, 20 degC
+        y = np.array([0.6, 0.1, 0.7]) + 1e-3 * rng.standard_normal(3)
+        assert fast.update(q[k], y, cols) == packed.update(q[k], y, cols)
+        np.testing.assert_array_equal(fast.params, packed.params)
+        np.testing.assert_array_equal(fast.info, packed.info)
