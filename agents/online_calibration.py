@@ -352,7 +352,7 @@ class _CompiledUpdate:
 _UPDATE_CACHE: dict[tuple, _CompiledUpdate] = {}
 
 
-def _compiled_update(
+def compiled_update(
     tm: ToolModel,
     idx: np.ndarray,
     scale: np.ndarray,
@@ -441,7 +441,7 @@ class RecursiveLeastSquares:
         self._compiled: BufferedFunction | None = None
         self._fast = False
         if tool_model is not None:
-            self._compiled = _compiled_update(
+            self._compiled = compiled_update(
                 tool_model, self.idx, self.scale, self._p0_free, self.sigma, self.forgetting
             )
             self._bind(tool_model, self._compiled)
@@ -528,7 +528,7 @@ class RecursiveLeastSquares:
         scales[model.layout.indices(self.free)] = self.scale / self.prior_factor
         p0 = model.nominal()
         p0[model.layout.indices(list(self.layout.names))] = self.p0
-        _compiled_update(
+        compiled_update(
             tool_model, idx, self.prior_factor * scales[idx], p0[idx], self.sigma, self.forgetting
         )
 
