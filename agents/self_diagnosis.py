@@ -4,33 +4,47 @@ It tracks with the geometric model (:class:`~agents.mpc.MPCAgent`) and keeps its
 with their inputs (:class:`~agents.online_calibration.MeasurementBuffer`: q, the point, the
 commanded direction of each joint, the declared payload, the temperature sensor; the gravity
 torques follow from q and the payload). Everything it uses is what a real controller has: no
-truth, no scenario name.
+truth, no scenario name. Two tests look for what its model misses, each in a worker thread of
+its own.
 
-**When.** After ``first_points`` tracker points it runs the lab's diagnosis
-(:func:`lab.diagnose`, with the instrument's noise and a family-wise level ``alpha``) on the
-buffer. If the model is adequate (verdict ``none``) it stops and watches its innovations; if not,
-it tries again on 30 % more points (15, 20, 26, 34, ... by default), so that a short buffer
-that cannot yet separate an effect gets more data, at a cost that grows slowly; after widening it
-looks again at the wider model. It
+**The sequential test** (:mod:`agents.model_selection`, default ``select=True``) decides as soon
+as the evidence suffices. Shadow estimators of the current model and of the model with each
+candidate effect family of the catalogue (on every joint) take every tracker point; before taking
+it each predicts it, and the sum of the log predictive densities of a candidate minus the
+current model's is its log Bayes factor. A family is selected when that reaches ``log(K /
+select_alpha)`` (``K`` candidates) against the current model and against every other candidate,
+and against a *drift*: the current model with a short memory (forgetting ``drift``), which wins
+when the arm changed (a payload that is not declared yet) rather than lacked an effect. Under the
+current model each Bayes factor is a martingale, so the chance of any false selection over the
+whole episode is at most ``select_alpha`` (Ville's inequality): the false-alarm discipline of the
+lab's family-wise level, for a test that looks at every point. On ``backlash`` it selects within a
+few points of a joint's reversal (0.7-3.2 s on seeds 0-4), where a batch diagnosis needs 20-70
+points to see the gap. The first ``burn_in`` points train the shadows without counting. A job
+starts every ``select_every`` steps on the points not yet taken and is adopted ``select_lag``
+steps later; a new selection (after a widening) first replays the buffer, ``replay_chunk`` points
+a job, without deciding.
+
+**The lab's diagnosis** (:func:`lab.diagnose`) runs on the buffer after ``first_points`` tracker
+points, with the instrument's noise and a family-wise level ``alpha``. If the model is adequate
+(verdict ``none``) it stops and watches its innovations; if not, it tries again on 30 % more points
+(15, 20, 26, 34, ... by default); after any widening it looks again at the wider model. It
 diagnoses again when the innovations say the model has become insufficient (a payload change,
 say): the last ``monitor_points`` innovations, normalised by the noise, beyond their chi-square
-level ``monitor_p``.
+level ``monitor_p``. It uses the diagnosis's explanation (its ``suggestion``), also when the
+verdict is ``unexplained`` (the catalogue explains part of the residual only). Each effect of it,
+in the order the diagnosis chose them, must pass a **held-out test** against spurious extras: the
+model with and without it is fitted on the buffer but its last ``holdout`` fraction, and the
+effect is kept only if it predicts those later points better (RMS at most ``guard`` of the model
+without it). (``test_first=False`` takes the first effect on the lab's word.) Its names are per
+joint (``compliance[2,3]``).
 
-**What it uses.** The diagnosis's explanation (its ``suggestion``), also when the verdict is
-``unexplained`` (on backlash the catalogue explains part of the residual only: the plant's gap
-closes over time, the model flips it at once). Each effect of it, in the order the diagnosis
-chose them, must pass a **held-out test** against spurious extras (a compliance term beside
-backlash, a gear-ratio term where compliance is): the model with and without it is fitted on the
-buffer but its last ``holdout`` fraction, and the effect is kept only if it predicts those later
-points better (RMS at most ``guard`` of the model without it). The lab already confirms each
-effect on left-out poses; later points are the stricter test on a trajectory, where neighbouring
-poses resemble each other. (``test_first=False`` takes the first effect on the lab's word.)
+**Extras.** An effect added to a model that has one already, by either test, must pass the
+held-out test; on a campaign over the workspace it checks that the effect carries over to the
+latest postures, which the prequential evidence (points like the ones before them) does not.
+When it adds an effect it also asks whether one added earlier is still needed: an effect whose
+removal leaves the held-out points predicted about as well (``prune``) goes.
 
-**How it widens.** When it adds an effect it also asks whether one it added earlier is still
-needed: an effect whose removal leaves the held-out points predicted about as well (``prune``)
-goes; on a campaign over the workspace a load-backlash or gear term taken early, before the
-compliance that explains the postures appeared, otherwise stays and extrapolates badly to a new
-region. The model, the MPC and the estimator take the resulting effects; the estimator
+**How it widens.** The model, the MPC and the estimator take the resulting effects; the estimator
 continues from the one re-run over the buffer (``relearn``, default), which is what an estimator
 told the effects from the start would have learned from the same points: the geometric
 parameters that had absorbed the missing effect are re-estimated with it. (With
@@ -39,18 +53,21 @@ starting the new parameters from their prior; the old information then anchors t
 parameters at values that compensated for the missing effect, and on ``backlash`` the error
 stays about 15 % higher.)
 
-**Timing.** A diagnosis starts at a fixed step, runs in a worker thread (off the control path:
+**Timing.** Each job starts at a fixed step, runs in its worker thread (off the control path:
 the control step's own time, ``last_solve_time``, never includes it) and is adopted at a fixed
-later step, ``lag_steps`` after it started, waiting for it there if it is late: the same seed
-always gives the same numbers. Its cost per call (the worker's CPU time) is in the report, beside
-the control path's step times, with the number of diagnoses that did not finish within their lag
-in real time (``lag_steps * dt``).
+later step, waiting for it there if it is late: the same seed always gives the same numbers.
+A result prepared for a model that the other test has widened meanwhile is dropped (and the
+question asked again of the wider model). The costs per call (the workers' CPU time) are in the
+report, beside the control path's step times, with the number of jobs that did not finish within
+their lag in real time.
 
-The record (``report()``) lists every diagnosis: when (step, time, points), the verdict, the
-suggestion, what the held-out test kept and the ratios, and the effects it ended with.
+The record (``report()``) lists every diagnosis and selection: which test (``method``), when
+(step, time, points), the verdict (the lab's, or the family selected), the suggestion, the log
+Bayes factors (``evidence``), what the held-out test kept and the ratios, and the effects it
+ended with.
 
-It is one module, longer than most, because the schedule of diagnoses, the worker that runs them and
-the held-out test that adopts their result share the agent's buffer and step count.
+It is one module, longer than most, because the two tests share the buffer, the held-out test,
+the widening and the fixed-step schedule that keeps them reproducible.
 """
 
 from __future__ import annotations
@@ -67,8 +84,9 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from agents.model_selection import SequentialSelection, candidate_families
 from agents.mpc import MPCAgent, Widening
-from agents.online_calibration import RecursiveLeastSquares, merge_effects
+from agents.online_calibration import MeasurementBuffer, RecursiveLeastSquares, merge_effects
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from envs.task import TaskInfo, Truth
@@ -116,9 +134,12 @@ class DiagnosisRecord:
     effects_after: list[str] = field(default_factory=list)
     reason: str = "start"
     error: str | None = None
+    method: str = "lab"
+    evidence: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            "method": self.method,
             "step": self.step,
             "time_s": self.time_s,
             "points": self.points,
@@ -132,6 +153,7 @@ class DiagnosisRecord:
             "dropped": list(self.dropped),
             "effects_before": list(self.effects_before),
             "effects_after": list(self.effects_after),
+            "evidence": dict(self.evidence),
             "error": self.error,
         }
 
@@ -146,6 +168,9 @@ class _Outcome:
     estimator: RecursiveLeastSquares | None = None
     replayed: int = 0  # buffer points (by number) the estimator has seen
     cost_s: float = 0.0
+    selection: SequentialSelection | None = None  # the selection to continue with
+    fed: int = 0  # buffer points (by number) the selection has taken
+    live_from: int = 0  # buffer points numbered below this were a replay (no decisions)
 
 
 class DiagnosingMPCAgent(MPCAgent):
@@ -161,7 +186,11 @@ class DiagnosingMPCAgent(MPCAgent):
     to test; default the lab's catalogue), ``relearn`` (re-run the widened estimator over the
     buffer), ``test_first`` (the held-out test for the first effect too, not only the extras),
     ``prune`` (drop effects added earlier that a later, wider model no longer needs; with
-    ``relearn`` only).
+    ``relearn`` only); for the sequential test ``select`` (on/off), ``select_alpha`` (its
+    false-selection level over the episode), ``burn_in`` (points that train without counting),
+    ``select_every`` and ``select_lag`` (steps between its jobs, and from a job's start to its
+    adoption), ``replay_chunk`` (points a job replays into a new selection) and ``drift`` (the
+    forgetting of the drifting competitor; None: none).
     """
 
     name = "mpc-diagnose"
@@ -181,6 +210,13 @@ class DiagnosingMPCAgent(MPCAgent):
         relearn: bool = True,
         test_first: bool = True,
         prune: bool = True,
+        select: bool = True,
+        select_alpha: float = 0.02,
+        burn_in: int = 5,
+        select_every: int = 5,
+        select_lag: int = 5,
+        replay_chunk: int = 50,
+        drift: float | None = 0.95,
         buffer: int = 5000,
         effects: str | Sequence[str] = "geometric",
         name: str | None = None,
@@ -218,10 +254,30 @@ class DiagnosingMPCAgent(MPCAgent):
         self.relearn = bool(relearn)
         self.test_first = bool(test_first)
         self.prune = bool(prune)
+        if not 0.0 < select_alpha < 1.0:
+            raise ValueError(f"select_alpha must lie in (0, 1), got {select_alpha}")
+        if select_every < 1 or select_lag < 1:
+            raise ValueError(
+                f"select_every and select_lag must be >= 1 step, got {select_every}, {select_lag}"
+            )
+        if burn_in < 0:
+            raise ValueError(f"burn_in must be >= 0 points, got {burn_in}")
+        self.select = bool(select)
+        self.select_alpha = float(select_alpha)
+        self.burn_in = int(burn_in)
+        self.select_every = int(select_every)
+        self.select_lag = int(select_lag)
+        if replay_chunk < 1:
+            raise ValueError(f"replay_chunk must be >= 1 point, got {replay_chunk}")
+        if drift is not None and not 0.0 < drift < 1.0:
+            raise ValueError(f"drift must lie in (0, 1) or be None, got {drift}")
+        self.replay_chunk = int(replay_chunk)
+        self.drift = None if drift is None else float(drift)
 
     # -- episode ----------------------------------------------------------------------------------
     def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
         self._join_worker()
+        self._join_worker("_sel_thread")
         super().reset(task, seed, truth)
         self._k = 0  # control steps since the episode's start, over every phase
         self._next_points = self.first_points
@@ -236,6 +292,17 @@ class DiagnosingMPCAgent(MPCAgent):
         self._waits: list[float] = []
         self._service: list[float] = []
         self._late = 0
+        # the sequential test (agents.model_selection), in a worker of its own
+        self._sel: SequentialSelection | None = (
+            self._selection_for(self.model) if self.select else None
+        )
+        self._sel_fed = 0  # buffer points (by number, rejected ones too) the selection has taken
+        self._sel_live_from = 0  # the points before this one are replayed, without decisions
+        self._sel_job: _Outcome | None = None
+        self._sel_thread: threading.Thread | None = None
+        self._sel_start = -1
+        self._sel_costs: list[float] = []
+        self._sel_late = 0
 
     def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
         n_before = self.buffer.total if self.buffer is not None else 0
@@ -247,10 +314,14 @@ class DiagnosingMPCAgent(MPCAgent):
             e = self.rls.last_innovation if self.rls is not None else None
             if e is not None and np.all(np.isfinite(e)) and self.rls is not None:
                 self._innov.append(float(e @ e) / self.rls.sigma**2)
+        if self._sel_thread is not None and self._k >= self._sel_start + self.select_lag:
+            self._adopt_selection()
         if self._thread is not None and self._k >= self._job_start + self.lag_steps:
             self._adopt()
         elif self._thread is None and self._due():
             self._start()
+        if self.select and self._sel_thread is None and self._k % self.select_every == 0:
+            self._start_selection()
         self._service.append(time.perf_counter() - t0)
         return action
 
@@ -436,8 +507,8 @@ class DiagnosingMPCAgent(MPCAgent):
         return est
 
     # -- adoption -------------------------------------------------------------------------------------
-    def _join_worker(self) -> float:
-        th = getattr(self, "_thread", None)
+    def _join_worker(self, name: str = "_thread") -> float:
+        th = getattr(self, name, None)
         if th is None:
             return 0.0
         t0 = time.perf_counter()
@@ -455,6 +526,14 @@ class DiagnosingMPCAgent(MPCAgent):
             self._late += 1
         rec = job.record
         rec.adopt_step = self._k
+        if job.widening is not None and list(self.model.effect_names) != rec.effects_before:
+            # the sequential test widened the model while the lab worked on the old one
+            rec.error = "superseded: the model was widened meanwhile"
+            job.widening = job.estimator = None
+        elif job.widening is not None and list(job.widening.model.effect_names) == list(
+            self.model.effect_names
+        ):
+            job.widening = job.estimator = None  # nothing new
         if job.widening is not None:
             if self.relearn and job.estimator is not None and self.buffer is not None:
                 est = job.estimator
@@ -466,10 +545,13 @@ class DiagnosingMPCAgent(MPCAgent):
                 self._adopt_relearned(job.widening, est)
             else:
                 self.adopt_widening(job.widening)
+            self._sel_outdated()
             self._adequate = False  # look again with the wider model
             self._next_points = self.buffer.count() + self.first_points if self.buffer else 0
-        elif rec.verdict == "none":
-            self._adequate = True
+        elif rec.verdict == "none" or (rec.error and rec.error.startswith("superseded")):
+            self._adequate = rec.verdict == "none"
+            if not self._adequate and self.buffer is not None:
+                self._next_points = self.buffer.count() + self.first_points
         else:
             self._adequate = False
             points = self.buffer.count() if self.buffer is not None else 0
@@ -493,8 +575,181 @@ class DiagnosingMPCAgent(MPCAgent):
         self.p = est.params
 
     # -- record -------------------------------------------------------------------------------------
+    # -- the sequential test ----------------------------------------------------------------------
+    def _sel_outdated(self) -> None:
+        """The model changed under the selection (the lab widened it): the next selection job
+        builds one for the new model and replays the buffer into it."""
+        self._sel = None
+
+    def _start_selection(self) -> None:
+        """A job of the sequential test: the points not yet taken, oldest first, at most
+        ``replay_chunk`` of them (a new selection catches up on the buffer over a few jobs:
+        each job's work is bounded)."""
+        assert self.buffer is not None and self.model is not None
+        total = self.buffer.total
+        sel = self._sel
+        fed, live_from = self._sel_fed, self._sel_live_from
+        if sel is None:  # a new selection (the model changed): it replays what the buffer holds
+            fed, live_from = self.buffer.first, total
+        elif fed >= total:
+            return
+        fed = max(fed, self.buffer.first)  # (a buffer full for long drops its oldest points)
+        until = min(total, fed + self.replay_chunk)
+        rec = DiagnosisRecord(
+            step=self._k,
+            time_s=self._k * float(self.task.dt),
+            points=until,
+            effects_before=list(self.model.effect_names),
+            reason="sequential test",
+            method="sequential",
+        )
+        job = _Outcome(rec, selection=sel, fed=fed)
+        new = self.buffer.to_measurements(since=fed, until=until, accepted_only=False)
+        held = self.buffer.to_measurements(since=self.buffer.first, until=until)
+        self._sel_job, self._sel_start = job, self._k
+        self._sel_thread = threading.Thread(
+            target=self._select_work,
+            args=(job, new, held, self.model, until, live_from),
+            name=f"{WORKER} selection step {self._k}",
+            daemon=True,
+        )
+        self._sel_thread.start()
+
+    def _select_work(
+        self,
+        job: _Outcome,
+        new: MeasurementSet,
+        held: MeasurementSet,
+        model: ErrorModel,
+        until: int,
+        live_from: int,
+    ) -> None:
+        """Feed the points to the selection (built first if the model changed; points numbered
+        below ``live_from`` add evidence without deciding); on a selection, test it (an extra),
+        prepare the widening and the estimator re-learned over the buffer (in the worker thread:
+        it reads the agent's settings only)."""
+        t0 = time.thread_time()
+        try:
+            sel = job.selection
+            if sel is None:
+                sel = job.selection = self._selection_for(model)
+            job.live_from = live_from
+            chosen = None
+            if sel is not None:
+                cols = _rows(new)
+                for k in range(len(new)):
+                    live = job.fed + k >= live_from
+                    chosen = sel.feed(new.q[k], new.xyz[k], cols[k], decide=live) or chosen
+            job.fed = until
+            rec = job.record
+            if chosen is not None and sel is not None:
+                rec.verdict = chosen
+                rec.evidence = sel.evidence()
+                labels = merge_effects(model, [chosen])
+                rec.suggestion = ",".join(labels)
+                if len(model.effects) > 1:  # an extra: the held-out test and pruning, as the lab's
+                    tested = self._tested_extra(model, chosen, held, rec)
+                    if tested is None:
+                        sel.veto(chosen, math.ceil(sel.n_points * self.growth))
+                        chosen = None
+                    labels = tested or labels
+            if chosen is not None:
+                rec.kept = [chosen]
+                w = self._prepare(model, labels)
+                job.widening = w
+                job.estimator = self._relearned(w.model, held)
+                job.replayed = until
+        except Exception as exc:  # a failed selection changes nothing: it is reported
+            log.warning("mpc-diagnose: selection at step %d failed: %s", job.record.step, exc)
+            job.record.error = f"{type(exc).__name__}: {exc}"
+            job.widening = job.estimator = None
+        job.cost_s = time.thread_time() - t0
+
+    def _tested_extra(
+        self, model: ErrorModel, chosen: str, held: MeasurementSet, rec: DiagnosisRecord
+    ) -> list[str] | None:
+        """The effects after adding ``chosen`` to a model that has effects already: only if it
+        predicts the buffer's last ``holdout`` points better from a fit on the points before them
+        (the lab path's test of extras), then pruned of effects it makes unnecessary; None: it
+        fails, or the buffer is too short to test it."""
+        data = held.subset(np.arange(max(len(held) - self.window, 0), len(held)))
+        cut = round(len(data) * (1.0 - self.holdout))
+        if cut < MIN_FIT_POINTS:
+            rec.error = (
+                f"not tested: the held-out test needs {MIN_FIT_POINTS} points before the last"
+            )
+            return None
+        train, test = data.subset(np.arange(cut)), data.subset(np.arange(cut, len(data)))
+        base = self._held_out_rms(model, [], train, test)
+        rms = self._held_out_rms(model, [chosen], train, test)
+        rec.tried[chosen] = rms / base if base > 0 else math.inf
+        if not rms <= self.guard * base:
+            return None
+        labels = merge_effects(model, [chosen])
+        if self.prune and self.relearn:
+            labels = self._pruned(model, labels, train, test, rec)
+        return labels
+
+    def _selection_for(self, model: ErrorModel | None) -> SequentialSelection | None:
+        """A selection for ``model``: its null and a shadow per candidate family (their CasADi
+        builds are cached per process)."""
+        assert self.rls is not None and model is not None
+        fams = candidate_families(model, self.candidates, MeasurementBuffer.COLUMNS)
+        if not fams:
+            return None
+        return SequentialSelection(
+            model,
+            fams,
+            self.rls.sigma,
+            alpha=self.select_alpha,
+            burn_in=self.burn_in,
+            forgetting=self.rls.forgetting,
+            drift=self.drift,
+        )
+
+    def _adopt_selection(self) -> None:
+        waited = self._join_worker("_sel_thread")
+        job = self._sel_job
+        self._sel_thread, self._sel_job = None, None
+        assert job is not None and self.model is not None
+        self._sel_costs.append(job.cost_s)
+        if job.cost_s > self.select_lag * float(self.task.dt):
+            self._sel_late += 1
+        rec = job.record
+        if list(self.model.effect_names) != rec.effects_before:
+            return  # the lab widened the model meanwhile: the next job starts afresh
+        self._sel, self._sel_fed, self._sel_live_from = job.selection, job.fed, job.live_from
+        self._waits.append(waited)
+        if job.widening is None or job.estimator is None:
+            if rec.error or rec.verdict:  # a failure, or a selection the held-out test refused
+                rec.adopt_step = self._k
+                rec.effects_after = list(self.model.effect_names)
+                self.records.append(rec)
+            return
+        rec.adopt_step = self._k
+        assert self.buffer is not None
+        est = job.estimator
+        rows = self.buffer.to_measurements(since=job.replayed)
+        cols = _rows(rows)
+        for k in range(len(rows)):
+            est.update(rows.q[k], rows.xyz[k], cols[k])
+        self._adopt_relearned(job.widening, est)
+        self._sel_outdated()  # the next job starts the selection of the wider model
+        rec.effects_after = list(self.model.effect_names)
+        self.records.append(rec)
+        log.info(
+            "mpc-diagnose at %.2f s (%d points): the sequential test selects %s",
+            rec.time_s,
+            rec.points,
+            rec.verdict,
+        )
+        if self._thread is None:  # the lab looks again at the wider model
+            self._adequate = False
+            self._next_points = self.buffer.count() + self.first_points
+
     def report(self) -> dict[str, float | list]:
         self._join_worker()
+        self._join_worker("_sel_thread")
         out = super().report()
         out["diagnoses"] = [r.to_dict() for r in self.records]
         out["diagnosis_verdicts"] = [r.verdict for r in self.records]
@@ -506,6 +761,12 @@ class DiagnosingMPCAgent(MPCAgent):
         out["diagnosis_cost_time_s"] = list(self._costs)
         out["diagnosis_wait_time_s"] = list(self._waits)
         out["diagnosis_late"] = self._late
+        out["selection_cost_time_s"] = list(self._sel_costs)
+        out["selection_late"] = self._sel_late
+        if self._sel is not None:
+            out["selection_evidence"] = [
+                {"family": f, "log_bf": v} for f, v in self._sel.evidence().items()
+            ]
         if self._service:
             out["diagnosis_service_time_max_s"] = float(np.max(self._service))
         return out

@@ -29,17 +29,26 @@ def test_same_seed_same_numbers_and_a_record_of_what_it_found():
     rep = r1.report
     assert not a1.needs_truth
     assert rep["diagnoses"], "it diagnosed"
-    first = rep["diagnoses"][0]
+    lab = [d for d in rep["diagnoses"] if d["method"] == "lab"]
+    first = lab[0]
     assert first["points"] == 15 and first["step"] * 0.02 == pytest.approx(first["time_s"])
     assert first["adopt_step"] == first["step"] + 25
     assert {"verdict", "suggestion", "kept", "effects_before", "effects_after"} <= set(first)
     widened = [d for d in rep["diagnoses"] if d["kept"]]
     assert widened and any("backlash" in k for k in widened[0]["kept"])
+    # on backlash the sequential test decides first, within 2 s: a selection adopted 5 steps
+    # after its job started, with the log Bayes factors of every candidate (and of a drift)
+    seq = widened[0]
+    assert seq["method"] == "sequential" and seq["time_s"] < 2.0
+    assert seq["adopt_step"] == seq["step"] + 5
+    assert seq["evidence"]["backlash"] == max(seq["evidence"].values())
+    assert {"compliance", "thermal", "drift"} <= set(seq["evidence"])
     assert rep["diagnosed_effects"] == widened[-1]["effects_after"]
     assert rep["diagnosed_effects"][0] == "geometric" and len(rep["diagnosed_effects"]) > 1
-    # its cost is reported per call, off the control path's step times
-    assert len(rep["diagnosis_cost_time_s"]) == len(rep["diagnoses"])
+    # their cost is reported per call, off the control path's step times
+    assert len(rep["diagnosis_cost_time_s"]) == len(lab)
     assert all(c > 0 for c in rep["diagnosis_cost_time_s"])
+    assert rep["selection_cost_time_s"] and all(c > 0 for c in rep["selection_cost_time_s"])
 
 
 def test_bad_settings_are_refused():
@@ -49,6 +58,10 @@ def test_bad_settings_are_refused():
         make_agent("mpc-diagnose", oracle=True)
     with pytest.raises(ValueError, match="guard"):
         make_agent("mpc-diagnose", guard=1.5)
+    with pytest.raises(ValueError, match="select_alpha"):
+        make_agent("mpc-diagnose", select_alpha=0.0)
+    with pytest.raises(ValueError, match="drift"):
+        make_agent("mpc-diagnose", drift=1.0)
 
 
 @pytest.mark.slow
