@@ -1,0 +1,322 @@
+"""docs/format.md stays true: it names every parameter family the catalogue has, with the unit
+and typical magnitude the code uses; its seed-arm table is the shipped seed arm; its measurement
+CSV table has every column the reader knows, with the reader's physical ranges; its robot TOML
+tables have every key the writer emits; and each JSON section lists exactly the keys that the
+command prints, nested objects included (the commands run on small generated data sets)."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import tomllib
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from arm.description import RobotDescription, seed_robot
+from arm.effects import CATALOGUE, make_effect
+from arm.measurements import (
+    JOINTS,
+    OPTIONAL,
+    POSITION,
+    MeasurementSet,
+    write_measurements,
+)
+from arm.params import parameter_unit, parse_parameter_name
+from arm.ranges import MAX_EXTRA, RANGES
+from experiments.cli import app
+from tests import _hidden_forms as hidden
+from tests._lab_data import SIGMA, campaign
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "format.md"
+TEXT = DOC.read_text(encoding="utf-8")
+runner = CliRunner()
+
+
+# -- reading the page -------------------------------------------------------------------------------
+def section(title: str) -> str:
+    """The text under the heading ``title`` (any level), up to the next heading of that level or
+    above (lines in fenced code blocks are not headings)."""
+    start = level = None
+    fenced = False
+    lines = TEXT.splitlines()
+    for k, line in enumerate(lines):
+        if line.startswith("```"):
+            fenced = not fenced
+        m = None if fenced else re.match(r"(#+) (.*?)\s*$", line)
+        if m is None:
+            continue
+        if start is None and m.group(2) == title:
+            start, level = k + 1, len(m.group(1))
+        elif start is not None and level is not None and len(m.group(1)) <= level:
+            return "\n".join(lines[start:k])
+    assert start is not None, f"docs/format.md has no heading {title!r}"
+    return "\n".join(lines[start:])
+
+
+def rows(text: str) -> list[list[str]]:
+    """The body rows of every Markdown table in ``text``, as lists of cells."""
+    out = []
+    for line in text.splitlines():
+        if not line.startswith("|") or re.fullmatch(r"\|[-| ]+\|", line.strip()):
+            continue
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        out.append(cells)
+    return [r for r in out if not (r and r[0] in ("key", "effect", "column", "i"))]  # headers
+
+
+def names(cell: str) -> list[str]:
+    """The backticked names in a cell: ``outliers[].row``, ``q1``."""
+    return re.findall(r"`([^`]+)`", cell)
+
+
+def documented_keys(title: str) -> set[str]:
+    return {n for r in rows(section(title)) for n in names(r[0])}
+
+
+def json_keys(obj: dict) -> set[str]:
+    """The keys of a JSON object, and ``key[].sub`` for the keys of objects in a list under
+    ``key``. Maps of names to values (``parameters``, ``skipped``) are not objects with fixed
+    keys and are not descended into."""
+    out = set(obj)
+    for k, v in obj.items():
+        if isinstance(v, list):
+            for item in v:
+                if isinstance(item, dict):
+                    out |= {f"{k}[].{s}" for s in item}
+    return out
+
+
+def number(text: str) -> float:
+    return float(text.replace("−", "-").replace("+", ""))
+
+
+# -- parameter names --------------------------------------------------------------------------------
+def code_families() -> dict[str, tuple[str, str, tuple[float, float] | None]]:
+    """family -> (effect, SI unit, typical range) for every parameter the catalogue names on the
+    seed arm, with one target and with several."""
+    seed = seed_robot()
+    out: dict[str, tuple[str, str, tuple[float, float] | None]] = {}
+    for name in CATALOGUE:
+        effect = make_effect(name)
+        for targets in ((0,), (0, 1)):
+            for p in effect.parameter_names(seed, targets):
+                parsed = parse_parameter_name(p)
+                assert parsed is not None, f"{p} of {name} is not in the name grammar"
+                out[parsed.family] = (name, parameter_unit(p), effect.typical_range(p))
+    return out
+
+
+def doc_families() -> dict[str, tuple[str, str, tuple[float, float]]]:
+    out = {}
+    for r in rows(section("Parameter names")):
+        effect, families, _, unit, _, typical = r
+        lo, hi = typical.split(" to ")
+        for fam in names(families):
+            out[fam] = (names(effect)[0], unit, (number(lo), number(hi)))
+    return out
+
+
+def test_every_parameter_family_is_documented_with_its_effect_unit_and_typical_size():
+    code, doc = code_families(), doc_families()
+    assert set(code) == set(doc), (set(code) - set(doc), set(doc) - set(code))
+    for fam, (effect, unit, typical) in code.items():
+        d_effect, d_unit, d_typical = doc[fam]
+        assert d_effect == effect, fam
+        assert d_unit == unit, (fam, d_unit, unit)
+        assert typical is not None and np.allclose(d_typical, typical, rtol=1e-12), fam
+    assert {n for r in rows(section("Parameter names")) for n in names(r[0])} == set(CATALOGUE)
+
+
+def test_the_seed_arm_table_is_the_shipped_seed_arm():
+    seed = seed_robot()
+    table = rows(section("The seed arm"))
+    assert [int(r[0]) for r in table] == [1, 2, 3, 4, 5, 6]
+    for joint, (_, alpha, a, d, limits, mass, com) in zip(seed.joints, table, strict=True):
+        alpha_deg = 0.0 if alpha == "0" else number(alpha.rstrip("°"))
+        assert math.isclose(math.degrees(joint.alpha), alpha_deg, abs_tol=1e-9)
+        assert math.isclose(joint.a, number(a), abs_tol=1e-12)
+        assert math.isclose(joint.d, number(d), abs_tol=1e-12)
+        lo, hi = (number(v) for v in limits.strip("[]").split(","))
+        assert (joint.lower, joint.upper) == (lo, hi)
+        assert joint.mass == number(mass)
+        assert joint.com == tuple(number(v) for v in com.strip("()").split(","))
+        assert joint.theta_offset == 0.0
+    assert seed.tool_points.tolist() == [[0.0, 0.0, 0.05]]
+    assert "(0, 0, 0.050) m in frame 6" in TEXT
+    assert seed.gravity == (0.0, 0.0, -9.81) and "(0, 0, -9.81) m/s²" in TEXT
+
+
+# -- the measurement CSV ----------------------------------------------------------------------------
+def _columns(cell: str) -> list[str]:
+    """``q1 … q6`` -> q1..q6; ``x``, ``y``, ``z`` -> x, y, z."""
+    found = names(cell)
+    if "…" in cell:
+        (a, b) = found
+        stem = a.rstrip("0123456789")
+        return [f"{stem}{i}" for i in range(int(a[len(stem) :]), int(b[len(stem) :]) + 1)]
+    return found
+
+
+def _bounds(cell: str) -> tuple[float, float] | None:
+    """The physical range as written: ``abs(q) ≤ 100 rad``, ``0 to 10000 kg``; None for ±1."""
+    if m := re.match(r"abs\(\w+\) ≤ (\S+)", cell):
+        return -number(m.group(1)), number(m.group(1))
+    if m := re.match(r"(\S+) to (\S+)", cell):
+        return number(m.group(1)), number(m.group(2))
+    return None
+
+
+def test_every_measurement_column_is_documented_with_the_readers_range():
+    table = rows(section("The measurement CSV"))
+    doc = {c: r for r in table for c in _columns(r[0])}
+    known = [*JOINTS, *POSITION, *OPTIONAL]
+    assert set(doc) == set(known), (set(known) - set(doc), set(doc) - set(known))
+    for c in known:
+        _, _, required, _, physical = doc[c]
+        assert (required == "yes") == (c in (*JOINTS, *POSITION)), c
+        bounds = _bounds(physical)
+        if c.startswith("dir"):
+            assert bounds is None and physical == "-1 or +1"
+        else:
+            assert bounds == (RANGES[c].low, RANGES[c].high), (c, bounds)
+    assert f"abs(v) ≤ {MAX_EXTRA:g}".replace("+", "") in section("The measurement CSV")
+
+
+def test_the_poses_and_joints_files_are_as_documented(tmp_path):
+    from arm.measurements import write_poses
+
+    write_poses(np.zeros((2, 6)), tmp_path / "p.csv")
+    first, header = (tmp_path / "p.csv").read_text().splitlines()[:2]
+    text = section("The poses file")
+    assert first in text and header in text
+
+
+# -- the robot TOML ---------------------------------------------------------------------------------
+def test_the_robot_toml_tables_name_every_key_the_writer_emits():
+    """A description with every optional part (a standard-DH arm folded to modified, so it has a
+    flange; beta; a base; effect values) written by the writer `export` uses."""
+    std = replace(seed_robot(), convention="standard", name="full", payload=1.0)
+    full = replace(
+        std.to_modified(),
+        joints=tuple(replace(j, beta=1e-3, theta_offset=0.1) for j in std.to_modified().joints),
+        base_translation=(0.1, 0.0, 0.0),
+        base_rotation=(0.0, 0.0, 0.2),
+        effects={"compliance": {"c2": 6e-6}},
+    )
+    assert isinstance(full, RobotDescription)
+    doc = tomllib.loads(full.to_toml())
+    text = section("The robot TOML")
+    top, joint = rows(text.split("Keys of each")[0]), rows(text.split("Keys of each")[1])
+    documented_top = {re.sub(r"[\[\]]|\.NAME", "", names(r[0])[0]): r for r in top}
+    assert set(documented_top) == set(doc), set(doc) ^ set(documented_top)
+    assert {names(r[0])[0] for r in joint} == set(doc["joints"][0])
+    for key in ("tools", "base", "flange"):  # the keys of each sub-table, in its row
+        value = doc[key][0] if isinstance(doc[key], list) else doc[key]
+        for sub in value:
+            assert f"`{sub}" in documented_top[key][2], (key, sub)
+
+
+# -- the lab's JSON ---------------------------------------------------------------------------------
+def lab_json(*args: object) -> dict:
+    res = runner.invoke(app, ["lab", *map(str, args), "--json"])
+    assert res.exit_code == 0, res.output
+    return json.loads(res.stdout)
+
+
+@pytest.fixture(scope="module")
+def outputs(tmp_path_factory) -> dict[str, dict]:
+    """The JSON of every command with --json, on data that make its lists non-empty: a gross
+    outlier and a repeated row (fit, diagnose), lengths 5 % too long (implausible, accepted), a
+    hidden 2nd harmonic (discover)."""
+    d = tmp_path_factory.mktemp("docs_format")
+    seed = seed_robot()
+    data = campaign(seed, "geometric", seed=3).measure(120)
+    xyz = data.xyz.copy()
+    xyz[7] += 0.002  # a gross outlier
+    q = np.vstack([data.q, data.q[:1]])  # and a copy of the first row
+    xyz = np.vstack([xyz, xyz[:1]])
+    cols = {k: np.append(v, v[0]) for k, v in data.columns.items()}
+    write_measurements(MeasurementSet(q, xyz, cols), d / "data.csv")
+    write_measurements(campaign(seed, "geometric", seed=3).measure(60), d / "val.csv")
+    long = MeasurementSet(data.q, 1.05 * data.xyz, data.columns)
+    write_measurements(long, d / "long.csv")
+    h = hidden.campaign(seed, "harmonic2_q2", seed=11, n=200, n_validation=100)
+    write_measurements(h.data, d / "h2.csv")
+    write_measurements(h.validation, d / "h2_val.csv")
+    write_measurements(data.subset(np.arange(5)), d / "targets.csv")
+
+    noise = str(1e3 * SIGMA)
+    out = {
+        "fit": lab_json("fit", d / "data.csv", "--validate", d / "val.csv"),
+        "fit_large": lab_json("fit", d / "long.csv", "--accept-large"),
+        "diagnose": lab_json("diagnose", d / "data.csv", "--noise-mm", noise),
+        "discover": lab_json(
+            "discover",
+            d / "h2.csv",
+            "--noise-mm",
+            noise,
+            "--validate",
+            d / "h2_val.csv",
+            "-o",
+            d / "found.py",
+        ),
+        "plan": lab_json("plan", "--n", 12, "--candidates", 200, "-o", d / "poses.csv"),
+    }
+    res = runner.invoke(app, ["lab", "export", str(d / "data.csv"), "-o", str(d / "cal.toml")])
+    assert res.exit_code == 0, res.output
+    out["compensate"] = lab_json(
+        "compensate", d / "targets.csv", "--robot", d / "cal.toml", "-o", d / "joints.csv"
+    )
+    out["joints_csv"] = {"text": (d / "joints.csv").read_text()}
+    return out
+
+
+def test_the_generated_outputs_fill_every_list(outputs):
+    """The data make the lists that carry nested objects non-empty, so their keys are checked."""
+    assert outputs["fit"]["outliers"] and outputs["fit"]["duplicates"]
+    assert outputs["fit_large"]["implausible"]
+    assert outputs["diagnose"]["candidates"] and outputs["diagnose"]["hints"]
+    assert outputs["diagnose"]["outliers"] and outputs["diagnose"]["duplicates"]
+    assert outputs["discover"]["verdict"] == "discovered" and outputs["discover"]["terms"]
+
+
+@pytest.mark.parametrize(
+    ("title", "runs"),
+    [
+        ("fit", ("fit", "fit_large")),
+        ("diagnose", ("diagnose",)),
+        ("discover", ("discover",)),
+        ("plan", ("plan",)),
+        ("compensate", ("compensate",)),
+    ],
+)
+def test_each_json_section_lists_exactly_the_keys_the_command_prints(outputs, title, runs):
+    printed = set().union(*(json_keys(outputs[r]) for r in runs))
+    doc = documented_keys(title)
+    assert printed - doc == set(), f"printed by lab {title} --json, not in docs/format.md"
+    assert doc - printed == set(), f"in docs/format.md, not printed by lab {title} --json"
+    assert all(outputs[r]["schema_version"] == 1 for r in runs)
+
+
+def expanded(text: str) -> set[str]:
+    """The backticked names of ``text``, ``q1..q6`` expanded to q1, ..., q6."""
+    out = set()
+    for n in names(text):
+        if m := re.fullmatch(r"([a-z]+)(\d)\.\.\1?(\d)", n):
+            out |= {f"{m.group(1)}{i}" for i in range(int(m.group(2)), int(m.group(3)) + 1)}
+        else:
+            out.add(n)
+    return out
+
+
+def test_the_joints_file_is_as_documented(outputs):
+    first, header = outputs["joints_csv"]["text"].splitlines()[:2]
+    text = section("The targets and joints files (compensate)")
+    joints = text[text.index("**Joints**") :]
+    assert f"`{first}`" in joints
+    assert set(header.split(",")) <= expanded(joints), set(header.split(",")) - expanded(joints)
