@@ -156,10 +156,10 @@ def merge_effects(model: ErrorModel, effects: str | Sequence[str | Effect]) -> l
 
 class MeasurementBuffer:
     """The last ``capacity`` tracker points with the inputs the model's effects need, as the lab's
-    measurement files have them (SPEC section 3): the encoder reading ``q`` when the point was
-    sampled, the point ``x, y, z``, and the columns ``t`` (s), ``temperature`` (the sensor's,
-    degC), ``payload`` (the declared load, kg) and ``dir1..dir6`` (the commanded direction of each
-    joint, +-1); the gravity torques follow from q and the payload
+    measurement files have them (docs/format.md, the measurement CSV): the encoder reading ``q``
+    when the point was sampled, the point ``x, y, z``, and the columns ``t`` (s),
+    ``temperature`` (the sensor's, degC), ``payload`` (the declared load, kg) and ``dir1..dir6``
+    (the commanded direction of each joint, +-1); the gravity torques follow from q and the payload
     (:meth:`gravity_torques`, the nominal arm's, as the lab computes them). Each point also
     says whether the estimator accepted it.
 

@@ -321,7 +321,8 @@ class ToolModel:
         ):
             v = p[self.layout.slice(e.name)]
             if isinstance(e, Geometric):
-                # by name (SPEC section 2): row i has dalpha_i, da_i, dtheta_i, dd_i or beta_{i-1}
+                # by name (docs/format.md, parameter names): row i has dalpha_i, da_i, dtheta_i,
+                # dd_i or beta_{i-1}
                 pos = {n: j for j, n in enumerate(self.layout.names[self.layout.slice(e.name)])}
                 for i in range(6):
                     r = i + 1
@@ -348,7 +349,8 @@ class ToolModel:
         return base_R @ pb + base_t
 
     def _gravity_torques(self, q, payload):
-        """SPEC section 2: tau_i = z_i . sum_{k>=i} (c_k - o_i) x (m_k g), nominal arm."""
+        """tau_i = z_i . sum_{k>=i} (c_k - o_i) x (m_k g) on the nominal arm (docs/format.md,
+        parameter names: compliance)."""
         robot = self.model.robot
         ch = self._chain0
         Rs, os_ = _frames(

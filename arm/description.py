@@ -33,7 +33,7 @@ SI units inside (m, rad, kg). The TOML file states its own units::
     translation = [0.0, 0.0, 0.0]
     rotation_vector = [0.0, 0.0, 0.0]   # in angle_unit
 
-    [effects.compliance]         # optional: calibrated effect values, SI units of SPEC section 2
+    [effects.compliance]         # optional: calibrated effect values, SI (docs/format.md)
     c2 = 6e-6
 """
 
@@ -446,5 +446,5 @@ def load_robot(name_or_path: str | Path | None = None) -> RobotDescription:
 
 
 def seed_robot() -> RobotDescription:
-    """The seed arm of SPEC section 1."""
+    """The seed arm (docs/format.md, the seed arm)."""
     return load_robot("seed")

@@ -1,6 +1,6 @@
-"""The error model's effects (SPEC section 2): each a small class that knows its parameters, the
-measured columns it needs, how it perturbs the joint angles or the chain, and its analytic columns
-of the identification Jacobian.
+"""The error model's effects (docs/format.md, parameter names): each a small class that knows its
+parameters, the measured columns it needs, how it perturbs the joint angles or the chain, and its
+analytic columns of the identification Jacobian.
 
 Two kinds:
 
@@ -74,8 +74,8 @@ class Effect:
     columns: ClassVar[tuple[str, ...]] = ()  # measured columns it needs (beyond q, x, y, z)
     per_joint: ClassVar[bool] = False
     description: ClassVar[str] = ""
-    # Typical magnitude range of each parameter family (name prefix), SPEC section 2, and whether
-    # its sign is physical (always positive) rather than either way.
+    # Typical magnitude range of each parameter family (name prefix; docs/format.md, parameter
+    # names), and whether its sign is physical (always positive) rather than either way.
     typical: ClassVar[dict[str, tuple[float, float]]] = {}
     positive: ClassVar[bool] = False
     # What the effect cannot be fitted without, besides ``columns``: the arm's mass model (an
@@ -623,14 +623,14 @@ def load_effect_module(path: str | Path) -> list[str]:
     return [c.name for c in found]
 
 
-_SPEC = re.compile(r"^\s*([a-z][a-z0-9_]*)\s*(?:\[\s*([0-9,\s]*)\s*\])?\s*$")
+_EFFECT_PATTERN = re.compile(r"^\s*([a-z][a-z0-9_]*)\s*(?:\[\s*([0-9,\s]*)\s*\])?\s*$")
 
 
 def make_effect(spec: str | Effect) -> Effect:
     """An effect from its name, ``compliance`` or restricted to joints, ``compliance[2,3]``."""
     if isinstance(spec, Effect):
         return spec
-    m = _SPEC.match(spec)
+    m = _EFFECT_PATTERN.match(spec)
     if not m:
         raise EffectError(
             f"bad effect specification {spec!r}; expected e.g. 'compliance' or 'compliance[2,3]'"

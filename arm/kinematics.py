@@ -294,7 +294,7 @@ def gravity_torques(
     payload: float | np.ndarray | None = None,
     chain: Chain | None = None,
 ) -> np.ndarray:
-    """Torques (N, 6) that gravity exerts about each joint axis (SPEC section 2, compliance).
+    """Torques (N, 6) that gravity exerts about each joint axis (docs/format.md, compliance).
 
     ``tau_i = z_i . sum_{k>=i} (c_k - o_i) x (m_k g)``, the payload a point mass at the first tool
     point; this is minus the torque a motor must hold. ``payload`` overrides the description's, and

@@ -1,4 +1,5 @@
-"""Measurement files (SPEC section 3): one header row, comma separated, one measurement per row.
+"""Measurement files (docs/format.md, the measurement CSV): one header row, comma separated, one
+measurement per row.
 
 Required columns ``q1..q6`` (rad) and ``x, y, z`` (m); optional ``t`` (s), ``temperature`` (degC),
 ``payload`` (kg), ``dir1..dir6`` (+-1), ``target`` (integer). Other numeric columns are kept and
@@ -147,8 +148,9 @@ class MeasurementSet:
         return self.subset(np.sort(perm[:k])), self.subset(np.sort(perm[k:]))
 
     def to_csv(self, length_unit: str = "m", angle_unit: str = "rad") -> str:
-        """The SPEC section 3 text; q in ``angle_unit`` and x, y, z in ``length_unit``. Refuses
-        values that the reader would refuse (non-finite numbers, bad dir or target values)."""
+        """The measurement CSV text (docs/format.md); q in ``angle_unit`` and x, y, z in
+        ``length_unit``. Refuses values that the reader would refuse (non-finite numbers, bad dir
+        or target values)."""
         if length_unit not in LENGTH_UNITS:
             raise MeasurementError(
                 f"length unit must be one of {sorted(LENGTH_UNITS)}, got {length_unit!r}"
@@ -471,8 +473,9 @@ def read_measurements(
     angle_unit: str = "rad",
     min_rows: int = 1,
 ) -> MeasurementSet:
-    """Read a SPEC section 3 file. ``length_unit`` (m|mm) applies to x, y, z; ``angle_unit``
-    (rad|deg) to q1..q6. Raises :class:`MeasurementError` naming file, line and column."""
+    """Read a measurement CSV (docs/format.md). ``length_unit`` (m|mm) applies to x, y, z;
+    ``angle_unit`` (rad|deg) to q1..q6. Raises :class:`MeasurementError` naming file, line and
+    column."""
     path = Path(path)
     if length_unit not in LENGTH_UNITS:
         raise MeasurementError(

@@ -1,5 +1,6 @@
-"""Random arms and poses from a seed: the "true" errors of a sampled arm (SPEC section 2
-magnitudes) and measurement poses within the limits with the tool point above the floor."""
+"""Random arms and poses from a seed: the "true" errors of a sampled arm (the typical
+magnitudes of docs/format.md, parameter names) and measurement poses within the limits with
+the tool point above the floor."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from arm.kinematics import Chain, tool_points
 
 __all__ = ["MIN_TOOL_HEIGHT", "sample_parameters", "sample_poses"]
 
-MIN_TOOL_HEIGHT = 0.15  # m: samplers keep the tool point above this plane (SPEC section 1)
+MIN_TOOL_HEIGHT = 0.15  # m: samplers keep the tool point above this plane (docs/format.md)
 
 
 def sample_parameters(

@@ -1,4 +1,4 @@
-"""Kinematics speed, side by side with Pinocchio on the same arm (the seed arm of SPEC section 1):
+"""Kinematics speed, side by side with Pinocchio on the same arm (the seed arm, docs/format.md):
 
 * batched tool-point forward kinematics (poses/s) for N = 1e3, 1e4, 1e5 against Pinocchio's
   per-pose Python loop (the fastest of three reasonable ways to get the tool point);
@@ -257,7 +257,7 @@ def main() -> None:
         "## Kinematics",
         "",
         f"`python benchmarks/kinematics.py` on {machine()}; numpy {np.__version__}, "
-        f"Pinocchio {pin.__version__}. Seed arm (SPEC section 1), poses uniform within the limits "
+        f"Pinocchio {pin.__version__}. Seed arm (docs/format.md), poses uniform within the limits "
         "with the tool above 0.15 m; medians of repeated runs, both sides in the same run.",
         "",
         "**Tool-point forward kinematics** (poses per second; sixaxis-track: one batched call; "

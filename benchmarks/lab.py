@@ -7,11 +7,11 @@ data.
     python benchmarks/lab.py            # sections `lab`, `lab-memory`, `lab-outliers`
     python benchmarks/lab.py memory     # one of them: speed, memory or outliers
 
-The problem: the seed arm with random geometric errors of the SPEC's typical size and compliance
-of joints 2 and 3, 15 um of noise per axis; 1,000 poses, each with a random approach direction
-and a temperature (so that every catalogued effect can be tested). Every solver starts from the
-nominal arm and fits the same identifiable parameters; times are medians of repeated runs in one
-process.
+The problem: the seed arm with random geometric errors of their typical size (docs/format.md) and
+compliance of joints 2 and 3, 15 um of noise per axis; 1,000 poses, each with a random approach
+direction and a temperature (so that every catalogued effect can be tested). Every solver starts
+from the nominal arm and fits the same identifiable parameters; times are medians of repeated runs
+in one process.
 """
 
 from __future__ import annotations

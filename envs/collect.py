@@ -1,7 +1,7 @@
 """Measurements for the lab from the simulated arm: drive the MuJoCo plant to a list of poses, each
 approached from a random direction so that dir1..dir6 vary, let it settle, and measure the tool
-point with the laser tracker. The result is a SPEC section 3 measurement set with every optional
-column (t, temperature, payload, dir1..dir6).
+point with the laser tracker. The result is a measurement set (docs/format.md, the measurement
+CSV) with every optional column (t, temperature, payload, dir1..dir6).
 
     from envs.collect import collect_measurements
     data = collect_measurements(n=200, scenario="compliance", seed=7, path="compliance.csv")

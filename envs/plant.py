@@ -601,7 +601,8 @@ class Plant:
         return self.tool_xpos.copy()
 
     def gravity_torques(self) -> np.ndarray:
-        """MuJoCo's gravity torques on the motor hinges at rest (SPEC sign: minus qfrc_bias)."""
+        """MuJoCo's gravity torques on the motor hinges at rest, with the sign of docs/format.md
+        (compliance): minus qfrc_bias."""
         d = mujoco.MjData(self.model)
         d.qpos[:] = self.data.qpos
         mujoco.mj_forward(self.model, d)

@@ -1,6 +1,6 @@
 """Named scenarios as data: which hidden effects the plant carries and the ranges their magnitudes
-are drawn from (SPEC section 2; the error model's ``typical`` tables), and the draw of one
-episode's truth from a seed.
+are drawn from (docs/format.md, parameter names; the error model's ``typical`` tables), and the
+draw of one episode's truth from a seed.
 
     truth = draw_truth("compliance", seed_robot(), rng, overrides={"compliance": {"c2": 8e-6}})
     truth.hidden        # the plant's physical magnitudes (stiffness, gaps, kappa, ...)

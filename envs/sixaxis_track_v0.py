@@ -79,7 +79,7 @@ def _layout(preview: int) -> dict[str, slice]:
 class SixAxisTrackEnv(gym.Env):
     """
     ## Description
-    A six-axis industrial arm (the seed arm of SPEC section 1 unless another description is
+    A six-axis industrial arm (the seed arm of docs/format.md unless another description is
     given) simulated in MuJoCo must move its tool point along a reference path. The arm the agent
     is told about (``task.robot``) is the *nominal* one; the simulated arm carries randomised DH,
     base and tool errors and, per scenario, hidden physical effects (elastic joints, gear
@@ -170,7 +170,7 @@ class SixAxisTrackEnv(gym.Env):
     is the true error, like any Gymnasium env's.
 
     ## Scenarios
-    Magnitudes are drawn per episode from the seed (SPEC section 2; ``envs.scenarios.RANGES``)
+    Magnitudes are drawn per episode from the seed (docs/format.md; ``envs.scenarios.RANGES``)
     and every one can be overridden (``overrides={"compliance": {"c2": 8e-6}}``).
 
     | scenario       | hidden effects (made by the plant's physics)                                  |

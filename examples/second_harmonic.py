@@ -40,9 +40,9 @@ class SecondHarmonic(JointAngleEffect):
 
 
 def simulate(out_dir: str = ".", joint: int = 3, n: int = 200, seed: int = 0) -> None:
-    """Write ``calibration.csv`` and ``validation.csv`` (SPEC section 3) measured on a simulated
-    seed arm with random geometric errors and a hidden second harmonic on ``joint`` (2e-4 rad),
-    15 um tracker noise: data to try the loop on.
+    """Write ``calibration.csv`` and ``validation.csv`` (docs/format.md, the measurement CSV)
+    measured on a simulated seed arm with random geometric errors and a hidden second harmonic on
+    ``joint`` (2e-4 rad), 15 um tracker noise: data to try the loop on.
 
         python examples/second_harmonic.py /tmp/h2
         sixaxis lab diagnose /tmp/h2/calibration.csv --noise-mm 0.015

@@ -1,7 +1,7 @@
 """``sixaxis lab ...``: the model lab's commands, thin layers over the Python API.
 
     sixaxis lab collect -o data.csv --scenario compliance     # measure the simulated arm
-    sixaxis lab fit data.csv --effects geometric               # Table 3, or --json (SPEC section 4)
+    sixaxis lab fit data.csv --effects geometric               # Table 3, or --json (docs/format.md)
     sixaxis lab diagnose data.csv --noise-mm 0.015             # which effect does the model miss?
     sixaxis lab report data.csv -o report.html                 # fit, diagnose, refit, plots
     sixaxis lab plan --n 30 -o poses.csv                       # poses worth measuring
@@ -90,7 +90,10 @@ ANGLE_UNITS = ("rad", "deg")
 
 # -- shared options -------------------------------------------------------------------------------
 DataArg = Annotated[
-    Path, typer.Argument(help="A measurement CSV (SPEC section 3).", metavar="DATA.csv")
+    Path,
+    typer.Argument(
+        help="A measurement CSV (docs/format.md, the measurement CSV).", metavar="DATA.csv"
+    ),
 ]
 RobotOpt = Annotated[
     str,
@@ -342,7 +345,8 @@ def fit_cmd(
     """Identify the model's parameters from measured tool points.
 
     Prints the identified parameters with standard errors, the RMS before and after, and which
-    parameters the poses cannot identify; --json prints the SPEC section 4 object (SI units)."""
+    parameters the poses cannot identify; --json prints the JSON object of docs/format.md, the
+    lab's JSON output (SI units)."""
     from lab import fit
 
     _check_outliers(outliers)
@@ -894,7 +898,7 @@ def collect_cmd(
     """Measure the simulated arm (MuJoCo) like a laser-tracker campaign.
 
     Each pose is approached from a random side, settled, and its tool point measured with
-    noise; the CSV (SPEC section 3) has every optional column."""
+    noise; the CSV (docs/format.md, the measurement CSV) has every optional column."""
     import numpy as np
 
     from arm.measurements import read_poses

@@ -10,8 +10,8 @@ physical effect is missing, add it, watch the error fall.
     result = fit(data, "seed", d.suggestion, validate=read_measurements("other.csv"))
     print(result.table())
 
-Every result has ``to_dict()`` (SPEC section 4 JSON) and ``summary()``. Pure numerics: no
-simulator, no plotting here (see ``lab.report``).
+Every result has ``to_dict()`` (the JSON of docs/format.md, the lab's JSON output) and
+``summary()``. Pure numerics: no simulator, no plotting here (see ``lab.report``).
 """
 
 from lab.diagnosis import Candidate, Diagnosis, Hint, diagnose

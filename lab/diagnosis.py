@@ -4,7 +4,7 @@
     d.verdict        # "compliance", "none" or "unexplained"
     d.candidates     # every catalogued effect (per joint) tested, best first
     d.hints          # which measured variables the residual still depends on
-    d.to_dict()      # SPEC section 4 JSON
+    d.to_dict()      # the JSON of docs/format.md
 
 Method. The model is fitted; its identifiable Jacobian columns ``J0`` span what it can explain.
 Every effect of the catalogue (and any the user registered) that is not in the model becomes
@@ -34,9 +34,10 @@ residual sum of squares with 3N minus the identifiable parameters as degrees of 
 whether the residual is noise (``none``) or not (``unexplained``); ``alpha`` is then split
 equally between the candidates and this test, so that the false-alarm rate on a correct model
 stays under ``alpha`` (Bonferroni). The default, 2 %, keeps it well inside 5 % (measured: 2 %
-over 200 simulated campaigns); the effects of SPEC section 2 at the low end of their range come
-out at p-values below 1e-50 with 200 poses, so the stricter level costs them nothing. Without
-``noise_mm`` the verdict comes from the candidate tests alone.
+over 200 simulated campaigns); the catalogue's effects at the low end of their typical magnitude
+(docs/format.md, parameter names) come out at p-values below 1e-50 with 200 poses, so the
+stricter level costs them nothing. Without ``noise_mm`` the verdict comes from the candidate tests
+alone.
 
 **Outliers** (``outliers="auto"``): the fit leaves out those of its own residual, and the tests
 those that stay beyond the rule of :mod:`lab.screening` once the model and every candidate may
@@ -197,7 +198,7 @@ class Diagnosis:
         return self.candidates[0] if self.candidates else None
 
     def to_dict(self) -> dict:
-        """The JSON object of ``sixaxis lab diagnose --json`` (SPEC section 4)."""
+        """The JSON object of ``sixaxis lab diagnose --json`` (docs/format.md, diagnose)."""
         return {
             "schema_version": SCHEMA_VERSION,
             "effects": self.effects,

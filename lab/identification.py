@@ -2,7 +2,7 @@
 
     result = fit(data, robot, "geometric,compliance", validate=other)
     print(result.table())                    # the paper's Table 3, with standard errors
-    result.to_dict()                         # SPEC section 4 JSON
+    result.to_dict()                         # the JSON of docs/format.md
 
 The steps, each a pure function of arrays:
 
@@ -360,7 +360,7 @@ class FitResult:
         return out
 
     def to_dict(self) -> dict:
-        """The JSON object of ``sixaxis lab fit --json`` (SPEC section 4)."""
+        """The JSON object of ``sixaxis lab fit --json`` (docs/format.md, fit)."""
         ident = self.identifiability
         return {
             "schema_version": SCHEMA_VERSION,

@@ -1,6 +1,6 @@
 """Simulated calibration campaigns for the lab's tests: a "true" arm (random geometric errors of
-the SPEC's typical size, optionally a hidden effect at the low end of its range), poses within the
-limits with the tool above the floor, instrument noise of 15 um per axis.
+their typical size, docs/format.md; optionally a hidden effect at the low end of its range),
+poses within the limits with the tool above the floor, instrument noise of 15 um per axis.
 
 A campaign records what a real one would: each pose approached from a random direction
 (``dir1..dir6``), the arm's temperature over a working day that warms the shop from 15 to 35 degC,
@@ -26,8 +26,8 @@ SIGMA = 15e-6  # m, per axis
 FLOOR_MM = SIGMA * math.sqrt(3) * 1e3  # 3-D RMS of a perfect model on held-out points
 MEDIAN_FLOOR_MM = 1.54 * SIGMA * 1e3  # median 3-D error of a perfect model
 
-# SPEC section 4: the keys every fit and diagnosis JSON object carries
-SPEC_FIT_KEYS = {
+# docs/format.md, the lab's JSON output: keys every fit and diagnosis JSON object carries
+FIT_KEYS = {
     "effects",
     "n_points",
     "rms_mm",
@@ -42,7 +42,7 @@ SPEC_FIT_KEYS = {
     "condition_number",
     "schema_version",
 }
-SPEC_DIAGNOSE_KEYS = {
+DIAGNOSE_KEYS = {
     "schema_version",
     "effects",
     "rms_mm",
@@ -121,7 +121,8 @@ def campaign(
     hidden_level: str = "low",
 ) -> Campaign:
     """A true arm: geometric errors drawn from their typical ranges, every other effect of
-    ``effects`` at ``hidden_level`` of its range (the SPEC's low end by default)."""
+    ``effects`` at ``hidden_level`` of its range (by default the low end of its typical magnitude,
+    docs/format.md)."""
     rng = np.random.default_rng(seed)
     truth = ErrorModel(robot, effects, targets=targets)
     geo = truth.layout.names[truth.layout.slice("geometric")]

@@ -1,5 +1,5 @@
-"""Simulated lab collection: a valid SPEC measurement file with every optional column, made by
-the plant's physics and explained by the truth's error model."""
+"""Simulated lab collection: a valid measurement file (docs/format.md, the measurement CSV) with
+every optional column, made by the plant's physics and explained by the truth's error model."""
 
 from __future__ import annotations
 

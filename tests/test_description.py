@@ -1,5 +1,5 @@
-"""Robot descriptions: the shipped seed arm is SPEC section 1, TOML round trips in any units, and
-bad files are refused naming the key at fault."""
+"""Robot descriptions: the shipped seed arm is the one of docs/format.md, TOML round trips in any
+units, and bad files are refused naming the key at fault."""
 
 from __future__ import annotations
 
@@ -18,8 +18,9 @@ from arm.description import (
 from arm.so3 import rotation_matrix, rotation_vector
 from tests.conftest import puma_arm, rokae_arm
 
-# SPEC section 1, transcribed: alpha_{i-1} (deg), a_{i-1} (m), d_i (m), limits (rad), mass (kg), com.
-SPEC_TABLE = [
+# docs/format.md, the seed arm, transcribed: alpha_{i-1} (deg), a_{i-1} (m), d_i (m), limits (rad),
+# mass (kg), com.
+SEED_TABLE = [
     (0, 0.0, 0.080, (-2.97, 2.97), 15.0, (0, 0, -0.04)),
     (-90, 0.132, 0.0, (-2.80, 0.30), 12.0, (0.31, 0, 0)),
     (0, 0.620, 0.0, (-1.60, 1.60), 8.0, (0.12, 0.10, 0)),
@@ -31,7 +32,7 @@ SPEC_TABLE = [
 
 def test_seed_toml_is_spec_section_1(seed):
     assert seed.name == "seed" and seed.convention == "modified"
-    for j, (alpha, a, d, (lo, hi), mass, com) in zip(seed.joints, SPEC_TABLE, strict=True):
+    for j, (alpha, a, d, (lo, hi), mass, com) in zip(seed.joints, SEED_TABLE, strict=True):
         assert j.alpha == pytest.approx(math.radians(alpha), abs=1e-15)
         assert (j.a, j.d, j.lower, j.upper, j.mass) == (a, d, lo, hi, mass)
         assert j.com == pytest.approx(com, abs=0)

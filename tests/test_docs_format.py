@@ -320,3 +320,20 @@ def test_the_joints_file_is_as_documented(outputs):
     joints = text[text.index("**Joints**") :]
     assert f"`{first}`" in joints
     assert set(header.split(",")) <= expanded(joints), set(header.split(",")) - expanded(joints)
+
+
+def test_no_tracked_file_sends_a_reader_outside_the_repository():
+    """The reference is docs/format.md: no tracked file names a spec outside the repository."""
+    import subprocess
+
+    root = DOC.parents[1]
+    found = subprocess.run(
+        # (the patterns are split so that this file does not match them itself)
+        ["git", "grep", "-n", "-e", "/wo" + "rk/", "-e", "../sha" + "red", "-e", "SP" + "EC"],
+        cwd=root,
+        capture_output=True,
+        text=True,
+    )
+    if found.returncode not in (0, 1):
+        pytest.skip(f"not a git checkout: {found.stderr.strip()}")
+    assert found.stdout == ""

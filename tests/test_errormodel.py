@@ -1,4 +1,4 @@
-"""The error model: parameter names of SPEC section 2, predictions, and its analytic
+"""The error model: the parameter names of docs/format.md, predictions, and its analytic
 identification Jacobian against central finite differences for every parameter of every effect."""
 
 from __future__ import annotations
@@ -75,8 +75,8 @@ def test_identification_jacobian_equals_finite_differences(
     q, base_rotation, base_translation, n_targets, scale, seed, arm
 ):
     """Every parameter of every catalogued effect at once: random configurations, random errors
-    (up to 30 times the SPEC's magnitudes), a large base rotation and translation, several
-    targets, thermal with temperatures, backlash with directions, payloads."""
+    (up to 30 times the typical magnitudes of docs/format.md), a large base rotation and
+    translation, several targets, thermal with temperatures, backlash with directions, payloads."""
     robot = SEED if arm == "seed" else ROKAE
     tools = tuple((0.01 * k, -0.02 * k, 0.05 + 0.03 * k) for k in range(n_targets))
     robot = replace(robot, tools=tools)
@@ -128,10 +128,10 @@ def test_joint_jacobian_equals_finite_differences():
         np.testing.assert_allclose(J[:, :, i], fd, atol=1e-8)
 
 
-def test_parameter_names_follow_the_spec():
-    """SPEC section 2: 6 x (dalpha, da, dtheta, dd) with dd3 replaced by Hayati's beta2 where
-    joints 2 and 3 are parallel, base bx..brz, tool tx ty tz (tx1.. with several targets): 33
-    names (the SPEC's "34" counts beta2 before dd3 is dropped)."""
+def test_parameter_names_follow_docs_format():
+    """docs/format.md, parameter names: 6 x (dalpha, da, dtheta, dd) with dd3 replaced by Hayati's
+    beta2 where joints 2 and 3 are parallel, base bx..brz, tool tx ty tz (tx1.. with several
+    targets): 33 names (the seed paper's "34" counts beta2 before dd3 is dropped)."""
     names = ErrorModel(SEED, "geometric").layout.names
     assert len(names) == 33
     assert "dd3" not in names and "beta2" in names
@@ -178,7 +178,7 @@ def test_nominal_parameters_reproduce_the_description():
 
 
 def test_joint_angle_effects_follow_their_laws():
-    """Each law of SPEC section 2 on the effective angles, against its formula."""
+    """Each law of docs/format.md, parameter names on the effective angles, against its formula."""
     rng = np.random.default_rng(4)
     q = random_q(SEED, 12, seed=4)
     cols = {f"dir{j}": rng.choice((-1.0, 1.0), 12) for j in range(1, 7)} | {
@@ -263,8 +263,8 @@ def test_missing_columns_and_bad_targets_are_named():
 
 
 def test_sampling_is_reproducible_and_of_the_spec_magnitudes():
-    """Same seed, same arm; magnitudes within each effect's typical range (SPEC section 2), with
-    physical signs where the effect has one."""
+    """Same seed, same arm; magnitudes within each effect's typical range (docs/format.md,
+    parameter names), with physical signs where the effect has one."""
     from arm.sampling import MIN_TOOL_HEIGHT, sample_poses
 
     model = ErrorModel(SEED, ALL)

@@ -21,11 +21,11 @@ angles = arrays(np.float64, (5, 6), elements=st.floats(-math.pi, math.pi))
 
 
 # -- by hand --------------------------------------------------------------------------------------
-# Seed arm, SPEC section 1. At q = (0, -pi/2, 0, 0, 0, 0) frame 2 has x2 = +z (upper arm up), z2 = +y;
-# o3 = (a1, 0, d1 + a2) = (0.132, 0, 0.70); the elbow offset a3 = 0.1634 goes up along x3 = x2 and
-# d4 = 0.35 forward along z4 = +x; the wrist keeps z6 = +x, so the tool sits d6 + 0.05 = 0.2856
-# further along +x.
-#  * home: (0.132 + 0.35 + 0.2856, 0, 0.08 + 0.62 + 0.1634) = (0.7676, 0, 0.8634) (SPEC).
+# The seed arm of docs/format.md. At q = (0, -pi/2, 0, 0, 0, 0) frame 2 has x2 = +z (upper arm up),
+# z2 = +y; o3 = (a1, 0, d1 + a2) = (0.132, 0, 0.70); the elbow offset a3 = 0.1634 goes up along
+# x3 = x2 and d4 = 0.35 forward along z4 = +x; the wrist keeps z6 = +x, so the tool sits
+# d6 + 0.05 = 0.2856 further along +x.
+#  * home: (0.132 + 0.35 + 0.2856, 0, 0.08 + 0.62 + 0.1634) = (0.7676, 0, 0.8634) (docs/format.md).
 #  * q3 = +pi/2 turns the forearm about z2 = +y: up -> +x, +x -> -z, so the elbow offset points
 #    forward and the rest down: (0.132 + 0.1634, 0, 0.70 - 0.35 - 0.2856) = (0.2954, 0, 0.0644).
 #  * q5 = +pi/2: z5 = -y4 = +y, turning +x into -z about the wrist centre (0.482, 0, 0.8634):
@@ -155,7 +155,8 @@ def test_fk_equals_pinocchio(arm, request):
 
 
 def test_gravity_torques_equal_pinocchio(seed):
-    """SPEC sign: tau is minus the torque that holds the arm, i.e. minus Pinocchio's g(q)."""
+    """The sign of docs/format.md (compliance): tau is minus the torque that holds the arm, i.e.
+    minus Pinocchio's g(q)."""
     payload = 3.0
     pin, model, _ = _pinocchio_model(seed, payload_at_tool=payload)
     data = model.createData()
@@ -215,7 +216,8 @@ def _potential(robot, q, payload):
 @SETTINGS
 @given(q=angles, payload=st.floats(0.0, 20.0))
 def test_gravity_torques_are_minus_the_potential_gradient(seed, q, payload):
-    """tau = -dV/dq: the generalised force of gravity, i.e. minus the holding torque (SPEC 2)."""
+    """tau = -dV/dq: the generalised force of gravity, i.e. minus the holding torque
+    (docs/format.md, compliance)."""
     tau = gravity_torques(seed, q, payload=payload)
     h = 1e-6
     for i in range(6):

@@ -25,11 +25,11 @@ from arm.measurements import read_measurements, read_poses, write_measurements
 from experiments.cli import app
 from lab import diagnose, fit
 from tests._lab_data import (
+    DIAGNOSE_KEYS,
+    FIT_KEYS,
     FLOOR_MM,
     REAL,
     SIGMA,
-    SPEC_DIAGNOSE_KEYS,
-    SPEC_FIT_KEYS,
     campaign,
     real_arm,
     requires_real_data,
@@ -73,7 +73,7 @@ def test_fit_json_has_every_spec_key_and_the_python_api_numbers(files):
     path, val = files["geo"], files["geo_val"]
     out = files["dir"] / "fit.json"
     got = lab_json("fit", path, "--validate", val, "--out", out)
-    assert SPEC_FIT_KEYS <= set(got), SPEC_FIT_KEYS - set(got)
+    assert FIT_KEYS <= set(got), FIT_KEYS - set(got)
     assert json.loads(out.read_text()) == got  # --out writes the same object
 
     ref = fit(read_measurements(path), "seed", "geometric", validate=read_measurements(val))
@@ -217,7 +217,7 @@ def test_real_laser_tracker_data_through_the_cli(tmp_path):
 # -- diagnose ---------------------------------------------------------------------------------------
 def test_diagnose_names_the_hidden_compliance(files):
     got = lab_json("diagnose", files["comp"], "--noise-mm", NOISE)
-    assert SPEC_DIAGNOSE_KEYS <= set(got), SPEC_DIAGNOSE_KEYS - set(got)
+    assert DIAGNOSE_KEYS <= set(got), DIAGNOSE_KEYS - set(got)
     assert got["verdict"] == "compliance"
     assert got["noise_floor_mm"] == pytest.approx(FLOOR_MM)
     assert got["rms_mm"] > 2 * FLOOR_MM

@@ -1,7 +1,7 @@
-"""Diagnosis: a hidden effect at the low end of the SPEC's magnitudes is named, and fitting what
-the diagnosis suggests brings held-out poses to the noise floor; clean data get "none" at most
-5 % of the time; an effect outside the catalogue is never called "none", the hints point at its
-joint, and the user's own effect class explains it."""
+"""Diagnosis: a hidden effect at the low end of its typical magnitude (docs/format.md) is named, and
+fitting what the diagnosis suggests brings held-out poses to the noise floor; clean data get "none"
+at most 5 % of the time; an effect outside the catalogue is never called "none", the hints point at
+its joint, and the user's own effect class explains it."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import pytest
 from arm.effects import CATALOGUE, EFFECTS, load_effect_module
 from arm.measurements import MeasurementSet
 from lab import diagnose, fit
-from tests._lab_data import FLOOR_MM, SIGMA, SPEC_DIAGNOSE_KEYS, campaign
+from tests._lab_data import DIAGNOSE_KEYS, FLOOR_MM, SIGMA, campaign
 
 NOISE_MM = 1e3 * SIGMA
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "second_harmonic.py"
@@ -129,7 +129,7 @@ def test_json_shape(seed):
     c = campaign(seed, "geometric,compliance[2,3]", seed=400)
     d = diagnose(c.measure(200), seed, "geometric", noise_mm=NOISE_MM)
     out = json.loads(json.dumps(d.to_dict(), allow_nan=False))
-    assert SPEC_DIAGNOSE_KEYS <= set(out)
+    assert DIAGNOSE_KEYS <= set(out)
     assert out["verdict"] == "compliance"
     assert out["noise_floor_mm"] == pytest.approx(FLOOR_MM)
     assert out["effects"] == ["geometric"]

@@ -16,11 +16,11 @@ from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet, read_measurements, write_measurements
 from lab import FitError, fit
 from tests._lab_data import (
+    FIT_KEYS,
     FLOOR_MM,
     MEDIAN_FLOOR_MM,
     REAL,
     SIGMA,
-    SPEC_FIT_KEYS,
     campaign,
     real_arm,
     requires_real_data,
@@ -217,7 +217,7 @@ def test_json_and_table(seed, geometric_data):
     _, data, val = geometric_data
     res = fit(data, seed, "geometric,compliance", validate=val)
     d = res.to_dict()
-    assert SPEC_FIT_KEYS <= set(d)
+    assert FIT_KEYS <= set(d)
     text = json.dumps(d, allow_nan=False)  # strict JSON: no NaN anywhere
     back = json.loads(text)
     assert back["n_points"] == 200 and back["n_parameters"] == 39

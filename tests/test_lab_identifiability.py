@@ -70,9 +70,9 @@ def test_seed_arm_unidentifiable_parameters_match_an_independent_svd(seed, effec
     assert len(fixed) == len(model.layout) - rank
     assert named(ident.unidentifiable) == involved | zero
     assert {n for n, c in ident.combinations.items() if not c} == zero
-    # what SPEC section 2 says of the seed arm with one target on joint 6's axis: dtheta6 moves
-    # nothing, the base absorbs row 1, the tool dd6, and the spherical wrist pairs dalpha6 with
-    # dd5 and da6 with dtheta5; 25 of the 33 geometric parameters remain
+    # what docs/format.md (geometric) says of the seed arm with one target on joint 6's axis:
+    # dtheta6 moves nothing, the base absorbs row 1, the tool dd6, and the spherical wrist pairs
+    # dalpha6 with dd5 and da6 with dtheta5; 25 of the 33 geometric parameters remain
     geo_fixed = {"dtheta6", "dalpha1", "da1", "dtheta1", "dd1", "dd6", "dalpha6", "da6"}
     assert fixed & set(model.layout.names[model.layout.slice("geometric")]) == geo_fixed
     assert "dtheta6" in ident.unidentifiable

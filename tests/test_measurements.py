@@ -1,5 +1,5 @@
-"""Measurement files (SPEC section 3): every malformed case is refused naming file, line and
-column; unit options round-trip; extra columns are kept; writes are atomic."""
+"""Measurement files (docs/format.md, the measurement CSV): every malformed case is refused naming
+file, line and column; unit options round-trip; extra columns are kept; writes are atomic."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """The MuJoCo plant against independent references: the kinematic model of the same true arm,
-the SPEC's gravity torques and compliance formula, the transmission and backlash laws."""
+the gravity torques and compliance formula of docs/format.md, the transmission and backlash laws."""
 
 from __future__ import annotations
 
@@ -73,8 +73,8 @@ def test_elastic_plant_geometry_uses_motor_plus_link_angle(elastic):
 
 @pytest.mark.parametrize("payload", [0.0, 2.5])
 def test_gravity_torques_are_minus_qfrc_bias(rigid, payload):
-    """SPEC sign convention: arm.kinematics.gravity_torques equals minus MuJoCo's qfrc_bias at
-    rest, payload included."""
+    """The sign convention of docs/format.md (compliance): arm.kinematics.gravity_torques equals
+    minus MuJoCo's qfrc_bias at rest, payload included."""
     truth = draw_truth("geometric", ROBOT, np.random.default_rng(5))
     rigid.configure(truth.true_robot, HiddenEffects(payload0=payload))
     robot = _base_gravity(truth.true_robot)
@@ -86,8 +86,8 @@ def test_gravity_torques_are_minus_qfrc_bias(rigid, payload):
 
 def test_static_deflection_matches_the_compliance_formula(elastic):
     """Links start undeflected; MuJoCo's physics settles them. Their deflection (link angle minus
-    encoder) equals c_i tau_i (SPEC compliance, c_i = 1/k_i, tau from arm.kinematics) within 5 %
-    wherever |tau_i| > 20 N*m."""
+    encoder) equals c_i tau_i (docs/format.md, compliance; c_i = 1/k_i, tau from arm.kinematics)
+    within 5 % wherever |tau_i| > 20 N*m."""
     truth = draw_truth("compliance", ROBOT, np.random.default_rng(7))
     c = truth.magnitudes["compliance"]
     elastic.configure(truth.true_robot, truth.hidden)
