@@ -143,7 +143,7 @@ def _field_problem(v: Any, hint: Any) -> str | None:
 
 
 #: the spec fields with a range beyond their type
-_SPEC_RANGES: dict[str, tuple[Any, str]] = {
+_FIELD_RANGES: dict[str, tuple[Any, str]] = {
     "seed": (lambda v: v >= 0, "must be >= 0"),
     "episode_seconds": (lambda v: v > 0, "must be > 0"),
     "settle_seconds": (lambda v: v >= 0, "must be >= 0"),
@@ -177,8 +177,8 @@ def record_problem(rec: Mapping[str, Any]) -> str | None:
             continue
         v = spec[f.name]
         why = _field_problem(v, hints[f.name])
-        if why is None and f.name in _SPEC_RANGES and not _SPEC_RANGES[f.name][0](v):
-            why = _SPEC_RANGES[f.name][1]
+        if why is None and f.name in _FIELD_RANGES and not _FIELD_RANGES[f.name][0](v):
+            why = _FIELD_RANGES[f.name][1]
         if why:
             return f"spec.{f.name}: {why}, got {v!r}"
     for i, ph in enumerate(spec.get("phases") or ()):

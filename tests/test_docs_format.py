@@ -336,4 +336,7 @@ def test_no_tracked_file_sends_a_reader_outside_the_repository():
     )
     if found.returncode not in (0, 1):
         pytest.skip(f"not a git checkout: {found.stderr.strip()}")
-    assert found.stdout == ""
+    assert found.stdout == "", (
+        "tracked files name a path outside the repository or its old specification (point to "
+        "docs/format.md instead; name a run's spec otherwise, e.g. RunSpec):\n" + found.stdout
+    )
