@@ -340,3 +340,20 @@ def test_no_tracked_file_sends_a_reader_outside_the_repository():
         "tracked files name a path outside the repository or its old specification (point to "
         "docs/format.md instead; name a run's spec otherwise, e.g. RunSpec):\n" + found.stdout
     )
+
+
+def test_links_into_the_page_name_its_headings():
+    """Every ``docs/format.md#anchor`` link in the README and docs/ names a heading of the page
+    (GitHub's anchors: lower case, punctuation dropped, spaces as hyphens)."""
+    root = DOC.parents[1]
+    anchors = set()
+    fenced = False
+    for line in TEXT.splitlines():
+        fenced = fenced != line.startswith("```")
+        if not fenced and (m := re.match(r"#+ (.*)", line)):
+            anchors.add(re.sub(r"[^\w\- ]", "", m.group(1).lower()).replace(" ", "-"))
+    links = []
+    for path in [root / "README.md", *sorted((root / "docs").glob("*.md"))]:
+        links += re.findall(r"format\.md#([\w\-]+)", path.read_text(encoding="utf-8"))
+    assert links, "the README links no section of docs/format.md"
+    assert set(links) <= anchors, set(links) - anchors
