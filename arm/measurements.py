@@ -21,6 +21,7 @@ import csv
 import io
 import math
 import os
+import re
 import tempfile
 import time
 from collections.abc import Iterator, Sequence
@@ -573,11 +574,44 @@ def write_poses(q: np.ndarray, path: str | Path, angle_unit: str = "rad") -> Non
     atomic_write_text(Path(path), poses_csv(q, angle_unit))
 
 
-def read_poses(path: str | Path, angle_unit: str = "rad") -> np.ndarray:
+_DECLARED_UNIT = re.compile(r"^\s*#.*\bq1\.\.q6 in (\w+)")
+
+
+def declared_angle_unit(text: str, source: str) -> tuple[str, int] | None:
+    """The angle unit a poses file's ``#`` line declares (``q1..q6 in deg``), with its line
+    number, or None where no such line precedes the header."""
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.lstrip().startswith("#"):
+            return None
+        m = _DECLARED_UNIT.match(line)
+        if m:
+            if m.group(1) not in ANGLE_UNITS:
+                raise MeasurementError(
+                    f"{source}, line {number}: declares q1..q6 in {m.group(1)!r}; "
+                    f"known angle units: {', '.join(sorted(ANGLE_UNITS))}"
+                )
+            return m.group(1), number
+    return None
+
+
+def read_poses(path: str | Path, angle_unit: str | None = None) -> np.ndarray:
     """Joint angles (N, 6) in rad from a CSV with columns q1..q6 (other columns, and lines
-    starting with ``#``, are ignored: a measurement file is a poses file too)."""
-    table = parse_numeric_csv(read_text(path), str(path), JOINTS, comments=True, columns=JOINTS)
+    starting with ``#``, are ignored: a measurement file is a poses file too).
+
+    The unit is the one the file's ``#`` line declares (``sixaxis lab plan`` writes it), else
+    ``angle_unit``, else rad. An ``angle_unit`` that contradicts the declaration is refused, naming
+    the line: read in the wrong unit, every pose would be another pose."""
+    text = read_text(path)
+    declared = declared_angle_unit(text, str(path))
+    if declared is not None and angle_unit is not None and declared[0] != angle_unit:
+        raise MeasurementError(
+            f"{path}, line {declared[1]}: the file declares q1..q6 in {declared[0]}, but they "
+            f"were to be read in {angle_unit}; say --angle-unit {declared[0]} (or leave it out)"
+        )
+    unit = declared[0] if declared is not None else (angle_unit or "rad")
+    table = parse_numeric_csv(text, str(path), JOINTS, comments=True, columns=JOINTS)
     if not len(table.values):
         raise MeasurementError(f"{path}: no pose rows")
+    angle_unit = unit
     check_ranges(table, str(path), {angle_unit: (ANGLE_UNITS[angle_unit], JOINTS)})
     return table.values[:, [table.header.index(c) for c in JOINTS]] * ANGLE_UNITS[angle_unit]

@@ -891,8 +891,13 @@ def collect_cmd(
         typer.Option(help="A poses CSV (q1..q6, e.g. from sixaxis lab plan) instead of --n."),
     ] = None,
     angle_unit: Annotated[
-        str, typer.Option("--angle-unit", help="Unit of q1..q6 in --poses: rad or deg.")
-    ] = "rad",
+        str | None,
+        typer.Option(
+            "--angle-unit",
+            help="Unit of q1..q6 in --poses: rad or deg (default: the unit the file's # line "
+            "declares, as sixaxis lab plan writes it; else rad).",
+        ),
+    ] = None,
     robot: RobotOpt = "seed",
 ) -> None:
     """Measure the simulated arm (MuJoCo) like a laser-tracker campaign.
@@ -904,7 +909,7 @@ def collect_cmd(
     from arm.measurements import read_poses
     from envs.scenarios import SCENARIOS, draw_truth
 
-    _check_units("m", angle_unit)
+    _check_units("m", angle_unit or "rad")
     _check_outputs([(output, "--output")], [poses, robot])
     if scenario not in SCENARIOS:
         fail(f"--scenario: unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")

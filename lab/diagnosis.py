@@ -468,7 +468,9 @@ def diagnose(
         for i in far
     ]
     left_out.sort(key=lambda o: o.index)
-    left_out = annotate(left_out, full, given)
+    # a candidate's note is said only of the model fitted or the one suggested
+    speaking = {e.name for e in model.effects} | {c.effect for c in chosen}
+    left_out = annotate(left_out, full, given, effects=speaking)
     d = Diagnosis(
         fit=res,
         verdict=verdict,

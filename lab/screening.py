@@ -34,7 +34,7 @@ have outliers: its model does not fit. Then nothing is left out, and the lab say
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -225,10 +225,16 @@ class OutlierScreen:
         )
 
 
-def annotate(outliers: list[Outlier], model: ErrorModel, data: MeasurementSet) -> list[Outlier]:
+def annotate(
+    outliers: list[Outlier],
+    model: ErrorModel,
+    data: MeasurementSet,
+    effects: Collection[str] | None = None,
+) -> list[Outlier]:
     """The outliers (indices into ``data``) with the note of any effect of ``model`` whose law
     cannot say where such a pose is (:meth:`arm.effects.Effect.ambiguity_note`: load-dependent
-    backlash at zero load)."""
+    backlash at zero load). ``effects``: only the effects of these names speak (those of the
+    model fitted or chosen, not every candidate a diagnosis tried)."""
     if not outliers:
         return outliers
     sub = data.subset(np.array([o.index for o in outliers]))
@@ -238,7 +244,11 @@ def annotate(outliers: list[Outlier], model: ErrorModel, data: MeasurementSet) -
         return outliers
     out = []
     for k, o in enumerate(outliers):
-        notes = [n for e in model.effects if (n := e.ambiguity_note(inputs, k))]
+        notes = [
+            n
+            for e in model.effects
+            if (effects is None or e.name in effects) and (n := e.ambiguity_note(inputs, k))
+        ]
         out.append(replace(o, note="; ".join(notes)) if notes else o)
     return out
 

@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 
 from arm.description import load_robot, seed_robot
 from arm.effects import load_effect_module
-from arm.measurements import read_measurements, read_poses, write_measurements
+from arm.measurements import MeasurementError, read_measurements, read_poses, write_measurements
 from experiments.cli import app
 from lab import diagnose, fit
 from tests._lab_data import (
@@ -329,6 +329,13 @@ def test_plan_writes_n_poses_that_read_back(files):
     assert res.exit_code == 0, res.output
     assert "O1" in res.stdout and "wrote" in res.stdout
     assert np.allclose(read_poses(deg, "deg"), q, atol=1e-12)
+    # the file says its unit: read without one it is the same poses, against it it is refused
+    assert np.allclose(read_poses(deg), q, atol=1e-12)
+    with pytest.raises(MeasurementError, match=r"line 1: the file declares q1..q6 in deg"):
+        read_poses(deg, "rad")
+    res = lab("collect", "--poses", deg, "--angle-unit", "rad", "-o", files["dir"] / "m.csv")
+    assert res.exit_code == 2 and "say --angle-unit deg" in res.output, res.output
+    assert not (files["dir"] / "m.csv").exists()
     # O4: the weakest direction planned for
     o4 = lab_json("plan", "--n", 15, "--candidates", 400, "--criterion", "O4", "-o", out)
     assert o4["criterion"] == "o4" and o4["o4"] > o4["random_o4"]

@@ -12,6 +12,7 @@ import pytest
 from scipy.optimize import brentq
 from scipy.special import erfc
 
+from arm.effects import LoadBacklash
 from arm.errormodel import ErrorModel
 from arm.kinematics import gravity_torques
 from arm.measurements import MeasurementSet
@@ -223,6 +224,25 @@ def test_one_pose_at_near_zero_torque_does_not_flip_the_verdict(seed):
         assert 0 in res.outliers
     keep = diagnose(data, seed, "geometric", noise_mm=NOISE_MM, outliers="keep")
     assert keep.verdict == "unexplained"  # what the issue saw: the one pose flips it
+
+
+def test_a_candidates_ambiguity_is_not_said_of_a_model_that_lacks_it(seed):
+    """A gross outlier on clean geometric data is only an outlier: the note that gravity picks no
+    side of a gap belongs to load_backlash, which neither the model nor the verdict has (it used
+    to be said of every outlier whose pose had a small torque about some joint)."""
+    band = LoadBacklash.torque_band
+    said = 0
+    for s in range(4):
+        data, planted = with_gross_outliers(
+            campaign(seed, "geometric", seed=700 + s).measure(200), np.random.default_rng(s)
+        )
+        tau = np.abs(gravity_torques(seed, data.q[planted]))
+        said += int(np.any((tau > 1e-6) & (tau < band)))  # poses the old note spoke of
+        d = diagnose(data, seed, "geometric", noise_mm=NOISE_MM)
+        assert d.verdict == "none", (s, d.summary())
+        assert list(d.outliers) == list(planted)
+        assert not any("load_backlash" in (o.note or "") for o in d.outlier_list), d.summary()
+    assert said > 0  # the case arose: some planted pose had a torque within the band
 
 
 # -- block by block -----------------------------------------------------------------------------
