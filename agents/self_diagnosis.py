@@ -380,9 +380,16 @@ class DiagnosingMPCAgent(MPCAgent):
     ) -> None:
         """The diagnosis, the held-out test and the builds of the widening (in the worker
         thread; reads the agent's settings only, changes nothing the control path uses)."""
+        from lab import FitError
+
         t0 = time.thread_time()
         try:
             self._diagnose(job, data, held, model, total)
+        except FitError as exc:  # the lab refuses to judge these points (too few, too poor):
+            # no verdict yet, and another try on more points; reported, not a warning
+            log.info("mpc-diagnose: no verdict at step %d: %s", job.record.step, exc)
+            job.record.error = f"{type(exc).__name__}: {exc}"
+            job.widening = job.estimator = None
         except Exception as exc:  # a failed diagnosis changes nothing: it is reported
             log.warning("mpc-diagnose: diagnosis at step %d failed: %s", job.record.step, exc)
             job.record.error = f"{type(exc).__name__}: {exc}"
@@ -429,8 +436,8 @@ class DiagnosingMPCAgent(MPCAgent):
             base_rms = self._held_out_rms(model, kept, train, test)
             for c in tested:
                 rms = self._held_out_rms(model, [*kept, c.label], train, test)
-                rec.tried[c.label] = rms / base_rms if base_rms > 0 else math.inf
-                if rms <= self.guard * base_rms:
+                rec.tried[c.label] = rms / base_rms if 0 < base_rms < math.inf else math.inf
+                if math.isfinite(rms) and rms <= self.guard * base_rms:
                     kept.append(c.label)
                     base_rms = rms
         if not kept:
@@ -462,7 +469,7 @@ class DiagnosingMPCAgent(MPCAgent):
         for e in old:
             trial = [x for x in labels if x != e]
             rms = self._held_out_rms(base, trial[1:], train, test)
-            if rms <= full / self.guard:
+            if math.isfinite(rms) and rms <= full / self.guard:
                 rec.dropped.append(e)
                 labels, full = trial, min(rms, full)
         return labels
@@ -480,11 +487,17 @@ class DiagnosingMPCAgent(MPCAgent):
     def _held_out_rms(
         self, model: ErrorModel, added: list[str], train: MeasurementSet, test: MeasurementSet
     ) -> float:
-        """RMS (mm) on ``test`` of the model with ``added`` effects fitted on ``train``."""
-        from lab import fit
+        """RMS (mm) on ``test`` of the model with ``added`` effects fitted on ``train``; infinite
+        when the lab cannot fit it from ``train`` (a parameter that these points do not determine,
+        or an implausible value): such a model predicts nothing, and is not kept."""
+        from lab import FitError, fit
 
         spec = merge_effects(model, added)
-        res = fit(train, model.robot, spec, noise_mm=float(self.task.noise_mm), validate=test)
+        try:
+            res = fit(train, model.robot, spec, noise_mm=float(self.task.noise_mm), validate=test)
+        except FitError as exc:
+            log.debug("mpc-diagnose: held-out fit of %s refused: %s", ",".join(spec), exc)
+            return math.inf
         return float(res.validation_rms_mm or math.inf)
 
     def _relearned(self, model: ErrorModel, data: MeasurementSet) -> RecursiveLeastSquares:
@@ -682,8 +695,8 @@ class DiagnosingMPCAgent(MPCAgent):
         train, test = data.subset(np.arange(cut)), data.subset(np.arange(cut, len(data)))
         base = self._held_out_rms(model, [], train, test)
         rms = self._held_out_rms(model, [chosen], train, test)
-        rec.tried[chosen] = rms / base if base > 0 else math.inf
-        if not rms <= self.guard * base:
+        rec.tried[chosen] = rms / base if 0 < base < math.inf else math.inf
+        if not (math.isfinite(rms) and rms <= self.guard * base):
             return None
         labels = merge_effects(model, [chosen])
         if self.prune and self.relearn:

@@ -83,3 +83,19 @@ def test_widens_nothing_on_clean_data():
         if r.report["diagnosed_effects"] != ["geometric"]:
             widened.append((seed, r.report["diagnoses"]))
     assert len(widened) <= 1, widened  # at most 1 episode in 20 with a false widening
+
+
+def test_an_effect_the_lab_cannot_fit_from_the_buffer_is_not_kept():
+    """The held-out test of an effect whose parameters the buffer's points do not determine
+    (compliance about joint 1, which gravity never loads) gets an infinite RMS, so it is never
+    kept, instead of the lab's refusal ending the whole diagnosis."""
+    from lab import FitError, fit
+
+    agent, _ = _run("geometric", 0, seconds=2.0)
+    data = agent.buffer.to_measurements()
+    cut = len(data) * 2 // 3
+    train, test = data.subset(np.arange(cut)), data.subset(np.arange(cut, len(data)))
+    with pytest.raises(FitError, match="identifiable"):
+        fit(train, agent.model.robot, "geometric,compliance[1]", noise_mm=0.015)
+    assert agent._held_out_rms(agent.model, ["compliance[1]"], train, test) == np.inf
+    assert np.isfinite(agent._held_out_rms(agent.model, [], train, test))
