@@ -35,8 +35,14 @@ verdict is ``unexplained`` (the catalogue explains part of the residual only). E
 in the order the diagnosis chose them, must pass a **held-out test** against spurious extras: the
 model with and without it is fitted on the buffer but its last ``holdout`` fraction, and the
 effect is kept only if it predicts those later points better (RMS at most ``guard`` of the model
-without it). (``test_first=False`` takes the first effect on the lab's word.) Its names are per
-joint (``compliance[2,3]``).
+without it). (``test_first=False`` takes the first effect on the lab's word.) The diagnosis
+names effects per joint (``backlash[1]``: the joints the buffer shows); the estimator takes the
+first effect found on every joint, as the sequential test adds it, so that a joint that moves
+later is already modelled (its parameters stay at their prior until then); an extra keeps the
+joints the held-out test checked (on a campaign over the workspace, an extra on every joint
+extrapolates worse to a region it has not seen: 1.27x the oracle against 1.10x). The lab's plausibility bound
+is off inside the agent (``accept_large``): on a short buffer a parameter that the points barely
+determine may take any value, and the held-out test, not the bound, judges the model.
 
 **Extras.** An effect added to a model that has one already, by either test, must pass the
 held-out test; on a campaign over the workspace it checks that the effect carries over to the
@@ -87,6 +93,7 @@ from scipy import stats
 from agents.model_selection import SequentialSelection, candidate_families
 from agents.mpc import MPCAgent, Widening
 from agents.online_calibration import MeasurementBuffer, RecursiveLeastSquares, merge_effects
+from arm.effects import make_effect
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from envs.task import TaskInfo, Truth
@@ -415,6 +422,7 @@ class DiagnosingMPCAgent(MPCAgent):
             noise_mm=float(self.task.noise_mm),
             alpha=self.alpha,
             candidates=self.candidates,
+            accept_large=True,
         )
         rec.verdict, rec.suggestion, rec.chi2_p_value = d.verdict, d.suggestion, d.chi2_p_value
         if not d.explanation:
@@ -446,6 +454,10 @@ class DiagnosingMPCAgent(MPCAgent):
         labels = merge_effects(model, kept)
         if self.prune and self.relearn and cut >= MIN_FIT_POINTS:
             labels = self._pruned(model, labels, train, test, rec)
+        if len(model.effects) == 1:
+            # the first effect found goes on every joint, as the sequential test adds it: the
+            # joints the buffer has not moved yet stay at their prior until they do
+            labels = [e if e in model.effect_names else make_effect(e).name for e in labels]
         job.widening = self._prepare(model, labels)
         if self.relearn:
             job.estimator = self._relearned(job.widening.model, held)
@@ -494,7 +506,14 @@ class DiagnosingMPCAgent(MPCAgent):
 
         spec = merge_effects(model, added)
         try:
-            res = fit(train, model.robot, spec, noise_mm=float(self.task.noise_mm), validate=test)
+            res = fit(
+                train,
+                model.robot,
+                spec,
+                noise_mm=float(self.task.noise_mm),
+                validate=test,
+                accept_large=True,
+            )
         except FitError as exc:
             log.debug("mpc-diagnose: held-out fit of %s refused: %s", ",".join(spec), exc)
             return math.inf

@@ -99,3 +99,14 @@ def test_an_effect_the_lab_cannot_fit_from_the_buffer_is_not_kept():
         fit(train, agent.model.robot, "geometric,compliance[1]", noise_mm=0.015)
     assert agent._held_out_rms(agent.model, ["compliance[1]"], train, test) == np.inf
     assert np.isfinite(agent._held_out_rms(agent.model, [], train, test))
+
+
+def test_the_labs_path_widens_the_estimator_by_the_whole_family():
+    """With the sequential test off, the lab's diagnosis names backlash on the joints its buffer
+    shows (backlash[1] on this seed); the estimator takes backlash on every joint, as the
+    sequential test adds it, so a joint that reverses later is already modelled."""
+    _, r = _run("backlash", 1, select=False)
+    lab = [d for d in r.report["diagnoses"] if d["kept"]]
+    assert lab and all(d["method"] == "lab" for d in lab)
+    assert any(k.startswith("backlash[") for k in lab[0]["kept"]), lab[0]
+    assert "backlash" in r.report["diagnosed_effects"], r.report["diagnosed_effects"]
