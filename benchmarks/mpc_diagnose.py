@@ -68,8 +68,9 @@ def make(label: str, scenario: str, informed: dict[str, str], **extra):
 
 def episode(label: str, scenario: str, seed: int, informed: dict[str, str]) -> dict:
     t0 = time.perf_counter()
+    agent = make(label, scenario, informed)
     r = run_episode(
-        make(label, scenario, informed),
+        agent,
         ENV | {"scenario": scenario},
         seed=seed,
         episode_seconds=EPISODE_S,
@@ -87,6 +88,10 @@ def episode(label: str, scenario: str, seed: int, informed: dict[str, str]) -> d
         out["diagnoses"] = len(rep["diagnoses"])
         out["cost_s"] = rep["diagnosis_cost_time_s"]
         out["late"] = rep["diagnosis_late"]
+        out["selection_cost_s"] = rep["selection_cost_time_s"]
+        out["selection_late"] = rep["selection_late"]
+        out["lag_s"] = agent.lag_steps * float(agent.task.dt)
+        out["selection_lag_s"] = agent.select_lag * float(agent.task.dt)
         out["solve_median_ms"] = float(np.median(r.solve_time_s)) * 1e3
         out["solve_p95_ms"] = float(np.percentile(r.solve_time_s, 95)) * 1e3
     return out
@@ -212,6 +217,25 @@ def main() -> None:
             + f" | {', '.join(f'{t:.1f}' for t in when) or '-'} |"
         )
     lines += ["", "Cells: settled / whole (mm)."]
+    runs = [m for sc in scenarios for m in res["scenarios"][sc]["mpc-diagnose"]]
+    lab_cost = np.array([c for m in runs for c in m["cost_s"]]) * 1e3
+    sel_cost = np.array([c for m in runs for c in m["selection_cost_s"]]) * 1e3
+    step_med = np.array([m["solve_median_ms"] for m in runs])
+    step_p95 = np.array([m["solve_p95_ms"] for m in runs])
+    if lab_cost.size and sel_cost.size:
+        lines += [
+            "",
+            "Costs, off the control path (worker threads' CPU time per call, all scenarios): the "
+            f"lab's diagnosis median {np.median(lab_cost):.0f} ms, max {lab_cost.max():.0f} ms "
+            f"({lab_cost.size} calls, {sum(m['late'] for m in runs)} not done within their "
+            f"{runs[0]['lag_s']:g} s lag); a job of the sequential test median {np.median(sel_cost):.1f} "
+            f"ms, max {sel_cost.max():.0f} ms ({sel_cost.size} jobs, "
+            f"{sum(m['selection_late'] for m in runs)} not done within their "
+            f"{runs[0]['selection_lag_s']:g} s lag). The "
+            f"control step of mpc-diagnose (its `act` without them): median "
+            f"{np.median(step_med):.3f} ms, p95 {np.median(step_p95):.3f} ms (medians over "
+            "episodes).",
+        ]
     if res["campaign"]:
         cd = np.array([m["settled"] for m in res["campaign"]["mpc-diagnose"]])
         co = np.array([m["settled"] for m in res["campaign"]["mpc-oracle"]])
