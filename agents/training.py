@@ -115,6 +115,8 @@ class TrainConfig:
     offset_mm: float = 0.5
     reward: str = "log"
     reward_scale_mm: float = 0.05
+    action_penalty: float = 0.0
+    action_change_penalty: float = 0.0
     normalize_reward: bool = True
     init_output_scale: float = 0.01
     action_noise_std: float = 0.1
@@ -199,6 +201,9 @@ class TrainConfig:
             bad(f"reward must be 'log' or 'env', got {self.reward!r}")
         if not self.reward_scale_mm > 0:
             bad(f"reward_scale_mm must be > 0, got {self.reward_scale_mm}")
+        for key in ("action_penalty", "action_change_penalty"):
+            if not getattr(self, key) >= 0:
+                bad(f"{key} must be >= 0, got {getattr(self, key)}")
         cls = _algorithm(self.algo)
         params = inspect.signature(cls.__init__).parameters
         unknown = sorted(set(self.hyperparameters) - set(params) - _RESERVED)
@@ -276,7 +281,9 @@ class PolicyEnv(gym.Wrapper):
 
     The reward is the env's (``reward="env"``: minus the true error in mm, and the jerk penalty)
     or ``-ln(1 + e / scale)`` of the true error ``e`` (``"log"``): it resolves 0.05-0.5 mm errors
-    as well as millimetres. The reward uses the plant's truth, as any simulated training may; the
+    as well as millimetres. ``action_penalty`` and ``action_change_penalty`` subtract
+    ``c * |a|^2`` and ``c * |a - a_prev|^2`` of the policy's own action (in [-1, 1]): the policy
+    keeps zero (the base controller) unless moving off it pays. The reward uses the plant's truth, as any simulated training may; the
     policy's observation never does."""
 
     def __init__(
@@ -287,6 +294,8 @@ class PolicyEnv(gym.Wrapper):
         reward: str = "log",
         reward_scale_mm: float = 0.05,
         seeds: Callable[[], int] | None = None,
+        action_penalty: float = 0.0,
+        action_change_penalty: float = 0.0,
     ) -> None:
         super().__init__(env)
         self.io = PolicyIO(variant, offset_mm)
@@ -297,6 +306,8 @@ class PolicyEnv(gym.Wrapper):
         self.reward_kind = reward
         self.reward_scale_mm = float(reward_scale_mm)
         self.seeds = seeds
+        self.action_penalty = float(action_penalty)
+        self.action_change_penalty = float(action_change_penalty)
         self.last_seed: int | None = None
 
     def reward(self, env_reward: float, info: Mapping[str, Any]) -> float:
@@ -316,10 +327,15 @@ class PolicyEnv(gym.Wrapper):
         return self.io.features(obs, info), info
 
     def step(self, action):
+        before = self.io.prev_action.copy()
         obs, reward, terminated, truncated, info = self.env.step(self.io.action(action))
+        a = self.io.prev_action  # the clipped action applied
+        r = self.reward(float(reward), info)
+        r -= self.action_penalty * float(a @ a)
+        r -= self.action_change_penalty * float((a - before) @ (a - before))
         return (
             self.io.features(obs, info),
-            self.reward(float(reward), info),
+            r,
             terminated,
             truncated,
             info,
@@ -348,7 +364,16 @@ def make_policy_env(
     env = gym.make(
         "SixAxisTrack-v0", scenario=scenario, max_episode_steps=cfg.episode_steps, **cfg.env
     )
-    return PolicyEnv(env, cfg.variant, cfg.offset_mm, cfg.reward, cfg.reward_scale_mm, seeds)
+    return PolicyEnv(
+        env,
+        cfg.variant,
+        cfg.offset_mm,
+        cfg.reward,
+        cfg.reward_scale_mm,
+        seeds,
+        cfg.action_penalty,
+        cfg.action_change_penalty,
+    )
 
 
 # --------------------------------------------------------------------------------------------------

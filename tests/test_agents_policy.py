@@ -112,6 +112,29 @@ def test_policy_env_passes_the_sb3_checker_and_zero_residual_is_feedforward():
     np.testing.assert_array_equal(errs, ff.true_error_mm)
 
 
+def test_action_penalties_charge_the_residual_and_its_change():
+    env_kw = {"scenario": "backlash", "noise_mm": 0.015, "measure_every": 5}
+    plain = PolicyEnv(gym.make("SixAxisTrack-v0", **env_kw), "residual")
+    charged = PolicyEnv(
+        gym.make("SixAxisTrack-v0", **env_kw),
+        "residual",
+        action_penalty=0.3,
+        action_change_penalty=0.2,
+    )
+    plain.reset(seed=3)
+    charged.reset(seed=3)
+    actions = [np.array([0.5, -0.2, 0.1]), np.array([0.5, -0.2, 0.1]), np.array([2.0, 0.0, 0.0])]
+    prev = np.zeros(3)
+    for a in actions:
+        _, r0, *_ = plain.step(a)
+        _, r1, *_ = charged.step(a)
+        applied = np.clip(a, -1.0, 1.0)  # the env clips what it applies, and charges that
+        size = float(np.sum(applied**2))
+        change = float(np.sum((applied - prev) ** 2))
+        assert r1 == pytest.approx(r0 - 0.3 * size - 0.2 * change, rel=1e-12, abs=1e-12)
+        prev = applied
+
+
 def test_a_full_residual_moves_the_target_by_offset_mm():
     io = PolicyIO("residual", offset_mm=0.5)
     env = gym.make("SixAxisTrack-v0", scenario="nominal", noise_mm=0.0)
@@ -316,6 +339,7 @@ def test_bad_training_configs_are_refused(tmp_path):
         "[train]\nalgo = 'sac'\n[train.hyperparameters]\nclip_range = 0.2\n": "SAC takes no clip_range",
         "[train]\nscenarios = ['geometric', 'bogus']\n": r"scenarios\[1\]",
         "[train]\n[train.env]\nnoise = 0.1\n": "env",
+        "[train]\naction_penalty = -0.1\n": "action_penalty must be >= 0",
     }
     for text, match in cases.items():
         p.write_text(text)
