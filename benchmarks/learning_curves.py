@@ -13,6 +13,7 @@ and ``summary.json`` (wall time, steps/s). This script gathers the runs of each 
 
     python benchmarks/learning_curves.py --runs runs ppo-residual sac-residual sac
     python benchmarks/learning_curves.py --runs runs --ship ppo-residual   # ship the median seed
+    python benchmarks/learning_curves.py --runs runs --keep --ship ppo-residual  # retrained one
 """
 
 from __future__ import annotations
@@ -61,12 +62,15 @@ def gather(runs: Path, name: str) -> list[dict]:
 
 
 def aggregate(name: str, runs: list[dict]) -> list[dict]:
-    n = min(len(r["curve"]["steps"]) for r in runs)
+    # the evaluation steps every run has (a resumed run also has the one where it first stopped)
+    common = sorted(set.intersection(*(set(r["curve"]["steps"].tolist()) for r in runs)))
     rows = []
-    for i in range(n):
-        steps = runs[0]["curve"]["steps"][i]
-        rms = np.array([r["curve"]["rms_settled_mm/mean"][i] for r in runs])
-        ret = np.array([r["curve"]["return/mean"][i] for r in runs])
+    for steps in common:
+        at = [int(np.flatnonzero(r["curve"]["steps"] == steps)[0]) for r in runs]
+        rms = np.array(
+            [r["curve"]["rms_settled_mm/mean"][i] for r, i in zip(runs, at, strict=True)]
+        )
+        ret = np.array([r["curve"]["return/mean"][i] for r, i in zip(runs, at, strict=True)])
         rows.append(
             {
                 "steps": int(steps),
@@ -87,6 +91,11 @@ def main() -> None:
     ap.add_argument("--runs", type=Path, default=Path("runs"), help="the training runs' folder")
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--ship", nargs="*", default=[], help="ship the median seed of these names")
+    ap.add_argument(
+        "--keep",
+        action="store_true",
+        help="a policy with no runs in --runs keeps its recorded curve and rows in --out",
+    )
     args = ap.parse_args()
     import matplotlib
 
@@ -98,16 +107,29 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
     table = []
+    recorded = (
+        json.loads((args.out / "runs.json").read_text())
+        if (args.out / "runs.json").exists()
+        else []
+    )
     for name in args.names:
         runs = gather(args.runs, name)
         if not runs:
-            print(f"{name}: no runs in {args.runs}")
-            continue
-        rows = aggregate(name, runs)
-        with open(args.out / f"{name}.csv", "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+            if not args.keep or not (args.out / f"{name}.csv").exists():
+                print(f"{name}: no runs in {args.runs}")
+                continue
+            # --keep: this policy's curve and rows as recorded (its runs are not here)
+            print(f"{name}: no runs in {args.runs}; keeping its recorded curve and rows")
+            with open(args.out / f"{name}.csv", newline="") as fh:
+                rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+            table += [r for r in recorded if r["name"] == name]
+            runs = [r for r in recorded if r["name"] == name]
+        else:
+            rows = aggregate(name, runs)
+            with open(args.out / f"{name}.csv", "w", newline="") as fh:
+                w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+                w.writeheader()
+                w.writerows(rows)
         x = np.array([r["steps"] for r in rows])
         for ax, key in ((ax1, "rms_settled_mm"), (ax2, "return")):
             mean = np.array([r[f"{key}_mean"] for r in rows])
@@ -115,6 +137,8 @@ def main() -> None:
             hi = np.array([r[f"{key}_max"] for r in rows])
             (line,) = ax.plot(x, mean, label=f"{name} ({len(runs)} seeds)")
             ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2)
+        if "dir" not in runs[0]:  # kept from runs.json
+            continue
         ordered = sorted(runs, key=lambda r: r["score"])
         median = ordered[len(ordered) // 2]
         for r in runs:
