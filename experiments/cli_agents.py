@@ -139,16 +139,6 @@ EVALUATE_METRICS = (
 )
 
 
-EVALUATE_METRICS = (
-    "rms_mm",
-    "rms_settled_mm",
-    "converge_s",
-    "max_settled_mm",
-    "diverged",
-    "solve_time_median_ms",
-)
-
-
 def evaluate(
     agent: Annotated[
         str,
