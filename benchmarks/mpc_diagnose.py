@@ -32,19 +32,11 @@ from agents.registry import make_agent
 from agents.runner import run_episode, workspace_campaign
 from arm.measurements import atomic_write_text
 from benchmarks._report import RESULTS, machine, write_section
+from envs.scenarios import SCENARIOS as SCENARIO_CATALOGUE
 from experiments.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENARIOS = (
-    "nominal",
-    "geometric",
-    "compliance",
-    "transmission",
-    "backlash",
-    "thermal",
-    "payload",
-    "all",
-)
+SCENARIOS = tuple(SCENARIO_CATALOGUE)  # every scenario, in the leaderboard's order
 AGENTS = ("mpc", "mpc-informed", "mpc-diagnose", "mpc-oracle")
 EPISODE_S = 10.0
 SETTLE_S = 2.0
