@@ -269,9 +269,12 @@ def _prepare(
     angle_unit: str,
     noise_mm: float | None,
     outputs: Sequence[tuple[Path | None, str]] = (),
+    outliers: str | None = None,
 ):
     """Check the options (cheap ones first) and the output places, register effect modules, read
     the robot and data."""
+    if outliers is not None:
+        _check_outliers(outliers)
     _check_units(length_unit, angle_unit)
     _check_loss(loss)
     _check_noise(noise_mm)
@@ -349,7 +352,6 @@ def fit_cmd(
     lab's JSON output (SI units)."""
     from lab import fit
 
-    _check_outliers(outliers)
     arm, meas, val = _prepare(
         data,
         robot,
@@ -361,6 +363,7 @@ def fit_cmd(
         angle_unit,
         noise_mm,
         outputs=[(out, "--out")],
+        outliers=outliers,
     )
     with user_errors():
         result = fit(
@@ -496,7 +499,6 @@ def diagnose_cmd(
     the residual still depends on."""
     from lab import diagnose
 
-    _check_outliers(outliers)
     arm, meas, _ = _prepare(
         data,
         robot,
@@ -508,6 +510,7 @@ def diagnose_cmd(
         angle_unit,
         noise_mm,
         outputs=[(out, "--out")],
+        outliers=outliers,
     )
     if not 0 < alpha < 1:
         fail(f"--alpha must lie in (0, 1), got {alpha}")
@@ -689,7 +692,6 @@ def report_cmd(
     --rounds times); the report has the tables and plots of every model."""
     from lab.report import build_report
 
-    _check_outliers(outliers)
     arm, meas, val = _prepare(
         data,
         robot,
@@ -701,6 +703,7 @@ def report_cmd(
         angle_unit,
         noise_mm,
         outputs=[(output, "--output")],
+        outliers=outliers,
     )
     if rounds < 0:
         fail(f"--rounds must be >= 0, got {rounds}")
@@ -992,7 +995,6 @@ def export_cmd(
     from lab import fit
     from lab.export import export_robot
 
-    _check_outliers(outliers)
     arm, meas, val = _prepare(
         data,
         robot,
@@ -1004,6 +1006,7 @@ def export_cmd(
         angle_unit,
         noise_mm,
         outputs=[(output, "--output")],
+        outliers=outliers,
     )
     with user_errors():
         result = fit(
