@@ -52,7 +52,9 @@ from agents.policy import (
     policy_kwargs_for_sb3,
     save_policy_file,
 )
+from agents.reference import FeedforwardAgent
 from arm.errors import SixAxisError
+from envs.task import controller_info
 
 __all__ = [
     "LEADERBOARD_ENV",
@@ -91,6 +93,8 @@ EPISODE_SECONDS = 10.0
 SEED_STRIDE = 100_000
 #: the lowest episode seed a training run may use
 MIN_EPISODE_SEED = 1000
+#: the training rewards (see :class:`PolicyEnv`)
+REWARDS = ("log", "improvement", "env")
 #: keys of [train.hyperparameters] that the trainer sets itself
 _RESERVED = {"policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model"}
 
@@ -197,8 +201,10 @@ class TrainConfig:
             bad("hyperparameters: action_noise is set by the trainer (action_noise_std)")
         if not self.init_output_scale > 0:
             bad(f"init_output_scale must be > 0, got {self.init_output_scale}")
-        if self.reward not in ("log", "env"):
-            bad(f"reward must be 'log' or 'env', got {self.reward!r}")
+        if self.reward not in REWARDS:
+            bad(f"reward must be one of {', '.join(REWARDS)}, got {self.reward!r}")
+        if self.reward == "improvement" and self.variant != "residual":
+            bad("reward 'improvement' (over the base controller) is for residual policies")
         if not self.reward_scale_mm > 0:
             bad(f"reward_scale_mm must be > 0, got {self.reward_scale_mm}")
         for key in ("action_penalty", "action_change_penalty"):
@@ -279,12 +285,20 @@ class PolicyEnv(gym.Wrapper):
     action out, and every reset seeded from the run's own sequence (``seeds``: a callable giving
     the next episode's seed; none: the seed given to ``reset``).
 
-    The reward is the env's (``reward="env"``: minus the true error in mm, and the jerk penalty)
-    or ``-ln(1 + e / scale)`` of the true error ``e`` (``"log"``): it resolves 0.05-0.5 mm errors
-    as well as millimetres. ``action_penalty`` and ``action_change_penalty`` subtract
-    ``c * |a|^2`` and ``c * |a - a_prev|^2`` of the policy's own action (in [-1, 1]): the policy
-    keeps zero (the base controller) unless moving off it pays. The reward uses the plant's truth, as any simulated training may; the
-    policy's observation never does."""
+    The reward is the env's (``reward="env"``: minus the true error in mm, and the jerk penalty),
+    ``-ln(1 + e / scale)`` of the true error ``e`` (``"log"``): it resolves 0.05-0.5 mm errors
+    as well as millimetres, or the improvement over the base controller (``"improvement"``,
+    residual policies only): ``ln(1 + e_base / scale) - ln(1 + e / scale)``, where ``e_base`` is
+    the true error the ``feedforward`` base makes at the same instant of the same episode (a
+    shadow copy of the env, reset with the same seed, driven by the base alone: common random
+    numbers). A zero residual earns exactly 0 at every step, so the return measures what the
+    residual adds and not how hard the episode is (the arm's errors, the path, the noise), which
+    the policy cannot see and which otherwise drowns the 0.01 mm it can gain.
+    ``action_penalty`` and ``action_change_penalty`` subtract ``c * |a|^2`` and
+    ``c * |a - a_prev|^2`` of the policy's own action (in [-1, 1]): the policy keeps zero (the
+    base controller) unless moving off it pays. The reward uses the plant's truth, as any
+    simulated training may; the policy's observation never does (it is computed from
+    :func:`~envs.task.controller_info` of each step's info)."""
 
     def __init__(
         self,
@@ -296,9 +310,14 @@ class PolicyEnv(gym.Wrapper):
         seeds: Callable[[], int] | None = None,
         action_penalty: float = 0.0,
         action_change_penalty: float = 0.0,
+        shadow: gym.Env | None = None,
     ) -> None:
         super().__init__(env)
+        if reward == "improvement" and (variant != "residual" or shadow is None):
+            raise ValueError("the improvement reward needs a residual policy and a shadow env")
         self.io = PolicyIO(variant, offset_mm)
+        self.shadow = shadow if reward == "improvement" else None
+        self.shadow_base = FeedforwardAgent()
         task = env.unwrapped.task  # type: ignore[attr-defined]
         n = self.io.observation_size(task)
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (n,), np.float32)
@@ -310,36 +329,53 @@ class PolicyEnv(gym.Wrapper):
         self.action_change_penalty = float(action_change_penalty)
         self.last_seed: int | None = None
 
-    def reward(self, env_reward: float, info: Mapping[str, Any]) -> float:
-        if self.reward_kind == "env":
-            return float(env_reward)
+    def _log_error(self, info: Mapping[str, Any]) -> float:
         e = float(info.get("true_error_mm", math.nan))
         if not math.isfinite(e):  # diverged
             e = 1e3
-        return -math.log1p(e / self.reward_scale_mm)
+        return math.log1p(e / self.reward_scale_mm)
+
+    def reward(self, env_reward: float, info: Mapping[str, Any]) -> float:
+        if self.reward_kind == "env":
+            return float(env_reward)
+        if self.reward_kind == "improvement":
+            return self._log_error(self._shadow_info) - self._log_error(info)
+        return -self._log_error(info)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         if self.seeds is not None:
             seed = self.seeds()
         self.last_seed = seed
         obs, info = self.env.reset(seed=seed, options=options)
-        self.io.reset(self.env.unwrapped.task)  # type: ignore[attr-defined]
-        return self.io.features(obs, info), info
+        task = self.env.unwrapped.task  # type: ignore[attr-defined]
+        self.io.reset(task)
+        if self.shadow is not None:
+            self._shadow_obs, self._shadow_info = self.shadow.reset(seed=seed, options=options)
+            self.shadow_base.reset(self.shadow.unwrapped.task)  # type: ignore[attr-defined]
+        return self.io.features(obs, controller_info(info)), info
 
     def step(self, action):
         before = self.io.prev_action.copy()
         obs, reward, terminated, truncated, info = self.env.step(self.io.action(action))
+        if self.shadow is not None:
+            base_action = self.shadow_base.act(self._shadow_obs, controller_info(self._shadow_info))
+            self._shadow_obs, _, _, _, self._shadow_info = self.shadow.step(base_action)
         a = self.io.prev_action  # the clipped action applied
         r = self.reward(float(reward), info)
         r -= self.action_penalty * float(a @ a)
         r -= self.action_change_penalty * float((a - before) @ (a - before))
         return (
-            self.io.features(obs, info),
+            self.io.features(obs, controller_info(info)),
             r,
             terminated,
             truncated,
             info,
         )
+
+    def close(self) -> None:
+        if self.shadow is not None:
+            self.shadow.close()
+        super().close()
 
 
 class EpisodeSeeds:
@@ -361,11 +397,13 @@ def make_policy_env(
 ) -> PolicyEnv:
     import envs  # noqa: F401
 
-    env = gym.make(
-        "SixAxisTrack-v0", scenario=scenario, max_episode_steps=cfg.episode_steps, **cfg.env
-    )
+    def make() -> gym.Env:
+        return gym.make(
+            "SixAxisTrack-v0", scenario=scenario, max_episode_steps=cfg.episode_steps, **cfg.env
+        )
+
     return PolicyEnv(
-        env,
+        make(),
         cfg.variant,
         cfg.offset_mm,
         cfg.reward,
@@ -373,6 +411,7 @@ def make_policy_env(
         seeds,
         cfg.action_penalty,
         cfg.action_change_penalty,
+        shadow=make() if cfg.reward == "improvement" else None,
     )
 
 
