@@ -26,6 +26,7 @@ from agents.reference import FeedforwardAgent
 from agents.registry import POLICIES, make_agent
 from agents.runner import run_episode
 from agents.training import (
+    LEADERBOARD_ENV,
     LEADERBOARD_SEEDS,
     EpisodeSeeds,
     PolicyEnv,
@@ -110,6 +111,32 @@ def test_policy_env_passes_the_sb3_checker_and_zero_residual_is_feedforward():
         errs.append(info["true_error_mm"])
         assert reward == pytest.approx(-np.log1p(errs[-1] / 0.05))
     np.testing.assert_array_equal(errs, ff.true_error_mm)
+
+
+def test_the_improvement_reward_is_the_gain_over_feedforward_on_the_same_episode():
+    env_kw = {"scenario": "backlash", "noise_mm": 0.015, "measure_every": 5}
+    ff = run_episode(make_agent("feedforward"), env_kw, seed=4, episode_seconds=3.0)
+    cfg = TrainConfig(reward="improvement", reward_scale_mm=0.05, env=dict(LEADERBOARD_ENV))
+    env = make_policy_env(cfg, "backlash")
+    # a zero residual is the base itself: exactly no gain at any step
+    env.reset(seed=4)
+    for _ in range(len(ff.time)):
+        _, reward, *_ = env.step(np.zeros(3))
+        assert reward == 0.0
+    # any other residual earns ln(1 + e_ff / s) - ln(1 + e / s), where e_ff is what the
+    # feedforward agent, run alone on the same seed, made at that instant
+    env.reset(seed=4)
+    rng = np.random.default_rng(0)
+    total = 0.0
+    for k in range(len(ff.time)):
+        _, reward, *_, info = env.step(rng.uniform(-0.6, 0.6, 3))
+        want = np.log1p(ff.true_error_mm[k] / 0.05) - np.log1p(info["true_error_mm"] / 0.05)
+        assert reward == pytest.approx(want, rel=1e-12, abs=1e-12)
+        total += reward
+    assert total < 0  # random offsets of up to 0.3 mm only hurt
+    env.close()
+    with pytest.raises(ValueError, match="residual"):
+        PolicyEnv(gym.make("SixAxisTrack-v0"), "plain", reward="improvement")
 
 
 def test_action_penalties_charge_the_residual_and_its_change():
@@ -340,6 +367,8 @@ def test_bad_training_configs_are_refused(tmp_path):
         "[train]\nscenarios = ['geometric', 'bogus']\n": r"scenarios\[1\]",
         "[train]\n[train.env]\nnoise = 0.1\n": "env",
         "[train]\naction_penalty = -0.1\n": "action_penalty must be >= 0",
+        "[train]\nreward = 'better'\n": "reward must be one of log, improvement, env",
+        "[train]\nvariant = 'plain'\nreward = 'improvement'\n": "for residual policies",
     }
     for text, match in cases.items():
         p.write_text(text)
