@@ -8,6 +8,11 @@ env's options in ``[train.env]``, the reward) and ``[train.hyperparameters]`` is
 algorithm as it is (its keys are checked against the algorithm's signature; the network's
 architecture is ``policy_kwargs``, the activation by name).
 
+Off-policy residuals (SAC, TD3) can keep their actor still for the first ``critic_burn_in``
+steps while the critic learns what the near-zero residual is worth (residual policy learning,
+Silver et al. 2018: an untrained critic's gradient otherwise drives the actor far off the base
+controller before the critic can tell).
+
 Seeds. The run's ``seed`` seeds the network and the exploration. Every training episode is reset
 with its own seed, ``episode_seed_base + SEED_STRIDE * seed + k`` for the k-th episode of the run
 (over all its envs), so no training episode is ever a leaderboard episode (those are seeds 0-4;
@@ -121,6 +126,7 @@ class TrainConfig:
     reward_scale_mm: float = 0.05
     action_penalty: float = 0.0
     action_change_penalty: float = 0.0
+    critic_burn_in: int = 0
     normalize_reward: bool = True
     init_output_scale: float = 0.01
     action_noise_std: float = 0.1
@@ -207,6 +213,10 @@ class TrainConfig:
             bad("reward 'improvement' (over the base controller) is for residual policies")
         if not self.reward_scale_mm > 0:
             bad(f"reward_scale_mm must be > 0, got {self.reward_scale_mm}")
+        if self.critic_burn_in < 0:
+            bad(f"critic_burn_in must be >= 0, got {self.critic_burn_in}")
+        if self.critic_burn_in and self.algo == "ppo":
+            bad("critic_burn_in is for the off-policy algorithms (sac, td3): PPO has no critic")
         for key in ("action_penalty", "action_change_penalty"):
             if not getattr(self, key) >= 0:
                 bad(f"{key} must be >= 0, got {getattr(self, key)}")
@@ -605,10 +615,14 @@ def train(
         with atomic_path(out / "checkpoint.npz") as tmp, open(tmp, "wb") as fh:
             np.savez(fh, **state)
 
+    actor = None if cfg.algo == "ppo" else model.policy.actor
+
     class _Callback(BaseCallback):
         def _on_step(self) -> bool:
             n = self.num_timesteps
             k = cfg.n_envs
+            if actor is not None:  # the critic's burn-in: the actor learns once it is over
+                actor.requires_grad_(n >= cfg.critic_burn_in)
             if n // cfg.eval_every != (n - k) // cfg.eval_every:
                 evaluate_now(n)
             if n // cfg.checkpoint_every != (n - k) // cfg.checkpoint_every:

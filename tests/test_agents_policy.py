@@ -367,6 +367,7 @@ def test_bad_training_configs_are_refused(tmp_path):
         "[train]\nscenarios = ['geometric', 'bogus']\n": r"scenarios\[1\]",
         "[train]\n[train.env]\nnoise = 0.1\n": "env",
         "[train]\naction_penalty = -0.1\n": "action_penalty must be >= 0",
+        "[train]\ncritic_burn_in = 1000\n": "PPO has no critic",
         "[train]\nreward = 'better'\n": "reward must be one of log, improvement, env",
         "[train]\nvariant = 'plain'\nreward = 'improvement'\n": "for residual policies",
     }

@@ -73,6 +73,24 @@ def test_off_policy_runs_write_loadable_policies(tmp_path, algo):
 
 
 @pytest.mark.slow
+def test_the_critic_burn_in_keeps_the_actor_still(tmp_path):
+    cfg = _tiny(tmp_path, "sac", name="s")
+    cfg.total_timesteps = cfg.eval_every = 64
+    start = train(cfg)
+    kept = train(_tiny(tmp_path, "sac", name="k", critic_burn_in=10_000))
+    moved = train(_tiny(tmp_path, "sac", name="m"))
+
+    def actor(out, which):
+        with np.load(out / which) as f:
+            return {k: f[k] for k in f.files if k.startswith("weights/")}
+
+    a0, a1, a2 = actor(start, "final.npz"), actor(kept, "final.npz"), actor(moved, "final.npz")
+    for k in a0:  # SAC updated nothing of the actor before its 64 learning_starts steps
+        np.testing.assert_array_equal(a1[k], a0[k])
+    assert any(not np.array_equal(a2[k], a0[k]) for k in a0)
+
+
+@pytest.mark.slow
 def test_a_run_resumes_from_its_checkpoint(tmp_path):
     cfg = _tiny(tmp_path, name="r")
     train(cfg)
