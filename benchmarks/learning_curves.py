@@ -180,9 +180,10 @@ def main() -> None:
         "",
         "Made by `python benchmarks/learning_curves.py` from the runs of "
         "`sixaxis train ALGO --config experiments/configs/NAME.toml --seed S` (S = 1, 2, 3).",
-        "Evaluations: one deterministic episode per scenario on seeds 900000+ (never trained on, "
-        "never on the leaderboard). Score: the mean over the scenarios of log settled RMS; the "
-        "median seed by its best score is shipped.",
+        "Evaluations: every `eval_every` steps, `eval_episodes` deterministic episodes per "
+        "scenario (each config says how many) on seeds 900000+ (never trained on, never on the "
+        "leaderboard). Score: the mean over the scenarios of log settled RMS; the policy of a "
+        "run's best evaluation is its `best.npz`, and the median seed by that score is shipped.",
         "",
         "![learning curves](curves.png)",
         "",
@@ -203,8 +204,9 @@ def main() -> None:
             "",
             "## The off-policy algorithm, chosen by measurement",
             "",
-            "Pilot runs of the residual (the same features, reward and evaluation seeds; seed 1), "
-            "settled RMS (mm) of the evaluations:",
+            "Pilot runs of the off-policy residuals (`results/learning/pilots/`, seed 1, the "
+            "shipped configs' features, reward and evaluation seeds, 100k steps; `no-burn-in`: "
+            "the same without `critic_burn_in`), settled RMS (mm) of the evaluations:",
             "",
             "| pilot | steps | backlash | all | mean over scenarios |",
             "|---|---:|---:|---:|---:|",
@@ -217,11 +219,18 @@ def main() -> None:
                     f"{c['rms_settled_mm/backlash'][i]:.4f} | {c['rms_settled_mm/all'][i]:.4f} | "
                     f"{c['rms_settled_mm/mean'][i]:.4f} |"
                 )
+        best = {
+            p.stem: float(read_curve(p)["rms_settled_mm/mean"].min())
+            for p in pilots
+            if "no-burn-in" not in p.stem
+        }
+        order = sorted(best, key=best.__getitem__)
         lines += [
             "",
-            "Step 0 is the untrained residual (near-zero output: `feedforward`). SAC was the "
-            "first to cut the backlash error; TD3's exploration noise first made everything "
-            "worse. SAC ships.",
+            "Step 0 is the untrained residual (near-zero output: `feedforward`). Lowest mean over "
+            "the scenarios with the burn-in: "
+            + ", ".join(f"{k} {best[k]:.4f} mm" for k in order)
+            + f"; {order[0].split('-')[0].upper()} ships.",
         ]
     atomic_write_text(args.out / "README.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
