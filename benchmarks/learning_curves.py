@@ -204,9 +204,10 @@ def main() -> None:
             "",
             "## The off-policy algorithm, chosen by measurement",
             "",
-            "Pilot runs of the off-policy residuals (`results/learning/pilots/`, seed 1, the "
-            "shipped configs' features, reward and evaluation seeds, 100k steps; `no-burn-in`: "
-            "the same without `critic_burn_in`), settled RMS (mm) of the evaluations:",
+            "Pilot runs of the off-policy residuals (`results/learning/pilots/`, their configs "
+            "beside their curves: seed 1, 100k steps, each scenario once, 3 evaluation episodes "
+            "per scenario; `no-burn-in`: the same without `critic_burn_in`, stopped once it was "
+            "clear), settled RMS (mm) of the evaluations:",
             "",
             "| pilot | steps | backlash | all | mean over scenarios |",
             "|---|---:|---:|---:|---:|",
