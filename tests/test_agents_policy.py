@@ -413,6 +413,29 @@ def test_shipped_policy_reproduces_its_leaderboard_row(name):
         np.testing.assert_allclose(got[key], row["episodes"][sc][key][:2], rtol=1e-3)
 
 
+@pytest.mark.slow
+def test_shipped_residuals_beat_feedforward_where_it_is_far_from_the_oracle():
+    """The residuals learned something: on held-out episodes (never trained on, never on the
+    leaderboard) of backlash and all, each shipped residual's settled error is well below that of
+    feedforward, its own zero-output self. (The leaderboard's targets are measured by
+    benchmarks/policy_targets.py.)"""
+    env = dict(LEADERBOARD_ENV)
+    seeds = range(950_000, 950_004)
+    residuals = [n for n in POLICIES if "residual" in n]
+    assert len(residuals) >= 2
+    for sc in ("backlash", "all"):
+        ff = [
+            run_episode(make_agent("feedforward"), env | {"scenario": sc}, seed=s).rms_mm(start=2.0)
+            for s in seeds
+        ]
+        for name in residuals:
+            got = [
+                run_episode(make_agent(name), env | {"scenario": sc}, seed=s).rms_mm(start=2.0)
+                for s in seeds
+            ]
+            assert np.mean(got) < 0.95 * np.mean(ff), (name, sc, np.mean(got) / np.mean(ff))
+
+
 def test_shipped_policies_act_within_bounds():
     """Commands within [-1, 1]; a residual policy stays within its +-0.5 mm of feedforward's
     target, so it tracks about as feedforward does, never like an untrained plain policy. (The
