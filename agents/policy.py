@@ -21,7 +21,10 @@ for the joints whose direction changed since the last measurement or that the pa
 (where backlash moves the tool before any measurement shows it), the previous action, the declared payload and the temperature.
 The plain policy observes the encoders, the nominal tool point ``x_nom(q)`` and the reference and
 preview minus it (the env's :class:`~envs.wrappers.NominalToolObservation` option), the last
-measured model error and its age, the previous action, the declared payload and the temperature.
+measured model error and its age, the previous action and the declared payload. Not the
+temperature: a plain policy tracks to tens of millimetres, where the arm's thermal growth (a few
+tenths) is nothing, and with the feature a trained policy flailed as badly as ``hold`` on a
+thermal episode it tracked at 37 mm with the sensor reading 20 degC.
 
 A shipped policy is two files in ``agents/policies/``: ``<name>.npz`` (the actor's weights as
 arrays named by the network's parameters, and the observation normalisation: read with
@@ -118,7 +121,7 @@ class PolicyIO:
                 + 3
                 + 2
             )
-        return 6 + 6 + 3 + 3 + 3 * P + 3 + 1 + 6 + 2
+        return 6 + 6 + 3 + 3 + 3 * P + 3 + 1 + 6 + 1
 
     def reset(self, task: TaskInfo) -> None:
         self.task = task
@@ -202,7 +205,7 @@ class PolicyIO:
                     base.error * MM,
                     [age],
                     self.prev_action,
-                    [payload, o.temperature - 20.0],
+                    [payload],
                 ]
             )
         return f.astype(np.float32)
