@@ -11,7 +11,7 @@ and ``summary.json`` (wall time, steps/s). This script gathers the runs of each 
 * ``results/learning/runs.json`` and ``results/learning/README.md``: per run, its steps, wall time,
   steps/s and its best evaluation score (mean log settled RMS); the median seed by that score.
 
-    python benchmarks/learning_curves.py --runs runs ppo-residual sac-residual sac
+    python benchmarks/learning_curves.py --runs runs ppo-residual sac-residual ppo
     python benchmarks/learning_curves.py --runs runs --ship ppo-residual   # ship the median seed
     python benchmarks/learning_curves.py --runs runs --keep --ship ppo-residual  # retrained one
 """
@@ -87,7 +87,7 @@ def aggregate(name: str, runs: list[dict]) -> list[dict]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("names", nargs="*", default=["ppo-residual", "sac-residual", "sac"])
+    ap.add_argument("names", nargs="*", default=["ppo-residual", "sac-residual", "ppo"])
     ap.add_argument("--runs", type=Path, default=Path("runs"), help="the training runs' folder")
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--ship", nargs="*", default=[], help="ship the median seed of these names")
