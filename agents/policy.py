@@ -22,12 +22,12 @@ for the joints whose direction changed since the last measurement or that the pa
 The plain policy observes the encoders, the nominal tool point ``x_nom(q)`` and the reference and
 preview minus it (the env's :class:`~envs.wrappers.NominalToolObservation` option), the error's
 gradient in joint space ``J_nom(q)^T (r - x_nom(q))`` (which way each joint closes the error, as a
-Jacobian-transpose controller feeds back: without it, plain PPO policies flailed to 2-6x ``hold``
-on one held-out path in five), the last measured model error and its age, the previous action and
-the declared payload. Not the
-temperature: a plain policy tracks to tens of millimetres, where the arm's thermal growth (a few
-tenths) is nothing, and with the feature a trained policy flailed as badly as ``hold`` on a
-thermal episode it tracked at 37 mm with the sensor reading 20 degC.
+Jacobian-transpose controller feeds back: without it, a plain PPO policy was worse than ``hold`` on
+four held-out paths in twenty, up to 6x; with it, no policy of three on any), the last measured
+model error and its age, the previous action and the declared payload. Not the temperature: a plain
+policy tracks to tens of millimetres, where the arm's thermal growth (a few tenths) is nothing, and
+with the feature a trained policy flailed as badly as ``hold`` on a thermal episode it tracked at
+37 mm with the sensor reading 20 degC.
 
 A shipped policy is two files in ``agents/policies/``: ``<name>.npz`` (the actor's weights as
 arrays named by the network's parameters, and the observation normalisation: read with
