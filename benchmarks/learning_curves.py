@@ -220,17 +220,17 @@ def main() -> None:
                     f"{c['rms_settled_mm/backlash'][i]:.4f} | {c['rms_settled_mm/all'][i]:.4f} | "
                     f"{c['rms_settled_mm/mean'][i]:.4f} |"
                 )
-        best = {
-            p.stem: float(read_curve(p)["rms_settled_mm/mean"].min())
+        last = {
+            p.stem: float(read_curve(p)["rms_settled_mm/mean"][-1])
             for p in pilots
             if "no-burn-in" not in p.stem
         }
-        order = sorted(best, key=best.__getitem__)
+        order = sorted(last, key=last.__getitem__)
         lines += [
             "",
-            "Step 0 is the untrained residual (near-zero output: `feedforward`). Lowest mean over "
-            "the scenarios with the burn-in: "
-            + ", ".join(f"{k} {best[k]:.4f} mm" for k in order)
+            "Step 0 is the untrained residual (near-zero output: `feedforward`). The mean over the "
+            "scenarios at the last evaluation, with the burn-in: "
+            + ", ".join(f"{k} {last[k]:.4f} mm" for k in order)
             + f"; {order[0].split('-')[0].upper()} ships.",
         ]
     atomic_write_text(args.out / "README.md", "\n".join(lines) + "\n")
