@@ -36,6 +36,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
+from benchmarks._report import machine
+
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results"
 REFERENCES = ("hold", "nominal", "feedforward")
@@ -96,7 +98,9 @@ def main() -> None:
             if args.heldout
             else ""
         )
-        + f", {wall:.0f} s on this machine.",
+        + f", {wall:.0f} s on {machine()}"
+        + ("" if _clean() else " (with local changes)")
+        + ".",
         "",
         "## The leaderboard's episodes",
         "",
@@ -114,6 +118,13 @@ def main() -> None:
     )
     atomic_write_text(OUT / "policy_targets.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
+
+
+def _clean() -> bool:
+    import subprocess
+
+    out = subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True, cwd=ROOT)
+    return out.returncode == 0 and not out.stdout.strip()
 
 
 def _measure(cfg, names, workers) -> dict[str, dict[str, dict[int, dict]]]:
