@@ -66,6 +66,7 @@ def main() -> None:
     cfg = dataclasses.replace(
         cfg, agents=tuple(AgentEntry(label=n, agent=n, settings={}, env={}) for n in names)
     )
+    clean = _clean()  # before this script writes its own results
     t0 = time.perf_counter()
     scenarios = [s.label for s in cfg.scenarios]
     res = _measure(cfg, names, args.workers)
@@ -99,7 +100,7 @@ def main() -> None:
             else ""
         )
         + f", {wall:.0f} s on {machine()}"
-        + ("" if _clean() else " (with local changes)")
+        + ("" if clean else " (with local changes)")
         + ".",
         "",
         "## The leaderboard's episodes",
