@@ -105,7 +105,8 @@ def main() -> None:
     from arm.measurements import atomic_write_text
 
     args.out.mkdir(parents=True, exist_ok=True)
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    # residuals (tenths of a mm) and plain policies (tens of mm) on rows of their own
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5))
     table = []
     recorded = (
         json.loads((args.out / "runs.json").read_text())
@@ -131,6 +132,7 @@ def main() -> None:
                 w.writeheader()
                 w.writerows(rows)
         x = np.array([r["steps"] for r in rows])
+        ax1, ax2 = axes[0 if "residual" in name else 1]
         for ax, key in ((ax1, "rms_settled_mm"), (ax2, "return")):
             mean = np.array([r[f"{key}_mean"] for r in rows])
             lo = np.array([r[f"{key}_min"] for r in rows])
@@ -162,15 +164,16 @@ def main() -> None:
 
             dst = ship_policy(median["dir"], "best", name)
             print(f"{name}: shipped the median seed {median['run']} to {dst}")
-    ax1.set_yscale("log")
-    ax1.set_xlabel("training steps")
-    ax1.set_ylabel("settled tracking RMS, mean over scenarios (mm)")
-    ax2.set_xlabel("training steps")
-    ax2.set_ylabel("return per episode (log reward)")
-    ax2.set_yscale("symlog")
-    for ax in (ax1, ax2):
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=8)
+    for (ax1, ax2), kind in zip(axes, ("residual policies", "plain policies"), strict=True):
+        ax1.set_yscale("log")
+        ax1.set_xlabel("training steps")
+        ax1.set_ylabel(f"{kind}: settled tracking RMS,\nmean over scenarios (mm)")
+        ax2.set_xlabel("training steps")
+        ax2.set_ylabel(f"{kind}: return per episode\n(log reward, 0.05 mm scale)")
+        for ax in (ax1, ax2):
+            ax.grid(True, alpha=0.3)
+            if ax.lines:
+                ax.legend(fontsize=8)
     fig.suptitle("Evaluations on seeds never trained on: mean and range over the training seeds")
     fig.tight_layout()
     fig.savefig(args.out / "curves.png", dpi=110)
