@@ -66,7 +66,9 @@ def main() -> None:
     cfg = dataclasses.replace(
         cfg, agents=tuple(AgentEntry(label=n, agent=n, settings={}, env={}) for n in names)
     )
-    clean = _clean()  # before this script writes its own results
+    from experiments.records import git_state
+
+    clean = git_state(ROOT)["dirty"] is False  # before this script writes its own results
     t0 = time.perf_counter()
     scenarios = [s.label for s in cfg.scenarios]
     res = _measure(cfg, names, args.workers)
@@ -119,13 +121,6 @@ def main() -> None:
     )
     atomic_write_text(OUT / "policy_targets.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
-
-
-def _clean() -> bool:
-    import subprocess
-
-    out = subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True, cwd=ROOT)
-    return out.returncode == 0 and not out.stdout.strip()
 
 
 def _measure(cfg, names, workers) -> dict[str, dict[str, dict[int, dict]]]:
