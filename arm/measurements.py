@@ -2,9 +2,13 @@
 measurement per row.
 
 Required columns ``q1..q6`` (rad) and ``x, y, z`` (m); optional ``t`` (s), ``temperature`` (degC),
-``payload`` (kg), ``dir1..dir6`` (+-1), ``target`` (integer). Other numeric columns are kept and
-offered to custom effects. Foreign data in mm or degrees is read with explicit unit options, never
-guessed. Bad input is refused with the file, line and column named; files are written atomically.
+``payload`` (kg), ``dir1..dir6`` (+-1), ``target`` (integer), ``station`` (integer: the tracker
+station the row was measured from), the measured orientation of the tool frame (``rvx, rvy, rvz``, a
+rotation vector, or ``roll, pitch, yaw``; blank in a row that measured none), and per-point
+standard uncertainties ``std_x, std_y, std_z`` (m) and ``std_rx, std_ry, std_rz`` (rad). Other
+numeric columns are kept and offered to custom effects, and named in a :class:`MeasurementWarning`.
+Foreign data in mm or degrees is read with explicit unit options, never guessed. Bad input is
+refused with the file, line and column named; files are written atomically.
 
 Pose files (the poses to measure, as ``sixaxis lab plan`` writes them) are the same CSV with only
 ``q1..q6`` required, after a ``#`` line naming their schema version and angle unit; a
@@ -18,12 +22,14 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import difflib
 import io
 import math
 import os
 import re
 import tempfile
 import time
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,9 +40,12 @@ from arm.errors import SixAxisError
 from arm.ranges import out_of_range, payload_problem, range_text
 
 __all__ = [
+    "COMPONENTS",
+    "ORIENTATION_FORMS",
     "POSES_SCHEMA_VERSION",
     "MeasurementError",
     "MeasurementSet",
+    "MeasurementWarning",
     "NumericTable",
     "OutputError",
     "as_measurements",
@@ -58,7 +67,24 @@ __all__ = [
 JOINTS = tuple(f"q{i}" for i in range(1, 7))
 POSITION = ("x", "y", "z")
 DIRS = tuple(f"dir{i}" for i in range(1, 7))
-OPTIONAL = ("t", "temperature", "payload", *DIRS, "target")
+OPTIONAL = ("t", "temperature", "payload", *DIRS, "target", "station")
+INTEGER_COLUMNS = ("target", "station")
+#: the measured orientation of the tool frame (measurement frame <- tool frame), by form
+ORIENTATION_FORMS = {"rotvec": ("rvx", "rvy", "rvz"), "rpy": ("roll", "pitch", "yaw")}
+#: what a row can measure: the position, and the orientation error about the frame's axes
+COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
+STD_COLUMNS = tuple(f"std_{c}" for c in COMPONENTS)
+KNOWN = (
+    *JOINTS,
+    *POSITION,
+    *OPTIONAL,
+    *(c for cols in ORIENTATION_FORMS.values() for c in cols),
+    *STD_COLUMNS,
+)
+# names of other conventions, refused rather than kept as custom columns: a 6-DoF file whose
+# orientation the lab silently left out would fit its positions alone
+_ORIENTATION_ALIASES = ("rx", "ry", "rz", "a", "b", "c", "qw", "qx", "qy", "qz", "w")
+_ANGLE_COLUMNS = (*ORIENTATION_FORMS["rotvec"], *ORIENTATION_FORMS["rpy"], *STD_COLUMNS[3:])
 SCHEMA_VERSION = 1
 POSES_SCHEMA_VERSION = 1
 
@@ -70,18 +96,36 @@ class MeasurementError(SixAxisError, ValueError):
     """Bad measurement input; the message names the file, the line and the column."""
 
 
+class MeasurementWarning(UserWarning):
+    """A measurement file the lab reads, with something the user should know: a column that no
+    catalogued effect reads (kept for custom effects), a name close to a known one."""
+
+
 @dataclass
 class MeasurementSet:
     """Joint readings ``q`` (N, 6) in rad, measured points ``xyz`` (N, 3) in m, other columns.
 
     ``lines``: the file's line number of each row when read from a file (None in memory), so that
-    a row is named as the user sees it in an editor (:meth:`row_name`)."""
+    a row is named as the user sees it in an editor (:meth:`row_name`).
+
+    Beyond one 3-D point (docs/format.md): ``orientation`` (N, 3), the measured rotation of the
+    tool frame (measurement frame <- tool frame) as rotation vectors in rad, or None;
+    ``mask`` (N, 6), which of ``x y z rx ry rz`` each row measured (``rx ry rz``: the rotation
+    about the measurement frame's axes), None for positions alone; ``std`` (N, 6), each row's
+    standard uncertainty of those components (m, rad; NaN where the file states none), or None;
+    ``orientation_form``, the form the file gave it in (``rotvec`` or ``rpy``), for writing it
+    back; ``notes``, the warnings given when the file was read."""
 
     q: np.ndarray
     xyz: np.ndarray
     columns: dict[str, np.ndarray] = field(default_factory=dict)
     source: str = "<memory>"
     lines: np.ndarray | None = None
+    orientation: np.ndarray | None = None
+    mask: np.ndarray | None = None
+    std: np.ndarray | None = None
+    orientation_form: str = "rotvec"
+    notes: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.q = np.asarray(self.q, dtype=float).reshape(-1, 6)
@@ -113,6 +157,83 @@ class MeasurementSet:
                     f"{self.source}, {self.row_name(r)}, column {k!r}: {v[r]!r} is outside the "
                     f"physical range {range_text(k)}"
                 )
+        self._check_beyond_points()
+
+    def _check_beyond_points(self) -> None:
+        """The orientation, mask and stds: shapes, finiteness, ranges (in memory too)."""
+        n = len(self.q)
+        if self.orientation_form not in ORIENTATION_FORMS:
+            raise MeasurementError(
+                f"{self.source}: orientation form {self.orientation_form!r} is not one of "
+                f"{', '.join(ORIENTATION_FORMS)}"
+            )
+        if self.orientation is not None:
+            self.orientation = np.asarray(self.orientation, dtype=float).reshape(n, 3)
+            if self.mask is None:
+                self.mask = np.ones((n, 6), dtype=bool)
+        if self.mask is not None:
+            self.mask = np.asarray(self.mask, dtype=bool).reshape(n, 6)
+            if not self.mask[:, :3].all():
+                raise MeasurementError(
+                    f"{self.source}: every row measures its position x, y, z (the mask leaves "
+                    "one out)"
+                )
+            if self.orientation is None:
+                if self.mask[:, 3:].any():
+                    raise MeasurementError(
+                        f"{self.source}: the mask names orientation components, but there is "
+                        "no orientation"
+                    )
+                self.mask = None
+        if self.orientation is not None and self.mask is not None:
+            bad = np.flatnonzero(
+                self.mask[:, 3:].any(axis=1) & ~np.isfinite(self.orientation).all(axis=1)
+            )
+            if bad.size:
+                raise MeasurementError(
+                    f"{self.source}, {self.row_name(int(bad[0]))}: the orientation of a row "
+                    "that measured one is not finite"
+                )
+            seen = np.asarray(self.mask[:, 3:].any(axis=1))
+            self.orientation = np.where(seen[:, None], self.orientation, 0.0)
+        if self.std is not None:
+            self.std = np.asarray(self.std, dtype=float).reshape(n, 6)
+            for k, c in enumerate(STD_COLUMNS):
+                v = self.std[:, k]
+                stated = np.isfinite(v)
+                bad = np.flatnonzero(stated & out_of_range(c, v))
+                if bad.size:
+                    r = int(bad[0])
+                    raise MeasurementError(
+                        f"{self.source}, {self.row_name(r)}, column {c!r}: {v[r]!r} is outside "
+                        f"the physical range {range_text(c)}"
+                    )
+                bad = np.flatnonzero(np.isinf(v))
+                if bad.size:
+                    raise MeasurementError(
+                        f"{self.source}, {self.row_name(int(bad[0]))}, column {c!r}: not finite"
+                    )
+
+    @property
+    def has_orientation(self) -> bool:
+        """Whether any row measured an orientation component."""
+        return self.mask is not None and bool(self.mask[:, 3:].any())
+
+    @property
+    def measured(self) -> np.ndarray:
+        """(N, 6) bool: which of ``x y z rx ry rz`` each row measured."""
+        if self.mask is not None:
+            return self.mask
+        out = np.zeros((len(self), 6), dtype=bool)
+        out[:, :3] = True
+        return out
+
+    @property
+    def stations(self) -> tuple[int, ...]:
+        """Distinct station ids, sorted; ``(0,)`` without a station column."""
+        if "station" not in self.columns:
+            return (0,)
+        return tuple(int(t) for t in np.unique(self.columns["station"]))
 
     def row_name(self, i: int) -> str:
         """Row ``i`` (0-based) as the user finds it: ``line 57`` of the file, else ``row 3``."""
@@ -132,12 +253,21 @@ class MeasurementSet:
 
     def subset(self, idx) -> MeasurementSet:
         idx = np.asarray(idx)
+
+        def rows(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[idx]
+
         return MeasurementSet(
             self.q[idx],
             self.xyz[idx],
             {k: v[idx] for k, v in self.columns.items()},
             self.source,
-            None if self.lines is None else self.lines[idx],
+            rows(self.lines),
+            rows(self.orientation),
+            rows(self.mask),
+            rows(self.std),
+            self.orientation_form,
+            list(self.notes),
         )
 
     def split(
@@ -148,45 +278,104 @@ class MeasurementSet:
         k = round(fraction * len(self))
         return self.subset(np.sort(perm[:k])), self.subset(np.sort(perm[k:]))
 
-    def to_csv(self, length_unit: str = "m", angle_unit: str = "rad") -> str:
-        """The measurement CSV text (docs/format.md); q in ``angle_unit`` and x, y, z in
-        ``length_unit``. Refuses values that the reader would refuse (non-finite numbers, bad dir
-        or target values)."""
-        if length_unit not in LENGTH_UNITS:
-            raise MeasurementError(
-                f"length unit must be one of {sorted(LENGTH_UNITS)}, got {length_unit!r}"
-            )
-        if angle_unit not in ANGLE_UNITS:
-            raise MeasurementError(
-                f"angle unit must be one of {sorted(ANGLE_UNITS)}, got {angle_unit!r}"
-            )
-        L, A = LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit]
+    def to_csv(
+        self, length_unit: str = "m", angle_unit: str = "rad", orientation_unit: str | None = None
+    ) -> str:
+        """The measurement CSV text (docs/format.md); q in ``angle_unit``, x, y, z (and their
+        stds) in ``length_unit``, the orientation (and its stds) in ``orientation_unit`` (default
+        ``angle_unit``), in the set's ``orientation_form``; a row that measured no orientation
+        has blank orientation cells. Refuses values that the reader would refuse (non-finite
+        numbers, bad dir or target values)."""
+        L, A = _length_factor(length_unit), _angle_factor(angle_unit)
+        O = _angle_factor(orientation_unit or angle_unit)
         extra = [c for c in self.columns if c not in OPTIONAL]
-        names = [*JOINTS, *POSITION, *(c for c in OPTIONAL if c in self.columns), *extra]
+        names = [*JOINTS, *POSITION]
         data = [self.q / A, self.xyz / L]
-        data += [self.columns[c][:, None] for c in names[9:]]
+        blank_ok: set[str] = set()
+        if self.orientation is not None and self.mask is not None:
+            cols = ORIENTATION_FORMS[self.orientation_form]
+            seen = np.asarray(self.mask[:, 3:].any(axis=1))
+            angles = orientation_angles(self.orientation, self.orientation_form)
+            names += cols
+            data.append(np.where(seen[:, None], angles / O, np.nan))
+            blank_ok |= set(cols)
+        if self.std is not None:
+            for k, c in enumerate(STD_COLUMNS):
+                v = self.std[:, k]
+                if np.isfinite(v).any():
+                    names.append(c)
+                    data.append((v / (L if k < 3 else O))[:, None])
+                    if k >= 3:
+                        blank_ok.add(c)
+        n_fixed = len(names)
+        names += [*(c for c in OPTIONAL if c in self.columns), *extra]
+        data += [self.columns[c][:, None] for c in names[n_fixed:]]
         table = np.hstack(data)
         bad = ~np.isfinite(table)
         for k, c in enumerate(names):
+            if c in blank_ok:
+                bad[:, k] = np.isinf(table[:, k])
             if c in DIRS:
                 bad[:, k] |= ~np.isin(table[:, k], (-1.0, 1.0))
-            elif c == "target":
+            elif c in INTEGER_COLUMNS:
                 bad[:, k] |= table[:, k] != np.round(table[:, k])
         if bad.any():
             r, k = np.argwhere(bad)[0]
             raise MeasurementError(
                 f"{self.source}: row {r + 1}, column {names[k]!r}: {table[r, k]!r} cannot be "
-                "written (values must be finite, dir +-1, target an integer)"
+                "written (values must be finite, dir +-1, target and station integers)"
             )
         buf = io.StringIO()
         buf.write(",".join(names) + "\n")
-        ints = {i for i, c in enumerate(names) if c in (*DIRS, "target")}
+        ints = {i for i, c in enumerate(names) if c in (*DIRS, *INTEGER_COLUMNS)}
+
+        def cell(i: int, v: float) -> str:
+            if i in ints:
+                return str(int(v))
+            return "" if math.isnan(v) else repr(float(v))
+
         for row in table:
-            buf.write(
-                ",".join(str(int(v)) if i in ints else repr(float(v)) for i, v in enumerate(row))
-                + "\n"
-            )
+            buf.write(",".join(cell(i, v) for i, v in enumerate(row)) + "\n")
         return buf.getvalue()
+
+
+def _length_factor(unit: str) -> float:
+    if unit not in LENGTH_UNITS:
+        raise MeasurementError(f"length unit must be one of {sorted(LENGTH_UNITS)}, got {unit!r}")
+    return LENGTH_UNITS[unit]
+
+
+def _angle_factor(unit: str) -> float:
+    if unit not in ANGLE_UNITS:
+        raise MeasurementError(f"angle unit must be one of {sorted(ANGLE_UNITS)}, got {unit!r}")
+    return ANGLE_UNITS[unit]
+
+
+def orientation_angles(rotvec: np.ndarray, form: str) -> np.ndarray:
+    """Rotation vectors (N, 3) in rad as the columns of ``form`` (rad): themselves for
+    ``rotvec``; ``roll, pitch, yaw`` for ``rpy``, R = Rz(yaw) Ry(pitch) Rx(roll) (rotations
+    about the fixed x, then y, then z axis: scipy's ``as_euler("xyz")``)."""
+    from scipy.spatial.transform import Rotation
+
+    rotvec = np.asarray(rotvec, dtype=float).reshape(-1, 3)
+    if form == "rotvec":
+        return rotvec.copy()
+    if form == "rpy":
+        return Rotation.from_rotvec(rotvec).as_euler("xyz")
+    raise MeasurementError(f"orientation form must be one of {', '.join(ORIENTATION_FORMS)}")
+
+
+def orientation_rotvec(angles: np.ndarray, form: str) -> np.ndarray:
+    """The inverse of :func:`orientation_angles`: the columns of ``form`` (N, 3), rad, as
+    rotation vectors (N, 3)."""
+    from scipy.spatial.transform import Rotation
+
+    angles = np.asarray(angles, dtype=float).reshape(-1, 3)
+    if form == "rotvec":
+        return angles.copy()
+    if form == "rpy":
+        return Rotation.from_euler("xyz", angles).as_rotvec()
+    raise MeasurementError(f"orientation form must be one of {', '.join(ORIENTATION_FORMS)}")
 
 
 def _umask() -> int:
@@ -326,9 +515,13 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 
 def write_measurements(
-    data: MeasurementSet, path: str | Path, length_unit: str = "m", angle_unit: str = "rad"
+    data: MeasurementSet,
+    path: str | Path,
+    length_unit: str = "m",
+    angle_unit: str = "rad",
+    orientation_unit: str | None = None,
 ) -> None:
-    atomic_write_text(Path(path), data.to_csv(length_unit, angle_unit))
+    atomic_write_text(Path(path), data.to_csv(length_unit, angle_unit, orientation_unit))
 
 
 def read_text(path: str | Path, error: type[Exception] = MeasurementError) -> str:
@@ -376,12 +569,14 @@ def parse_numeric_csv(
     comments: bool = False,
     columns: Sequence[str] | None = None,
     error: type[Exception] = MeasurementError,
+    may_be_blank: Sequence[str] = (),
 ) -> NumericTable:
     """Parse a CSV of numbers whose header names the ``required`` columns (and any others).
 
     ``comments``: blank lines and lines starting with ``#`` anywhere are skipped (else only
     trailing blank lines). ``columns``: read only these (others may hold anything), else every
-    column. The columns read must have distinct, non-empty names and finite numbers in every row;
+    column. The columns read must have distinct, non-empty names and finite numbers in every row,
+    except that a cell of a ``may_be_blank`` column may be empty (read as NaN: not measured);
     ``error`` names the source, the line and the column of the first problem."""
     # one row at a time into a growing array: a list of every row's cells would take 1.5 KB per
     # row of 200,000 (the text itself is a third of that)
@@ -440,12 +635,15 @@ def parse_numeric_csv(
             line_of = np.resize(line_of, 2 * n)
         for j, k in enumerate(read):
             cell = row[k]
+            if may_be_blank and not cell.strip() and header[k] in may_be_blank:
+                values[n, j] = math.nan
+                continue
             try:
                 v = float(cell)
             except ValueError:
                 extra = (
                     ""
-                    if header[k] in (*JOINTS, *POSITION, *OPTIONAL)
+                    if header[k] in KNOWN
                     else " (extra columns are kept for custom effects and must be numeric)"
                 )
                 raise error(
@@ -473,31 +671,74 @@ def read_measurements(
     length_unit: str = "m",
     angle_unit: str = "rad",
     min_rows: int = 1,
+    orientation_unit: str | None = None,
+    measured: Sequence[str] | None = None,
 ) -> MeasurementSet:
-    """Read a measurement CSV (docs/format.md). ``length_unit`` (m|mm) applies to x, y, z;
-    ``angle_unit`` (rad|deg) to q1..q6. Raises :class:`MeasurementError` naming file, line and
-    column."""
+    """Read a measurement CSV (docs/format.md). ``length_unit`` (m|mm) applies to x, y, z and
+    their stds; ``angle_unit`` (rad|deg) to q1..q6; ``orientation_unit`` (default
+    ``angle_unit``) to the orientation columns and their stds. ``measured``: the components
+    (of ``x y z rx ry rz``) the instrument measures, default every one the file has columns
+    for. Raises :class:`MeasurementError` naming file, line and column; warns
+    (:class:`MeasurementWarning`) of columns the format does not know."""
     path = Path(path)
-    if length_unit not in LENGTH_UNITS:
-        raise MeasurementError(
-            f"length unit must be one of {sorted(LENGTH_UNITS)}, got {length_unit!r}"
-        )
-    if angle_unit not in ANGLE_UNITS:
-        raise MeasurementError(
-            f"angle unit must be one of {sorted(ANGLE_UNITS)}, got {angle_unit!r}"
-        )
+    _length_factor(length_unit)
+    _angle_factor(angle_unit)
+    if orientation_unit is not None:
+        _angle_factor(orientation_unit)
     text = read_text(path)
-    return parse_measurements(text, str(path), length_unit, angle_unit, min_rows)
+    return parse_measurements(
+        text, str(path), length_unit, angle_unit, min_rows, orientation_unit, measured
+    )
+
+
+def _unknown_columns(header: Sequence[str], source: str, line: int) -> list[str]:
+    """Refuse the names of other conventions (``Rx``, ``qw``: an orientation the lab would not
+    read) and a known name in other case; return the notes that name the other unknown columns."""
+    known_lower = {k.lower(): k for k in KNOWN}
+    unknown = [h for h in header if h not in KNOWN]
+    for h in unknown:
+        low = h.lower()
+        if low in _ORIENTATION_ALIASES:
+            raise MeasurementError(
+                f"{source}, line {line}: column {h!r} looks like an orientation, which the lab "
+                "reads from columns rvx, rvy, rvz (a rotation vector) or roll, pitch, yaw "
+                "(R = Rz(yaw) Ry(pitch) Rx(roll)); rename the columns to say which it is "
+                "(docs/format.md, the measurement CSV)"
+            )
+        if low in known_lower:
+            raise MeasurementError(
+                f"{source}, line {line}: column {h!r} is not {known_lower[low]!r} (column names "
+                "are case-sensitive); rename it"
+            )
+    if not unknown:
+        return []
+    close = {h: difflib.get_close_matches(h, KNOWN, n=1, cutoff=0.8) for h in unknown}
+    named = ", ".join(
+        f"{h!r} (did you mean {close[h][0]!r}?)" if close[h] else repr(h) for h in unknown
+    )
+    return [
+        f"{source}: column(s) {named} are not among the format's columns (docs/format.md): "
+        "they are kept and offered to custom effects (inputs.column) and the diagnosis's "
+        "hints, and no catalogued effect reads them"
+    ]
 
 
 def parse_measurements(
-    text: str, source: str, length_unit: str = "m", angle_unit: str = "rad", min_rows: int = 1
+    text: str,
+    source: str,
+    length_unit: str = "m",
+    angle_unit: str = "rad",
+    min_rows: int = 1,
+    orientation_unit: str | None = None,
+    measured: Sequence[str] | None = None,
 ) -> MeasurementSet:
-    table = parse_numeric_csv(text, source, (*JOINTS, *POSITION))
+    blanks = (*ORIENTATION_FORMS["rotvec"], *ORIENTATION_FORMS["rpy"], *STD_COLUMNS[3:])
+    table = parse_numeric_csv(text, source, (*JOINTS, *POSITION), may_be_blank=blanks)
     header, values = table.header, table.values
     n = values.shape[0]
     if n < min_rows:
         raise MeasurementError(f"{source}: {n} measurement rows, at least {min_rows} needed")
+    notes = _unknown_columns(header, source, table.header_line)
     col = {h: values[:, k] for k, h in enumerate(header)}
 
     def check(name: str, ok: np.ndarray, what: str) -> None:
@@ -511,30 +752,148 @@ def parse_measurements(
     for d in DIRS:
         if d in col:
             check(d, np.isin(col[d], (-1.0, 1.0)), "must be -1 or +1")
-    if "target" in col:
-        check("target", col["target"] == np.round(col["target"]), "must be an integer")
+    for c in INTEGER_COLUMNS:
+        if c in col:
+            check(c, col[c] == np.round(col[c]), "must be an integer")
+    orientation_unit = orientation_unit or angle_unit
     A, L = ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit]
-    check_ranges(table, source, {angle_unit: (A, JOINTS), length_unit: (L, POSITION)})
+    O = ANGLE_UNITS[orientation_unit]
+    form = _orientation_form(header, source, table.header_line)
+    ocols = ORIENTATION_FORMS[form] if form else ()
+    check_ranges(
+        table,
+        source,
+        [
+            (angle_unit, A, JOINTS),
+            (length_unit, L, (*POSITION, *STD_COLUMNS[:3])),
+            (orientation_unit, O, (*ocols, *STD_COLUMNS[3:])),
+        ],
+    )
     q = np.column_stack([col[c] for c in JOINTS]) * A
     xyz = np.column_stack([col[c] for c in POSITION]) * L
-    other = {h: col[h] for h in header if h not in (*JOINTS, *POSITION)}
-    return MeasurementSet(q, xyz, other, source, table.lines)
+    beyond = set(ocols) | set(STD_COLUMNS)
+    other = {h: col[h] for h in header if h not in (*JOINTS, *POSITION) and h not in beyond}
+    orientation = mask = std = None
+    components = _measured_components(measured, bool(form), source)
+    if form:
+        angles = np.column_stack([col[c] for c in ocols]) * O
+        blank = np.isnan(angles)
+        seen = np.asarray(~blank.all(axis=1))
+        partial = np.flatnonzero(blank.any(axis=1) & seen)
+        if partial.size:
+            r = int(partial[0])
+            c = ocols[int(np.flatnonzero(blank[r])[0])]
+            raise MeasurementError(
+                f"{source}, line {table.lines[r]}, column {c!r}: blank, but the row's other "
+                "orientation cells are not (leave all three blank where no orientation was "
+                "measured)"
+            )
+        orientation = orientation_rotvec(np.where(seen[:, None], angles, 0.0), form)
+        mask = np.zeros((n, 6), dtype=bool)
+        mask[:, :3] = True
+        mask[:, 3:] = seen[:, None] & np.array([c in components for c in COMPONENTS[3:]])
+    for c in STD_COLUMNS[:3]:
+        if any(h in col for h in STD_COLUMNS[:3]) and c not in col:
+            raise MeasurementError(
+                f"{source}, line {table.header_line}: column {c!r} is missing (std_x, std_y "
+                "and std_z come together)"
+            )
+    ostd = [c for c in STD_COLUMNS[3:] if c in col]
+    if ostd and not form:
+        raise MeasurementError(
+            f"{source}, line {table.header_line}: column {ostd[0]!r} is the uncertainty of an "
+            "orientation, but the file has no orientation columns"
+        )
+    if ostd and len(ostd) < 3:
+        missing = next(c for c in STD_COLUMNS[3:] if c not in col)
+        raise MeasurementError(
+            f"{source}, line {table.header_line}: column {missing!r} is missing (std_rx, std_ry "
+            "and std_rz come together)"
+        )
+    if any(c in col for c in STD_COLUMNS):
+        std = np.full((n, 6), np.nan)
+        for k, c in enumerate(STD_COLUMNS):
+            if c in col:
+                std[:, k] = col[c] * (L if k < 3 else O)
+        if mask is not None and ostd:
+            lacking = mask[:, 3:] & np.isnan(std[:, 3:])
+            if lacking.any():
+                r, k = np.argwhere(lacking)[0]
+                raise MeasurementError(
+                    f"{source}, line {table.lines[r]}, column {STD_COLUMNS[3 + k]!r}: blank, but "
+                    "the row measured an orientation (give its uncertainty)"
+                )
+    for note in notes:
+        warnings.warn(note, MeasurementWarning, stacklevel=3)
+    return MeasurementSet(
+        q, xyz, other, source, table.lines, orientation, mask, std, form or "rotvec", notes
+    )
+
+
+def _orientation_form(header: Sequence[str], source: str, line: int) -> str | None:
+    """Which orientation form the header gives (all three columns of one form), or None."""
+    present = {form: [c for c in cols if c in header] for form, cols in ORIENTATION_FORMS.items()}
+    given = [f for f, cols in present.items() if cols]
+    if len(given) > 1:
+        raise MeasurementError(
+            f"{source}, line {line}: columns {', '.join(present['rotvec'] + present['rpy'])}: "
+            "give the orientation in one form, rvx, rvy, rvz or roll, pitch, yaw"
+        )
+    if not given:
+        return None
+    form = given[0]
+    missing = [c for c in ORIENTATION_FORMS[form] if c not in header]
+    if missing:
+        raise MeasurementError(
+            f"{source}, line {line}: missing column(s) {', '.join(missing)} (an orientation "
+            f"takes all of {', '.join(ORIENTATION_FORMS[form])})"
+        )
+    return form
+
+
+def _measured_components(
+    measured: Sequence[str] | None, has_orientation: bool, source: str
+) -> tuple[str, ...]:
+    """The components a ``measured`` option names (``x,y,z,rx,ry``), checked."""
+    if measured is None:
+        return COMPONENTS if has_orientation else POSITION
+    names = tuple(m.strip() for m in measured)
+    unknown = [m for m in names if m not in COMPONENTS]
+    if unknown:
+        raise MeasurementError(
+            f"--measured: {', '.join(map(repr, unknown))} not among {', '.join(COMPONENTS)}"
+        )
+    if not set(POSITION) <= set(names):
+        raise MeasurementError(
+            f"--measured: every row measures its position; name x, y and z (got {','.join(names)})"
+        )
+    if not has_orientation and set(names) - set(POSITION):
+        raise MeasurementError(
+            f"--measured {','.join(names)}: {source} has no orientation columns (rvx, rvy, rvz "
+            "or roll, pitch, yaw)"
+        )
+    return names
 
 
 def check_ranges(
     table: NumericTable,
     source: str,
-    units: dict[str, tuple[float, Sequence[str]]] | None = None,
+    units: dict[str, tuple[float, Sequence[str]]]
+    | Sequence[tuple[str, float, Sequence[str]]]
+    | None = None,
     error: type[Exception] = MeasurementError,
 ) -> None:
     """Refuse the first value outside its physical range (:mod:`arm.ranges`), naming the line and
-    the column, the range in the file's unit. ``units``: unit name -> (SI per unit, columns)."""
+    the column, the range in the file's unit. ``units``: unit name -> (SI per unit, columns), or
+    (unit name, SI per unit, columns) triples."""
     factor: dict[str, tuple[float, str | None]] = {}
-    for unit, (f, cols) in (units or {}).items():
+    triples = [(u, f, cols) for u, (f, cols) in units.items()] if isinstance(units, dict) else units
+    for unit, f, cols in triples or ():
         factor |= {c: (f, unit) for c in cols}
     for k, h in enumerate(table.header):
         f, unit_name = factor.get(h, (1.0, None))
-        bad = np.flatnonzero(out_of_range(h, table.values[:, k] * f))
+        column = table.values[:, k]  # NaN: a blank cell where one is allowed (not measured)
+        bad = np.flatnonzero(out_of_range(h, column * f) & ~np.isnan(column))
         if bad.size:
             r = int(bad[0])
             v = table.values[r, k]
@@ -542,6 +901,8 @@ def check_ranges(
             hint = ""
             if h in JOINTS and unit_name == "rad":
                 hint = " (degrees read as radians? say --angle-unit deg)"
+            elif h in _ANGLE_COLUMNS and unit_name == "rad":
+                hint = " (degrees read as radians? say --orientation-unit deg)"
             elif h in POSITION and unit_name == "m":
                 hint = " (millimetres read as metres? say --length-unit mm)"
             raise error(

@@ -14,6 +14,11 @@ t              abs(t) <= 1e10 s                  300 years: Unix times fit
 temperature    -273.15 <= T <= 1000 degC         absolute zero; no arm works hotter
 payload        0 <= m <= 10000 kg                the heaviest industrial arms carry 2.3 t
 target         abs(id) <= 1e6                    an id, not a count of reflectors
+station        abs(id) <= 1e6                    an id, not a count of tracker stations
+rvx, roll ...  abs(a) <= 7 rad                   an orientation angle: a turn and a little
+std_x ...      0 < s <= 1 m                      a point's standard uncertainty; 0 is infinite
+                                                 weight, a metre is not a measurement
+std_rx ...     0 < s <= 1 rad                    the same for an orientation
 other columns  abs(v) <= 1e12                    unknown units: far from overflow when squared
 =============  ================================  =================================================
 """
@@ -35,12 +40,18 @@ __all__ = [
 
 
 class PhysicalRange:
-    """The closed interval ``[low, high]`` of one quantity, in SI units."""
+    """The interval ``[low, high]`` of one quantity, in SI units; ``(low, high]`` when
+    ``open_low`` (a standard uncertainty must be above zero)."""
 
-    __slots__ = ("high", "low", "unit")
+    __slots__ = ("high", "low", "open_low", "unit")
 
-    def __init__(self, low: float, high: float, unit: str) -> None:
-        self.low, self.high, self.unit = low, high, unit
+    def __init__(self, low: float, high: float, unit: str, open_low: bool = False) -> None:
+        self.low, self.high, self.unit, self.open_low = low, high, unit, open_low
+
+    def outside(self, v: np.ndarray) -> np.ndarray:
+        """Mask of the values (SI) outside the interval (NaN counts as outside)."""
+        above = (v > self.low) if self.open_low else (v >= self.low)
+        return ~(above & (v <= self.high))
 
     def text(self, name: str, factor: float = 1.0, unit: str | None = None) -> str:
         """``-100 <= q1 <= 100 rad``, or in a file's unit (``factor`` SI per file unit)."""
@@ -49,7 +60,8 @@ class PhysicalRange:
         def fmt(v: float) -> str:
             return f"{v / factor:.6g}"
 
-        return f"{fmt(self.low)} <= {name} <= {fmt(self.high)} {u}".rstrip()
+        lower = "<" if self.open_low else "<="
+        return f"{fmt(self.low)} {lower} {name} <= {fmt(self.high)} {u}".rstrip()
 
 
 RANGES: dict[str, PhysicalRange] = {
@@ -59,6 +71,10 @@ RANGES: dict[str, PhysicalRange] = {
     "temperature": PhysicalRange(-273.15, 1000.0, "degC"),
     "payload": PhysicalRange(0.0, 10000.0, "kg"),
     "target": PhysicalRange(-1e6, 1e6, ""),
+    "station": PhysicalRange(-1e6, 1e6, ""),
+    **{c: PhysicalRange(-7.0, 7.0, "rad") for c in ("rvx", "rvy", "rvz", "roll", "pitch", "yaw")},
+    **{f"std_{c}": PhysicalRange(0.0, 1.0, "m", open_low=True) for c in ("x", "y", "z")},
+    **{f"std_{c}": PhysicalRange(0.0, 1.0, "rad", open_low=True) for c in ("rx", "ry", "rz")},
 }
 MAX_EXTRA = 1e12  # any other numeric column (a custom effect's), whatever its unit
 
@@ -72,9 +88,7 @@ def _range(name: str) -> PhysicalRange:
 
 def out_of_range(name: str, values: np.ndarray) -> np.ndarray:
     """Mask of ``values`` (SI) of column ``name`` outside its physical range (NaN counts as out)."""
-    r = _range(name)
-    v = np.asarray(values, dtype=float)
-    return ~((v >= r.low) & (v <= r.high))
+    return _range(name).outside(np.asarray(values, dtype=float))
 
 
 def range_text(name: str, factor: float = 1.0, unit: str | None = None) -> str:

@@ -21,7 +21,7 @@ from arm.description import RobotDescription, seed_robot
 from arm.effects import CATALOGUE, make_effect
 from arm.measurements import (
     JOINTS,
-    OPTIONAL,
+    KNOWN,
     POSITION,
     MeasurementSet,
     write_measurements,
@@ -174,9 +174,8 @@ def _bounds(cell: str) -> tuple[float, float] | None:
 def test_every_measurement_column_is_documented_with_the_readers_range():
     table = rows(section("The measurement CSV"))
     doc = {c: r for r in table for c in _columns(r[0])}
-    known = [*JOINTS, *POSITION, *OPTIONAL]
-    assert set(doc) == set(known), (set(known) - set(doc), set(doc) - set(known))
-    for c in known:
+    assert set(doc) == set(KNOWN), (set(KNOWN) - set(doc), set(doc) - set(KNOWN))
+    for c in KNOWN:
         _, _, required, _, physical = doc[c]
         assert (required == "yes") == (c in (*JOINTS, *POSITION)), c
         bounds = _bounds(physical)
@@ -184,6 +183,7 @@ def test_every_measurement_column_is_documented_with_the_readers_range():
             assert bounds is None and physical == "-1 or +1"
         else:
             assert bounds == (RANGES[c].low, RANGES[c].high), (c, bounds)
+            assert physical.endswith("above 0") == RANGES[c].open_low, c
     assert f"abs(v) ≤ {MAX_EXTRA:g}".replace("+", "") in section("The measurement CSV")
 
 
