@@ -26,7 +26,7 @@ from arm.errors import SixAxisError
 from arm.kinematics import Chain, ColumnFrames, Workspace, cross_columns
 from arm.so3 import left_jacobian
 
-__all__ = ["ChainState", "EffectError", "ModelInputs", "Sensitivities"]
+__all__ = ["AngularSensitivities", "ChainState", "EffectError", "ModelInputs", "Sensitivities"]
 
 
 class EffectError(SixAxisError, ValueError):
@@ -38,7 +38,7 @@ class ModelInputs:
     """Everything per pose that the model needs besides the parameters, computed once per data set.
 
     ``tau`` are the gravity torques of the nominal arm at the encoder reading (payload included);
-    ``target`` is each pose's index into the model's targets.
+    ``target`` is each pose's index into the model's targets, ``station`` into its stations.
     """
 
     robot: RobotDescription
@@ -47,7 +47,18 @@ class ModelInputs:
     tau: np.ndarray
     target: np.ndarray
     columns: dict[str, np.ndarray] = field(default_factory=dict)
+    station: np.ndarray | None = None
     _cache: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.station is None:
+            self.station = np.zeros(self.q.shape[0], dtype=int)
+
+    @property
+    def stations(self) -> np.ndarray:
+        """Each pose's index into the model's stations (N,)."""
+        assert self.station is not None
+        return self.station
 
     @property
     def n(self) -> int:
@@ -77,12 +88,18 @@ class ModelInputs:
             tau=self.tau[idx],
             target=self.target[idx],
             columns={k: v[idx] for k, v in self.columns.items()},
+            station=self.stations[idx],
         )
 
 
 @dataclass(frozen=True)
 class ChainState:
-    """The chain as the effects leave it: DH arrays, base transform, tool points per target."""
+    """The chain as the effects leave it: DH arrays, base transform, tool points per target.
+
+    With several tracker stations, ``station_R``, ``station_t``, ``station_r`` hold each
+    station's base (S, 3, 3), (S, 3), (S, 3) and ``base_*`` the first one's; with an orientation
+    measured, ``tool_R`` and ``tool_r`` are the tool frame's rotation in the last frame (matrix and
+    rotation vector)."""
 
     robot: RobotDescription
     targets: tuple[int, ...]
@@ -92,6 +109,20 @@ class ChainState:
     base_r: np.ndarray
     tools: np.ndarray  # (n_targets, 3), in the last frame
     length_scale: np.ndarray | None = None  # (N,) product of length scalings (thermal)
+    stations: tuple[int, ...] = (0,)
+    orientation: bool = False
+    station_R: np.ndarray | None = None
+    station_t: np.ndarray | None = None
+    station_r: np.ndarray | None = None
+    tool_R: np.ndarray | None = None
+    tool_r: np.ndarray | None = None
+
+    def pose_base(self, station: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """The base (R, t) of every pose: one (3, 3), (3,) for a single station, else per pose
+        (N, 3, 3), (N, 3) from ``station`` (each pose's index into the stations)."""
+        if self.station_R is None or self.station_t is None or station is None:
+            return self.base_R, self.base_t
+        return self.station_R[station], self.station_t[station]
 
     def replace(self, **kw) -> ChainState:
         return replace(self, **kw)
@@ -115,11 +146,13 @@ class Sensitivities:
         frames: ColumnFrames,
         point: np.ndarray,
         work: Workspace | None = None,
+        station: np.ndarray | None = None,
     ) -> None:
         self.state = state
         self._f = frames
         self._p = point  # (3, N), measurement frame
         self._new = (lambda name, shape: np.empty(shape)) if work is None else work
+        self._station = station  # each pose's station index, with several stations
 
     @cached_property
     def _lever(self) -> np.ndarray:
@@ -154,19 +187,32 @@ class Sensitivities:
     def rows_d(self) -> np.ndarray:
         return self._f.axes[1:, 2]
 
+    def _base_rotation_columns(self) -> tuple[np.ndarray, np.ndarray]:
+        """J_l(r) of the base rotation as columns (3 j, 3, 1 or N) and the base translation
+        (3, 1 or N), of each pose's station."""
+        st = self.state
+        if st.station_r is None or st.station_t is None or self._station is None:
+            return left_jacobian(st.base_r).T[:, :, None], st.base_t[:, None]
+        Jl = np.stack([left_jacobian(r) for r in st.station_r])  # (S, 3, 3)
+        return Jl[self._station].transpose(2, 1, 0), st.station_t[self._station].T
+
     @cached_property
     def base_cols(self) -> np.ndarray:
-        st = self.state
         out = np.zeros((6, 3, self._p.shape[1]))
         out[0, 0] = out[1, 1] = out[2, 2] = 1.0
         # d(R(r) p_b)/dr = -[R p_b]x J_l(r): column j is J_l[:, j] x (p - t_b)
-        Jl = left_jacobian(st.base_r)
-        out[3:] = cross_columns(Jl.T[:, :, None], (self._p - st.base_t[:, None])[None])
+        Jl, t = self._base_rotation_columns()
+        out[3:] = cross_columns(Jl, (self._p - t)[None])
         return out
 
     @property
     def tool_cols(self) -> np.ndarray:
         return self._f.axes[6]
+
+    @cached_property
+    def tool_rotation_cols(self) -> np.ndarray:
+        """d / d (trx, try, trz), the tool frame's rotation: the tool point does not move."""
+        return np.zeros((3, 3, self._p.shape[1]))
 
     d_alpha = property(lambda self: self.rows_alpha.transpose(2, 1, 0))
     d_beta = property(lambda self: self.rows_beta.transpose(2, 1, 0))
@@ -175,3 +221,56 @@ class Sensitivities:
     d_d = property(lambda self: self.rows_d.transpose(2, 1, 0))
     d_base = property(lambda self: self.base_cols.transpose(2, 1, 0))
     d_tool = property(lambda self: self.tool_cols.transpose(2, 1, 0))
+
+
+class AngularSensitivities(Sensitivities):
+    """The same derivatives for the tool frame's orientation: each column is the small rotation
+    (rad, about the measurement frame's axes) that a unit change of the chain's quantity turns
+    the tool frame by, ``R(p + dp) = exp([w dp]x) R(p)``. Where :class:`Sensitivities` gives the
+    point's velocity ``v + w x (p - o)`` of a joint's twist, this gives its ``w``: the axis of
+    alpha, beta or theta, nothing for a, d or the tool point. The catalogue's effects write their
+    orientation columns from these, with the code that writes their position columns."""
+
+    def _zeros(self, shape: tuple[int, ...]) -> np.ndarray:
+        return np.zeros(shape)
+
+    @cached_property
+    def rows_alpha(self) -> np.ndarray:
+        return self._f.axes[:6, 0]
+
+    @cached_property
+    def rows_beta(self) -> np.ndarray:
+        return self._f.y_beta
+
+    def beta_rows(self, rows) -> np.ndarray:
+        return self._f.y_beta[rows]
+
+    @cached_property
+    def rows_a(self) -> np.ndarray:
+        return self._zeros(self._f.x_a.shape)
+
+    @cached_property
+    def rows_theta(self) -> np.ndarray:
+        return self._f.axes[1:, 2]
+
+    @cached_property
+    def rows_d(self) -> np.ndarray:
+        return self._zeros(self._f.x_a.shape)
+
+    @cached_property
+    def base_cols(self) -> np.ndarray:
+        out = np.zeros((6, 3, self._p.shape[1]))
+        out[3:] = self._base_rotation_columns()[0]
+        return out
+
+    @cached_property
+    def tool_cols(self) -> np.ndarray:
+        return self._zeros((3, 3, self._p.shape[1]))
+
+    @cached_property
+    def tool_rotation_cols(self) -> np.ndarray:
+        # R = R6 exp(tr): exp(tr + d) = exp(J_l(tr) d) exp(tr), turned into the measurement
+        # frame by R6: column j is R6 J_l(tr)[:, j]
+        tr = self.state.tool_r
+        Jl = left_jacobian(np.zeros(3) if tr is None else tr)
+        return np.einsum("kcn,kj->jcn", self._f.axes[6], Jl)

@@ -35,7 +35,7 @@ import numpy as np
 
 from arm.description import RobotDescription
 from arm.effect_api import ChainState, EffectError, ModelInputs, Sensitivities
-from arm.params import parse_parameter_name
+from arm.params import BASE_NAMES, TOOL_ROTATION_NAMES, parse_parameter_name
 from arm.so3 import rotation_matrix
 
 __all__ = [
@@ -354,8 +354,9 @@ class _Slots:
     positions; the tool offsets' positions, one row of three per target."""
 
     rows: dict[str, tuple[_Index, _Index]]
-    base: np.ndarray
+    base: np.ndarray  # (6,), or (S, 6) with several stations
     tool: np.ndarray
+    tool_rotation: np.ndarray | None = None  # trx, try, trz with an orientation measured
 
 
 class Geometric(ChainEffect):
@@ -365,7 +366,10 @@ class Geometric(ChainEffect):
     ``dalpha{i}, da{i}, dtheta{i}, dd{i}`` are the errors of row i (alpha_{i-1}, a_{i-1}, theta_i,
     d_i); ``beta{i-1}`` replaces ``dd{i}`` where z_{i-1} and z_i are parallel; ``bx by bz`` (m) and
     ``brx bry brz`` (rotation vector, rad) are the base transform itself, starting from the
-    description's; ``tx ty tz`` (``tx1``... with several targets) are offsets added to the tool point.
+    description's (``bx1``... with several tracker stations, one base each); ``tx ty tz``
+    (``tx1``... with several targets) are offsets added to the tool point; ``trx try trz``, where
+    an orientation is measured, the tool frame's rotation in the last frame (rotation vector,
+    rad).
     """
 
     name = "geometric"
@@ -387,35 +391,59 @@ class Geometric(ChainEffect):
 
     def plausible_bound(self, name: str) -> float | None:
         parsed = parse_parameter_name(name)
-        if parsed is None or parsed.kind in ("base", "tool"):
+        if parsed is None or parsed.kind in ("base", "tool", "tool_rotation"):
             return None
         return self.bounds.get(parsed.family)
 
-    def parameter_names(self, robot: RobotDescription, targets: Sequence[int]) -> list[str]:
+    def parameter_names(
+        self,
+        robot: RobotDescription,
+        targets: Sequence[int],
+        stations: Sequence[int] = (0,),
+        orientation: bool = False,
+    ) -> list[str]:
         parallel = robot.parallel_rows()
         names = [f"dalpha{i}" for i in range(1, 7)]
         names += [f"da{i}" for i in range(1, 7)]
         names += [f"dtheta{i}" for i in range(1, 7)]
         names += [f"dd{i}" for i in range(1, 7) if i not in parallel]
         names += [f"beta{i - 1}" for i in parallel]
-        names += ["bx", "by", "bz", "brx", "bry", "brz"]
+        if len(stations) == 1:
+            names += list(BASE_NAMES)
+        else:
+            names += [f"{c}{s}" for s in stations for c in BASE_NAMES]
         if len(targets) == 1:
             names += ["tx", "ty", "tz"]
         else:
             names += [f"{c}{k}" for k in targets for c in ("tx", "ty", "tz")]
+        if orientation:
+            names += list(TOOL_ROTATION_NAMES)
         return names
 
     def nominal(self, robot: RobotDescription, names: Sequence[str]) -> np.ndarray:
         base = dict(zip(("bx", "by", "bz"), robot.base_translation, strict=True))
         base |= dict(zip(("brx", "bry", "brz"), robot.base_rotation, strict=True))
-        return np.array([base.get(n, 0.0) for n in names], dtype=float)
+        # a calibrated 6-DoF tool frame is kept among the description's effect values
+        base |= {n: v for n, v in robot.effects.get(self.name, {}).items() if n in TOOL_ROTATION_NAMES}
+
+        def start(n: str) -> float:
+            parsed = parse_parameter_name(n)
+            if parsed is not None and parsed.kind == "base":
+                return base[parsed.family]
+            return base.get(n, 0.0)
+
+        return np.array([start(n) for n in names], dtype=float)
 
     def _slots(self, state: ChainState) -> _Slots:
-        """Where each row's parameters sit in this effect's vector, once per (robot, targets)."""
-        key = (state.robot.parallel_rows(), state.targets)
+        """Where each row's parameters sit in this effect's vector, once per (robot, targets,
+        stations, orientation)."""
+        key = (state.robot.parallel_rows(), state.targets, state.stations, state.orientation)
         cache = self.__dict__.setdefault("_slot_cache", {})
         if key not in cache:
-            cache[key] = self._compute_slots(self.parameter_names(state.robot, state.targets))
+            names = self.parameter_names(
+                state.robot, state.targets, state.stations, state.orientation
+            )
+            cache[key] = self._compute_slots(names)
         return cache[key]
 
     @staticmethod
@@ -441,6 +469,8 @@ class Geometric(ChainEffect):
             return dst, src
 
         tool = [idx[n] for n in names if (p := parse_parameter_name(n)) and p.kind == "tool"]
+        base = [idx[n] for n in names if (p := parse_parameter_name(n)) and p.kind == "base"]
+        turn = [idx[n] for n in TOOL_ROTATION_NAMES if n in idx]
         return _Slots(
             rows={
                 "alpha": rows("dalpha"),
@@ -449,8 +479,9 @@ class Geometric(ChainEffect):
                 "d": rows("dd"),
                 "beta": rows("beta", -1),
             },
-            base=np.array([idx[n] for n in ("bx", "by", "bz", "brx", "bry", "brz")]),
+            base=np.array(base, dtype=int).reshape(-1, 6) if len(base) > 6 else np.array(base),
             tool=np.array(tool, dtype=int).reshape(-1, 3),
+            tool_rotation=np.array(turn, dtype=int) if turn else None,
         )
 
     def apply(self, inputs, values, state):
@@ -471,8 +502,21 @@ class Geometric(ChainEffect):
         )
         b = values[s.base]
         tools = state.tools + values[s.tool]
+        extra = {}
+        if b.ndim == 2:  # one base per station; the first is also the base
+            R = rotation_matrix(b[:, 3:])
+            extra = {"station_t": b[:, :3], "station_r": b[:, 3:], "station_R": R}
+            b = b[0]
+        if s.tool_rotation is not None:
+            tr = values[s.tool_rotation]
+            extra |= {"tool_r": tr, "tool_R": rotation_matrix(tr)}
         return state.replace(
-            chain=chain, base_t=b[:3], base_r=b[3:], base_R=rotation_matrix(b[3:]), tools=tools
+            chain=chain,
+            base_t=b[:3],
+            base_r=b[3:],
+            base_R=rotation_matrix(b[3:]),
+            tools=tools,
+            **extra,
         )
 
     def jacobian(self, inputs, values, sens):
@@ -496,7 +540,13 @@ class Geometric(ChainEffect):
         if sens.state.length_scale is not None:
             for key in ("a", "d"):
                 out[s.rows[key][0]] *= sens.state.length_scale
-        out[s.base] = sens.base_cols
+        if s.base.ndim == 2:
+            for k, cols in enumerate(s.base):
+                out[cols] = sens.base_cols * (inputs.stations == k)
+        else:
+            out[s.base] = sens.base_cols
+        if s.tool_rotation is not None:
+            out[s.tool_rotation] = sens.tool_rotation_cols
         tool = sens.tool_cols
         if len(s.tool) == 1:
             out[s.tool[0]] = tool

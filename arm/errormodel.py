@@ -8,7 +8,10 @@ point of every pose and the identification Jacobian (derivatives by every named 
 
 Prediction: joint-angle effects change theta at the encoder reading q; chain effects change the
 DH table (geometric errors first, then thermal scaling); the tool point of each pose's target goes
-through the frames and the base transform into the measurement frame.
+through the frames and the base transform (of the pose's tracker station) into the measurement
+frame. A model built with ``orientation=True`` also predicts the tool frame's rotation
+(:meth:`ErrorModel.predict_pose`), whose Jacobian columns the effects write with the same code,
+from :class:`arm.effect_api.AngularSensitivities`.
 """
 
 from __future__ import annotations
@@ -21,8 +24,14 @@ from typing import Literal, overload
 import numpy as np
 
 from arm.description import RobotDescription, vec3
-from arm.effect_api import ChainState, EffectError, ModelInputs, Sensitivities
-from arm.effects import ChainEffect, Effect, JointAngleEffect, parse_effects
+from arm.effect_api import (
+    AngularSensitivities,
+    ChainState,
+    EffectError,
+    ModelInputs,
+    Sensitivities,
+)
+from arm.effects import ChainEffect, Effect, Geometric, JointAngleEffect, parse_effects
 from arm.kinematics import (
     Chain,
     ColumnFrames,
@@ -31,7 +40,8 @@ from arm.kinematics import (
     gravity_torques,
     tool_points,
 )
-from arm.params import ParameterLayout
+from arm.params import TOOL_ROTATION_NAMES, ParameterLayout
+from arm.so3 import rotation_vector
 
 __all__ = ["ErrorModel"]
 
@@ -46,15 +56,25 @@ class ErrorModel:
         robot: RobotDescription,
         effects: str | Sequence[str | Effect] = "geometric",
         targets: Sequence[int] = (0,),
+        stations: Sequence[int] = (0,),
+        orientation: bool = False,
     ) -> None:
         self.robot = robot.to_modified()
         self.effects: list[Effect] = parse_effects(effects)
         self.targets = tuple(int(t) for t in targets)
         if not self.targets or len(set(self.targets)) != len(self.targets):
             raise ValueError(f"targets must be distinct ids, got {targets}")
-        self.layout = ParameterLayout.of(
-            (e.name, e.parameter_names(self.robot, self.targets)) for e in self.effects
-        )
+        self.stations = tuple(int(s) for s in stations)
+        if not self.stations or len(set(self.stations)) != len(self.stations):
+            raise ValueError(f"stations must be distinct ids, got {stations}")
+        self.orientation = bool(orientation)
+        geometric = any(isinstance(e, Geometric) for e in self.effects)
+        if (len(self.stations) > 1 or self.orientation) and not geometric:
+            raise EffectError(
+                "several stations or a measured orientation need the geometric effect (it "
+                "holds each station's base and the tool frame's rotation)"
+            )
+        self.layout = ParameterLayout.of((e.name, self._names(e)) for e in self.effects)
         self._chain0 = Chain.from_description(self.robot)
         self._base_R0 = self.robot.base_matrix[:3, :3]
         self._work = Workspace()  # scratch of predict(jacobian=True), reused between calls
@@ -70,6 +90,11 @@ class ErrorModel:
         if other:
             raise EffectError(f"effects {other} are neither joint-angle nor chain effects")
 
+    def _names(self, e: Effect) -> list[str]:
+        if isinstance(e, Geometric):
+            return e.parameter_names(self.robot, self.targets, self.stations, self.orientation)
+        return e.parameter_names(self.robot, self.targets)
+
     def __repr__(self) -> str:
         return f"ErrorModel({self.robot.name!r}, {[e.label for e in self.effects]}, {len(self.layout)} parameters)"
 
@@ -78,7 +103,7 @@ class ErrorModel:
         return [e.label for e in self.effects]
 
     def with_effects(self, effects: str | Sequence[str | Effect]) -> ErrorModel:
-        return ErrorModel(self.robot, effects, self.targets)
+        return ErrorModel(self.robot, effects, self.targets, self.stations, self.orientation)
 
     def required_columns(self) -> set[str]:
         return {c for e in self.effects for c in e.columns}
@@ -128,7 +153,33 @@ class ErrorModel:
                     f"{source}: the model has several targets but the data no 'target' column"
                 )
             target = np.zeros(q.shape[0], dtype=int)
-        return ModelInputs(self.robot, self.targets, q, tau, target, cols)
+        station = self._station_index(cols, q.shape[0], source)
+        return ModelInputs(self.robot, self.targets, q, tau, target, cols, station)
+
+    def _station_index(self, cols: Mapping[str, np.ndarray], n: int, source: str) -> np.ndarray:
+        """Each pose's index into the model's stations, from the ``station`` column."""
+        if "station" not in cols or len(self.stations) == 1:
+            if len(self.stations) > 1:
+                raise EffectError(
+                    f"{source}: the model has several stations but the data no 'station' column"
+                )
+            if "station" in cols and np.any(cols["station"] != self.stations[0]):
+                other = sorted({int(v) for v in cols["station"]} - {self.stations[0]})
+                raise EffectError(
+                    f"{source}: station id(s) {other} not among the model's {self.stations}"
+                )
+            return np.zeros(n, dtype=int)
+        s = cols["station"]
+        ids = np.array(self.stations)
+        order = np.argsort(ids)
+        pos = np.clip(np.searchsorted(ids[order], s), 0, len(ids) - 1)
+        found = ids[order][pos] == s
+        if not found.all():
+            unknown = sorted({int(v) for v in s[~found]})
+            raise EffectError(
+                f"{source}: station id(s) {unknown} not among the model's {self.stations}"
+            )
+        return order[pos]
 
     # -- evaluation ---------------------------------------------------------------------------
     def _values(self, p: np.ndarray, effect: Effect) -> np.ndarray:
@@ -157,6 +208,8 @@ class ErrorModel:
             base_t=np.array(self.robot.base_translation, dtype=float),
             base_r=np.array(self.robot.base_rotation, dtype=float),
             tools=self._tools0.copy(),
+            stations=self.stations,
+            orientation=self.orientation,
         )
 
     def _evaluate(
@@ -165,7 +218,12 @@ class ErrorModel:
         """The chain state and its frames in the measurement frame (component-major)."""
         theta = self.joint_angles(inputs, p)
         st = self.state(inputs, p)
-        return st, column_frames(st.chain, theta, st.base_R, st.base_t, work)
+        R, t = st.pose_base(self._pose_stations(inputs))
+        return st, column_frames(st.chain, theta, R, t, work)
+
+    def _pose_stations(self, inputs: ModelInputs) -> np.ndarray | None:
+        """Each pose's station index where there are several stations, else None."""
+        return inputs.stations if len(self.stations) > 1 else None
 
     @staticmethod
     def _point(st: ChainState, f: ColumnFrames, target: np.ndarray) -> np.ndarray:
@@ -202,12 +260,21 @@ class ErrorModel:
             theta = self.joint_angles(inputs, p)
             st = self.state(inputs, p)
             tool = st.tools[inputs.target] if len(st.tools) > 1 else st.tools[0]
-            return tool_points(st.chain, theta, tool) @ st.base_R.T + st.base_t
+            R, t = st.pose_base(self._pose_stations(inputs))
+            if R.ndim == 3:
+                return np.einsum("nij,nj->ni", R, tool_points(st.chain, theta, tool)) + t
+            return tool_points(st.chain, theta, tool) @ R.T + t
         st, f = self._evaluate(inputs, p, self._work)
         point = self._point(st, f, inputs.target)
-        sens = Sensitivities(st, f, point, self._work)
+        sens = Sensitivities(st, f, point, self._work, self._pose_stations(inputs))
+        JT = self._columns(inputs, p, sens, "jacobian", self._numeric_columns)
+        return point.T.copy(), np.ascontiguousarray(JT.transpose(2, 1, 0))
+
+    def _columns(self, inputs, p, sens, name: str, numeric) -> np.ndarray:
+        """Every effect's columns, component-major (P, 3, N), from ``sens`` (a workspace array
+        ``name``); ``numeric(inputs, p, slice)`` (N, 3, k) for an effect without analytic ones."""
         # columns are built component-major, (P, 3, N), then laid out as (N, 3, P) once
-        JT = self._work("jacobian", (len(self.layout), 3, inputs.n))
+        JT = self._work(name, (len(self.layout), 3, inputs.n))
         for e in self.effects:
             sl = self.layout.slice(e.name)
             v = p[sl]
@@ -216,8 +283,44 @@ class ErrorModel:
             elif not isinstance(e, ChainEffect):
                 raise EffectError(f"effect {e.name!r} is neither a joint-angle nor a chain effect")
             elif not e.jacobian_into(inputs, v, sens, JT[sl]):
-                JT[sl] = self._numeric_columns(inputs, p, sl).transpose(2, 1, 0)
-        return point.T.copy(), np.ascontiguousarray(JT.transpose(2, 1, 0))
+                JT[sl] = numeric(inputs, p, sl).transpose(2, 1, 0)
+        return JT
+
+    @overload
+    def predict_pose(
+        self, inputs: ModelInputs, p: np.ndarray, jacobian: Literal[False] = False
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+    @overload
+    def predict_pose(
+        self, inputs: ModelInputs, p: np.ndarray, jacobian: Literal[True]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]: ...
+
+    def predict_pose(self, inputs: ModelInputs, p: np.ndarray, jacobian: bool = False):
+        """The measured points (N, 3) and the tool frame's rotation (N, 3, 3), measurement frame
+        <- tool frame (the last frame turned by the tool rotation ``trx try trz`` where the
+        model has one); with ``jacobian=True`` also d points / d p (N, 3, P) and the rotation's
+        derivatives (N, 3, P): column k is the small rotation w (rad, about the measurement
+        frame's axes) with R(p + e_k h) = exp([w h]x) R(p) to first order in h."""
+        p = np.asarray(p, dtype=float)
+        if p.shape != (len(self.layout),):
+            raise ValueError(f"expected {len(self.layout)} parameters, got shape {p.shape}")
+        st, f = self._evaluate(inputs, p, self._work if jacobian else None)
+        point = self._point(st, f, inputs.target)
+        R = f.axes[6].transpose(2, 1, 0)  # (N, 3, 3): column k is axis k of the last frame
+        if st.tool_R is not None:
+            R = R @ st.tool_R
+        else:
+            R = R.copy()
+        if not jacobian:
+            return point.T.copy(), R
+        station = self._pose_stations(inputs)
+        sens = Sensitivities(st, f, point, self._work, station)
+        JP = self._columns(inputs, p, sens, "jacobian", self._numeric_columns)
+        JP = np.ascontiguousarray(JP.transpose(2, 1, 0))
+        turn = AngularSensitivities(st, f, point, None, station)
+        JW = self._columns(inputs, p, turn, "jacobian.turn", self._numeric_turns)
+        return point.T.copy(), R, JP, np.ascontiguousarray(JW.transpose(2, 1, 0))
 
     def joint_jacobian(self, inputs: ModelInputs, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Measured points (N, 3) and their derivatives by the effective joint angles theta
@@ -225,7 +328,7 @@ class ErrorModel:
         calibrated model (:func:`arm.ik.solve_position`)."""
         st, f = self._evaluate(inputs, np.asarray(p, dtype=float))
         point = self._point(st, f, inputs.target)
-        sens = Sensitivities(st, f, point)
+        sens = Sensitivities(st, f, point, None, self._pose_stations(inputs))
         return point.T.copy(), np.ascontiguousarray(sens.d_theta)
 
     def _numeric_columns(self, inputs: ModelInputs, p: np.ndarray, sl: slice) -> np.ndarray:
@@ -237,6 +340,19 @@ class ErrorModel:
             pp[k] += h
             pm[k] -= h
             cols.append((self.predict(inputs, pp) - self.predict(inputs, pm)) / (2 * h))
+        return np.stack(cols, axis=-1) if cols else np.empty((inputs.n, 3, 0))
+
+    def _numeric_turns(self, inputs: ModelInputs, p: np.ndarray, sl: slice) -> np.ndarray:
+        """Central differences of the tool frame's rotation, as small rotations (N, 3, k)."""
+        cols = []
+        for k in range(sl.start, sl.stop):
+            h = 1e-6 * max(1.0, abs(p[k]))
+            pp, pm = p.copy(), p.copy()
+            pp[k] += h
+            pm[k] -= h
+            Rp = self.predict_pose(inputs, pp)[1]
+            Rm = self.predict_pose(inputs, pm)[1]
+            cols.append(rotation_vector(Rp @ Rm.transpose(0, 2, 1)) / (2 * h))
         return np.stack(cols, axis=-1) if cols else np.empty((inputs.n, 3, 0))
 
     # -- a calibrated arm as a description -----------------------------------------------------
@@ -260,6 +376,10 @@ class ErrorModel:
             for i, j in enumerate(self.robot.joints)
         )
         effects = dict(self.robot.effects)
+        if st.tool_r is not None:  # a 6-DoF calibration's tool frame, which DH cannot hold
+            effects["geometric"] = effects.get("geometric", {}) | dict(
+                zip(TOOL_ROTATION_NAMES, map(float, st.tool_r), strict=True)
+            )
         for e in self.effects:
             if e.name != "geometric":
                 names = self.layout.names[self.layout.slice(e.name)]

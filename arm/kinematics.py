@@ -200,8 +200,10 @@ def column_frames(
     work: Workspace | None = None,
 ) -> ColumnFrames:
     """Frames 0..6 of a batch (N, 6) in component-major layout; frame 0 is ``(base_R, base_t)``
-    (default the identity), so everything comes out in that outer frame directly. With a
-    ``work`` space the arrays are its scratch (valid until the next call using it)."""
+    (default the identity), so everything comes out in that outer frame directly: one base (3, 3)
+    and (3,), or one per pose (N, 3, 3) and (N, 3) (a campaign measured from several tracker
+    stations). With a ``work`` space the arrays are its scratch (valid until the next call using
+    it)."""
     new = _fresh if work is None else work
     q = np.atleast_2d(np.asarray(q, dtype=float))
     n = q.shape[0]
@@ -214,8 +216,12 @@ def column_frames(
     x_a = new("frames.x_a", (6, 3, n))
     y_beta = new("frames.y_beta", (6, 3, n))
     R0 = np.eye(3) if base_R is None else np.asarray(base_R, dtype=float)
-    axes[0] = R0.T[:, :, None]  # axis k of frame 0 is column k of R0
-    o[0] = 0.0 if base_t is None else np.asarray(base_t, dtype=float)[:, None]
+    if R0.ndim == 3:  # one base per pose: axis k of pose n's frame 0 is column k of R0[n]
+        axes[0] = R0.transpose(2, 1, 0)
+    else:
+        axes[0] = R0.T[:, :, None]  # axis k of frame 0 is column k of R0
+    t0 = None if base_t is None else np.asarray(base_t, dtype=float)
+    o[0] = 0.0 if t0 is None else (t0.T if t0.ndim == 2 else t0[:, None])
     for i in range(6):  # terms whose parameter is exactly zero in every pose are skipped
         X, Y, Z = axes[i]
         # Q = R_i RotX(alpha) RotY(beta): columns (Q0, Q1, Q2); y' = Q1 is beta's axis

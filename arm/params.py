@@ -6,7 +6,9 @@ parser of the catalogue's parameter names (their grammar is in docs/format.md).
                                       theta_i, d_i
     beta{k}                           Hayati's rotation about y_k, in row k+1 in place of dd{k+1}
     bx by bz brx bry brz              the base transform (translation, rotation vector)
+    bx{s} ... brz{s}                  the base of tracker station s, when there are several
     tx ty tz, tx{k} ty{k} tz{k}       the tool offset (of target k when there are several)
+    trx try trz                       the tool frame's rotation (where an orientation is measured)
     c{i} ts{i} tc{i} g{i} bl{i} lb{i} per-joint effects (i = 1..6)
     kappa                             thermal expansion
 
@@ -25,6 +27,7 @@ import numpy as np
 __all__ = [
     "BASE_NAMES",
     "ROW_FAMILIES",
+    "TOOL_ROTATION_NAMES",
     "ParameterLayout",
     "ParameterName",
     "parameter_unit",
@@ -112,17 +115,21 @@ class ParameterLayout:
 
 
 # --------------------------------------------------------------------------------------------------
-ParameterKind = Literal["row", "beta", "base", "tool", "joint", "global"]
+ParameterKind = Literal["row", "beta", "base", "tool", "tool_rotation", "joint", "global"]
 
 #: the DH row families in the order of the table's columns (alpha, a, theta, d)
 ROW_FAMILIES = ("dalpha", "da", "dtheta", "dd")
 #: the base transform's parameters, translation then rotation vector
 BASE_NAMES = ("bx", "by", "bz", "brx", "bry", "brz")
+#: the tool frame's rotation (rotation vector in the last frame), fitted where an orientation is
+#: measured
+TOOL_ROTATION_NAMES = ("trx", "try", "trz")
 
 _GRAMMAR = re.compile(
     r"(?P<row>dalpha|dtheta|da|dd)(?P<row_i>[1-6])"
     r"|beta(?P<beta_k>[0-5])"
-    r"|(?P<base>brx|bry|brz|bx|by|bz)"
+    r"|(?P<base>brx|bry|brz|bx|by|bz)(?P<station>[0-9]*)"
+    r"|(?P<turn>trx|try|trz)"
     r"|(?P<tool>tx|ty|tz)(?P<target>[0-9]*)"
     r"|(?P<joint>ts|tc|bl|lb|c|g)(?P<joint_i>[1-6])"
     r"|(?P<global>kappa)"
@@ -141,6 +148,9 @@ _UNITS = {
     "bx": "m",
     "by": "m",
     "bz": "m",
+    "trx": "rad",
+    "try": "rad",
+    "trz": "rad",
     "tx": "m",
     "ty": "m",
     "tz": "m",
@@ -158,10 +168,11 @@ _UNITS = {
 class ParameterName:
     """A catalogued parameter's name, parsed.
 
-    ``kind``: ``row`` (a DH row's error), ``beta`` (Hayati's), ``base``, ``tool``, ``joint`` (a
-    per-joint effect's) or ``global``; ``family``: the name without its number (``dalpha``,
-    ``beta``, ``brx``, ``tx``, ``c``, ``kappa``...); ``number``: the number as written (the row
-    for ``row``, k of ``beta{k}``, the target of ``tx{k}``, the joint for ``joint``), or None.
+    ``kind``: ``row`` (a DH row's error), ``beta`` (Hayati's), ``base``, ``tool``,
+    ``tool_rotation``, ``joint`` (a per-joint effect's) or ``global``; ``family``: the name
+    without its number (``dalpha``, ``beta``, ``brx``, ``tx``, ``c``, ``kappa``...); ``number``:
+    the number as written (the row for ``row``, k of ``beta{k}``, the station of ``bx{s}``, the
+    target of ``tx{k}``, the joint for ``joint``), or None.
     """
 
     name: str
@@ -196,7 +207,9 @@ def parse_parameter_name(name: str) -> ParameterName | None:
     if g["beta_k"] is not None:
         return ParameterName(name, "beta", "beta", int(g["beta_k"]))
     if g["base"] is not None:
-        return ParameterName(name, "base", g["base"])
+        return ParameterName(name, "base", g["base"], int(g["station"]) if g["station"] else None)
+    if g["turn"] is not None:
+        return ParameterName(name, "tool_rotation", g["turn"])
     if g["tool"] is not None:
         return ParameterName(name, "tool", g["tool"], int(g["target"]) if g["target"] else None)
     if g["joint"] is not None:
