@@ -424,7 +424,9 @@ class Geometric(ChainEffect):
         base = dict(zip(("bx", "by", "bz"), robot.base_translation, strict=True))
         base |= dict(zip(("brx", "bry", "brz"), robot.base_rotation, strict=True))
         # a calibrated 6-DoF tool frame is kept among the description's effect values
-        base |= {n: v for n, v in robot.effects.get(self.name, {}).items() if n in TOOL_ROTATION_NAMES}
+        base |= {
+            n: v for n, v in robot.effects.get(self.name, {}).items() if n in TOOL_ROTATION_NAMES
+        }
 
         def start(n: str) -> float:
             parsed = parse_parameter_name(n)

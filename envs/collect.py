@@ -3,6 +3,12 @@ approached from a random direction so that dir1..dir6 vary, let it settle, and m
 point with the laser tracker. The result is a measurement set (docs/format.md, the measurement
 CSV) with every optional column (t, temperature, payload, dir1..dir6).
 
+A campaign can be measured as a real one is: from several tracker stations (each its own frame,
+metres from the arm: a ``station`` column), with noise that grows with the distance from the
+tracker (``noise_ppm``), with a 6-DoF probe on the flange that also measures the tool frame's
+orientation in some of the rows (``orientation``, ``orientation_fraction``: the rows where the
+probe was seen), and with each row's stated uncertainty (``stds``: the std_x... columns).
+
     from envs.collect import collect_measurements
     data = collect_measurements(n=200, scenario="compliance", seed=7, path="compliance.csv")
 
@@ -24,6 +30,8 @@ from arm.description import RobotDescription, load_robot
 from arm.errors import SixAxisError
 from arm.measurements import MeasurementSet, write_measurements
 from arm.sampling import sample_poses
+from arm.so3 import rotation_matrix, rotation_vector
+from envs.instrument import TrackerStation, place_stations
 
 if TYPE_CHECKING:
     from envs.scenarios import EpisodeTruth
@@ -74,6 +82,13 @@ def collect_measurements(
     payloads: Sequence[float] | None = None,
     path: str | Path | None = None,
     progress: Callable[[int, int], None] | None = None,
+    noise_ppm: float = 0.0,
+    stations: int | Sequence[TrackerStation] = 1,
+    orientation: bool = False,
+    noise_mrad: float = 0.1,
+    orientation_fraction: float = 1.0,
+    stds: bool = False,
+    tool_rotation: Sequence[float] | None = None,
 ) -> MeasurementSet:
     """Simulate a calibration measurement campaign and return (and, with ``path``, write) it.
 
@@ -84,8 +99,19 @@ def collect_measurements(
     then a slow approach and ``settle`` seconds at rest; where the encoders missed the pose (the
     position loop sags under gravity) the reference is corrected and the pose approached again
     from the same side, until they read it within ``LANDING_TOL``; then a measurement with
-    ``noise_mm`` per axis. ``payloads`` (kg per pose) overrides the truth's payload. ``progress(i, n)`` is called
+    ``noise_mm`` per axis, plus ``noise_ppm`` um per metre of distance from the tracker.
+    ``payloads`` (kg per pose) overrides the truth's payload. ``progress(i, n)`` is called
     after each pose. Deterministic for a given seed.
+
+    ``stations``: 1, the world frame (the truth's measurement frame) itself; a number above one,
+    that many stations placed around the arm (:func:`envs.instrument.place_stations`), or the
+    stations themselves; the poses are measured in consecutive blocks, one per station, each in
+    its station's frame, and the set gets a ``station`` column (ids 1, 2, ...).
+    ``orientation``: a 6-DoF probe, mounted on the last link turned by ``tool_rotation`` (a
+    rotation vector; default a random rotation), also measures the tool frame's orientation with
+    ``noise_mrad`` per axis, in a random ``orientation_fraction`` of the rows (the others leave it
+    blank). ``stds``: each row states its uncertainty (the std_x... columns): the sigma its noise
+    was drawn with.
 
     The returned set has columns q1..q6 (the encoder readings at the measurement), x, y, z,
     t, temperature, payload and dir1..dir6 (the sign of each joint's last commanded motion).
@@ -112,6 +138,20 @@ def collect_measurements(
         raise CollectError(f"pose {i} is outside the joint limits: {poses[i]}")
     if payloads is not None and len(payloads) != len(poses):
         raise CollectError(f"{len(payloads)} payloads for {len(poses)} poses")
+    for name, v in (("noise_mm", noise_mm), ("noise_ppm", noise_ppm), ("noise_mrad", noise_mrad)):
+        if not (math.isfinite(v) and v >= 0):
+            raise CollectError(f"{name} must be a finite number >= 0, got {v}")
+    if not 0.0 <= orientation_fraction <= 1.0:
+        raise CollectError(f"orientation_fraction must be in [0, 1], got {orientation_fraction}")
+    # campaigns beyond one 3-D point draw from a stream of their own: a plain campaign's numbers
+    # stay those of a seed
+    (campaign_rng,) = rng.spawn(1)
+    if isinstance(stations, int):
+        placed = place_stations(stations, campaign_rng) if stations > 1 else None
+    else:
+        placed = list(stations)
+        if not placed:
+            raise CollectError("stations: an empty list")
 
     plant = Plant(nominal, elastic=truth.hidden.needs_elastic)
     plant.configure(truth.true_robot, truth.hidden)
@@ -124,7 +164,9 @@ def collect_measurements(
 
     n_poses = len(poses)
     q_out = np.empty((n_poses, 6))
-    xyz = np.empty((n_poses, 3))
+    world = np.empty((n_poses, 3))
+    noise = np.empty((n_poses, 3))
+    frames = np.empty((n_poses, 3, 3))
     cols = {c: np.empty(n_poses) for c in ("t", "temperature", "payload")}
     dirs = np.empty((n_poses, 6))
     plant.place(np.clip(poses[0] - APPROACH, lo, hi), dirs=np.ones(6))
@@ -153,7 +195,9 @@ def collect_measurements(
         if plant.diverged():
             raise RuntimeError(f"the simulation diverged at pose {i}: {q}")
         q_out[i] = plant.q
-        xyz[i] = plant.tool_point() + sigma * noise_rng.normal(size=3)
+        world[i] = plant.tool_point()
+        noise[i] = noise_rng.normal(size=3)
+        frames[i] = plant.tool_frame()
         cols["t"][i] = plant.time
         cols["temperature"][i] = plant.temperature
         cols["payload"][i] = plant.payload
@@ -163,8 +207,99 @@ def collect_measurements(
     columns = dict(cols)
     columns |= {f"dir{k + 1}": dirs[:, k] for k in range(6)}
     source = str(path) if path is not None else f"<simulated {truth.scenario} seed {seed}>"
-    data = MeasurementSet(q_out, xyz, columns, source=source)
+    if placed is None and not noise_ppm and not orientation and not stds:
+        xyz = world + sigma * noise  # a plain campaign, in the world frame
+        data = MeasurementSet(q_out, xyz, columns, source=source)
+    else:
+        data = _beyond_points(
+            q_out,
+            world,
+            noise,
+            frames,
+            columns,
+            source,
+            placed,
+            campaign_rng,
+            sigma,
+            noise_ppm,
+            noise_mrad if orientation else None,
+            orientation_fraction,
+            stds,
+            tool_rotation,
+        )
     if path is not None:
         write_measurements(data, path)
         log.info("wrote %d simulated measurements to %s", n_poses, path)
     return data
+
+
+def _beyond_points(
+    q: np.ndarray,
+    world: np.ndarray,
+    noise: np.ndarray,
+    frames: np.ndarray,
+    columns: dict[str, np.ndarray],
+    source: str,
+    stations: list[TrackerStation] | None,
+    rng: np.random.Generator,
+    sigma: float,
+    ppm: float,
+    mrad: float | None,
+    fraction: float,
+    stds: bool,
+    tool_rotation: Sequence[float] | None,
+) -> MeasurementSet:
+    """The measured set of a campaign from stations, with distance-dependent noise, a 6-DoF
+    probe and stated uncertainties (see :func:`collect_measurements`)."""
+    n = len(q)
+    if stations is None:
+        stations = [TrackerStation((0.0, 0.0, 0.0))]
+        which = np.zeros(n, dtype=int)
+    else:
+        which = (np.arange(n) * len(stations)) // n  # consecutive blocks, one per station
+        columns = columns | {"station": which + 1.0}
+    xyz = np.empty((n, 3))
+    point_sigma = np.empty(n)
+    rotations = np.empty((n, 3, 3))
+    turn = None
+    if mrad is not None:
+        turn = rotation_matrix(
+            np.asarray(tool_rotation, dtype=float)
+            if tool_rotation is not None
+            else rotation_vector(_random_rotation(rng))
+        )
+    for k, st in enumerate(stations):
+        rows = which == k
+        point_sigma[rows] = sigma + ppm * 1e-6 * st.distance(world[rows])
+        xyz[rows] = st.points(world[rows]) + point_sigma[rows, None] * noise[rows]
+        if turn is not None:
+            rotations[rows] = st.rotations(frames[rows] @ turn)
+    std = None
+    if stds:
+        std = np.full((n, 6), np.nan)
+        std[:, :3] = point_sigma[:, None]
+    if mrad is None:
+        return MeasurementSet(q, xyz, columns, source=source, std=std)
+    seen = rng.random(n) < fraction
+    wobble = rng.normal(0.0, mrad * 1e-3, (n, 3))
+    measured = rotation_vector(rotation_matrix(wobble) @ rotations)
+    mask = np.zeros((n, 6), dtype=bool)
+    mask[:, :3] = True
+    mask[:, 3:] = seen[:, None]
+    if std is not None:
+        std[seen, 3:] = mrad * 1e-3
+    return MeasurementSet(q, xyz, columns, source=source, orientation=measured, mask=mask, std=std)
+
+
+def _random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A rotation drawn uniformly (a unit quaternion of four normal draws)."""
+    w, x, y, z = rng.normal(size=4)
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )

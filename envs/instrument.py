@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from arm.errors import SixAxisError
+from arm.so3 import rotation_matrix, rotation_vector
 
 __all__ = [
     "InstrumentError",
@@ -30,6 +31,8 @@ __all__ = [
     "Measurement",
     "TemperatureSensor",
     "TrackerConfig",
+    "TrackerStation",
+    "place_stations",
 ]
 
 
@@ -163,3 +166,57 @@ class TemperatureSensor:
         self._probe += a * (float(temperature) - self._probe)
         self.reading = self._probe + self.noise * float(self._rng.normal())
         return self.reading
+
+
+@dataclass(frozen=True)
+class TrackerStation:
+    """Where a tracker stands for part of a campaign: its position (3,) and rotation (a rotation
+    vector, 3) in the world frame. It measures in its own frame: ``x = R^T (p - c)``."""
+
+    position: tuple[float, float, float]
+    rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def R(self) -> np.ndarray:
+        return rotation_matrix(np.asarray(self.rotation, dtype=float))
+
+    def points(self, world: np.ndarray) -> np.ndarray:
+        """World points (N, 3) in the station's frame."""
+        return (np.asarray(world, dtype=float) - np.asarray(self.position)) @ self.R
+
+    def rotations(self, world: np.ndarray) -> np.ndarray:
+        """World rotations (N, 3, 3) (world <- frame) seen from the station (station <- frame)."""
+        return np.einsum("ji,njk->nik", self.R, np.asarray(world, dtype=float))
+
+    def distance(self, world: np.ndarray) -> np.ndarray:
+        """Distance (N,) of world points from the tracker, m."""
+        return np.linalg.norm(np.asarray(world, dtype=float) - np.asarray(self.position), axis=1)
+
+
+def place_stations(
+    n: int,
+    rng: np.random.Generator,
+    distance: tuple[float, float] = (2.0, 6.0),
+    height: tuple[float, float] = (0.0, 1.2),
+) -> list[TrackerStation]:
+    """``n`` tracker stations around an arm at the world origin: spread in azimuth (a random turn
+    of evenly spaced directions, each jittered), ``distance`` m from the base's axis, ``height`` m
+    above the floor, each turned about the vertical by a random angle and levelled to within
+    a few mrad (a tracker stands on a tripod). The station's frame is arbitrary: the lab
+    registers each station's base."""
+    if int(n) != n or n < 1:
+        raise InstrumentError(f"stations must be a positive integer, got {n}")
+    start = rng.uniform(0.0, 2.0 * math.pi)
+    out = []
+    for k in range(int(n)):
+        azimuth = start + 2.0 * math.pi * k / n + rng.uniform(-0.3, 0.3)
+        r = rng.uniform(*distance)
+        z = rng.uniform(*height)
+        tilt = rng.normal(0.0, 3e-3, 2)
+        yaw = rng.uniform(-math.pi, math.pi)
+        rot = rotation_matrix(np.array([tilt[0], tilt[1], 0.0])) @ rotation_matrix(
+            np.array([0.0, 0.0, yaw])
+        )
+        rx, ry, rz = (float(v) for v in rotation_vector(rot))
+        out.append(TrackerStation((r * math.cos(azimuth), r * math.sin(azimuth), z), (rx, ry, rz)))
+    return out

@@ -431,6 +431,7 @@ class Plant:
         self.q_view = d.qpos[self.iq] if isinstance(self.iq, slice) else None
         self.qd_view = d.qvel[self.iv] if isinstance(self.iv, slice) else None
         self.tool_xpos = d.site_xpos[self.tool_site]
+        self.tool_xmat = d.site_xmat[self.tool_site]
 
     # -- the drive ------------------------------------------------------------------------------
     def _home(self) -> np.ndarray:
@@ -599,6 +600,11 @@ class Plant:
     def tool_point(self) -> np.ndarray:
         """The true tool point (3,) in the measurement (world) frame, m (a copy)."""
         return self.tool_xpos.copy()
+
+    def tool_frame(self) -> np.ndarray:
+        """The true rotation (3, 3) of the last frame (the link that carries the tool), world
+        <- last frame (a copy): what a 6-DoF probe on the flange turns with."""
+        return self.tool_xmat.reshape(3, 3).copy()
 
     def gravity_torques(self) -> np.ndarray:
         """MuJoCo's gravity torques on the motor hinges at rest, with the sign of docs/format.md

@@ -200,3 +200,24 @@ def test_an_unknown_column_is_kept_and_named_in_a_warning(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a file of known columns reads without a warning
         read_measurements(_file(tmp_path, HEAD + ",t,station\n" + f"{Q},1,2,3,0,1\n"))
+
+
+def test_the_instrument_model_and_the_rows_own_uncertainties():
+    from arm.noise import InstrumentNoise, NoiseError
+
+    xyz = np.array([[3.0, 4.0, 0.0], [0.0, 0.0, 2.0], [1.0, 0.0, 0.0]])
+    std = np.full((3, 6), np.nan)
+    std[1, :3] = 1e-4  # the second row states its own
+    mask = np.ones((3, 6), dtype=bool)
+    mask[2, 3:] = False  # the third measured no orientation
+    data = MeasurementSet(np.zeros((3, 6)), xyz, orientation=np.zeros((3, 3)), mask=mask, std=std)
+    sig = InstrumentNoise(mm=0.015, ppm=6.0, mrad=0.1).sigmas(data)
+    np.testing.assert_allclose(sig[0, :3], 15e-6 + 6e-6 * 5.0)  # 5 m from the tracker
+    np.testing.assert_allclose(sig[1, :3], 1e-4)
+    np.testing.assert_allclose(sig[:2, 3:], 1e-4)
+    assert np.isnan(sig[2, 3:]).all()
+    assert np.isnan(InstrumentNoise(mm=0.015).sigmas(data)[0, 3:]).all()  # not stated
+    assert "15 um + 6 um/m" in InstrumentNoise(mm=0.015, ppm=6.0).text()
+    for bad in (dict(mm=-1.0), dict(ppm=float("nan")), dict(mrad=0.0), dict(mm=0.0)):
+        with pytest.raises(NoiseError):
+            InstrumentNoise(**bad)

@@ -128,7 +128,7 @@ def test_every_column_equals_central_differences():
     cols = {"station": rng.choice([3.0, 7.0], len(q)), "temperature": rng.uniform(15, 35, len(q))}
     inputs = model.inputs(q, cols)
     p = _parameters(model, rng)
-    xyz, R, JP, JW = model.predict_pose(inputs, p, jacobian=True)
+    _, _, JP, JW = model.predict_pose(inputs, p, jacobian=True)
     for k, name in enumerate(model.layout.names):
         h = 1e-6 * max(1.0, abs(p[k]))
         pp, pm = p.copy(), p.copy()
