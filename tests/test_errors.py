@@ -24,7 +24,11 @@ def _project_errors() -> list[type[BaseException]]:
         for info in pkgutil.walk_packages([str(ROOT / pkg)], prefix=f"{pkg}."):
             module = importlib.import_module(info.name)
             for _, obj in inspect.getmembers(module, inspect.isclass):
-                if issubclass(obj, BaseException) and obj.__module__ == module.__name__:
+                if (
+                    issubclass(obj, BaseException)
+                    and not issubclass(obj, Warning)  # cautions, not errors
+                    and obj.__module__ == module.__name__
+                ):
                     found.append(obj)
     return found
 
