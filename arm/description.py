@@ -33,6 +33,12 @@ SI units inside (m, rad, kg). The TOML file states its own units::
     translation = [0.0, 0.0, 0.0]
     rotation_vector = [0.0, 0.0, 0.0]   # in angle_unit
 
+    [flange]                     # optional: frame 6 <- flange (a URDF's tip link, a standard
+    a = 0.0                      # DH arm's last row): TransX(a) RotX(alpha) Trans(translation)
+    alpha = 0.0                  # Rot(rotation_vector); informs IK and the URDF writer, tool
+    translation = [0.0, 0.0, 0.0]          # points stay in frame 6
+    rotation_vector = [0.0, 0.0, 0.0]
+
     [effects.compliance]         # optional: calibrated effect values, SI (docs/format.md)
     c2 = 6e-6
 """
@@ -51,13 +57,15 @@ import numpy as np
 
 from arm.errors import SixAxisError
 from arm.ranges import payload_problem
-from arm.so3 import rotation_matrix
+from arm.so3 import rotation_matrix, rotation_vector
+from arm.urdf import UrdfArm, UrdfError, UrdfSource, read_urdf
 
 __all__ = [
     "DescriptionError",
     "Joint",
     "RobotDescription",
     "as_robot",
+    "from_urdf",
     "load_robot",
     "seed_robot",
     "vec3",
@@ -108,6 +116,10 @@ class RobotDescription:
     base_rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
     flange: tuple[float, float] = (0.0, 0.0)  # (a, alpha) of a standard-DH last row, once folded
+    flange_translation: tuple[float, float, float] = (0.0, 0.0, 0.0)  # then this (a URDF's tip)
+    flange_rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)  # rotation vector
+    # the URDF this arm was read from (what `lab export --format urdf` edits); not part of equality
+    urdf: UrdfSource | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if len(self.joints) != 6:
@@ -165,6 +177,19 @@ class RobotDescription:
         T[:3, 3] = self.base_translation
         return T
 
+    @property
+    def flange_matrix(self) -> np.ndarray:
+        """4x4 transform frame 6 <- flange: ``TransX(a) RotX(alpha)`` of ``flange`` (a standard-DH
+        arm's last row, in the modified form) then ``flange_translation``/``flange_rotation`` (a
+        URDF's tip link); the identity for the seed arm."""
+        a, alpha = self.flange
+        c, s = math.cos(alpha), math.sin(alpha)
+        T = np.array([[1.0, 0, 0, a], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]])
+        G = np.eye(4)
+        G[:3, :3] = rotation_matrix(np.array(self.flange_rotation))
+        G[:3, 3] = self.flange_translation
+        return T @ G
+
     def within_limits(self, q: np.ndarray, tol: float = 0.0) -> np.ndarray:
         q = np.asarray(q, dtype=float)
         return np.all((q >= self.lower - tol) & (q <= self.upper + tol), axis=-1)
@@ -221,8 +246,14 @@ class RobotDescription:
             "payload": self.payload,
             "gravity": list(self.gravity),
         }
+        flange: dict = {}
         if self.flange != (0.0, 0.0):
-            doc["flange"] = {"a": self.flange[0] / L, "alpha": self.flange[1] / A}
+            flange |= {"a": self.flange[0] / L, "alpha": self.flange[1] / A}
+        if any(self.flange_translation) or any(self.flange_rotation):
+            flange["translation"] = [c / L for c in self.flange_translation]
+            flange["rotation_vector"] = [c / A for c in self.flange_rotation]
+        if flange:
+            doc["flange"] = flange
         joints = []
         for j in self.joints:
             row = {
@@ -315,7 +346,7 @@ _KEYS = {
     "joint": {"alpha", "a", "d", "theta_offset", "limits", "mass", "com", "beta"},
     "tool": {"point"},
     "base": {"translation", "rotation_vector"},
-    "flange": {"a", "alpha"},
+    "flange": {"a", "alpha", "translation", "rotation_vector"},
 }
 
 
@@ -396,6 +427,13 @@ def _from_dict(doc: dict, source: str) -> RobotDescription:
         _get(flange_doc, "a", source, float, "flange: ", 0.0) * L,
         _get(flange_doc, "alpha", source, float, "flange: ", 0.0) * A,
     )
+    ft = tuple(
+        c * L for c in _get(flange_doc, "translation", source, "vec3", "flange: ", (0.0, 0.0, 0.0))
+    )
+    fr = tuple(
+        c * A
+        for c in _get(flange_doc, "rotation_vector", source, "vec3", "flange: ", (0.0, 0.0, 0.0))
+    )
     effects_doc = doc.get("effects", {})
     if not isinstance(effects_doc, dict):
         raise DescriptionError(f"{source}: [effects] must be a table of effect tables")
@@ -418,6 +456,8 @@ def _from_dict(doc: dict, source: str) -> RobotDescription:
             base_rotation=br,
             effects=effects,
             flange=flange,
+            flange_translation=ft,
+            flange_rotation=fr,
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{source}: {exc}") from None
@@ -428,21 +468,84 @@ def as_robot(robot: RobotDescription | str | Path | None) -> RobotDescription:
     return robot if isinstance(robot, RobotDescription) else load_robot(robot)
 
 
-def load_robot(name_or_path: str | Path | None = None) -> RobotDescription:
-    """A shipped robot by name (``"seed"``) or a TOML file by path; ``None`` gives the seed arm."""
+def from_urdf(arm: UrdfArm) -> RobotDescription:
+    """The description of a URDF's arm (:func:`arm.urdf.read_urdf`): modified DH with Hayati's
+    beta, the URDF's base link <- frame 0 as the base transform, frame 6 <- tip link as the flange,
+    one tool point at the tip link's origin, masses and centres of mass from the inertials."""
+    clean = lambda v: float(v) + 0.0  # noqa: E731 -- no -0.0 in files written from it
+    joints = tuple(
+        Joint(
+            alpha=clean(arm.alpha[i]),
+            a=clean(arm.a[i]),
+            d=clean(arm.d[i]),
+            theta_offset=clean(arm.theta_offset[i]),
+            lower=float(arm.lower[i]),
+            upper=float(arm.upper[i]),
+            mass=float(arm.masses[i]),
+            com=vec3(clean(c) for c in arm.coms[i]),
+            beta=clean(arm.beta[i]),
+        )
+        for i in range(6)
+    )
+    flange = arm.flange
+    try:
+        return RobotDescription(
+            name=arm.name,
+            joints=joints,
+            tools=(vec3(clean(c) for c in flange[:3, 3]),),
+            gravity=vec3(clean(c) for c in arm.gravity),
+            base_translation=vec3(clean(c) for c in arm.base[:3, 3]),
+            base_rotation=vec3(clean(c) for c in rotation_vector(arm.base[:3, :3])),
+            flange_translation=vec3(clean(c) for c in flange[:3, 3]),
+            flange_rotation=vec3(clean(c) for c in rotation_vector(flange[:3, :3])),
+            urdf=arm.source,
+        )
+    except DescriptionError as exc:
+        raise DescriptionError(f"{arm.source.path}: {exc}") from None
+
+
+def load_robot(
+    name_or_path: str | Path | None = None, *, tip: str | None = None, base: str | None = None
+) -> RobotDescription:
+    """A shipped robot by name (``"seed"``, ``"ur5"``; the URDFs ``"ur3_robot"``, ``"ur5_robot"``,
+    ``"ur10_robot"``, ``"z1"``), a robot TOML file or a URDF file by path; ``None`` gives the seed
+    arm. A bare ``"ur5_robot.urdf"`` that is no file here is the shipped one.
+
+    A URDF (a ``.urdf`` file) gives the serial chain of six revolute joints from link ``base``
+    (default the root) to link ``tip`` (default: found when one such chain hangs below the base),
+    converted exactly by :func:`arm.urdf.read_urdf`. ``tip`` and ``base`` are refused for a TOML.
+    """
     if name_or_path is None:
         name_or_path = "seed"
     p = Path(name_or_path)
+    shipped = resources.files("arm") / "robots"
+    if p.suffix.lower() != ".urdf" and not p.exists() and (shipped / f"{p}.urdf").is_file():
+        p = Path(f"{p}.urdf")  # a shipped URDF by name: "ur5_robot", "z1"
+    if p.suffix.lower() == ".urdf":
+        if not p.exists() and p.name == str(p) and (shipped / p.name).is_file():
+            text, where = (shipped / p.name).read_text(encoding="utf-8"), f"robots/{p.name}"
+        else:
+            text, where = None, str(p)
+        try:
+            return from_urdf(read_urdf(where, tip=tip, base=base, text=text))
+        except UrdfError as exc:
+            raise DescriptionError(str(exc)) from None
+    if tip is not None or base is not None:
+        raise DescriptionError(
+            f"{p}: a tip or base link is chosen in a URDF; this is a robot TOML or a shipped name"
+        )
     if p.suffix == ".toml" or p.exists():
         if not p.is_file():
             raise DescriptionError(f"{p}: robot description file not found")
         return RobotDescription.from_toml(p.read_text(), source=str(p))
-    shipped = resources.files("arm") / "robots" / f"{name_or_path}.toml"
-    if not shipped.is_file():
+    toml = shipped / f"{name_or_path}.toml"
+    if not toml.is_file():
+        names = sorted(f.name.rsplit(".", 1)[0] for f in shipped.iterdir() if "." in f.name[1:])
         raise DescriptionError(
-            f"unknown robot {str(name_or_path)!r}: not a shipped name nor a file"
+            f"unknown robot {str(name_or_path)!r}: not a file nor a shipped name "
+            f"({', '.join(n for n in names if not n.startswith('LICENSE') and n != 'README')})"
         )
-    return RobotDescription.from_toml(shipped.read_text(), source=f"robots/{name_or_path}.toml")
+    return RobotDescription.from_toml(toml.read_text(), source=f"robots/{name_or_path}.toml")
 
 
 def seed_robot() -> RobotDescription:

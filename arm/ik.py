@@ -129,13 +129,10 @@ def _inverse(T: np.ndarray) -> np.ndarray:
 
 # -- poses ---------------------------------------------------------------------------------------
 def flange_transform(robot: RobotDescription) -> np.ndarray:
-    """4x4 transform modified frame 6 <- flange: identity for a modified-DH description, the last
-    standard row's ``TransX(a_6) RotX(alpha_6)`` for a standard-DH one (see ``to_modified``)."""
-    a, alpha = robot.to_modified().flange
-    T = np.eye(4)
-    T[:3, :3] = rot_x(alpha)
-    T[0, 3] = a
-    return T
+    """4x4 transform modified frame 6 <- flange: the last standard row's ``TransX(a_6)
+    RotX(alpha_6)`` for a standard-DH description (see ``to_modified``), frame 6 <- tip link for
+    one read from a URDF, the identity for the seed arm (``RobotDescription.flange_matrix``)."""
+    return robot.to_modified().flange_matrix
 
 
 def _tool_matrix(tool: np.ndarray | None) -> np.ndarray:

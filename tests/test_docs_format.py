@@ -199,13 +199,16 @@ def test_the_poses_and_joints_files_are_as_documented(tmp_path):
 # -- the robot TOML ---------------------------------------------------------------------------------
 def test_the_robot_toml_tables_name_every_key_the_writer_emits():
     """A description with every optional part (a standard-DH arm folded to modified, so it has a
-    flange; beta; a base; effect values) written by the writer `export` uses."""
+    flange, and a URDF's flange transform; beta; a base; effect values) written by the writer
+    `export` uses."""
     std = replace(seed_robot(), convention="standard", name="full", payload=1.0)
     full = replace(
         std.to_modified(),
         joints=tuple(replace(j, beta=1e-3, theta_offset=0.1) for j in std.to_modified().joints),
         base_translation=(0.1, 0.0, 0.0),
         base_rotation=(0.0, 0.0, 0.2),
+        flange_translation=(0.0, 0.01, 0.0),  # a URDF's tip link
+        flange_rotation=(0.0, 0.3, 0.0),
         effects={"compliance": {"c2": 6e-6}},
     )
     assert isinstance(full, RobotDescription)
