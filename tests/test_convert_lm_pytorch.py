@@ -121,3 +121,48 @@ def test_bad_files_are_refused_by_file_and_line(conv, tmp_path, damage, message,
     assert conv.main([str(repo), "-o", str(out)]) == 2
     assert message in capsys.readouterr().err
     assert not (out / "measurements.csv").exists()  # nothing half-written
+
+
+def _rpy_deg_matrix(rx: float, ry: float, rz: float) -> np.ndarray:
+    """Rz(rz) Ry(ry) Rx(rx), degrees, multiplied out: the repository's from_euler("xyz")."""
+    a, b, c = np.radians([rx, ry, rz])
+    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    Ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    Rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def test_the_probes_orientation_is_kept_in_both_layouts(conv, tmp_path):
+    """The tracker's raw export and the header CSVs of the repository's later commits give the
+    same file; Rx Ry Rz (deg) become roll, pitch, yaw of the same rotation."""
+    from arm.so3 import rotation_matrix
+
+    rng = np.random.default_rng(1)
+    q_deg = rng.uniform(-40, 40, (4, 6))
+    xyz_mm = rng.uniform(500, 3500, (4, 3)).round(4)
+    repo = _repo(tmp_path, q_deg, xyz_mm)  # measured Rx Ry Rz: 1.2 -3.4 5.6 on every line
+    assert conv.main([str(repo), "-o", str(tmp_path / "raw")]) == 0
+    data = read_measurements(tmp_path / "raw" / "measurements.csv")
+    assert data.orientation_form == "rpy" and data.measured.all()
+    want = _rpy_deg_matrix(1.2, -3.4, 5.6)
+    np.testing.assert_allclose(rotation_matrix(data.orientation), [want] * 4, atol=1e-9)
+    # the same poses as header CSVs (q1..q6 deg; x,y,z,rx,ry,rz)
+    csv_repo = tmp_path / "csv" / "data"
+    csv_repo.mkdir(parents=True)
+    for name in ("dh.csv", "joint_limits.csv"):
+        (csv_repo / name).write_text((repo / "data" / name).read_text())
+    (csv_repo / "joint_angle.csv").write_text(
+        "q1,q2,q3,q4,q5,q6\n" + "".join(",".join(repr(float(v)) for v in r) + "\n" for r in q_deg)
+    )
+    (csv_repo / "laser_pos.csv").write_text(
+        "x,y,z,rx,ry,rz\n"
+        + "".join(",".join(f"{v:.4f}" for v in p) + ",1.2,-3.4,5.6\n" for p in xyz_mm)
+    )
+    assert conv.main([str(tmp_path / "csv"), "-o", str(tmp_path / "hdr")]) == 0
+    assert (tmp_path / "hdr" / "measurements.csv").read_text() == (
+        tmp_path / "raw" / "measurements.csv"
+    ).read_text()
+    assert conv.main([str(repo), "-o", str(tmp_path / "pos"), "--positions-only"]) == 0
+    plain = read_measurements(tmp_path / "pos" / "measurements.csv")
+    assert plain.orientation is None
+    np.testing.assert_array_equal(plain.xyz, data.xyz)
