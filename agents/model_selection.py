@@ -56,7 +56,7 @@ from agents.online_calibration import (
     prior_scales,
 )
 from agents.tool_model import ToolModel, cached_tool_model
-from arm.effects import CATALOGUE, make_effect
+from arm.effects import candidate_effects, make_effect
 from arm.errormodel import ErrorModel
 
 __all__ = ["DRIFT", "SequentialSelection", "ShadowEstimator", "candidate_families"]
@@ -146,7 +146,7 @@ def candidate_families(
     have = {e.name for e in model.effects}
     cols = set(columns)
     out = []
-    for spec in CATALOGUE if candidates is None else candidates:
+    for spec in candidate_effects() if candidates is None else candidates:
         e = make_effect(spec)
         if e.name == "geometric" or e.name in have or e.name in out:
             continue

@@ -26,7 +26,7 @@ import importlib.metadata
 import importlib.util
 import logging
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
@@ -44,6 +44,7 @@ __all__ = [
     "Backlash",
     "ChainEffect",
     "Compliance",
+    "Cyclic",
     "Effect",
     "Geometric",
     "JointAngleEffect",
@@ -51,9 +52,11 @@ __all__ = [
     "LoadBacklash",
     "Thermal",
     "Transmission",
+    "candidate_effects",
     "load_effect_module",
     "make_effect",
     "missing_inputs",
+    "order_reading",
     "parse_effects",
     "register_effect",
 ]
@@ -86,6 +89,11 @@ class Effect:
     # typical range; an identified value beyond its bound is an error (units, another robot,
     # another convention) unless the user accepts it (lab.plausibility).
     bounds: ClassVar[dict[str, float | None]] = {}
+    # An effect whose terms a scan finds (its joints and orders), rather than one the diagnosis
+    # tests whole: it has no meaning without its brackets, and the catalogue's tests skip it.
+    scan_only: ClassVar[bool] = False
+    # A specification that names the effect fully (what the documentation and tests build).
+    example: ClassVar[str] = ""
 
     def __init__(self, joints: Sequence[int] | None = None) -> None:
         if joints is not None and not self.per_joint:
@@ -100,6 +108,31 @@ class Effect:
             raise EffectError(
                 f"effect {self.name!r}: joints must be within 1..6, got {self.joints}"
             )
+
+    @classmethod
+    def from_spec(cls, brackets: str | None, spec: str = "") -> Effect:
+        """The effect from the text between its brackets (None: no brackets): a joint list,
+        ``2,3``. ``spec`` is the whole specification, for the messages."""
+        if brackets is None:
+            return cls()
+        try:
+            js = [int(j) for j in brackets.split(",") if j.strip()]
+        except ValueError:
+            raise EffectError(
+                f"bad joint list in effect specification {spec!r}; expected e.g. '{cls.name}[2,3]'"
+            ) from None
+        if not js:
+            raise EffectError(
+                f"effect specification {spec!r} has an empty joint list; name the joints "
+                f"({cls.name}[2,3]) or leave out the brackets for all of them"
+            )
+        return cls(joints=js)
+
+    @classmethod
+    def from_parameters(cls, names: Sequence[str]) -> Effect:
+        """The effect that has (at least) the parameters ``names``: what a calibrated arm's
+        ``[effects.NAME]`` values need (all joints, unless the effect's terms are named)."""
+        return cls()
 
     @property
     def label(self) -> str:
@@ -154,8 +187,12 @@ class JointAngleEffect(Effect):
     def active_joints(self) -> tuple[int, ...]:
         return self.joints if self.joints is not None else (1, 2, 3, 4, 5, 6)
 
+    def parameter_terms(self) -> list[tuple[int, str]]:
+        """(joint, term) of each parameter, in the order of :meth:`parameter_names`."""
+        return [(j, t) for t in self.terms for j in self.active_joints()]
+
     def parameter_names(self, robot: RobotDescription, targets: Sequence[int]) -> list[str]:
-        return [f"{t}{j}" for t in self.terms for j in self.active_joints()]
+        return [f"{t}{j}" for j, t in self.parameter_terms()]
 
     def basis(self, inputs: ModelInputs, joint: int, term: str) -> np.ndarray:
         """(N,) regressor of parameter ``{term}{joint}`` on theta_joint (``joint`` is 1-based)."""
@@ -163,13 +200,10 @@ class JointAngleEffect(Effect):
 
     def regressor(self, inputs: ModelInputs) -> np.ndarray:
         """(N, 6, k): d theta / d parameters, in the order of :meth:`parameter_names`."""
-        js = self.active_joints()
-        out = np.zeros((inputs.n, 6, len(self.terms) * len(js)))
-        k = 0
-        for t in self.terms:
-            for j in js:
-                out[:, j - 1, k] = self.basis(inputs, j, t)
-                k += 1
+        terms = self.parameter_terms()
+        out = np.zeros((inputs.n, 6, len(terms)))
+        for k, (j, t) in enumerate(terms):
+            out[:, j - 1, k] = self.basis(inputs, j, t)
         return out
 
     def joint_offsets(self, inputs: ModelInputs, values: np.ndarray) -> np.ndarray:
@@ -178,6 +212,9 @@ class JointAngleEffect(Effect):
             return inputs.cached(self, self.regressor) @ values
         joints, basis = inputs.cached(self, self._sparse_regressor)
         out = np.zeros((6, inputs.n))
+        if type(self).parameter_terms is not JointAngleEffect.parameter_terms:
+            np.add.at(out, joints, basis * values[:, None])  # a joint may have several terms
+            return out.T
         m = len(self.active_joints())
         for t in range(len(self.terms)):  # within a term the joints are distinct
             sl = slice(t * m, (t + 1) * m)
@@ -190,9 +227,9 @@ class JointAngleEffect(Effect):
 
     def _sparse_regressor(self, inputs: ModelInputs) -> tuple[np.ndarray, np.ndarray]:
         """The regressor's one non-zero per parameter: its joint (k,) and values (k, N)."""
-        js = self.active_joints()
-        joints = np.array([j - 1 for _ in self.terms for j in js], dtype=int)
-        basis = np.array([self.basis(inputs, j, t) for t in self.terms for j in js], dtype=float)
+        terms = self.parameter_terms()
+        joints = np.array([j - 1 for j, _ in terms], dtype=int)
+        basis = np.array([self.basis(inputs, j, t) for j, t in terms], dtype=float)
         return joints, basis.reshape(len(joints), inputs.n)
 
     def jacobian_into(
@@ -234,6 +271,164 @@ class Transmission(JointAngleEffect):
     def basis(self, inputs, joint, term):
         qj = inputs.q[:, joint - 1]
         return np.sin(qj) if term == "ts" else np.cos(qj)
+
+
+MAX_ORDER = 1000  # the highest order per turn a cyclic term may have
+
+
+def order_reading(k: int) -> str:
+    """What a cyclic joint error of order ``k`` (k cycles per turn of the joint) usually is."""
+    if k == 1:
+        return (
+            "once per turn: an eccentricity of the gear or the encoder on the joint's output "
+            "(the catalogue's transmission)"
+        )
+    if k == 2:
+        return (
+            "twice per turn: an elliptical part on the output side (a strain-wave gear's "
+            "flexspline and circular spline, an oval bearing race) or an encoder tilted on its "
+            "shaft"
+        )
+    if k == 3:
+        return "three times per turn: a three-lobed bearing race or wave generator on the output"
+    half = f"{k / 2:g}"
+    return (
+        f"{k} times per turn of the joint: a part that turns faster than the joint, seen at its "
+        f"output. A strain-wave gear's error repeats twice per turn of its wave generator (order "
+        f"{k} if the wave generator turns {half} times per output turn); a magnetic encoder's with "
+        f"its pole pairs (p pole pairs on a shaft turning {k}/p times per output turn); a gear "
+        f"stage's with its teeth (order {k}: {k} teeth on a wheel that turns once per output "
+        "turn, or fewer on a faster one)"
+    )
+
+
+_CYCLIC_SYNTAX = (
+    "cyclic[2:17,29] (orders 17 and 29 of joint 2); several joints: cyclic[2:17,29;4:2]"
+)
+
+
+class Cyclic(JointAngleEffect):
+    """Cyclic joint errors of chosen orders per joint: ``theta_j = q_j + sum_k cs{j}_{k}
+    sin(k q_j) + cc{j}_{k} cos(k q_j)``, for the orders k of joint j named in the
+    specification, ``cyclic[2:17,29;4:2,40]`` (orders 17 and 29 of joint 2, 2 and 40 of joint
+    4; ``a-b`` is a range of orders). An order k repeats k times per turn of the joint: order 1
+    is the catalogue's ``transmission``; the higher orders come from the gears and encoders that
+    turn faster than the joint (:func:`order_reading`). ``lab.spectral`` finds which orders a data
+    set needs; the diagnosis does not test this effect whole (``scan_only``)."""
+
+    name = "cyclic"
+    typical = {"cs": (5e-5, 3e-4), "cc": (5e-5, 3e-4)}
+    description = (
+        "cyclic joint errors: theta_j = q_j + sum over the orders k of joint j of "
+        "cs{j}_{k} sin(k q_j) + cc{j}_{k} cos(k q_j)"
+    )
+    scan_only = True
+    example = "cyclic[2:17,29;4:2]"
+
+    def __init__(
+        self,
+        orders: Mapping[int, Sequence[int]] | None = None,
+        joints: Sequence[int] | None = None,
+    ) -> None:
+        if orders is None or joints is not None:
+            raise EffectError(f"effect 'cyclic' needs its joints and orders: {_CYCLIC_SYNTAX}")
+        clean: dict[int, tuple[int, ...]] = {}
+        for j, ks in orders.items():
+            if not (isinstance(j, int | np.integer) and 1 <= j <= 6):
+                raise EffectError(f"effect 'cyclic': joints must be within 1..6, got {j!r}")
+            ks = tuple(sorted({int(k) for k in ks}))
+            if not ks:
+                raise EffectError(f"effect 'cyclic': joint {j} has no orders; {_CYCLIC_SYNTAX}")
+            bad = [k for k in ks if not 1 <= k <= MAX_ORDER]
+            if bad:
+                raise EffectError(
+                    f"effect 'cyclic': orders of joint {j} must lie within 1..{MAX_ORDER}, got "
+                    f"{', '.join(map(str, bad))}"
+                )
+            clean[int(j)] = ks
+        if not clean:
+            raise EffectError(f"effect 'cyclic' needs at least one joint: {_CYCLIC_SYNTAX}")
+        super().__init__(joints=sorted(clean))
+        self.orders: dict[int, tuple[int, ...]] = dict(sorted(clean.items()))
+
+    @classmethod
+    def from_spec(cls, brackets: str | None, spec: str = "") -> Effect:
+        if brackets is None or not brackets.strip():
+            raise EffectError(
+                f"effect specification {spec or 'cyclic'!r}: cyclic needs its joints and "
+                f"orders: {_CYCLIC_SYNTAX}"
+            )
+        orders: dict[int, list[int]] = {}
+        for part in brackets.split(";"):
+            m = re.fullmatch(r"\s*([0-9]+)\s*:\s*([0-9,\s-]+?)\s*", part)
+            if not m:
+                raise EffectError(
+                    f"bad joint and orders {part.strip()!r} in effect specification {spec!r}; "
+                    f"expected {_CYCLIC_SYNTAX}"
+                )
+            j = int(m.group(1))
+            if j in orders:
+                raise EffectError(f"joint {j} is named twice in effect specification {spec!r}")
+            ks: list[int] = []
+            for item in m.group(2).split(","):
+                item = item.strip()
+                r = re.fullmatch(r"([0-9]+)(?:\s*-\s*([0-9]+))?", item)
+                if not r:
+                    raise EffectError(
+                        f"bad order {item!r} of joint {j} in effect specification {spec!r}; "
+                        "an order is a whole number (17) or a range (2-8)"
+                    )
+                lo, hi = int(r.group(1)), int(r.group(2) or r.group(1))
+                if hi < lo or hi - lo > MAX_ORDER:
+                    raise EffectError(
+                        f"bad range of orders {item!r} of joint {j} in effect specification "
+                        f"{spec!r}"
+                    )
+                ks += range(lo, hi + 1)
+            orders[j] = ks
+        return cls(orders)
+
+    @classmethod
+    def from_parameters(cls, names: Sequence[str]) -> Effect:
+        orders: dict[int, list[int]] = {}
+        for n in names:
+            p = parse_parameter_name(n)
+            if p is None or p.family not in ("cs", "cc") or p.number is None or p.order is None:
+                raise EffectError(f"{n!r} is not a parameter of the cyclic effect (cs2_17, cc2_17)")
+            orders.setdefault(p.number, []).append(p.order)
+        return cls(orders)
+
+    @property
+    def label(self) -> str:
+        return (
+            "cyclic[" + ";".join(f"{j}:{_orders_text(ks)}" for j, ks in self.orders.items()) + "]"
+        )
+
+    def parameter_terms(self) -> list[tuple[int, str]]:
+        return [(j, f"{t}{k}") for j, ks in self.orders.items() for k in ks for t in "sc"]
+
+    def parameter_names(self, robot: RobotDescription, targets: Sequence[int]) -> list[str]:
+        return [f"c{t[0]}{j}_{t[1:]}" for j, t in self.parameter_terms()]
+
+    def basis(self, inputs, joint, term):
+        angle = int(term[1:]) * inputs.q[:, joint - 1]
+        return np.sin(angle) if term[0] == "s" else np.cos(angle)
+
+
+def _orders_text(ks: Sequence[int]) -> str:
+    """``1-4,17,29``: runs of three or more consecutive orders as ranges."""
+    out: list[str] = []
+    i = 0
+    while i < len(ks):
+        j = i
+        while j + 1 < len(ks) and ks[j + 1] == ks[j] + 1:
+            j += 1
+        if j - i >= 2:
+            out.append(f"{ks[i]}-{ks[j]}")
+        else:
+            out += [str(k) for k in ks[i : j + 1]]
+        i = j + 1
+    return ",".join(out)
 
 
 class JointScale(JointAngleEffect):
@@ -628,7 +823,16 @@ def register_effect(cls: type[Effect]) -> type[Effect]:
     return cls
 
 
-for _cls in (Geometric, Compliance, Transmission, JointScale, Backlash, LoadBacklash, Thermal):
+for _cls in (
+    Geometric,
+    Compliance,
+    Transmission,
+    Cyclic,
+    JointScale,
+    Backlash,
+    LoadBacklash,
+    Thermal,
+):
     register_effect(_cls)
 CATALOGUE: tuple[str, ...] = tuple(EFFECTS)
 
@@ -675,36 +879,31 @@ def load_effect_module(path: str | Path) -> list[str]:
     return [c.name for c in found]
 
 
-_EFFECT_PATTERN = re.compile(r"^\s*([a-z][a-z0-9_]*)\s*(?:\[\s*([0-9,\s]*)\s*\])?\s*$")
+_EFFECT_PATTERN = re.compile(r"^\s*([a-z][a-z0-9_]*)\s*(?:\[([^\]]*)\])?\s*$")
 
 
 def make_effect(spec: str | Effect) -> Effect:
-    """An effect from its name, ``compliance`` or restricted to joints, ``compliance[2,3]``."""
+    """An effect from its name, ``compliance`` or restricted to joints, ``compliance[2,3]``
+    (the cyclic effect names joints and orders, ``cyclic[2:17,29]``)."""
     if isinstance(spec, Effect):
         return spec
     m = _EFFECT_PATTERN.match(spec)
     if not m:
         raise EffectError(
-            f"bad effect specification {spec!r}; expected e.g. 'compliance' or 'compliance[2,3]'"
+            f"bad effect specification {spec!r}; expected e.g. 'compliance', "
+            "'compliance[2,3]' or 'cyclic[2:17,29]'"
         )
-    name, joints = m.group(1), m.group(2)
+    name, brackets = m.group(1), m.group(2)
     if name not in EFFECTS:
         _load_entry_points()
     if name not in EFFECTS:
         raise EffectError(f"unknown effect {name!r}; known: {', '.join(sorted(EFFECTS))}")
-    cls = EFFECTS[name]
-    if joints is None:
-        return cls()
-    try:
-        js = [int(j) for j in joints.split(",") if j.strip()]
-    except ValueError:
-        raise EffectError(f"bad joint list in effect specification {spec!r}") from None
-    if not js:
-        raise EffectError(
-            f"effect specification {spec!r} has an empty joint list; name the joints "
-            f"({name}[2,3]) or leave out the brackets for all of them"
-        )
-    return cls(joints=js)
+    return EFFECTS[name].from_spec(brackets, spec)
+
+
+def candidate_effects() -> list[str]:
+    """The registered effects the diagnosis tests whole (all but the scanned ones)."""
+    return [n for n, cls in EFFECTS.items() if not cls.scan_only]
 
 
 def parse_effects(spec: str | Sequence[str | Effect]) -> list[Effect]:

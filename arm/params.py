@@ -10,6 +10,7 @@ parser of the catalogue's parameter names (their grammar is in docs/format.md).
     tx ty tz, tx{k} ty{k} tz{k}       the tool offset (of target k when there are several)
     trx try trz                       the tool frame's rotation (where an orientation is measured)
     c{i} ts{i} tc{i} g{i} bl{i} lb{i} per-joint effects (i = 1..6)
+    cs{i}_{k} cc{i}_{k}               a cyclic error of order k (k per turn) of joint i
     kappa                             thermal expansion
 
 Any other name belongs to a user's effect.
@@ -131,6 +132,7 @@ _GRAMMAR = re.compile(
     r"|(?P<base>brx|bry|brz|bx|by|bz)(?P<station>[0-9]*)"
     r"|(?P<turn>trx|try|trz)"
     r"|(?P<tool>tx|ty|tz)(?P<target>[0-9]*)"
+    r"|(?P<cyclic>cs|cc)(?P<cyclic_i>[1-6])_(?P<order>[1-9][0-9]*)"
     r"|(?P<joint>ts|tc|bl|lb|c|g)(?P<joint_i>[1-6])"
     r"|(?P<global>kappa)"
 )
@@ -157,6 +159,8 @@ _UNITS = {
     "c": "rad/(N·m)",
     "ts": "rad",
     "tc": "rad",
+    "cs": "rad",
+    "cc": "rad",
     "g": "1",
     "bl": "rad",
     "lb": "rad",
@@ -170,15 +174,17 @@ class ParameterName:
 
     ``kind``: ``row`` (a DH row's error), ``beta`` (Hayati's), ``base``, ``tool``,
     ``tool_rotation``, ``joint`` (a per-joint effect's) or ``global``; ``family``: the name
-    without its number (``dalpha``, ``beta``, ``brx``, ``tx``, ``c``, ``kappa``...); ``number``:
-    the number as written (the row for ``row``, k of ``beta{k}``, the station of ``bx{s}``, the
-    target of ``tx{k}``, the joint for ``joint``), or None.
+    without its number (``dalpha``, ``beta``, ``brx``, ``tx``, ``c``, ``cs``, ``kappa``...);
+    ``number``: the number as written (the row for ``row``, k of ``beta{k}``, the station of
+    ``bx{s}``, the target of ``tx{k}``, the joint for ``joint``), or None; ``order``: the order
+    per turn of a cyclic error (``cs2_17``: 17), else None.
     """
 
     name: str
     kind: ParameterKind
     family: str
     number: int | None = None
+    order: int | None = None
 
     @property
     def row(self) -> int | None:
@@ -212,6 +218,8 @@ def parse_parameter_name(name: str) -> ParameterName | None:
         return ParameterName(name, "tool_rotation", g["turn"])
     if g["tool"] is not None:
         return ParameterName(name, "tool", g["tool"], int(g["target"]) if g["target"] else None)
+    if g["cyclic"] is not None:
+        return ParameterName(name, "joint", g["cyclic"], int(g["cyclic_i"]), int(g["order"]))
     if g["joint"] is not None:
         return ParameterName(name, "joint", g["joint"], int(g["joint_i"]))
     return ParameterName(name, "global", g["global"])

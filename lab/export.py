@@ -105,7 +105,8 @@ def calibrated_model(robot: RobotDescription, targets: Sequence[int] = (0,)) -> 
             "registered: load the module that defines them (--effect-module FILE.py)"
         )
     try:
-        return ErrorModel(robot, ["geometric", *robot.effects], targets=targets)
+        effects = [EFFECTS[n].from_parameters(list(v)) for n, v in robot.effects.items()]
+        return ErrorModel(robot, ["geometric", *effects], targets=targets)
     except EffectError as exc:
         raise CompensationError(f"robot {robot.name!r}: {exc}") from None
 

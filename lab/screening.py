@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from arm.effects import EFFECTS, Effect, make_effect, missing_inputs
+from arm.effects import Effect, candidate_effects, make_effect, missing_inputs
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from lab.identifiability import gram_factor, lower_inverse
@@ -283,7 +283,7 @@ def candidate_model(
     effects: list[Effect] = []
     for e in model.effects:  # a per-joint effect fitted on some joints: the others are candidates
         effects.append(type(e)() if e.per_joint and e.joints is not None else e)
-    for spec in list(EFFECTS) if candidates is None else list(candidates):
+    for spec in candidate_effects() if candidates is None else list(candidates):
         e = make_effect(spec)
         if e.name in have:
             continue

@@ -18,7 +18,7 @@ import pytest
 from typer.testing import CliRunner
 
 from arm.description import RobotDescription, seed_robot
-from arm.effects import CATALOGUE, make_effect
+from arm.effects import CATALOGUE, EFFECTS, make_effect
 from arm.measurements import (
     JOINTS,
     KNOWN,
@@ -102,7 +102,7 @@ def code_families() -> dict[str, tuple[str, str, tuple[float, float] | None]]:
     seed = seed_robot()
     out: dict[str, tuple[str, str, tuple[float, float] | None]] = {}
     for name in CATALOGUE:
-        effect = make_effect(name)
+        effect = make_effect(EFFECTS[name].example or name)
         for targets in ((0,), (0, 1)):
             for p in effect.parameter_names(seed, targets):
                 parsed = parse_parameter_name(p)

@@ -14,13 +14,14 @@ from hypothesis.extra.numpy import arrays
 
 from arm.description import seed_robot
 from arm.effect_api import EffectError
-from arm.effects import CATALOGUE
+from arm.effects import CATALOGUE, EFFECTS
 from arm.errormodel import ErrorModel
 from arm.kinematics import Chain, gravity_torques, tool_points
 from arm.sampling import sample_parameters
 from tests.conftest import random_q, rokae_arm
 
-ALL = ",".join(CATALOGUE)
+# every catalogued effect; the cyclic one with its example's joints and orders
+ALL = ",".join(EFFECTS[n].example or n for n in CATALOGUE)
 SEED = seed_robot()
 ROKAE = rokae_arm()
 
@@ -95,7 +96,15 @@ def test_identification_jacobian_equals_finite_differences(
 
 @pytest.mark.parametrize(
     "effects",
-    ["geometric", "compliance[2,3]", "transmission[1,4]", "joint_scale", "thermal", "backlash[6]"],
+    [
+        "geometric",
+        "compliance[2,3]",
+        "transmission[1,4]",
+        "joint_scale",
+        "thermal",
+        "backlash[6]",
+        "cyclic[1:3;2:1,17,29;6:40-42]",
+    ],
 )
 def test_each_effect_alone_equals_finite_differences(effects):
     model = ErrorModel(SEED, effects)
@@ -198,6 +207,54 @@ def test_joint_angle_effects_follow_their_laws():
         loaded = np.where(np.abs(tau[:, j]) < 1e-9, 0.0, np.sign(tau[:, j]))
         expected[:, j] += v[f"lb{k}"] / 2 * loaded
     np.testing.assert_allclose(model.joint_angles(model.inputs(q, cols), p), expected, atol=1e-15)
+
+
+def test_cyclic_errors_follow_their_law_and_their_specification():
+    """cyclic[2:17,29;4:1-3]: theta_j = q_j + sum_k cs{j}_{k} sin(k q_j) + cc{j}_{k} cos(k q_j)
+    over the orders named for joint j, none on the other joints; the label reads back."""
+    model = ErrorModel(SEED, "cyclic[2:17,29;4:1-3]")
+    cyc = model.effects[0]
+    assert cyc.label == "cyclic[2:17,29;4:1-3]"
+    assert model.layout.names == (
+        *("cs2_17", "cc2_17", "cs2_29", "cc2_29"),
+        *("cs4_1", "cc4_1", "cs4_2", "cc4_2", "cs4_3", "cc4_3"),
+    )
+    rng = np.random.default_rng(5)
+    p = sample_parameters(model, rng)
+    v = model.layout.as_dict(p)
+    assert all(5e-5 <= abs(x) <= 3e-4 for x in v.values())
+    q = random_q(SEED, 20, seed=5)
+    expected = q.copy()
+    for j, ks in ((2, (17, 29)), (4, (1, 2, 3))):
+        for k in ks:
+            expected[:, j - 1] += v[f"cs{j}_{k}"] * np.sin(k * q[:, j - 1])
+            expected[:, j - 1] += v[f"cc{j}_{k}"] * np.cos(k * q[:, j - 1])
+    np.testing.assert_allclose(model.joint_angles(model.inputs(q), p), expected, atol=1e-15)
+    # order 1 is the catalogue's transmission, to rounding
+    one = ErrorModel(SEED, "transmission[3]")
+    same = ErrorModel(SEED, "cyclic[3:1]")
+    x = np.array([2e-4, -1e-4])
+    np.testing.assert_allclose(
+        same.joint_angles(same.inputs(q), x), one.joint_angles(one.inputs(q), x), atol=1e-16
+    )
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("cyclic", "needs its joints and orders"),
+        ("cyclic[]", "needs its joints and orders"),
+        ("cyclic[2]", "bad joint and orders '2'"),
+        ("cyclic[7:3]", "joints must be within 1..6"),
+        ("cyclic[2:0]", "must lie within 1..1000"),
+        ("cyclic[2:3;2:4]", "joint 2 is named twice"),
+        ("cyclic[2:x]", "bad joint and orders"),
+        ("cyclic[2:9-3]", "bad range of orders"),
+    ],
+)
+def test_a_bad_cyclic_specification_is_refused_with_its_reason(spec, message):
+    with pytest.raises(EffectError, match=message):
+        ErrorModel(SEED, f"geometric,{spec}")
 
 
 def test_load_backlash_ignores_torques_that_are_zero_by_construction():

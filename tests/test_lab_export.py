@@ -17,6 +17,7 @@ from lab import fit
 from lab.export import (
     CompensationError,
     ExportError,
+    calibrated_model,
     compensate,
     export_robot,
     read_targets,
@@ -77,6 +78,21 @@ def test_exported_compliance_uses_the_fits_torques_up_to_a_second_order_term(see
     second_order = np.max(np.linalg.norm(own - fitted, axis=1))
     assert 1e-8 < second_order < 5e-6
     assert torque_difference(res, arm) == pytest.approx(second_order, rel=1e-6)
+
+
+def test_exported_cyclic_errors_read_back_with_their_joints_and_orders(seed, tmp_path):
+    """The file names each cyclic term (cs2_17...); the arm read back rebuilds the effect with
+    the same joints and orders and predicts what the fit does."""
+    c = campaign(seed, "geometric,cyclic[2:17;3:5,23]", seed=8, hidden_level="typical")
+    data = c.measure(200)
+    res = fit(data, seed, "geometric,cyclic[2:17;3:5,23]")
+    arm = export_robot(res, tmp_path / "cal.toml")
+    assert set(arm.effects["cyclic"]) == {"cs2_17", "cc2_17", "cs3_5", "cc3_5", "cs3_23", "cc3_23"}
+    model = calibrated_model(arm)
+    assert model.effects[1].label == "cyclic[2:17;3:5,23]"
+    new = sample_poses(arm, 100, np.random.default_rng(6))
+    got = model.predict(model.inputs(new), model.nominal())
+    assert np.max(np.linalg.norm(got - res.predict(c.measure(new)), axis=1)) < 1e-12
 
 
 class _Wobble(JointAngleEffect):
