@@ -34,6 +34,7 @@ from arm.effects import (
     Backlash,
     ChainEffect,
     Compliance,
+    Cyclic,
     Geometric,
     JointAngleEffect,
     JointScale,
@@ -300,11 +301,8 @@ class ToolModel:
         for e in self.model.effects:
             if isinstance(e, JointAngleEffect) and type(e) in _BASIS:
                 v = p[self.layout.slice(e.name)]
-                k = 0
-                for term in e.terms:
-                    for j in e.active_joints():
-                        theta[j - 1] = theta[j - 1] + v[k] * _BASIS[type(e)](q, tau, col, j, term)
-                        k += 1
+                for k, (j, term) in enumerate(e.parameter_terms()):
+                    theta[j - 1] = theta[j - 1] + v[k] * _BASIS[type(e)](q, tau, col, j, term)
         if offset is not None:
             theta = [theta[i] + offset[i] for i in range(6)]
         alpha = [float(ch.alpha[i]) for i in range(6)]
@@ -387,6 +385,12 @@ def _basis_transmission(q, tau, col, j, term):
     return ca.sin(q[j - 1]) if term == "ts" else ca.cos(q[j - 1])
 
 
+def _basis_cyclic(q, tau, col, j, term):
+    # term "s17" / "c17": the sine / cosine of 17 q_j (arm.effects.Cyclic)
+    angle = int(term[1:]) * q[j - 1]
+    return ca.sin(angle) if term[0] == "s" else ca.cos(angle)
+
+
 def _basis_scale(q, tau, col, j, term):
     return q[j - 1]
 
@@ -405,6 +409,7 @@ def _basis_load_backlash(q, tau, col, j, term):
 _BASIS = {
     Compliance: _basis_compliance,
     Transmission: _basis_transmission,
+    Cyclic: _basis_cyclic,
     JointScale: _basis_scale,
     Backlash: _basis_backlash,
     LoadBacklash: _basis_load_backlash,

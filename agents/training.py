@@ -89,6 +89,7 @@ LEADERBOARD_SCENARIOS = (
     "thermal",
     "payload",
     "all",
+    "cyclic",
 )
 LEADERBOARD_SEEDS = (0, 1, 2, 3, 4)
 LEADERBOARD_ENV: dict[str, Any] = {"noise_mm": 0.015, "measure_every": 5}

@@ -22,7 +22,11 @@ vibrates, and inside the gap the link is free: where gravity loads the joint it 
 loaded side; where the link-side bearing friction holds it, it lags its motor. Gear transmission
 error (an eccentricity ``ts sin(q) + tc cos(q)``) and a gear-ratio error ``g q`` move the mesh's
 rest position with the motor angle: once per control step the rest function is linearised at the
-motor angle (``s_i`` and ``c_i`` above), exact to second order in the motion of one step.
+motor angle (``s_i`` and ``c_i`` above), exact to second order in the motion of one step. Cyclic
+errors of higher orders (``a_s sin(k q) + a_c cos(k q)``, k per turn: the gears and encoders that
+turn faster than the joint) add to the rest function; with them it is linearised again within a
+control step, up to every physics step, wherever k times the motion of the step is not small (it
+may be a radian).
 
 Thermal growth: one arm temperature heats with the motors' losses and cools towards ambient; every
 control step the link lengths a and d (nominal plus error) are scaled by ``1 + kappa (T - 20 degC)``
@@ -71,6 +75,10 @@ RIGID_STIFFNESS = 1e9  # N*m/rad: an elastic plant's mesh where the scenario has
 MESH_DAMPING_STIFFNESS = 1e6  # N*m/rad: mesh damping is sized for at most this stiffness
 PHYSICS_DT = 0.001  # s
 SUBSTEPS = 20  # physics steps per control step (50 Hz control)
+# rad: the largest phase k * (motion between two linearisations) of a cyclic error of order k
+# (its second-order error: 0.5 % of its size, 1.5e-6 rad at 0.3 mrad); beyond it a control step
+# is split
+CYCLIC_LINEAR_PHASE = 0.1
 AMBIENT = 20.0  # degC
 MAX_SPEED = 100.0  # rad/s: any hinge faster than this means the simulation has diverged
 
@@ -119,7 +127,10 @@ class HiddenEffects:
 
     ``stiffness`` of the gear mesh (N*m/rad; ``inf``: rigid), ``gap`` the whole backlash (rad),
     ``bearing_friction`` the link-side dry friction (N*m) that holds a link inside its gap,
-    ``ts``/``tc`` the transmission error and ``g`` the gear-ratio error (rad, 1), ``kappa`` the
+    ``ts``/``tc`` the transmission error and ``g`` the gear-ratio error (rad, 1), ``cyclic`` the
+    cyclic errors of higher orders, ``(joint, order, a_s, a_c)`` each (joint 1..6, k per turn,
+    rad: ``a_s sin(k q) + a_c cos(k q)``, the ``cyclic`` effect's ``cs{joint}_{k}``,
+    ``cc{joint}_{k}``), ``kappa`` the
     thermal expansion (1/K) with the arm starting at ``temperature0`` (degC), heating by ``heating``
     K per J of motor losses and cooling towards ambient with ``cooling_time`` (s); ``payload0`` (kg)
     at the tool point, changed to ``mass`` at each ``(time, mass)`` of ``payload_schedule``.
@@ -131,6 +142,7 @@ class HiddenEffects:
     ts: np.ndarray = field(default_factory=lambda: np.zeros(6))
     tc: np.ndarray = field(default_factory=lambda: np.zeros(6))
     g: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    cyclic: tuple[tuple[int, int, float, float], ...] = ()
     mesh_damping_ratio: float = 0.05
     kappa: float = 0.0
     temperature0: float = AMBIENT
@@ -142,6 +154,25 @@ class HiddenEffects:
     def __post_init__(self) -> None:
         for name in ("stiffness", "gap", "bearing_friction", "ts", "tc", "g"):
             object.__setattr__(self, name, _vec6(getattr(self, name), name))
+        terms = []
+        for t in self.cyclic:
+            ok = len(t) == 4
+            if ok:
+                j, k, a_s, a_c = t
+                ok = (
+                    j == int(j)
+                    and 1 <= j <= 6
+                    and k == int(k)
+                    and k >= 1
+                    and math.isfinite(a_s)
+                    and math.isfinite(a_c)
+                )
+            if not ok:
+                raise PlantError(
+                    f"a cyclic error is (joint 1..6, order >= 1, a_s, a_c) in rad, got {t!r}"
+                )
+            terms.append((int(j), int(k), float(a_s), float(a_c)))
+        object.__setattr__(self, "cyclic", tuple(terms))
         if np.any(self.stiffness <= 0):
             raise PlantError(f"stiffness must be > 0 (inf for rigid), got {self.stiffness}")
         if np.any(self.gap < 0) or np.any(self.bearing_friction < 0):
@@ -160,6 +191,7 @@ class HiddenEffects:
             or np.any(self.ts)
             or np.any(self.tc)
             or np.any(self.g)
+            or bool(self.cyclic)
         )
 
     @property
@@ -527,8 +559,14 @@ class Plant:
             m.tendon_frictionloss[self._bearing] = effects.bearing_friction
             self._stiffness = k
         self._transmission = self.elastic and bool(
-            np.any(effects.ts) or np.any(effects.tc) or np.any(effects.g)
+            np.any(effects.ts) or np.any(effects.tc) or np.any(effects.g) or effects.cyclic
         )
+        # cyclic errors: (joint index, order, a_s, a_c) as arrays, relinearised every physics step
+        cyc = np.array(effects.cyclic, dtype=float).reshape(-1, 4)
+        self._cyclic = (cyc[:, 0].astype(int) - 1, cyc[:, 1], cyc[:, 2], cyc[:, 3])
+        self._cyclic_kmax = np.zeros(6)  # the highest order of each joint
+        np.maximum.at(self._cyclic_kmax, self._cyclic[0], self._cyclic[1])
+        self._per_physics_step = self.elastic and bool(effects.cyclic)
         self._thermal = effects.thermal
         self._schedule = sorted(effects.payload_schedule)
         self._tau_max = np.asarray(self.drive.torque_max, dtype=float)
@@ -615,10 +653,17 @@ class Plant:
         return -d.qfrc_bias[self.iv]
 
     def _mesh_rest(self, qm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The mesh's rest function r(q) = ts sin q + tc cos q + g q, and its slope."""
+        """The mesh's rest function r(q) = ts sin q + tc cos q + g q (+ the cyclic errors),
+        and its slope."""
         e = self.effects
         s, c = np.sin(qm), np.cos(qm)
-        return e.ts * s + e.tc * c + e.g * qm, e.ts * c - e.tc * s + e.g
+        r, slope = e.ts * s + e.tc * c + e.g * qm, e.ts * c - e.tc * s + e.g
+        if e.cyclic:
+            j, k, a_s, a_c = self._cyclic
+            ks, kc = np.sin(k * qm[j]), np.cos(k * qm[j])
+            r = r + np.bincount(j, a_s * ks + a_c * kc, minlength=6)
+            slope = slope + np.bincount(j, k * (a_s * kc - a_c * ks), minlength=6)
+        return r, slope
 
     def _set_mesh(self, qm: np.ndarray) -> None:
         """Linearise the mesh's rest position at the motor angles ``qm`` (once a control step)."""
@@ -690,7 +735,14 @@ class Plant:
         np.maximum(v, -self._v_max, out=v)
         self._ctrl_pos[:] = v
         self._ctrl_vel[:] = v
-        if self._transmission:
+        # cyclic errors of high order: where k times the motion of this step is not small, the
+        # rest function is relinearised within the step, at most every physics step (below)
+        pieces = 1
+        if self._per_physics_step:
+            speed = np.maximum(np.abs(v), np.abs(d.qvel[self.iv]))
+            phase = float(np.max(self._cyclic_kmax * speed)) * self.dt
+            pieces = min(self.substeps, max(1, math.ceil(phase / CYCLIC_LINEAR_PHASE)))
+        if self._transmission and pieces == 1:
             self._set_mesh(d.qpos[self.iq])
         if self._schedule and self._next_payload < len(self._schedule):
             t_next, mass = self._schedule[self._next_payload]
@@ -702,7 +754,13 @@ class Plant:
             np.sign(v, out=self.dirs)
         else:
             np.copyto(self.dirs, np.sign(v), where=v != 0.0)
-        mujoco.mj_step(m, d, nstep=self.substeps)
+        if pieces > 1:
+            for k in range(pieces):
+                self._set_mesh(d.qpos[self.iq])
+                n = (k + 1) * self.substeps // pieces - k * self.substeps // pieces
+                mujoco.mj_step(m, d, nstep=n)
+        else:
+            mujoco.mj_step(m, d, nstep=self.substeps)
         if self._thermal:
             self._heat()
         # positions (site_xpos) of the state just reached, not of the last substep's start

@@ -13,6 +13,15 @@ where the effect's sign is not physical). ``{"geometric": {"scale": 0}}`` gives 
 geometry. Every draw is made whether or not it is overridden, so an override never shifts the other
 draws of the same seed.
 
+The ``cyclic`` scenario hides cyclic joint errors of higher orders like those of real arms (the
+``cyclic`` effect: gears and encoders that turn faster than the joint, seen at its output):
+:data:`CYCLIC_JOINTS` joints drawn at random, each with :data:`CYCLIC_ORDERS` distinct orders
+drawn from 2-40 per turn, each of amplitude 0.05-0.3 mrad with a random phase. Overrides:
+``amplitude`` (a number or a range, rad), ``order`` (a ``(low, high)`` range of orders) or
+``terms``, the whole set ``((joint, order, a_s, a_c), ...)`` (rad: ``a_s sin(k q) + a_c cos(k
+q)``). These draws are made in that scenario only and after every other draw, so no other
+scenario's arm changes.
+
 The ``payload`` scenario also draws how the operator *declares* the change to the controller (the
 observation's payload): the start's payload is declared right, the change ``declare_delay``
 seconds late (0.5-3 s) and off by ``declare_error`` kg (0-0.5 kg, either sign; the declared mass
@@ -31,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from arm.description import RobotDescription
-from arm.effects import Backlash, Compliance, JointScale, Thermal, Transmission
+from arm.effects import Backlash, Compliance, Cyclic, JointScale, Thermal, Transmission
 from arm.errormodel import ErrorModel
 from arm.errors import SixAxisError
 from arm.kinematics import gravity_torques
@@ -39,6 +48,8 @@ from arm.sampling import sample_parameters, sample_poses
 from envs.plant import AMBIENT, HiddenEffects
 
 __all__ = [
+    "CYCLIC_JOINTS",
+    "CYCLIC_ORDERS",
     "EFFECTS",
     "RANGES",
     "SCENARIOS",
@@ -48,7 +59,11 @@ __all__ = [
     "draw_truth",
 ]
 
-EFFECTS = ("geometric", "compliance", "transmission", "backlash", "thermal", "payload")
+EFFECTS = ("geometric", "compliance", "transmission", "backlash", "thermal", "payload", "cyclic")
+# the scenario "all": every effect the scenarios had before cyclic errors came (its arms stay)
+_ALL = ("geometric", "compliance", "transmission", "backlash", "thermal", "payload")
+CYCLIC_JOINTS = 3  # joints with cyclic errors in the cyclic scenario
+CYCLIC_ORDERS = 2  # orders per such joint
 
 
 class ScenarioError(SixAxisError, ValueError):
@@ -71,7 +86,9 @@ class Scenario:
     @property
     def elastic(self) -> bool:
         """Whether the plant needs the two-hinge (elastic) drive train."""
-        return bool({"compliance", "transmission", "backlash", "payload"} & set(self.effects))
+        return bool(
+            {"compliance", "transmission", "backlash", "payload", "cyclic"} & set(self.effects)
+        )
 
 
 SCENARIOS: dict[str, Scenario] = {
@@ -104,7 +121,13 @@ SCENARIOS: dict[str, Scenario] = {
             ("geometric", "compliance", "payload"),
             "elastic joints with a payload that changes during the episode",
         ),
-        Scenario("all", EFFECTS, "every effect at once"),
+        Scenario("all", _ALL, "every effect at once (but the cyclic errors)"),
+        Scenario(
+            "cyclic",
+            ("geometric", "cyclic"),
+            "cyclic joint errors of higher orders (2-40 per turn) on three joints, like real "
+            "arms' gears and encoders (stiff mesh)",
+        ),
     )
 }
 
@@ -140,6 +163,10 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
         "declare_delay": (0.5, 3.0),  # s after the change
         "declare_error": (0.0, 0.5),  # kg, either sign
     },
+    "cyclic": {
+        "amplitude": Cyclic.typical["cs"],  # rad, of each order (random phase)
+        "order": (2.0, 40.0),  # per turn, whole numbers
+    },
 }
 # Link-side bearing friction (N*m) of the seed arm's class, joints 1..6: holds a link in its gap
 # where gravity does not (an override of "bf"/"bf3" gives N*m directly).
@@ -156,7 +183,8 @@ class EpisodeTruth:
     beta, base, tool) and the other effects' values in ``effects``; ``model``/``params``: an
     :class:`~arm.errormodel.ErrorModel` on the *nominal* arm whose effects approximate the
     plant's (geometric plus compliance ``c_i = 1/k_i``, transmission and joint_scale, backlash
-    where friction holds a link and load_backlash where gravity does, thermal) and its true
+    where friction holds a link and load_backlash where gravity does, thermal, the cyclic errors
+    with their joints and orders, ``cyclic[2:7,31;...]``) and its true
     parameter vector laid out by ``model.layout``; ``hidden``: the plant's physical magnitudes;
     ``magnitudes``: the same as plain values by name (stiffness, gap, kappa, payload schedule...);
     ``declared_payload``: what the operator declares to the controller, ``((time, kg), ...)`` from
@@ -165,7 +193,7 @@ class EpisodeTruth:
     it to its plant (:meth:`bind`), for oracle controllers.
 
     The model is exact (to about a micrometre) for a settled arm in the geometric, compliance,
-    transmission, thermal and payload scenarios. It is an approximation where physics does more
+    transmission, cyclic, thermal and payload scenarios. It is an approximation where physics does more
     than the lab's formulas: a joint whose gravity torque is close to its bearing friction sits
     anywhere in its gap; bearing friction holds an elastic link off its spring equilibrium by up to
     friction/stiffness (about 25 um at the tool in ``all``); a heavy link stopped abruptly runs
@@ -237,6 +265,14 @@ def _check_overrides(
                 raise ScenarioError(
                     f"unknown {effect} parameter {name!r}; known: {', '.join(_names(effect))}"
                 )
+            if effect == "cyclic" and name == "terms":
+                _cyclic_terms(v)  # raises with the reason
+                continue
+            if effect == "cyclic" and name == "order" and not _order_range(v):
+                raise ScenarioError(
+                    "overrides['cyclic']['order'] must be a (low, high) pair of whole numbers "
+                    f">= 1, got {v!r}"
+                )
             pair_ok = effect != "geometric"  # a DH error is set, not drawn from a range
             if not _override_value_ok(v, pair_ok):
                 want = "a finite number or a (low, high) pair" if pair_ok else "a finite number"
@@ -255,7 +291,66 @@ def _override_value_ok(v: Any, pair_ok: bool) -> bool:
     return pair_ok and pair and all(map(number, v))
 
 
+def _order_range(v: Any) -> bool:
+    ok = isinstance(v, (list, tuple)) and len(v) == 2
+    return (
+        ok
+        and all(
+            isinstance(x, numbers.Real) and not isinstance(x, bool) and x == int(x) and x >= 1
+            for x in v
+        )
+        and v[0] <= v[1]
+    )
+
+
+def _cyclic_terms(v: Any) -> tuple[tuple[int, int, float, float], ...]:
+    """The ``terms`` override, checked: ((joint 1..6, order >= 1, a_s, a_c), ...), each joint and
+    order once."""
+    want = "a sequence of (joint 1..6, order >= 1, a_s, a_c) in rad"
+    if not isinstance(v, (list, tuple)) or not v:
+        raise ScenarioError(f"overrides['cyclic']['terms'] must be {want}, got {v!r}")
+    out = []
+    for t in v:
+        ok = isinstance(t, (list, tuple)) and len(t) == 4
+        ok = ok and all(
+            isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x) for x in t
+        )
+        ok = ok and t[0] == int(t[0]) and 1 <= t[0] <= 6 and t[1] == int(t[1]) and t[1] >= 1
+        if not ok:
+            raise ScenarioError(f"overrides['cyclic']['terms']: {t!r} is not {want}")
+        out.append((int(t[0]), int(t[1]), float(t[2]), float(t[3])))
+    pairs = [(j, k) for j, k, _, _ in out]
+    if len(set(pairs)) != len(pairs):
+        raise ScenarioError("overrides['cyclic']['terms'] names a joint and order twice")
+    return tuple(sorted(out))
+
+
+def _draw_cyclic(
+    rng: np.random.Generator, over: Mapping[str, Any]
+) -> tuple[tuple[int, int, float, float], ...]:
+    """The cyclic scenario's errors: CYCLIC_JOINTS joints, CYCLIC_ORDERS distinct orders each,
+    amplitudes from the range (or the override) with a random phase; drawn even when the
+    ``terms`` override replaces them, to keep the stream."""
+    lo, hi = (int(x) for x in over.get("order", RANGES["cyclic"]["order"]))
+    if hi - lo + 1 < CYCLIC_ORDERS:
+        raise ScenarioError(
+            f"the cyclic scenario needs at least {CYCLIC_ORDERS} orders to draw from, got {lo}-{hi}"
+        )
+    joints = np.sort(rng.choice(np.arange(1, 7), CYCLIC_JOINTS, replace=False))
+    drawn = []
+    for j in joints:
+        for k in np.sort(rng.choice(np.arange(lo, hi + 1), CYCLIC_ORDERS, replace=False)):
+            amp = _draw(rng, "cyclic", "amplitude", over)
+            phase = rng.uniform(0.0, 2.0 * math.pi)
+            drawn.append((int(j), int(k), amp * math.cos(phase), amp * math.sin(phase)))
+    if "terms" in over:
+        return _cyclic_terms(over["terms"])
+    return tuple(drawn)
+
+
 def _names(effect: str) -> list[str]:
+    if effect == "cyclic":
+        return [*RANGES[effect], "terms"]
     if effect == "geometric":
         return ["scale", "dalpha1..6", "da1..6", "dtheta1..6", "dd1..6", "beta*", "bx..brz", "tx.."]
     fams = RANGES[effect]
@@ -266,6 +361,8 @@ def _names(effect: str) -> list[str]:
 
 
 def _known(effect: str, name: str, geometric: set[str]) -> bool:
+    if effect == "cyclic":
+        return name in _names(effect)
     if effect == "geometric":
         return name == "scale" or name in geometric
     fams = RANGES[effect]
@@ -359,6 +456,8 @@ def draw_truth(
     declare_error = _draw(rng, "payload", "declare_error", po)
     if declare_delay < 0:
         raise ScenarioError(f"payload declare_delay must be >= 0 s, got {declare_delay}")
+    # last, and in this scenario only: no other scenario's draws move
+    cyclic = _draw_cyclic(rng, overrides.get("cyclic", {})) if "cyclic" in on else ()
 
     compliant = "compliance" in on
     if compliant and np.any(c <= 0):
@@ -378,6 +477,7 @@ def draw_truth(
         cooling_time=cooling,
         payload0=payload0 if "payload" in on else 0.0,
         payload_schedule=((change, payload1),) if "payload" in on else (),
+        cyclic=cyclic,
     )
 
     # the error model that approximates the plant
@@ -397,6 +497,11 @@ def draw_truth(
             effects.append(f"load_backlash[{','.join(map(str, ld))}]")
     if "thermal" in on:
         effects.append("thermal")
+    if cyclic:
+        orders: dict[int, list[int]] = {}
+        for j, k, _, _ in cyclic:
+            orders.setdefault(j, []).append(k)
+        effects.append(Cyclic(orders).label)
     model = ErrorModel(nominal, effects)
     values = dict(geo.layout.as_dict(p_geo))
     values |= {f"c{k}": float(c[k - 1]) for k in range(1, 7)}
@@ -406,6 +511,8 @@ def draw_truth(
     values |= {f"bl{k}": float(gap[k - 1]) for k in range(1, 7)}
     values |= {f"lb{k}": float(gap[k - 1]) for k in range(1, 7)}
     values["kappa"] = kappa
+    values |= {f"cs{j}_{k}": a_s for j, k, a_s, _ in cyclic}
+    values |= {f"cc{j}_{k}": a_c for j, k, _, a_c in cyclic}
     params = np.array([values[n] for n in model.layout.names], dtype=float)
     true_robot = model.description(params, name=f"{nominal.name}-true")
     true_robot = replace(true_robot, payload=hidden.payload0)
@@ -424,6 +531,8 @@ def draw_truth(
             "heating": heating,
             "cooling_time": cooling,
         }
+    if cyclic:
+        mags["cyclic"] = cyclic
     declared: tuple[tuple[float, float], ...] = ((0.0, hidden.payload0),)
     if "payload" in on:
         declared += ((change + declare_delay, max(0.0, payload1 + declare_error)),)

@@ -874,7 +874,7 @@ def collect_cmd(
         str,
         typer.Option(
             help="The simulated arm's hidden effects: nominal, geometric, compliance, "
-            "transmission, backlash, thermal, payload, all."
+            "transmission, backlash, thermal, payload, all, cyclic."
         ),
     ] = "compliance",
     n: Annotated[int, typer.Option("--n", "-n", help="Random poses to measure.")] = 200,

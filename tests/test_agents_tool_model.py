@@ -19,7 +19,10 @@ from arm import ErrorModel, seed_robot
 from arm.effects import ChainEffect, JointAngleEffect
 from arm.sampling import sample_parameters, sample_poses
 
-ALL = "geometric,compliance,transmission,joint_scale,backlash,load_backlash[2,3,4,5],thermal"
+ALL = (
+    "geometric,compliance,transmission,cyclic[2:17,29;6:40],joint_scale,backlash,"
+    "load_backlash[2,3,4,5],thermal"
+)
 
 
 def _columns(n, rng):

@@ -55,7 +55,13 @@ def test_collect_is_deterministic_and_noise_is_as_asked():
 
 @pytest.mark.parametrize(
     "scenario, tol_um",
-    [("compliance", 3.0), ("transmission", 3.0), ("thermal", 1e-3), ("payload", 3.0)],
+    [
+        ("compliance", 3.0),
+        ("transmission", 3.0),
+        ("thermal", 1e-3),
+        ("payload", 3.0),
+        ("cyclic", 3.0),
+    ],
 )
 def test_truth_model_explains_what_the_plant_made(scenario, tol_um):
     """The lab's formulas (ErrorModel with the truth's parameters) reproduce the points that the
