@@ -182,7 +182,8 @@ class SixAxisTrackEnv(gym.Env):
     | `backlash`     | + gaps of 3e-4..6e-4 rad: loaded side under gravity, lagging under friction    |
     | `thermal`      | + link growth, kappa 1.2e-5..2.3e-5 /K, start 20-35 degC, heating with motion  |
     | `payload`      | + elastic joints and a payload of 0-2 kg that changes to 0-3 kg at 3-7 s       |
-    | `all`          | everything at once                                                            |
+    | `all`          | everything at once (but the cyclic errors)                                    |
+    | `cyclic`       | + cyclic joint errors, 2 orders of 2-40 per turn on 3 joints, 0.05-0.3 mrad    |
 
     ## Hidden truth
     ``env.unwrapped.task`` (:class:`~envs.task.TaskInfo`) is what an agent may use; it does not
@@ -207,7 +208,7 @@ class SixAxisTrackEnv(gym.Env):
     ## Arguments
     | Parameter       | Type        | Default       | Description                                                  |
     |-----------------|-------------|---------------|--------------------------------------------------------------|
-    | `scenario`      | str         | `"geometric"` | nominal, geometric, compliance, transmission, backlash, thermal, payload, all |
+    | `scenario`      | str         | `"geometric"` | nominal, geometric, compliance, transmission, backlash, thermal, payload, all, cyclic |
     | `overrides`     | dict        | `None`        | `{effect: {param: value or (lo, hi)}}`, see `envs.scenarios`  |
     | `trajectory`    | str or None | `None`        | circle, lemniscate, lines, spline; None draws one per reset  |
     | `posture`       | 6 floats/None or None | `None` | joint angles (rad; None: drawn) around which the path is drawn: its region of the workspace |
