@@ -296,7 +296,11 @@ def _order_range(v: Any) -> bool:
     return (
         ok
         and all(
-            isinstance(x, numbers.Real) and not isinstance(x, bool) and x == int(x) and x >= 1
+            isinstance(x, numbers.Real)
+            and not isinstance(x, bool)
+            and math.isfinite(float(x))
+            and float(x) == round(float(x))
+            and float(x) >= 1
             for x in v
         )
         and v[0] <= v[1]
