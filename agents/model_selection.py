@@ -56,7 +56,7 @@ from agents.online_calibration import (
     prior_scales,
 )
 from agents.tool_model import ToolModel, cached_tool_model
-from arm.effects import candidate_effects, make_effect
+from arm.effects import EFFECTS, candidate_effects, make_effect
 from arm.errormodel import ErrorModel
 
 __all__ = ["DRIFT", "SequentialSelection", "ShadowEstimator", "candidate_families"]
@@ -147,6 +147,8 @@ def candidate_families(
     cols = set(columns)
     out = []
     for spec in candidate_effects() if candidates is None else candidates:
+        if isinstance(spec, str) and spec.strip() in EFFECTS and EFFECTS[spec.strip()].scan_only:
+            continue  # needs its joints and orders: not a family tested whole
         e = make_effect(spec)
         if e.name == "geometric" or e.name in have or e.name in out:
             continue

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from arm.effects import Effect, candidate_effects, make_effect, missing_inputs
+from arm.effects import EFFECTS, Effect, candidate_effects, make_effect, missing_inputs
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from lab.identifiability import gram_factor, lower_inverse
@@ -284,6 +284,8 @@ def candidate_model(
     for e in model.effects:  # a per-joint effect fitted on some joints: the others are candidates
         effects.append(type(e)() if e.per_joint and e.joints is not None else e)
     for spec in candidate_effects() if candidates is None else list(candidates):
+        if isinstance(spec, str) and spec.strip() in EFFECTS and EFFECTS[spec.strip()].scan_only:
+            continue  # its terms are scanned (lab.spectral), not tested whole
         e = make_effect(spec)
         if e.name in have:
             continue
