@@ -1,0 +1,226 @@
+"""Declared constraints on options and settings, checked all at once.
+
+An options class says what each value may be beside its name, instead of a hand-written ``if`` per
+value (scikit-learn's ``_param_validation`` is the model): a ``Literal`` type is a choice of
+modes, ``bool`` is true or false, ``| None`` lets None through, and :func:`declare` adds a range.
+:func:`problems` lists every value that breaks its constraint, so that one error names them all:
+
+    @dataclass(frozen=True)
+    class Options:
+        noise_mm: float | None = declare(None, Interval(float, 0, None, closed="neither"))
+        loss: Literal["linear", "huber"] = "linear"
+
+        def __post_init__(self) -> None:
+            refuse(problems(self), ValueError)
+
+    Options(noise_mm=-1, loss="l2")
+    # ValueError: noise_mm must be positive, got -1; loss must be one of linear, huber, got 'l2'
+
+The same constraints feed the command line's choices and ranges (:func:`choices`,
+:func:`Interval.bounds`) and the checks of a mapping (a TOML table, an agent's settings) with
+:func:`check`. Plain data and the standard library only: every layer can use it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+import types
+import typing
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Literal, Protocol
+
+__all__ = [
+    "Constraint",
+    "Interval",
+    "OneOf",
+    "TypeOf",
+    "check",
+    "choices",
+    "constraints_of",
+    "declare",
+    "problems",
+    "refuse",
+]
+
+
+class Constraint(Protocol):
+    """What a value must be: ``holds(value)``, and ``predicate`` for the message
+    (``"be positive"``: "noise_mm must be positive, got -1")."""
+
+    @property
+    def predicate(self) -> str: ...
+
+    def holds(self, value: Any) -> bool: ...
+
+
+def _number(v: Any, kind: type) -> bool:
+    if isinstance(v, bool) or not isinstance(v, numbers.Real):
+        return False
+    return kind is float or isinstance(v, numbers.Integral)
+
+
+@dataclass(frozen=True)
+class Interval:
+    """A finite number (``kind`` float: any real; int: an integer) between ``low`` and ``high``
+    (None: unbounded), ``closed`` on the sides named."""
+
+    kind: type
+    low: float | None = None
+    high: float | None = None
+    closed: Literal["both", "left", "right", "neither"] = "both"
+
+    def holds(self, value: Any) -> bool:
+        if not _number(value, self.kind) or not math.isfinite(value):
+            return False
+        lo_in = self.closed in ("both", "left")
+        hi_in = self.closed in ("both", "right")
+        if self.low is not None and (value < self.low or (value == self.low and not lo_in)):
+            return False
+        return not (
+            self.high is not None and (value > self.high or (value == self.high and not hi_in))
+        )
+
+    @property
+    def predicate(self) -> str:
+        lo_in, hi_in = self.closed in ("both", "left"), self.closed in ("both", "right")
+        noun = "an integer" if self.kind is int else "a number"
+        if self.low is not None and self.high is not None:
+            return (
+                f"lie in {'[' if lo_in else '('}{self.low:g}, {self.high:g}{']' if hi_in else ')'}"
+            )
+        if self.low == 0 and self.kind is float:
+            return "be non-negative" if lo_in else "be positive"
+        if self.low is not None:
+            return f"be {noun} {'>=' if lo_in else '>'} {self.low:g}"
+        if self.high is not None:
+            return f"be {noun} {'<=' if hi_in else '<'} {self.high:g}"
+        return f"be {'a finite number' if self.kind is float else noun}"
+
+    def bounds(self) -> tuple[float | None, float | None]:
+        """(min, max) for a command line's range (closed ends only; open ends are checked)."""
+        lo = self.low if self.closed in ("both", "left") else None
+        hi = self.high if self.closed in ("both", "right") else None
+        return lo, hi
+
+
+@dataclass(frozen=True)
+class OneOf:
+    """One of a few values (a ``Literal`` type's modes)."""
+
+    values: tuple[Any, ...]
+
+    def holds(self, value: Any) -> bool:
+        return any(type(value) is type(v) and value == v for v in self.values)
+
+    @property
+    def predicate(self) -> str:
+        return f"be one of {', '.join(map(str, self.values))}"
+
+
+@dataclass(frozen=True)
+class TypeOf:
+    """An instance of ``kind`` (``bool``: exactly True or False)."""
+
+    kind: type
+
+    def holds(self, value: Any) -> bool:
+        return isinstance(value, self.kind)
+
+    @property
+    def predicate(self) -> str:
+        if self.kind is bool:
+            return "be true or false"
+        return f"be a {self.kind.__name__}"
+
+
+def declare(default: Any, *constraints: Constraint) -> Any:
+    """A dataclass field with ``default`` and the constraints beyond its type."""
+    return dataclasses.field(default=default, metadata={"constraints": constraints})
+
+
+def _from_hint(hint: Any) -> tuple[list[Constraint], bool]:
+    """The constraints a type annotation states, and whether it lets None through."""
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(hint)
+        out: list[Constraint] = []
+        for a in args:
+            if a is not type(None):
+                out += _from_hint(a)[0]
+        return out, type(None) in args
+    if origin is Literal:
+        return [OneOf(typing.get_args(hint))], False
+    if hint is bool:
+        return [TypeOf(bool)], False
+    if hint in (int, float):
+        return [Interval(hint)], False
+    if hint is str:
+        return [TypeOf(str)], False
+    return [], False
+
+
+_CACHE: dict[type, dict[str, tuple[list[Constraint], bool]]] = {}
+
+
+def constraints_of(cls: type) -> dict[str, tuple[list[Constraint], bool]]:
+    """Per field of the dataclass ``cls``: its constraints (declared ones replace the bare type's)
+    and whether None is allowed."""
+    if cls not in _CACHE:
+        _CACHE[cls] = _constraints_of(cls)
+    return _CACHE[cls]
+
+
+def _constraints_of(cls: type) -> dict[str, tuple[list[Constraint], bool]]:
+    hints = typing.get_type_hints(cls)
+    out: dict[str, tuple[list[Constraint], bool]] = {}
+    for f in dataclasses.fields(cls):
+        typed, none_ok = _from_hint(hints.get(f.name))
+        declared = list(f.metadata.get("constraints", ()))
+        out[f.name] = (declared or typed, none_ok)
+    return out
+
+
+def choices(cls: type, name: str) -> tuple[Any, ...]:
+    """The modes of the ``Literal`` field ``name`` of ``cls`` (for a command line's choices)."""
+    for c in constraints_of(cls)[name][0]:
+        if isinstance(c, OneOf):
+            return c.values
+    raise KeyError(f"{cls.__name__}.{name} is not a choice of modes")
+
+
+def check(
+    values: Mapping[str, Any],
+    constraints: Mapping[str, tuple[Sequence[Constraint], bool]],
+    where: str = "",
+    name: Callable[[str], str] = str,
+) -> list[str]:
+    """Every value of ``values`` that breaks its constraints, as ``"<where><name(key)> must ...,
+    got ..."`` (``name``: how a key is called, e.g. as a command-line flag); keys without
+    constraints are not judged here."""
+    out = []
+    for key, value in values.items():
+        if key not in constraints:
+            continue
+        cons, none_ok = constraints[key]
+        if value is None and none_ok:
+            continue
+        for c in cons:
+            if not c.holds(value):
+                out.append(f"{where}{name(key)} must {c.predicate}, got {value!r}")
+                break
+    return out
+
+
+def problems(obj: Any, where: str = "") -> list[str]:
+    """Every field of the dataclass instance ``obj`` that breaks its constraints."""
+    values = {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
+    return check(values, constraints_of(type(obj)), where)
+
+
+def refuse(found: Sequence[str], error: type[Exception], prefix: str = "") -> None:
+    """Raise ``error`` naming every problem found at once (nothing when there is none)."""
+    if found:
+        raise error(prefix + "; ".join(found))
