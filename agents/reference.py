@@ -248,14 +248,15 @@ def fit_measurements(
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
     columns = {k: np.asarray(v, dtype=float) for k, v in (columns or {}).items()}
     try:
-        from lab import fit
+        from lab import LabOptions, fit
     except ImportError:
         return _fit_scipy(model, q, xyz, columns, p0, loss, noise)
     from arm.measurements import MeasurementSet
 
     data = MeasurementSet(q, xyz, columns, source="calibration phase")
     start = None if p0 is None else model.layout.as_dict(p0)
-    res = fit(data, model.robot, model.effects, loss=loss, noise_mm=noise * 1e3, start=start)
+    options = LabOptions(loss=loss, noise_mm=noise * 1e3)  # type: ignore[arg-type]  # checked
+    res = fit(data, model.robot, model.effects, options=options, start=start)
     p = model.nominal() if p0 is None else np.array(p0, dtype=float)
     fitted = [n for n, ok in zip(res.names, res.identifiable, strict=True) if ok]
     values = res.parameters()

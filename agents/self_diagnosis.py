@@ -85,7 +85,7 @@ import time
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import stats
@@ -97,6 +97,9 @@ from arm.effects import make_effect
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from envs.task import TaskInfo, Truth
+
+if TYPE_CHECKING:
+    from lab.options import LabOptions
 
 __all__ = ["DiagnosingMPCAgent", "DiagnosisRecord"]
 
@@ -419,10 +422,9 @@ class DiagnosingMPCAgent(MPCAgent):
             data,
             model.robot,
             list(model.effect_names),
-            noise_mm=float(self.task.noise_mm),
+            options=self._lab_options(),
             alpha=self.alpha,
             candidates=self.candidates,
-            accept_large=True,
         )
         rec.verdict, rec.suggestion, rec.chi2_p_value = d.verdict, d.suggestion, d.chi2_p_value
         if not d.explanation:
@@ -462,6 +464,13 @@ class DiagnosingMPCAgent(MPCAgent):
         if self.relearn:
             job.estimator = self._relearned(job.widening.model, held)
         job.replayed = total
+
+    def _lab_options(self) -> LabOptions:
+        """The lab's options for this agent's fits and diagnoses: the task's tracker noise, and
+        large values accepted (an arm far off its nominal is for the lab to describe here)."""
+        from lab import LabOptions
+
+        return LabOptions(noise_mm=float(self.task.noise_mm), accept_large=True)
 
     def _pruned(
         self,
@@ -506,14 +515,7 @@ class DiagnosingMPCAgent(MPCAgent):
 
         spec = merge_effects(model, added)
         try:
-            res = fit(
-                train,
-                model.robot,
-                spec,
-                noise_mm=float(self.task.noise_mm),
-                validate=test,
-                accept_large=True,
-            )
+            res = fit(train, model.robot, spec, options=self._lab_options(), validate=test)
         except FitError as exc:
             log.debug("mpc-diagnose: held-out fit of %s refused: %s", ",".join(spec), exc)
             return math.inf

@@ -42,7 +42,7 @@ from scipy import stats
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from arm import seed_robot
 from benchmarks._report import machine, write_section
-from lab import fit
+from lab import screen
 from lab.discovery import discover, library_problem
 from tests import _hidden_forms as hidden
 
@@ -50,8 +50,8 @@ ALPHA = 0.02
 NOISE_MM = 1e3 * hidden.SIGMA
 
 
-def _lab(c, robot, res) -> set[str]:
-    d = discover(c.data, robot, "geometric", noise_mm=NOISE_MM, alpha=ALPHA, base=res)
+def _lab(rows) -> set[str]:
+    d = discover(rows, alpha=ALPHA)
     return {t.expression for t in d.terms}
 
 
@@ -151,7 +151,8 @@ def main() -> None:
     t_start = time.perf_counter()
     for form, s in cases:
         c = hidden.campaign(robot, form, seed=s, n_validation=1)
-        res = fit(c.data, robot, "geometric", noise_mm=NOISE_MM)
+        rows = screen(c.data, robot, "geometric", noise_mm=NOISE_MM, tests=False)
+        res = rows.fit
         prob = library_problem(c.data, res)
         X, y = prob.columns, prob.residual
         Xs = X / np.linalg.norm(X, axis=0)
@@ -159,7 +160,7 @@ def main() -> None:
         groups.append(len(prob.groups))
         truth = set() if form is None else set(hidden.FORMS[form].expressions)
         t = time.perf_counter()
-        found = _lab(c, robot, res)
+        found = _lab(rows)
         times[lab_name].append(time.perf_counter() - t)
         hits[lab_name].setdefault(form, []).append(found == truth)
         for name, fn in peers.items():

@@ -7,12 +7,14 @@ mounted here; library code logs with :mod:`logging`, the CLI prints with rich.
 from __future__ import annotations
 
 import logging
+import warnings
 
 import typer
 from rich.console import Console
 from rich.logging import RichHandler
 
 from experiments import cli_agents, cli_demo, cli_lab, cli_sweep
+from lab.errors import LabWarning
 
 app = typer.Typer(
     name="sixaxis",
@@ -31,6 +33,9 @@ cli_demo.register(app)
 def _main(
     verbose: bool = typer.Option(False, "--verbose", "-v", help="Log library messages."),
 ) -> None:
+    # the lab's cautions are warnings besides their log record: the log (on stderr) says them
+    # once here
+    warnings.simplefilter("ignore", LabWarning)
     logging.basicConfig(
         level=logging.INFO if verbose else logging.WARNING,
         format="%(message)s",

@@ -53,7 +53,7 @@ def lab_story(
 
     from arm.description import seed_robot
     from envs.scenarios import draw_truth
-    from lab import diagnose, fit
+    from lab import diagnose, fit, screen
 
     # one arm, measured twice: the calibration campaign and a held-out one
     truth = draw_truth(scenario, seed_robot(), np.random.default_rng(seed))
@@ -71,8 +71,9 @@ def lab_story(
         console.print(f"data written to {out}/calibration.csv and {out}/validation.csv")
 
     floor = NOISE_MM * math.sqrt(3.0)
-    geo = fit(train, "seed", "geometric", validate=held_out, noise_mm=NOISE_MM)
-    d = diagnose(train, noise_mm=NOISE_MM, base=geo)  # tests what this fit misses, no refit
+    rows = screen(train, "seed", "geometric", noise_mm=NOISE_MM)  # which rows count, once
+    geo = fit(rows, validate=held_out)
+    d = diagnose(rows)  # tests what this fit misses, no refit
     suggestion = d.suggestion or "geometric"
     full = fit(train, "seed", suggestion, validate=held_out)
 

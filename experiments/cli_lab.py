@@ -188,23 +188,20 @@ def _check_units(length_unit: str, angle_unit: str) -> None:
         fail(f"--angle-unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
 
 
-def _check_noise(noise_mm: float | None) -> None:
-    if noise_mm is not None and not (math.isfinite(noise_mm) and noise_mm > 0):
-        fail(f"--noise-mm must be a positive number of millimetres, got {noise_mm}")
+def _flag(key: str) -> str:
+    return "--" + key.replace("_", "-")
 
 
-def _check_outliers(outliers: str) -> None:
-    from lab.screening import OUTLIER_MODES
+def _lab_options(**given: Any):
+    """The lab's options (:class:`lab.LabOptions`) from the command's flags; a bad value is
+    refused naming its flag, every bad one at once (the checks are the options' own)."""
+    from arm.constraints import check, constraints_of
+    from lab.options import LabOptions
 
-    if outliers not in OUTLIER_MODES:
-        fail(f"--outliers must be one of {', '.join(OUTLIER_MODES)}, got {outliers!r}")
-
-
-def _check_loss(loss: str) -> None:
-    from lab.identification import LOSSES
-
-    if loss not in LOSSES:
-        fail(f"--loss must be one of {', '.join(LOSSES)}, got {loss!r}")
+    bad = check(given, constraints_of(LabOptions), name=_flag)
+    if bad:
+        fail("; ".join(bad))
+    return LabOptions(**given)
 
 
 def _load_modules(modules: Sequence[Path] | None) -> list[str]:
@@ -264,27 +261,22 @@ def _prepare(
     effects: str,
     modules: Sequence[Path] | None,
     validate: Path | None,
-    loss: str,
     length_unit: str,
     angle_unit: str,
-    noise_mm: float | None,
     outputs: Sequence[tuple[Path | None, str]] = (),
-    outliers: str | None = None,
+    **options: Any,
 ):
-    """Check the options (cheap ones first) and the output places, register effect modules, read
-    the robot and data."""
-    if outliers is not None:
-        _check_outliers(outliers)
+    """Check the options (cheap ones first: the lab's ``options``, :class:`lab.LabOptions`) and
+    the output places, register effect modules, read the robot and data."""
+    opts = _lab_options(**options)
     _check_units(length_unit, angle_unit)
-    _check_loss(loss)
-    _check_noise(noise_mm)
     _check_outputs(outputs, [data, validate, robot, *(modules or ())])
     _load_modules(modules)
     _parse_effects(effects)
     arm = _robot(robot)
     meas = _read(data, length_unit, angle_unit)
     val = None if validate is None else _read(validate, length_unit, angle_unit)
-    return arm, meas, val
+    return arm, meas, val, opts
 
 
 def _json_safe(obj: Any) -> Any:
@@ -324,6 +316,14 @@ def _emit_json(obj: dict, as_json: bool, out: Path | None) -> None:
 
 
 # -- fit --------------------------------------------------------------------------------------------
+def _fitted(meas, arm, effects: str, opts, val):
+    """The lab's fit of the command's data (``lab fit``, ``lab export``)."""
+    from lab import fit
+
+    with user_errors():
+        return fit(meas, arm, effects, options=opts, validate=val)
+
+
 def _print_fit(result) -> None:
     console.print(fit_table(result))
     console.print(escape(result.summary()), highlight=False, soft_wrap=True)
@@ -350,32 +350,21 @@ def fit_cmd(
     Prints the identified parameters with standard errors, the RMS before and after, and which
     parameters the poses cannot identify; --json prints the JSON object of docs/format.md, the
     lab's JSON output (SI units)."""
-    from lab import fit
-
-    arm, meas, val = _prepare(
+    arm, meas, val, opts = _prepare(
         data,
         robot,
         effects,
         effect_module,
         validate,
-        loss,
         length_unit,
         angle_unit,
-        noise_mm,
         outputs=[(out, "--out")],
+        noise_mm=noise_mm,
+        loss=loss,
         outliers=outliers,
+        accept_large=accept_large,
     )
-    with user_errors():
-        result = fit(
-            meas,
-            arm,
-            effects,
-            loss=loss,
-            validate=val,
-            noise_mm=noise_mm,
-            outliers=outliers,
-            accept_large=accept_large,
-        )
+    result = _fitted(meas, arm, effects, opts, val)
     if not as_json:
         _print_fit(result)
     _emit_json(result.to_dict(), as_json, out)
@@ -415,7 +404,11 @@ def _print_diagnosis(d, data: Path) -> None:
             highlight=False,
             soft_wrap=True,
         )
-    for text in _left_out_lines(d.fit.duplicates, d.outlier_list, d.outlier_rule):
+    from lab.text import left_out_lines
+
+    for text in left_out_lines(
+        d.fit.duplicates, d.outlier_list, d.outlier_rule, of="the fit and the tests"
+    ):
         console.print(escape(text), highlight=False, soft_wrap=True)
     lack: dict[str, list[str]] = {}  # what is missing -> the candidates that need it
     for label, why in d.skipped.items():
@@ -435,28 +428,6 @@ def _print_diagnosis(d, data: Path) -> None:
         console.print(f"... and {len(d.candidates) - len(shown)} more (--json lists all)")
     if d.hints:
         console.print(hints_table(d.hints[:6]))
-
-
-def _left_out_lines(duplicates, outliers, rule: str | None, limit: int = 10) -> list[str]:
-    """What a fit or a diagnosis left out, by line, for people."""
-    out = []
-    if duplicates:
-        from lab.screening import duplicates_text
-
-        out.append(
-            f"{len(duplicates)} duplicate row(s) counted once: {duplicates_text(duplicates)}"
-        )
-    if outliers:
-        shown = ", ".join(
-            f"{o.where} ({o.residual_mm:.3g} mm{'; ' + o.note if o.note else ''})"
-            for o in outliers[:limit]
-        )
-        more = f", ... {len(outliers) - limit} more" if len(outliers) > limit else ""
-        out.append(
-            f"{len(outliers)} outlier(s) left out of the fit and the tests: {shown}{more} "
-            f"(rule: {rule}; --outliers keep fits them)"
-        )
-    return out
 
 
 def discover_command(data: Path, d) -> str:
@@ -499,33 +470,25 @@ def diagnose_cmd(
     the residual still depends on."""
     from lab import diagnose
 
-    arm, meas, _ = _prepare(
+    arm, meas, _, opts = _prepare(
         data,
         robot,
         effects,
         effect_module,
         None,
-        loss,
         length_unit,
         angle_unit,
-        noise_mm,
         outputs=[(out, "--out")],
+        noise_mm=noise_mm,
+        loss=loss,
         outliers=outliers,
+        accept_large=accept_large,
     )
     if not 0 < alpha < 1:
         fail(f"--alpha must lie in (0, 1), got {alpha}")
     with user_errors():
         with console.status("fitting and testing the candidate effects..."):
-            d = diagnose(
-                meas,
-                arm,
-                effects,
-                noise_mm=noise_mm,
-                loss=loss,
-                alpha=alpha,
-                outliers=outliers,
-                accept_large=accept_large,
-            )
+            d = diagnose(meas, arm, effects, options=opts, alpha=alpha)
     if not as_json:
         _print_diagnosis(d, data)
     _emit_json(d.to_dict(), as_json, out)
@@ -630,31 +593,23 @@ def discover_cmd(
 
     if output is not None and output.suffix != ".py" and not output.is_dir():
         fail(f"{output}: the effect module must be a .py file")
-    arm, meas, val = _prepare(
+    arm, meas, val, opts = _prepare(
         data,
         robot,
         effects,
         effect_module,
         validate,
-        "linear",
         length_unit,
         angle_unit,
-        noise_mm,
         outputs=[(output, "--output"), (out, "--out")],
+        noise_mm=noise_mm,
     )
     if not 0 < alpha < 1:
         fail(f"--alpha must lie in (0, 1), got {alpha}")
     with user_errors():
         with console.status("fitting the model and searching the library..."):
             d = discover(
-                meas,
-                arm,
-                effects,
-                noise_mm=noise_mm,
-                validate=val,
-                alpha=alpha,
-                order=order,
-                name=name,
+                meas, arm, effects, options=opts, validate=val, alpha=alpha, order=order, name=name
             )
     written = None
     if output is not None and d.terms:
@@ -692,18 +647,19 @@ def report_cmd(
     --rounds times); the report has the tables and plots of every model."""
     from lab.report import build_report
 
-    arm, meas, val = _prepare(
+    arm, meas, val, opts = _prepare(
         data,
         robot,
         effects,
         effect_module,
         validate,
-        loss,
         length_unit,
         angle_unit,
-        noise_mm,
         outputs=[(output, "--output")],
+        noise_mm=noise_mm,
+        loss=loss,
         outliers=outliers,
+        accept_large=accept_large,
     )
     if rounds < 0:
         fail(f"--rounds must be >= 0, got {rounds}")
@@ -754,20 +710,21 @@ def report_cmd(
                 meas,
                 arm,
                 effects,
-                val,
-                noise_mm,
-                loss=loss,
+                options=opts,
+                validate=val,
                 rounds=rounds,
                 command=command,
                 progress=step,
-                outliers=outliers,
-                accept_large=accept_large,
             )
         step("writing the HTML")
         with _writing(output):
             rep.write(output)
         step(None)
-    for text in _left_out_lines(rep.duplicates, rep.outliers, rep.outlier_rule):
+    from lab.text import left_out_lines
+
+    for text in left_out_lines(
+        rep.duplicates, rep.outliers, rep.outlier_rule, of="every model and every test"
+    ):
         console.print(escape(text), highlight=False, soft_wrap=True)
     for run in rep.runs:
         verdict = f", verdict {run.diagnosis.verdict}" if run.diagnosis is not None else ""
@@ -827,7 +784,7 @@ def plan_cmd(
     from lab import plan
 
     _check_units("m", angle_unit)
-    _check_noise(noise_mm)
+    _lab_options(noise_mm=noise_mm)
     crit = criterion.lower()
     if crit not in ("o1", "o4"):
         fail(f"--criterion must be O1 or O4, got {criterion!r}")
@@ -992,33 +949,23 @@ def export_cmd(
 
     The geometric errors are folded into the DH table, base and tool, other effects' values
     kept; the file works as --robot anywhere."""
-    from lab import fit
     from lab.export import export_robot
 
-    arm, meas, val = _prepare(
+    arm, meas, val, opts = _prepare(
         data,
         robot,
         effects,
         effect_module,
         validate,
-        loss,
         length_unit,
         angle_unit,
-        noise_mm,
         outputs=[(output, "--output")],
+        noise_mm=noise_mm,
+        loss=loss,
         outliers=outliers,
+        accept_large=accept_large,
     )
-    with user_errors():
-        result = fit(
-            meas,
-            arm,
-            effects,
-            loss=loss,
-            validate=val,
-            noise_mm=noise_mm,
-            outliers=outliers,
-            accept_large=accept_large,
-        )
+    result = _fitted(meas, arm, effects, opts, val)
     console.print(escape(result.summary()), highlight=False, soft_wrap=True)
     with user_errors(), _writing(output):
         cal = export_robot(result, output, name=name)

@@ -3,13 +3,13 @@ exit, numbers as text, the command lines a user copies, and the rich tables of t
 (fit, diagnosis, discovery, plan, compensation) and of the leaderboard.
 
 The command modules (``cli_lab``, ``cli_sweep``, ``cli_agents``, ``cli_demo``) parse options, call
-the library inside :func:`user_errors` and print with these; nothing here computes a result.
+the library inside :func:`user_errors` and print with these; nothing here computes a result. Numbers
+and units read as in every other place the lab shows them (:mod:`lab.text`).
 """
 
 from __future__ import annotations
 
 import contextlib
-import math
 import shlex
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, NoReturn
@@ -20,6 +20,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from arm.errors import SixAxisError
+from lab.text import mm_text, p_value_text, parameter_cells, signed_text
 
 __all__ = [
     "candidates_table",
@@ -60,27 +61,7 @@ def user_errors(*extra: type[BaseException], prefix: str = "") -> Iterator[None]
         fail(f"{prefix}{exc}")
 
 
-# -- numbers and commands as text -------------------------------------------------------------------
-def p_value_text(p: float | None) -> str:
-    """A p-value as text: below double precision's smallest normal a bound, not 0."""
-    if p is None or not math.isfinite(p):
-        return "-"
-    return f"{p:.2g}" if p >= 1e-300 else "< 1e-300"
-
-
-def mm_text(v: float | None, digits: int = 4) -> str:
-    """A length in mm with ``digits`` decimals; ``-`` for none."""
-    return "-" if v is None else f"{v:.{digits}f}"
-
-
-def signed_text(x: float, digits: int = 4) -> str:
-    """``x`` with a sign and ``digits`` significant digits, trailing zeros kept (+10.00, +3300)."""
-    if x == 0 or not math.isfinite(x):
-        return f"{x:+.{digits - 1}f}"
-    decimals = max(0, digits - 1 - math.floor(math.log10(abs(x))))
-    return f"{x:+.{decimals}f}"
-
-
+# -- commands as text ------------------------------------------------------------------------------
 def command_line(*words: object, **options: object) -> str:
     """The ``sixaxis`` command line that these words and (non-default) options spell: an option
     whose value is None, False or [] is left out, True is a bare flag, a list repeats the flag."""
@@ -114,21 +95,9 @@ def fit_table(result: Any) -> Table:
     ):
         table.add_column(c, justify=j)
     for row in result.rows():
-        unit = row["unit"]
-        if unit == "m":
-            nom, f, shown = f"{row['nominal'] * 1e3:.3f} mm", 1e3, "mm"
-        elif unit == "rad":
-            nom, f, shown = f"{math.degrees(row['nominal']):.3f} deg", 1e3, "mrad"
-        else:
-            nom, f, shown = f"{row['nominal']:.4g}", 1.0, unit
-        if row["identifiable"]:
-            err = (
-                signed_text(row["error"] * f) if shown in ("mm", "mrad") else f"{row['error']:+.4g}"
-            )
-            std = "-" if row["std"] is None else f"{row['std'] * f:.2g}"
-        else:
-            err, std = "[dim]fixed[/dim]", ""
-        table.add_row(row["name"], row["effect"], nom, err, std, shown)
+        c = parameter_cells(row)
+        error = "[dim]fixed[/dim]" if c["fitted"] == "no" else c["error"]
+        table.add_row(c["name"], c["effect"], c["nominal"], error, c["std"], c["unit"])
     return table
 
 

@@ -1,24 +1,81 @@
 """The model lab: compare the kinematic model with measurements, see where it fails, learn which
 physical effect is missing, add it, watch the error fall.
 
-    from arm import read_measurements, load_robot
-    from lab import fit, diagnose, plan
+    from arm import read_measurements
+    import lab
 
     data = read_measurements("data.csv")
-    d = diagnose(data, "seed", "geometric", noise_mm=0.015)
+    s = lab.screen(data, "seed", "geometric", noise_mm=0.015)   # which rows count, once
+    d = lab.diagnose(s)
     print(d.verdict, d.suggestion)            # e.g. compliance  geometric,compliance[2,3]
-    result = fit(data, "seed", d.suggestion, validate=read_measurements("other.csv"))
+    result = lab.fit(s, effects=d.suggestion, validate=read_measurements("other.csv"))
     print(result.table())
 
-Every result has ``to_dict()`` (the JSON of docs/format.md, the lab's JSON output) and
-``summary()``. Pure numerics: no simulator, no plotting here (see ``lab.report``).
+Every entry point (``screen``, ``fit``, ``diagnose``, ``discover``, ``lab.report.build_report``)
+takes ``data, robot, effects`` and then the options of :class:`LabOptions` as keywords, in the same
+order (or ``options=``). Every result has ``to_dict()`` (the JSON of docs/format.md, the lab's JSON
+output) and ``summary()``. Cautions are :class:`LabWarning` s besides the log. Pure numerics: no
+simulator, no plotting here (see ``lab.report``).
 """
 
-from lab.diagnosis import Candidate, Diagnosis, Hint, diagnose
-from lab.discovery import Discovery, discover
-from lab.identifiability import Identifiability, analyse
-from lab.identification import FitError, FitResult, fit, identifiability_of
-from lab.planning import Plan, plan
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from lab.diagnosis import Candidate, Diagnosis, Hint, diagnose
+    from lab.discovery import Discovery, discover
+    from lab.errors import (
+        FitError,
+        ImplausibleAcceptedWarning,
+        LabWarning,
+        PoorPoseSetWarning,
+        RowsLeftOutWarning,
+    )
+    from lab.estimation import identifiability_of
+    from lab.identifiability import Identifiability, analyse
+    from lab.identification import fit
+    from lab.options import LabOptions
+    from lab.planning import Plan, plan
+    from lab.result import FitResult
+    from lab.screening import Screen, screen
+
+# each public name and the module that defines it: importing ``lab`` (or ``lab.text``) loads
+# nothing else until a name is used, so the command line's ``--help`` stays fast
+_HOME = {
+    "Candidate": "lab.diagnosis",
+    "Diagnosis": "lab.diagnosis",
+    "Hint": "lab.diagnosis",
+    "diagnose": "lab.diagnosis",
+    "Discovery": "lab.discovery",
+    "discover": "lab.discovery",
+    "FitError": "lab.errors",
+    "ImplausibleAcceptedWarning": "lab.errors",
+    "LabWarning": "lab.errors",
+    "PoorPoseSetWarning": "lab.errors",
+    "RowsLeftOutWarning": "lab.errors",
+    "identifiability_of": "lab.estimation",
+    "Identifiability": "lab.identifiability",
+    "analyse": "lab.identifiability",
+    "fit": "lab.identification",
+    "LabOptions": "lab.options",
+    "Plan": "lab.planning",
+    "plan": "lab.planning",
+    "FitResult": "lab.result",
+    "Screen": "lab.screening",
+    "screen": "lab.screening",
+}
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOME.get(name)
+    if home is None:
+        raise AttributeError(f"module 'lab' has no attribute {name!r}")
+    value = getattr(importlib.import_module(home), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "Candidate",
@@ -28,11 +85,18 @@ __all__ = [
     "FitResult",
     "Hint",
     "Identifiability",
+    "ImplausibleAcceptedWarning",
+    "LabOptions",
+    "LabWarning",
     "Plan",
+    "PoorPoseSetWarning",
+    "RowsLeftOutWarning",
+    "Screen",
     "analyse",
     "diagnose",
     "discover",
     "fit",
     "identifiability_of",
     "plan",
+    "screen",
 ]

@@ -69,37 +69,24 @@ import numpy as np
 from scipy import stats
 
 from arm.description import RobotDescription
-from arm.effect_api import EffectError
-from arm.effects import Effect, JointAngleEffect
+from arm.effects import Effect
 from arm.errormodel import ErrorModel
-from arm.measurements import MeasurementSet, as_measurements
+from arm.measurements import MeasurementSet
 from lab import blocks as _blocks
 from lab.blocks import Blocks
-from lab.identifiability import (
-    gram_factor,
-    lower_inverse,
-    orthonormal_basis,
-    typical_magnitudes,
+from lab.candidates import (
+    candidate_columns,
+    candidate_groups,
+    candidate_indices,
+    compact,
+    group_label,
+    project_out,
 )
-from lab.identification import (
-    HUBER_K,
-    OUTLIER_RADIUS,
-    SCHEMA_VERSION,
-    FitError,
-    FitResult,
-    fit,
-    robust_sigma,
-)
-from lab.screening import (
-    MAX_OUTLIER_FRACTION,
-    MAX_ROUNDS,
-    OUTLIER_MODES,
-    Outlier,
-    annotate,
-    candidate_model,
-    explained_residual,
-    judge,
-)
+from lab.errors import FitError
+from lab.identifiability import gram_factor, lower_inverse, orthonormal_basis, typical_magnitudes
+from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
+from lab.result import SCHEMA_VERSION, FitResult, Outlier
+from lab.screening import Screen, annotate, screened
 from lab.selection import DEPENDENT, ForwardSelection, f_test, hat_blocks, holm, press_rms
 
 __all__ = ["Candidate", "Diagnosis", "Hint", "diagnose"]
@@ -246,120 +233,72 @@ class Diagnosis:
 
 
 # --------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Group:
-    effect: str
-    joints: tuple[int, ...] | None
-    names: tuple[str, ...]
-
-
-def _candidate_model(
-    model: ErrorModel,
-    data: MeasurementSet,
-    candidates: Sequence[str] | None,
-) -> tuple[ErrorModel, list[_Group], dict[str, str]]:
-    """One model holding the fitted effects (all joints) and every testable candidate effect, the
-    candidate parameter groups, and the effects skipped with the reason."""
-    try:
-        full, skipped = candidate_model(model, data, candidates)
-    except EffectError as exc:
-        raise FitError(str(exc)) from None
-    base_names = set(model.layout.names)
-    groups: list[_Group] = []
-    for e in full.effects:
-        new = [n for n in full.layout.names[full.layout.slice(e.name)] if n not in base_names]
-        if not new:
-            continue
-        if isinstance(e, JointAngleEffect):
-            per: list[tuple[int, _Group]] = []
-            for j in e.active_joints():
-                js = tuple(n for n in (f"{t}{j}" for t in e.terms) if n in new)
-                if js:
-                    per.append((j, _Group(e.name, (j,), js)))
-            groups += [g for _, g in per]
-            if len(per) > 1:
-                groups.append(_Group(e.name, tuple(j for j, _ in per), tuple(new)))
-        else:
-            groups.append(_Group(e.name, None, tuple(new)))
-    return full, groups, skipped
-
-
 def diagnose(
-    data: MeasurementSet | str | Path,
+    data: Screen | MeasurementSet | str | Path,
     robot: RobotDescription | str | Path | None = None,
-    effects: str | Sequence[str | Effect] = "geometric",
-    noise_mm: float | None = None,
+    effects: str | Sequence[str | Effect] | None = None,
     *,
-    loss: str = "linear",
-    candidates: Sequence[str] | None = None,
-    alpha: float = 0.02,
-    base: FitResult | None = None,
-    outliers: str = "auto",
+    noise_mm: float | None = None,
+    loss: Loss = "linear",
+    outliers: OutlierMode = "auto",
     accept_large: bool = False,
+    solver: Solver = "lm",
+    f_scale_mm: float | None = None,
+    max_evaluations: int = 100,
+    register: bool = True,
+    options: LabOptions | None = None,
+    alpha: float = 0.02,
+    candidates: Sequence[str] | None = None,
 ) -> Diagnosis:
-    """Fit ``effects`` and test what they miss; see the module docstring.
+    """Fit ``effects`` (default geometric) and test what they miss; see the module docstring.
 
-    ``noise_mm``: the instrument's per-axis standard uncertainty (mm), for the ``none`` /
-    ``unexplained`` decision. ``candidates``: effect names to test (default: every registered
-    effect). ``alpha``: the family-wise false-alarm rate. ``base``: an existing fit of ``data``
-    to diagnose instead of fitting ``effects`` again. ``outliers``: ``auto`` leaves gross
-    outliers out of the fit and of the tests (:mod:`lab.screening`: first those of the fit's own
-    residual, then those of the residual beyond the model and every candidate, so that a
-    missing effect is not mistaken for outliers); ``keep`` tests every pose (a robust ``loss``
-    still leaves its far points out of the tests). ``accept_large``: diagnose a model whose
-    identified parameters exceed the plausible bound of their kind (:func:`lab.fit`).
+    ``data``: a measurement set (or its file), screened once (:func:`lab.screen`: duplicates,
+    the fit's outliers, and the poses beyond the model and every candidate, which the tests
+    leave out), or a :class:`lab.Screen` made before (nothing screened again). The options
+    (``noise_mm`` ... ``register``, or ``options=``) are :class:`lab.LabOptions`; ``noise_mm``,
+    the instrument's per-axis standard uncertainty (mm), also decides ``none`` against
+    ``unexplained``. ``alpha``: the family-wise false-alarm rate. ``candidates``: effect names
+    to test (default: every registered effect).
     """
     if not 0 < alpha < 1:
         raise FitError(f"alpha must lie in (0, 1), got {alpha}")
-    if noise_mm is not None and not noise_mm > 0:
-        raise FitError(f"noise_mm must be positive, got {noise_mm}")
-    if outliers not in OUTLIER_MODES:
-        raise FitError(f"outliers must be one of {', '.join(OUTLIER_MODES)}, got {outliers!r}")
-    given = as_measurements(data)
-    res = (
-        base
-        if base is not None
-        else fit(
-            given,
-            robot,
-            effects,
-            loss=loss,
-            noise_mm=noise_mm,
-            outliers=outliers,
-            accept_large=accept_large,
-        )
+    opts = resolve(
+        options,
+        noise_mm=noise_mm,
+        loss=loss,
+        outliers=outliers,
+        accept_large=accept_large,
+        solver=solver,
+        f_scale_mm=f_scale_mm,
+        max_evaluations=max_evaluations,
+        register=register,
     )
-    data = res.fitted_data(given)
-    if res.n_points != len(data):
-        raise FitError(f"the fit given has {res.n_points} points, the data {len(data)}")
+    s = screened(data, robot, effects, opts, candidates=candidates, tests=True)
+    noise_mm = s.options.noise_mm
+    res, data, given = s.fit, s.kept, s.data
+    assert s.untested_rows is not None  # screened(tests=True) judged them
     model = res.model
     N = res.n_points
-    full, groups, skipped = _candidate_model(model, data, candidates)
+    full, groups, skipped = candidate_groups(model, data, s.candidates)
     inputs = full.inputs(data.q, data.columns, source=data.source)
     p = full.nominal()
     p[full.layout.indices(model.layout.names)] = res.params
     typ = typical_magnitudes(full)
     # the model's identifiable columns (scaled) and every candidate's, block by block: the
     # whole catalogue's Jacobian of 200k poses is 340 MB, and no copy of it is made
-    cand = np.array(sorted({int(i) for g in groups for i in full.layout.indices(g.names)}))
-    cand = cand.astype(int)
+    cand = candidate_indices(full, groups)
     column = {int(j): k for k, j in enumerate(cand)}
-    J0, Jc = _columns(res, full, inputs, p, cand)
+    J0, Jc = candidate_columns(res, full, inputs, p, cand)
     e = res.residuals.reshape(-1).copy()
 
-    # outliers take no part in the tests: they would look like a missing effect
-    far = np.empty(0, dtype=int)
-    rule = res.outlier_rule
-    if outliers == "auto":
-        far, rule = _test_outliers(e, J0, Jc, rule)
-    elif res.loss != "linear":
-        far = _outliers(e, J0, Jc)
+    # the poses the screen left out of the tests: they would look like a missing effect
+    far = s.untested_rows
     inlier = np.ones(N, dtype=bool)
     inlier[far] = False
     n = int(inlier.sum())
     if far.size:
         keep3 = np.repeat(inlier, 3)
-        J0, Jc, e = _compact(J0, keep3), _compact(Jc, keep3), e[keep3]
+        J0, Jc, e = compact(J0, keep3), compact(Jc, keep3), e[keep3]
 
     Q0 = orthonormal_basis(J0, overwrite=True)
     del J0
@@ -373,7 +312,7 @@ def diagnose(
 
     sel = ForwardSelection(e0, rss0, dof0, H0, cv0)
     norms = np.sqrt(np.einsum("ij,ij->j", Jc, Jc))
-    _project_out(Jc, Q0)  # every candidate column with the model's span projected out
+    project_out(Jc, Q0)  # every candidate column with the model's span projected out
     norms_p = np.sqrt(np.einsum("ij,ij->j", Jc, Jc))
     hints = _hints(res, data, Q0, e0, rss0, dof0, inlier)
     del Q0  # the candidates' columns are model-free now
@@ -384,7 +323,7 @@ def diagnose(
         nx, nxp = norms[idx], norms_p[idx]
         keep = (nxp > DEPENDENT * nx) & (nxp * typ[cand[idx]] > sigma)
         if not keep.any():
-            skipped[_label(g)] = "unidentifiable given the model"
+            skipped[group_label(g)] = "unidentifiable given the model"
             continue
         cols = idx[keep]
 
@@ -393,7 +332,7 @@ def diagnose(
 
         t = sel.trial(basis, key=len(rows))
         if t is None:
-            skipped[_label(g)] = "unidentifiable given the model"
+            skipped[group_label(g)] = "unidentifiable given the model"
             continue
         cv, pv, (Qc, _, ss, _) = t
         k = Qc.shape[1]
@@ -454,20 +393,8 @@ def diagnose(
     else:
         verdict = "none"
 
-    # every pose left out, by its index in the data given
-    given_rows = np.arange(N) if res.fitted_rows is None else res.fitted_rows
-    dist = np.linalg.norm(res.residuals, axis=1)
-    scale = robust_sigma(res.residuals[inlier])
-    left_out = list(res.outlier_list) + [
-        Outlier(
-            int(given_rows[i]),
-            None if data.lines is None else int(data.lines[i]),
-            1e3 * float(dist[i]),
-            float(dist[i] / scale) if scale > 0 else float("inf"),
-        )
-        for i in far
-    ]
-    left_out.sort(key=lambda o: o.index)
+    # every pose left out (by the screen: of the fit, and of the tests), by its index in the data
+    left_out = s.left_out
     # a candidate's note is said only of the model fitted or the one suggested
     speaking = {e.name for e in model.effects} | {c.effect for c in chosen}
     left_out = annotate(left_out, full, given, effects=speaking)
@@ -487,113 +414,11 @@ def diagnose(
         n_tested=n_tested,
         skipped=skipped,
         outlier_list=left_out,
-        outliers_mode=outliers,
-        outlier_rule=rule,
+        outliers_mode=s.options.outliers,
+        outlier_rule=s.test_rule,
     )
     log.info("%s", d.summary())
     return d
-
-
-def _columns(
-    res: FitResult, full: ErrorModel, inputs, p: np.ndarray, cand: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The fitted model's identifiable Jacobian columns, scaled (3N, r0), and the candidate
-    columns ``cand`` of the full model at ``p`` (3N, m), block by block."""
-    free = np.flatnonzero(res.identifiable)
-    s = res.identifiability.scale[free]
-    N = res.n_points
-    J0 = np.empty((3 * N, free.size))
-    Jc = np.empty((3 * N, cand.size))
-    for sl, _, J in Blocks(res.model, res.inputs).jacobians(res.params, keep_cache=False):
-        J0[3 * sl.start : 3 * sl.stop] = J[:, :, free].reshape(-1, free.size) * s
-    for sl, _, J in Blocks(full, inputs).jacobians(p, keep_cache=False):
-        Jc[3 * sl.start : 3 * sl.stop] = J[:, :, cand].reshape(-1, cand.size)
-    return J0, Jc
-
-
-def _row_blocks(m: int) -> list[slice]:
-    step = 3 * _blocks.BLOCK
-    return [slice(a, min(a + step, m)) for a in range(0, m, step)]
-
-
-def _compact(A: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """The rows ``keep`` of ``A``, moved up in place (a view of the first rows of A)."""
-    idx = np.flatnonzero(keep)
-    for b in _row_blocks(idx.size):  # rows only move up: in order, nothing is overwritten early
-        A[b] = A[idx[b]]
-    return A[: idx.size]
-
-
-def _project_out(A: np.ndarray, Q: np.ndarray) -> None:
-    """``A -= Q (Q^T A)`` in place, block by block."""
-    C = Q.T @ A
-    for b in _row_blocks(A.shape[0]):
-        A[b] -= Q[b] @ C
-
-
-def _explained(e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, w: np.ndarray | None):
-    """``e`` minus its (weighted) least-squares fit on the columns of the model and of every
-    candidate, and the number of columns fitted (:func:`lab.screening.explained_residual`)."""
-
-    def columns():
-        for b in _row_blocks(e.size):
-            yield b, np.hstack([J0[b], Jc[b]])
-
-    return explained_residual(e, columns, w)
-
-
-def _test_outliers(
-    e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, rule: str | None
-) -> tuple[np.ndarray, str | None]:
-    """The poses that stay gross outliers once the model *and every candidate* may explain the
-    residual ``e`` (3N): least squares on their columns, the rule of :mod:`lab.screening`,
-    iterated. Returns their indices and the rule as applied."""
-    n = e.size // 3
-    keep = np.ones(n, dtype=bool)
-    far = np.zeros(n, dtype=bool)
-    radius = s = float("nan")
-    for _ in range(MAX_ROUNDS + 1):
-        r, k = _explained(e, J0, Jc, np.repeat(keep, 3).astype(float))
-        far, s, radius = judge(r.reshape(n, 3), keep, k)
-        if not np.isfinite(s) or far.sum() > MAX_OUTLIER_FRACTION * n:
-            return np.empty(0, dtype=int), rule
-        if np.array_equal(~far, keep):
-            break
-        keep = ~far
-    else:  # still changing: a spread peeled away round by round, not gross errors
-        return np.empty(0, dtype=int), rule
-    if far.any():
-        rule = (
-            f"3-D residual above {radius:.2f} robust sigmas ({1e3 * radius * s:.4g} mm) beyond "
-            "the model and every candidate"
-        ) + (f"; the fit's: {rule}" if rule else "")
-    return np.flatnonzero(far), rule
-
-
-def _outliers(e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, iterations: int = 20) -> np.ndarray:
-    """The points a robust fit should leave out of the tests (``outliers="keep"`` with a robust
-    loss): Huber IRLS of the residual ``e`` (3N) on every column the model and all candidates
-    have, so that a missing effect is explained, not mistaken for outliers; then the points
-    farther off than :data:`~lab.identification.OUTLIER_RADIUS` robust standard deviations."""
-    n = e.size // 3
-    r, k = _explained(e, J0, Jc, None)
-    if k > e.size // 2:  # too few poses for the catalogue: the fit's residual as it is
-        r = e
-    else:
-        w = np.ones_like(e)
-        for _ in range(iterations):
-            r, _ = _explained(e, J0, Jc, w)
-            f = HUBER_K * robust_sigma(r)
-            w_new = np.minimum(1.0, f / np.maximum(np.abs(r), 1e-300))
-            if np.max(np.abs(w_new - w)) < 1e-6:
-                break
-            w = w_new
-    dist = np.linalg.norm(r.reshape(n, 3), axis=1)
-    return np.flatnonzero(dist > OUTLIER_RADIUS * robust_sigma(r))
-
-
-def _label(g: _Group) -> str:
-    return g.effect if g.joints is None else f"{g.effect}[{','.join(map(str, g.joints))}]"
 
 
 def _forward(cands, bases, keys, sel: ForwardSelection, alpha) -> list[Candidate]:

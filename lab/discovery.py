@@ -75,11 +75,14 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from arm.description import RobotDescription, as_robot
+from arm.description import RobotDescription
 from arm.effects import REFERENCE_TEMPERATURE, Effect, JointAngleEffect
 from arm.measurements import MeasurementSet, as_measurements, atomic_write_text
+from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
-from lab.identification import SCHEMA_VERSION, FitError, FitResult, fit
+from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
+from lab.result import SCHEMA_VERSION, FitResult
+from lab.screening import Screen, screen, screened
 from lab.selection import ForwardSelection, hat_blocks, press_rms
 
 __all__ = [
@@ -597,36 +600,53 @@ _NAME = re.compile(r"[a-z][a-z0-9_]*")
 
 
 def discover(
-    data: MeasurementSet | str | Path,
+    data: Screen | MeasurementSet | str | Path,
     robot: RobotDescription | str | Path | None = None,
-    effects: str | Sequence[str | Effect] = "geometric",
-    noise_mm: float | None = None,
+    effects: str | Sequence[str | Effect] | None = None,
     *,
-    validate: MeasurementSet | str | Path | None = None,
+    noise_mm: float | None = None,
+    loss: Loss = "linear",
+    outliers: OutlierMode = "auto",
+    accept_large: bool = False,
+    solver: Solver = "lm",
+    f_scale_mm: float | None = None,
+    max_evaluations: int = 100,
+    register: bool = True,
+    options: LabOptions | None = None,
     alpha: float = 0.02,
+    validate: MeasurementSet | str | Path | None = None,
     order: int = DEFAULT_ORDER,
     name: str = "discovered",
-    base: FitResult | None = None,
 ) -> Discovery:
-    """Search the library of :func:`library_terms` for what ``effects`` miss; see the module
-    docstring. ``noise_mm``: the instrument's per-axis standard uncertainty (for the verdict
-    ``none`` against ``unexplained``); ``validate``: held-out data for the refitted model;
-    ``alpha``: the family-wise false-discovery rate; ``order``: the highest harmonic; ``name``:
-    the discovered effect's name; ``base``: an existing fit of ``data`` to start from."""
+    """Search the library of :func:`library_terms` for what ``effects`` (default geometric)
+    miss; see the module docstring. ``data``: a measurement set (or its file), screened once
+    (:func:`lab.screen`), or a :class:`lab.Screen` made before (its fit is the start; nothing
+    screened again). The options (``noise_mm`` ... ``register``, or ``options=``) are
+    :class:`lab.LabOptions`; ``noise_mm``, the instrument's per-axis standard uncertainty, also
+    decides the verdict ``none`` against ``unexplained``. ``alpha``: the family-wise
+    false-discovery rate; ``validate``: held-out data for the refitted model; ``order``: the
+    highest harmonic; ``name``: the discovered effect's name."""
     if not 0 < alpha < 1:
         raise FitError(f"alpha must lie in (0, 1), got {alpha}")
-    if noise_mm is not None and not (math.isfinite(noise_mm) and noise_mm > 0):
-        raise FitError(f"noise_mm must be positive, got {noise_mm}")
+    opts = resolve(
+        options,
+        noise_mm=noise_mm,
+        loss=loss,
+        outliers=outliers,
+        accept_large=accept_large,
+        solver=solver,
+        f_scale_mm=f_scale_mm,
+        max_evaluations=max_evaluations,
+        register=register,
+    )
     if not 1 <= order <= 12:
         raise FitError(f"order (the highest harmonic) must lie in 1..12, got {order}")
     if not _NAME.fullmatch(name) or keyword.iskeyword(name):
         raise FitError(f"effect name {name!r} must be lower-case letters, digits and _")
-    data = as_measurements(data)
-    robot = as_robot(robot)
-    res = base if base is not None else fit(data, robot, effects, noise_mm=noise_mm)
-    data = res.fitted_data(data)  # without the rows the fit left out (duplicates, outliers)
-    if res.n_points != len(data):
-        raise FitError(f"the fit given has {res.n_points} points, the data {len(data)}")
+    s = screened(data, robot, effects, opts, tests=False)
+    noise_mm = s.options.noise_mm
+    res = s.fit
+    data = s.kept  # without the rows the screen left out (duplicates, outliers)
     if name in res.model.layout.effects:
         raise FitError(f"the model already has an effect named {name!r}; choose another name")
     N = res.n_points
@@ -702,14 +722,11 @@ def discover(
         for t, a in zip(selected, amp, strict=True)
     ]
     cls = _load_class(disc.module_source(), name)
-    refit = fit(
-        data,
-        robot,
-        [*res.model.effects, cls()],
-        noise_mm=noise_mm,
-        validate=validate,
-        loss=res.loss,
-    )
+    # the discovered model is a new model of the rows that count: the rule judges its own misses
+    # (poses where a discovered term cannot say its sign are gross misses of it, not of the base)
+    refit = screen(s.kept, s.robot, [*res.model.effects, cls()], options=s.options, tests=False).fit
+    if validate is not None:
+        refit = refit.validate(as_measurements(validate))
     std = refit.standard_errors()
     disc.refit = refit
     disc.terms = [

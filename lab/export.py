@@ -59,7 +59,7 @@ from arm.measurements import (
     read_text,
 )
 from arm.so3 import rotation_matrix
-from lab.identification import SCHEMA_VERSION, FitResult
+from lab.result import SCHEMA_VERSION, FitResult
 
 __all__ = [
     "EXPORT_TOL",

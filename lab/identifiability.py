@@ -30,9 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import lapack
 
+from arm import errors
 from arm.effect_api import ModelInputs
 from arm.errormodel import ErrorModel
 from arm.params import BASE_NAMES, ROW_FAMILIES, parse_parameter_name
+from lab.errors import PoorPoseSetWarning
 
 __all__ = [
     "CONDITION_WARNING",
@@ -313,13 +315,13 @@ def analyse(
         noise=noise,
     )
     if warn and ident.condition_number > CONDITION_WARNING:
-        log.warning(
-            "poor pose set: the scaled identification Jacobian has condition number %.3g (> %g) "
-            "over its %d identifiable parameters; plan poses (lab.plan) or fit fewer effects",
-            ident.condition_number,
-            CONDITION_WARNING,
-            ident.rank,
+        text = (
+            f"poor pose set: the scaled identification Jacobian has condition number "
+            f"{ident.condition_number:.3g} (> {CONDITION_WARNING:g}) over its {ident.rank} "
+            "identifiable parameters; plan poses (lab.plan) or fit fewer effects"
         )
+        log.warning("%s", text)
+        errors.warn(text, PoorPoseSetWarning)
     return ident
 
 

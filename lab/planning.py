@@ -37,8 +37,9 @@ from arm.effect_api import EffectError
 from arm.effects import Effect
 from arm.errormodel import ErrorModel
 from arm.sampling import sample_poses
+from lab.errors import FitError
 from lab.identifiability import Identifiability, analyse_jacobian
-from lab.identification import SCHEMA_VERSION, FitError
+from lab.result import SCHEMA_VERSION
 
 __all__ = ["CRITERIA", "Plan", "observability", "plan"]
 

@@ -13,8 +13,8 @@ against the hinted variables; for the final model: the identified parameters (th
 Table 3 with standard errors), identifiability, and the error-factor sensitivity of the paper's
 section 3.3 (Fig. 7: how far a unit error of each parameter moves the tool point).
 
-Helpers used elsewhere as well: :func:`nominal_parameters` (the nominal arm with its base and
-tool registered, the "before" of every comparison) and :func:`error_sensitivity`.
+Helpers used elsewhere as well: :func:`error_sensitivity`; the "before" of every comparison is
+:func:`lab.registration.nominal_parameters` (the nominal arm with its base and tool registered).
 """
 
 from __future__ import annotations
@@ -22,11 +22,12 @@ from __future__ import annotations
 import logging
 import re
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from arm.description import RobotDescription, as_robot
+from arm.description import RobotDescription
 from arm.effect_api import ModelInputs
 from arm.effects import Effect
 from arm.errormodel import ErrorModel
@@ -35,35 +36,18 @@ from arm.params import parameter_unit
 from lab import plots
 from lab.diagnosis import diagnose, hint_variables
 from lab.identifiability import CONDITION_WARNING, typical_magnitudes
-from lab.identification import FitResult, fit, register_base
+from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
+from lab.registration import nominal_parameters
 from lab.report_html import HINT_PLOT_P, LabReport, ModelRun, Sensitivity, arm_parameters
-from lab.screening import Outlier
+from lab.result import FitResult, inputs_of
+from lab.screening import Screen, screened
 
-__all__ = [
-    "build_report",
-    "error_sensitivity",
-    "hint_panels",
-    "nominal_parameters",
-]
+__all__ = ["build_report", "error_sensitivity", "hint_panels"]
 
 log = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------------------------------
-def nominal_parameters(model: ErrorModel, inputs: ModelInputs, xyz: np.ndarray) -> np.ndarray:
-    """The nominal parameter vector with the base transform and tool offsets registered in closed
-    form (:func:`lab.identification.register_base`): the "before" of a calibration, the nominal arm
-    placed where the measurements say it stands (without it, data in a laser tracker's frame
-    would be metres off). The registration is kept only where it lowers the RMS."""
-    p = model.nominal()
-    if "geometric" not in model.layout.effects:
-        return p
-    p_reg = register_base(model, inputs, xyz, p)
-    before = np.sum((model.predict(inputs, p) - xyz) ** 2)
-    after = np.sum((model.predict(inputs, p_reg) - xyz) ** 2)
-    return p_reg if after < before else p
-
-
 def error_sensitivity(
     model: ErrorModel, inputs: ModelInputs, p: np.ndarray | None = None
 ) -> Sensitivity:
@@ -85,79 +69,74 @@ def error_sensitivity(
 
 # --------------------------------------------------------------------------------------------------
 def build_report(
-    data: MeasurementSet | str | Path,
+    data: Screen | MeasurementSet | str | Path,
     robot: RobotDescription | str | Path | None = None,
-    effects: str | Sequence[str | Effect] = "geometric",
-    validate: MeasurementSet | str | Path | None = None,
-    noise_mm: float | None = None,
+    effects: str | Sequence[str | Effect] | None = None,
     *,
-    loss: str = "linear",
+    noise_mm: float | None = None,
+    loss: Loss = "linear",
+    outliers: OutlierMode = "auto",
+    accept_large: bool = False,
+    solver: Solver = "lm",
+    f_scale_mm: float | None = None,
+    max_evaluations: int = 100,
+    register: bool = True,
+    options: LabOptions | None = None,
+    validate: MeasurementSet | str | Path | None = None,
     rounds: int = 3,
     title: str | None = None,
     command: str | None = None,
     progress: Callable[[str], None] | None = None,
-    outliers: str = "auto",
-    accept_large: bool = False,
 ) -> LabReport:
-    """Fit ``effects``, diagnose, and while the verdict names a missing catalogued effect (at most
-    ``rounds`` times) fit the suggested model and diagnose again; see the module docstring.
+    """Fit ``effects`` (default geometric), diagnose, and while the verdict names a missing
+    catalogued effect (at most ``rounds`` times) fit the suggested model and diagnose again; see
+    the module docstring.
 
-    ``outliers="auto"``: the first model's fit and diagnosis screen the rows once
-    (:mod:`lab.screening`), and every model is then fitted to the same rows, so that the models
-    compare pose by pose; the report names what was left out. ``accept_large``: see
-    :func:`lab.fit`."""
+    ``data``: a measurement set (or its file), screened once (:func:`lab.screen`), or a
+    :class:`lab.Screen` made before; every model is then fitted to the rows that count
+    (:attr:`lab.Screen.counted`), so that the models compare pose by pose, and nothing more is
+    left out; the report names what was. The options (``noise_mm`` ... ``register``, or
+    ``options=``) are :class:`lab.LabOptions`. ``validate``: held-out measurements."""
     step = progress or (lambda msg: None)
-    given = as_measurements(data)
+    opts = resolve(
+        options,
+        noise_mm=noise_mm,
+        loss=loss,
+        outliers=outliers,
+        accept_large=accept_large,
+        solver=solver,
+        f_scale_mm=f_scale_mm,
+        max_evaluations=max_evaluations,
+        register=register,
+    )
     val = None if validate is None else as_measurements(validate)
-    robot = as_robot(robot)
+    shown = "geometric" if effects is None else effects
+    step(
+        "screening the rows and fitting "
+        + (shown if isinstance(shown, str) else ",".join(map(str, shown)))
+    )
+    s = screened(data, robot, effects, opts, tests=True)
 
-    step(f"fitting {effects if isinstance(effects, str) else ','.join(map(str, effects))}")
+    def validated(cur: Screen) -> Screen:
+        return cur if val is None else replace(cur, fit=cur.fit.validate(val))
 
-    def fitted(d: MeasurementSet, model: str | Sequence[str | Effect], rows: str) -> FitResult:
-        return fit(
-            d,
-            robot,
-            model,
-            loss=loss,
-            validate=val,
-            noise_mm=noise_mm,
-            accept_large=accept_large,
-            outliers=rows,
-        )
-
-    first = fitted(given, effects, outliers)
-    data = first.fitted_data(given)
-    left_out: list[Outlier] = list(first.outlier_list)
-    rule = first.outlier_rule
-    d0 = None
-    if outliers == "auto":  # the rows beyond what the model and every candidate explain too
-        step(f"screening the rows against {', '.join(first.effects)} and every candidate")
-        d0 = diagnose(given, noise_mm=noise_mm, loss=loss, base=first)
-        more = [o for o in d0.outlier_list if o.index not in {x.index for x in left_out}]
-        if more:
-            left_out = sorted(left_out + more, key=lambda o: o.index)
-            rule = d0.outlier_rule
-            drop = {o.index for o in more}
-            rows = first.fitted_rows if first.fitted_rows is not None else np.arange(len(given))
-            data = given.subset(np.array([i for i in rows if i not in drop], dtype=int))
-            first = fitted(data, effects, "keep")
-            d0 = None  # diagnosed again below, on the rows kept
+    # the rows every model is fitted to: without the gross errors the tests found as well
+    cur = validated(s if not s.untested else s.refit(s.effects))
+    data = cur.kept
+    first = cur.fit
     p0 = nominal_parameters(first.model, first.inputs, data.xyz)
     runs = [
         ModelRun(
             "nominal",
             first.model.predict(first.inputs, p0) - data.xyz,
-            None if val is None else first.model.predict(_inputs(first.model, val), p0) - val.xyz,
+            None if val is None else first.model.predict(inputs_of(first.model, val), p0) - val.xyz,
         )
     ]
-    res = first
-    seen = {",".join(res.effects)}
+    seen = {",".join(first.effects)}
     for k in range(max(rounds, 0) + 1):
+        res = cur.fit
         step(f"diagnosing {', '.join(res.effects)}")
-        if k == 0 and d0 is not None:
-            d = d0  # the screening's diagnosis of the first model: nothing more left out
-        else:
-            d = diagnose(data, noise_mm=noise_mm, loss=loss, base=res, outliers="keep")
+        d = diagnose(cur)
         runs.append(
             ModelRun(
                 ", ".join(res.effects),
@@ -173,7 +152,7 @@ def build_report(
             break
         seen.add(nxt)
         step(f"fitting {nxt}")
-        res = fitted(data, nxt, "keep")
+        cur = validated(cur.refit(nxt))
 
     final = runs[-1].fitted
     step("error-factor sensitivity")
@@ -181,24 +160,20 @@ def build_report(
     report = LabReport(
         data=data,
         validation=val,
-        robot=robot,
-        noise_mm=noise_mm,
+        robot=s.robot,
+        noise_mm=s.options.noise_mm,
         runs=runs,
         sensitivity=sens,
         title=title or f"Calibration report: {Path(data.source).name}",
         command=command,
-        outliers=left_out,
-        duplicates=list(first.duplicates),
-        outlier_rule=rule,
-        n_rows=len(given),
+        outliers=s.left_out,
+        duplicates=list(s.fit.duplicates),
+        outlier_rule=s.test_rule,
+        n_rows=len(s.data),
     )
     step("plotting")
     report.figures = _figures(report)
     return report
-
-
-def _inputs(model: ErrorModel, data: MeasurementSet) -> ModelInputs:
-    return model.inputs(data.q, data.columns, source=data.source)
 
 
 # -- the residual against the hinted variables -------------------------------------------------------

@@ -10,7 +10,7 @@ identifiability, the error-factor sensitivity (the paper's Fig. 7) and the data.
 module, longer than most, because it is one page: its template reads top to bottom as the page
 does.
 
-Helpers for people reading parameters: :func:`readable` (SI -> mm / mrad), :func:`geometric_table`
+Helpers for people reading parameters: :func:`geometric_table`
 (Table 3 layout) and :func:`arm_parameters` (the parameters of the arm, not of where it stands).
 """
 
@@ -30,8 +30,8 @@ from arm.measurements import MeasurementSet, atomic_write_text
 from arm.params import ROW_FAMILIES, parse_parameter_name
 from lab.diagnosis import Diagnosis
 from lab.identifiability import CONDITION_WARNING
-from lab.identification import FitResult
-from lab.screening import Duplicate, Outlier, duplicates_text
+from lab.result import Duplicate, FitResult, Outlier
+from lab.text import duplicates_text, nominal_text, readable
 
 __all__ = [
     "HINT_PLOT_P",
@@ -46,19 +46,6 @@ __all__ = [
 # hints drawn only below this p-value: a smooth curve through the noise of a variable that
 # explains nothing (30 poses of real data) would suggest a dependence that is not there
 HINT_PLOT_P = 0.01
-
-
-def readable(value: float | None, unit: str, signed: bool = False) -> tuple[str, str]:
-    """A SI value as people read it: m -> mm, rad -> mrad, others as they are. Returns (number,
-    unit)."""
-    if value is None or not np.isfinite(value):
-        return "-", ""
-    sign = "+" if signed else ""
-    if unit == "m":
-        return f"{value * 1e3:{sign}.4f}", "mm"
-    if unit == "rad":
-        return f"{value * 1e3:{sign}.4f}", "mrad"
-    return f"{value:{sign}.4g}", unit
 
 
 @dataclass(frozen=True)
@@ -297,10 +284,7 @@ def _cell(c: dict | None) -> tuple[str, str]:
     if c is None:
         return "", ""
     unit = c["unit"]
-    if unit == "rad":
-        nom = f"{math.degrees(c['nominal']):.3f}°"
-    else:
-        nom = f"{c['nominal'] * 1e3:.3f}"
+    nom = nominal_text(c["nominal"], unit, symbols=True)
     name = _e(c["name"])
     if not c["identifiable"]:
         return nom, f'<span class="no" title="{name}">fixed</span>'

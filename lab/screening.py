@@ -1,4 +1,4 @@
-"""Screening the measurements before and during identification: repeated rows and gross outliers.
+"""Screening: which rows of the measurements count, by one stated rule, in one step.
 
 **Duplicates.** Two rows equal in every column (joint readings, point, every other column) are not
 two measurements: a tracker's noise makes two real measurements of one pose differ in the
@@ -18,10 +18,9 @@ against a robust noise scale, by a stated rule:
   sigma for 200 poses, 5.23 for 2,000, 6.07 for 200,000. On clean data a false flag is that rare
   for a whole data set (measured in ``benchmarks/lab.py outliers``);
 * the residual judged is the one left once the model *and every catalogued effect the data
-  allow* (:func:`candidate_model`) have explained what they can, to first order: a missing
-  effect's largest deviations (its residual has heavy tails) are then not taken for outliers.
-  :func:`lab.fit` judges it when the model's own residual flags a pose; :func:`lab.diagnose`
-  always (a gross error hidden in a missing effect's spread shows only there);
+  allow* (:func:`lab.candidates.candidate_model`) have explained what they can, to first order:
+  a missing effect's largest deviations (its residual has heavy tails) are then not taken for
+  outliers. The fit's screening judges it when the model's own residual flags a pose;
 * the outliers are left out and the model refitted; the residuals of every pose are judged
   again, until the set no longer changes. Gross errors settle in one or two rounds; a set still
   growing after :data:`MAX_ROUNDS` is the spread of an effect the model and the catalogue lack,
@@ -29,146 +28,93 @@ against a robust noise scale, by a stated rule:
 
 A data set whose "outliers" would be more than :data:`MAX_OUTLIER_FRACTION` of its poses does not
 have outliers: its model does not fit. Then nothing is left out, and the lab says so.
+
+**The tests' rows** (``tests=True``, what :func:`lab.diagnose` needs): a gross error hidden in a
+missing effect's spread shows only once the fitted model and every candidate (the diagnosis's
+candidates, :mod:`lab.candidates`) explain the residual; the same rule, iterated on that
+residual, names the poses the tests leave out besides (``Screen.untested``). With
+``outliers="keep"`` and a robust loss, the tests leave out the points that a Huber fit of the
+model and every candidate puts beyond :data:`lab.solver.OUTLIER_RADIUS` robust sigmas.
+
+**One step.** :func:`screen` applies all of this once and returns a :class:`Screen`: the model's
+fit of the rows that count, what was left out and by which rule. :func:`lab.fit`,
+:func:`lab.diagnose`, :func:`lab.discover` and :func:`lab.report.build_report` take a screen (or
+make one, once, from the data) and leave nothing more out themselves; ``Screen.refit`` fits
+another model to the same rows. The fits are made by :func:`lab.estimation.fit_rows`, called
+directly: the rule needs no callbacks.
+
+    s = lab.screen(data, "seed", "geometric", noise_mm=0.015)
+    s.kept, s.fit.outlier_list, s.untested     # the rows fitted, the outliers, the tests' too
+    lab.diagnose(s)                            # the tests of the same rows, nothing screened again
 """
 
 from __future__ import annotations
 
+import logging
 import math
-from collections.abc import Callable, Collection, Iterator, Sequence
-from dataclasses import dataclass, replace
-from typing import Any
+from collections.abc import Collection, Iterable, Mapping, Sequence
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
 
 import numpy as np
 from scipy.stats import chi2
 
-from arm.effects import EFFECTS, Effect, candidate_effects, make_effect, missing_inputs
+from arm.description import RobotDescription, as_robot
+from arm.effect_api import EffectError
+from arm.effects import Effect
 from arm.errormodel import ErrorModel
-from arm.measurements import MeasurementSet
-from lab.identifiability import gram_factor, lower_inverse
+from arm.errors import warn
+from arm.measurements import MeasurementSet, as_measurements
+from lab.blocks import Blocks
+from lab.candidates import (
+    ModelFit,
+    candidate_columns,
+    candidate_groups,
+    candidate_indices,
+    candidate_model,
+    explained,
+    explained_residual,
+)
+from lab.errors import FitError, RowsLeftOutWarning
+from lab.estimation import check_plausible, fit_rows
+from lab.options import DEFAULTS, LabOptions, Loss, OutlierMode, Solver, resolve
+from lab.result import Duplicate, FitResult, Outlier, inputs_of
+from lab.solver import HUBER_K, OUTLIER_RADIUS, robust_sigma
+from lab.text import duplicates_text
 
 __all__ = [
     "MAX_OUTLIER_FRACTION",
     "MAX_ROUNDS",
     "OUTLIER_ALPHA",
-    "OUTLIER_MODES",
     "Duplicate",
     "Outlier",
-    "OutlierScreen",
+    "Screen",
     "annotate",
-    "candidate_model",
     "duplicate_rows",
-    "duplicates_text",
-    "explained_residual",
     "judge",
     "outlier_radius",
     "robust_sigma",
-    "screen_outliers",
+    "screen",
+    "screened",
 ]
 
-OUTLIER_MODES = ("auto", "keep")
+log = logging.getLogger(__name__)
+
 OUTLIER_ALPHA = 0.01  # the family-wise rate of a false flag on a clean data set
 MAX_OUTLIER_FRACTION = 0.1
 MAX_ROUNDS = 3  # gross errors settle in one or two rounds
-MAD_TO_SIGMA = 1.4826
 MIN_DOF = 30  # fewer residual degrees of freedom: no scale to judge by, nothing is flagged
 # The scale never goes below 1 nm: far under any instrument, far above the round-off of noise-
 # free data (1e-15 m), whose residual is not noise and has no outliers to find.
 MIN_SCALE = 1e-9  # m
+
+Effects = str | Sequence[str | Effect]
 
 
 def outlier_radius(n: int, alpha: float = OUTLIER_ALPHA) -> float:
     """The 3-D radius, in standard deviations of per-axis Gaussian noise, that one of ``n``
     poses exceeds with probability ``alpha`` (Bonferroni over the poses)."""
     return math.sqrt(float(chi2.isf(alpha / max(int(n), 1), 3)))
-
-
-def robust_sigma(r: np.ndarray) -> float:
-    """1.4826 times the median absolute deviation of the coordinates of ``r``: the standard
-    deviation of Gaussian noise, unmoved by a few gross errors."""
-    r = np.asarray(r, dtype=float).reshape(-1)
-    if not r.size:
-        return float("nan")
-    return float(MAD_TO_SIGMA * np.median(np.abs(r - np.median(r))))
-
-
-@dataclass(frozen=True)
-class Outlier:
-    """One pose left out: its index in the data given, its line in the file (if read from one),
-    its 3-D residual and how many robust standard deviations that is."""
-
-    index: int
-    line: int | None
-    residual_mm: float
-    sigmas: float
-    note: str | None = None  # why the model could not say where it is, when an effect knows
-
-    @property
-    def where(self) -> str:
-        return f"line {self.line}" if self.line is not None else f"row {self.index + 1}"
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "row": self.index + 1,
-            "line": self.line,
-            "residual_mm": self.residual_mm,
-            "sigmas": self.sigmas,
-            "note": self.note,
-        }
-
-
-@dataclass(frozen=True)
-class Duplicate:
-    """A row equal in every column to an earlier one (``first``), counted once."""
-
-    index: int
-    first: int
-    line: int | None
-    first_line: int | None
-
-    @property
-    def where(self) -> str:
-        if self.line is not None and self.first_line is not None:
-            return f"line {self.line} repeats line {self.first_line}"
-        return f"row {self.index + 1} repeats row {self.first + 1}"
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "row": self.index + 1,
-            "line": self.line,
-            "first_row": self.first + 1,
-            "first_line": self.first_line,
-        }
-
-
-def _ranges(values: list[int]) -> str:
-    """``3-11, 13``: sorted integers as ranges."""
-    out: list[str] = []
-    start: int | None = None
-    prev: int | None = None
-    for v in [*sorted(values), None]:
-        if start is not None and (v is None or prev is None or v != prev + 1):
-            out.append(str(start) if start == prev else f"{start}-{prev}")
-            start = None
-        if v is not None and start is None:
-            start = v
-        prev = v
-    return ", ".join(out)
-
-
-def duplicates_text(dups: list[Duplicate], limit: int = 5) -> str:
-    """The copies grouped by the row they repeat: ``line 2 (copied on lines 3-11)``."""
-    groups: dict[tuple[int, int | None], list[int]] = {}
-    for d in dups:
-        key = (d.first, d.first_line)
-        groups.setdefault(key, []).append(d.line if d.line is not None else d.index + 1)
-    word = "line" if all(d.line is not None for d in dups) else "row"
-    parts = []
-    for (first, first_line), copies in list(groups.items())[:limit]:
-        where = f"{word} {first_line if first_line is not None else first + 1}"
-        parts.append(f"{where} (copied on {word}s {_ranges(copies)})")
-    if len(groups) > limit:
-        parts.append(f"... {len(groups) - limit} more rows copied")
-    return "; ".join(parts)
 
 
 def _line(data: MeasurementSet, i: int) -> int | None:
@@ -198,31 +144,6 @@ def duplicate_rows(data: MeasurementSet) -> tuple[np.ndarray, list[Duplicate]]:
     ]
     keep = np.flatnonzero(owner == np.arange(n))
     return keep, dups
-
-
-@dataclass
-class OutlierScreen:
-    """The outcome of :func:`screen_outliers`: the poses kept (a mask over the data), the
-    outliers, the scale and radius used, and why nothing was left out when that is the case."""
-
-    keep: np.ndarray
-    outliers: list[Outlier]
-    sigma: float
-    radius: float
-    rounds: int
-    note: str = ""
-
-    @property
-    def threshold_mm(self) -> float:
-        return 1e3 * self.sigma * self.radius
-
-    def rule(self) -> str:
-        if not math.isfinite(self.sigma):
-            return self.note or "not screened"
-        return (
-            f"3-D residual above {self.radius:.2f} robust sigmas ({self.threshold_mm:.4g} mm; "
-            f"a false flag on clean data in {100 * OUTLIER_ALPHA:g} % of data sets)"
-        )
 
 
 def annotate(
@@ -272,93 +193,93 @@ def judge(
     return np.sum(r**2, axis=1) > (radius * s) ** 2, s, radius
 
 
-def candidate_model(
-    model: ErrorModel, data: MeasurementSet, candidates: Sequence[str] | None = None
-) -> tuple[ErrorModel, dict[str, str]]:
-    """One model holding the fitted effects (all joints of a per-joint one) and every candidate
-    effect the data and the arm allow (default: every registered effect), and the candidates
-    skipped with the reason (a column the data lack, no mass model)."""
-    skipped: dict[str, str] = {}
-    have = {e.name for e in model.effects}
-    effects: list[Effect] = []
-    for e in model.effects:  # a per-joint effect fitted on some joints: the others are candidates
-        effects.append(type(e)() if e.per_joint and e.joints is not None else e)
-    for spec in candidate_effects() if candidates is None else list(candidates):
-        if isinstance(spec, str) and spec.strip() in EFFECTS and EFFECTS[spec.strip()].scan_only:
-            continue  # its terms are scanned (lab.spectral), not tested whole
-        e = make_effect(spec)
-        if e.name in have:
-            continue
-        why = missing_inputs(e, model.robot, list(data.columns))
-        if why:
-            skipped[e.label] = f"needs {why}"
-            continue
-        effects.append(e)
-    return ErrorModel(model.robot, effects, targets=model.targets), skipped
+# -- the fit's outliers (the model's own residual, explained by the candidates when it flags) -----
+@dataclass(frozen=True)
+class _Judged:
+    """The outcome of the fit's rule: the poses kept (a mask), the outliers, the scale and
+    radius used, and why nothing was left out when that is the case."""
+
+    keep: np.ndarray
+    outliers: list[Outlier]
+    sigma: float
+    radius: float
+    rounds: int
+    note: str = ""
+
+    def rule(self) -> str:
+        if not math.isfinite(self.sigma):
+            return self.note or "not screened"
+        return (
+            f"3-D residual above {self.radius:.2f} robust sigmas "
+            f"({1e3 * self.sigma * self.radius:.4g} mm; a false flag on clean data in "
+            f"{100 * OUTLIER_ALPHA:g} % of data sets)"
+        )
 
 
-Columns = Callable[[], Iterator[tuple[slice, np.ndarray]]]
-
-
-def explained_residual(
-    e: np.ndarray, columns: Columns, weights: np.ndarray | None = None, rtol: float = 1e-6
+def _explain_with_candidates(
+    res: ModelFit, data: MeasurementSet, keep: np.ndarray
 ) -> tuple[np.ndarray, int]:
-    """``e`` (M,) minus its (weighted) least-squares fit on columns that ``columns()`` gives
-    block by block (row slice, (rows, k) block), through the small Gram matrix: the columns'
-    numerically independent part (:func:`lab.identifiability.gram_factor`) is fitted, the tall
-    matrix is never formed. Returns the residual and the number of columns fitted."""
-    G: np.ndarray | None = None
-    b: np.ndarray | None = None
-    for rows, X in columns():
-        Xw = X if weights is None else X * weights[rows, None]
-        Gb, bb = Xw.T @ X, Xw.T @ e[rows]
-        G, b = (Gb, bb) if G is None else (G + Gb, b + bb)
-    r = np.array(e, dtype=float)
-    if G is None or b is None:
-        return r, 0
-    idx, L = gram_factor(G, rtol)
-    if not idx.size:
-        return r, 0
-    Li = lower_inverse(L)
-    c = Li.T @ (Li @ b[idx])
-    for rows, X in columns():
-        r[rows] -= X[:, idx] @ c
-    return r, int(idx.size)
+    """The residual (N, 3) of every pose of ``data`` that is left once the model's parameters
+    *and every candidate effect* (:func:`lab.candidates.candidate_model`) have explained what
+    they can, to first order, on the poses of ``keep``; and the number of columns fitted."""
+    try:
+        full, _ = candidate_model(res.model, data)
+    except EffectError:  # a user's effect that cannot be built here: the model alone
+        full = res.model
+    p = full.nominal()
+    p[full.layout.indices(res.model.layout.names)] = res.params
+    blocks = Blocks(full, inputs_of(full, data))
+    e = (blocks.predict(p) - data.xyz).reshape(-1)  # the model's residual: candidates are zero
+
+    def columns():
+        for sl, _, J in blocks.jacobians(p, keep_cache=False):
+            yield slice(3 * sl.start, 3 * sl.stop), J.reshape(-1, J.shape[2])
+
+    r, k = explained_residual(e, columns, np.repeat(keep, 3).astype(float))
+    return r.reshape(-1, 3), k
 
 
-def screen_outliers(
-    data: MeasurementSet,
-    first: Any,
-    refit: Callable[[np.ndarray], Any],
-    residuals: Callable[[Any], np.ndarray],
-    rank: Callable[[Any], int],
-    explain: Callable[[Any, np.ndarray], tuple[np.ndarray, int]] | None = None,
-) -> tuple[Any, OutlierScreen]:
-    """Leave gross outliers out, iterating with the fit (see the module docstring).
+@dataclass(frozen=True)
+class _Model:
+    """What a fit of some rows needs: the arm, the effects, the options, the starting values."""
 
-    ``first``: the fit of every pose of ``data``; ``refit(mask)`` fits the poses of a mask;
-    ``residuals(fit)`` gives the residuals (N, 3) of every pose of ``data`` under a fit, m;
-    ``rank(fit)`` its number of fitted parameters. ``explain(fit, mask)``, when given, is asked
-    once the model's own residual flags a pose: the residual (N, 3) left once every candidate
-    effect may explain it too, and the number of columns fitted; the rule then applies to that
-    residual, so that a missing effect's largest deviations are not taken for outliers.
-    Returns the final fit and the screen."""
+    robot: RobotDescription
+    effects: Effects
+    options: LabOptions
+    start: Mapping[str, float] | None = None
+    fixed: tuple[str, ...] = ()
+
+    def fit(self, data: MeasurementSet) -> FitResult:
+        return fit_rows(
+            data, self.robot, self.effects, self.options, start=self.start, fixed=self.fixed
+        )
+
+
+def _flags(
+    res: FitResult, data: MeasurementSet, keep: np.ndarray
+) -> tuple[np.ndarray, float, float, np.ndarray]:
+    """The rule on the residuals of every pose of ``data`` under ``res`` (fitted on ``keep``);
+    once the model's own residual flags a pose, on the residual every candidate explains too."""
+    r = res.residuals_of(data)
+    far, s, radius = judge(r, keep, res.rank)
+    if far.any():
+        r_all, k = _explain_with_candidates(res, data, keep)
+        far, s, radius = judge(r_all, keep, k)
+    return far, s, radius, r
+
+
+def _fit_outliers(
+    data: MeasurementSet, first: FitResult, model: _Model
+) -> tuple[FitResult, _Judged]:
+    """Leave gross outliers out, iterating with the fit (see the module docstring). ``first``:
+    the fit of every pose of ``data``. Returns the final fit and what was judged."""
     n = len(data)
-
-    def flags(res: Any, keep: np.ndarray) -> tuple[np.ndarray, float, float, np.ndarray]:
-        r = residuals(res)
-        far, s, radius = judge(r, keep, rank(res))
-        if far.any() and explain is not None:
-            r_all, k = explain(res, keep)
-            far, s, radius = judge(r_all, keep, k)
-        return far, s, radius, r
-
     keep = np.ones(n, dtype=bool)
     res = first
-    far, s, radius, r = flags(res, keep)
+    far, s, radius, r = _flags(res, data, keep)
     if not math.isfinite(s):
         note = "too few poses for the parameters to judge outliers by"
-        return first, OutlierScreen(keep, [], s, radius, 0, note)
+        return first, _Judged(keep, [], s, radius, 0, note)
     rounds = 0
     while far.any() and rounds < MAX_ROUNDS:
         if far.sum() > MAX_OUTLIER_FRACTION * n:
@@ -366,27 +287,356 @@ def screen_outliers(
                 f"{int(far.sum())} of {n} poses lie beyond the outlier radius: the model does "
                 "not fit these data (a missing effect, other units, another robot); none left out"
             )
-            return first, OutlierScreen(np.ones(n, dtype=bool), [], s, radius, rounds, note)
+            return first, _Judged(np.ones(n, dtype=bool), [], s, radius, rounds, note)
         if np.array_equal(~far, keep):
             break
         keep = ~far
-        res = refit(keep)
+        res = model.fit(data.subset(keep))
         rounds += 1
-        far, s, radius, r = flags(res, keep)
+        far, s, radius, r = _flags(res, data, keep)
     if not far.any():
         if rounds:  # the poses once flagged are back within the radius: every pose is fitted
-            return first, OutlierScreen(np.ones(n, dtype=bool), [], s, radius, rounds)
-        return res, OutlierScreen(keep, [], s, radius, rounds)
+            return first, _Judged(np.ones(n, dtype=bool), [], s, radius, rounds)
+        return res, _Judged(keep, [], s, radius, rounds)
     if not np.array_equal(~far, keep):
         note = (
             f"the poses beyond the rule kept changing with the fit ({int((~keep).sum())}, then "
             f"{int(far.sum())}): the spread of an effect no candidate has, not gross errors; "
             "none left out"
         )
-        return first, OutlierScreen(np.ones(n, dtype=bool), [], s, radius, rounds, note)
+        return first, _Judged(np.ones(n, dtype=bool), [], s, radius, rounds, note)
     d = np.sqrt(np.sum(r**2, axis=1))
     outs = [
         Outlier(int(i), _line(data, int(i)), 1e3 * float(d[i]), float(d[i] / s))
         for i in np.flatnonzero(~keep)
     ]
-    return res, OutlierScreen(keep, outs, s, radius, rounds)
+    return res, _Judged(keep, outs, s, radius, rounds)
+
+
+# -- the tests' rows -------------------------------------------------------------------------------
+def _beyond_candidates(
+    e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, rule: str | None
+) -> tuple[np.ndarray, str | None]:
+    """The poses that stay gross outliers once the model *and every candidate* may explain the
+    residual ``e`` (3N): least squares on their columns, the rule, iterated. Returns their
+    indices and the rule as applied."""
+    n = e.size // 3
+    keep = np.ones(n, dtype=bool)
+    far = np.zeros(n, dtype=bool)
+    radius = s = float("nan")
+    for _ in range(MAX_ROUNDS + 1):
+        r, k = explained(e, J0, Jc, np.repeat(keep, 3).astype(float))
+        far, s, radius = judge(r.reshape(n, 3), keep, k)
+        if not np.isfinite(s) or far.sum() > MAX_OUTLIER_FRACTION * n:
+            return np.empty(0, dtype=int), rule
+        if np.array_equal(~far, keep):
+            break
+        keep = ~far
+    else:  # still changing: a spread peeled away round by round, not gross errors
+        return np.empty(0, dtype=int), rule
+    if far.any():
+        rule = (
+            f"3-D residual above {radius:.2f} robust sigmas ({1e3 * radius * s:.4g} mm) beyond "
+            "the model and every candidate"
+        ) + (f"; the fit's: {rule}" if rule else "")
+    return np.flatnonzero(far), rule
+
+
+def _robust_far(e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, iterations: int = 20) -> np.ndarray:
+    """The points a robust fit's tests leave out (``outliers="keep"`` with a robust loss):
+    Huber IRLS of the residual ``e`` (3N) on every column the model and all candidates have, so
+    that a missing effect is explained, not mistaken for outliers; then the points farther off
+    than :data:`lab.solver.OUTLIER_RADIUS` robust standard deviations."""
+    n = e.size // 3
+    r, k = explained(e, J0, Jc, None)
+    if k > e.size // 2:  # too few poses for the catalogue: the fit's residual as it is
+        r = e
+    else:
+        w = np.ones_like(e)
+        for _ in range(iterations):
+            r, _ = explained(e, J0, Jc, w)
+            f = HUBER_K * robust_sigma(r)
+            w_new = np.minimum(1.0, f / np.maximum(np.abs(r), 1e-300))
+            if np.max(np.abs(w_new - w)) < 1e-6:
+                break
+            w = w_new
+    dist = np.linalg.norm(r.reshape(n, 3), axis=1)
+    return np.flatnonzero(dist > OUTLIER_RADIUS * robust_sigma(r))
+
+
+def _untested(
+    res: FitResult, kept: MeasurementSet, candidates: Sequence[str] | None, mode: str
+) -> tuple[np.ndarray, str | None]:
+    """The positions (in ``kept``, the rows ``res`` fitted) that the tests leave out besides,
+    and the rule as applied (see the module docstring)."""
+    rule = res.outlier_rule
+    model = res.model
+    full, groups, _ = candidate_groups(model, kept, candidates)
+    inputs = full.inputs(kept.q, kept.columns, source=kept.source)
+    p = full.nominal()
+    p[full.layout.indices(model.layout.names)] = res.params
+    J0, Jc = candidate_columns(res, full, inputs, p, candidate_indices(full, groups))
+    e = res.residuals.reshape(-1).copy()
+    if mode == "auto":
+        return _beyond_candidates(e, J0, Jc, rule)
+    return _robust_far(e, J0, Jc), rule
+
+
+# -- the screen ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Screen:
+    """Which rows of ``data`` count for a model, decided once by the rule of this module.
+
+    ``fit``: the model (``robot``, ``effects``) fitted to the rows kept (its ``duplicates``,
+    ``outlier_list`` and ``outlier_rule`` say what was left out of it and why);
+    ``untested_rows``: positions in :attr:`kept` that a diagnosis's tests leave out besides
+    (None: not judged, ``tests=False``): with ``outliers="auto"`` gross errors that show only
+    beyond the model and every candidate (no further model fits them either), with a robust
+    loss and ``outliers="keep"`` the robust fit's far points (of this model's tests only);
+    ``untested`` the same as :class:`Outlier` s of ``data``; ``test_rule`` the rule as applied.
+    ``options``, ``candidates``: what the rows were judged with."""
+
+    data: MeasurementSet
+    fit: FitResult
+    robot: RobotDescription
+    effects: Effects
+    options: LabOptions
+    candidates: tuple[str, ...] | None = None
+    untested_rows: np.ndarray | None = None
+    untested: tuple[Outlier, ...] = ()
+    test_rule: str | None = None
+
+    @property
+    def kept(self) -> MeasurementSet:
+        """The rows the model was fitted to: each distinct row once, the outliers left out."""
+        return self.fit.fitted_data(self.data)
+
+    @property
+    def tested(self) -> MeasurementSet:
+        """The rows a diagnosis tests: :attr:`kept` without the :attr:`untested` ones."""
+        if self.untested_rows is None or not self.untested_rows.size:
+            return self.kept
+        rows = self._rows()
+        return self.data.subset(np.delete(rows, self.untested_rows))
+
+    @property
+    def judged_tests(self) -> bool:
+        return self.untested_rows is not None
+
+    @property
+    def left_out(self) -> list[Outlier]:
+        """Every pose left out of the fit or of the tests, in the order of the data."""
+        return sorted([*self.fit.outlier_list, *self.untested], key=lambda o: o.index)
+
+    def _rows(self) -> np.ndarray:
+        rows = self.fit.fitted_rows
+        return np.arange(len(self.data)) if rows is None else rows
+
+    @property
+    def counted(self) -> MeasurementSet:
+        """The rows every model of these data is fitted to: :attr:`kept`, without the gross
+        errors found beyond the model and every candidate (``outliers="auto"``)."""
+        return self.tested if self.options.outliers == "auto" else self.kept
+
+    def refit(self, effects: Effects, tests: bool = True) -> Screen:
+        """``effects`` fitted to the rows that count (:attr:`counted`), nothing more left out
+        (``outliers="keep"``): the same rows for another model, so that models compare pose by
+        pose. With ``tests``, its tests' rows judged (a robust loss's far points)."""
+        model = _Model(self.robot, effects, self.options.replace(outliers="keep"))
+        data = self.counted
+        return _screened_fit(data, model.fit(data), model, self.candidates, tests)
+
+
+def _screen(
+    data: MeasurementSet,
+    model: _Model,
+    candidates: Sequence[str] | None,
+    tests: bool,
+) -> Screen:
+    opts = model.options
+    distinct, dups = duplicate_rows(data)
+    if dups:
+        text = duplicates_text(dups)
+        log.warning(
+            "%s: %d row(s) repeat an earlier row exactly: %s; each is counted once",
+            data.source,
+            len(dups),
+            text,
+        )
+        warn(
+            f"{data.source}: {len(dups)} row(s) repeat an earlier row exactly: {text}; each is "
+            "counted once",
+            RowsLeftOutWarning,
+        )
+        unique = data.subset(distinct)
+    else:
+        unique = data
+    try:
+        result = model.fit(unique)
+    except FitError as exc:
+        if dups:
+            raise FitError(f"{exc} ({len(dups)} duplicate row(s) counted once)") from None
+        raise
+    rule, note = None, ""
+    found: list[Outlier] = []
+    kept = distinct
+    if opts.outliers == "auto":
+        result, judged = _fit_outliers(unique, result, model)
+        rule, note = judged.rule(), judged.note
+        kept = distinct[judged.keep]
+        found = [replace(o, index=int(distinct[o.index])) for o in judged.outliers]
+        found = annotate(found, result.model, data)
+        if found:
+            where = ", ".join(o.where for o in found[:5])
+            log.warning(
+                "%s: %d outlier(s) left out of the fit (%s)", data.source, len(found), where
+            )
+            warn(
+                f"{data.source}: {len(found)} outlier(s) left out of the fit ({where}); rule: "
+                f"{rule}",
+                RowsLeftOutWarning,
+            )
+    return _screened_fit(
+        data, result, model, candidates, tests, kept, tuple(found), tuple(dups), rule, note
+    )
+
+
+def _screened_fit(
+    data: MeasurementSet,
+    result: FitResult,
+    model: _Model,
+    candidates: Sequence[str] | None,
+    tests: bool,
+    kept: np.ndarray | None = None,
+    found: tuple[Outlier, ...] = (),
+    dups: tuple[Duplicate, ...] = (),
+    rule: str | None = None,
+    note: str = "",
+) -> Screen:
+    """The screen of ``result``, the fit of the rows ``kept`` of ``data`` (None: all): its
+    plausibility checked, what was left out recorded, and with ``tests`` the tests' rows."""
+    opts = model.options
+    bad = check_plausible(result, opts.accept_large)
+    result = replace(
+        result,
+        implausible=bad,
+        fitted_rows=None if kept is None or len(kept) == len(data) else kept,
+        n_rows=len(data),
+        outlier_list=found,
+        duplicates=dups,
+        outliers_mode=opts.outliers,
+        outlier_rule=rule,
+        outlier_note=note,
+        source=data.source,
+    )
+    cands = None if candidates is None else tuple(candidates)
+    s = Screen(data, result, model.robot, model.effects, opts, cands, None, (), rule)
+    if not tests:
+        return s
+    if opts.outliers == "keep" and opts.loss == "linear":  # nothing to judge: every row is tested
+        return replace(s, untested_rows=np.empty(0, dtype=int))
+    far, test_rule = _untested(result, s.kept, cands, opts.outliers)
+    rows = s._rows()
+    dist = np.linalg.norm(result.residuals, axis=1)
+    inlier = np.ones(len(dist), dtype=bool)
+    inlier[far] = False
+    scale = robust_sigma(result.residuals[inlier])
+    lines = s.kept.lines
+    untested = tuple(
+        Outlier(
+            int(rows[i]),
+            None if lines is None else int(lines[i]),
+            1e3 * float(dist[i]),
+            float(dist[i] / scale) if scale > 0 else float("inf"),
+        )
+        for i in far
+    )
+    return replace(s, untested_rows=far, untested=untested, test_rule=test_rule)
+
+
+def screen(
+    data: MeasurementSet | str | Path,
+    robot: RobotDescription | str | Path | None = None,
+    effects: Effects | None = None,
+    *,
+    noise_mm: float | None = None,
+    loss: Loss = "linear",
+    outliers: OutlierMode = "auto",
+    accept_large: bool = False,
+    solver: Solver = "lm",
+    f_scale_mm: float | None = None,
+    max_evaluations: int = 100,
+    register: bool = True,
+    options: LabOptions | None = None,
+    candidates: Sequence[str] | None = None,
+    tests: bool = True,
+    start: Mapping[str, float] | None = None,
+    fixed: Iterable[str] = (),
+) -> Screen:
+    """Decide which rows of ``data`` count for ``effects`` (default geometric) of ``robot``
+    (default the seed arm), once: repeated rows counted once, gross outliers left out by the rule
+    of the module docstring (``outliers="auto"``), the model fitted to the rest
+    (:func:`lab.estimation.fit_rows`) and checked against the plausible bound of its parameters.
+
+    The options (``noise_mm`` ... ``register``, or ``options=``) are :class:`lab.LabOptions`.
+    ``candidates``: the effects a missing one may be (default: every registered effect), for the
+    tests' rows; ``tests``: also judge the rows a diagnosis's tests leave out (it costs every
+    candidate's Jacobian: :func:`lab.fit` does without). ``start``: starting values by name;
+    ``fixed``: names held at their starting value."""
+    opts = resolve(
+        options,
+        noise_mm=noise_mm,
+        loss=loss,
+        outliers=outliers,
+        accept_large=accept_large,
+        solver=solver,
+        f_scale_mm=f_scale_mm,
+        max_evaluations=max_evaluations,
+        register=register,
+    )
+    model = _Model(
+        as_robot(robot), "geometric" if effects is None else effects, opts, start, tuple(fixed)
+    )
+    return _screen(as_measurements(data), model, candidates, tests)
+
+
+def screened(
+    data: Screen | MeasurementSet | str | Path,
+    robot: RobotDescription | str | Path | None,
+    effects: Effects | None,
+    options: LabOptions,
+    *,
+    candidates: Sequence[str] | None = None,
+    tests: bool = True,
+) -> Screen:
+    """The screen an entry point works on: ``lab.screen(data, ...)`` made once, or ``data``
+    itself when it is a :class:`Screen` (nothing screened again): then its options hold (an
+    option asked otherwise is refused), and ``effects``, when given, are fitted to its rows
+    (:meth:`Screen.refit`)."""
+    if not isinstance(data, Screen):
+        model = _Model(as_robot(robot), "geometric" if effects is None else effects, options)
+        return _screen(as_measurements(data), model, candidates, tests)
+    s = data
+    clash = [
+        f"{f.name}={getattr(options, f.name)!r}"
+        for f in fields(LabOptions)
+        if getattr(options, f.name) != getattr(DEFAULTS, f.name)
+        and getattr(options, f.name) != getattr(s.options, f.name)
+    ]
+    if robot is not None:
+        clash.append("robot")
+    if candidates is not None and (s.candidates is None or tuple(candidates) != s.candidates):
+        clash.append(f"candidates={list(candidates)!r}")
+    if clash:
+        raise FitError(
+            f"the screen given was made with other options than {', '.join(clash)}; a screen "
+            "carries its robot and options: screen the data again with them (lab.screen)"
+        )
+    if effects is not None:
+        return s.refit(effects, tests)
+    if tests and not s.judged_tests:
+        raise FitError(
+            "the screen given did not judge the rows of the tests (lab.screen(..., tests=False)); "
+            "screen the data with tests=True"
+        )
+    return s

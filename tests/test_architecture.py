@@ -136,3 +136,29 @@ def test_arm_and_lab_load_neither_mujoco_nor_gymnasium():
 def test_the_task_contract_loads_no_plant():
     loaded = _loaded_after("import envs.task", ["mujoco", "envs.plant", "envs.sixaxis_track_v0"])
     assert loaded == []
+
+
+# docs/architecture.md, "Inside lab": each row builds only on the rows above it (and its own)
+LAB_ORDER = [
+    {"errors", "options", "text"},
+    {"blocks", "identifiability", "selection", "plausibility"},
+    {"solver", "registration", "result"},
+    {"estimation"},
+    {"candidates"},
+    {"screening"},
+    {"identification"},
+    {"diagnosis", "discovery", "planning", "export"},
+    {"report", "report_html", "plots"},
+]
+
+
+def test_the_lab_modules_build_only_on_those_above_them():
+    row = {m: k for k, names in enumerate(LAB_ORDER) for m in names}
+    assert set(row) == {m.split(".")[1] for m in MODULES if m.startswith("lab.")}
+    for name, k in row.items():
+        for line, imported, names in _imports(MODULES[f"lab.{name}"]):
+            for target in [f"{imported}.{n}" for n in names] or [imported]:
+                dep = _project_module(target)
+                if dep is None or not dep.startswith("lab.") or dep == f"lab.{name}":
+                    continue
+                assert row[dep.split(".")[1]] <= k, f"lab/{name}.py:{line} imports {dep}"

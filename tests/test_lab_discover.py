@@ -143,7 +143,7 @@ def test_the_library_lists_only_measured_varying_variables(seed):
 
 def test_bad_options_are_refused(seed):
     c = hidden.campaign(seed, None, seed=3, n_validation=1)
-    from lab.identification import FitError
+    from lab import FitError
 
     with pytest.raises(FitError, match="alpha"):
         discover(c.data, seed, alpha=0.0)

@@ -17,9 +17,8 @@ from arm.errormodel import ErrorModel
 from arm.kinematics import gravity_torques
 from arm.measurements import MeasurementSet
 from arm.sampling import sample_parameters, sample_poses
-from lab import blocks, diagnose, fit
+from lab import FitError, blocks, diagnose, fit, screen
 from lab.identifiability import analyse
-from lab.identification import FitError
 from lab.screening import OUTLIER_ALPHA, outlier_radius
 from tests._lab_data import FLOOR_MM, SIGMA, campaign
 
@@ -122,9 +121,9 @@ def test_an_effect_outside_the_catalogue_is_not_taken_for_outliers(seed, form):
     from tests import _hidden_forms as hidden
 
     data = hidden.campaign(seed, form, seed=0, n=1000, n_validation=1).data
-    res = fit(data, seed, "geometric")
-    assert len(res.outliers) == 0, form
-    assert len(diagnose(data, seed, "geometric", noise_mm=NOISE_MM, base=res).outliers) == 0
+    rows = screen(data, seed, "geometric", noise_mm=NOISE_MM)
+    assert len(fit(rows).outliers) == 0, form
+    assert len(diagnose(rows).outliers) == 0
 
 
 @pytest.mark.slow

@@ -1,0 +1,44 @@
+"""The lab's error and its cautions.
+
+:class:`FitError` is what every lab function raises for input it cannot use (too few poses, an
+option out of range, an effect the data cannot support); the message says why and where.
+The cautions are warnings (:func:`arm.errors.warn`), issued besides the log record, so that a
+user can filter them, make them errors or assert them:
+
+    import warnings, lab
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", lab.PoorPoseSetWarning)   # refuse a poor pose set
+        lab.fit(data, "seed", "geometric")
+"""
+
+from __future__ import annotations
+
+from arm.errors import SixAxisError, SixAxisWarning
+
+__all__ = [
+    "FitError",
+    "ImplausibleAcceptedWarning",
+    "LabWarning",
+    "PoorPoseSetWarning",
+    "RowsLeftOutWarning",
+]
+
+
+class FitError(SixAxisError, ValueError):
+    """A fit that cannot be done as asked: too few poses, bad options; the message says why."""
+
+
+class LabWarning(SixAxisWarning):
+    """A caution from the lab: its result stands, but read it with this in mind."""
+
+
+class PoorPoseSetWarning(LabWarning):
+    """The poses determine the identifiable parameters poorly (a large condition number)."""
+
+
+class RowsLeftOutWarning(LabWarning):
+    """Rows of the data were not fitted: exact duplicates (counted once) or gross outliers."""
+
+
+class ImplausibleAcceptedWarning(LabWarning):
+    """Identified values beyond the plausible bound of their kind were kept (``accept_large``)."""

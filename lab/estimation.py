@@ -1,0 +1,311 @@
+"""Estimation: the fit of an error model's parameters to every row it is given.
+
+    result = fit_rows(data, robot, "geometric,compliance", LabOptions(noise_mm=0.015))
+
+The steps, each a pure function of arrays:
+
+1. **Registration** (:mod:`lab.registration`): a large unknown base transform and tool offsets
+   are placed in closed form before any iteration.
+2. **Identifiability** (:mod:`lab.identifiability`) on the column-scaled Jacobian at the start:
+   parameters that the poses cannot separate are fixed at nominal, not fitted into noise.
+3. **Levenberg-Marquardt** (:mod:`lab.solver`) on the identifiable parameters, scaled so that
+   every Jacobian column has an RMS of 1 m per pose, with the error model's analytic Jacobian.
+   A robust loss (``huber``, ``soft_l1``) then runs scipy's trust-region reflective method from
+   the linear solution, with ``f_scale`` set to 1.345 robust standard deviations of the residual
+   (Huber's 95 %-efficiency constant) from the median absolute deviation, re-estimated once.
+4. A second identifiability pass at the solution with the noise now known (``noise_mm``, else the
+   residual's): a parameter whose typical-size error moves the points by less than the noise is
+   fixed too, and a parameter only nearly dependent at the start is restored if the data determine
+   it; then a short refit.
+5. **Standard errors** from the scaled Jacobian at the solution: ``cov = s^2 (J^T J)^-1`` with
+   ``s^2 = sum r^2 / (3N - rank)`` (robust fits: IRLS weights in both).
+
+Which rows are fitted is not decided here: :mod:`lab.screening` counts repeated rows once and
+leaves gross outliers out, calling :func:`fit_rows` on the rows that count;
+:func:`check_plausible` refuses identified values beyond the plausible bound of their kind
+(:mod:`lab.plausibility`).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from arm.description import RobotDescription, as_robot
+from arm.effect_api import EffectError, ModelInputs
+from arm.effects import Effect, missing_inputs
+from arm.errormodel import ErrorModel
+from arm.errors import warn
+from arm.measurements import MeasurementSet, as_measurements
+from lab.blocks import Blocks
+from lab.errors import FitError, ImplausibleAcceptedWarning
+from lab.identifiability import Identifiability, analyse_jacobian
+from lab.options import LabOptions
+from lab.plausibility import Implausible, implausible, likely_cause
+from lab.registration import register_base, tool_indices
+from lab.result import FitResult, inputs_of, rms
+from lab.solver import (
+    HUBER_K,
+    irls_weights,
+    robust_sigma,
+    solve,
+    standard_errors,
+    weighted_gram,
+)
+
+__all__ = ["build_model", "check_plausible", "fit_rows", "identifiability_of"]
+
+log = logging.getLogger(__name__)
+
+# The first pass fits only parameters at least 1 % independent of those before them: nearly
+# dependent ones (a tool a fraction of a millimetre off joint 6's axis makes dalpha6 and dd5 so)
+# would drift along the near-null space. The second pass, at the solution with the noise known,
+# restores every one that the data determine (RANK_TOL and the noise criterion) and refits.
+START_TOL = 1e-2
+IMPLAUSIBLE_RMS = 0.1  # m: after a fit, no real arm's model is this far from most measurements
+
+
+def build_model(
+    data: MeasurementSet,
+    robot: RobotDescription,
+    effects: str | Sequence[str | Effect],
+) -> tuple[ErrorModel, ModelInputs]:
+    """The error model for these data (one tool offset per target) and its inputs."""
+    try:
+        model = ErrorModel(robot, effects, targets=data.targets)
+    except EffectError as exc:
+        raise FitError(str(exc)) from None
+    for e in model.effects:
+        why = missing_inputs(e, model.robot, list(data.columns))
+        if why:
+            raise FitError(f"{data.source}: {e.label} cannot be fitted without {why}")
+    inputs = inputs_of(model, data)
+    n, P = len(data), len(model.layout)
+    if 3 * n <= P:
+        need = P // 3 + 1
+        raise FitError(
+            f"{data.source}: {n} poses give {3 * n} equations, not more than the {P} parameters "
+            f"of {','.join(model.effect_names)}; at least {need} poses are needed"
+        )
+    return model, inputs
+
+
+def fit_rows(
+    data: MeasurementSet,
+    robot: RobotDescription,
+    effects: str | Sequence[str | Effect],
+    options: LabOptions,
+    *,
+    start: Mapping[str, float] | None = None,
+    fixed: Iterable[str] = (),
+) -> FitResult:
+    """The fit of every pose of ``data``: registration, identifiability, Levenberg-Marquardt,
+    identifiability again with the noise known, standard errors (the module docstring). Nothing
+    is left out here: :mod:`lab.screening` decides which rows count."""
+    loss, noise_mm, f_scale_mm = options.loss, options.noise_mm, options.f_scale_mm
+    model, inputs = build_model(data, robot, effects)
+    lay = model.layout
+    xyz = data.xyz
+    p = model.nominal()
+    if start:
+        p = lay.vector(start, default=p)
+    held = np.zeros(len(lay), dtype=bool)
+    for n in fixed:
+        held[lay.index(n)] = True
+
+    if options.register and "geometric" in lay.effects:
+        before = rms(model.predict(inputs, p) - xyz)
+        p_reg = register_base(model, inputs, xyz, p, tools=not held[tool_indices(model)].any())
+        p_reg[held] = p[held]  # a held base keeps the value given: registration is a start only
+        after = rms(model.predict(inputs, p_reg) - xyz)
+        if after < before:
+            log.debug("registration: RMS %.4g mm -> %.4g mm", before * 1e3, after * 1e3)
+            p = p_reg
+
+    blocks = Blocks(model, inputs)
+
+    def solved(p, free, scale, loss="linear", f_scale=1.0):
+        return solve(
+            blocks, xyz, p, free, scale, loss, f_scale, options.max_evaluations, options.solver
+        )
+
+    def identifiability(p, J, **kw):
+        """At ``p``: from the whole Jacobian ``J`` when there is one block, else from the R of
+        its QR decomposition (the same inner products, :mod:`lab.blocks`); held parameters'
+        columns zeroed."""
+        if J is None:
+            R = _without(blocks.r_factor(p), held)
+            return analyse_jacobian(model, R, n_poses=blocks.n, **kw)
+        return analyse_jacobian(model, _without(J, held), **kw)
+
+    # identifiability at the start (the structure), fit, again with the noise known, refit
+    if blocks.single:
+        pred, J = model.predict(inputs, p, jacobian=True)
+    else:
+        pred, J = blocks.predict(p), None
+    initial_rms = rms(pred - xyz)
+    # held parameters are known: the others' identifiability is judged without their columns
+    # (with the base held, row 1 is identifiable; with it free, the base absorbs row 1)
+    ident = identifiability(p, J, tol=START_TOL, warn=False)
+    del J
+    _check_effects_identifiable(model, ident, held, data.source)
+    free = ident.identifiable & ~held
+    sol = solved(p, free, ident.scale)
+    iterations, evaluations = sol.iterations, sol.evaluations
+    if loss == "linear":
+        sigma = float(np.sqrt(np.sum(sol.residuals**2) / max(sol.residuals.size - free.sum(), 1)))
+    else:
+        sigma = robust_sigma(sol.residuals)
+    # the median pose, not the RMS: a few gross outliers must not condemn the model
+    typical_miss = float(np.median(np.linalg.norm(sol.residuals, axis=1)))
+    if typical_miss > IMPLAUSIBLE_RMS:
+        raise FitError(
+            f"{data.source}: the model cannot follow these measurements (RMS "
+            f"{rms(sol.residuals) * 1e3:.4g} mm, median {typical_miss * 1e3:.4g} mm after fitting "
+            f"{', '.join(lay.effects)}); are they in other units (length in mm, angles in deg: "
+            "say so when reading) or of another robot?"
+        )
+    if noise_mm is not None:
+        noise = noise_mm * 1e-3
+    else:  # the residual's, unless a few gross errors inflate it (then its robust scale)
+        rs = robust_sigma(sol.residuals)
+        noise = sigma if sigma <= 3.0 * rs else rs
+    ident = identifiability(sol.params, sol.jacobian, noise=noise, warn=True)
+    if held.any():
+        ident = replace(ident, held=tuple(np.asarray(lay.names)[held]))
+    free2 = ident.identifiable & ~held
+    if not free2.any():
+        raise FitError(
+            f"{data.source}: no parameter of {', '.join(lay.effects)} can be identified from these"
+            f" {len(xyz)} poses at a noise of {noise * 1e3:.3g} mm"
+        )
+    if not np.array_equal(free2, free):
+        free = free2
+        sol = solved(np.where(free | held, sol.params, p), free, ident.scale)
+        iterations, evaluations = iterations + sol.iterations, evaluations + sol.evaluations
+    f_scale = None
+    if loss != "linear":
+        f_scale = f_scale_mm * 1e-3 if f_scale_mm else HUBER_K * sigma
+        for _ in range(1 if f_scale_mm else 2):  # re-estimate the scale once, robustly
+            sol = solved(sol.params, free, ident.scale, loss, f_scale)
+            iterations, evaluations = iterations + sol.iterations, evaluations + sol.evaluations
+            if not f_scale_mm:
+                f_scale = HUBER_K * robust_sigma(sol.residuals)
+
+    r = sol.residuals
+    w = irls_weights(r, loss, f_scale) if f_scale is not None else None
+    gram, scale = sol.gram, sol.scale  # the Gram matrix of the columns as scaled in the solve
+    if w is not None:  # the robust fit's IRLS weights in the Gram matrix
+        gram = weighted_gram(blocks, sol.params, free, scale, w)
+    std, sigma = standard_errors(gram, r, free, scale, w)
+    return FitResult(
+        model=model,
+        params=sol.params,
+        std=std,
+        identifiable=free,
+        residuals=r,
+        identifiability=ident,
+        loss=loss,
+        iterations=iterations,
+        evaluations=evaluations,
+        sigma=sigma,
+        initial_rms=initial_rms,
+        inputs=inputs,
+        weights=w,
+        source=data.source,
+    )
+
+
+def _check_effects_identifiable(
+    model: ErrorModel, ident: Identifiability, held: np.ndarray, source: str
+) -> None:
+    """An effect asked for whose every parameter the data cannot identify (a constant column,
+    a joint that gravity never loads) is an error, not parameters quietly held at nominal."""
+    lay = model.layout
+    for e in model.effects:
+        if e.name == "geometric":
+            continue
+        sl = lay.slice(e.name)
+        if (ident.identifiable[sl] | held[sl]).any():
+            continue
+        names = lay.names[sl]
+        moves = [n for n in names if ident.combinations.get(n)]
+        why = (
+            "they move no measured point with these data"
+            if not moves
+            else "they move the points only as other parameters do ("
+            + "; ".join(ident.labels[n] for n in moves[:4])
+            + ")"
+        )
+        raise FitError(
+            f"{source}: {e.label} cannot be fitted from these data: none of its parameters "
+            f"({', '.join(names)}) is identifiable; {why}"
+        )
+
+
+def _without(J: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """``J`` with the columns of held (known) parameters zeroed (the last axis: a Jacobian
+    (N, 3, P) or the R factor (P, P) of one, whose inner products are the same)."""
+    if not held.any():
+        return J
+    J = J.copy()
+    J[..., held] = 0.0
+    return J
+
+
+def check_plausible(result: FitResult, accept: bool) -> tuple[Implausible, ...]:
+    """The identified parameters beyond the plausible bound of their kind: an error naming them
+    and the likely cause, unless ``accept`` (then logged and returned)."""
+    bad = tuple(implausible(result.model, result.params, result.identifiable))
+    if not bad:
+        return bad
+    shown = "; ".join(b.text() for b in bad[:4])
+    if len(bad) > 4:
+        shown += f"; and {len(bad) - 4} more"
+    cause = likely_cause(result.model, list(bad))
+    if not accept:
+        raise FitError(
+            f"{result.source}: not a plausible model of {result.model.robot.name!r}: {shown}, "
+            f"beyond the bound of its kind; likely cause: {cause}. Check the data and the "
+            "arm's file, or keep it anyway with --accept-large (accept_large=True)"
+        )
+    log.warning("%s: accepted beyond the plausible bound: %s (%s)", result.source, shown, cause)
+    warn(
+        f"{result.source}: accepted beyond the plausible bound: {shown} ({cause})",
+        ImplausibleAcceptedWarning,
+    )
+    return bad
+
+
+def identifiability_of(
+    data: MeasurementSet | str | Path | np.ndarray,
+    robot: RobotDescription | str | Path | None = None,
+    effects: str | Sequence[str | Effect] = "geometric",
+    params: Mapping[str, float] | None = None,
+    *,
+    noise_mm: float | None = None,
+) -> Identifiability:
+    """Which parameters of ``effects`` the poses of ``data`` (a measurement set, or joint angles
+    (N, 6) alone) can identify, at ``params`` (default nominal): rank, named unidentifiable
+    combinations, condition number, O1 and O4. With ``noise_mm`` parameters whose typical-size
+    error moves the points by less than the noise are counted unidentifiable too."""
+    robot = as_robot(robot)
+    if isinstance(data, np.ndarray):
+        data = MeasurementSet(data, np.zeros((len(np.atleast_2d(data)), 3)), source="poses")
+    data = as_measurements(data)
+    try:
+        model = ErrorModel(robot, effects, targets=data.targets)
+    except EffectError as exc:
+        raise FitError(str(exc)) from None
+    for e in model.effects:
+        why = missing_inputs(e, model.robot, list(data.columns))
+        if why:
+            raise FitError(f"{data.source}: {e.label} cannot be fitted without {why}")
+    inputs = inputs_of(model, data)
+    p = model.nominal() if not params else model.layout.vector(params, default=model.nominal())
+    _, J = model.predict(inputs, p, jacobian=True)
+    return analyse_jacobian(model, J, noise=None if noise_mm is None else noise_mm * 1e-3)

@@ -1,0 +1,109 @@
+"""The lab's options: one frozen object, one vocabulary, validated once.
+
+Every lab entry point (:func:`lab.screen`, :func:`lab.fit`, :func:`lab.diagnose`,
+:func:`lab.discover`, :func:`lab.report.build_report`) takes the data, the robot and the effects,
+then the fields of :class:`LabOptions` as keywords in the same order (or ``options=`` one
+object), and builds one :class:`LabOptions` from them. Its checks are declared beside each field
+(:mod:`arm.constraints`): a bad value is refused with the same message wherever it is given, and
+every bad value at once.
+
+    opts = LabOptions(noise_mm=0.015, loss="huber")
+    lab.fit(data, "seed", "geometric", options=opts)       # the same as the keywords
+    lab.fit(data, "seed", "geometric", noise_mm=-1)
+    # FitError: noise_mm must be positive, got -1
+
+The command line builds its choices and ranges from the same declarations
+(:func:`arm.constraints.choices`), and the agents build the same object.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from arm.constraints import Interval, choices, declare, problems, refuse
+from lab.errors import FitError
+
+__all__ = [
+    "LOSSES",
+    "OUTLIER_MODES",
+    "SOLVERS",
+    "LabOptions",
+    "Loss",
+    "OutlierMode",
+    "Solver",
+    "resolve",
+]
+
+Loss = Literal["linear", "huber", "soft_l1"]
+OutlierMode = Literal["auto", "keep"]
+Solver = Literal["lm", "minpack"]
+
+POSITIVE = Interval(float, 0.0, None, closed="neither")
+
+
+@dataclass(frozen=True)
+class LabOptions:
+    """How the lab fits and screens; the same for every entry point.
+
+    ``noise_mm``: the instrument's per-axis standard uncertainty (mm), if known (else estimated
+    from the residual); the identifiability pass and the diagnosis's noise test use it.
+    ``loss``: ``linear`` (least squares), ``huber`` or ``soft_l1`` (robust to outliers).
+    ``outliers``: ``auto`` leaves gross outliers out by the rule of :mod:`lab.screening`,
+    ``keep`` fits every pose (duplicates are counted once either way). ``accept_large``: keep a
+    model whose identified parameters exceed the plausible bound of their kind
+    (:mod:`lab.plausibility`) instead of refusing it. ``solver``: ``lm`` (the lab's
+    Levenberg-Marquardt, :mod:`lab.solver`) or ``minpack`` (scipy's ``lmder``), for the linear
+    loss. ``f_scale_mm``: the robust loss's threshold (default 1.345 robust sigmas).
+    ``max_evaluations``: of the model, per solve. ``register``: place a geometric model's base
+    and tool offsets in closed form first (:mod:`lab.registration`).
+    """
+
+    noise_mm: float | None = declare(None, POSITIVE)
+    loss: Loss = "linear"
+    outliers: OutlierMode = "auto"
+    accept_large: bool = False
+    solver: Solver = "lm"
+    f_scale_mm: float | None = declare(None, POSITIVE)
+    max_evaluations: int = declare(100, Interval(int, 1, None))
+    register: bool = True
+
+    def __post_init__(self) -> None:
+        refuse(problems(self), FitError)
+
+    @property
+    def noise(self) -> float | None:
+        """``noise_mm`` in m."""
+        return None if self.noise_mm is None else 1e-3 * self.noise_mm
+
+    def replace(self, **changes: Any) -> LabOptions:
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+LOSSES: tuple[str, ...] = choices(LabOptions, "loss")
+OUTLIER_MODES: tuple[str, ...] = choices(LabOptions, "outliers")
+SOLVERS: tuple[str, ...] = choices(LabOptions, "solver")
+DEFAULTS = LabOptions()
+
+
+def resolve(options: LabOptions | None, **given: Any) -> LabOptions:
+    """The options of an entry point's call: ``options`` if given (then every keyword must be
+    left at its default: one call states each option once), else the keywords, validated."""
+    if options is None:
+        return LabOptions(**given)
+    if not isinstance(options, LabOptions):
+        raise FitError(f"options must be a LabOptions, got {type(options).__name__}")
+    twice = [k for k, v in given.items() if not _same(v, getattr(DEFAULTS, k))]
+    if twice:
+        raise FitError(
+            f"{', '.join(twice)} given both as a keyword and in options=; give each option once"
+        )
+    return options
+
+
+def _same(a: Any, b: Any) -> bool:
+    return type(a) is type(b) and a == b

@@ -1,0 +1,386 @@
+"""The result of an identification, as frozen data: :class:`FitResult`.
+
+    result = lab.fit(data, "seed", "geometric,compliance")
+    result["c2"], result.standard_errors()["c2"]     # by name, SI units
+    result.rms_mm, result.validation_rms_mm          # the ``*_mm`` properties are for people
+    result.to_dict()                                 # the JSON of docs/format.md
+    print(result.table())                            # text through lab.text
+
+The numbers are computed by :mod:`lab.estimation` (the fit of the rows given) and
+:mod:`lab.screening` (which rows count); this module holds them and says them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from arm.description import RobotDescription
+from arm.effect_api import EffectError, ModelInputs
+from arm.errormodel import ErrorModel
+from arm.measurements import MeasurementSet
+from arm.params import ROW_FAMILIES, parameter_unit, parse_parameter_name
+from lab.blocks import Blocks
+from lab.errors import FitError
+from lab.identifiability import Identifiability
+from lab.plausibility import Implausible
+from lab.solver import OUTLIER_RADIUS, robust_sigma
+from lab.text import left_out_lines, parameter_cells
+
+__all__ = ["SCHEMA_VERSION", "Duplicate", "FitResult", "Outlier", "inputs_of", "reference_values"]
+
+SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Outlier:
+    """One pose left out: its index in the data given, its line in the file (if read from one),
+    its 3-D residual and how many robust standard deviations that is."""
+
+    index: int
+    line: int | None
+    residual_mm: float
+    sigmas: float
+    note: str | None = None  # why the model could not say where it is, when an effect knows
+
+    @property
+    def where(self) -> str:
+        return f"line {self.line}" if self.line is not None else f"row {self.index + 1}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "row": self.index + 1,
+            "line": self.line,
+            "residual_mm": self.residual_mm,
+            "sigmas": self.sigmas,
+            "note": self.note,
+        }
+
+
+@dataclass(frozen=True)
+class Duplicate:
+    """A row equal in every column to an earlier one (``first``), counted once."""
+
+    index: int
+    first: int
+    line: int | None
+    first_line: int | None
+
+    @property
+    def where(self) -> str:
+        if self.line is not None and self.first_line is not None:
+            return f"line {self.line} repeats line {self.first_line}"
+        return f"row {self.index + 1} repeats row {self.first + 1}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "row": self.index + 1,
+            "line": self.line,
+            "first_row": self.first + 1,
+            "first_line": self.first_line,
+        }
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """An identified model: parameters with names and standard errors, residuals, metrics.
+
+    ``params`` is the full vector (fixed parameters at nominal) laid out by ``model.layout``;
+    ``std`` its standard errors (NaN where fixed); ``residuals`` (N, 3) predicted minus measured
+    points. Lengths in m and angles in rad throughout; the ``*_mm`` properties are for people.
+    """
+
+    model: ErrorModel
+    params: np.ndarray
+    std: np.ndarray
+    identifiable: np.ndarray
+    residuals: np.ndarray
+    identifiability: Identifiability
+    loss: str
+    iterations: int
+    evaluations: int
+    sigma: float
+    initial_rms: float
+    inputs: ModelInputs = field(repr=False)
+    weights: np.ndarray | None = field(default=None, repr=False)
+    validation_residuals: np.ndarray | None = field(default=None, repr=False)
+    source: str = "<memory>"
+    # what the fit left out of the data given (see lab.screening): ``fitted_rows`` are the
+    # indices of the poses fitted (None: all, in order), ``n_rows`` how many the data had
+    fitted_rows: np.ndarray | None = field(default=None, repr=False)
+    n_rows: int | None = None
+    outlier_list: tuple[Outlier, ...] = ()
+    duplicates: tuple[Duplicate, ...] = ()
+    outliers_mode: str = "keep"
+    # the rule the outliers were judged by (None: not screened), and why nothing was left out
+    # when the rule could not be applied or would leave out too much
+    outlier_rule: str | None = None
+    outlier_note: str = ""
+    # parameters beyond the plausible bound of their kind, accepted (fit(accept_large=True))
+    implausible: tuple[Implausible, ...] = ()
+
+    # -- metrics ---------------------------------------------------------------------------------
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.model.layout.names
+
+    @property
+    def effects(self) -> list[str]:
+        return self.model.effect_names
+
+    @property
+    def n_points(self) -> int:
+        return int(self.residuals.shape[0])
+
+    @property
+    def rank(self) -> int:
+        return int(self.identifiable.sum())
+
+    @property
+    def n_parameters(self) -> int:
+        return len(self.params)
+
+    @property
+    def rms(self) -> float:
+        """3-D RMS of the fit residuals (m)."""
+        return rms(self.residuals)
+
+    @property
+    def rms_mm(self) -> float:
+        return 1e3 * self.rms
+
+    @property
+    def max_mm(self) -> float:
+        return 1e3 * float(np.linalg.norm(self.residuals, axis=1).max())
+
+    @property
+    def validation_rms_mm(self) -> float | None:
+        r = self.validation_residuals
+        return None if r is None else 1e3 * rms(r)
+
+    @property
+    def validation_median_mm(self) -> float | None:
+        r = self.validation_residuals
+        return None if r is None else 1e3 * float(np.median(np.linalg.norm(r, axis=1)))
+
+    @property
+    def sigma_mm(self) -> float:
+        """The per-axis noise the residual implies, sqrt(sum r^2 / (3N - rank)), in mm."""
+        return 1e3 * self.sigma
+
+    @property
+    def condition_number(self) -> float:
+        return self.identifiability.condition_number
+
+    @property
+    def unidentifiable(self) -> list[str]:
+        return self.identifiability.unidentifiable
+
+    @property
+    def jacobian(self) -> np.ndarray:
+        """The identification Jacobian (N, 3, P) at the solution, computed on demand (it is not
+        kept: 200,000 poses of geometric + compliance make 190 MB)."""
+        _, J = self.model.predict(self.inputs, self.params, jacobian=True)
+        return J
+
+    @property
+    def outliers(self) -> np.ndarray:
+        """Indices (into the data given to :func:`fit`) of the poses left out as gross outliers
+        (``outliers="auto"``; :mod:`lab.screening` states the rule)."""
+        return np.array([o.index for o in self.outlier_list], dtype=int)
+
+    @property
+    def far_points(self) -> np.ndarray:
+        """Indices of fitted points farther off the fit than :data:`OUTLIER_RADIUS` robust
+        standard deviations: a point of Gaussian noise lies that far out once in 1,000."""
+        r = np.linalg.norm(self.residuals, axis=1)
+        return np.flatnonzero(r > OUTLIER_RADIUS * robust_sigma(self.residuals))
+
+    def fitted_data(self, data: MeasurementSet) -> MeasurementSet:
+        """The poses of ``data`` (the data given to :func:`fit`) that this fit used."""
+        if self.n_rows is not None and len(data) != self.n_rows:
+            raise FitError(
+                f"{data.source}: {len(data)} rows, but the fit was made on data of {self.n_rows}"
+            )
+        return data if self.fitted_rows is None else data.subset(self.fitted_rows)
+
+    def parameters(self) -> dict[str, float]:
+        return self.model.layout.as_dict(self.params)
+
+    def standard_errors(self) -> dict[str, float | None]:
+        return {
+            n: (None if np.isnan(s) else float(s))
+            for n, s in zip(self.names, self.std, strict=True)
+        }
+
+    def __getitem__(self, name: str) -> float:
+        return float(self.params[self.model.layout.index(name)])
+
+    # -- use -------------------------------------------------------------------------------------
+    def predict(self, data: MeasurementSet | ModelInputs) -> np.ndarray:
+        """Predicted tool points (M, 3) of other poses with the identified parameters."""
+        inputs = data if isinstance(data, ModelInputs) else inputs_of(self.model, data)
+        return Blocks(self.model, inputs).predict(self.params)
+
+    def residuals_of(self, data: MeasurementSet) -> np.ndarray:
+        """Predicted minus measured points (M, 3) of another measurement set, m."""
+        return self.predict(data) - data.xyz
+
+    def validate(self, data: MeasurementSet) -> FitResult:
+        """This result with validation metrics on ``data`` (held-out poses)."""
+        return replace(self, validation_residuals=self.residuals_of(data))
+
+    def description(self, name: str | None = None) -> RobotDescription:
+        """The calibrated arm: a description whose nominal model reproduces this fit."""
+        return self.model.description(self.params, name=name)
+
+    # -- tables ----------------------------------------------------------------------------------
+    def rows(self) -> list[dict]:
+        """One dict per parameter: name, effect, unit, nominal (the described value it
+        corrects), error (identified minus nominal), value (nominal + error), std, identifiable;
+        SI units."""
+        ref = reference_values(self.model)
+        err = self.params - self.model.nominal()
+        out = []
+        for k, n in enumerate(self.names):
+            out.append(
+                {
+                    "name": n,
+                    "effect": self.model.layout.effect_of(n),
+                    "unit": parameter_unit(n),
+                    "nominal": float(ref[k]),
+                    "error": float(err[k]),
+                    "value": float(ref[k] + err[k]),
+                    "std": None if np.isnan(self.std[k]) else float(self.std[k]),
+                    "identifiable": bool(self.identifiable[k]),
+                }
+            )
+        return out
+
+    def table(self) -> str:
+        """The paper's Table 3 and more: per parameter its nominal value, the identified error and
+        its standard error (lengths in mm; angles: nominal in deg, errors in mrad;
+        :mod:`lab.text`)."""
+        lines = [f"{'parameter':<10} {'nominal':>14} {'error':>12} {'std':>10}  unit"]
+        for row in self.rows():
+            c = parameter_cells(row)
+            lines.append(
+                f"{c['name']:<10} {c['nominal']:>14} {c['error']:>12} {c['std']:>10}  {c['unit']}"
+            )
+        return "\n".join(lines)
+
+    def summary(self) -> str:
+        out = [
+            f"fit of {', '.join(self.effects)} to {self.n_points} points ({self.loss} loss): "
+            f"RMS {self.initial_rms * 1e3:.4f} mm -> {self.rms_mm:.4f} mm, max {self.max_mm:.4f} mm, "
+            f"{self.iterations} iterations"
+        ]
+        if self.validation_residuals is not None:
+            out.append(
+                f"validation on {len(self.validation_residuals)} points: RMS "
+                f"{self.validation_rms_mm:.4f} mm, median {self.validation_median_mm:.4f} mm"
+            )
+        out.append(self.identifiability.summary())
+        out += self.screening_lines()
+        return "\n".join(out)
+
+    def screening_lines(self, limit: int = 10) -> list[str]:
+        """What was left out of the fit and why, for people: duplicates, outliers."""
+        out = left_out_lines(
+            self.duplicates,
+            self.outlier_list,
+            self.outlier_rule,
+            of="the fit",
+            note=self.outlier_note,
+            limit=limit,
+        )
+        if self.implausible:
+            out.append(
+                "accepted beyond the plausible bound of their kind: "
+                + "; ".join(b.text() for b in self.implausible)
+            )
+        return out
+
+    def to_dict(self) -> dict:
+        """The JSON object of ``sixaxis lab fit --json`` (docs/format.md, fit)."""
+        ident = self.identifiability
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "effects": self.effects,
+            "n_points": self.n_points,
+            "rms_mm": self.rms_mm,
+            "max_mm": self.max_mm,
+            "validation_rms_mm": self.validation_rms_mm,
+            "validation_median_mm": self.validation_median_mm,
+            "parameters": self.parameters(),
+            "std": self.standard_errors(),
+            "rank": self.rank,
+            "n_parameters": self.n_parameters,
+            "unidentifiable": self.unidentifiable,
+            "condition_number": _finite(self.condition_number),
+            "o1": ident.o1,
+            "o4": ident.o4,
+            "identifiable": [n for n, ok in zip(self.names, self.identifiable, strict=True) if ok],
+            "sigma_mm": self.sigma_mm,
+            "initial_rms_mm": 1e3 * self.initial_rms,
+            "loss": self.loss,
+            "iterations": self.iterations,
+            "robot": self.model.robot.name,
+            "targets": list(self.model.targets),
+            "source": self.source,
+            "n_rows": self.n_points if self.n_rows is None else self.n_rows,
+            "outliers_mode": self.outliers_mode,
+            "outliers": [o.to_dict() for o in self.outlier_list],
+            "outlier_rule": self.outlier_rule,
+            "duplicates": [d.to_dict() for d in self.duplicates],
+            "implausible": [b.to_dict() for b in self.implausible],
+        }
+
+
+def rms(r: np.ndarray) -> float:
+    """The 3-D RMS of residuals (one row per pose); NaN for none."""
+    return float(np.sqrt(np.mean(np.sum(np.asarray(r) ** 2, axis=1)))) if len(r) else float("nan")
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def inputs_of(model: ErrorModel, data: MeasurementSet) -> ModelInputs:
+    """What every effect of ``model`` reads of ``data`` (:meth:`arm.errormodel.ErrorModel.inputs`),
+    a missing column refused as a :class:`FitError`."""
+    try:
+        return model.inputs(data.q, data.columns, source=data.source)
+    except EffectError as exc:
+        raise FitError(str(exc)) from None
+
+
+# --------------------------------------------------------------------------------------------------
+def reference_values(model: ErrorModel) -> np.ndarray:
+    """The described quantity each parameter corrects (alpha_{i-1} for ``dalpha{i}``, the tool
+    point coordinate for ``tx``, the base value for ``bx``...), so value = reference + error."""
+    rob = model.robot
+    tp = rob.tool_points  # target k takes tool k of the description, else the first
+    tools = np.array([tp[k] if k < len(tp) else tp[0] for k in range(len(model.targets))])
+    nominal = model.nominal()
+    out = np.zeros(len(model.layout))
+    fields = dict(zip(ROW_FAMILIES, ("alpha", "a", "theta_offset", "d"), strict=True))
+    geo = (
+        set(model.layout.names[model.layout.slice("geometric")])
+        if ("geometric" in model.layout.effects)
+        else set()
+    )
+    for k, n in enumerate(model.layout.names):
+        p = parse_parameter_name(n) if n in geo else None
+        if p is not None and p.kind == "row" and p.number is not None:
+            out[k] = getattr(rob.joints[p.number - 1], fields[p.family])
+        elif p is not None and p.kind == "beta" and p.number is not None:
+            out[k] = rob.joints[p.number].beta
+        elif p is not None and p.kind == "tool":
+            idx = p.number if p.number is not None else model.targets[0]
+            out[k] = tools[model.targets.index(idx), "xyz".index(p.family[1])]
+        else:  # the base, and every other effect: the parameter is the value itself
+            out[k] = nominal[k]
+    return out
