@@ -52,6 +52,9 @@ class HoldAgent(Agent):
     def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
         return np.zeros(6)
 
+    def report(self) -> dict[str, float | list]:
+        return {"tracker_points_used": 0}
+
 
 class NominalAgent(Agent):
     """Resolved-rate tracking of the reference with a kinematic model (nominal by default).
@@ -161,7 +164,7 @@ class NominalAgent(Agent):
         return np.clip(v / np.asarray(self.task.v_max, dtype=float), -1.0, 1.0)
 
     def report(self) -> dict[str, float | list]:
-        return solve_time_stats(self._times)
+        return solve_time_stats(self._times) | {"tracker_points_used": 0}
 
 
 class FeedforwardAgent(NominalAgent):
@@ -224,6 +227,7 @@ class FeedforwardAgent(NominalAgent):
     def report(self) -> dict[str, float | list]:
         out = super().report()
         out["measurements_used"] = self.n_measurements
+        out["tracker_points_used"] = self.n_measurements
         return out
 
 
@@ -397,6 +401,7 @@ class CalibratedAgent(NominalAgent):
     def report(self) -> dict[str, float | list]:
         out = super().report()
         out["calibration_measurements"] = len(self._q)
+        out["tracker_points_used"] = len(self._q)
         out["calibration_fits"] = self.n_fits
         out["calibration_fit_time_s"] = self.fit_time_s
         out["parameter_names"] = list(self.model.layout.names)

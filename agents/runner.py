@@ -24,12 +24,24 @@ error, the reward's parts and the plant's exact temperature and payload stay her
 metrics. The plant's truth (:class:`envs.task.Truth`) is handed to agents that declare
 ``needs_truth = True`` (oracles) and to no other.
 
+No agent is given the episode's seed: the plant's truth is a function of it and the public code.
+An agent that wants randomness gets ``reset(task, seed=agent_seed)``, a number derived from the
+episode seed by a cryptographic hash (:func:`agent_seed`), which gives nothing away about it. An
+agent's oracle status is read once, when the episode starts, before ``reset``: an agent that says
+``needs_truth = False`` later is still recorded as an oracle (``EpisodeResult.oracle``), and one
+that says ``True`` only later gets no truth.
+
+An agent that raises, or returns an action that is not 6 finite numbers, ends the episode with
+:class:`AgentFailure` (naming the agent, the call and the step); an episode still running at its
+``deadline`` (a :func:`time.monotonic` time) ends with :class:`TimeLimitExceeded`.
+
 Deterministic: the same agent settings, env settings and seed give the same arrays (timings
 aside). Inputs and outputs are plain data, so runs can be farmed out to other processes.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -39,14 +51,18 @@ from typing import Any
 import numpy as np
 
 from agents.base import Agent
+from arm.errors import SixAxisError
 from envs.task import Truth, controller_info
 
 __all__ = [
     "ENV_ID",
     "JUDGE_POSTURES",
     "WORKSPACE_POSTURES",
+    "AgentFailure",
     "EpisodeResult",
     "Phase",
+    "TimeLimitExceeded",
+    "agent_seed",
     "calibrate_then_blind",
     "calibration_campaign",
     "make_env",
@@ -57,6 +73,26 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 ENV_ID = "SixAxisTrack-v0"
+
+
+class AgentFailure(SixAxisError, RuntimeError):
+    """The agent failed: it raised, returned an action that is not 6 finite numbers, or its
+    process ended; the message names the agent, the call and the step. ``agent_traceback``:
+    the agent's own traceback, when it ran in a process of its own."""
+
+    agent_traceback: str = ""
+
+
+class TimeLimitExceeded(SixAxisError, TimeoutError):
+    """The run was still going at its time limit."""
+
+
+def agent_seed(episode_seed: int) -> int:
+    """The seed an agent is given for an episode: 63 bits of SHA-256 of the episode seed. It
+    gives the agent reproducible randomness and nothing of the episode seed (the hash cannot be
+    inverted, and the published seeds are drawn from 2**63 values)."""
+    digest = hashlib.sha256(f"sixaxis-agent-seed:{int(episode_seed)}".encode()).digest()
+    return int.from_bytes(digest[:8], "big") >> 1
 
 
 @dataclass(frozen=True)
@@ -220,7 +256,8 @@ class EpisodeResult:
     ``time`` (s, continuing across phases, at the end of each step), ``phase`` (index into
     ``phases``), ``judged`` (bool), ``true_error_mm`` (against the plant's true tool point),
     ``actions`` (T, 6) in [-1, 1], ``measurement`` (T, 3) the tracker point delivered at that step
-    (NaN if none), ``solve_time_s`` (the agent's computation per step), ``diverged``.
+    (NaN if none), ``solve_time_s`` (the agent's computation per step), ``diverged``; ``oracle``:
+    whether the agent was given the truth (its ``needs_truth`` when the episode started).
     """
 
     agent: str
@@ -239,6 +276,7 @@ class EpisodeResult:
     report: dict
     truth_parameters: dict[str, float] = field(default_factory=dict)
     wall_time_s: float = 0.0
+    oracle: bool = False
 
     def _mask(self, start: float = 0.0, judged_only: bool = True) -> np.ndarray:
         m = np.ones(len(self.time), dtype=bool)
@@ -296,9 +334,12 @@ def run_episode(
     phases: Sequence[Phase] | None = None,
     env_id: str = ENV_ID,
     on_step: Callable[[Any], None] | None = None,
+    deadline: float | None = None,
 ) -> EpisodeResult:
     """Run ``agent`` on one seeded episode; see the module docstring. ``on_step(env)`` is called
-    after every step (e.g. to render a frame: give ``render_mode`` in ``env_kwargs``)."""
+    after every step (e.g. to render a frame: give ``render_mode`` in ``env_kwargs``);
+    ``deadline`` (a :func:`time.monotonic` time) ends the episode with
+    :class:`TimeLimitExceeded` if it is still running then."""
     env_kwargs = dict(env_kwargs or {})
     if phases is None:
         phases = [Phase("track", episode_seconds, {}, judged=True)]
@@ -311,6 +352,8 @@ def run_episode(
     truth0: Truth | None = None
     t_offset = 0.0
     wall0 = time.perf_counter()
+    oracle = bool(agent.needs_truth)  # fixed now, before reset: what the record says
+    name = str(agent.name)
     for k, ph in enumerate(phases):
         kw = env_kwargs | dict(ph.overrides)
         env = None
@@ -322,19 +365,28 @@ def run_episode(
             dt = float(task.dt)
             steps = None if ph.seconds is None else max(1, round(ph.seconds / dt))
             truth = env.unwrapped.truth
+            given = truth if oracle else None
             if k == 0:
                 truth0 = truth
-                agent.reset(task, seed=int(seed), truth=truth if agent.needs_truth else None)
+                _call(name, "reset", 0, agent.reset, task, seed=agent_seed(seed), truth=given)
             else:
                 if not _same_truth(truth0, truth):
                     raise ValueError(
                         f"phase {ph.name!r}: overrides {dict(ph.overrides)} change the sampled "
                         "arm; a phase must keep the truth of the episode"
                     )
-                agent.next_phase(task, truth=truth if agent.needs_truth else None)
+                _call(name, "next_phase", len(cols["time"]), agent.next_phase, task, truth=given)
             n = 0
             while True:
-                action = agent.act(obs, controller_info(info))
+                step = len(cols["time"])
+                if deadline is not None and time.monotonic() > deadline:
+                    raise TimeLimitExceeded(
+                        f"the episode was still running at its time limit (step {step}, "
+                        f"{step * dt:g} s of simulated time)"
+                    )
+                action = _checked_action(
+                    name, step, _call(name, "act", step, agent.act, obs, controller_info(info))
+                )
                 solve = float(getattr(agent, "last_solve_time", 0.0))
                 obs, _, terminated, truncated, info = env.step(action)
                 n += 1
@@ -342,7 +394,7 @@ def run_episode(
                 cols["phase"].append(k)
                 cols["judged"].append(ph.judged)
                 cols["err"].append(float(info.get("true_error_mm", np.nan)))
-                cols["act"].append(np.asarray(action, dtype=float))
+                cols["act"].append(action)
                 m = info.get("measurement")
                 valid = bool(info.get("measurement_valid", False)) and m is not None
                 cols["meas"].append(np.asarray(m, dtype=float) if valid else np.full(3, np.nan))
@@ -360,8 +412,9 @@ def run_episode(
         if diverged:
             log.warning("episode diverged in phase %r (seed %s)", ph.name, seed)
             break
+    report = _call(name, "report", len(cols["time"]), agent.report)
     return EpisodeResult(
-        agent=agent.name,
+        agent=name,
         seed=int(seed),
         env_id=env_id,
         env_kwargs=env_kwargs,
@@ -382,10 +435,52 @@ def run_episode(
         measurement=np.asarray(cols["meas"], dtype=float).reshape(-1, 3),
         solve_time_s=np.asarray(cols["solve"], dtype=float),
         diverged=diverged,
-        report=agent.report(),
+        report=report,
         truth_parameters=_truth_parameters(truth0),
         wall_time_s=time.perf_counter() - wall0,
+        oracle=oracle,
     )
+
+
+def _call(name: str, what: str, step: int, fn: Callable[..., Any], *args: Any, **kw: Any) -> Any:
+    """Call one of the agent's methods; what it raises becomes :class:`AgentFailure` naming the
+    agent, the call and the step (the time limit passes through)."""
+    try:
+        return fn(*args, **kw)
+    except TimeLimitExceeded:
+        raise
+    except AgentFailure as exc:  # from an agent's own process: say when
+        if exc.args and "(step " not in str(exc.args[0]):
+            exc.args = (f"{exc.args[0]} (step {step})", *exc.args[1:])
+        raise
+    except Exception as exc:
+        text = str(exc).splitlines()[0] if str(exc) else ""
+        raise AgentFailure(
+            f"agent {name}: {what} raised {type(exc).__name__}: {text} (step {step})"
+        ) from exc
+
+
+def _checked_action(name: str, step: int, action: Any) -> np.ndarray:
+    """The agent's action as 6 finite floats, or :class:`AgentFailure` saying what it was."""
+    try:
+        a = np.asarray(action, dtype=float)
+    except (TypeError, ValueError):
+        raise AgentFailure(
+            f"agent {name}: act returned {type(action).__name__}, not 6 numbers (step {step})"
+        ) from None
+    if a.shape != (6,):
+        a = a.reshape(-1) if a.size == 6 else a
+    if a.shape != (6,):
+        raise AgentFailure(
+            f"agent {name}: act returned an array of shape {a.shape}, not (6,) (step {step})"
+        )
+    if not np.all(np.isfinite(a)):
+        bad = [int(i) + 1 for i in np.flatnonzero(~np.isfinite(a))]
+        raise AgentFailure(
+            f"agent {name}: act returned a non-finite action (joint(s) {bad}: {a.tolist()}) "
+            f"at step {step}"
+        )
+    return a
 
 
 def _same_truth(a: Truth | None, b: Truth | None) -> bool:

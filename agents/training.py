@@ -15,9 +15,10 @@ controller before the critic can tell).
 
 Seeds. The run's ``seed`` seeds the network and the exploration. Every training episode is reset
 with its own seed, ``episode_seed_base + SEED_STRIDE * seed + k`` for the k-th episode of the run
-(over all its envs), so no training episode is ever a leaderboard episode (those are seeds 0-4;
-the base must be at least 1000) and the runs of different seeds never share an episode.
-In-training evaluations use seeds ``eval_seed_base + i``, disjoint from both.
+(over all its envs), so no training episode is ever a leaderboard episode (those are drawn from
+2**32 up) or a public evaluation episode (seeds 0-4; the base must be at least 1000), and the
+runs of different seeds never share an episode. In-training evaluations use seeds
+``eval_seed_base + i``, disjoint from both.
 
 Records (in ``output``, default ``runs/<name>-seed<seed>``): ``config.json``, ``curve.csv`` (every
 ``eval_every`` steps: each evaluation scenario's settled tracking RMS, their mean, the mean
@@ -78,8 +79,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: the leaderboard's episodes (experiments/configs/full.toml; a test keeps the two equal): what a
-#: shipped policy is judged on
+#: the public episodes a shipped policy's file records its evaluation on (the scenarios, env and
+#: episode of experiments/configs/full.toml, a test keeps them equal; the leaderboard itself
+#: draws its seeds when it is swept, from 2**32 up)
 LEADERBOARD_SCENARIOS = (
     "nominal",
     "geometric",

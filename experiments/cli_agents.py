@@ -139,6 +139,19 @@ EVALUATE_METRICS = (
 )
 
 
+def _evaluate_one(agent: str, settings: dict, scenario: str, seed: int):
+    """One episode of ``agent``; a class path runs in a process of its own, as in a sweep."""
+    from agents.registry import make_agent
+    from agents.runner import run_episode
+
+    if ":" not in agent:
+        return run_episode(make_agent(agent, **settings), {"scenario": scenario}, seed=seed)
+    from agents.isolation import IsolatedAgent
+
+    with IsolatedAgent(agent, settings) as isolated:
+        return run_episode(isolated, {"scenario": scenario}, seed=seed)
+
+
 def evaluate(
     agent: Annotated[
         str,
@@ -164,8 +177,6 @@ def evaluate(
 ) -> None:
     """Run an agent on seeded episodes and print its tracking error (mm, true tool point): over
     the whole episode, after the settling time, and when it converged (as the leaderboard)."""
-    from agents.registry import make_agent
-    from agents.runner import run_episode
     from arm.errors import SixAxisError
     from experiments.metrics import episode_metrics
     from experiments.records import jsonable
@@ -186,8 +197,8 @@ def evaluate(
             for s in range(seeds):
                 status.update(f"{agent} on {sc}, seed {s}")
                 try:
-                    r = run_episode(make_agent(agent, **kw), {"scenario": sc}, seed=s)
-                except SixAxisError as exc:  # refused on purpose: say why, not where
+                    r = _evaluate_one(agent, kw, sc, s)
+                except SixAxisError as exc:  # refused on purpose, or the agent failed: say why
                     status.stop()
                     fail(f"{agent} on {sc}, seed {s}: {exc}")
                 m, timing = episode_metrics(

@@ -32,6 +32,9 @@ from experiments.cli_output import (
     user_errors,
 )
 
+#: how many pending runs ``--dry-run`` lists by name
+DRY_RUN_LISTED = 200
+
 
 @contextlib.contextmanager
 def _stop_on_signals() -> Iterator[None]:
@@ -93,7 +96,7 @@ def sweep(
     """Run every agent x scenario x seed of CONFIG; finished runs are skipped, so rerunning resumes."""
     from experiments.config import load_config
     from experiments.records import RunStore
-    from experiments.sweep import plan_sweep, run_sweep
+    from experiments.sweep import check_scheduler, plan_sweep, run_sweep
 
     with user_errors():
         cfg = load_config(config)
@@ -102,14 +105,26 @@ def sweep(
         store = RunStore(out_dir)
         pending, finished = plan_sweep(cfg, store, retry_failed, overwrite)
         store.check_writable()
+        if backend == "dask" and address and not dry_run:
+            check_scheduler(address)
     if dry_run:
+        drawn = (
+            f" (episode seeds drawn from [2**32, 2**63) when the sweep starts, kept in "
+            f"{out_dir / '_sweep.json'})"
+            if cfg.draw_seeds
+            else ""
+        )
         console.print(
             f"{cfg.name}: {len(cfg.agents)} agents x {len(cfg.scenarios)} scenarios x "
-            f"{len(cfg.seeds)} seeds = {len(pending) + len(finished)} runs; "
-            f"{len(finished)} finished in {out_dir}, {len(pending)} to run."
+            f"{cfg.n_seeds} seeds = {len(pending) + len(finished)} runs{drawn}; "
+            f"{len(finished)} finished in {out_dir}, {len(pending)} to run; time limit "
+            f"{cfg.time_limit_s:g} s a run, memory limit {cfg.memory_limit_mb} MiB a worker.",
+            highlight=False,
         )
-        for spec in pending:
+        for spec in pending[:DRY_RUN_LISTED]:
             console.print(f"  {spec.run_key}", highlight=False)
+        if len(pending) > DRY_RUN_LISTED:
+            console.print(f"  ... and {len(pending) - DRY_RUN_LISTED} more", highlight=False)
         return
 
     columns = (
@@ -292,6 +307,10 @@ def reproduce(
     rerun from the config and the commit it names: in this checkout when it is at that commit
     without local changes, else in an export of the commit (git archive) to a temporary
     directory. Rows made with local changes are refused."""
+    from experiments.cli_output import fail
+
+    if not (math.isfinite(rtol) and rtol >= 0):
+        fail(f"--rtol: a relative tolerance must be >= 0, got {rtol:g}")
     if record.suffix.lower() == ".csv":
         _reproduce_rows(record, run or [], line or [], every, rtol, isolated)
         return
@@ -306,6 +325,11 @@ def reproduce(
         problems = spec_problems(spec)
         if problems:
             raise RecordError(f"{record}: cannot rerun: " + "; ".join(problems))
+        if rec.get("run_hash") != spec.run_hash:
+            raise RecordError(
+                f"{record}: its spec hashes to {spec.run_hash}, not its run_hash "
+                f"{rec.get('run_hash')!r}: the record was edited, it is not the run it names"
+            )
     here = environment_info()
     for key in ("versions", "git"):
         mine, theirs = here[key], rec.get(key) or {}
@@ -364,10 +388,12 @@ def reproduce(
 def _reproduce_rows(
     path: Path, runs: list[str], lines: list[int], every: bool, rtol: float, isolated: bool
 ) -> None:
-    from experiments.reproduce import read_runs_csv, reproduce_rows, select_rows
+    from experiments.reproduce import check_row, read_runs_csv, reproduce_rows, select_rows
 
     with user_errors():
         picked = select_rows(read_runs_csv(path), runs, lines, every, source=str(path))
+        for i, row in picked:  # every row named is checked before any is rerun
+            check_row(row, path, i)
         console.print(f"rerunning {len(picked)} row(s) of {path} from the commits they name...")
         t0 = time.perf_counter()
         with console.status("rerunning..."):

@@ -5,12 +5,16 @@ single run starts, naming the file and the key.
     name = "quick"                       # optional (default: the file's stem); runs/<name>/
     description = "a few minutes on 2 cores"
     env_id = "SixAxisTrack-v0"           # optional
-    seeds = [0, 1, 2]                    # a list of seeds, or a count n meaning 0..n-1 (>= 3: see below)
+    seeds = 20                           # a count: episode seeds drawn when the sweep starts
+                                         # (or a list of fixed seeds, [0, 1, 2]; >= 3: see below)
     episode_seconds = 6.0                # one judged phase of this length (unless [[phases]])
     settle_seconds = 2.0                 # the settled metrics count after this much of the episode
     converge_mm = 0.25                   # converge_s: when the true error stays below this (mm)
     metrics = ["rms_mm", "rms_settled_mm", "converge_s", "max_settled_mm", "effort_rms"]
-    rank_by = "rms_mm"                   # the leaderboard's ranking metric (default rms_mm)
+    rank_by = "rms_settled_mm"           # the ranking metric (default: rms_settled_mm if listed)
+    time_limit_s = 600                   # a run still going after this is recorded as failed
+    memory_limit_mb = 4096               # each run's address space (where the platform has one)
+    isolate = "class-path"               # agents in a process of their own: class-path, all, none
     scenarios = ["nominal", "geometric", { name = "stiff", scenario = "compliance", env = {...} }]
 
     [env]                                # keyword arguments of gym.make for every run
@@ -31,6 +35,22 @@ single run starts, naming the file and the key.
     seconds = 10.0
     judged = false
     env = { trajectory = "spline" }
+
+Seeds. A count draws that many episode seeds when the sweep starts, from [2**32, 2**63) (never a
+training or evaluation seed of the shipped policies), the same for every agent and scenario (the
+comparisons are paired); the sweep keeps them in its manifest, so a resumed sweep reuses them, and
+each record's spec carries its seed, which ``sixaxis reproduce`` reads. Its runs are named
+``agent__scenario__epK`` (the K-th episode). A list gives fixed seeds (``agent__scenario__seedS``):
+for tests and development, not for published tables, since anyone can rebuild a public seed's
+arm. At most :data:`MAX_SEEDS` seeds and :data:`MAX_RUNS` runs.
+
+Limits. ``time_limit_s`` (default 600 s) bounds each run's wall time: a run still going then is
+recorded as failed ("TimeLimitExceeded") and the sweep goes on. ``memory_limit_mb`` (default
+4096) caps each run's address space where the platform allows it (Linux, macOS: ``RLIMIT_AS``
+of the worker process and of an isolated agent's process); a run that exhausts it fails with a
+``MemoryError``. ``isolate`` says which agents run in a process of their own
+(:class:`agents.isolation.IsolatedAgent`): ``"class-path"`` (the default: every agent named as
+``package.module:Class``), ``"all"`` or ``"none"``.
 
 An agent may also be given as a bare string in ``agents = ["hold", "nominal"]``. The env keyword
 arguments of a run are ``[env] | scenario.env | agent.env | {"scenario": ...}``, in that order.
@@ -77,6 +97,11 @@ from experiments.metrics import (
 )
 
 __all__ = [
+    "DEFAULT_MEMORY_LIMIT_MB",
+    "DEFAULT_TIME_LIMIT_S",
+    "ISOLATE",
+    "MAX_RUNS",
+    "MAX_SEEDS",
     "AgentEntry",
     "ConfigError",
     "ExperimentConfig",
@@ -93,7 +118,23 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+#: the env's control period (s): no episode or phase may be shorter
+CONTROL_DT = 0.02
+
 DEFAULT_ENV_ID = "SixAxisTrack-v0"
+#: each run's wall-time limit (s) unless a config sets ``time_limit_s``
+DEFAULT_TIME_LIMIT_S = 600.0
+#: each run's address-space limit (MiB) unless a config sets ``memory_limit_mb``
+DEFAULT_MEMORY_LIMIT_MB = 4096
+#: which agents run in a process of their own (``isolate``)
+ISOLATE = ("class-path", "all", "none")
+#: the most episode seeds a config may ask for, and the most runs
+MAX_SEEDS = 10_000
+MAX_RUNS = 200_000
+#: drawn episode seeds come from [DRAWN_SEED_LOW, 2**63): above every training (10_000 +
+#: 100_000 k) and evaluation (900_000 +) seed of the shipped policies
+DRAWN_SEED_LOW = 2**32
+DRAWN_SEED_HIGH = 2**63
 LABEL_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
 
 
@@ -170,9 +211,16 @@ class RunSpec:
     phases: tuple[dict[str, Any], ...]
     metrics: tuple[str, ...]
     converge_mm: float = DEFAULT_CONVERGE_MM
+    #: the episode's index when its seed was drawn at sweep time (None: a fixed seed)
+    episode: int | None = None
+    time_limit_s: float = DEFAULT_TIME_LIMIT_S
+    memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB
+    isolate: bool = False
 
     @property
     def run_key(self) -> str:
+        if self.episode is not None:
+            return f"{self.agent_label}__{self.scenario_label}__ep{self.episode}"
         return f"{self.agent_label}__{self.scenario_label}__seed{self.seed}"
 
     def to_dict(self) -> dict[str, Any]:
@@ -191,12 +239,21 @@ class RunSpec:
             "phases": [dict(p) for p in self.phases],
             "metrics": list(self.metrics),
             "converge_mm": self.converge_mm,
+            **({} if self.episode is None else {"episode": self.episode}),
+            "time_limit_s": self.time_limit_s,
+            "memory_limit_mb": self.memory_limit_mb,
+            "isolate": self.isolate,
         }
+
+    #: what changes how a run is run, not what it computes: not in its hash
+    RUN_OPTIONS = ("time_limit_s", "memory_limit_mb", "isolate")
 
     @property
     def run_hash(self) -> str:
         d = self.to_dict()
         d.pop("config_name")
+        for k in self.RUN_OPTIONS:
+            d.pop(k)
         return short_hash(d)
 
     @classmethod
@@ -216,6 +273,14 @@ class RunSpec:
             phases=tuple(dict(p) for p in d.get("phases", ())),
             metrics=tuple(d["metrics"]),
             converge_mm=float(d.get("converge_mm", DEFAULT_CONVERGE_MM)),
+            episode=None if d.get("episode") is None else int(d["episode"]),
+            time_limit_s=float(d.get("time_limit_s", DEFAULT_TIME_LIMIT_S)),
+            memory_limit_mb=(
+                None
+                if d.get("memory_limit_mb", DEFAULT_MEMORY_LIMIT_MB) is None
+                else int(d.get("memory_limit_mb", DEFAULT_MEMORY_LIMIT_MB))
+            ),
+            isolate=bool(d.get("isolate", False)),
         )
 
 
@@ -237,6 +302,15 @@ class ExperimentConfig:
     phases: tuple[PhaseEntry, ...] = ()
     path: str | None = None
     converge_mm: float = DEFAULT_CONVERGE_MM
+    #: how many episode seeds the sweep draws (0: the fixed ``seeds``)
+    draw_seeds: int = 0
+    time_limit_s: float = DEFAULT_TIME_LIMIT_S
+    memory_limit_mb: int | None = DEFAULT_MEMORY_LIMIT_MB
+    isolate: str = "class-path"
+
+    @property
+    def n_seeds(self) -> int:
+        return self.draw_seeds or len(self.seeds)
 
     def to_dict(self) -> dict[str, Any]:
         """The normalised config (what its hash is taken of; the file's path is not in it)."""
@@ -244,7 +318,10 @@ class ExperimentConfig:
             "name": self.name,
             "description": self.description,
             "env_id": self.env_id,
-            "seeds": list(self.seeds),
+            "seeds": self.draw_seeds if self.draw_seeds else list(self.seeds),
+            "time_limit_s": self.time_limit_s,
+            "memory_limit_mb": self.memory_limit_mb,
+            "isolate": self.isolate,
             "episode_seconds": self.episode_seconds,
             "settle_seconds": self.settle_seconds,
             "converge_mm": self.converge_mm,
@@ -266,13 +343,31 @@ class ExperimentConfig:
     def hash(self) -> str:
         return short_hash(self.to_dict())
 
-    def runs(self) -> list[RunSpec]:
-        """Every run, in a fixed order: agents, then scenarios, then seeds."""
+    def isolated(self, agent: str) -> bool:
+        """Whether the agent ``agent`` (a name or class path) runs in a process of its own."""
+        return self.isolate == "all" or (self.isolate == "class-path" and ":" in agent)
+
+    def runs(self, episode_seeds: Sequence[int] | None = None) -> list[RunSpec]:
+        """Every run, in a fixed order: agents, then scenarios, then seeds. A config that draws
+        its seeds needs them (``episode_seeds``, as many as it draws: the sweep's manifest keeps
+        them)."""
+        if self.draw_seeds:
+            if episode_seeds is None or len(episode_seeds) < self.draw_seeds:
+                raise ValueError(
+                    f"config {self.name}: its {self.draw_seeds} episode seeds are drawn when the "
+                    "sweep starts; pass them (episode_seeds)"
+                )
+            seeds: list[tuple[int | None, int]] = list(
+                enumerate(int(x) for x in episode_seeds[: self.draw_seeds])
+            )
+        else:
+            seeds = [(None, s) for s in self.seeds]
         out = []
         for a in self.agents:
+            isolate = self.isolated(a.agent)
             for s in self.scenarios:
                 env_kwargs = self.env | s.env | a.env | {"scenario": s.scenario}
-                for seed in self.seeds:
+                for episode, seed in seeds:
                     out.append(
                         RunSpec(
                             config_name=self.name,
@@ -289,9 +384,30 @@ class ExperimentConfig:
                             phases=tuple(p.to_dict() for p in self.phases),
                             metrics=self.metrics,
                             converge_mm=self.converge_mm,
+                            episode=episode,
+                            time_limit_s=self.time_limit_s,
+                            memory_limit_mb=self.memory_limit_mb,
+                            isolate=isolate,
                         )
                     )
         return out
+
+    def spec_for(self, agent_label: str, scenario_label: str, seed: int, episode: int | None):
+        """The run of this config for one agent, scenario and seed (``episode``: its index, for a
+        config that draws its seeds), or None if the config has no such agent or scenario."""
+        n = max(self.n_seeds, (episode or 0) + 1)
+        seeds = [seed] * n if self.draw_seeds else None
+        if not self.draw_seeds and seed not in self.seeds:
+            return None
+        for spec in self.runs(seeds):
+            if (
+                spec.agent_label == agent_label
+                and spec.scenario_label == scenario_label
+                and spec.seed == seed
+                and spec.episode == episode
+            ):
+                return spec
+        return None
 
 
 # -- parsing and validation -------------------------------------------------------------------
@@ -311,6 +427,9 @@ _TOP_KEYS = {
     "scenarios": list,
     "phases": list,
     "campaign": dict,
+    "time_limit_s": (int, float),
+    "memory_limit_mb": int,
+    "isolate": str,
 }
 _REQUIRED = ("seeds", "agents", "scenarios")
 _AGENT_KEYS = {"name", "label", "settings", "env", "scenario_settings"}
@@ -387,10 +506,16 @@ def parse_config(
     # seeds
     seeds_raw = raw["seeds"]
     seeds: list[int] = []
+    draw = 0
     if _is(seeds_raw, int):
         if seeds_raw < 1:
             bad(f"seeds: a count must be at least 1, got {seeds_raw}")
-        seeds = list(range(max(seeds_raw, 0)))
+        elif seeds_raw > MAX_SEEDS:
+            bad(f"seeds: {seeds_raw} episodes per agent and scenario; at most {MAX_SEEDS}")
+        else:
+            draw = seeds_raw
+    elif len(seeds_raw) > MAX_SEEDS:
+        bad(f"seeds: {len(seeds_raw)} seeds; at most {MAX_SEEDS}")
     else:
         for i, s in enumerate(seeds_raw):
             if not _is(s, int) or s < 0:
@@ -401,18 +526,31 @@ def parse_config(
             bad("seeds: empty")
         if len(set(seeds)) != len(seeds):
             bad(f"seeds: repeated seeds in {seeds_raw}")
-    if 0 < len(seeds) < MIN_VALUES_FOR_CI:
+    n_seeds = draw or len(seeds)
+    if 0 < n_seeds < MIN_VALUES_FOR_CI:
         log.warning(
             "%s: seeds: %d seed(s); the leaderboard shows min-max, not a confidence interval, "
             "with fewer than %d",
             source,
-            len(seeds),
+            n_seeds,
             MIN_VALUES_FOR_CI,
         )
+    time_limit_s = raw.get("time_limit_s", DEFAULT_TIME_LIMIT_S)
+    if not (_is(time_limit_s, (int, float)) and 0 < time_limit_s < 10**7):
+        bad(f"time_limit_s: must be a positive number of seconds, got {time_limit_s!r}")
+    memory_limit_mb = raw.get("memory_limit_mb", DEFAULT_MEMORY_LIMIT_MB)
+    if not (_is(memory_limit_mb, int) and memory_limit_mb >= 256):
+        bad(f"memory_limit_mb: must be an integer of at least 256 (MiB), got {memory_limit_mb!r}")
+    isolate = raw.get("isolate", "class-path")
+    if isolate not in ISOLATE:
+        bad(f"isolate: {isolate!r}; one of {', '.join(ISOLATE)}")
 
     episode_seconds = float(raw.get("episode_seconds", 10.0))
-    if not episode_seconds > 0:
-        bad(f"episode_seconds: must be positive, got {episode_seconds}")
+    if not episode_seconds >= CONTROL_DT - 1e-12:
+        bad(
+            f"episode_seconds: {episode_seconds:g} s is shorter than one control step "
+            f"({CONTROL_DT:g} s)"
+        )
     settle_seconds = float(raw.get("settle_seconds", DEFAULT_SETTLE_SECONDS))
     if settle_seconds < 0:
         bad(f"settle_seconds: must not be negative, got {settle_seconds}")
@@ -433,7 +571,7 @@ def parse_config(
         companion = METRICS[m].companion if isinstance(m, str) and m in METRICS else None
         if companion is not None and companion not in metrics:
             metrics.insert(metrics.index(m) + 1, companion)
-    rank_by = raw.get("rank_by", "rms_mm")
+    rank_by = raw.get("rank_by", "rms_settled_mm" if "rms_settled_mm" in metrics else "rms_mm")
     if rank_by not in metrics:
         bad(f"rank_by: {rank_by!r} is not one of the metrics {metrics}")
 
@@ -481,6 +619,12 @@ def parse_config(
         bad("phases: no phase is judged; mark at least one 'judged = true'")
     if phases and "episode_seconds" in raw:
         bad("episode_seconds: give either episode_seconds or [[phases]], not both")
+    for i, ph in enumerate(phases):
+        if not ph.seconds >= CONTROL_DT - 1e-12:
+            bad(
+                f"phases[{i}].seconds: {ph.seconds:g} s is shorter than one control step "
+                f"({CONTROL_DT:g} s)"
+            )
     if phases:
         episode_seconds = float(sum(p.seconds for p in phases if p.judged))
     if episode_seconds > 0 and settle_seconds >= episode_seconds:
@@ -500,6 +644,12 @@ def parse_config(
     _check_lengths(env, scenarios, agents, phases, episode_seconds, raw, env_info, bad)
     _check_env_options(env_id, env, scenarios, agents, phases, raw, problems)
 
+    n_runs = len(agents) * len(scenarios) * n_seeds
+    if n_runs > MAX_RUNS:
+        bad(
+            f"seeds: {len(agents)} agents x {len(scenarios)} scenarios x {n_seeds} seeds = "
+            f"{n_runs} runs; at most {MAX_RUNS}"
+        )
     if problems:
         raise ConfigError(source, problems)
     return ExperimentConfig(
@@ -517,6 +667,10 @@ def parse_config(
         scenarios=tuple(scenarios),
         phases=tuple(phases),
         path=source,
+        draw_seeds=draw,
+        time_limit_s=float(time_limit_s),
+        memory_limit_mb=int(memory_limit_mb),
+        isolate=str(isolate),
     )
 
 
@@ -862,7 +1016,56 @@ def _check_env_kwargs(env: Mapping[str, Any], where: str, info, bad) -> None:
             bad(f"{where}.{k}: {msg}")
 
 
+#: checks a class-path agent in a process of its own: the problems as a JSON list on stdout
+_CHECK_DRIVER = r"""
+import json, sys
+from experiments.config import check_agent_in_process
+args = json.loads(sys.stdin.read())
+problems = []
+ok = check_agent_in_process(args["agent"], args["settings"], args["where"], problems.append,
+                       args["construct"])
+print(json.dumps({"ok": ok, "problems": problems}))
+"""
+
+
 def _check_agent(agent: str, settings: dict, where: str, bad, construct: bool) -> bool:
+    """Whether an agent and its settings can run, reporting what is wrong to ``bad``. A class
+    path is imported (and made) in a process of its own: its module's code never runs in the
+    sweep's process, where the runs' envs and truths will be."""
+    if ":" not in agent:
+        return check_agent_in_process(agent, settings, where, bad, construct)
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(os.path.abspath(p) if p else os.getcwd() for p in sys.path)
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", _CHECK_DRIVER],
+            input=json.dumps(
+                {"agent": agent, "settings": settings, "where": where, "construct": construct}
+            ),
+            capture_output=True,
+            text=True,
+            timeout=300,
+            env=env,
+            check=False,
+        )
+        answer = json.loads(proc.stdout.strip().splitlines()[-1])
+    except (OSError, subprocess.SubprocessError, ValueError, IndexError) as exc:
+        tail = ""
+        if isinstance(exc, (ValueError, IndexError)):
+            lines = (proc.stderr or "").strip().splitlines()
+            tail = f": {lines[-1]}" if lines else f" (exit {proc.returncode})"
+        bad(f"{where}.name: agent {agent!r} cannot be checked in a process of its own{tail}")
+        return False
+    for msg in answer["problems"]:
+        bad(str(msg))
+    return bool(answer["ok"])
+
+
+def check_agent_in_process(agent: str, settings: dict, where: str, bad, construct: bool) -> bool:
     from agents.registry import AgentError, check_settings, make_agent, resolve_agent
 
     try:

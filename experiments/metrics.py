@@ -2,8 +2,13 @@
 their summary over seeds (mean with a 95 % Student-t confidence interval from three seeds on; the
 minimum and maximum with fewer, where a t-interval is too wide to mean anything).
 
-The whole episode counts: ``rms_mm`` is over every judged step, start-up included; the settled
-metrics leave out the first ``settle_seconds``; ``converge_s`` says how long the start-up took.
+The leaderboard ranks by the settled RMS (``rms_settled_mm``: after ``settle_seconds``), what an
+agent's calibration and control decide. The start-up is its own column (``rms_startup_mm``: the
+first second, before the first tracker points have told anyone anything, where 86-89 % of a
+non-oracle agent's whole-episode squared error falls on ``geometric``); ``rms_mm`` counts both.
+``converge_s`` is kept for configs that ask for it, but the path decides it as much as the agent
+(a fast stretch late in the episode takes even the oracle above the threshold), so the shipped
+configs no longer list it.
 
 | metric                 | unit | what it is                                                            |
 |------------------------|------|-----------------------------------------------------------------------|
@@ -11,6 +16,8 @@ metrics leave out the first ``settle_seconds``; ``converge_s`` says how long the
 | `max_mm`               | mm   | its maximum (mostly the starting offset)                              |
 | `rms_settled_mm`       | mm   | RMS after the first ``settle_seconds`` of the judged steps            |
 | `max_settled_mm`       | mm   | the maximum after the first ``settle_seconds``                        |
+| `rms_startup_mm`       | mm   | RMS over the first second of the judged steps (the start-up)          |
+| `tracker_points`       | 1    | tracker points the agent used (every phase): what it says it used (``tracker_points_used`` in its report), else every point delivered to it |
 | `converge_s`           | s    | the time (from the start of the judged steps) after which the true error stays below ``converge_mm`` to the end; missing (null) when it never does |
 | `never_converged`      | 1    | 1 if the error never stayed below ``converge_mm`` (the leaderboard counts it over seeds) |
 | `effort_rms`           | 1    | RMS of the normalised joint-velocity commands (1: every joint at full speed) |
@@ -73,10 +80,13 @@ METRICS: dict[str, Metric] = {
         Metric("max_mm", "mm", "maximum true tool-point error (judged steps)"),
         Metric("rms_settled_mm", "mm", "tracking RMS after the settling time"),
         Metric("max_settled_mm", "mm", "maximum true tool-point error after the settling time"),
+        Metric("rms_startup_mm", "mm", "tracking RMS over the first second (start-up)"),
+        Metric("tracker_points", "1", "tracker points the agent used"),
         Metric(
             "converge_s",
             "s",
-            "time after which the true error stays below the convergence threshold",
+            "time after which the true error stays below the convergence threshold (the path "
+            "decides it as much as the agent)",
             companion="never_converged",
         ),
         Metric(
@@ -98,10 +108,9 @@ METRICS: dict[str, Metric] = {
 }
 
 DEFAULT_METRICS = (
-    "rms_mm",
     "rms_settled_mm",
-    "converge_s",
-    "never_converged",
+    "rms_startup_mm",
+    "rms_mm",
     "max_mm",
     "max_settled_mm",
     "effort_rms",
@@ -116,6 +125,8 @@ DEFAULT_METRICS = (
 DEFAULT_CONVERGE_MM = 0.25
 #: the settling time (s) unless a config sets ``settle_seconds``; see experiments.config
 DEFAULT_SETTLE_SECONDS = 2.0
+#: the start-up (s) of ``rms_startup_mm``: the judged steps' first second
+STARTUP_SECONDS = 1.0
 
 CALIBRATION_POSES = 64
 CALIBRATION_POSE_SEED = 20240611  # fixed: every agent and run is judged at the same poses
@@ -169,9 +180,10 @@ def episode_metrics(
     if judged.any():
         t0 = t[judged][0] - (dt if np.isfinite(dt) else 0.0)
         settled = err[judged & (t - t0 > settle_seconds + 1e-9)]
+        startup = err[judged & (t - t0 <= STARTUP_SECONDS + 1e-9)]
     else:
         t0 = 0.0
-        settled = np.empty(0)
+        settled = startup = np.empty(0)
     converge = convergence_time(t[judged], e, converge_mm, t0) if e.size else math.nan
     a = act[judged]
     rate = np.diff(act, axis=0)[judged[1:]] / dt if len(act) > 1 else np.empty((0, 6))
@@ -182,6 +194,7 @@ def episode_metrics(
         "max_mm": float(np.max(e)) if e.size else float("nan"),
         "rms_settled_mm": _rms(settled),
         "max_settled_mm": float(np.max(settled)) if settled.size else float("nan"),
+        "rms_startup_mm": _rms(startup),
         "converge_s": converge if math.isfinite(converge) else float("nan"),
         "never_converged": math.nan if math.isnan(converge) else float(math.isinf(converge)),
         "effort_rms": _rms(a),
@@ -192,6 +205,12 @@ def episode_metrics(
     }
     report = getattr(result, "report", {}) or {}
     values["calib_params"] = float(len(identified_names(report)))
+    used = report.get("tracker_points_used")
+    if isinstance(used, (int, float)) and not isinstance(used, bool):
+        values["tracker_points"] = float(used)
+    else:
+        meas = np.asarray(getattr(result, "measurement", np.empty((0, 3))), dtype=float)
+        values["tracker_points"] = float(np.isfinite(meas).all(axis=-1).sum()) if meas.size else 0.0
     values["calib_rms_mm"] = float("nan") if calib_rms_mm is None else float(calib_rms_mm)
     out, timing = {}, {}
     for n in names:

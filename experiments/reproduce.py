@@ -50,7 +50,17 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 #: the columns a per-run summary must have to be rerun
-REQUIRED = ("agent", "scenario", "seed", "status", "commit", "dirty", "config_path", "run_key")
+REQUIRED = (
+    "agent",
+    "scenario",
+    "seed",
+    "status",
+    "commit",
+    "dirty",
+    "config_path",
+    "run_key",
+    "run_hash",
+)
 
 
 class ReproduceError(SixAxisError, ValueError):
@@ -128,6 +138,8 @@ def read_runs_csv(path: str | Path) -> list[tuple[int, dict[str, str]]]:
         if None in row or any(v is None for v in row.values()):
             raise ReproduceError(f"{p}, line {i}: {len(header)} columns expected")
         rows.append((i, dict(row)))
+    if not rows:
+        raise ReproduceError(f"{p}: a header and no rows: nothing to reproduce")
     return rows
 
 
@@ -184,13 +196,19 @@ out = []
 for item in json.loads(sys.stdin.read()):
     try:
         cfg = load_config(item["config_path"])
-        spec = next((s for s in cfg.runs() if s.run_key == item["run_key"]), None)
-        if spec is None:
-            raise LookupError(f"the config {item['config_path']} has no run {item['run_key']}")
-        if item.get("run_hash") and spec.run_hash != item["run_hash"]:
+        if hasattr(cfg, "spec_for"):  # the seed comes from the row (drawn at sweep time)
+            spec = cfg.spec_for(item["agent"], item["scenario"], item["seed"], item["episode"])
+        else:  # a commit from before drawn seeds: its runs are its config's
+            spec = next((s for s in cfg.runs() if s.run_key == item["run_key"]), None)
+        if spec is None or spec.run_key != item["run_key"] or spec.seed != item["seed"]:
             raise LookupError(
-                f"the config's run {item['run_key']} has hash {spec.run_hash}, the row "
-                f"{item['run_hash']}: another spec"
+                f"the config {item['config_path']} has no run {item['run_key']} with seed "
+                f"{item['seed']}"
+            )
+        if spec.run_hash != item["run_hash"]:
+            raise LookupError(
+                f"the config's run {item['run_key']} with seed {item['seed']} has hash "
+                f"{spec.run_hash}, the row {item['run_hash']}: the row is not what was run"
             )
         rec = build_record(spec, run_in_worker(execute_run, spec.to_dict()))
         err = rec.get("error") or {}
@@ -261,8 +279,48 @@ def _run_child(tree: Path, items: list[dict[str, str]]) -> list[dict[str, Any]]:
     return answer["results"]
 
 
+def row_identity(row: Mapping[str, str], path: Path, line: int) -> dict[str, Any]:
+    """The run a row names: agent and scenario labels, seed, episode index (drawn seeds) and
+    its run key and hash, checked against each other (a row whose seed was edited names another
+    run than its key: refused here, or, for a drawn seed, by its hash when it is rerun)."""
+    where = f"{path}, line {line} ({row['run_key']})"
+    try:
+        seed = int(row["seed"])
+    except ValueError:
+        raise ReproduceError(f"{where}, column seed: not an integer: {row['seed']!r}") from None
+    if seed < 0:
+        raise ReproduceError(f"{where}, column seed: negative: {seed}")
+    prefix = f"{row['agent']}__{row['scenario']}__"
+    key = row["run_key"]
+    episode: int | None = None
+    if key == f"{prefix}seed{seed}":
+        pass
+    elif key.startswith(f"{prefix}ep") and key[len(prefix) + 2 :].isdigit():
+        episode = int(key[len(prefix) + 2 :])
+        if row.get("episode", str(episode)) not in ("", str(episode)):
+            raise ReproduceError(
+                f"{where}, column episode: {row['episode']!r} is not its run key's ({episode})"
+            )
+    else:
+        raise ReproduceError(
+            f"{where}: the run key is not the run of agent {row['agent']!r}, scenario "
+            f"{row['scenario']!r} and seed {seed}: the row was edited"
+        )
+    if not row.get("run_hash"):
+        raise ReproduceError(f"{where}: names no run hash (column run_hash is empty)")
+    return {
+        "agent": row["agent"],
+        "scenario": row["scenario"],
+        "seed": seed,
+        "episode": episode,
+        "run_key": key,
+        "run_hash": row["run_hash"],
+    }
+
+
 def check_row(row: Mapping[str, str], path: Path, line: int) -> None:
-    """Refuse a row no commit reproduces: made with local changes, or naming no commit."""
+    """Refuse a row no commit reproduces: made with local changes, naming no commit, or whose
+    columns do not name one run (:func:`row_identity`)."""
     where = f"{path}, line {line} ({row['run_key']})"
     if row.get("dirty") not in ("0", "False", "false"):
         raise ReproduceError(
@@ -278,6 +336,7 @@ def check_row(row: Mapping[str, str], path: Path, line: int) -> None:
             f"{where}: the config {row['config_path']} is outside the repository; a commit "
             "cannot reproduce it"
         )
+    row_identity(row, path, line)
 
 
 def reproduce_rows(
@@ -290,6 +349,10 @@ def reproduce_rows(
     """Rerun each row from its commit and config; see the module docstring. ``isolated``: rerun
     in an exported tree even when this checkout is at the row's commit."""
     path = Path(source)
+    if not (isinstance(rtol, (int, float)) and math.isfinite(rtol) and rtol >= 0):
+        raise ReproduceError(f"rtol: a relative tolerance must be a number >= 0, got {rtol!r}")
+    if not rows:
+        raise ReproduceError(f"{path}: no rows to rerun")
     root = root or source_root()
     outcomes: list[Outcome] = []
     groups: dict[str, list[Outcome]] = {}
@@ -305,12 +368,7 @@ def reproduce_rows(
     here = git_state(root)
     for commit, group in groups.items():
         items = [
-            {
-                "config_path": o.row["config_path"],
-                "run_key": o.run_key,
-                "run_hash": o.row.get("run_hash", ""),
-            }
-            for o in group
+            {"config_path": o.row["config_path"]} | row_identity(o.row, path, o.line) for o in group
         ]
         if not isolated and here.get("commit") == commit and here.get("dirty") is False:
             where = f"this checkout (at {commit[:10]})"

@@ -34,6 +34,7 @@ import ctypes
 import datetime as _dt
 import logging
 import os
+import secrets
 import signal
 import socket
 import sys
@@ -46,6 +47,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from agents.isolation import THREAD_VARS
 from arm.errors import SixAxisError
 from experiments.config import ExperimentConfig, RunSpec
 from experiments.records import RECORD_SCHEMA, RunStore, environment_info, jsonable, repo_path
@@ -55,6 +57,8 @@ __all__ = [
     "SweepProgress",
     "SweepSummary",
     "build_record",
+    "check_scheduler",
+    "episode_seeds",
     "execute_run",
     "plan_sweep",
     "run_sweep",
@@ -63,14 +67,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 RunFn = Callable[[RunSpec], Mapping[str, Any]]
-
-_THREAD_VARS = (
-    "OMP_NUM_THREADS",
-    "OPENBLAS_NUM_THREADS",
-    "MKL_NUM_THREADS",
-    "NUMEXPR_NUM_THREADS",
-    "VECLIB_MAXIMUM_THREADS",
-)
 
 
 class SweepError(SixAxisError, RuntimeError):
@@ -121,7 +117,15 @@ def execute_run(spec: RunSpec) -> dict[str, Any]:
         reports_model,
     )
 
-    agent = make_agent(spec.agent, **spec.settings)
+    deadline = time.monotonic() + spec.time_limit_s
+    if spec.isolate:
+        from agents.isolation import IsolatedAgent
+
+        agent: Any = IsolatedAgent(
+            spec.agent, spec.settings, deadline=deadline, memory_limit_mb=spec.memory_limit_mb
+        )
+    else:
+        agent = make_agent(spec.agent, **spec.settings)
     _limit_threads()  # the agent may have imported torch
     phases = None
     if spec.phases:
@@ -129,14 +133,19 @@ def execute_run(spec: RunSpec) -> dict[str, Any]:
             Phase(p["name"], float(p["seconds"]), dict(p.get("env", {})), bool(p["judged"]))
             for p in spec.phases
         ]
-    result = run_episode(
-        agent,
-        spec.env_kwargs,
-        seed=spec.seed,
-        episode_seconds=None if phases else spec.episode_seconds,
-        phases=phases,
-        env_id=spec.env_id,
-    )
+    try:
+        result = run_episode(
+            agent,
+            spec.env_kwargs,
+            seed=spec.seed,
+            episode_seconds=None if phases else spec.episode_seconds,
+            phases=phases,
+            env_id=spec.env_id,
+            deadline=deadline,
+        )
+    finally:
+        if spec.isolate:
+            agent.close()
     report = dict(result.report or {})
     calib_mm = None
     calibration: dict[str, Any] = {}
@@ -164,7 +173,8 @@ def execute_run(spec: RunSpec) -> dict[str, Any]:
     )
     timed = {k: v for k, v in report.items() if "time" in k}
     return {
-        "oracle": bool(agent.needs_truth),
+        "oracle": bool(result.oracle),  # read before the episode started
+        "isolated": bool(spec.isolate),
         "metrics": metrics,
         "timing_metrics": timing_metrics | {"report": timed},
         "report": {k: v for k, v in report.items() if k not in timed},
@@ -197,7 +207,7 @@ def _now() -> str:
 def _limit_threads() -> None:
     """One thread per run: two workers on two cores must not fight over BLAS or torch threads, and
     a fixed thread count keeps torch's sums in the same order, run after run."""
-    for var in _THREAD_VARS:
+    for var in THREAD_VARS:
         os.environ.setdefault(var, "1")
     torch = sys.modules.get("torch")  # never import it here: agents that use it already have
     if torch is not None and torch.get_num_threads() != 1:
@@ -207,8 +217,8 @@ def _limit_threads() -> None:
 @contextlib.contextmanager
 def _child_thread_env() -> Iterator[None]:
     """Children inherit the environment when spawned: one BLAS thread each."""
-    saved = {v: os.environ.get(v) for v in _THREAD_VARS}
-    for v in _THREAD_VARS:
+    saved = {v: os.environ.get(v) for v in THREAD_VARS}
+    for v in THREAD_VARS:
         os.environ[v] = "1"
     try:
         yield
@@ -223,6 +233,15 @@ def _child_thread_env() -> Iterator[None]:
 #: how often a worker's watchdog looks for its parent (s): the longest a worker outlives it
 PARENT_POLL_SECONDS = 0.2
 _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def _worker_init(parent_pid: int, memory_limit_mb: int | None = None) -> None:
+    """A pool worker's initializer: it dies with the sweep (:func:`_die_with_parent`) and its
+    address space is capped (:func:`agents.isolation.limit_memory`)."""
+    from agents.isolation import limit_memory
+
+    _die_with_parent(parent_pid)
+    limit_memory(memory_limit_mb)
 
 
 def _die_with_parent(parent_pid: int) -> None:
@@ -296,28 +315,74 @@ def _collect_warnings() -> Iterator[list[str]]:
         root.removeHandler(collector)
 
 
+@contextlib.contextmanager
+def _alarm(seconds: float) -> Iterator[list[bool]]:
+    """Raise :class:`~agents.runner.TimeLimitExceeded` in this thread after ``seconds`` (SIGALRM:
+    the main thread of a POSIX process only; elsewhere it only yields). Python code that hangs
+    is stopped; a hang no signal stops (inside C code) is ended by the sweep, which ends the
+    worker. Yields a list whose one item says whether the alarm rang (code that wraps every
+    exception it sees, as the env's option checks do, cannot hide the reason)."""
+    rang = [False]
+    if (
+        not hasattr(signal, "setitimer")
+        or threading.current_thread() is not threading.main_thread()
+    ):
+        yield rang
+        return
+    from agents.runner import TimeLimitExceeded
+
+    def ring(signum: int, frame: object) -> None:
+        rang[0] = True
+        raise TimeLimitExceeded(f"the run was still going after its time limit ({seconds:g} s)")
+
+    old = signal.signal(signal.SIGALRM, ring)
+    signal.setitimer(signal.ITIMER_REAL, max(seconds, 1e-3))
+    try:
+        yield rang
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def _error(exc: BaseException, tb: str) -> dict[str, Any]:
+    """A failed run's ``error``: the type, one line of what happened, the traceback (with the
+    agent's own, when the agent ran in a process of its own)."""
+    message = str(exc)
+    if isinstance(exc, MemoryError):
+        message = message or "out of memory (the run's memory limit, memory_limit_mb)"
+    own = getattr(exc, "agent_traceback", "")
+    return {
+        "type": type(exc).__name__,
+        "message": message,
+        "traceback": tb + (f"\nin the agent's process:\n{own}" if own else ""),
+    }
+
+
 def run_in_worker(run_fn: RunFn, spec_dict: dict[str, Any]) -> dict[str, Any]:
     """What a worker does with one run: call ``run_fn``, never raise, time it. Returns the
-    outcome, the status (ok/failed with the traceback), the warnings it logged and where and when
-    it ran."""
+    outcome, the status (ok/failed with the reason and traceback), the warnings it logged and
+    where and when it ran. A run still going after the spec's ``time_limit_s`` is stopped and
+    failed (:func:`_alarm`)."""
     _limit_threads()
     spec = RunSpec.from_dict(spec_dict)
     started = _now()
     t0 = time.perf_counter()
     warnings_logged: list[str] = []
+    rang = [False]
     try:
-        with _collect_warnings() as warnings_logged:
+        with _collect_warnings() as warnings_logged, _alarm(spec.time_limit_s) as rang:
             outcome = dict(run_fn(spec))
         status, error = "ok", None
     except Exception as exc:
         log.info("run %s failed: %s: %s", spec.run_key, type(exc).__name__, exc)
         outcome = {}
         status = "failed"
-        error = {
-            "type": type(exc).__name__,
-            "message": str(exc),
-            "traceback": traceback.format_exc(),
-        }
+        error = _error(exc, traceback.format_exc())
+        if rang[0]:  # whatever the exception became on its way up
+            error["type"] = "TimeLimitExceeded"
+            error["message"] = (
+                f"the run was still going after its time limit ({spec.time_limit_s:g} s)"
+            )
     wall = time.perf_counter() - t0
     env = environment_info()
     return jsonable(
@@ -357,6 +422,7 @@ def build_record(
             "spec": spec.to_dict(),
             "status": result.get("status", "failed"),
             "oracle": bool(outcome.pop("oracle", False)),
+            "isolated": bool(outcome.pop("isolated", False)),
             "error": result.get("error"),
             "metrics": outcome.pop("metrics", {}),
             "report": outcome.pop("report", {}),
@@ -391,18 +457,49 @@ def _failed_outcome(exc: BaseException, note: str) -> dict[str, Any]:
 # -- the sweep ---------------------------------------------------------------------------------
 
 
+def episode_seeds(config: ExperimentConfig, store: RunStore) -> tuple[int, ...] | None:
+    """The episode seeds of a config that draws them (None for fixed seeds): those the sweep's
+    manifest in ``store`` keeps, then new ones drawn from the operating system's randomness in
+    [2**32, 2**63) for the rest. Nothing is written here (:func:`run_sweep` keeps them)."""
+    if not config.draw_seeds:
+        return None
+    from experiments.config import DRAWN_SEED_HIGH, DRAWN_SEED_LOW
+
+    man = store.manifest() or {}
+    kept = man.get("episode_seeds") or []
+    if not isinstance(kept, list) or not all(
+        isinstance(x, int) and not isinstance(x, bool) and DRAWN_SEED_LOW <= x < DRAWN_SEED_HIGH
+        for x in kept
+    ):
+        raise SweepError(
+            f"{store.root / '_sweep.json'}: episode_seeds: expected a list of integers in "
+            f"[2**32, 2**63), got {str(kept)[:80]}"
+        )
+    seeds = list(kept)
+    draw = secrets.SystemRandom()
+    while len(seeds) < config.draw_seeds:
+        x = draw.randrange(DRAWN_SEED_LOW, DRAWN_SEED_HIGH)
+        if x not in seeds:
+            seeds.append(x)
+    return tuple(seeds)
+
+
 def plan_sweep(
     config: ExperimentConfig,
     store: RunStore,
     retry_failed: bool = True,
     overwrite: bool = False,
+    seeds: Sequence[int] | None = None,
 ) -> tuple[list[RunSpec], list[RunSpec]]:
     """``(pending, finished)``: the runs still to do and those whose record is already there.
+    A config that draws its seeds uses ``seeds``, or :func:`episode_seeds`.
 
     Raises :class:`SweepError` when a record under a run key has another spec (unless
     ``overwrite``): the config changed, and mixing the two would lose or mislabel results."""
+    if seeds is None:
+        seeds = episode_seeds(config, store)
     pending, finished, conflicts = [], [], []
-    for spec in config.runs():
+    for spec in config.runs(seeds):
         rec = store.load(spec.run_key)
         if rec is None:
             pending.append(spec)
@@ -455,8 +552,11 @@ def run_sweep(
     run_fn = run_fn or execute_run
     store = RunStore(out_dir if out_dir is not None else Path("runs") / config.name)
     store.check_writable()  # before any run: a read-only place fails now, in one line
+    if backend == "dask" and address:
+        check_scheduler(address)  # before anything is written
     with store.lock():  # one sweep a directory; what a killed one left half-written goes
-        pending, finished = plan_sweep(config, store, retry_failed, overwrite)
+        seeds = episode_seeds(config, store)
+        pending, finished = plan_sweep(config, store, retry_failed, overwrite, seeds)
         t0 = time.perf_counter()
         store.write_manifest(
             {
@@ -465,8 +565,9 @@ def run_sweep(
                 "config_path": repo_path(config.path),
                 "command": command,
                 "config": config.to_dict(),
-                "runs": {s.run_key: s.run_hash for s in config.runs()},
+                "runs": {s.run_key: s.run_hash for s in config.runs(seeds)},
             }
+            | ({} if seeds is None else {"episode_seeds": list(seeds)})
         )
         state = SweepProgress(total=len(pending) + len(finished), skipped=len(finished))
         failed: list[str] = []
@@ -506,7 +607,7 @@ def run_sweep(
                 tick(0)
             else:
                 n = workers if workers is not None else (os.cpu_count() or 1)
-                _run_local(pending, run_fn, max(1, n), report, tick)
+                _run_local(pending, run_fn, max(1, n), report, tick, config.memory_limit_mb)
         return SweepSummary(
             out_dir=store.root,
             total=state.total,
@@ -517,18 +618,29 @@ def run_sweep(
         )
 
 
+def _overdue_after(spec: RunSpec) -> float:
+    """How long after its start the sweep ends a run's worker (s): its time limit, which the
+    worker enforces itself, and a grace for a hang no signal can stop (inside C code)."""
+    return spec.time_limit_s + max(30.0, 0.25 * spec.time_limit_s)
+
+
 def _run_local(
     pending: Sequence[RunSpec],
     run_fn: RunFn,
     workers: int,
     report: Callable[[RunSpec, Mapping[str, Any]], None],
     tick: Callable[[int], None],
+    memory_limit_mb: int | None = None,
 ) -> None:
     """A bounded queue over a spawned process pool: at most ``workers`` runs in flight, so the
-    progress bar's "running" is true and an interrupt loses at most those."""
+    progress bar's "running" is true and an interrupt loses at most those. A run whose worker
+    does not answer well past its time limit (:func:`_overdue_after`) is recorded as failed and
+    the pool is ended and replaced (the other runs in flight are run again)."""
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
+
+    from agents.runner import TimeLimitExceeded
 
     queue = deque(pending)
     ctx = mp.get_context("spawn")  # no forked copies of MuJoCo, CasADi or torch state
@@ -537,20 +649,30 @@ def _run_local(
             pool = ProcessPoolExecutor(
                 max_workers=workers,
                 mp_context=ctx,
-                initializer=_die_with_parent,
-                initargs=(os.getpid(),),
+                initializer=_worker_init,
+                initargs=(os.getpid(), memory_limit_mb),
             )
             try:
-                inflight: dict[Any, RunSpec] = {}
+                inflight: dict[Any, tuple[RunSpec, float]] = {}
                 broken = False
                 while (queue or inflight) and not broken:
                     while queue and len(inflight) < workers:
                         spec = queue.popleft()
-                        inflight[pool.submit(run_in_worker, run_fn, spec.to_dict())] = spec
+                        fut = pool.submit(run_in_worker, run_fn, spec.to_dict())
+                        inflight[fut] = (spec, time.monotonic())
                     tick(len(inflight))
-                    done, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                    due = min(t0 + _overdue_after(sp) for sp, t0 in inflight.values())
+                    done, _ = wait(
+                        inflight,
+                        timeout=max(0.0, due - time.monotonic()),
+                        return_when=FIRST_COMPLETED,
+                    )
+                    if not done:
+                        _end_overdue(pool, inflight, queue, report, TimeLimitExceeded)
+                        broken = True
+                        break
                     for fut in done:
-                        spec = inflight.pop(fut)
+                        spec, _ = inflight.pop(fut)
                         try:
                             result = fut.result()
                         except BrokenProcessPool as exc:
@@ -558,13 +680,13 @@ def _run_local(
                             result = _failed_outcome(
                                 exc,
                                 "a worker process died while this run was in flight (this run "
-                                "or another one in flight crashed it)",
+                                "or another one in flight crashed it, or ran out of memory)",
                             )
                         except Exception as exc:  # e.g. an outcome that cannot be pickled
                             result = _failed_outcome(exc, "the run's result did not come back")
                         report(spec, result)
-                if broken:  # the pool is unusable: every run still in flight died with it
-                    for fut, spec in inflight.items():
+                if broken and inflight:  # the pool is unusable: every run in flight died with it
+                    for fut, (spec, _) in inflight.items():
                         exc = fut.exception() if fut.done() else BrokenProcessPool("pool broken")
                         report(spec, _failed_outcome(exc, "a worker process died"))
                     inflight.clear()
@@ -572,8 +694,66 @@ def _run_local(
             except BaseException:  # an interrupt, or a record that cannot be written
                 _stop_pool(pool)
                 raise
-            pool.shutdown(wait=True)
+            if broken:
+                _stop_pool(pool)
+            else:
+                pool.shutdown(wait=True)
     tick(0)
+
+
+def _end_overdue(
+    pool: Any,
+    inflight: dict[Any, tuple[RunSpec, float]],
+    queue: deque,
+    report: Callable[[RunSpec, Mapping[str, Any]], None],
+    timeout_error: type[Exception],
+) -> None:
+    """End the pool whose worker hangs: the overdue runs are recorded as failed, runs that
+    finished meanwhile as they came back, and the others go back to the front of the queue."""
+    now = time.monotonic()
+    _stop_pool(pool)
+    for fut, (spec, t0) in list(inflight.items()):
+        if fut.done() and not fut.cancelled() and fut.exception() is None:
+            report(spec, fut.result())
+        elif now >= t0 + _overdue_after(spec) - 1e-3:
+            exc = timeout_error(
+                f"the run did not end within its time limit ({spec.time_limit_s:g} s) and its "
+                "worker did not answer after it; the worker was ended"
+            )
+            log.warning("%s: over its time limit; its worker was ended", spec.run_key)
+            report(spec, _failed_outcome(exc, "time limit"))
+        else:
+            queue.appendleft(spec)
+    inflight.clear()
+
+
+#: how long to wait for a Dask scheduler to answer (s)
+SCHEDULER_TIMEOUT_S = 5.0
+
+
+def check_scheduler(address: str) -> None:
+    """Refuse at once an address where no scheduler listens (a TCP connection is tried first:
+    Dask's own client would retry for its whole timeout)."""
+    from urllib.parse import urlsplit
+
+    url = urlsplit(address if "://" in address else f"tcp://{address}")
+    if url.scheme not in ("tcp", "tls"):  # inproc://, ucx://...: Dask's client judges them
+        return
+    try:
+        host, port = url.hostname, url.port
+    except ValueError:
+        host, port = None, None
+    if not host or port is None:
+        raise SweepError(
+            f"--address {address!r}: not a scheduler address (tcp://HOST:PORT, e.g. "
+            "tcp://127.0.0.1:8786)"
+        )
+    try:
+        with socket.create_connection((host, port), timeout=SCHEDULER_TIMEOUT_S):
+            pass
+    except OSError as exc:
+        why = exc.strerror or type(exc).__name__
+        raise SweepError(f"--address {address}: no Dask scheduler answers there ({why})") from None
 
 
 def _run_dask(
@@ -598,7 +778,14 @@ def _run_dask(
             logging.getLogger(name).setLevel(logging.WARNING)
     with contextlib.ExitStack() as stack:
         if address:
-            client = stack.enter_context(Client(address))
+            check_scheduler(address)
+            try:
+                client = stack.enter_context(Client(address, timeout=SCHEDULER_TIMEOUT_S))
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise SweepError(
+                    f"--address {address}: cannot connect to a Dask scheduler there: "
+                    f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+                ) from None
         else:
             n = workers if workers else (os.cpu_count() or 1)
             with _child_thread_env():

@@ -63,7 +63,8 @@ def test_a_policy_zip_with_a_pickled_payload_runs_nothing(tmp_path):
     rec["spec"]["agent"], rec["spec"]["settings"] = "ppo-residual", {"path": str(evil)}
     record.write_text(json.dumps(rec))
     res = runner.invoke(app, ["reproduce", str(record)])
-    assert res.exit_code != 0 and "refusing" in res.output, res.output
+    # refused before anything runs: the edited spec is not the run its hash names
+    assert res.exit_code == 2 and "the record was edited" in res.output, res.output
     assert not marker.exists()
 
 

@@ -41,11 +41,12 @@ def refused(**changes) -> str:
 def test_shipped_configs_parse(name):
     cfg = load_config(CONFIGS / f"{name}.toml")
     assert cfg.name == name
-    runs = cfg.runs()
-    assert len(runs) == len(cfg.agents) * len(cfg.scenarios) * len(cfg.seeds)
+    seeds = list(range(2**40, 2**40 + cfg.draw_seeds)) if cfg.draw_seeds else None
+    runs = cfg.runs(seeds)
+    assert len(runs) == len(cfg.agents) * len(cfg.scenarios) * cfg.n_seeds
     assert len({r.run_key for r in runs}) == len(runs)
-    if name == "full":
-        assert len(cfg.seeds) >= 5
+    if name == "full":  # published: at least 20 episode seeds, drawn when the sweep starts
+        assert cfg.draw_seeds >= 20 and cfg.rank_by == "rms_settled_mm"
         assert {s.scenario for s in cfg.scenarios} >= {"nominal", "geometric", "compliance"}
 
 
@@ -75,8 +76,46 @@ def test_runs_expand_agents_by_scenarios_by_seeds_and_merge_env_options():
     assert r.agent == "nominal" and r.agent_label == "nom-slow"
 
 
-def test_seed_count_means_zero_to_n_minus_one():
-    assert parse(seeds=5).seeds == (0, 1, 2, 3, 4)
+def test_a_seed_count_draws_the_seeds_at_sweep_time_and_names_runs_by_episode():
+    cfg = parse(seeds=3, agents=["hold"], scenarios=["nominal"])
+    assert cfg.draw_seeds == 3 and cfg.seeds == () and cfg.n_seeds == 3
+    with pytest.raises(ValueError, match="drawn when the sweep starts"):
+        cfg.runs()
+    drawn = [2**62 + 5, 2**40 + 1, 2**33]
+    runs = cfg.runs(drawn)
+    assert [r.run_key for r in runs] == [f"hold__nominal__ep{k}" for k in range(3)]
+    assert [r.seed for r in runs] == drawn and [r.episode for r in runs] == [0, 1, 2]
+    # the seed is in the run's hash: another seed under the same key is another run
+    other = cfg.runs([drawn[0] + 1, *drawn[1:]])[0]
+    assert other.run_key == runs[0].run_key and other.run_hash != runs[0].run_hash
+    assert cfg.spec_for("hold", "nominal", drawn[1], 1) == runs[1]
+    # fixed seeds keep their names
+    assert [
+        r.run_key for r in parse(seeds=[4, 7], agents=["hold"], scenarios=["nominal"]).runs()
+    ] == [
+        "hold__nominal__seed4",
+        "hold__nominal__seed7",
+    ]
+
+
+def test_a_huge_seed_count_or_a_step_shorter_episode_is_refused_at_once():
+    msg = refused(seeds=100_000_000)
+    assert "seeds: 100000000 episodes per agent and scenario; at most 10000" in msg
+    msg = refused(episode_seconds=0.01)
+    assert "episode_seconds: 0.01 s is shorter than one control step (0.02 s)" in msg
+    msg = refused(time_limit_s=-1, memory_limit_mb=10, isolate="maybe")
+    assert "time_limit_s: must be a positive number" in msg
+    assert "memory_limit_mb: must be an integer of at least 256" in msg
+    assert "isolate: 'maybe'; one of class-path, all, none" in msg
+
+
+def test_limits_and_isolation_reach_every_run_but_not_its_hash():
+    cfg = parse(time_limit_s=5, memory_limit_mb=1024, agents=["hold", "tests._user_agent:Snoop"])
+    runs = cfg.runs()
+    assert {r.time_limit_s for r in runs} == {5.0} and {r.memory_limit_mb for r in runs} == {1024}
+    assert {r.agent: r.isolate for r in runs} == {"hold": False, "tests._user_agent:Snoop": True}
+    assert parse(isolate="all").runs()[0].isolate
+    assert runs[0].run_hash == parse(agents=["hold", "tests._user_agent:Snoop"]).runs()[0].run_hash
 
 
 def test_run_hash_names_the_run_not_the_config():
@@ -301,15 +340,15 @@ def test_convergence_comes_with_its_never_count_and_the_threshold_is_in_each_run
 @pytest.mark.parametrize("name", ["quick", "full", "compliance_story"])
 def test_shipped_configs_have_three_seeds_and_the_whole_episode_metrics(name):
     cfg = load_config(CONFIGS / f"{name}.toml")
-    assert len(cfg.seeds) >= 3
-    assert {"rms_mm", "rms_settled_mm", "converge_s", "max_settled_mm"} <= set(cfg.metrics)
+    assert cfg.n_seeds >= 3
+    assert {"rms_mm", "rms_settled_mm", "max_settled_mm"} <= set(cfg.metrics)
 
 
 def test_scenario_settings_are_merged_per_scenario_and_checked(tmp_path):
     cfg = tmp_path / "informed.toml"
     cfg.write_text(
         """
-seeds = 1
+seeds = [0]
 episode_seconds = 4.0
 scenarios = ["geometric", "backlash"]
 [[agents]]

@@ -53,7 +53,7 @@ def sample_row(**changes) -> dict:
         "config_path": "tests/configs/reproduce.toml",
         "config_hash": "",
         "run_key": "hold__geometric__seed0",
-        "run_hash": "",
+        "run_hash": "0123abcd4567ef89",
         "rms_mm": "1.5",
     } | changes
 
@@ -116,7 +116,7 @@ def test_rows_rerun_from_their_commit_give_the_same_metrics(summary, isolated):
     rows = read_runs_csv(summary)
     assert {r["commit"] for _, r in rows} == {GIT["commit"]}
     assert {r["config_path"] for _, r in rows} == {"tests/configs/reproduce.toml"}
-    args = ["reproduce", str(summary), "--run", "nominal__geometric__seed2", "--line", "2"]
+    args = ["reproduce", str(summary), "--run", "nominal__geometric__ep2", "--line", "2"]
     res = CliRunner().invoke(app, args + (["--isolated"] if isolated else []))
     assert res.exit_code == 0, res.output
     assert "reproduced: every metric of 2 row(s) is the same" in res.output
@@ -137,3 +137,18 @@ def test_a_row_whose_numbers_were_changed_is_not_reproduced(summary, tmp_path):
     # a tolerance accepts it
     res = CliRunner().invoke(app, ["reproduce", str(tampered), "--line", "2", "--rtol", "1e-3"])
     assert res.exit_code == 0, res.output
+
+
+@pytest.mark.skipif(
+    not CLEAN, reason="the rows name this checkout's commit: it must have no local changes"
+)
+def test_a_row_whose_drawn_seed_was_edited_is_not_reproduced(summary, tmp_path):
+    """The config draws its seeds: a row (key ``__epK``) whose seed was edited with its metrics
+    kept names, rerun, another run, whose hash is not the row's: not reproduced."""
+    rows = [r for _, r in read_runs_csv(summary)]
+    assert rows[0]["run_key"].endswith("__ep0") and int(rows[0]["seed"]) >= 2**32
+    rows[0]["seed"] = str(int(rows[0]["seed"]) + 1)
+    edited = write_rows(tmp_path / "edited.csv", rows[:1])
+    res = CliRunner().invoke(app, ["reproduce", str(edited), "--all"])
+    assert res.exit_code == 1 and "not reproduced" in res.output
+    assert "the row is not what was run" in res.output
