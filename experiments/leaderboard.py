@@ -206,7 +206,7 @@ def build_leaderboard(
                     for r in records
                     if r["spec"]["agent_label"] == agent and r["spec"]["scenario_label"] == scen
                 ),
-                key=lambda r: r["spec"]["seed"],
+                key=_episode_order,
             )
             nfail = sum(
                 1
@@ -251,6 +251,12 @@ def build_leaderboard(
         agent_settings=settings,
         allow_dirty=allow_dirty,
     )
+
+
+def _episode_order(rec: dict[str, Any]) -> int:
+    """A record's place among its cell's: its episode index (drawn seeds), else its seed."""
+    spec = rec["spec"]
+    return int(spec["episode"]) if spec.get("episode") is not None else int(spec["seed"])
 
 
 def _ordered(items) -> list:
@@ -373,7 +379,7 @@ def runs_csv(board: Leaderboard) -> str:
         board.records + board.failed,
         key=lambda r: (
             order.get((r["spec"]["agent_label"], r["spec"]["scenario_label"]), len(order)),
-            r["spec"]["seed"],
+            _episode_order(r),
         ),
     )
     man = board.manifest or {}
