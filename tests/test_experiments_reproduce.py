@@ -151,4 +151,6 @@ def test_a_row_whose_drawn_seed_was_edited_is_not_reproduced(summary, tmp_path):
     edited = write_rows(tmp_path / "edited.csv", rows[:1])
     res = CliRunner().invoke(app, ["reproduce", str(edited), "--all"])
     assert res.exit_code == 1 and "not reproduced" in res.output
-    assert "the row is not what was run" in res.output
+    (outcome,) = reproduce_rows(read_runs_csv(edited), edited)
+    assert outcome.differences() == ["error"]
+    assert "the row is not what was run" in str(outcome.error)
