@@ -9,7 +9,7 @@ export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 
-.PHONY: demo test test-quick lint bench leaderboard clean
+.PHONY: demo test test-quick lint bench leaderboard real-data clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -37,6 +37,11 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/env.py
 	$(BIN)/python benchmarks/mpc.py
 	$(BIN)/python benchmarks/mpc_diagnose.py
+
+# The lab on public real data beside the published results and FIGAROH: results/real_data.md.
+# The Rokae rows need the converted data: SIXAXIS_REAL_DATA=DIR make real-data (README).
+real-data: $(STAMP)
+	$(BIN)/python benchmarks/real_data.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache build *.egg-info

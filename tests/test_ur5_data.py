@@ -125,3 +125,48 @@ def test_the_urdf_fits_as_urs_published_dh_table(ur5_sets):
     a = fit(cal, load_robot("ur5_robot", base="base", tip="tool0"), "geometric", validate=test)
     b = fit(cal, "ur5", "geometric", validate=test)
     _same_fit(a, b, angle_tol=1e-11)
+
+
+@pytest.mark.slow
+def test_the_real_data_benchmark_writes_its_tables(tmp_path, monkeypatch):
+    """benchmarks/real_data.py without FIGAROH (its own side-by-side run is the benchmark's):
+    the UR5 rows on the data set's split, the Rokae section saying how to get its data, both files
+    naming no path outside the repository."""
+    import json
+    import subprocess
+
+    monkeypatch.delenv("SIXAXIS_REAL_DATA", raising=False)
+    out = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "benchmarks" / "real_data.py"),
+            "--skip-figaroh",
+            "--repeat",
+            "1",
+            "--out",
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
+        env={k: v for k, v in __import__("os").environ.items() if k != "SIXAXIS_REAL_DATA"},
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    report = json.loads((tmp_path / "real_data.json").read_text())
+    ur5, rokae = report["datasets"]
+    rows = {r["model"]: r for r in ur5["rows"]}
+    assert rows["published: MDH + neural network (ASTGCN)"]["mean_mm"] == 0.1549
+    geo = rows["geometric"]
+    assert 0.09 < geo["rms_mm"] < 0.12 and geo["parameters"] == 25
+    # the URDF's own chain (world to wrist_3_link) is another parametrisation of the same arm
+    assert rows["geometric, from ur5_robot.urdf"]["rms_mm"] == pytest.approx(
+        geo["rms_mm"], abs=1e-6
+    )
+    assert rows["diagnosis's choice"]["verdict"] and rows["discovery's"]["verdict"]
+    for label in ("diagnosis's choice", "discovery's"):  # the path's later steps cost their time
+        assert rows[label]["rms_mm"] > 0 and rows[label]["seconds"] > 0
+    assert rokae["rows"] == [] and "SIXAXIS_REAL_DATA" in rokae["not_run"]
+    md = (tmp_path / "real_data.md").read_text()
+    assert "## UR5" in md and "## Rokae" in md and str(ROOT) not in md
+    assert str(ROOT) not in (tmp_path / "real_data.json").read_text()
