@@ -590,10 +590,11 @@ def calibrated_urdf(arm: UrdfArm, origins: dict[str, np.ndarray]) -> str:
     masked = _masked(text)
     edits = []
     for name, T in origins.items():
-        starts = [
+        starts = [  # the robot's joint, not a <transmission>'s reference to it (no type)
             m
             for m in re.finditer(r"<joint\b[^>]*>", masked)
             if re.search(rf"\sname\s*=\s*([\"']){re.escape(name)}\1", m.group(0))
+            and re.search(r"\stype\s*=", m.group(0))
         ]
         if len(starts) != 1:
             raise UrdfError(f"{arm.source.path}: joint {name!r} found {len(starts)} times")

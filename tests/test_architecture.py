@@ -148,6 +148,7 @@ LAB_ORDER = [
     {"screening"},
     {"identification"},
     {"diagnosis", "discovery", "planning", "export"},
+    {"urdf_export"},
     {"report", "report_html", "plots"},
 ]
 

@@ -1,0 +1,263 @@
+"""The calibrated arm as a URDF: the arm's URDF with corrected joint origins, and beside it the
+metrology frames and the effects a URDF cannot express.
+
+    result = fit("data.csv", "ur5_robot.urdf")            # a robot read from a URDF
+    out = export_urdf(result, "calibrated.urdf")          # + calibrated.metrology.toml
+    robot = read_calibrated_urdf("calibrated.urdf")       # the whole calibrated arm, read back
+
+**The URDF.** The text of the arm's URDF with only the ``<origin xyz rpy>`` of its six arm joints
+rewritten (:func:`arm.urdf.calibrated_urdf`): every link keeps its pose in its DH frame, so its
+inertial, visuals, collisions, meshes (``package://`` paths as they were), limits and every other
+joint (fixed tool frames included) stay as they were. It carries the calibrated kinematics
+itself (no ``<calibration rising>`` tags, which most consumers ignore): any URDF reader computes
+the calibrated forward kinematics from it, in the URDF's base link.
+
+**The metrology file** (:data:`METROLOGY_SUFFIX`, TOML, docs/format.md, "The calibrated URDF"):
+what the calibration measured besides the arm and what a URDF has no place for: the measurement
+frame <- base link (the tracker's registration, one per station), the tool points (targets) and
+a measured tool frame's rotation in the tip link's frame, and the values of every effect other
+than the geometry (compliance, backlash, cyclic errors... by parameter name, SI units), which a
+controller applies on top of the URDF's kinematics.
+
+Before writing, both files are read back (the URDF by :func:`arm.urdf.read_urdf`) into a
+calibrated description whose predictions of the fitted poses must equal the fitted model's to
+:data:`lab.export.EXPORT_TOL` (1 nm), as for a robot TOML; else nothing is written.
+"""
+
+from __future__ import annotations
+
+import logging
+import tomllib
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from arm.description import RobotDescription, from_urdf, vec3
+from arm.measurements import atomic_write_text
+from arm.params import TOOL_ROTATION_NAMES
+from arm.so3 import rotation_matrix, rotation_vector
+from arm.urdf import UrdfError, calibrated_urdf, joint_origins, read_urdf, rpy_of
+from lab.export import EXPORT_TOL, CompensationError, ExportError, exported_difference
+from lab.result import SCHEMA_VERSION, FitResult
+
+__all__ = [
+    "METROLOGY_SUFFIX",
+    "UrdfExport",
+    "export_urdf",
+    "metrology_path",
+    "read_calibrated_urdf",
+]
+
+log = logging.getLogger(__name__)
+
+METROLOGY_SUFFIX = ".metrology.toml"
+
+
+@dataclass(frozen=True)
+class UrdfExport:
+    """What :func:`export_urdf` wrote: the URDF, its metrology file, the arm joints whose origin
+    changed, the calibrated arm as read back from both, and how far that arm's predictions of the
+    fitted poses lie from the fitted model's (m)."""
+
+    urdf: Path
+    metrology: Path
+    joints: tuple[str, ...]
+    robot: RobotDescription
+    difference_m: float
+
+
+def metrology_path(urdf: str | Path) -> Path:
+    """The metrology file beside a calibrated URDF: ``calibrated.urdf`` -> ``calibrated.metrology.toml``."""
+    p = Path(urdf)
+    return p.with_name(p.stem + METROLOGY_SUFFIX)
+
+
+def _pose(R: np.ndarray, t: np.ndarray) -> dict:
+    return {
+        "translation": [float(v) for v in t],
+        "rotation_vector": [float(v) for v in rotation_vector(R)],
+        "rpy": [float(v) for v in rpy_of(R)],
+    }
+
+
+def _station_bases(result: FitResult) -> list[tuple[int, np.ndarray]]:
+    """(station id, 4x4 measurement frame <- frame 0) of each station of the fit."""
+    model, params = result.model, result.parameters()
+    stations = getattr(model, "stations", (0,))
+    out = []
+    for s in stations:
+        suffix = "" if len(stations) == 1 else str(s)
+        t = np.array([params[f"b{c}{suffix}"] for c in "xyz"])
+        r = np.array([params[f"br{c}{suffix}"] for c in "xyz"])
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = rotation_matrix(r), t
+        out.append((int(s), T))
+    return out
+
+
+def export_urdf(result: FitResult, path: str | Path, name: str | None = None) -> UrdfExport:
+    """Write the calibrated arm of ``result`` (a fit of a robot read from a URDF) as a URDF at
+    ``path`` and its metrology file beside it (:func:`metrology_path`), both atomically, after
+    checking them (module docstring). Raises :class:`lab.export.ExportError` naming what is wrong;
+    nothing is written then."""
+    path = Path(path)
+    nominal = result.model.robot
+    src = nominal.urdf
+    if src is None:
+        raise ExportError(
+            f"{path}: the arm {nominal.name!r} was not read from a URDF, so there is no URDF to "
+            "correct; fit with --robot ARM.urdf, or export a robot TOML"
+        )
+    if path.suffix.lower() != ".urdf":
+        raise ExportError(f"{path}: a calibrated URDF's name ends in .urdf")
+    side = metrology_path(path)
+    cal = result.description(name or f"{nominal.name}-calibrated")
+    try:
+        arm = read_urdf(src.path, tip=src.tip_link, base=src.base_link, text=src.text)
+        origins = joint_origins(
+            arm,
+            cal.column("alpha"),
+            cal.column("a"),
+            cal.column("beta"),
+            cal.column("d"),
+            cal.column("theta_offset"),
+        )
+        text = calibrated_urdf(arm, origins)
+    except UrdfError as exc:
+        raise ExportError(f"{path}: cannot write the calibrated URDF: {exc}; not written") from None
+
+    # the metrology frames, in the base link and the tip link (URDF frames, not DH frames)
+    to_base = np.linalg.inv(arm.base)  # frame 0 -> base link, nominal (joint 1's parent rigid)
+    to_tip = np.linalg.inv(nominal.flange_matrix)  # frame 6 -> tip link
+    doc: dict = {
+        "schema_version": SCHEMA_VERSION,
+        "urdf": path.name,
+        "robot": cal.name,
+        "base_link": src.base_link,
+        "tip_link": src.tip_link,
+        "joints": list(arm.joint_names),
+        "units": "m, rad; effect values in SI by parameter name",
+        "fit": {
+            "source": str(result.source),
+            "effects": list(result.model.effect_names),
+            "rms_mm": float(result.rms_mm),
+        },
+    }
+    stations = _station_bases(result)
+    if len(stations) == 1:
+        T = stations[0][1] @ to_base
+        doc["tracker"] = _pose(T[:3, :3], T[:3, 3])
+    else:
+        doc["stations"] = [
+            {"station": s, **_pose((T @ to_base)[:3, :3], (T @ to_base)[:3, 3])}
+            for s, T in stations
+        ]
+    tools = []
+    for tid, point in zip(result.model.targets, cal.tools, strict=False):
+        p = to_tip[:3, :3] @ np.array(point) + to_tip[:3, 3]
+        tools.append({"target": int(tid), "point": [float(v) for v in p]})
+    doc["tools"] = tools
+    effects = {n: dict(v) for n, v in cal.effects.items()}
+    tool_r = effects.get("geometric", {})
+    if any(n in tool_r for n in TOOL_ROTATION_NAMES):  # a measured tool frame: in the tip link
+        r6 = np.array([tool_r.pop(n, 0.0) for n in TOOL_ROTATION_NAMES])
+        R = to_tip[:3, :3] @ rotation_matrix(r6)
+        doc["tool_frame"] = {
+            "rotation_vector": [float(v) for v in rotation_vector(R)],
+            "rpy": [float(v) for v in rpy_of(R)],
+        }
+        if not tool_r:
+            effects.pop("geometric")
+    if effects:
+        doc["effects"] = effects
+    import tomli_w
+
+    side_text = (
+        f"# sixaxis-track: what {path.name} cannot express (docs/format.md, 'The calibrated "
+        "URDF')\n" + tomli_w.dumps(doc)
+    )
+
+    back = _calibrated(text, side_text, str(path), tuple(result.model.targets))
+    try:
+        diff = exported_difference(result, back)
+    except CompensationError as exc:
+        raise ExportError(f"{path}: cannot export the calibrated arm: {exc}; not written") from None
+    if not diff <= EXPORT_TOL:
+        raise ExportError(
+            f"{path}: the calibrated URDF and {side.name}, read back, predict the fitted poses "
+            f"{diff * 1e3:.3g} mm away from the fitted model (tolerance {EXPORT_TOL * 1e3:g} mm): an "
+            "effect whose values depend on the DH table's form cannot go beside a URDF; export a "
+            "robot TOML instead; not written"
+        )
+    try:
+        atomic_write_text(path, text)
+        atomic_write_text(side, side_text)
+    except OSError as exc:
+        raise ExportError(f"{path}: cannot be written ({exc})") from None
+    log.info("wrote the calibrated URDF %s and %s (max difference %.2g m)", path, side, diff)
+    return UrdfExport(path, side, tuple(arm.joint_names), back, diff)
+
+
+def _calibrated(
+    urdf_text: str, metrology_text: str, source: str, targets: tuple[int, ...] | None = None
+) -> RobotDescription:
+    """The calibrated arm of a URDF text and its metrology text (see :func:`read_calibrated_urdf`)."""
+    try:
+        doc = tomllib.loads(metrology_text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ExportError(f"{metrology_path(source)}: not valid TOML: {exc}") from None
+    try:
+        arm = read_urdf(source, tip=doc["tip_link"], base=doc["base_link"], text=urdf_text)
+        robot = from_urdf(arm)
+        if "tracker" in doc:
+            frame = doc["tracker"]
+        else:
+            frame = doc["stations"][0]
+        T = np.eye(4)
+        T[:3, :3] = rotation_matrix(np.array(frame["rotation_vector"], dtype=float))
+        T[:3, 3] = frame["translation"]
+        B = T @ robot.base_matrix  # measurement frame <- frame 0 of the URDF read back
+        F = robot.flange_matrix  # its frame 6 <- tip link
+        tools = doc["tools"]
+        if targets is not None:
+            order = {int(t["target"]): t for t in tools}
+            tools = [order[t] for t in targets if t in order] or tools
+        points = tuple(
+            vec3(F[:3, :3] @ np.array(t["point"], dtype=float) + F[:3, 3]) for t in tools
+        )
+        effects = {n: dict(v) for n, v in doc.get("effects", {}).items()}
+        if "tool_frame" in doc:
+            R6 = F[:3, :3] @ rotation_matrix(np.array(doc["tool_frame"]["rotation_vector"]))
+            effects["geometric"] = effects.get("geometric", {}) | dict(
+                zip(TOOL_ROTATION_NAMES, map(float, rotation_vector(R6)), strict=True)
+            )
+        return replace(
+            robot,
+            name=str(doc.get("robot", robot.name)),
+            tools=points,
+            base_translation=vec3(B[:3, 3]),
+            base_rotation=vec3(rotation_vector(B[:3, :3])),
+            effects=effects,
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        if isinstance(exc, UrdfError):
+            raise ExportError(str(exc)) from None
+        raise ExportError(
+            f"{metrology_path(source)}: not a metrology file of sixaxis-track ({exc!r})"
+        ) from None
+
+
+def read_calibrated_urdf(path: str | Path, metrology: str | Path | None = None) -> RobotDescription:
+    """The calibrated arm that :func:`export_urdf` wrote: the URDF's chain (its base link and
+    tip link as the metrology file names them) with the tracker frame as its base, the tool points
+    and the effects' values; usable wherever a robot description is (``lab.export.compensate``,
+    ``lab.fit`` as a new nominal arm)."""
+    path = Path(path)
+    side = Path(metrology) if metrology is not None else metrology_path(path)
+    for p in (path, side):
+        if not p.is_file():
+            raise ExportError(f"{p}: file not found")
+    return _calibrated(
+        path.read_text(encoding="utf-8"), side.read_text(encoding="utf-8"), str(path)
+    )
