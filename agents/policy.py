@@ -315,7 +315,7 @@ def save_policy_file(
     """Write ``path`` (.npz: the acting network's weights and the observation normalisation) and
     its ``.json`` description, both atomically. ``meta`` needs ``variant``, ``obs_size``,
     ``act_size``, ``policy_kwargs`` (as data), ``use_sde`` and ``offset_mm``."""
-    from arm.measurements import atomic_path, atomic_write_text
+    from arm.files import atomic_path, atomic_write_text
 
     path = Path(path)
     if path.suffix != ".npz":

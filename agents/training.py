@@ -506,7 +506,7 @@ def train(
     cfg.check()
     out = Path(cfg.output)
     out.mkdir(parents=True, exist_ok=True)
-    from arm.measurements import atomic_write_text
+    from arm.files import atomic_write_text
 
     atomic_write_text(out / "config.json", json.dumps(cfg.to_dict(), indent=2) + "\n")
     seeds = cfg.training_seeds()
@@ -610,7 +610,7 @@ def train(
     def checkpoint() -> None:
         buf = io.BytesIO()
         model.save(buf)
-        from arm.measurements import atomic_path
+        from arm.files import atomic_path
 
         with atomic_path(out / "checkpoint.zip") as tmp:
             tmp.write_bytes(buf.getvalue())
@@ -713,7 +713,7 @@ def ship_policy(run_dir: str | Path, which: str = "best", name: str | None = Non
     """Copy a run's ``best`` or ``final`` policy into ``agents/policies/<name>.npz`` (and .json)
     with its deterministic evaluation on the leaderboard's episodes recorded in the .json."""
     from agents.policy import load_policy_file
-    from arm.measurements import atomic_path, atomic_write_text
+    from arm.files import atomic_path, atomic_write_text
 
     run_dir = Path(run_dir)
     if which not in ("best", "final"):

@@ -280,7 +280,7 @@ class RobotDescription:
         return tomli_w.dumps(doc)
 
     def save(self, path: str | Path, length_unit: str = "m", angle_unit: str = "deg") -> None:
-        from arm.measurements import atomic_write_text
+        from arm.files import atomic_write_text
 
         atomic_write_text(Path(path), self.to_toml(length_unit, angle_unit))
 

@@ -8,27 +8,24 @@ rotation vector, or ``roll, pitch, yaw``; blank in a row that measured none), an
 standard uncertainties ``std_x, std_y, std_z`` (m) and ``std_rx, std_ry, std_rz`` (rad). Other
 numeric columns are kept and offered to custom effects, and named in a :class:`MeasurementWarning`.
 Foreign data in mm or degrees is read with explicit unit options, never guessed. Bad input is
-refused with the file, line and column named; files are written atomically.
+refused with the file, line and column named; files are read and written through
+:mod:`arm.files` (regular files only, sizes bounded, outputs replaced atomically).
 
 Pose files (the poses to measure, as ``sixaxis lab plan`` writes them) are the same CSV with only
 ``q1..q6`` required, after a ``#`` line naming their schema version and angle unit; a
 measurement file is a pose file too.
 
 It is one module, longer than most, because the measurement, target and pose files share one CSV
-reader, one table of units and physical ranges, and one atomic writer.
+reader and one table of units and physical ranges.
 """
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import difflib
 import io
 import math
-import os
 import re
-import tempfile
-import time
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -37,6 +34,15 @@ from pathlib import Path
 import numpy as np
 
 from arm.errors import SixAxisError
+from arm.files import (
+    OutputError,
+    atomic_path,
+    atomic_write_text,
+    check_output,
+    folder_problem,
+    read_input_text,
+    remove_stale_temporaries,
+)
 from arm.ranges import out_of_range, payload_problem, range_text
 
 __all__ = [
@@ -378,142 +384,6 @@ def orientation_rotvec(angles: np.ndarray, form: str) -> np.ndarray:
     raise MeasurementError(f"orientation form must be one of {', '.join(ORIENTATION_FORMS)}")
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-STALE_LEGACY_SECONDS = 3600.0  # a temporary without a writer's pid, older than this, is stale
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OSError):
-        return True  # another user's process, or we cannot tell: leave its file alone
-    return True
-
-
-def remove_stale_temporaries(path: str | Path) -> list[Path]:
-    """Remove the temporaries that :func:`atomic_path` left beside ``path`` when its process was
-    killed (SIGKILL runs no cleanup): ``.NAME.PID.XXXX.tmp`` whose writer PID no longer runs, and
-    those of older versions without a PID once an hour old. A live writer's file is kept.
-    Returns the paths removed."""
-    path = Path(path)
-    prefix = f".{path.name}."
-    removed: list[Path] = []
-    try:
-        entries = list(os.scandir(path.parent))
-    except OSError:
-        return removed
-    now = time.time()
-    for entry in entries:
-        name = entry.name
-        if not (name.startswith(prefix) and name.endswith(".tmp")):
-            continue
-        middle = name[len(prefix) : -len(".tmp")]
-        pid_text, _, rest = middle.partition(".")
-        try:
-            if rest and pid_text.isdigit():
-                pid = int(pid_text)
-                if pid == os.getpid() or _pid_alive(pid):
-                    continue
-            elif now - entry.stat(follow_symlinks=False).st_mtime < STALE_LEGACY_SECONDS:
-                continue
-            os.unlink(entry.path)
-            removed.append(Path(entry.path))
-        except OSError:
-            continue
-    return removed
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """A temporary path beside ``path`` to write to; renamed onto ``path`` when the block ends
-    without error, removed otherwise. Readers see the old or the whole new file, never a part,
-    and the file gets the permissions of a plain ``open`` (the umask's), not mkstemp's 0600.
-
-    The temporary is ``.NAME.PID.XXXX.tmp``: a process killed while writing leaves it, and the
-    next write of the same file removes it (:func:`remove_stale_temporaries`)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_temporaries(path)
-    fd, tmp = tempfile.mkstemp(
-        dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp"
-    )
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-class OutputError(SixAxisError, ValueError):
-    """An output path that would replace an input, or that cannot be written."""
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    try:
-        if a.exists() and b.exists():
-            return os.path.samefile(a, b)
-    except OSError:
-        pass
-    return a.resolve() == b.resolve()
-
-
-def check_output(
-    path: str | Path, inputs: Sequence[str | Path | None] = (), option: str = "--output"
-) -> None:
-    """Refuse, before any work, an output that would replace one of ``inputs`` (the same file by
-    path or by link) or that cannot be written: a directory, a path through a file, a folder
-    where no file can be created. Raises :class:`OutputError` naming ``option`` and the path."""
-    path = Path(path)
-    for inp in inputs:
-        if inp is not None and _same_file(path, Path(inp)):
-            raise OutputError(
-                f"{option} {path}: is the input {inp}; writing it would replace that file "
-                "(choose another output path)"
-            )
-    if path.is_dir():
-        raise OutputError(f"{option} {path}: is a directory; give the file to write")
-    why = folder_problem(path.absolute().parent)
-    if why:
-        raise OutputError(f"{option} {path}: {why}")
-
-
-def folder_problem(folder: str | Path) -> str | None:
-    """Why no file can be created in ``folder``, or in the nearest folder above it that exists
-    (where it would be made): ``"... is not a directory"``, ``"cannot write in ... (reason)"``;
-    None when a probe file can be made there (it is removed at once)."""
-    parent = Path(folder).absolute()
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not parent.is_dir():
-        return f"{parent} is not a directory"
-    try:
-        fd, probe = tempfile.mkstemp(dir=parent, prefix=".sixaxis-probe.", suffix=".tmp")
-    except OSError as exc:
-        return f"cannot write in {parent} ({exc.strerror or exc})"
-    os.close(fd)
-    os.unlink(probe)
-    return None
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write a file so that readers see either the old or the whole new content, never a part."""
-    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-
-
 def write_measurements(
     data: MeasurementSet,
     path: str | Path,
@@ -525,16 +395,10 @@ def write_measurements(
 
 
 def read_text(path: str | Path, error: type[Exception] = MeasurementError) -> str:
-    """The text of a CSV file (UTF-8, a byte-order mark allowed); ``error`` names the file."""
-    path = Path(path)
-    try:
-        return path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise error(f"{path}: file not found") from None
-    except UnicodeDecodeError as exc:
-        raise error(f"{path}: not a UTF-8 text file ({exc})") from None
-    except OSError as exc:
-        raise error(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    """The text of a CSV file (UTF-8, a byte-order mark allowed); ``error`` names the file. Only
+    a regular file of at most ``arm.files.MAX_INPUT_BYTES["csv"]`` is read (a FIFO or
+    ``/dev/zero`` is refused before reading)."""
+    return read_input_text(path, "file", "csv", error)
 
 
 @dataclass
@@ -561,6 +425,35 @@ def _lines(text: str) -> Iterator[str]:
         start = end + 1
 
 
+#: the longest cell the CSV reader takes, characters (the csv module's own field limit); a number
+#: needs a few dozen
+MAX_CELL = csv.field_size_limit()
+
+
+def _csv_rows(text: str, source: str, error: type[Exception]) -> Iterator[tuple[int, list[str]]]:
+    """(number, cells) of each row; what the csv module cannot read (a cell beyond
+    :data:`MAX_CELL`, a stray quote or carriage return) is ``error`` naming the line (and the
+    column, for a cell too long)."""
+    lines = _lines(text)
+    reader = csv.reader(lines)
+    number = 0
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            number += 1
+            if "field limit" in str(exc):
+                raise error(
+                    f"{source}, line {number}: a cell longer than {MAX_CELL} characters (the "
+                    "CSV reader's limit; a number needs a few dozen)"
+                ) from None
+            raise error(f"{source}, line {number}: not CSV ({exc})") from None
+        number += 1
+        yield number, row
+
+
 def parse_numeric_csv(
     text: str,
     source: str,
@@ -580,7 +473,7 @@ def parse_numeric_csv(
     ``error`` names the source, the line and the column of the first problem."""
     # one row at a time into a growing array: a list of every row's cells would take 1.5 KB per
     # row of 200,000 (the text itself is a third of that)
-    rows_in = enumerate(csv.reader(_lines(text)), start=1)
+    rows_in = _csv_rows(text, source, error)
 
     def blank(row: list[str]) -> bool:
         return not any(c.strip() for c in row)

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from arm.measurements import atomic_write_text
+from arm.files import atomic_write_text
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 BENCHMARKS_MD = RESULTS / "benchmarks.md"

@@ -31,7 +31,7 @@ import numpy as np
 
 from agents.registry import make_agent
 from agents.runner import JUDGE_POSTURES, WORKSPACE_POSTURES, run_episode, workspace_campaign
-from arm.measurements import atomic_write_text
+from arm.files import atomic_write_text
 from benchmarks._report import RESULTS, machine, write_section
 
 SETTLE_S = 2.0

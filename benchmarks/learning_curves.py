@@ -102,7 +102,7 @@ def main() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from arm.measurements import atomic_write_text
+    from arm.files import atomic_write_text
 
     args.out.mkdir(parents=True, exist_ok=True)
     # residuals (tenths of a mm) and plain policies (tens of mm) on rows of their own

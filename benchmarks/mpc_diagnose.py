@@ -30,7 +30,7 @@ import numpy as np
 
 from agents.registry import make_agent
 from agents.runner import run_episode, workspace_campaign
-from arm.measurements import atomic_write_text
+from arm.files import atomic_write_text
 from benchmarks._report import RESULTS, machine, write_section
 from envs.scenarios import SCENARIOS as SCENARIO_CATALOGUE
 from experiments.config import load_config

@@ -93,7 +93,7 @@ def main() -> None:
             **_targets(held, names, args.policies, scenarios),
         }
     wall = report["wall_s"] = time.perf_counter() - t0
-    from arm.measurements import atomic_write_text
+    from arm.files import atomic_write_text
 
     atomic_write_text(OUT / "policy_targets.json", json.dumps(report, indent=2) + "\n")
     lines = [

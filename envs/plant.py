@@ -44,22 +44,16 @@ from __future__ import annotations
 
 import logging
 import math
-import os
-import sys
 from dataclasses import dataclass, field, replace
 
-from arm.errors import SixAxisError
-
-if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
-    os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering; set before mujoco loads
-
-import mujoco
 import numpy as np
 
 from arm.description import RobotDescription
 from arm.effects import REFERENCE_TEMPERATURE
+from arm.errors import SixAxisError
 from arm.kinematics import gravity_torques
 from arm.so3 import rot_x, rot_y, rot_z, rotation_matrix
+from envs.simulator import mujoco
 
 __all__ = [
     "RIGID_STIFFNESS",

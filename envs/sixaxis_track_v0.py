@@ -12,15 +12,11 @@ import itertools
 import math
 import numbers
 import os
-import sys
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
-if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
-    os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering; set before mujoco loads
-
 import gymnasium as gym
-import mujoco
 import numpy as np
 from gymnasium import spaces
 from gymnasium.error import ResetNeeded
@@ -30,6 +26,7 @@ from arm.errors import SixAxisError
 from envs.instrument import InstrumentError, LaserTracker, TemperatureSensor, TrackerConfig
 from envs.plant import MAX_SPEED, PHYSICS_DT, SUBSTEPS, Plant
 from envs.scenarios import SCENARIOS, EpisodeTruth, Scenario, draw_truth, get_scenario
+from envs.simulator import SimulatorError, mujoco
 from envs.task import TaskInfo
 from envs.trajectories import KINDS, Trajectory, check_posture, sample_trajectory
 
@@ -47,6 +44,11 @@ class EnvOptionError(SixAxisError, ValueError):
 
 class EnvStateError(SixAxisError, ResetNeeded, RuntimeError):
     """A call the env cannot answer in its state (``step`` before ``reset``)."""
+
+
+#: the largest rendered frame, pixels per side (4K video is 3840 x 2160; MuJoCo's offscreen buffer
+#: and the H.264 encoder refuse frames far beyond)
+MAX_FRAME = 4096
 
 
 def _integer(v: Any) -> bool:
@@ -224,7 +226,7 @@ class SixAxisTrackEnv(gym.Env):
     | `robot`         | str or RobotDescription | `"seed"` | the nominal arm (needs a mass model)                  |
     | `episode_seconds` | float     | `10.0`        | length of the reference computed per reset (the TimeLimit ends episodes) |
     | `render_mode`   | str or None | `None`        | `"rgb_array"`: the arm, the reference path (green), the true tool path (blue), the measured points (red) |
-    | `width`, `height` | int       | `640`, `480`  | rendered frame size                                          |
+    | `width`, `height` | int       | `640`, `480`  | rendered frame size, at most 4096 pixels a side              |
 
     An option out of range or of the wrong type is an ``EnvOptionError`` (a ``ValueError``) naming
     every key at fault; ``SixAxisTrackEnv.check_options(**kwargs)`` returns the same problems
@@ -443,7 +445,11 @@ class SixAxisTrackEnv(gym.Env):
             f"None or one of {', '.join(modes)}",
         )
         for key in ("width", "height"):
-            need(key, _integer(o[key]) and o[key] >= 1, "a positive number of pixels")
+            need(
+                key,
+                _integer(o[key]) and 1 <= o[key] <= MAX_FRAME,
+                f"a number of pixels from 1 to {MAX_FRAME}",
+            )
         if "noise_mm" not in problems and "measure_every" not in problems:
             try:  # the instrument's own rules, by the key its message starts with
                 TrackerConfig(
@@ -559,7 +565,17 @@ class SixAxisTrackEnv(gym.Env):
                 max(vis.offwidth, self.width),
                 max(vis.offheight, self.height),
             )
-            self._renderer = mujoco.Renderer(self.plant.model, self.height, self.width)
+            try:
+                with warnings.catch_warnings():  # GLFW warns before it fails: one message
+                    warnings.simplefilter("ignore")
+                    self._renderer = mujoco.Renderer(self.plant.model, self.height, self.width)
+            except Exception as exc:  # no GL context: the backend's own error, of any type
+                backend = os.environ.get("MUJOCO_GL", "")
+                raise SimulatorError(
+                    f"SixAxisTrack-v0: MuJoCo cannot render offscreen with MUJOCO_GL={backend!r} "
+                    f"({type(exc).__name__}: {exc}); try MUJOCO_GL=egl, or osmesa where EGL is "
+                    "missing"
+                ) from None
             cam = mujoco.MjvCamera()
             cam.type = mujoco.mjtCamera.mjCAMERA_FREE
             cam.distance = 1.45

@@ -49,7 +49,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from arm.description import Joint, RobotDescription
 from arm.errors import SixAxisError
-from arm.measurements import atomic_write_text
+from arm.files import atomic_write_text
 
 NAME = "rokae"
 _JOINTTARGET = re.compile(r"j:\s*\{([^}]*)\}")

@@ -51,8 +51,9 @@ from scipy.stats import qmc
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from arm.description import RobotDescription, seed_robot
 from arm.errormodel import ErrorModel
+from arm.files import atomic_write_text
 from arm.kinematics import Chain, tool_points
-from arm.measurements import MeasurementSet, atomic_write_text
+from arm.measurements import MeasurementSet
 from arm.params import parse_parameter_name
 from arm.sampling import MIN_TOOL_HEIGHT
 from lab import fit, plan

@@ -9,15 +9,33 @@ from __future__ import annotations
 import logging
 import warnings
 
+import click
 import typer
 from rich.console import Console
 from rich.logging import RichHandler
+from typer.core import TyperGroup
 
+from arm.errors import SixAxisError
 from experiments import cli_agents, cli_demo, cli_lab, cli_sweep
+from experiments.cli_output import fail
 from lab.errors import LabWarning
+
+
+class _Commands(TyperGroup):
+    """The ``sixaxis`` group: an error the project raises on purpose (:class:`SixAxisError`: bad
+    input, named) that a command did not turn into its own line still ends as one line
+    ``error: ...`` and exit code 2, never a traceback; anything else is a bug and keeps its own."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except SixAxisError as exc:
+            fail(exc)
+
 
 app = typer.Typer(
     name="sixaxis",
+    cls=_Commands,
     help="sixaxis-track: calibrate a six-axis arm, find what its model misses, benchmark controllers.",
     no_args_is_help=True,
     add_completion=False,

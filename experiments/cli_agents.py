@@ -252,8 +252,13 @@ def render(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
     from agents.registry import make_agent
+    from arm.files import check_output
     from experiments.video import render_episode
 
+    if output.suffix.lower() != ".mp4":
+        fail(f"--output {output}: the video is written as MP4; give a file ending in .mp4")
+    with user_errors():
+        check_output(output, stdout_ok=False)
     a = make_agent(agent, **_agent_settings(agent, settings))
     env = {} if trajectory is None else {"trajectory": trajectory}
     with Progress(

@@ -174,9 +174,14 @@ JsonOutOpt = Annotated[
 
 @contextlib.contextmanager
 def _writing(path: Path) -> Iterator[None]:
-    """An OSError while writing ``path`` becomes one error line."""
+    """An error while writing ``path`` (a full disk, a path that became a device) becomes one
+    error line."""
+    from arm.files import OutputError
+
     try:
         yield
+    except OutputError as exc:
+        fail(exc)
     except OSError as exc:
         fail(f"{path}: cannot write ({exc.strerror or exc})")
 
@@ -237,10 +242,15 @@ def _read(path: Path, length_unit: str, angle_unit: str):
         return read_measurements(path, length_unit=length_unit, angle_unit=angle_unit)
 
 
-def _check_outputs(outputs: Sequence[tuple[Path | None, str]], inputs: Sequence[object]) -> None:
-    """Before any work: every output can be written and replaces no input (data, held-out data,
-    a robot file, an effect module, a poses or targets file)."""
-    from arm.measurements import check_output
+def _check_outputs(
+    outputs: Sequence[tuple[Path | None, str]],
+    inputs: Sequence[object],
+    as_json: bool = False,
+) -> None:
+    """Before any work: every output can be written (a regular file, or ``-`` for standard
+    output) and replaces no input (data, held-out data, a robot file, an effect module, a poses
+    or targets file). With an output on standard output, what the command prints goes to stderr."""
+    from arm.files import check_output, is_stdout
 
     files = [Path(str(i)) for i in inputs if i is not None and Path(str(i)).is_file()]
     seen: dict[Path, str] = {}
@@ -249,10 +259,27 @@ def _check_outputs(outputs: Sequence[tuple[Path | None, str]], inputs: Sequence[
             continue
         with user_errors():
             check_output(path, files, option)
-        key = path.absolute()
+        key = Path("/dev/stdout") if is_stdout(path) else path.absolute()
         if key in seen:
             fail(f"{option} {path}: also given as {seen[key]}; one file cannot hold both")
+        if is_stdout(path) and as_json:
+            fail(
+                f"{option} -: --json prints on standard output too; give a file or leave out --json"
+            )
         seen[key] = option
+    if any(is_stdout(p) for p, _ in outputs):
+        _print_to_stderr()
+
+
+def _print_to_stderr() -> None:
+    """The command's tables and messages go to stderr until it ends (stdout carries a file)."""
+    import click
+
+    before = console.file
+    console.file = err_console.file
+    ctx = click.get_current_context(silent=True)
+    if ctx is not None:
+        ctx.call_on_close(lambda: setattr(console, "file", before))
 
 
 def _prepare(
@@ -303,16 +330,21 @@ def _dump(obj: dict) -> str:
 
 
 def _emit_json(obj: dict, as_json: bool, out: Path | None) -> None:
-    from arm.measurements import atomic_write_text
+    from arm.files import atomic_write_text, is_stdout
 
     text = _dump(obj)
     if out is not None:
         with _writing(out):
             atomic_write_text(out, text + "\n")
-    if as_json:
+    if as_json and not is_stdout(out):
         print(text)
     elif out is not None:
         console.print(f"wrote {out}", highlight=False, soft_wrap=True)
+
+
+def _size_kb(path: Path) -> str:
+    """`` (12 KB)``: the size of the file written; nothing for standard output."""
+    return "" if str(path) == "-" else f" ({path.stat().st_size / 1024:.0f} KB)"
 
 
 # -- fit --------------------------------------------------------------------------------------------
@@ -739,8 +771,7 @@ def report_cmd(
             soft_wrap=True,
         )
     console.print(
-        f"wrote {output} ({output.stat().st_size / 1024:.0f} KB) in "
-        f"{time.perf_counter() - t0:.1f} s",
+        f"wrote {output}{_size_kb(output)} in {time.perf_counter() - t0:.1f} s",
         highlight=False,
         soft_wrap=True,
     )
@@ -792,7 +823,7 @@ def plan_cmd(
         fail(f"--n must be at least 1, got {n}")
     if candidates < n:
         fail(f"--candidates ({candidates}) must be at least --n ({n})")
-    _check_outputs([(output, "--output")], [robot, *(effect_module or ())])
+    _check_outputs([(output, "--output")], [robot, *(effect_module or ())], as_json)
     _load_modules(effect_module)
     _parse_effects(effects)
     arm = _robot(robot)
@@ -1025,7 +1056,9 @@ def compensate_cmd(
             ids = [int(t) for t in target_ids.split(",") if t.strip()]
         except ValueError:
             fail(f"--target-ids must be integers separated by commas, got {target_ids!r}")
-    _check_outputs([(output, "--output")], [targets, robot, nominal, *(effect_module or ())])
+    _check_outputs(
+        [(output, "--output")], [targets, robot, nominal, *(effect_module or ())], as_json
+    )
     _load_modules(effect_module)
     cal = _robot(robot)
     nom = _robot(nominal)

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from arm.measurements import atomic_write_text
+from arm.files import atomic_write_text
 from experiments.metrics import METRICS, MIN_VALUES_FOR_CI, Summary, summarize
 from experiments.records import RecordError, RunStore
 
@@ -730,7 +730,7 @@ def plot_by_scenario(board: Leaderboard, path: str | Path) -> Path:
 
 def _save(fig, path: str | Path) -> Path:
     """Write a PNG atomically (temp file + rename)."""
-    from arm.measurements import atomic_path
+    from arm.files import atomic_path
 
     p = Path(path)
     with atomic_path(p) as tmp:

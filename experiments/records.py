@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from arm.errors import SixAxisError
-from arm.measurements import atomic_write_text, folder_problem
+from arm.files import atomic_write_text, folder_problem
 
 __all__ = [
     "RECORD_SCHEMA",

@@ -7,21 +7,26 @@ true tool point's path (blue) and the tracker's measured points (red).
 Frames are rendered offscreen by MuJoCo (``MUJOCO_GL=egl`` or ``osmesa``; no shadows, no
 multisampling) and streamed to ffmpeg (the binary that ``imageio-ffmpeg`` ships) as H.264 in an
 MP4 file, one frame per ``every`` control steps, so the video runs in real time: its duration is
-the episode's. The file is written to a temporary name and renamed when complete.
+the episode's. The file is written to a temporary name and renamed when complete
+(:func:`arm.files.atomic_path`): an existing directory, device or FIFO at the path is refused,
+not replaced.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
-import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from arm.errors import SixAxisError
+from arm.files import atomic_path, check_output
 
-__all__ = ["VideoError", "VideoInfo", "render_episode"]
+__all__ = ["MAX_FRAME", "VideoError", "VideoInfo", "render_episode"]
+
+MAX_FRAME = 4096  # pixels a side, as the env renders (envs.sixaxis_track_v0.MAX_FRAME)
 
 log = logging.getLogger(__name__)
 
@@ -69,15 +74,19 @@ def render_episode(
     ``path`` (MP4); see the module docstring. ``progress(frames_done, frames_total)``."""
     from agents.runner import run_episode
 
-    if width < 16 or height < 16 or width % 2 or height % 2:
-        raise VideoError(f"width and height must be even and at least 16, got {width}x{height}")
+    if not (16 <= width <= MAX_FRAME and 16 <= height <= MAX_FRAME) or width % 2 or height % 2:
+        raise VideoError(
+            f"width and height must be even, from 16 to {MAX_FRAME} pixels, got {width}x{height}"
+        )
     if int(every) != every or every < 1:
         raise VideoError(f"every must be a positive integer (control steps), got {every}")
     if not seconds > 0:
         raise VideoError(f"seconds must be positive, got {seconds}")
-    ffmpeg = _writer()
     out = Path(path)
-    tmp = out.with_name(f".{out.stem}.{os.getpid()}.tmp{out.suffix or '.mp4'}")
+    if out.suffix.lower() != ".mp4":
+        raise VideoError(f"{out}: the video is written as MP4; give a file ending in .mp4")
+    check_output(out, stdout_ok=False)
+    ffmpeg = _writer()
     kwargs = dict(env_kwargs or {}) | {
         "scenario": scenario,
         "render_mode": "rgb_array",
@@ -89,11 +98,19 @@ def render_episode(
     total = None
     writer = None
 
+    def encode(send: Callable[[], Any]) -> None:
+        """ffmpeg's own failure (a full disk, a frame it refuses) as one VideoError."""
+        try:
+            send()
+        except (OSError, RuntimeError) as exc:
+            raise VideoError(f"{out}: ffmpeg could not encode the video ({exc})") from None
+
     def on_step(env) -> None:
         nonlocal writer, total
         state["step"] += 1
         if state["step"] % every:
             return
+        frame = env.render()
         if writer is None:
             dt = float(env.unwrapped.task.dt)
             state["fps"] = 1.0 / (dt * every)
@@ -106,26 +123,28 @@ def render_episode(
                 pix_fmt_out="yuv420p",
                 macro_block_size=2,
                 quality=7,
-                output_params=["-movflags", "+faststart"],
+                output_params=["-movflags", "+faststart", "-f", "mp4"],
             )
-            writer.send(None)  # start ffmpeg
-        writer.send(env.render())
+            encode(lambda: writer.send(None))  # start ffmpeg
+        encode(lambda: writer.send(frame))
         state["frames"] += 1
         if progress is not None:
             progress(state["frames"], total or state["frames"])
 
-    try:
-        run_episode(agent, kwargs, seed=int(seed), episode_seconds=float(seconds), on_step=on_step)
-        if writer is None:
-            raise VideoError(
-                f"the episode gave no frame ({seconds} s, one frame every {every} steps)"
+    with atomic_path(out) as tmp:
+        try:
+            run_episode(
+                agent, kwargs, seed=int(seed), episode_seconds=float(seconds), on_step=on_step
             )
-        writer.close()
-        writer = None
-        os.replace(tmp, out)
-    finally:
-        if writer is not None:
-            writer.close()
-        tmp.unlink(missing_ok=True)
+            if writer is None:
+                raise VideoError(
+                    f"the episode gave no frame ({seconds} s, one frame every {every} steps)"
+                )
+            done, writer = writer, None
+            encode(done.close)
+        finally:
+            if writer is not None:
+                with contextlib.suppress(Exception):
+                    writer.close()
     log.info("wrote %s: %d frames at %g fps", out, state["frames"], state["fps"])
     return VideoInfo(out, int(state["frames"]), float(state["fps"]), int(width), int(height))

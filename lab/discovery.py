@@ -77,7 +77,8 @@ from scipy import stats
 
 from arm.description import RobotDescription
 from arm.effects import REFERENCE_TEMPERATURE, Effect, JointAngleEffect
-from arm.measurements import MeasurementSet, as_measurements, atomic_write_text
+from arm.files import atomic_write_text
+from arm.measurements import MeasurementSet, as_measurements
 from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
 from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve

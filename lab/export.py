@@ -47,13 +47,13 @@ from arm.effect_api import EffectError
 from arm.effects import EFFECTS
 from arm.errormodel import ErrorModel
 from arm.errors import SixAxisError
+from arm.files import atomic_write_text
 from arm.ik import solve_point, solve_position
 from arm.measurements import (
     ANGLE_UNITS,
     JOINTS,
     LENGTH_UNITS,
     POSITION,
-    atomic_write_text,
     check_ranges,
     parse_numeric_csv,
     read_text,

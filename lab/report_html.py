@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from arm.description import RobotDescription
-from arm.measurements import MeasurementSet, atomic_write_text
+from arm.files import atomic_write_text
+from arm.measurements import MeasurementSet
 from arm.params import ROW_FAMILIES, parse_parameter_name
 from lab.diagnosis import Diagnosis
 from lab.identifiability import CONDITION_WARNING

@@ -9,6 +9,7 @@ import os
 import numpy as np
 import pytest
 
+from arm.files import OutputError
 from arm.measurements import (
     MeasurementError,
     MeasurementSet,
@@ -105,7 +106,7 @@ def test_malformed_file_is_refused_naming_where(tmp_path, case):
 def test_missing_and_unreadable_files(tmp_path):
     with pytest.raises(MeasurementError, match="file not found"):
         read_measurements(tmp_path / "none.csv")
-    with pytest.raises(MeasurementError, match="cannot be read"):
+    with pytest.raises(MeasurementError, match="is a directory, not a regular file"):
         read_measurements(tmp_path)
     binary = tmp_path / "b.csv"
     binary.write_bytes(b"\xff\xfe\x00q1")
@@ -204,7 +205,7 @@ def test_atomic_write_leaves_old_content_on_failure(tmp_path, monkeypatch):
         raise OSError("disk full")
 
     monkeypatch.setattr(os, "fsync", fail)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(OutputError, match=r"data.csv: cannot write \(disk full\)"):
         write_measurements(_sample(9, seed=5), path)
     assert path.read_text() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]
