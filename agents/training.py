@@ -560,8 +560,9 @@ def train(
         "return/mean",
     ]
     if not resume or not curve_path.exists():
-        with open(curve_path, "w", newline="") as fh:
-            csv.writer(fh).writerow(columns)
+        header = io.StringIO()
+        csv.writer(header).writerow(columns)
+        atomic_write_text(curve_path, header.getvalue())  # then appended to, row by row
     t_start = time.perf_counter()
     best = [math.inf]
     eval_seeds = tuple(cfg.evaluation_seeds())

@@ -46,6 +46,7 @@ SI units inside (m, rad, kg). The TOML file states its own units::
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
@@ -56,11 +57,13 @@ from typing import Literal
 import numpy as np
 
 from arm.errors import SixAxisError
+from arm.files import atomic_write_text, read_input_text
 from arm.ranges import payload_problem
 from arm.so3 import rotation_matrix, rotation_vector
 from arm.urdf import UrdfArm, UrdfError, UrdfSource, read_urdf
 
 __all__ = [
+    "MAX_JOINT_TRAVEL",
     "DescriptionError",
     "Joint",
     "RobotDescription",
@@ -76,6 +79,12 @@ Vec3 = tuple[float, float, float]
 
 _LENGTH = {"m": 1.0, "mm": 1e-3}
 _ANGLE = {"rad": 1.0, "deg": math.pi / 180.0}
+
+
+#: The farthest a joint limit may lie from zero: two turns either way, rad. Industrial wrists
+#: turn up to +-400 deg (a UR's +-360 deg); beyond two turns a limit is a unit slip (degrees
+#: declared as radians) or a typo, and ``plan`` would write poses no arm can reach.
+MAX_JOINT_TRAVEL = 4.0 * math.pi
 
 
 class DescriptionError(SixAxisError, ValueError):
@@ -132,6 +141,12 @@ class RobotDescription:
             if not j.lower < j.upper:
                 raise DescriptionError(
                     f"robot {self.name!r}: joint {i} limits [{j.lower}, {j.upper}] are empty"
+                )
+            if max(abs(j.lower), abs(j.upper)) > MAX_JOINT_TRAVEL:
+                raise DescriptionError(
+                    f"robot {self.name!r}: joint {i} limits [{j.lower:g}, {j.upper:g}] rad reach "
+                    f"beyond two turns either way ({MAX_JOINT_TRAVEL:.4g} rad, 720 deg); no arm "
+                    "turns that far (degrees given as radians?)"
                 )
             if j.mass < 0:
                 raise DescriptionError(f"robot {self.name!r}: joint {i} mass {j.mass} < 0")
@@ -280,8 +295,6 @@ class RobotDescription:
         return tomli_w.dumps(doc)
 
     def save(self, path: str | Path, length_unit: str = "m", angle_unit: str = "deg") -> None:
-        from arm.files import atomic_write_text
-
         atomic_write_text(Path(path), self.to_toml(length_unit, angle_unit))
 
     @classmethod
@@ -290,6 +303,10 @@ class RobotDescription:
             doc = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise DescriptionError(f"{source}: not valid TOML: {exc}") from exc
+        except RecursionError:  # arrays or tables nested thousands deep
+            raise DescriptionError(
+                f"{source}: not a robot description: arrays or tables nested too deeply to read"
+            ) from None
         return _from_dict(doc, source)
 
 
@@ -392,6 +409,17 @@ def _from_dict(doc: dict, source: str) -> RobotDescription:
             raise DescriptionError(f"{source}: {w}'limits' must be [lower, upper]")
         lo = _get({"v": limits[0]}, "v", source, float, w + "limits: ")
         hi = _get({"v": limits[1]}, "v", source, float, w + "limits: ")
+        if max(abs(lo), abs(hi)) * A > MAX_JOINT_TRAVEL:
+            turns = f"two turns either way ({MAX_JOINT_TRAVEL / A:.4g} {au})"
+            likely = (
+                'degrees? say angle_unit = "deg"'
+                if au == "rad" and max(abs(lo), abs(hi)) <= 720.0
+                else "no arm turns that far"
+            )
+            raise DescriptionError(
+                f"{source}: {w}limits [{lo:g}, {hi:g}] under angle_unit = {au!r} reach beyond "
+                f"{turns}: {likely}"
+            )
         joints.append(
             Joint(
                 alpha=_get(r, "alpha", source, float, w) * A,
@@ -519,13 +547,17 @@ def load_robot(
         name_or_path = "seed"
     p = Path(name_or_path)
     shipped = resources.files("arm") / "robots"
-    if p.suffix.lower() != ".urdf" and not p.exists() and (shipped / f"{p}.urdf").is_file():
+    if (
+        p.suffix.lower() != ".urdf"
+        and not os.path.lexists(p)
+        and (shipped / f"{p}.urdf").is_file()
+    ):
         p = Path(f"{p}.urdf")  # a shipped URDF by name: "ur5_robot", "z1"
     if p.suffix.lower() == ".urdf":
-        if not p.exists() and p.name == str(p) and (shipped / p.name).is_file():
+        if not os.path.lexists(p) and p.name == str(p) and (shipped / p.name).is_file():
             text, where = (shipped / p.name).read_text(encoding="utf-8"), f"robots/{p.name}"
         else:
-            text, where = None, str(p)
+            text, where = read_input_text(p, "URDF file", "urdf", DescriptionError), str(p)
         try:
             return from_urdf(read_urdf(where, tip=tip, base=base, text=text))
         except UrdfError as exc:
@@ -534,10 +566,9 @@ def load_robot(
         raise DescriptionError(
             f"{p}: a tip or base link is chosen in a URDF; this is a robot TOML or a shipped name"
         )
-    if p.suffix == ".toml" or p.exists():
-        if not p.is_file():
-            raise DescriptionError(f"{p}: robot description file not found")
-        return RobotDescription.from_toml(p.read_text(), source=str(p))
+    if p.suffix == ".toml" or os.path.lexists(p):
+        text = read_input_text(p, "robot description", "toml", DescriptionError)
+        return RobotDescription.from_toml(text, source=str(p))
     toml = shipped / f"{name_or_path}.toml"
     if not toml.is_file():
         names = sorted(f.name.rsplit(".", 1)[0] for f in shipped.iterdir() if "." in f.name[1:])

@@ -22,19 +22,23 @@ interface.
 
 from __future__ import annotations
 
+import contextlib
 import importlib.metadata
 import importlib.util
+import inspect
 import logging
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 
-from arm.description import RobotDescription
+from arm.description import RobotDescription, seed_robot
 from arm.effect_api import ChainState, EffectError, ModelInputs, Sensitivities
+from arm.errors import SixAxisError
+from arm.files import check_input_file
 from arm.params import BASE_NAMES, TOOL_ROTATION_NAMES, parse_parameter_name
 from arm.so3 import rotation_matrix
 
@@ -53,12 +57,17 @@ __all__ = [
     "Thermal",
     "Transmission",
     "candidate_effects",
+    "check_robot_effects",
+    "effect_origin",
+    "is_catalogued",
     "load_effect_module",
     "make_effect",
     "missing_inputs",
     "order_reading",
     "parse_effects",
     "register_effect",
+    "user_code",
+    "user_module_failure",
 ]
 
 log = logging.getLogger(__name__)
@@ -68,6 +77,46 @@ REFERENCE_TEMPERATURE = 20.0  # degC, where thermal growth is zero
 # a compliance ten times that of a soft harmonic drive, a gap of 20 arcmin, kappa of 2.3e-4/K
 # (ten times aluminium's) come from the data's units or another robot, not from the arm.
 PLAUSIBLE_FACTOR = 10.0
+
+
+_SOURCES: dict[type, str] = {}  # the file each --effect-module class was loaded from
+
+
+def effect_origin(effect: Effect | type[Effect]) -> str:
+    """``effect 'mine' (module /path/mine.py)``: the effect and the file that defines it, as an
+    error names them."""
+    cls = effect if isinstance(effect, type) else type(effect)
+    where = _SOURCES.get(cls)
+    if where is None:
+        try:
+            where = inspect.getsourcefile(cls) or cls.__module__
+        except TypeError:
+            where = cls.__module__
+    return f"effect {cls.name!r} (module {where})"
+
+
+def is_catalogued(effect: Effect | type[Effect]) -> bool:
+    """Whether ``effect`` is one of the catalogue's own (defined in this module)."""
+    cls = effect if isinstance(effect, type) else type(effect)
+    return cls.__module__ == __name__
+
+
+@contextlib.contextmanager
+def user_code(effect: Effect | type[Effect], what: str) -> Iterator[None]:
+    """Run a user effect's code: an exception it raises (a ``ZeroDivisionError``, a
+    ``KeyError``, even ``SystemExit``) becomes one :class:`EffectError` naming the module, the
+    effect and what it was doing. The catalogue's own failures are bugs and keep their
+    traceback; the project's own errors pass as they are."""
+    try:
+        yield
+    except SixAxisError:
+        raise
+    except (Exception, SystemExit) as exc:
+        if is_catalogued(effect):
+            raise
+        raise EffectError(
+            f"{effect_origin(effect)}: {what} raised {type(exc).__name__}: {exc}"
+        ) from None
 
 
 class Effect:
@@ -198,12 +247,41 @@ class JointAngleEffect(Effect):
         """(N,) regressor of parameter ``{term}{joint}`` on theta_joint (``joint`` is 1-based)."""
         raise NotImplementedError
 
+    def checked_basis(self, inputs: ModelInputs, joint: int, term: str) -> np.ndarray:
+        """:meth:`basis` as an (N,) array of finite numbers; anything else it returns, and any
+        exception it raises, is an :class:`EffectError` naming the module, the effect, the term
+        and the joint (a user's basis is the user's code: its failure is one line)."""
+        what = f"basis(joint {joint}, term {term!r})"
+        with user_code(self, what):
+            value = self.basis(inputs, joint, term)
+        try:
+            b = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            b = None
+        if b is None or b.shape != (inputs.n,):
+            got = (
+                repr(value)[:40]
+                if b is None or value is None or isinstance(value, str)
+                else ("a scalar" if b.ndim == 0 else f"shape {b.shape}")
+            )
+            raise EffectError(
+                f"{effect_origin(self)}: {what} returned {got}, not one number per pose "
+                f"(shape ({inputs.n},))"
+            )
+        bad = np.flatnonzero(~np.isfinite(b))
+        if bad.size:
+            raise EffectError(
+                f"{effect_origin(self)}: {what} returned {b[bad[0]]} at pose {bad[0] + 1} "
+                f"({bad.size} of {inputs.n} poses not finite)"
+            )
+        return b
+
     def regressor(self, inputs: ModelInputs) -> np.ndarray:
         """(N, 6, k): d theta / d parameters, in the order of :meth:`parameter_names`."""
         terms = self.parameter_terms()
         out = np.zeros((inputs.n, 6, len(terms)))
         for k, (j, t) in enumerate(terms):
-            out[:, j - 1, k] = self.basis(inputs, j, t)
+            out[:, j - 1, k] = self.checked_basis(inputs, j, t)
         return out
 
     def joint_offsets(self, inputs: ModelInputs, values: np.ndarray) -> np.ndarray:
@@ -229,7 +307,7 @@ class JointAngleEffect(Effect):
         """The regressor's one non-zero per parameter: its joint (k,) and values (k, N)."""
         terms = self.parameter_terms()
         joints = np.array([j - 1 for j, _ in terms], dtype=int)
-        basis = np.array([self.basis(inputs, j, t) for j, t in terms], dtype=float)
+        basis = np.array([self.checked_basis(inputs, j, t) for j, t in terms], dtype=float)
         return joints, basis.reshape(len(joints), inputs.n)
 
     def jacobian_into(
@@ -812,15 +890,30 @@ EFFECTS: dict[str, type[Effect]] = {}
 
 
 def register_effect(cls: type[Effect]) -> type[Effect]:
-    """Add an effect class to the catalogue (usable as a decorator)."""
+    """Add an effect class to the catalogue (usable as a decorator). A name of the catalogue's
+    own effects cannot be taken by another class: it would silently change what ``compliance``
+    means (a user's module that did gave a fit of 0.30 mm instead of 0.023)."""
     if not (isinstance(cls, type) and issubclass(cls, Effect)) or not cls.name:
         raise EffectError(f"{cls!r} is not an Effect subclass with a name")
-    if not re.fullmatch(r"[a-z][a-z0-9_]*", cls.name):
-        raise EffectError(f"effect name {cls.name!r} must be lower-case letters, digits, _")
-    if cls.name in EFFECTS and EFFECTS[cls.name] is not cls:
+    if not isinstance(cls.name, str) or not re.fullmatch(r"[a-z][a-z0-9_]*", cls.name):
+        where = _SOURCES.get(cls, cls.__module__)
+        raise EffectError(
+            f"{where}: class {cls.__qualname__}: effect name {cls.name!r} must be lower-case "
+            "letters, digits, _"
+        )
+    old = EFFECTS.get(cls.name)
+    if old is not None and old is not cls:
+        if is_catalogued(old) or old.__qualname__ in _ENTRY_POINT_CLASSES:
+            raise EffectError(
+                f"{effect_origin(cls)}: class {cls.__qualname__} takes the name {cls.name!r} of "
+                f"the catalogue's {old.__module__}.{old.__qualname__}; give it another name"
+            )
         log.info("effect %r replaced by %s", cls.name, cls.__qualname__)
     EFFECTS[cls.name] = cls
     return cls
+
+
+_ENTRY_POINT_CLASSES: set[str] = set()
 
 
 for _cls in (
@@ -846,24 +939,34 @@ def _load_entry_points() -> None:
     _entry_points_loaded = True
     for ep in importlib.metadata.entry_points(group="sixaxis.effects"):
         try:
-            register_effect(ep.load())
+            cls = register_effect(ep.load())
+            _ENTRY_POINT_CLASSES.add(cls.__qualname__)
         except Exception as exc:  # a broken plug-in must not break the catalogue
             log.warning("effect entry point %s could not be loaded: %s", ep.name, exc)
 
 
 def load_effect_module(path: str | Path) -> list[str]:
-    """Import a Python file and register every named :class:`Effect` subclass defined in it."""
-    path = Path(path)
-    if not path.is_file():
-        raise EffectError(f"{path}: effect module not found")
+    """Import a Python file and register every named :class:`Effect` subclass defined in it.
+
+    Everything that can go wrong is an :class:`EffectError` of one line naming the file: not a
+    regular file (a FIFO would hang the import), an exception or ``sys.exit`` while it is
+    imported, no effect class, an effect that takes the name of a catalogued effect or names a
+    parameter like a catalogued one (``c2``), or whose ``parameter_names`` fails."""
+    path = check_input_file(path, "effect module", "python", EffectError)
     spec = importlib.util.spec_from_file_location(f"sixaxis_user_effects_{path.stem}", path)
     if spec is None or spec.loader is None:
         raise EffectError(f"{path}: not a Python file that can be imported")
     mod = importlib.util.module_from_spec(spec)
     try:
         spec.loader.exec_module(mod)
+    except SystemExit as exc:  # the module's own sys.exit() must not end the command
+        raise EffectError(
+            f"{path}: the effect module called sys.exit({exc.code!r}) while being imported"
+        ) from None
     except Exception as exc:
-        raise EffectError(f"{path}: the effect module failed to import: {exc}") from exc
+        raise EffectError(
+            f"{path}: the effect module failed to import: {type(exc).__name__}: {exc}"
+        ) from None
     found = [
         obj
         for obj in vars(mod).values()
@@ -875,8 +978,100 @@ def load_effect_module(path: str | Path) -> list[str]:
     if not found:
         raise EffectError(f"{path}: defines no Effect subclass with a name")
     for cls in found:
+        _SOURCES[cls] = str(path)
+        _check_user_effect(cls)
+    for cls in found:
         register_effect(cls)
     return [c.name for c in found]
+
+
+def _check_user_effect(cls: type[Effect]) -> None:
+    """Refuse a user's effect whose parameter names cannot be listed, or collide with the
+    catalogue's (``c2`` is compliance's): a fit with both would have one name for two
+    parameters, and every table and JSON key would be ambiguous."""
+    if not isinstance(cls.name, str) or not re.fullmatch(r"[a-z][a-z0-9_]*", cls.name):
+        register_effect(cls)  # refuses the name, naming the file
+    if cls.name in CATALOGUE:
+        own = EFFECTS[cls.name]
+        raise EffectError(
+            f"{effect_origin(cls)}: class {cls.__qualname__} takes the name {cls.name!r} of the "
+            f"catalogue's {own.__module__}.{own.__qualname__}; give it another name"
+        )
+    with user_code(cls, "parameter_names(seed arm)"):
+        names = list(cls().parameter_names(seed_robot(), (0,)))
+    for n in names:
+        if not isinstance(n, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", n):
+            raise EffectError(
+                f"{effect_origin(cls)}: parameter name {n!r} must be letters, digits and _"
+            )
+        parsed = parse_parameter_name(n)
+        if parsed is not None:
+            owner = next(
+                (
+                    e
+                    for e in CATALOGUE
+                    if n in EFFECTS[e]().parameter_names(seed_robot(), (0,))
+                    or (parsed.kind == "tool" and e == "geometric")
+                ),
+                "geometric",
+            )
+            raise EffectError(
+                f"{effect_origin(cls)}: parameter {n!r} has the name of the catalogue's "
+                f"{owner} parameter {n!r}; name its terms otherwise"
+            )
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise EffectError(f"{effect_origin(cls)}: parameter(s) {', '.join(dup)} named twice")
+
+
+def user_module_failure(exc: BaseException) -> str | None:
+    """Where a user's effect module raised ``exc``, as one line (``m.py, line 12, in basis:
+    KeyError: 'x'``), or None when no frame of its traceback lies in a loaded effect module.
+    A front end's last net: an exception from a user's code is theirs to fix, not a bug of
+    sixaxis-track, and gets a line instead of a traceback."""
+    sources = set(_SOURCES.values())
+    if not sources:
+        return None
+    tb, last = exc.__traceback__, None
+    while tb is not None:
+        if tb.tb_frame.f_code.co_filename in sources:
+            last = tb
+        tb = tb.tb_next
+    if last is None:
+        return None
+    code = last.tb_frame.f_code
+    return (
+        f"{code.co_filename}, line {last.tb_lineno}, in {code.co_name}: "
+        f"{type(exc).__name__}: {exc} (an effect module's own error)"
+    )
+
+
+def check_robot_effects(robot: RobotDescription, source: str | None = None) -> None:
+    """Refuse a description whose ``[effects.NAME]`` names no registered effect, or a parameter
+    that effect does not have (``[effects.compliance] c9``): a typo must not drop a calibrated
+    value silently. ``source`` (the file) is named in the message, else the robot's name."""
+    where = source or f"robot {robot.name!r}"
+    for name, values in robot.effects.items():
+        if name not in EFFECTS:
+            _load_entry_points()
+        if name not in EFFECTS:
+            raise EffectError(
+                f"{where}: [effects.{name}]: unknown effect {name!r}; known: "
+                f"{', '.join(sorted(EFFECTS))} (a user's effect needs its --effect-module)"
+            )
+        cls = EFFECTS[name]
+        with user_code(cls, "from_parameters"):
+            try:
+                effect = cls.from_parameters(list(values))
+            except EffectError as exc:
+                raise EffectError(f"{where}: [effects.{name}]: {exc}") from None
+            known = list(effect.parameter_names(robot, (0,)))
+        unknown = [k for k in values if k not in known]
+        if unknown:
+            raise EffectError(
+                f"{where}: [effects.{name}]: {', '.join(map(repr, unknown))} is not a parameter "
+                f"of {name} (it has {', '.join(known)})"
+            )
 
 
 _EFFECT_PATTERN = re.compile(r"^\s*([a-z][a-z0-9_]*)\s*(?:\[([^\]]*)\])?\s*$")

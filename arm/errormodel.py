@@ -31,7 +31,17 @@ from arm.effect_api import (
     ModelInputs,
     Sensitivities,
 )
-from arm.effects import ChainEffect, Effect, Geometric, JointAngleEffect, parse_effects
+from arm.effects import (
+    ChainEffect,
+    Effect,
+    Geometric,
+    JointAngleEffect,
+    check_robot_effects,
+    effect_origin,
+    is_catalogued,
+    parse_effects,
+    user_code,
+)
 from arm.kinematics import (
     Chain,
     ColumnFrames,
@@ -48,6 +58,25 @@ __all__ = ["ErrorModel"]
 log = logging.getLogger(__name__)
 
 
+def _finite(
+    effect: Effect,
+    what: str,
+    values: np.ndarray,
+    shape: tuple[int, ...],
+    all_effects: Sequence[Effect] = (),
+) -> None:
+    """Refuse what a user's effect gave (``values``) unless it has ``shape`` and is finite: NaN
+    from a user's code would end the fit in an SVD that does not converge, far from its cause."""
+    if values.shape != shape:
+        raise EffectError(
+            f"{effect_origin(effect)}: {what} returned shape {values.shape}, not {shape}"
+        )
+    if not np.all(np.isfinite(values)):
+        users = [e for e in all_effects if not is_catalogued(e)] or [effect]
+        who = ", ".join(effect_origin(e) for e in users)
+        raise EffectError(f"{who}: {what} gave NaN or infinity")
+
+
 class ErrorModel:
     """A robot description with a list of effects; see the module docstring."""
 
@@ -60,6 +89,8 @@ class ErrorModel:
         orientation: bool = False,
     ) -> None:
         self.robot = robot.to_modified()
+        if robot.effects:
+            check_robot_effects(self.robot)
         self.effects: list[Effect] = parse_effects(effects)
         self.targets = tuple(int(t) for t in targets)
         if not self.targets or len(set(self.targets)) != len(self.targets):
@@ -74,7 +105,16 @@ class ErrorModel:
                 "several stations or a measured orientation need the geometric effect (it "
                 "holds each station's base and the tool frame's rotation)"
             )
-        self.layout = ParameterLayout.of((e.name, self._names(e)) for e in self.effects)
+        groups = []
+        for e in self.effects:
+            with user_code(e, "parameter_names"):
+                groups.append((e.name, list(self._names(e))))
+        try:
+            self.layout = ParameterLayout.of(groups)
+        except ValueError as exc:  # two effects name one parameter alike
+            raise EffectError(f"effects {', '.join(self.effect_names)}: {exc}") from None
+        # a user's effect is checked where it runs: its failure is one line naming it
+        self._user = any(not is_catalogued(e) for e in self.effects)
         self._chain0 = Chain.from_description(self.robot)
         self._base_R0 = self.robot.base_matrix[:3, :3]
         self._work = Workspace()  # scratch of predict(jacobian=True), reused between calls
@@ -189,14 +229,28 @@ class ErrorModel:
         """The effective joint angles (N, 6): encoder reading plus every joint-angle effect."""
         theta = inputs.q.copy()
         for e in self._joint_effects:
-            theta += e.joint_offsets(inputs, self._values(p, e))
+            if self._user:
+                with user_code(e, "joint_offsets"):
+                    d = np.asarray(e.joint_offsets(inputs, self._values(p, e)), dtype=float)
+                _finite(e, "joint_offsets", d, (inputs.n, 6))
+                theta += d
+            else:
+                theta += e.joint_offsets(inputs, self._values(p, e))
         return theta
 
     def state(self, inputs: ModelInputs | None, p: np.ndarray) -> ChainState:
         """The chain after every chain effect (``inputs`` may be None without per-pose effects)."""
         st = self._initial_state()
         for e in self._chain_effects:
-            st = e.apply(inputs, self._values(p, e), st)
+            if self._user:
+                with user_code(e, "apply"):
+                    st = e.apply(inputs, self._values(p, e), st)
+                if not isinstance(st, ChainState):
+                    raise EffectError(
+                        f"{effect_origin(e)}: apply returned {st!r:.40}, not a ChainState"
+                    )
+            else:
+                st = e.apply(inputs, self._values(p, e), st)
         return st
 
     def _initial_state(self) -> ChainState:
@@ -262,10 +316,16 @@ class ErrorModel:
             tool = st.tools[inputs.target] if len(st.tools) > 1 else st.tools[0]
             R, t = st.pose_base(self._pose_stations(inputs))
             if R.ndim == 3:
-                return np.einsum("nij,nj->ni", R, tool_points(st.chain, theta, tool)) + t
-            return tool_points(st.chain, theta, tool) @ R.T + t
+                out = np.einsum("nij,nj->ni", R, tool_points(st.chain, theta, tool)) + t
+            else:
+                out = tool_points(st.chain, theta, tool) @ R.T + t
+            if self._user:
+                _finite(self.effects[-1], "apply", out, out.shape, all_effects=self.effects)
+            return out
         st, f = self._evaluate(inputs, p, self._work)
         point = self._point(st, f, inputs.target)
+        if self._user:
+            _finite(self.effects[-1], "apply", point, point.shape, all_effects=self.effects)
         sens = Sensitivities(st, f, point, self._work, self._pose_stations(inputs))
         JT = self._columns(inputs, p, sens, "jacobian", self._numeric_columns)
         return point.T.copy(), np.ascontiguousarray(JT.transpose(2, 1, 0))
@@ -278,12 +338,17 @@ class ErrorModel:
         for e in self.effects:
             sl = self.layout.slice(e.name)
             v = p[sl]
-            if isinstance(e, JointAngleEffect):
-                e.jacobian_into(inputs, v, sens, JT[sl])
-            elif not isinstance(e, ChainEffect):
-                raise EffectError(f"effect {e.name!r} is neither a joint-angle nor a chain effect")
-            elif not e.jacobian_into(inputs, v, sens, JT[sl]):
-                JT[sl] = numeric(inputs, p, sl).transpose(2, 1, 0)
+            with user_code(e, "jacobian"):
+                if isinstance(e, JointAngleEffect):
+                    e.jacobian_into(inputs, v, sens, JT[sl])
+                elif not isinstance(e, ChainEffect):
+                    raise EffectError(
+                        f"effect {e.name!r} is neither a joint-angle nor a chain effect"
+                    )
+                elif not e.jacobian_into(inputs, v, sens, JT[sl]):
+                    JT[sl] = numeric(inputs, p, sl).transpose(2, 1, 0)
+            if self._user and not is_catalogued(e):
+                _finite(e, "jacobian", JT[sl], JT[sl].shape)
         return JT
 
     @overload

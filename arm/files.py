@@ -67,6 +67,7 @@ STDOUT = "-"  # an output path that means standard output
 MAX_INPUT_BYTES: dict[str, int] = {
     "csv": 1 << 30,
     "toml": 16 << 20,
+    "urdf": 64 << 20,
     "json": 64 << 20,
     "python": 16 << 20,
     "weights": 1 << 30,
@@ -137,6 +138,10 @@ def _name_max(folder: Path) -> tuple[int, int]:
 
 
 def _length_problem(path: Path) -> str | None:
+    """Why ``path`` cannot name a file at all (a NUL byte, a name or path beyond the file
+    system's limits), or None."""
+    if "\0" in str(path):
+        return "a path with a NUL byte, which no file system takes"
     full = path.absolute()
     name_max, path_max = _name_max(full.parent)
     for part in full.parts:
@@ -365,6 +370,8 @@ def input_problem(path: str | Path, what: str = "file") -> str | None:
     """Why ``path`` cannot be read as an input ``what`` (not found, not a regular file), or None.
     Only looks: nothing is opened."""
     path = Path(path)
+    if "\0" in str(path):
+        return "cannot be read: a path with a NUL byte"
     try:
         st = os.stat(path)
     except FileNotFoundError:

@@ -13,8 +13,10 @@ x, y, z        abs(x) <= 1000 m                  laser trackers reach about 80 m
 t              abs(t) <= 1e10 s                  300 years: Unix times fit
 temperature    -273.15 <= T <= 1000 degC         absolute zero; no arm works hotter
 payload        0 <= m <= 10000 kg                the heaviest industrial arms carry 2.3 t
-target         abs(id) <= 1e6                    an id, not a count of reflectors
-station        abs(id) <= 1e6                    an id, not a count of tracker stations
+target         0 <= id <= 1e6                    an id, not a count of reflectors; its tool
+                                                 parameters are named after it (tx0, tx1 ...)
+station        0 <= id <= 1e6                    an id, not a count of tracker stations; its
+                                                 base parameters are named after it (bx0 ...)
 rvx, roll ...  abs(a) <= 7 rad                   an orientation angle: a turn and a little
 std_x ...      0 < s <= 1 m                      a point's standard uncertainty; 0 is infinite
                                                  weight, a metre is not a measurement
@@ -70,8 +72,8 @@ RANGES: dict[str, PhysicalRange] = {
     "t": PhysicalRange(-1e10, 1e10, "s"),
     "temperature": PhysicalRange(-273.15, 1000.0, "degC"),
     "payload": PhysicalRange(0.0, 10000.0, "kg"),
-    "target": PhysicalRange(-1e6, 1e6, ""),
-    "station": PhysicalRange(-1e6, 1e6, ""),
+    "target": PhysicalRange(0.0, 1e6, ""),
+    "station": PhysicalRange(0.0, 1e6, ""),
     **{c: PhysicalRange(-7.0, 7.0, "rad") for c in ("rvx", "rvy", "rvz", "roll", "pitch", "yaw")},
     **{f"std_{c}": PhysicalRange(0.0, 1.0, "m", open_low=True) for c in ("x", "y", "z")},
     **{f"std_{c}": PhysicalRange(0.0, 1.0, "rad", open_low=True) for c in ("rx", "ry", "rz")},

@@ -4,17 +4,59 @@ the tool point above the floor."""
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Iterable
 
 import numpy as np
 
 from arm.description import RobotDescription
 from arm.errormodel import ErrorModel
+from arm.errors import SixAxisError
 from arm.kinematics import Chain, tool_points
 
-__all__ = ["MIN_TOOL_HEIGHT", "sample_parameters", "sample_poses"]
+__all__ = [
+    "MAX_POSES",
+    "MIN_TOOL_HEIGHT",
+    "SamplingError",
+    "check_count",
+    "rng_from",
+    "sample_parameters",
+    "sample_poses",
+]
 
 MIN_TOOL_HEIGHT = 0.15  # m: samplers keep the tool point above this plane (docs/format.md)
+#: the most random poses drawn at once (a plan's candidates, a simulated campaign): 2.4 MB of joint
+#: angles, hours of simulation; beyond, a count is a typo (``--n 2e12`` asked for 87 TiB)
+MAX_POSES = 1_000_000
+#: random poses tried per pose wanted (at least ``_MIN_TRIES`` in all) before concluding that the
+#: arm never lifts its tool above the floor
+_TRIES_PER_POSE, _MIN_TRIES = 1000, 100_000
+
+
+class SamplingError(SixAxisError, ValueError):
+    """A seed or a count that cannot be drawn from, or an arm whose poses cannot be sampled."""
+
+
+def rng_from(seed: int | np.random.Generator | None, what: str = "seed") -> np.random.Generator:
+    """A generator from ``seed`` (a non-negative integer; a generator is used as it is); a
+    negative or non-integer seed is a :class:`SamplingError` naming ``what``."""
+    if isinstance(seed, np.random.Generator):
+        return seed
+    if (
+        isinstance(seed, bool)
+        or not isinstance(seed, numbers.Integral | type(None))
+        or (seed is not None and seed < 0)
+    ):
+        raise SamplingError(f"{what} must be a non-negative integer, got {seed!r}")
+    return np.random.default_rng(seed)
+
+
+def check_count(n: object, what: str = "n", limit: int = MAX_POSES) -> int:
+    """``n`` as an int if it is a whole number from 1 to ``limit``, else a :class:`SamplingError`
+    naming ``what`` and the bound."""
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or not 1 <= int(n) <= limit:
+        raise SamplingError(f"{what} must be a whole number from 1 to {limit:,}, got {n!r}")
+    return int(n)
 
 
 def sample_parameters(
@@ -52,13 +94,27 @@ def sample_poses(
     margin: float = 0.05,
 ) -> np.ndarray:
     """``n`` joint configurations uniform within the limits (shrunk by ``margin`` rad), keeping the
-    nominal tool point above ``min_height`` (in the robot base frame)."""
+    nominal tool point above ``min_height`` (in the robot base frame). An arm that does not lift
+    its tool above ``min_height`` in ``1000 n`` tries (an arm of zero lengths, lengths in mm read
+    as m) is a :class:`SamplingError`, not an endless search."""
+    n = check_count(n, "the number of poses")
     lo, hi = robot.lower + margin, robot.upper - margin
     chain = Chain.from_description(robot)
     tool = robot.to_modified().tool_points[0]
     out = np.empty((0, 6))
+    tried, budget, highest = 0, max(_TRIES_PER_POSE * n, _MIN_TRIES), -np.inf
     while len(out) < n:
-        q = rng.uniform(lo, hi, size=(max(2 * (n - len(out)), 16), 6))
-        ok = tool_points(chain, q, tool)[:, 2] > min_height
-        out = np.vstack([out, q[ok]])
+        if tried >= budget:
+            raise SamplingError(
+                f"robot {robot.name!r}: {len(out)} of {tried:,} random poses within the limits "
+                f"put the tool point above z = {min_height:g} m ({n} wanted; the highest reached "
+                f"{highest:.3g} m): the arm's lengths cannot be right (every a and d zero? "
+                'millimetres read as metres? say length_unit = "mm")'
+            )
+        m = min(max(2 * (n - len(out)), 16), budget - tried, 100_000)
+        q = rng.uniform(lo, hi, size=(m, 6))
+        tried += m
+        z = tool_points(chain, q, tool)[:, 2]
+        highest = max(highest, float(z.max()))
+        out = np.vstack([out, q[z > min_height]])
     return out[:n]

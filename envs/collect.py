@@ -29,7 +29,7 @@ import numpy as np
 from arm.description import RobotDescription, load_robot
 from arm.errors import SixAxisError
 from arm.measurements import MeasurementSet, write_measurements
-from arm.sampling import sample_poses
+from arm.sampling import SamplingError, check_count, rng_from, sample_poses
 from arm.so3 import rotation_matrix, rotation_vector
 from envs.instrument import TrackerStation, place_stations
 
@@ -119,7 +119,12 @@ def collect_measurements(
     from envs.plant import Plant
     from envs.scenarios import draw_truth
 
-    rng = np.random.default_rng(seed)
+    try:
+        rng = rng_from(seed, "seed")
+        if poses is None:
+            n = check_count(n, "n (poses to measure)")
+    except SamplingError as exc:
+        raise CollectError(str(exc)) from None
     truth_rng, pose_rng, motion_rng, noise_rng = rng.spawn(4)
     nominal = (robot if isinstance(robot, RobotDescription) else load_robot(robot)).to_modified()
     if truth is None:

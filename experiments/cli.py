@@ -9,7 +9,6 @@ from __future__ import annotations
 import logging
 import warnings
 
-import click
 import typer
 from rich.console import Console
 from rich.logging import RichHandler
@@ -24,13 +23,22 @@ from lab.errors import LabWarning
 class _Commands(TyperGroup):
     """The ``sixaxis`` group: an error the project raises on purpose (:class:`SixAxisError`: bad
     input, named) that a command did not turn into its own line still ends as one line
-    ``error: ...`` and exit code 2, never a traceback; anything else is a bug and keeps its own."""
+    ``error: ...`` and exit code 2, never a traceback; so does an exception raised in a user's
+    ``--effect-module``, named by its file and line. Anything else is a bug and keeps its
+    traceback."""
 
-    def invoke(self, ctx: click.Context):
+    def invoke(self, ctx: typer.Context):
         try:
             return super().invoke(ctx)
         except SixAxisError as exc:
             fail(exc)
+        except Exception as exc:  # a user's effect module's own failure is theirs, not a bug
+            from arm.effects import user_module_failure
+
+            where = user_module_failure(exc)
+            if where is None:
+                raise
+            fail(where)
 
 
 app = typer.Typer(

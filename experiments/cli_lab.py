@@ -82,6 +82,7 @@ def _lab(ctx: typer.Context) -> None:
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _terminated)
         ctx.call_on_close(lambda: signal.signal(signal.SIGTERM, previous))
+    ctx.call_on_close(lambda: setattr(console, "stderr", False))  # after an output on stdout
 
 
 LENGTH_UNITS = ("m", "mm")
@@ -230,9 +231,12 @@ def _parse_effects(effects: str) -> None:
 
 def _robot(robot: str):
     from arm.description import load_robot
+    from arm.effects import check_robot_effects
 
     with user_errors(prefix="--robot: "):
-        return load_robot(robot)
+        arm = load_robot(robot)
+        check_robot_effects(arm, robot)  # after --effect-module registered its effects
+        return arm
 
 
 def _read(path: Path, length_unit: str, angle_unit: str):
@@ -272,14 +276,9 @@ def _check_outputs(
 
 
 def _print_to_stderr() -> None:
-    """The command's tables and messages go to stderr until it ends (stdout carries a file)."""
-    import click
-
-    before = console.file
-    console.file = err_console.file
-    ctx = click.get_current_context(silent=True)
-    if ctx is not None:
-        ctx.call_on_close(lambda: setattr(console, "file", before))
+    """The command's tables and messages go to stderr until it ends (stdout carries a file; the
+    group's callback puts them back)."""
+    console.stderr = True  # the console writes to whatever sys.stderr is when it prints
 
 
 def _prepare(
@@ -898,6 +897,7 @@ def collect_cmd(
     import numpy as np
 
     from arm.measurements import read_poses
+    from arm.sampling import rng_from
     from envs.scenarios import SCENARIOS, draw_truth
 
     _check_units("m", angle_unit or "rad")
@@ -920,9 +920,10 @@ def collect_cmd(
     from envs.collect import collect_measurements  # MuJoCo is loaded only here
 
     with user_errors():
-        truth = draw_truth(
-            scenario, arm, np.random.default_rng(seed if arm_seed is None else arm_seed)
+        rng = rng_from(
+            seed if arm_seed is None else arm_seed, "--arm-seed" if arm_seed else "--seed"
         )
+        truth = draw_truth(scenario, arm, rng)
     total = len(q) if q is not None else n
     t0 = time.perf_counter()
     with Progress(

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from arm.errors import SixAxisError
-from arm.files import atomic_write_text, folder_problem
+from arm.files import OutputError, atomic_write_text, folder_problem
 
 __all__ = [
     "RECORD_SCHEMA",
@@ -273,8 +273,9 @@ class RunStore:
         p = self.path(record["run_key"])
         try:
             atomic_write_text(p, dumps(record))
-        except OSError as exc:
-            raise RecordError(f"{p}: cannot write the record ({exc.strerror or exc})") from None
+        except (OSError, OutputError) as exc:
+            why = exc.strerror if isinstance(exc, OSError) else exc
+            raise RecordError(f"{p}: cannot write the record ({why})") from None
         return p
 
     def paths(self) -> list[Path]:
@@ -290,8 +291,9 @@ class RunStore:
         p = self.root / MANIFEST
         try:
             atomic_write_text(p, dumps(manifest))
-        except OSError as exc:
-            raise RecordError(f"{p}: cannot write the manifest ({exc.strerror or exc})") from None
+        except (OSError, OutputError) as exc:
+            why = exc.strerror if isinstance(exc, OSError) else exc
+            raise RecordError(f"{p}: cannot write the manifest ({why})") from None
 
     def manifest(self) -> dict[str, Any] | None:
         p = self.root / MANIFEST

@@ -47,7 +47,7 @@ from arm.effect_api import EffectError
 from arm.effects import EFFECTS
 from arm.errormodel import ErrorModel
 from arm.errors import SixAxisError
-from arm.files import atomic_write_text
+from arm.files import OutputError, atomic_write_text
 from arm.ik import solve_point, solve_position
 from arm.measurements import (
     ANGLE_UNITS,
@@ -147,7 +147,7 @@ def export_robot(
         )
     try:
         atomic_write_text(path, text)
-    except OSError as exc:
+    except (OSError, OutputError) as exc:
         raise ExportError(f"{path}: cannot be written ({exc})") from None
     log.info(
         "wrote the calibrated arm %r to %s (max difference %.2g m; %.2g m with the gravity "

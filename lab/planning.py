@@ -36,7 +36,7 @@ from arm.description import RobotDescription, as_robot
 from arm.effect_api import EffectError
 from arm.effects import Effect
 from arm.errormodel import ErrorModel
-from arm.sampling import sample_poses
+from arm.sampling import SamplingError, check_count, rng_from, sample_poses
 from lab.errors import FitError
 from lab.identifiability import Identifiability, analyse_jacobian
 from lab.result import SCHEMA_VERSION
@@ -47,6 +47,9 @@ log = logging.getLogger(__name__)
 
 CRITERIA = ("o1", "o4")
 _SCREEN = 24  # o4: candidates evaluated exactly per addition
+#: the most random candidates a plan draws: their identification Jacobian takes 80 MB for the
+#: geometric model's 33 parameters at 100,000
+MAX_CANDIDATES = 100_000
 
 
 @dataclass
@@ -133,11 +136,14 @@ def plan(
     if criterion not in CRITERIA:
         raise FitError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
     robot = as_robot(robot)
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    if isinstance(candidates, int | np.integer):
-        cand = sample_poses(robot, int(candidates), rng)
-    else:
-        cand = np.asarray(candidates, dtype=float).reshape(-1, 6)
+    try:
+        rng = rng_from(seed, "seed")
+        if isinstance(candidates, int | np.integer):
+            cand = sample_poses(robot, check_count(candidates, "candidates", MAX_CANDIDATES), rng)
+        else:
+            cand = np.asarray(candidates, dtype=float).reshape(-1, 6)
+    except SamplingError as exc:
+        raise FitError(str(exc)) from None
     try:
         model = ErrorModel(robot, effects)
         inputs = model.inputs(cand, columns, source="candidate poses")

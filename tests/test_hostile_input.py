@@ -14,16 +14,24 @@ broken writer running as root would replace with a regular file.
 
 from __future__ import annotations
 
+import copy
 import os
 import stat
+import string
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
+import tomli_w
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from arm.description import seed_robot
+from arm.effects import load_effect_module
 from arm.files import (
     MAX_INPUT_BYTES,
     InputFileError,
@@ -115,7 +123,7 @@ def test_atomic_writes_refuse_what_is_not_a_regular_file(tmp_path):
     specials = _specials(tmp_path)
     before = snapshot(tmp_path)
     for name, path in specials.items():
-        with pytest.raises(OutputError, match="not a regular file|is a directory") as exc:
+        with pytest.raises(OutputError, match=r"not a regular file|is a directory") as exc:
             atomic_write_text(path, "x\n")
         assert name in str(exc.value)
         with pytest.raises(OutputError), atomic_path(path):
@@ -228,5 +236,473 @@ def test_an_input_beyond_its_size_limit_is_refused_unread(tmp_path, monkeypatch)
     big = tmp_path / "big.csv"
     big.write_text("q1\n" + "0\n" * 600)
     monkeypatch.setitem(MAX_INPUT_BYTES, "csv", 1000)
-    with pytest.raises(InputFileError, match="big.csv: 1.17 KiB; files are read up to 1000"):
+    with pytest.raises(InputFileError, match=r"big\.csv: 1\.17 KiB; files are read up to 1000"):
         read_input_text(big)
+
+
+# == the measurement CSV ============================================================================
+def _rewrite(data: Path, dest: Path, edit) -> Path:
+    lines = data.read_text().splitlines()
+    dest.write_text("\n".join(edit(lines)) + "\n")
+    return dest
+
+
+def test_a_negative_target_id_is_refused_naming_the_line(data, tmp_path):
+    def negative(lines):
+        return [lines[0] + ",target"] + [
+            row + ("," + ("-3" if i == 4 else "1")) for i, row in enumerate(lines[1:])
+        ]
+
+    path = _rewrite(data, tmp_path / "t.csv", negative)
+    one_error_line(
+        sixaxis("lab", "fit", path), "t.csv", "line 6", "'target'", "0 <= target <= 1e+06"
+    )
+
+
+@pytest.mark.parametrize("quoted", [False, True])
+def test_a_cell_beyond_the_readers_limit_is_refused_naming_the_line(data, tmp_path, quoted):
+    def huge(lines):
+        cell = '"' + "9" * 200_000 + '"' if quoted else "0" * 200_000
+        lines[5] = lines[5] + cell
+        return lines
+
+    path = _rewrite(data, tmp_path / "c.csv", huge)
+    one_error_line(sixaxis("lab", "fit", path), "c.csv", "line 6", "131072 characters")
+
+
+def test_a_fifo_or_a_device_as_data_is_refused_without_waiting(tmp_path):
+    fifo = tmp_path / "data.csv"
+    os.mkfifo(fifo)
+    zero = char_device(tmp_path / "zero", 5)
+    for command in (["fit"], ["diagnose"], ["compensate", "--robot", "seed"]):
+        for path in (fifo, zero):
+            one_error_line(sixaxis("lab", command[0], path, *command[1:]), "not a regular file")
+    poses = tmp_path / "poses.csv"
+    os.mkfifo(poses)
+    one_error_line(sixaxis("lab", "collect", "-o", tmp_path / "out.csv", "--poses", poses), "FIFO")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv", "poses.csv", "zero"]
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["plan", "--seed", -1], ["seed", "non-negative", "-1"]),
+        (["plan", "--candidates", 10**12], ["candidates", "1 to 100,000"]),
+        (["collect", "--seed", -1], ["--seed", "non-negative"]),
+        (["collect", "--arm-seed", -5], ["--arm-seed", "non-negative"]),
+        (["collect", "--n", 2 * 10**12], ["n (poses to measure)", "1 to 1,000,000"]),
+    ],
+)
+def test_seeds_and_counts_out_of_bounds_are_refused_before_any_work(tmp_path, args, words):
+    out = tmp_path / "out.csv"
+    one_error_line(sixaxis("lab", *args, "-o", out), *words)
+    assert not out.exists()
+
+
+# == the robot TOML =================================================================================
+def _robot(tmp_path: Path, text: str | bytes, name: str = "robot.toml") -> Path:
+    path = tmp_path / name
+    if isinstance(text, bytes):
+        path.write_bytes(text)
+    else:
+        path.write_text(text)
+    return path
+
+
+SEED_TOML = (ROOT / "arm" / "robots" / "seed.toml").read_text()
+
+
+@pytest.mark.parametrize(
+    "extra, words",
+    [
+        ("[effects.bogus]\nx1 = 1.0\n", ["[effects.bogus]", "unknown effect 'bogus'"]),
+        ("[effects.compliance]\nc9 = 1e-6\n", ["[effects.compliance]", "'c9'", "c1, c2"]),
+    ],
+)
+def test_unknown_effects_and_parameters_in_a_robot_toml_are_refused(data, tmp_path, extra, words):
+    robot = _robot(tmp_path, SEED_TOML + "\n" + extra)
+    one_error_line(sixaxis("lab", "fit", data, "--robot", robot), "robot.toml", *words)
+    one_error_line(sixaxis("lab", "plan", "--robot", robot, "-o", tmp_path / "p.csv"), *words)
+    assert not (tmp_path / "p.csv").exists()
+
+
+@pytest.mark.parametrize(
+    "limits, unit, words",
+    [
+        ("[-1000, 1000]", "rad", ["joint 1", "[-1000, 1000]", "two turns", "no arm turns"]),
+        ("[-170, 170]", "rad", ["joint 1", "[-170, 170]", 'degrees? say angle_unit = "deg"']),
+        ("[-1000, 1000]", "deg", ["joint 1", "two turns either way (720 deg)"]),
+    ],
+)
+def test_joint_limits_beyond_two_turns_are_refused_naming_the_likely_cause(
+    tmp_path, limits, unit, words
+):
+    text = SEED_TOML.replace("[-2.97, 2.97]", limits)
+    if unit == "deg":
+        text = text.replace('angle_unit = "rad"', 'angle_unit = "deg"').replace(
+            "alpha = -1.5707963267948966", "alpha = -90"
+        )
+        text = text.replace("alpha = 1.5707963267948966", "alpha = 90")
+    robot = _robot(tmp_path, text)
+    one_error_line(sixaxis("lab", "plan", "--robot", robot, "-o", tmp_path / "p.csv"), *words)
+    assert not (tmp_path / "p.csv").exists()
+
+
+def test_a_wrist_of_plus_minus_400_degrees_is_an_arm(tmp_path):
+    wrist = SEED_TOML.replace("[-6.28, 6.28]", "[-6.98, 6.98]")  # +-400 deg
+    robot = _robot(tmp_path, wrist)
+    res = sixaxis("lab", "plan", "--n", 12, "--candidates", 200, "--robot", robot, "-o", "-")
+    assert res.exit_code == 0, res.output
+
+
+def test_an_arm_of_zero_lengths_does_not_make_plan_search_for_ever(tmp_path):
+    zero = SEED_TOML
+    for key in ("a = 0.132", "a = 0.620", "a = 0.1634", "d = 0.080", "d = 0.350", "d = 0.2356"):
+        zero = zero.replace(key, key.split("=")[0] + "= 0.0")
+    zero = zero.replace("point = [0.0, 0.0, 0.050]", "point = [0.0, 0.0, 0.0]")
+    robot = _robot(tmp_path, zero)
+    one_error_line(
+        sixaxis("lab", "plan", "--robot", robot, "--candidates", 200, "-o", tmp_path / "p.csv"),
+        "random poses within the limits put the tool point above",
+        "every a and d zero",
+    )
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        (b"# caf\xe9\n" + SEED_TOML.encode(), ["line 1, column 6", "not a UTF-8", "Latin-1"]),
+        (
+            SEED_TOML.replace("com = [0.0, 0.0, -0.04]", "com = " + "[" * 5000 + "]" * 5000),
+            ["nested too deeply"],
+        ),
+    ],
+)
+def test_a_robot_toml_that_cannot_be_read_is_one_line(data, tmp_path, text, words):
+    robot = _robot(tmp_path, text)
+    one_error_line(sixaxis("lab", "fit", data, "--robot", robot), "robot.toml", *words)
+
+
+def test_a_fifo_as_robot_or_module_is_refused_without_waiting(data, tmp_path):
+    robot = tmp_path / "robot.toml"
+    os.mkfifo(robot)
+    one_error_line(sixaxis("lab", "fit", data, "--robot", robot), "robot.toml", "FIFO")
+    module = tmp_path / "mine.py"
+    os.mkfifo(module)
+    one_error_line(sixaxis("lab", "fit", data, "--effect-module", module), "mine.py", "FIFO")
+
+
+# == effect modules =================================================================================
+MODULE_HEAD = "import numpy as np\nfrom arm.effects import JointAngleEffect\n"
+
+
+def _module(tmp_path: Path, body: str, name: str = "mine.py") -> Path:
+    path = tmp_path / name
+    path.write_text(MODULE_HEAD + body)
+    return path
+
+
+def _basis_module(tmp_path: Path, expression: str) -> Path:
+    return _module(
+        tmp_path,
+        "class Mine(JointAngleEffect):\n"
+        "    name = 'mine_basis'\n"
+        "    terms = ('k',)\n"
+        "    def basis(self, inputs, joint, term):\n"
+        f"        return {expression}\n",
+    )
+
+
+@pytest.fixture
+def catalogue():
+    """The effect catalogue as it was before the test (a module registers its effects)."""
+    from arm.effects import EFFECTS
+
+    before = dict(EFFECTS)
+    yield EFFECTS
+    EFFECTS.clear()
+    EFFECTS.update(before)
+
+
+def test_a_module_may_not_take_a_catalogued_effects_name(data, tmp_path, catalogue):
+    from arm.effects import Compliance
+
+    mod = _module(
+        tmp_path,
+        "class C(JointAngleEffect):\n"
+        "    name = 'compliance'\n"
+        "    terms = ('k',)\n"
+        "    def basis(self, inputs, joint, term):\n"
+        "        return np.sin(inputs.q[:, joint - 1])\n",
+    )
+    args = ("lab", "fit", data, "--effect-module", mod, "--effects", "geometric,compliance")
+    one_error_line(sixaxis(*args), "mine.py", "class C", "'compliance'", "arm.effects.Compliance")
+    assert catalogue["compliance"] is Compliance
+
+
+def test_a_module_may_not_name_a_parameter_like_a_catalogued_one(data, tmp_path, catalogue):
+    mod = _module(
+        tmp_path,
+        "class Mine(JointAngleEffect):\n"
+        "    name = 'mine_c'\n"
+        "    terms = ('c',)\n"
+        "    def basis(self, inputs, joint, term):\n"
+        "        return np.sin(inputs.q[:, joint - 1])\n",
+    )
+    args = ("lab", "fit", data, "--effect-module", mod, "--effects", "geometric,mine_c[2]")
+    one_error_line(sixaxis(*args), "mine_c", "'c1'", "compliance")
+    assert "mine_c" not in catalogue
+
+
+@pytest.mark.parametrize("code", [0, 3])
+def test_a_modules_sys_exit_at_import_is_one_line(data, tmp_path, code, catalogue):
+    mod = _module(tmp_path, f"import sys\nsys.exit({code})\n")
+    one_error_line(
+        sixaxis("lab", "fit", data, "--effect-module", mod), "mine.py", f"sys.exit({code})"
+    )
+
+
+@pytest.mark.parametrize(
+    "expression, words",
+    [
+        ("np.full(inputs.n, np.nan)", ["returned nan at pose 1"]),
+        ("np.full(inputs.n, np.inf)", ["returned inf at pose 1"]),
+        ("np.ones(3)", ["returned shape (3,)", "one number per pose"]),
+        ("np.ones((inputs.n, 2))", ["returned shape (60, 2)"]),
+        ("1.0", ["returned a scalar"]),
+        ("None", ["returned None"]),
+        ("'abc'", ["returned 'abc'"]),
+        ("1 / 0", ["raised ZeroDivisionError: division by zero"]),
+        ("__import__('sys').exit(0)", ["raised SystemExit"]),
+        ("inputs.q[:, joint - 1] * {}['x']", ["raised KeyError"]),
+    ],
+)
+@pytest.mark.parametrize("command", ["fit", "diagnose"])
+def test_a_bad_basis_is_one_line_naming_module_effect_and_term(
+    data, tmp_path, expression, words, command, catalogue
+):
+    mod = _basis_module(tmp_path, expression)
+    args = ["lab", command, data, "--effect-module", mod, "--effects", "geometric,mine_basis"]
+    one_error_line(
+        sixaxis(*args), "effect 'mine_basis'", "mine.py", "basis(joint 1, term 'k')", *words
+    )
+
+
+# == property-based: the readers and the loader take anything =======================================
+# Whatever text a reader is given, it reads it or refuses it with its own error (a one-line
+# SixAxisError naming the source): never another exception, never a hang.
+PROPERTY = settings(
+    max_examples=150,
+    derandomize=True,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
+COLUMNS = ["q1", "q2", "q3", "q4", "q5", "q6", "x", "y", "z", "t", "target", "dir1", "payload", "k"]
+CELLS = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.integers(min_value=-(10**30), max_value=10**30).map(str),
+    st.sampled_from(["", " ", "nan", "-inf", "1e309", "0x10", "1_0", "٣", '"1"', '"', "#", "\r"]),
+    st.text(max_size=8),
+)
+
+
+@st.composite
+def csv_texts(draw) -> str:
+    """A CSV close to a measurement file: a header of known and unknown names (some missing,
+    some repeated), rows of numbers, words and quotes, ragged now and then."""
+    header = draw(st.lists(st.sampled_from(COLUMNS), min_size=0, max_size=16))
+    if draw(st.booleans()):
+        header = [*COLUMNS[:9], *header]
+    rows = draw(
+        st.lists(
+            st.lists(CELLS, min_size=max(0, len(header) - 1), max_size=len(header) + 1),
+            max_size=6,
+        )
+    )
+    sep = draw(st.sampled_from(["\n", "\r\n", "\n\n"]))
+    bom = draw(st.sampled_from(["", "\ufeff"]))
+    return bom + sep.join([",".join(header), *(",".join(r) for r in rows)]) + sep
+
+
+@PROPERTY
+@given(text=st.one_of(csv_texts(), st.text(max_size=300)))
+def test_the_csv_readers_read_or_refuse_any_text(text):
+    from arm.measurements import (
+        MeasurementError,
+        MeasurementSet,
+        parse_measurements,
+        parse_numeric_csv,
+    )
+
+    try:
+        data = parse_measurements(text, "any.csv")
+    except MeasurementError as exc:
+        assert str(exc).startswith("any.csv") and "\n" not in str(exc), exc
+    else:
+        assert isinstance(data, MeasurementSet) and len(data) >= 1
+        assert np.isfinite(data.q).all() and np.isfinite(data.xyz).all()
+    try:
+        parse_numeric_csv(text, "poses.csv", ("q1",), comments=True, columns=("q1",))
+    except MeasurementError as exc:
+        assert str(exc).startswith("poses.csv"), exc
+
+
+@PROPERTY
+@given(raw=st.binary(max_size=300))
+def test_the_csv_file_reader_reads_or_refuses_any_bytes(tmp_path, raw):
+    from arm.measurements import MeasurementError, read_measurements
+
+    path = tmp_path / "raw.csv"
+    path.write_bytes(raw)
+    try:
+        read_measurements(path)
+    except MeasurementError as exc:
+        assert str(exc).startswith(str(path)), exc
+
+
+TOML_VALUES = st.recursive(
+    st.one_of(
+        st.floats(allow_nan=True, allow_infinity=True),
+        st.integers(min_value=-(10**20), max_value=10**20),
+        st.booleans(),
+        st.text(max_size=6),
+    ),
+    lambda inner: st.one_of(
+        st.lists(inner, max_size=4), st.dictionaries(st.text(max_size=5), inner, max_size=3)
+    ),
+    max_leaves=8,
+)
+SEED_DOC = tomllib.loads(SEED_TOML)
+KEYS = [
+    ("name",),
+    ("convention",),
+    ("length_unit",),
+    ("angle_unit",),
+    ("payload",),
+    ("gravity",),
+    ("joints", 0, "limits"),
+    ("joints", 1, "a"),
+    ("joints", 2, "com"),
+    ("joints", 3, "mass"),
+    ("joints", 5, "alpha"),
+    ("tools", 0, "point"),
+    ("base",),
+    ("effects",),
+    ("effects", "compliance"),
+    ("bogus",),
+]
+
+
+@st.composite
+def robot_docs(draw) -> dict:
+    """The seed arm's TOML with a few values replaced by anything TOML can hold."""
+    doc = copy.deepcopy(SEED_DOC)
+    for key in draw(st.lists(st.sampled_from(KEYS), min_size=1, max_size=3)):
+        node = doc
+        for k in key[:-1]:
+            node = node.setdefault(k, {}) if isinstance(k, str) else node[k]
+            if not isinstance(node, dict):
+                break
+        else:
+            node[key[-1]] = draw(TOML_VALUES)
+    return doc
+
+
+@PROPERTY
+@given(doc=robot_docs())
+def test_the_robot_reader_reads_or_refuses_any_toml_document(doc):
+    from arm.description import DescriptionError, RobotDescription
+    from arm.effect_api import EffectError
+    from arm.effects import check_robot_effects
+
+    try:
+        text = tomli_w.dumps(doc)
+    except (TypeError, ValueError):  # NaN keys and the like that TOML cannot write
+        return
+    try:
+        robot = RobotDescription.from_toml(text, source="robot.toml")
+        check_robot_effects(robot, "robot.toml")
+    except (DescriptionError, EffectError) as exc:
+        assert str(exc).startswith("robot.toml"), exc
+
+
+@PROPERTY
+@given(raw=st.binary(max_size=400))
+def test_the_robot_file_reader_reads_or_refuses_any_bytes(tmp_path, raw):
+    from arm.description import DescriptionError, load_robot
+
+    path = tmp_path / "raw.toml"
+    path.write_bytes(raw)
+    try:
+        load_robot(path)
+    except DescriptionError as exc:
+        assert str(exc).startswith(str(path)), exc
+
+
+HOSTILE_RETURNS = [
+    "np.sin(inputs.q[:, joint - 1])",
+    "np.full(inputs.n, np.nan)",
+    "np.full(inputs.n, -np.inf)",
+    "np.ones(inputs.n + 1)",
+    "np.ones((inputs.n, 1))",
+    "np.zeros(())",
+    "[1.0] * inputs.n",
+    "None",
+    "'x'",
+    "{}",
+    "inputs.column('nope')",
+    "1 // 0",
+    "__import__('sys').exit(1)",
+    "np.linalg.inv(np.zeros((2, 2)))",
+]
+
+
+@st.composite
+def effect_modules(draw) -> str:
+    """An effect module as a user might write it, right or wrong: its name, terms, basis and what
+    it does at import drawn from hostile choices."""
+    name = draw(st.sampled_from(["mine", "compliance", "geometric", "Bad", "x y", "k2", ""]))
+    terms = draw(st.lists(st.sampled_from(["k", "c", "ts", "kappa", "tx", "q", "s"]), max_size=3))
+    body = draw(st.sampled_from(HOSTILE_RETURNS))
+    head = draw(st.sampled_from(["", "raise ValueError('no')\n", "import sys\nsys.exit(2)\n"]))
+    base = draw(st.sampled_from(["JointAngleEffect", "object"]))
+    return (
+        MODULE_HEAD
+        + head
+        + f"class E({base}):\n    name = {name!r}\n    terms = {tuple(terms)!r}\n"
+        + "    def basis(self, inputs, joint, term):\n"
+        + f"        return {body}\n"
+    )
+
+
+@pytest.fixture(scope="module")
+def small_data(data):
+    from arm.measurements import read_measurements
+
+    return read_measurements(data).subset(np.arange(40))
+
+
+@settings(
+    max_examples=60,
+    derandomize=True,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
+@given(source=st.one_of(effect_modules(), st.text(alphabet=string.printable, max_size=120)))
+def test_the_effect_loader_loads_or_refuses_any_module(tmp_path, source, small_data, catalogue):
+    from arm.effect_api import EffectError
+    from arm.errors import SixAxisError
+    from lab import fit
+
+    path = tmp_path / "anything.py"
+    path.write_text(source)
+    try:
+        names = load_effect_module(path)
+    except EffectError as exc:
+        assert "anything.py" in str(exc) and "\n" not in str(exc), exc
+        return
+    for name in names:
+        try:
+            fit(small_data, seed_robot(), f"geometric,{name}")
+        except SixAxisError as exc:
+            assert "\n" not in str(exc).strip(), exc
