@@ -547,11 +547,7 @@ def load_robot(
         name_or_path = "seed"
     p = Path(name_or_path)
     shipped = resources.files("arm") / "robots"
-    if (
-        p.suffix.lower() != ".urdf"
-        and not os.path.lexists(p)
-        and (shipped / f"{p}.urdf").is_file()
-    ):
+    if p.suffix.lower() != ".urdf" and not os.path.lexists(p) and (shipped / f"{p}.urdf").is_file():
         p = Path(f"{p}.urdf")  # a shipped URDF by name: "ur5_robot", "z1"
     if p.suffix.lower() == ".urdf":
         if not os.path.lexists(p) and p.name == str(p) and (shipped / p.name).is_file():

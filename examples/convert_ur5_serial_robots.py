@@ -37,7 +37,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from arm.errors import SixAxisError
-from arm.measurements import atomic_write_text
+from arm.files import atomic_write_text
 
 HEADER = (
     "step_order",
