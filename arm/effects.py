@@ -1066,7 +1066,16 @@ def check_robot_effects(robot: RobotDescription, source: str | None = None) -> N
             except EffectError as exc:
                 raise EffectError(f"{where}: [effects.{name}]: {exc}") from None
             known = list(effect.parameter_names(robot, (0,)))
-        unknown = [k for k in values if k not in known]
+        if isinstance(effect, Geometric):  # any target's tool, any station's base, the tool frame
+            geometric = {"row", "beta", "base", "tool", "tool_rotation"}
+            unknown = [
+                k
+                for k in values
+                if k not in known
+                and ((p := parse_parameter_name(k)) is None or p.kind not in geometric)
+            ]
+        else:
+            unknown = [k for k in values if k not in known]
         if unknown:
             raise EffectError(
                 f"{where}: [effects.{name}]: {', '.join(map(repr, unknown))} is not a parameter "
