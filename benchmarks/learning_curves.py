@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import json
 import sys
 from pathlib import Path
@@ -127,10 +128,11 @@ def main() -> None:
             runs = [r for r in recorded if r["name"] == name]
         else:
             rows = aggregate(name, runs)
-            with open(args.out / f"{name}.csv", "w", newline="") as fh:
-                w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-                w.writeheader()
-                w.writerows(rows)
+            buf = io.StringIO()
+            w = csv.DictWriter(buf, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+            atomic_write_text(args.out / f"{name}.csv", buf.getvalue())
         x = np.array([r["steps"] for r in rows])
         ax1, ax2 = axes[0 if "residual" in name else 1]
         for ax, key in ((ax1, "rms_settled_mm"), (ax2, "return")):

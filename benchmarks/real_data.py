@@ -63,7 +63,8 @@ import numpy as np
 
 from arm.description import RobotDescription, load_robot
 from arm.effects import load_effect_module
-from arm.measurements import MeasurementSet, atomic_write_text, read_measurements
+from arm.files import atomic_write_text
+from arm.measurements import MeasurementSet, read_measurements
 from arm.params import parse_parameter_name
 from benchmarks._report import machine
 from lab import FitError, diagnose, discover, fit, screen

@@ -335,7 +335,10 @@ def test_bad_arguments_are_refused():
             {"overrides": {"geometric": {"da2": [1e-4, 2e-4]}}},
             "overrides['geometric']['da2'] must be a finite number, got [0.0001, 0.0002]",
         ),
-        ({"render_mode": "rgb_array", "width": -5}, "width: expected a number of pixels from 1 to 4096"),
+        (
+            {"render_mode": "rgb_array", "width": -5},
+            "width: expected a number of pixels from 1 to 4096",
+        ),
         ({"height": 0}, "height: expected a number of pixels from 1 to 4096, got 0"),
         ({"width": "640"}, "width: expected a number of pixels from 1 to 4096, got '640'"),
         ({"noise_mm": -0.01}, "noise_mm: expected a number >= 0 (mm), got -0.01"),
