@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from arm.description import RobotDescription, from_urdf, vec3
-from arm.measurements import atomic_write_text
+from arm.files import OutputError, atomic_write_text
 from arm.params import TOOL_ROTATION_NAMES
 from arm.so3 import rotation_matrix, rotation_vector
 from arm.urdf import UrdfError, calibrated_urdf, joint_origins, read_urdf, rpy_of
@@ -193,7 +193,7 @@ def export_urdf(result: FitResult, path: str | Path, name: str | None = None) ->
     try:
         atomic_write_text(path, text)
         atomic_write_text(side, side_text)
-    except OSError as exc:
+    except (OSError, OutputError) as exc:
         raise ExportError(f"{path}: cannot be written ({exc})") from None
     log.info("wrote the calibrated URDF %s and %s (max difference %.2g m)", path, side, diff)
     return UrdfExport(path, side, tuple(arm.joint_names), back, diff)
