@@ -37,11 +37,20 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/env.py
 	$(BIN)/python benchmarks/mpc.py
 	$(BIN)/python benchmarks/mpc_diagnose.py
+	$(BIN)/python benchmarks/isolation.py
 
 # The lab on public real data beside the published results and FIGAROH: results/real_data.md.
 # The Rokae rows need the converted data: SIXAXIS_REAL_DATA=DIR make real-data (README).
 real-data: $(STAMP)
 	$(BIN)/python benchmarks/real_data.py
+
+# The published leaderboard, from this checkout's commit (which must have no local changes): the
+# full sweep into runs/full-<commit> (resumable: the same command continues it), then the tables,
+# plots and JSON in results/ and the README's leaderboard section.
+leaderboard: $(STAMP)
+	@git diff --quiet HEAD -- . || { echo "make leaderboard: commit your changes first (the records must name a clean commit)"; exit 2; }
+	$(BIN)/sixaxis sweep experiments/configs/full.toml --out runs/full-$$(git rev-parse --short=10 HEAD)
+	$(BIN)/sixaxis leaderboard runs/full-$$(git rev-parse --short=10 HEAD) --readme README.md
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache build *.egg-info

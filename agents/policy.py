@@ -473,4 +473,17 @@ class PolicyAgent(Agent):
         return out
 
     def report(self) -> dict[str, float | list]:
-        return solve_time_stats(self._times)
+        """Solve times, and the training budget the policy file records (the shipped run's
+        steps and wall time, and how many seeds were trained to choose it)."""
+        out: dict[str, float | list] = dict(solve_time_stats(self._times))
+        training = self.meta.get("training") or {}
+        for key, field in (
+            ("training_steps", "timesteps"),
+            ("training_wall_s", "wall_s"),
+            ("training_seeds", "seeds_trained"),
+            ("training_wall_s_all_seeds", "wall_s_all_seeds"),
+        ):
+            value = training.get(field)
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                out[key] = float(value)
+        return out

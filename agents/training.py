@@ -710,9 +710,17 @@ def evaluate_policy(
     )
 
 
-def ship_policy(run_dir: str | Path, which: str = "best", name: str | None = None) -> Path:
+def ship_policy(
+    run_dir: str | Path,
+    which: str = "best",
+    name: str | None = None,
+    seeds_trained: int = 1,
+    wall_s_all_seeds: float | None = None,
+) -> Path:
     """Copy a run's ``best`` or ``final`` policy into ``agents/policies/<name>.npz`` (and .json)
-    with its deterministic evaluation on the leaderboard's episodes recorded in the .json."""
+    with its deterministic evaluation on the public episodes and its training budget (the run's
+    steps and wall time, from its ``summary.json``; how many seeds were trained to choose it and
+    their wall time in all) recorded in the .json."""
     from agents.policy import load_policy_file
     from arm.files import atomic_path, atomic_write_text
 
@@ -724,6 +732,16 @@ def ship_policy(run_dir: str | Path, which: str = "best", name: str | None = Non
     name = name or str(meta["name"])
     dst = POLICY_DIR / f"{name}.npz"
     meta = dict(meta) | {"name": name, "source": f"{run_dir.name}/{which}.npz"}
+    summary_path = run_dir / "summary.json"
+    summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
+    wall = summary.get("wall_s")
+    meta["training"] = {
+        "run": run_dir.name,
+        "timesteps": int(summary.get("timesteps", meta.get("timesteps", 0))),
+        "wall_s": None if wall is None else round(float(wall), 1),
+        "seeds_trained": int(seeds_trained),
+        "wall_s_all_seeds": wall_s_all_seeds if wall_s_all_seeds is not None else wall,
+    }
     rows = evaluate_policy(src)  # the same weights
     meta["leaderboard"] = {
         "env": LEADERBOARD_ENV,

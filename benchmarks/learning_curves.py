@@ -164,7 +164,14 @@ def main() -> None:
         if name in args.ship:
             from agents.training import ship_policy
 
-            dst = ship_policy(median["dir"], "best", name)
+            walls = [float(r["summary"].get("wall_s", r["curve"]["wall_s"][-1])) for r in runs]
+            dst = ship_policy(
+                median["dir"],
+                "best",
+                name,
+                seeds_trained=len(runs),
+                wall_s_all_seeds=round(sum(walls), 1),
+            )
             print(f"{name}: shipped the median seed {median['run']} to {dst}")
     for (ax1, ax2), kind in zip(axes, ("residual policies", "plain policies"), strict=True):
         ax1.set_yscale("log")

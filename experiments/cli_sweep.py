@@ -220,24 +220,39 @@ def leaderboard(
             "them); their rows are marked."
         ),
     ] = False,
+    reference: Annotated[
+        str | None,
+        typer.Option(help="The agent the aggregates compare with (default: feedforward)."),
+    ] = None,
+    readme: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also rewrite the leaderboard section of this README (between its "
+            "'leaderboard:begin' and 'leaderboard:end' markers) from the new leaderboard.json."
+        ),
+    ] = None,
 ) -> None:
-    """Build results/leaderboard.md and .csv (whole-episode RMS, settled RMS, convergence; mean
-    and 95 % CI over seeds), leaderboard_runs.csv (every run, with its commit) and the plots.
-    Records from a tree with local changes are refused unless --allow-dirty."""
+    """Build results/leaderboard.md, .json and .csv (ranked by the settled RMS; the start-up and
+    the whole episode beside it; 95 % bootstrap intervals over episodes; which orderings the
+    paired intervals resolve; aggregates against a reference; what each hidden effect costs; the
+    compute budget), leaderboard_runs.csv (every run, its seed and commit), leaderboard_pairs.csv
+    and the plots. Records from a tree with local changes are refused unless --allow-dirty."""
     from experiments.leaderboard import (
         build_leaderboard,
         cell_text,
-        headline_cell,
-        headline_metrics,
-        spread_words,
+        ordering_text,
+        readme_block,
+        to_json,
+        update_readme,
         write_leaderboard,
     )
-    from experiments.metrics import METRICS
     from experiments.records import check_writable_dir
 
     with user_errors():
         check_writable_dir(out, "the leaderboard")
-        board = build_leaderboard(runs_dir, rank_by=rank_by, allow_dirty=allow_dirty)
+        board = build_leaderboard(
+            runs_dir, rank_by=rank_by, allow_dirty=allow_dirty, reference=reference
+        )
     command = command_line(
         "leaderboard",
         runs_dir,
@@ -246,28 +261,27 @@ def leaderboard(
             "--rank-by": rank_by,
             "--no-plots": not plots,
             "--allow-dirty": allow_dirty,
+            "--reference": reference,
+            "--readme": readme,
         },
     )
     paths = write_leaderboard(board, out, command=command, plots=plots)
     m = board.rank_by
-    head = headline_metrics(board)
-
-    if head:
-        console.print(
-            leaderboard_grid(
-                board,
-                " · ".join(f"{h} ({METRICS[h].unit})" for h in head)
-                + f": means (bold: best by {m})",
-                lambda r: headline_cell(board, r),
-            )
-        )
     console.print(
         leaderboard_grid(
-            board, f"{m}: {spread_words(board)}", lambda r: cell_text(r.stats[m], m, r)
+            board,
+            f"{m}: mean over episodes (bold: best contender; intervals in {out / 'leaderboard.md'})",
+            lambda r: cell_text(r.stats[m], m, r, spread=False),
         )
     )
+    for s in board.scenarios:
+        console.print(f"{s}: {ordering_text(board.analysis, s)}", highlight=False)
     if board.failed:
         console.print(f"[red]{len(board.failed)} failed run(s)[/red] (listed in the markdown)")
+    if readme is not None:
+        with user_errors():
+            update_readme(readme, readme_block(to_json(board, command)))
+        console.print(f"updated the leaderboard section of {readme}", highlight=False)
     for p in paths.values():
         console.print(f"wrote {p}", highlight=False)
 

@@ -1,35 +1,36 @@
-"""The leaderboard: agents by scenario from a directory of run records, as a markdown table, a CSV,
-a per-run CSV and two PNG plots.
+"""The leaderboard: agents by scenario from a directory of run records, as markdown, JSON and CSV
+tables, a per-run CSV and two PNG plots.
 
     board = build_leaderboard("runs/full")
     paths = write_leaderboard(board, "results", command="sixaxis leaderboard runs/full")
 
-Each cell is the mean over seeds with the half-width of its 95 % Student-t confidence interval
-(``scipy.stats.t``), or with the minimum and maximum over seeds when there are fewer than three;
-the best agent of each scenario (lowest mean of the config's ``rank_by`` metric) is marked. The
-whole-episode RMS, the settled RMS and the convergence time stand side by side in the first table.
-Oracles (agents given the plant's truth) are marked as such, and so are informed agents (told the
-scenario's effects in their config: a model effect set beyond the geometric errors).
+Ranked by the config's ``rank_by`` (the settled RMS in the shipped configs); the best
+*contender* of each scenario (neither given the truth nor told the effects) is marked. Cells are
+the mean over episodes with a 95 % bootstrap interval; the paired comparisons, the orderings they
+resolve, the aggregates against a reference agent, each hidden effect's cost and the compute
+budget come from :mod:`experiments.comparisons` and are what ``leaderboard.json`` holds, from which
+:func:`readme_block` writes the README's leaderboard section (docs/benchmark.md says how each is
+computed). Oracles (agents given the plant's truth) are marked as such, and so are informed agents
+(told the scenario's effects in their config: a model effect set beyond the geometric errors).
 
 Every row must be reproducible: records from a tree with local changes (or from no git checkout)
 are refused unless ``allow_dirty=True``, and then marked. ``leaderboard_runs.csv`` beside the
-table lists every run (agent, scenario, seed, commit, config, every metric) so that
+table lists every run (agent, scenario, seed, episode, commit, config, every metric) so that
 ``sixaxis reproduce results/leaderboard_runs.csv --run KEY`` can rerun any of them.
 
-The CSV has one row per agent and scenario with ``<metric>_mean``, ``<metric>_ci95`` (half-width;
-empty with fewer than three values), ``<metric>_min``, ``<metric>_max`` and ``<metric>_n``.
-
 It is one module, longer than most, because building the board from the records and writing its
-files share the cell formatting, so that the markdown, the CSVs and the CLI show the same numbers.
+files share the cell formatting, so that the markdown, the CSVs, the README and the CLI show the
+same numbers.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,21 +38,28 @@ from typing import Any
 import numpy as np
 
 from arm.files import atomic_write_text
+from experiments.comparisons import episode_key
 from experiments.metrics import METRICS, MIN_VALUES_FOR_CI, Summary, summarize
-from experiments.records import RecordError, RunStore
+from experiments.records import RecordError, RunStore, jsonable
 
 __all__ = [
     "Leaderboard",
     "Row",
     "build_leaderboard",
     "cell_text",
+    "interval_text",
     "is_clean",
     "is_informed",
     "is_oracle",
+    "ordering_text",
+    "pairs_csv",
+    "readme_block",
     "runs_csv",
     "spread_words",
     "to_csv",
+    "to_json",
     "to_markdown",
+    "update_readme",
     "write_leaderboard",
 ]
 
@@ -60,13 +68,15 @@ log = logging.getLogger(__name__)
 MD_NAME = "leaderboard.md"
 CSV_NAME = "leaderboard.csv"
 RUNS_CSV_NAME = "leaderboard_runs.csv"
-#: the first table: the whole episode, the settled part and the convergence, side by side
-HEADLINE = ("rms_mm", "rms_settled_mm", "converge_s")
+#: the metrics shown with intervals: the settled RMS (the ranking), the start-up, the whole episode
+HEADLINE = ("rms_settled_mm", "rms_startup_mm", "rms_mm")
+JSON_NAME = "leaderboard.json"
+PAIRS_CSV_NAME = "leaderboard_pairs.csv"
+PLOT_STRIPS = "leaderboard_strips.png"
 ORACLE_MARK = " (oracle)"
 INFORMED_MARK = " (informed)"
 DIRTY_MARK = " (local changes)"
 PLOT_TIME = "leaderboard_error_over_time.png"
-PLOT_SCENARIO = "leaderboard_by_scenario.png"
 
 
 @dataclass
@@ -106,6 +116,8 @@ class Leaderboard:
     ignored: int = 0
     agent_settings: dict[str, dict[str, Any]] = field(default_factory=dict)
     allow_dirty: bool = False
+    #: the paired analysis (:func:`experiments.comparisons.analyse`): what leaderboard.json holds
+    analysis: dict[str, Any] = field(default_factory=dict)
 
     def row(self, agent: str, scenario: str) -> Row | None:
         return next((r for r in self.rows if r.agent == agent and r.scenario == scenario), None)
@@ -140,7 +152,10 @@ def is_informed(rec: dict[str, Any]) -> bool:
 
 
 def build_leaderboard(
-    runs_dir: str | Path, rank_by: str | None = None, allow_dirty: bool = False
+    runs_dir: str | Path,
+    rank_by: str | None = None,
+    allow_dirty: bool = False,
+    reference: str | None = None,
 ) -> Leaderboard:
     """Read every record of a sweep directory and summarise it over seeds.
 
@@ -149,7 +164,9 @@ def build_leaderboard(
     scenarios keep the config's order.
 
     Records made from a tree with local changes, or outside a git checkout, are refused
-    (:class:`RecordError` naming them) unless ``allow_dirty``; then their rows are marked."""
+    (:class:`RecordError` naming them) unless ``allow_dirty``; then their rows are marked.
+    ``reference``: the agent the aggregates are taken against (default ``feedforward`` when it
+    ran, else none)."""
     store = RunStore(runs_dir)
     if not store.root.is_dir():
         raise RecordError(f"{store.root}: no such runs directory")
@@ -215,7 +232,10 @@ def build_leaderboard(
             )
             if not mine and not nfail:
                 continue
-            stats = {m: summarize(_value(r, m) for r in mine) for m in metrics}
+            stats = {
+                m: summarize((_value(r, m) for r in mine), interval=m in (rank_by, *HEADLINE))
+                for m in metrics
+            }
             everyone = mine + [
                 r
                 for r in failed
@@ -233,16 +253,41 @@ def build_leaderboard(
                     informed=any(is_informed(r) for r in everyone),
                 )
             )
-    for scen in scenarios:
-        cands = [r for r in rows if r.scenario == scen and math.isfinite(r.stats[rank_by].mean)]
+    for scen in scenarios:  # the best contender: given neither the truth nor the effects
+        cands = [
+            r
+            for r in rows
+            if r.scenario == scen
+            and math.isfinite(r.stats[rank_by].mean)
+            and not (r.oracle or r.informed)
+        ]
         if cands:
             min(cands, key=lambda r: r.stats[rank_by].mean).best = True
+    agents = [a for a in agents if any(r.agent == a for r in rows)]
+    scenarios = [s for s in scenarios if any(r.scenario == s for r in rows)]
+    if reference is None and "feedforward" in agents:
+        reference = "feedforward"
+    elif reference is not None and reference not in agents:
+        raise RecordError(f"{runs_dir}: no agent {reference!r} to compare with (have {agents})")
+    from experiments.comparisons import analyse
+
+    analysis = analyse(
+        records,
+        agents,
+        scenarios,
+        [m for m in (rank_by, *HEADLINE) if m in metrics and METRICS[m].aggregate == "mean"]
+        + [m for m in ("tracker_points",) if m in metrics],
+        rank_by,
+        reference,
+        oracles={r.agent for r in rows if r.oracle},
+        informed={r.agent for r in rows if r.informed},
+    )
     return Leaderboard(
         runs_dir=Path(runs_dir),
         metrics=metrics,
         rank_by=rank_by,
-        agents=[a for a in agents if any(r.agent == a for r in rows)],
-        scenarios=[s for s in scenarios if any(r.scenario == s for r in rows)],
+        agents=agents,
+        scenarios=scenarios,
         rows=rows,
         records=records,
         failed=failed,
@@ -250,6 +295,7 @@ def build_leaderboard(
         ignored=ignored,
         agent_settings=settings,
         allow_dirty=allow_dirty,
+        analysis=analysis,
     )
 
 
@@ -286,11 +332,11 @@ def _fmt(v: float, digits: int = 3) -> str:
 
 
 def cell_text(s: Summary, metric: str, row: Row | None = None, spread: bool = True) -> str:
-    """A summary as text: ``mean ± ci95`` (three values or more), ``mean (min–max)`` (two),
-    ``mean`` (one), ``k/n`` for counts. A metric with a companion count of runs where it is
-    missing (``converge_s``/``never_converged``) says so: ``never (3/3)``, ``1.2 ± 0.4 (1/4
-    never)``, the mean being over the runs that converged. ``spread=False``: the mean alone (and
-    ``never`` without the count when no run converged)."""
+    """A summary as text: ``mean [lo, hi]`` (the 95 % bootstrap interval, from three values),
+    ``mean (min–max)`` (two), ``mean`` (one), ``k/n`` for counts. A metric with a companion count
+    of runs where it is missing (``converge_s``/``never_converged``) says so: ``never (3/3)``,
+    ``1.2 [0.9, 1.6] (1/4 never)``, the mean being over the runs that converged.
+    ``spread=False``: the mean alone."""
     if METRICS[metric].aggregate == "sum":
         return "–" if s.n == 0 else f"{round(s.total)}/{s.n}"
     companion = METRICS[metric].companion
@@ -301,7 +347,7 @@ def cell_text(s: Summary, metric: str, row: Row | None = None, spread: bool = Tr
     if not spread:
         text = _fmt(s.mean)
     elif s.has_ci:
-        text = f"{_fmt(s.mean)} ± {_fmt(s.ci95, 2)}"
+        text = f"{_fmt(s.mean)} [{_fmt(s.lo)}, {_fmt(s.hi)}]"
     elif s.n >= 2:
         text = f"{_fmt(s.mean)} ({_fmt(s.min)}–{_fmt(s.max)})"
     else:
@@ -309,15 +355,26 @@ def cell_text(s: Summary, metric: str, row: Row | None = None, spread: bool = Tr
     return f"{text} ({k}/{never.n} never)" if k else text
 
 
+def interval_text(iv: Mapping[str, Any] | None, digits: int = 3) -> str:
+    """An interval of the analysis (``value``, ``lo``, ``hi``) as ``value [lo, hi]``."""
+    if not iv or iv.get("value") is None:
+        return "–"
+    if iv.get("lo") is None or iv.get("hi") is None:
+        return _fmt(iv["value"], digits)
+    return f"{_fmt(iv['value'], digits)} [{_fmt(iv['lo'], digits)}, {_fmt(iv['hi'], digits)}]"
+
+
 def to_csv(board: Leaderboard) -> str:
-    """One row per agent and scenario; ``<metric>_mean``, ``<metric>_ci95`` (half-width of the
-    95 % Student-t interval; empty with fewer than three values), ``<metric>_min``,
+    """One row per agent and scenario; ``<metric>_mean``, ``<metric>_lo`` and ``<metric>_hi``
+    (the 95 % bootstrap interval of the mean, for the metrics the tables show with one; empty
+    with fewer than three values), ``<metric>_ci95`` (its half-width), ``<metric>_min``,
     ``<metric>_max``, ``<metric>_n``; counts for sums (``diverged``, ``never_converged``);
-    ``best`` by ``rank_by``; ``oracle`` (given the truth); ``dirty`` (records with local
-    changes); ``informed`` (told the scenario's effects)."""
+    ``best`` (the best contender by ``rank_by``); ``oracle`` (given the truth); ``dirty``
+    (records with local changes); ``informed`` (told the scenario's effects)."""
     header = ["agent", "scenario", "n", "failed", "best", "oracle", "dirty", "informed"]
     for m in board.metrics:
-        header += [f"{m}_mean", f"{m}_ci95", f"{m}_min", f"{m}_max", f"{m}_n"]
+        header += [f"{m}_mean", f"{m}_lo", f"{m}_hi", f"{m}_ci95", f"{m}_min", f"{m}_max"]
+        header.append(f"{m}_n")
         if METRICS[m].aggregate == "sum":
             header.append(f"{m}_count")
     buf = io.StringIO()
@@ -336,11 +393,42 @@ def to_csv(board: Leaderboard) -> str:
         ]
         for m in board.metrics:
             s = r.stats[m]
-            ci = s.ci95 if s.has_ci else float("nan")
-            line += [_num(s.mean), _num(ci), _num(s.min), _num(s.max), s.n]
+            ok = s.has_ci
+            line += [
+                _num(s.mean),
+                _num(s.lo if ok else math.nan),
+                _num(s.hi if ok else math.nan),
+                _num(s.ci95 if ok else math.nan),
+                _num(s.min),
+                _num(s.max),
+                s.n,
+            ]
             if METRICS[m].aggregate == "sum":
                 line.append("" if s.n == 0 else round(s.total))
         w.writerow(line)
+    return buf.getvalue()
+
+
+def pairs_csv(board: Leaderboard) -> str:
+    """Every two agents on every scenario: the better (lower mean of ``rank_by``), the worse,
+    the paired ratio better / worse (the geometric mean of the per-episode ratios), its 95 %
+    bootstrap interval, the episodes it is over, and whether the interval lies below 1."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["scenario", "better", "worse", "ratio", "lo", "hi", "n", "resolved"])
+    for p in board.analysis.get("pairs", []):
+        w.writerow(
+            [
+                p["scenario"],
+                p["better"],
+                p["worse"],
+                _num(p["value"]),
+                _num(p["lo"]),
+                _num(p["hi"]),
+                p["n"],
+                int(p["resolved"]),
+            ]
+        )
     return buf.getvalue()
 
 
@@ -417,78 +505,21 @@ def _num(v: float) -> str:
 def spread_words(board: Leaderboard) -> str:
     ns = {r.stats[board.rank_by].n for r in board.rows if r.stats[board.rank_by].n}
     if ns and min(ns) >= MIN_VALUES_FOR_CI:
-        return "mean ± half-width of the 95 % Student-t confidence interval over seeds"
+        return "mean [95 % bootstrap interval] over episodes"
     if ns and max(ns) < MIN_VALUES_FOR_CI:
         return (
-            f"mean (minimum–maximum) over seeds: fewer than {MIN_VALUES_FOR_CI} seeds, too few "
-            "for a confidence interval"
+            f"mean (minimum–maximum) over episodes: fewer than {MIN_VALUES_FOR_CI}, too few for "
+            "an interval"
         )
     return (
-        "mean ± half-width of the 95 % Student-t confidence interval over seeds, or (minimum–"
-        f"maximum) where fewer than {MIN_VALUES_FOR_CI} seeds finished"
+        "mean [95 % bootstrap interval] over episodes, or (minimum–maximum) where fewer than "
+        f"{MIN_VALUES_FOR_CI} finished"
     )
 
 
-def headline_metrics(board: Leaderboard) -> list[str]:
-    """The metrics of the side-by-side table: whole-episode RMS, settled RMS, convergence time
-    (those of them the records have)."""
-    return [m for m in HEADLINE if m in board.metrics]
-
-
-def headline_cell(board: Leaderboard, row: Row) -> str:
-    """``whole · settled · convergence`` means of one row (the first table)."""
-    return " · ".join(
-        cell_text(row.stats[m], m, row, spread=False) for m in headline_metrics(board)
-    )
-
-
-def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[str] = ()) -> str:
-    m0 = board.rank_by
-    meta = METRICS[m0]
+def _facts(board: Leaderboard) -> list[str]:
     man = board.manifest or {}
-    seeds = sorted({r["spec"]["seed"] for r in board.records})
     cfg = man.get("config", {})
-    lines = ["# Leaderboard", ""]
-    head = headline_metrics(board)
-    if head:
-        what = {
-            "rms_mm": "the tracking RMS over the whole judged episode",
-            "rms_settled_mm": (
-                f"the RMS after the settling time ({cfg.get('settle_seconds', '?'):g} s)"
-                if isinstance(cfg.get("settle_seconds"), (int, float))
-                else "the RMS after the settling time"
-            ),
-            "converge_s": (
-                f"the time after which the true error stays below "
-                f"{cfg.get('converge_mm', 0.25):g} mm (`never`: it did not, in that many seeds)"
-            ),
-        }
-        lines.append(
-            "Each agent on each scenario, judged on the plant's *true* tool point: "
-            + "; ".join(f"`{m}` ({METRICS[m].unit}), {what[m]}" for m in head)
-            + f". Ranked by `{m0}`; **bold**: the best agent of each scenario. Agents marked "
-            "(oracle) are given the plant's truth: they show what knowing the arm is worth, not "
-            "what a controller can do."
-            + (
-                " Agents marked (informed) are told the scenario's effects in their config (the "
-                "model's effect set): they show what knowing which effects are there is worth, "
-                "not what a controller finds."
-                if any(r.informed for r in board.rows)
-                else ""
-            )
-        )
-        lines.append("")
-    lines.append(
-        f"Cells of the other tables: {spread_words(board)} ({len(seeds)} seed(s)); lower is better."
-    )
-    lines += ["", "Made by:", "", "```"]
-    if man.get("command"):
-        lines.append(man["command"])
-    lines.append(command or f"sixaxis leaderboard {board.runs_dir}")
-    lines += ["```", ""]
-    commits = sorted({(r.get("git") or {}).get("commit") or "?" for r in board.records})
-    ndirty = sum(not is_clean(r) for r in board.records + board.failed)
-    versions = (board.records[0].get("versions") if board.records else {}) or {}
     facts = []
     if man:
         facts.append(
@@ -503,16 +534,27 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
             )
         else:
             episode = f"{cfg.get('episode_seconds'):g} s episodes"
-        conv = cfg.get("converge_mm")
         facts.append(
-            f"{episode}, settling time {cfg.get('settle_seconds'):g} s"
-            + (f", convergence threshold {conv:g} mm" if conv is not None else "")
-            + f", env options `{cfg.get('env') or {}}`"
+            f"{episode}, settling time {cfg.get('settle_seconds'):g} s, env options "
+            f"`{cfg.get('env') or {}}`"
         )
-    facts.append(
-        f"{len(board.records) + len(board.failed)} runs ({len(board.failed)} failed), seeds "
-        f"{_ranges(seeds)}"
-    )
+    drawn = [r["spec"] for r in board.records if r["spec"].get("episode") is not None]
+    seeds = sorted({r["spec"]["seed"] for r in board.records})
+    if drawn:
+        n = len({sp["episode"] for sp in drawn})
+        facts.append(
+            f"{len(board.records) + len(board.failed)} runs ({len(board.failed)} failed): "
+            f"{n} episodes per agent and scenario, their seeds drawn from [2^32, 2^63) when the "
+            f"sweep started, the same for every agent and scenario (each run's seed is in "
+            f"`{RUNS_CSV_NAME}`)"
+        )
+    else:
+        facts.append(
+            f"{len(board.records) + len(board.failed)} runs ({len(board.failed)} failed), seeds "
+            f"{_ranges(seeds)} (fixed, public: not for a published table)"
+        )
+    commits = sorted({(r.get("git") or {}).get("commit") or "?" for r in board.records})
+    ndirty = sum(not is_clean(r) for r in board.records + board.failed)
     if ndirty:
         facts.append(
             f"commit {', '.join(c[:10] for c in commits)}: **{ndirty} run(s) made with local "
@@ -521,43 +563,195 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
     else:
         facts.append(
             f"commit {', '.join(c[:10] for c in commits)}, clean: every run is reproducible "
-            f"from it (`sixaxis reproduce {RUNS_CSV_NAME} --run RUN_KEY`)"
+            f"from it (`sixaxis reproduce {RUNS_CSV_NAME} --run RUN_KEY`: exactly on the machine "
+            "that made it, within `--rtol 1e-6` elsewhere)"
         )
+    versions = (board.records[0].get("versions") if board.records else {}) or {}
     if versions:
         facts.append(", ".join(f"{k} {v}" for k, v in versions.items() if v))
-    lines += [f"- {f}" for f in facts]
     if board.ignored:
-        lines.append(f"- {board.ignored} record(s) of another config in the directory ignored")
-    lines.append("")
+        facts.append(f"{board.ignored} record(s) of another config in the directory ignored")
+    return facts
 
-    def grid(title: str, cell) -> None:
+
+def ordering_text(analysis: Mapping[str, Any], scenario: str) -> str:
+    """A scenario's ranking as one line: ``a < b ≈ c``: ``<`` where the paired interval resolves
+    the step, ``≈`` where it does not."""
+    ranked = analysis["ranking"].get(scenario) or []
+    if not ranked:
+        return ""
+    parts = [f"`{ranked[0]}`"]
+    for o in analysis["orderings"].get(scenario, []):
+        parts.append("<" if o["resolved"] else "≈")
+        parts.append(f"`{o['worse']}`")
+    return " ".join(parts)
+
+
+def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[str] = ()) -> str:
+    m0 = board.rank_by
+    an = board.analysis
+    man = board.manifest or {}
+    cfg = man.get("config", {})
+    settle = cfg.get("settle_seconds")
+    settle_s = f"{settle:g} s" if isinstance(settle, (int, float)) else "the settling time"
+    ref = an.get("reference")
+    lines = ["# Leaderboard", ""]
+    lines.append(
+        f"Each agent on each scenario, judged on the plant's *true* tool point, episode by "
+        f"episode. Ranked by `{m0}` ({METRICS[m0].unit}): "
+        + (
+            f"the tracking RMS after {settle_s}, what calibration and control decide. "
+            if m0 == "rms_settled_mm"
+            else f"{METRICS[m0].description}. "
+        )
+        + "The start-up (the first second) and the whole episode are columns of their own. "
+        f"Cells: {spread_words(board)}; lower is better. **Bold**: the best contender of each "
+        "scenario. (oracle): given the plant's truth, what knowing the arm is worth, not what a "
+        "controller can do; (informed): told the scenario's effects in its config. Orderings are "
+        "claimed only where the paired interval resolves them (`<`); `≈` is not resolved. "
+        "Intervals are 95 % bootstrap intervals (BCa, episodes resampled; paired where two "
+        "agents or scenarios are compared)."
+    )
+    lines += ["", "Made by:", "", "```"]
+    if man.get("command"):
+        lines.append(man["command"])
+    lines.append(command or f"sixaxis leaderboard {board.runs_dir}")
+    lines += ["```", ""]
+    lines += [f"- {f}" for f in _facts(board)]
+    lines.append("")
+    order = [a for a in an.get("order", board.agents) if a in board.agents]
+
+    def label(a: str) -> str:
+        mine = [r for r in board.rows if r.agent == a]
+        text = a + marks(any(r.oracle for r in mine), any(r.informed for r in mine))
+        return text + (DIRTY_MARK if any(r.dirty for r in mine) else "")
+
+    def grid(title: str, cell, note: str = "", bold: bool = False) -> None:
         lines.append(title)
         lines.append("")
+        if note:
+            lines.extend([note, ""])
         lines.append("| agent | " + " | ".join(board.scenarios) + " |")
         lines.append("|---|" + "---:|" * len(board.scenarios))
-        for a in board.agents:
-            mine = [board.row(a, s) for s in board.scenarios]
-            shown = next(r for r in mine if r is not None)
+        for a in order:
             cells = []
-            for r in mine:
+            for s in board.scenarios:
+                r = board.row(a, s)
                 if r is None:
                     cells.append("")
                     continue
                 c = cell(r)
                 if r.failed:
                     c += f" ({r.failed} failed)"
-                cells.append(f"**{c}**" if r.best else c)
-            name = a + marks(shown.oracle, any(r is not None and r.informed for r in mine))
-            name += DIRTY_MARK if any(r is not None and r.dirty for r in mine) else ""
-            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+                cells.append(f"**{c}**" if r.best and bold else c)
+            lines.append(f"| {label(a)} | " + " | ".join(cells) + " |")
         lines.append("")
 
-    if head:
-        grid(
-            "## " + " · ".join(f"{m} ({METRICS[m].unit})" for m in head) + " (means)",
-            lambda r: headline_cell(board, r),
-        )
-    grid(f"## {m0} ({meta.unit})", lambda r: cell_text(r.stats[m0], m0, r))
+    grid(
+        f"## {m0} ({METRICS[m0].unit}): the ranking",
+        lambda r: cell_text(r.stats[m0], m0, r),
+        note=f"Agents in the order of their aggregate against `{ref}` (below)." if ref else "",
+        bold=True,
+    )
+    if an.get("aggregate"):
+        lines += [
+            f"## Across scenarios, against `{ref}`",
+            "",
+            f"Each agent's `{m0}` over `{ref}`'s on the same episode, over every scenario and "
+            "episode: the interquartile mean (IQM) of the ratios, as rliable recommends, and their "
+            "geometric mean; 95 % bootstrap intervals that resample episodes in every scenario "
+            "at once. Below 1: better than the reference.",
+            "",
+            "| agent | IQM of the ratios | geometric mean |",
+            "|---|---:|---:|",
+        ]
+        for a in order:
+            agg = an["aggregate"].get(a)
+            if agg:
+                lines.append(
+                    f"| {label(a)} | {interval_text(agg['iqm'])} | "
+                    f"{interval_text(agg['geomean'])} |"
+                )
+        lines.append("")
+    lines += [
+        "## Which orderings are resolved",
+        "",
+        f"Each scenario's agents by their mean `{m0}`, each against the next: `<` where the "
+        "paired interval of their per-episode ratio lies below 1, `≈` where it does not. Every "
+        f"pair of agents is in `{PAIRS_CSV_NAME}`.",
+        "",
+        "| scenario | ranking |",
+        "|---|---|",
+    ]
+    for s in board.scenarios:
+        lines.append(f"| {s} | {ordering_text(an, s)} |")
+    lines += [
+        "",
+        "| scenario | better | worse | ratio [95 % interval] | resolved |",
+        "|---|---|---|---:|---|",
+    ]
+    for s in board.scenarios:
+        for o in an["orderings"].get(s, []):
+            lines.append(
+                f"| {s} | {o['better']} | {o['worse']} | {interval_text(o, 4)} | "
+                f"{'yes' if o['resolved'] else 'no'} |"
+            )
+    lines.append("")
+    for metric, title in (
+        ("rms_startup_mm", "## rms_startup_mm (mm): the start-up, the first second"),
+        ("rms_mm", "## rms_mm (mm): the whole episode, start-up included (not the ranking)"),
+    ):
+        if metric in board.metrics and metric != m0:
+            grid(title, lambda r, m=metric: cell_text(r.stats[m], m, r))
+    cost = an.get("cost_of_effect") or {}
+    if cost:
+        scen = [s for s in board.scenarios if s != "nominal"]
+        lines += [
+            f"## What the hidden effect costs each agent: `{m0}` against its own on `nominal`",
+            "",
+            "The same agent on the same episode seeds, with and without the scenario's hidden "
+            "effect: the geometric mean of the per-episode ratios [95 % interval].",
+            "",
+            "| agent | " + " | ".join(scen) + " |",
+            "|---|" + "---:|" * len(scen),
+        ]
+        for a in order:
+            if a in cost:
+                lines.append(
+                    f"| {label(a)} | "
+                    + " | ".join(interval_text(cost[a].get(s)) for s in scen)
+                    + " |"
+                )
+        lines.append("")
+    comp = an.get("compute") or {}
+    if comp:
+        lines += [
+            "## Compute budget",
+            "",
+            "Learned agents: the training steps and wall time of the shipped run (and how many "
+            "training seeds were run to choose it, and their wall time in all: "
+            "`results/learning/`); every agent: the tracker points it used per episode (every "
+            "phase) and its median computation per control step on this machine.",
+            "",
+            "| agent | training steps | training wall time | seeds trained (wall time in all) "
+            "| tracker points per episode | solve time, median (ms) |",
+            "|---|---:|---:|---:|---:|---:|",
+        ]
+        for a in order:
+            c = comp.get(a)
+            if not c:
+                continue
+            steps = f"{c['training_steps']:,.0f}" if c.get("training_steps") else "–"
+            wall = _duration(c.get("training_wall_s"))
+            seeds = (
+                f"{c['training_seeds']:.0f} ({_duration(c.get('training_wall_s_all_seeds'))})"
+                if c.get("training_seeds")
+                else "–"
+            )
+            points = f"{c['tracker_points']:.0f}" if c.get("tracker_points") is not None else "–"
+            solve = _fmt(c["solve_time_median_ms"]) if c.get("solve_time_median_ms") else "–"
+            lines.append(f"| {label(a)} | {steps} | {wall} | {seeds} | {points} | {solve} |")
+        lines.append("")
 
     # every metric, long format
     lines.append("## All metrics")
@@ -587,12 +781,12 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
             "| label | agent | settings | env overrides |",
             "|---|---|---|---|",
         ]
-        for label, s in board.agent_settings.items():
-            oracle = any(r.oracle for r in board.rows if r.agent == label)
-            informed = any(r.informed for r in board.rows if r.agent == label)
+        for lab, st in board.agent_settings.items():
+            oracle = any(r.oracle for r in board.rows if r.agent == lab)
+            informed = any(r.informed for r in board.rows if r.agent == lab)
             lines.append(
-                f"| {label}{marks(oracle, informed)} | `{s['name']}` | "
-                f"`{s['settings'] or {}}` | `{s['env'] or {}}` |"
+                f"| {lab}{marks(oracle, informed)} | `{st['name']}` | "
+                f"`{st['settings'] or {}}` | `{st['env'] or {}}` |"
             )
         lines.append("")
 
@@ -610,6 +804,16 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
             lines.append(f"- `{r['run_key']}`: {err.get('type', '?')}: {msg}")
         lines.append("")
     return "\n".join(lines)
+
+
+def _duration(seconds: float | None) -> str:
+    if not seconds:
+        return "–"
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
 
 
 def _ranges(seeds: Sequence[int]) -> str:
@@ -682,50 +886,79 @@ def plot_error_over_time(board: Leaderboard, path: str | Path) -> Path:
     return _save(fig, path)
 
 
-def plot_by_scenario(board: Leaderboard, path: str | Path) -> Path:
-    """The ranking metric by scenario: one bar per agent with its 95 % confidence interval."""
+def plot_strips(board: Leaderboard, path: str | Path) -> Path:
+    """Per-episode ``rank_by`` of every agent, one panel per scenario: a dot per episode, the
+    mean as a bar with its 95 % bootstrap interval (log scale)."""
     from matplotlib.figure import Figure
 
     m = board.rank_by
-    scen, agents = board.scenarios, board.agents
-    fig = Figure(
-        figsize=(max(6.0, 1.3 * len(scen) * max(1, len(agents)) / 4 + 3), 4.2), layout="constrained"
-    )
-    ax = fig.subplots()
-    colors = _colors(agents)
-    width = 0.8 / max(1, len(agents))
-    x = np.arange(len(scen))
-    for i, a in enumerate(agents):
-        means, lo, hi = [], [], []
-        for s in scen:
-            r = board.row(a, s)
-            st = r.stats[m] if r else None
-            means.append(st.mean if st and st.n else np.nan)
-            if st and st.has_ci:
-                lo.append(st.ci95)
-                hi.append(st.ci95)
-            elif st and st.n >= 2:  # too few seeds for an interval: their range
-                lo.append(st.mean - st.min)
-                hi.append(st.max - st.mean)
-            else:
-                lo.append(0.0)
-                hi.append(0.0)
-        ax.bar(
-            x + (i - (len(agents) - 1) / 2) * width,
-            means,
-            width,
-            yerr=[lo, hi],
-            capsize=2,
-            color=colors[a],
-            label=a,
-        )
-    ax.set_xticks(x, scen)
-    ax.set_yscale("log")
-    ax.set_ylabel(f"{m} ({METRICS[m].unit})")
-    ax.grid(True, axis="y", which="both", alpha=0.3)
-    ax.legend(ncol=min(4, len(agents)), fontsize=8, frameon=False)
-    ax.set_title(f"{METRICS[m].description} by scenario (mean, 95 % CI or range over seeds)")
+    an = board.analysis
+    order = [a for a in an.get("order", board.agents) if a in board.agents]
+    scen = board.scenarios
+    ncol = min(3, len(scen))
+    nrow = math.ceil(len(scen) / ncol)
+    fig = Figure(figsize=(5.2 * ncol, 0.32 * len(order) * nrow + 1.2 * nrow + 0.8))
+    axes = np.atleast_1d(fig.subplots(nrow, ncol, sharey=True, squeeze=False)).ravel()
+    colors = _colors(board.agents)
+    rng = np.random.default_rng(0)  # the jitter only
+    for ax, s in zip(axes, scen, strict=False):
+        for y, a in enumerate(order):
+            vals = np.array(
+                [
+                    _value(r, m)
+                    for r in board.records
+                    if r["spec"]["agent_label"] == a and r["spec"]["scenario_label"] == s
+                ],
+                dtype=float,
+            )
+            vals = vals[np.isfinite(vals) & (vals > 0)]
+            if not vals.size:
+                continue
+            jitter = rng.uniform(-0.18, 0.18, vals.size)
+            ax.scatter(vals, y + jitter, s=9, color=colors[a], alpha=0.6, lw=0)
+            row = board.row(a, s)
+            st = row.stats[m] if row is not None else None
+            if st is not None and st.n:
+                ax.plot([st.mean, st.mean], [y - 0.3, y + 0.3], color="k", lw=1.5)
+                if st.has_ci:
+                    ax.plot([st.lo, st.hi], [y, y], color="k", lw=1.0)
+        ax.set_xscale("log")
+        ax.set_title(s)
+        ax.grid(True, axis="x", which="both", alpha=0.3)
+        ax.set_xlabel(f"{m} ({METRICS[m].unit})")
+    for ax in axes[len(scen) :]:
+        ax.set_visible(False)
+    axes[0].set_yticks(range(len(order)), order)
+    axes[0].invert_yaxis()
+    for ax in axes[::ncol]:
+        ax.set_yticks(range(len(order)), order)
+    fig.suptitle(f"{m} per episode (dots), mean and 95 % bootstrap interval (black), log scale")
+    fig.set_layout_engine("constrained")
     return _save(fig, path)
+
+
+def to_json(board: Leaderboard, command: str | None = None) -> dict[str, Any]:
+    """What ``leaderboard.json`` holds: where the records came from (config, commit, episodes,
+    the commands) and the analysis (:mod:`experiments.comparisons`)."""
+    man = board.manifest or {}
+    commits = sorted({(r.get("git") or {}).get("commit") or "" for r in board.records})
+    episodes = sorted({episode_key(r) for r in board.records})
+    return jsonable(
+        {
+            "config_name": man.get("config_name"),
+            "config_path": man.get("config_path"),
+            "config_hash": man.get("config_hash"),
+            "commands": [c for c in (man.get("command"), command) if c],
+            "commits": commits,
+            "clean": not any(not is_clean(r) for r in board.records + board.failed),
+            "runs": len(board.records) + len(board.failed),
+            "failed": len(board.failed),
+            "episodes": len(episodes),
+            "drawn_seeds": any(r["spec"].get("episode") is not None for r in board.records),
+            "settle_seconds": (man.get("config") or {}).get("settle_seconds"),
+            **board.analysis,
+        }
+    )
 
 
 def _save(fig, path: str | Path) -> Path:
@@ -744,15 +977,22 @@ def write_leaderboard(
     command: str | None = None,
     plots: bool = True,
 ) -> dict[str, Path]:
-    """Write leaderboard.md, leaderboard.csv, leaderboard_runs.csv (every run) and (``plots``)
-    the two PNGs into ``out_dir``."""
+    """Write leaderboard.md, leaderboard.json (the analysis), leaderboard.csv (per agent and
+    scenario), leaderboard_runs.csv (every run), leaderboard_pairs.csv (every two agents) and
+    (``plots``) the two PNGs into ``out_dir``."""
     out = Path(out_dir)
     paths: dict[str, Path] = {}
     paths["runs_csv"] = out / RUNS_CSV_NAME
     atomic_write_text(paths["runs_csv"], runs_csv(board))
+    paths["pairs_csv"] = out / PAIRS_CSV_NAME
+    atomic_write_text(paths["pairs_csv"], pairs_csv(board))
+    paths["json"] = out / JSON_NAME
+    atomic_write_text(
+        paths["json"], json.dumps(to_json(board, command), indent=1, allow_nan=False) + "\n"
+    )
     if plots:
+        paths["strips"] = plot_strips(board, out / PLOT_STRIPS)
         paths["error_over_time"] = plot_error_over_time(board, out / PLOT_TIME)
-        paths["by_scenario"] = plot_by_scenario(board, out / PLOT_SCENARIO)
     paths["csv"] = out / CSV_NAME
     atomic_write_text(paths["csv"], to_csv(board))
     paths["markdown"] = out / MD_NAME
@@ -761,7 +1001,136 @@ def write_leaderboard(
         to_markdown(
             board,
             command,
-            [paths[k].name for k in ("error_over_time", "by_scenario") if k in paths],
+            [paths[k].name for k in ("strips", "error_over_time") if k in paths],
         ),
     )
     return paths
+
+
+# -- the README's leaderboard section ---------------------------------------------------------------
+
+README_BEGIN = "<!-- leaderboard:begin -->"
+README_END = "<!-- leaderboard:end -->"
+
+
+def readme_block(data: Mapping[str, Any]) -> str:
+    """The README's leaderboard section, written from ``leaderboard.json`` alone (what
+    :func:`to_json` wrote): the ranking table with each agent's aggregate, the orderings the
+    paired intervals resolve, and sentences that claim no ordering they do not resolve.
+    ``tests/test_readme_leaderboard.py`` checks that the README holds exactly this."""
+    m0 = data["rank_by"]
+    ref = data.get("reference")
+    scen = list(data["scenarios"])
+    cells, agg = data["cells"], data.get("aggregate") or {}
+    oracles, informed = set(data.get("oracles", [])), set(data.get("informed", []))
+    order = [a for a in data["order"] if a in cells]
+    commit = ", ".join(c[:10] for c in data.get("commits", []))
+
+    def mark(a: str) -> str:
+        return a + marks(a in oracles, a in informed)
+
+    def mean(a: str, s: str, m: str = m0) -> float | None:
+        return ((cells.get(a, {}).get(s) or {}).get(m) or {}).get("value")
+
+    settle = data.get("settle_seconds")
+    lines = [
+        README_BEGIN,
+        "<!-- written by `sixaxis leaderboard --readme` from results/leaderboard.json; "
+        "tests/test_readme_leaderboard.py keeps the two equal -->",
+        "",
+        f"From {'clean ' if data.get('clean') else ''}commit {commit} "
+        f"(`results/leaderboard.md`, with every interval): {data['episodes']} episodes per agent "
+        "and scenario"
+        + (", their seeds drawn when the sweep started" if data.get("drawn_seeds") else "")
+        + f", {data['runs']} runs ({data['failed']} failed). Each cell is the mean `{m0}` "
+        + (f"(the tracking RMS after {settle:g} s, mm)" if isinstance(settle, (int, float)) else "")
+        + "; **bold**: the best contender of the scenario; (oracle): given the plant's truth; "
+        "(informed): told the scenario's effects."
+        + (
+            f" The last column is each agent's `{m0}` against `{ref}`'s on the same episodes, "
+            "over every scenario: the IQM of the per-episode ratios [95 % interval]."
+            if ref
+            else ""
+        ),
+        "",
+        "| agent | " + " | ".join(scen) + (f" | vs `{ref}` |" if ref else " |"),
+        "|---|" + "---:|" * (len(scen) + (1 if ref else 0)),
+    ]
+    for a in order:
+        row = []
+        for s in scen:
+            v = mean(a, s)
+            text = _fmt(v) if v is not None else ""
+            row.append(f"**{text}**" if data["best"].get(s) == a and text else text)
+        if ref:
+            row.append(interval_text((agg.get(a) or {}).get("iqm")))
+        lines.append(f"| {mark(a)} | " + " | ".join(row) + " |")
+    lines += [
+        "",
+        f"Each scenario's agents by their mean `{m0}`, each against the next: `<` where the "
+        "paired 95 % interval of the per-episode ratio resolves the step, `≈` where it does not:",
+        "",
+    ]
+    lines += [f"- `{s}`: {ordering_text(data, s)}" for s in scen]
+    lines += ["", *_readme_sentences(data), README_END]
+    return "\n".join(lines) + "\n"
+
+
+def _readme_sentences(data: Mapping[str, Any]) -> list[str]:
+    """What the table says, claiming only resolved orderings."""
+    oracles, informed = set(data.get("oracles", [])), set(data.get("informed", []))
+    pairs = data.get("pairs", [])
+
+    def pair(a: str, b: str, s: str) -> Mapping[str, Any] | None:
+        return next(
+            (p for p in pairs if p["scenario"] == s and {p["better"], p["worse"]} == {a, b}),
+            None,
+        )
+
+    out = []
+    for s in data["scenarios"]:
+        best = data["best"].get(s)
+        if best is None:
+            continue
+        rivals = [
+            a for a in data["ranking"][s] if a != best and a not in oracles and a not in informed
+        ]
+        unresolved = [a for a in rivals if not (pair(best, a, s) or {}).get("resolved")]
+        if not unresolved:
+            out.append(
+                f"- On `{s}`, `{best}` is the best contender, resolved against every other one."
+            )
+        else:
+            names = ", ".join(f"`{a}`" for a in unresolved)
+            out.append(
+                f"- On `{s}`, `{best}` has the lowest mean among the contenders; not resolved "
+                f"from it: {names}."
+            )
+    below = {}
+    for p in pairs:
+        if p["resolved"] and p["worse"] in oracles and p["better"] not in oracles | informed:
+            below.setdefault((p["better"], p["worse"]), []).append(p["scenario"])
+    for (a, o), where in sorted(below.items()):
+        out.append(
+            f"- `{a}` tracks below `{o}` (oracle) on {', '.join(f'`{s}`' for s in where)} "
+            "(resolved): the oracle's model knowledge is not a ceiling on the settled metric."
+        )
+    return out
+
+
+def update_readme(path: str | Path, block: str) -> Path:
+    """Replace the README's leaderboard section (between :data:`README_BEGIN` and
+    :data:`README_END`, markers included) with ``block``; a README without both markers is
+    refused, and nothing is written."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecordError(f"{p}: cannot read: {exc}") from None
+    i, j = text.find(README_BEGIN), text.find(README_END)
+    if i < 0 or j < i:
+        raise RecordError(
+            f"{p}: no leaderboard section to rewrite (the lines {README_BEGIN} and {README_END})"
+        )
+    atomic_write_text(p, text[:i] + block.rstrip("\n") + text[j + len(README_END) :])
+    return p

@@ -1,6 +1,7 @@
 """What a run is judged by: metrics of one episode (an :class:`agents.runner.EpisodeResult`) and
-their summary over seeds (mean with a 95 % Student-t confidence interval from three seeds on; the
-minimum and maximum with fewer, where a t-interval is too wide to mean anything).
+their summary over seeds (mean with a 95 % bootstrap confidence interval from three seeds on,
+:mod:`experiments.statistics`, which never reaches below zero for a positive quantity; the
+minimum and maximum with fewer).
 
 The leaderboard ranks by the settled RMS (``rms_settled_mm``: after ``settle_seconds``), what an
 agent's calibration and control decide. The start-up is its own column (``rms_startup_mm``: the
@@ -298,16 +299,17 @@ def calibration_error_mm(
     return float(np.sqrt(np.mean(np.sum((x_est - x_true) ** 2, axis=1)))) * 1e3
 
 
-#: fewer finite values than this and a summary shows the minimum and maximum, not a t-interval
-#: (with two seeds the 95 % t factor is 12.7: the interval spans far beyond anything observed)
+#: fewer finite values than this and a summary shows the minimum and maximum, not an interval
 MIN_VALUES_FOR_CI = 3
 
 
 @dataclass(frozen=True)
 class Summary:
-    """A metric over seeds: mean, the half-width of its 95 % Student-t confidence interval (NaN
-    with fewer than two values), standard deviation, count of finite values, their sum, minimum
-    and maximum. :attr:`has_ci` says whether the interval is worth showing."""
+    """A metric over seeds: mean, its 95 % bootstrap confidence interval ``[lo, hi]``
+    (:func:`experiments.statistics.mean_interval`: BCa; for a positive quantity it never reaches
+    below zero), ``ci95`` its half-width (``(hi - lo) / 2``, for a column of numbers), standard
+    deviation, count of finite values, their sum, minimum and maximum. :attr:`has_ci` says whether
+    the interval is worth showing."""
 
     mean: float
     ci95: float
@@ -316,24 +318,27 @@ class Summary:
     total: float
     min: float = float("nan")
     max: float = float("nan")
+    lo: float = float("nan")
+    hi: float = float("nan")
 
     @property
     def has_ci(self) -> bool:
-        """Enough values (:data:`MIN_VALUES_FOR_CI`) for the t-interval to be shown."""
-        return self.n >= MIN_VALUES_FOR_CI and math.isfinite(self.ci95)
+        """Enough values (:data:`MIN_VALUES_FOR_CI`) for the interval to be shown."""
+        return self.n >= MIN_VALUES_FOR_CI and math.isfinite(self.lo) and math.isfinite(self.hi)
 
     @property
     def low(self) -> float:
-        return self.mean - self.ci95
+        return self.lo
 
     @property
     def high(self) -> float:
-        return self.mean + self.ci95
+        return self.hi
 
 
-def summarize(values: Iterable[float], confidence: float = 0.95) -> Summary:
-    """Mean and Student-t confidence interval (``scipy.stats.t``) of the finite ``values``."""
-    from scipy import stats
+def summarize(values: Iterable[float], interval: bool = True) -> Summary:
+    """Mean and bootstrap confidence interval of the finite ``values`` (``interval=False``:
+    the mean, spread and range only, for metrics no table shows an interval of)."""
+    from experiments.statistics import mean_interval
 
     x = np.asarray([v for v in values if v is not None], dtype=float)
     x = x[np.isfinite(x)]
@@ -346,5 +351,7 @@ def summarize(values: Iterable[float], confidence: float = 0.95) -> Summary:
     if n < 2:
         return Summary(mean, float("nan"), float("nan"), n, total, lo, hi)
     std = float(np.std(x, ddof=1))
-    half = float(stats.t.ppf(0.5 + confidence / 2, n - 1)) * std / math.sqrt(n)
-    return Summary(mean, half, std, n, total, lo, hi)
+    if not interval:
+        return Summary(mean, float("nan"), std, n, total, lo, hi)
+    ci = mean_interval(x)
+    return Summary(mean, (ci.hi - ci.lo) / 2, std, n, total, lo, hi, ci.lo, ci.hi)

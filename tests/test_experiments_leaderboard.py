@@ -1,13 +1,12 @@
-"""The leaderboard from run records (mean and Student-t CI over seeds, best marked, the command
-that made it, the plots), and the ``sixaxis leaderboard`` / ``sixaxis reproduce`` commands on a
-real record."""
+"""The leaderboard from run records (mean and bootstrap interval over episodes, the best
+contender marked, the command that made it, the plots, the JSON), and the ``sixaxis
+leaderboard`` / ``sixaxis reproduce`` commands on a real record."""
 
 from __future__ import annotations
 
 import csv
 import io
 import json
-import math
 import re
 
 import numpy as np
@@ -42,9 +41,6 @@ def clean_tree(monkeypatch):
     monkeypatch.setattr("experiments.sweep.environment_info", with_git(CLEAN))
 
 
-T975_2DOF = 4.302653  # Student t, 97.5 % quantile, 2 degrees of freedom (tables)
-
-
 def fake_config(**changes):
     raw = {
         "name": "board",
@@ -71,12 +67,14 @@ def rows(text: str) -> list[dict]:
     return list(csv.DictReader(io.StringIO(text)))
 
 
-def test_csv_has_mean_ci_and_n_per_agent_and_scenario(runs):
+def test_csv_has_mean_interval_and_n_per_agent_and_scenario(runs):
+    from experiments.statistics import mean_interval
+
     _, path = runs
     board = build_leaderboard(path)
     table = rows(to_csv(board))
     assert len(table) == 6
-    assert {"agent", "scenario", "n", "rms_mm_mean", "rms_mm_ci95", "rms_mm_n", "best"} <= set(
+    assert {"agent", "scenario", "n", "rms_mm_mean", "rms_mm_lo", "rms_mm_hi", "best"} <= set(
         table[0]
     )
     store = RunStore(path)
@@ -89,9 +87,9 @@ def test_csv_has_mean_ci_and_n_per_agent_and_scenario(runs):
         )
         assert row["n"] == "3" and row["failed"] == "1"
         assert float(row["rms_mm_mean"]) == pytest.approx(vals.mean(), rel=1e-12)
-        assert float(row["rms_mm_ci95"]) == pytest.approx(
-            T975_2DOF * vals.std(ddof=1) / math.sqrt(3), rel=1e-6
-        )
+        ci = mean_interval(vals)  # the bootstrap interval: inside the values' range, above 0
+        assert (float(row["rms_mm_lo"]), float(row["rms_mm_hi"])) == (ci.lo, ci.hi)
+        assert 0 < vals.min() <= ci.lo <= vals.mean() <= ci.hi <= vals.max()
         assert float(row["solve_time_median_ms_mean"]) >= 0  # timing metrics are summarised too
 
 
@@ -139,17 +137,20 @@ def test_write_leaderboard_makes_the_files_and_plots(runs, tmp_path):
     paths = write_leaderboard(build_leaderboard(path), out, command="sixaxis leaderboard x")
     assert {p.name for p in out.iterdir()} == {
         "leaderboard.md",
+        "leaderboard.json",
         "leaderboard.csv",
         "leaderboard_runs.csv",
+        "leaderboard_pairs.csv",
         "leaderboard_error_over_time.png",
-        "leaderboard_by_scenario.png",
+        "leaderboard_strips.png",
     }
-    for key in ("error_over_time", "by_scenario"):
+    for key in ("error_over_time", "strips"):
         data = paths[key].read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
-    assert (
-        "![leaderboard_by_scenario](leaderboard_by_scenario.png)" in paths["markdown"].read_text()
-    )
+    assert "![leaderboard_strips](leaderboard_strips.png)" in paths["markdown"].read_text()
+    data = json.loads(paths["json"].read_text())
+    assert data["rank_by"] == "rms_mm" and data["scenarios"] == ["nominal", "geometric"]
+    assert len(data["pairs"]) == 2 * 3  # every two of three agents, per scenario
 
 
 # -- the commands on a real record ----------------------------------------------------------------
@@ -250,17 +251,18 @@ def test_convergence_never_reached_is_marked_not_zero_and_oracles_are_marked(tmp
     run_sweep(cfg, tmp_path, workers=0, run_fn=converging_run)
     board = build_leaderboard(tmp_path)
     md = to_markdown(board)
-    lines = md.splitlines()
-    head = lines.index(next(ln for ln in lines if ln.startswith("## rms_mm (mm) · rms_settled_mm")))
-    grid = lines[head : head + 8]
-    hold = next(ln for ln in grid if ln.startswith("| hold |"))
-    assert hold.count("· never** |") == 2  # both scenarios (best: tied); no number, no zero
-    nominal = next(ln for ln in grid if ln.startswith("| nominal |"))
-    assert "· 2.00 (2/3 never) |" in nominal
-    calibrated = next(ln for ln in grid if ln.startswith("| calibrated (oracle) |"))
-    assert "· 1.50 |" in calibrated  # mean of 1.0, 1.5, 2.0
-    assert "(oracle) are given the plant's truth" in md
-    assert "| **hold** | nominal | 3 | 2.00 ± 2.5 | 1.50 ± 2.5 | never (3/3) | 3/3 |" in md
+    long = {
+        (ln.split("|")[1].strip(" *"), ln.split("|")[2].strip()): ln
+        for ln in md[md.index("## All metrics") :].splitlines()
+        if ln.startswith("| ") and ln.count("|") > 5
+    }
+    # converge_s: no number and no zero where the error never converged, the count instead
+    assert "| never (3/3) | 3/3 |" in long["hold", "nominal"]
+    assert "| 2.00 (2/3 never) | 2/3 |" in long["nominal", "nominal"]
+    assert "| 1.50 (1.00–2.00) | 0/3 |" in long["calibrated (oracle)", "nominal"]
+    assert "(oracle): given the plant's truth" in md
+    # an oracle is never the best contender, whatever its numbers
+    assert not any(r.best for r in board.rows if r.agent == "calibrated")
     table = rows(to_csv(board))
     by = {(r["agent"], r["scenario"]): r for r in table}
     assert by["hold", "geometric"]["converge_s_n"] == "0"
@@ -435,7 +437,7 @@ def test_agents_told_the_scenarios_effects_are_marked_informed(tmp_path):
     long = [ln.replace("**", "") for ln in md.splitlines()]
     assert "| told (informed) | backlash |" in "\n".join(long)
     assert "| told | nominal |" in "\n".join(long)
-    assert "(informed) are told the scenario's effects" in md
+    assert "(informed): told the scenario's effects" in md
     by = {(r["agent"], r["scenario"]): r for r in rows(to_csv(board))}
     assert by["told", "backlash"]["informed"] == "1" and by["told", "nominal"]["informed"] == "0"
     runs_table = rows(runs_csv(board))

@@ -131,13 +131,24 @@ def test_calibration_error_is_exact_for_a_base_translation():
         calibration_error_mm(model, p_true, ["c2"], [1e-6])
 
 
-@pytest.mark.parametrize(("n", "t975"), [(2, 12.706205), (5, 2.776445), (10, 2.262157)])
-def test_student_t_interval_against_tabulated_quantiles(n, t975):
-    x = np.arange(1.0, n + 1) ** 1.5
+def test_summary_interval_is_the_bootstrap_of_the_mean_and_stays_positive():
+    """20 skewed positive values (a tracking error's spread): the Student-t interval reaches
+    below zero, the bootstrap interval does not, and it is the percentile-corrected (BCa)
+    interval scipy computes on its own."""
+    from scipy import stats
+
+    x = np.r_[np.full(18, 0.05), 2.0, 3.0]
+    t_half = stats.t.ppf(0.975, 19) * x.std(ddof=1) / math.sqrt(20)
+    assert x.mean() - t_half < 0  # the old interval of a positive quantity
     s = summarize(x)
-    assert s.n == n and s.mean == pytest.approx(x.mean())
-    assert s.ci95 == pytest.approx(t975 * x.std(ddof=1) / math.sqrt(n), rel=1e-6)
-    assert s.low < s.mean < s.high
+    assert s.n == 20 and s.mean == pytest.approx(x.mean())
+    assert 0 < s.lo < s.mean < s.hi and s.has_ci
+    ref = stats.bootstrap(
+        (x,), np.mean, n_resamples=10_000, method="BCa", rng=np.random.default_rng(20_240_611)
+    )
+    assert (s.lo, s.hi) == pytest.approx(
+        (ref.confidence_interval.low, ref.confidence_interval.high), rel=1e-9
+    )
 
 
 def test_summary_of_one_or_no_value_and_missing_values():

@@ -70,11 +70,12 @@ def one_line_refusal(res, *needles: str) -> str:
     return out
 
 
-@pytest.mark.parametrize("workers", [1, 0])
+@pytest.mark.parametrize("workers", [1, pytest.param(0, marks=pytest.mark.slow)])
 def test_agents_that_raise_return_nan_exhaust_memory_or_hang_fail_and_the_sweep_goes_on(
     tmp_path, workers
 ):
-    summary = run_sweep(failing_config(), tmp_path, workers=workers)
+    # a limit well above what a loaded machine takes to start an agent's process
+    summary = run_sweep(failing_config(time_limit_s=20.0), tmp_path, workers=workers)
     assert sorted(summary.failed) == sorted(
         f"{a}__geometric__seed0" for a in ("raises", "nan", "hog", "hang")
     )
@@ -95,11 +96,11 @@ def test_agents_that_raise_return_nan_exhaust_memory_or_hang_fail_and_the_sweep_
     assert "time limit" in err["hang"]["message"]
 
 
-@pytest.mark.parametrize("workers", [1, 0])
+@pytest.mark.parametrize("workers", [pytest.param(1, marks=pytest.mark.slow), 0])
 def test_a_hang_in_the_runs_own_process_is_stopped_by_its_time_limit(tmp_path, workers):
     """isolate = "none": the agent runs in the worker (or, with -w 0, in the sweep's process);
     the time limit stops its Python code there."""
-    cfg = failing_config(isolate="none", time_limit_s=3.0)
+    cfg = failing_config(isolate="none", time_limit_s=10.0)
     cfg = parse_config(
         cfg.to_dict()
         | {"agents": [{"name": "tests._user_agent:Hang", "label": "hang"}, "hold"]}

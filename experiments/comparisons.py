@@ -1,0 +1,195 @@
+"""The paired analysis behind the leaderboard: every agent on every scenario episode by episode,
+as plain data (``results/leaderboard.json``) from which the tables, the plots and the README's
+leaderboard section are all written.
+
+    analysis = analyse(records, agents, scenarios, rank_by="rms_settled_mm", reference="feedforward")
+
+What it holds (:mod:`experiments.statistics` computes every interval):
+
+- ``cells``: per agent, scenario and metric, the mean over episodes with its bootstrap interval.
+- ``ranking``: per scenario, the agents by their mean ``rank_by`` (lowest first), and ``best``,
+  the best *contender*: an agent neither given the truth (oracle) nor told the scenario's effects
+  (informed).
+- ``orderings``: per scenario, each agent against the next one in that ranking: the paired ratio
+  (the geometric mean of the per-episode ratios) with its interval, and whether it is resolved.
+  ``pairs`` holds the same for every two agents.
+- ``aggregate``: per agent, against the reference agent across every scenario: the IQM and the
+  geometric mean of the per-episode ratios, with intervals; the agents are listed by the IQM.
+- ``cost_of_effect``: per agent and scenario, its ``rank_by`` there against its own on the
+  ``nominal`` scenario, episode by episode (the same seeds): what the hidden effect costs it.
+- ``compute``: per agent, the training budget of a learned policy (steps and wall time of the
+  shipped run, seeds trained), the tracker points it used per episode, its solve time.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from experiments.metrics import METRICS
+from experiments.statistics import Interval, aggregate_to_reference, mean_interval, paired_ratio
+
+__all__ = ["NOMINAL", "analyse", "episode_key"]
+
+#: the scenario without hidden effects, against which an effect's cost is measured
+NOMINAL = "nominal"
+
+
+def episode_key(rec: Mapping[str, Any]) -> int:
+    """The episode a record is (its index among drawn seeds, else its seed): what pairs runs."""
+    spec = rec["spec"]
+    return int(spec["episode"]) if spec.get("episode") is not None else int(spec["seed"])
+
+
+def _value(rec: Mapping[str, Any], metric: str) -> float:
+    src = rec.get("timing", {}) if METRICS[metric].timing else rec.get("metrics", {})
+    v = src.get(metric)
+    return math.nan if v is None else float(v)
+
+
+def _interval(iv: Interval) -> dict[str, float | int | None]:
+    def num(x: float) -> float | None:
+        return float(x) if math.isfinite(x) else None
+
+    return {"value": num(iv.value), "lo": num(iv.lo), "hi": num(iv.hi), "n": iv.n}
+
+
+def analyse(
+    records: Iterable[Mapping[str, Any]],
+    agents: Sequence[str],
+    scenarios: Sequence[str],
+    metrics: Sequence[str],
+    rank_by: str,
+    reference: str | None,
+    oracles: Iterable[str] = (),
+    informed: Iterable[str] = (),
+) -> dict[str, Any]:
+    """The analysis (see the module docstring) of the successful runs ``records``."""
+    oracles, informed = set(oracles), set(informed)
+    by_cell: dict[tuple[str, str], dict[int, Mapping[str, Any]]] = {}
+    for rec in records:
+        cell = (rec["spec"]["agent_label"], rec["spec"]["scenario_label"])
+        by_cell.setdefault(cell, {})[episode_key(rec)] = rec
+
+    def series(agent: str, scenario: str, metric: str = rank_by) -> dict[int, float]:
+        cell = by_cell.get((agent, scenario), {})
+        return {k: _value(r, metric) for k, r in cell.items()}
+
+    cells: dict[str, dict[str, dict[str, Any]]] = {}
+    for a in agents:
+        for s in scenarios:
+            if (a, s) not in by_cell:
+                continue
+            row = cells.setdefault(a, {}).setdefault(s, {})
+            for m in metrics:
+                values = list(series(a, s, m).values())
+                if METRICS[m].aggregate == "sum":
+                    finite = [v for v in values if math.isfinite(v)]
+                    row[m] = {"total": float(sum(finite)), "n": len(finite)}
+                else:
+                    row[m] = _interval(mean_interval(values))
+
+    def mean_of(a: str, s: str) -> float:
+        v = (cells.get(a, {}).get(s, {}).get(rank_by) or {}).get("value")
+        return math.inf if v is None else float(v)
+
+    ranking, best, orderings, pairs = {}, {}, {}, []
+    for s in scenarios:
+        ranked = sorted((a for a in agents if s in cells.get(a, {})), key=lambda a: mean_of(a, s))
+        ranked = [a for a in ranked if math.isfinite(mean_of(a, s))]
+        ranking[s] = ranked
+        contenders = [a for a in ranked if a not in oracles and a not in informed]
+        best[s] = contenders[0] if contenders else None
+        for i, better in enumerate(ranked):
+            for worse in ranked[i + 1 :]:
+                r = paired_ratio(series(better, s), series(worse, s))
+                pairs.append(
+                    {"scenario": s, "better": better, "worse": worse}
+                    | _interval(r)
+                    | {"resolved": r.below_one}
+                )
+        orderings[s] = [
+            next(p for p in pairs if p["scenario"] == s and p["better"] == b and p["worse"] == w)
+            for b, w in itertools.pairwise(ranked)
+        ]
+
+    aggregate: dict[str, dict[str, Any]] = {}
+    if reference is not None and reference in cells:
+        ref = {s: series(reference, s) for s in scenarios if s in cells[reference]}
+        for a in agents:
+            if a not in cells:
+                continue
+            mine = {s: series(a, s) for s in ref if s in cells[a]}
+            if set(mine) != set(ref):  # an agent missing a scenario is not aggregated
+                continue
+            agg = aggregate_to_reference(mine, ref)
+            aggregate[a] = {k: _interval(v) for k, v in agg.items()}
+    order = sorted(aggregate, key=lambda a: aggregate[a]["iqm"]["value"] or math.inf) + [
+        a for a in agents if a in cells and a not in aggregate
+    ]
+
+    cost: dict[str, dict[str, Any]] = {}
+    if NOMINAL in scenarios:
+        for a in agents:
+            if NOMINAL not in cells.get(a, {}):
+                continue
+            base = series(a, NOMINAL)
+            cost[a] = {
+                s: _interval(paired_ratio(series(a, s), base))
+                for s in scenarios
+                if s != NOMINAL and s in cells[a]
+            }
+
+    compute: dict[str, dict[str, float | None]] = {}
+    for a in agents:
+        recs = [r for s in scenarios for r in by_cell.get((a, s), {}).values()]
+        if not recs:
+            continue
+        report = recs[0].get("report") or {}
+        points = [_value(r, "tracker_points") for r in recs if "tracker_points" in METRICS]
+        solve = [_value(r, "solve_time_median_ms") for r in recs]
+        compute[a] = {
+            "training_steps": _num(report.get("training_steps")),
+            "training_wall_s": _num(report.get("training_wall_s")),
+            "training_seeds": _num(report.get("training_seeds")),
+            "training_wall_s_all_seeds": _num(report.get("training_wall_s_all_seeds")),
+            "tracker_points": _mean(points),
+            "solve_time_median_ms": _median(solve),
+        }
+    return {
+        "rank_by": rank_by,
+        "reference": reference if reference in aggregate else None,
+        "agents": list(agents),
+        "scenarios": list(scenarios),
+        "oracles": sorted(oracles),
+        "informed": sorted(informed),
+        "order": order,
+        "cells": cells,
+        "ranking": ranking,
+        "best": best,
+        "orderings": orderings,
+        "pairs": pairs,
+        "aggregate": aggregate,
+        "cost_of_effect": cost,
+        "compute": compute,
+    }
+
+
+def _num(v: Any) -> float | None:
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+
+
+def _mean(values: Sequence[float]) -> float | None:
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    return float(np.mean(x)) if x.size else None
+
+
+def _median(values: Sequence[float]) -> float | None:
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    return float(np.median(x)) if x.size else None

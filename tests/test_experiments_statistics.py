@@ -1,0 +1,70 @@
+"""The leaderboard's statistics do what they claim on data whose truth is known: the intervals of
+a mean cover it about 95 % of the time and never reach below zero for positive data, a paired
+ratio resolves a 3 % difference that unpaired intervals cannot, orderings between agents that
+do not differ are resolved about as rarely as the level says, and the aggregates are what their
+definitions give by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from experiments.statistics import aggregate_to_reference, iqm, mean_interval, paired_ratio
+
+
+def test_the_interval_of_a_mean_covers_it_and_stays_positive():
+    rng = np.random.default_rng(7)
+    true_mean = float(np.exp(0.5 * 0.8**2))  # lognormal(0, 0.8)
+    hits, trials = 0, 300
+    for _ in range(trials):
+        x = rng.lognormal(0.0, 0.8, 20)
+        ci = mean_interval(x)
+        assert 0 < ci.lo <= ci.value <= ci.hi
+        hits += ci.lo <= true_mean <= ci.hi
+    assert 0.88 <= hits / trials <= 0.99  # BCa at n = 20 on skewed data: close to 95 %
+
+
+def test_a_paired_ratio_resolves_what_unpaired_intervals_cannot():
+    """Episodes differ tenfold in difficulty; agent A is 3 % better than B on every one."""
+    rng = np.random.default_rng(3)
+    hard = rng.lognormal(0.0, 1.0, 20)
+    b = hard * (1 + rng.normal(0, 0.01, 20))
+    a = 0.97 * hard * (1 + rng.normal(0, 0.01, 20))
+    ia, ib = mean_interval(a), mean_interval(b)
+    assert ia.hi > ib.lo  # unpaired: the intervals overlap
+    r = paired_ratio(dict(enumerate(a)), dict(enumerate(b)))
+    assert r.below_one and r.resolved and r.lo < 0.97 < r.hi
+    # symmetric: B against A is the reciprocal
+    back = paired_ratio(dict(enumerate(b)), dict(enumerate(a)))
+    assert back.value == pytest.approx(1 / r.value) and back.lo > 1
+    # only the episodes both ran count
+    r2 = paired_ratio(dict(enumerate(a)), {k: v for k, v in enumerate(b) if k != 4})
+    assert r2.n == 19
+
+
+def test_agents_that_do_not_differ_are_rarely_resolved():
+    rng = np.random.default_rng(11)
+    resolved, trials = 0, 200
+    for _ in range(trials):
+        hard = rng.lognormal(0.0, 1.0, 20)
+        a = hard * rng.lognormal(0.0, 0.1, 20)
+        b = hard * rng.lognormal(0.0, 0.1, 20)
+        resolved += paired_ratio(dict(enumerate(a)), dict(enumerate(b))).resolved
+    assert resolved / trials <= 0.10  # the level is 5 %
+
+
+def test_aggregates_by_hand():
+    x = np.array([5.0, 1.0, 3.0, 2.0, 100.0, 4.0, 0.0, 6.0])
+    assert float(iqm(x)) == pytest.approx(np.mean(np.sort(x)[2:6]))  # the middle half
+    rng = np.random.default_rng(5)
+    ref = {s: {k: float(rng.lognormal()) for k in range(12)} for s in ("a", "b", "c")}
+    ratio = {"a": 0.5, "b": 1.0, "c": 2.0}
+    agent = {s: {k: v * ratio[s] for k, v in ref[s].items()} for s in ref}
+    agg = aggregate_to_reference(agent, ref)
+    assert agg["geomean"].value == pytest.approx(1.0)  # (0.5 * 1 * 2) ** (1/3)
+    # the middle half of the 36 ratios: 3 x 0.5, 12 x 1, 3 x 2
+    assert agg["iqm"].value == pytest.approx((3 * 0.5 + 12 + 3 * 2) / 18)
+    assert agg["geomean"].n == 12
+    # an episode missing in one scenario leaves that episode out of every scenario
+    del agent["b"][3]
+    assert aggregate_to_reference(agent, ref)["iqm"].n == 11
