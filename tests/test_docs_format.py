@@ -367,3 +367,44 @@ def test_links_into_the_page_name_its_headings():
         links += re.findall(r"format\.md#([\w\-]+)", path.read_text(encoding="utf-8"))
     assert links, "the README links no section of docs/format.md"
     assert set(links) <= anchors, set(links) - anchors
+
+
+# -- URDF in and out --------------------------------------------------------------------------------
+def test_the_urdf_options_are_load_robots():
+    """The option table of "A URDF as the robot" names exactly load_robot's URDF keywords."""
+    import inspect
+
+    from arm.description import load_robot
+
+    table = rows(section("A URDF as the robot"))
+    documented = {names(r[0])[0] for r in table if names(r[0])}
+    params = inspect.signature(load_robot).parameters
+    keywords = {f"{n}=" for n, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY}
+    assert {d for d in documented if d.endswith("=")} == keywords == {"tip=", "base="}
+
+
+def test_the_metrology_file_keys_are_documented(tmp_path):
+    """Every key the calibrated URDF's metrology file holds is in "The calibrated URDF"."""
+    from arm.description import load_robot
+    from lab import fit
+    from lab.urdf_export import export_urdf
+
+    robot = load_robot("ur5_robot")
+    data = campaign(robot, "geometric,compliance[2,3]", seed=3).measure(150)
+    out = export_urdf(fit(data, robot, "geometric,compliance[2,3]"), tmp_path / "arm.urdf")
+    doc = tomllib.loads(out.metrology.read_text())
+    documented = {
+        re.sub(r"[\[\]]|\.NAME", "", n)
+        for r in rows(section("The calibrated URDF"))
+        for n in names(r[0])
+    }
+    assert set(doc) <= documented, set(doc) - documented
+    assert documented - set(doc) <= {"stations", "tool_frame"}  # a campaign of other kinds
+    for key in ("tracker", "fit"):
+        text = next(
+            r[1]
+            for r in rows(section("The calibrated URDF"))
+            if f"`[{key}]`" in r[0] or f"`{key}`" in r[0]
+        )
+        for sub in doc[key]:
+            assert f"`{sub}`" in text, (key, sub)
