@@ -399,6 +399,8 @@ def ur5(skip_figaroh: bool, repeat: int) -> dict:
             "test.csv": _sha(UR5 / "test.csv"),
         },
         "split": f"calibrate on the {len(cal)} grid poses, test on the {len(test)} random poses",
+        "published": "MDH calibration + neural-network (ASTGCN) compensation, mean 0.1549 mm on "
+        "the 20 test poses; uncalibrated 2.5664 mm (Jacobi 2025)",
         "robot": "ur5 (UR's DH table)",
         "noise_mm": UR5_NOISE_MM,
         "rows": rows,

@@ -408,3 +408,33 @@ def test_the_metrology_file_keys_are_documented(tmp_path):
         )
         for sub in doc[key]:
             assert f"`{sub}`" in text, (key, sub)
+
+
+def test_the_real_data_options_and_keys_are_documented():
+    """Every option of the UR5 converter and of benchmarks/real_data.py, and every key of
+    results/real_data.json, is in "Real data"."""
+    import json
+    import subprocess
+    import sys
+
+    root = DOC.parents[1]
+    text = section("Real data")
+    table = [r for r in rows(text) if len(r) == 3 and r[0] != "option"]
+    for script in ("examples/convert_ur5_serial_robots.py", "benchmarks/real_data.py"):
+        out = subprocess.run(
+            [sys.executable, str(root / script), "--help"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+        flags = set(re.findall(r"(?<![\w-])(--[a-z][a-z-]+)", out)) - {"--help"}
+        name = Path(script).name
+        documented = {n for r in table if name in r[1] for n in names(r[0]) if n.startswith("--")}
+        assert flags == documented, (script, flags ^ documented)
+    report = json.loads((root / "results" / "real_data.json").read_text())
+    keys = {n.split(".")[-1] for r in rows(text) for c in r[:2] for n in names(c)}
+    assert set(report) - {"datasets"} <= keys
+    for ds in report["datasets"]:
+        assert set(ds) <= keys, set(ds) - keys
+        for row in ds["rows"]:
+            assert set(row) <= keys, set(row) - keys
