@@ -248,6 +248,28 @@ class RobotDescription:
             flange=(last.a, last.alpha),
         )
 
+    # -- URDF ---------------------------------------------------------------------------------
+    def to_urdf(self) -> str:
+        """The arm as a URDF (:func:`arm.urdf.urdf_of_chain`): frame 0 as ``base_link``, the DH
+        frames as ``link1`` .. ``link6``, the flange as ``flange``; its masses as point masses.
+        The base transform and the tool points are metrology, not the arm's: they stay out."""
+        from arm.urdf import urdf_of_chain
+
+        m = self.to_modified()
+        return urdf_of_chain(
+            m.name,
+            m.column("alpha"),
+            m.column("a"),
+            m.column("beta"),
+            m.column("d"),
+            m.column("theta_offset"),
+            m.lower,
+            m.upper,
+            m.masses,
+            m.coms,
+            m.flange_matrix,
+        )
+
     # -- TOML ---------------------------------------------------------------------------------
     def to_toml(self, length_unit: str = "m", angle_unit: str = "deg") -> str:
         import tomli_w

@@ -60,6 +60,7 @@ __all__ = [
     "read_urdf",
     "rpy_matrix",
     "rpy_of",
+    "urdf_of_chain",
 ]
 
 log = logging.getLogger(__name__)
@@ -616,3 +617,68 @@ def calibrated_urdf(arm: UrdfArm, origins: dict[str, np.ndarray]) -> str:
     for a, b, new in sorted(edits, reverse=True):
         text = text[:a] + new + text[b:]
     return text
+
+
+def urdf_of_chain(
+    name: str,
+    alpha: np.ndarray,
+    a: np.ndarray,
+    beta: np.ndarray,
+    d: np.ndarray,
+    theta_offset: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    masses: np.ndarray,
+    coms: np.ndarray,
+    flange: np.ndarray | None = None,
+) -> str:
+    """A URDF of a modified-DH chain: links ``base_link`` (frame 0), ``link1`` .. ``link6`` (the
+    DH frames), ``flange`` (frame 6 . ``flange``, fixed), revolute joints ``joint1`` .. ``joint6``
+    about their z with the rows as origins (``RotX(alpha) RotY(beta) TransX(a) RotZ(theta_offset)
+    TransZ(d)``, every float to its last bit), the links' masses at their centres of mass (point
+    masses: a DH table carries no inertia). :func:`read_urdf` of it is the same chain."""
+    F = np.eye(4) if flange is None else np.asarray(flange, dtype=float)
+    out = ['<?xml version="1.0" encoding="utf-8"?>', f'<robot name="{name}">']
+
+    def link(lk: str, mass: float = 0.0, com=(0.0, 0.0, 0.0)) -> None:
+        if mass > 0:
+            out.append(
+                f'  <link name="{lk}">\n    <inertial>\n      <mass value="{mass!r}"/>\n'
+                f'      <origin xyz="{_fmt(com)}" rpy="0 0 0"/>\n'
+                '      <inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/>\n'
+                "    </inertial>\n  </link>"
+            )
+        else:
+            out.append(f'  <link name="{lk}"/>')
+
+    def joint(jn: str, kind: str, parent: str, child: str, T: np.ndarray, extra: str = "") -> None:
+        out.append(
+            f'  <joint name="{jn}" type="{kind}">\n    <parent link="{parent}"/>\n'
+            f'    <child link="{child}"/>\n'
+            f'    <origin xyz="{_fmt(T[:3, 3])}" rpy="{_fmt(rpy_of(T[:3, :3]))}"/>\n{extra}  </joint>'
+        )
+
+    link("base_link")
+    for i in range(6):
+        Q = rot_x(alpha[i]) @ rot_y(beta[i])
+        T = _h(Q, Q @ np.array([a[i], 0.0, 0.0])) @ _h(
+            rot_z(theta_offset[i]), np.array([0.0, 0.0, d[i]])
+        )
+        link(f"link{i + 1}", float(masses[i]), coms[i])
+        extra = (
+            '    <axis xyz="0 0 1"/>\n'
+            f'    <limit lower="{float(lower[i])!r}" upper="{float(upper[i])!r}" effort="0" '
+            'velocity="0"/>\n'
+        )
+        joint(
+            f"joint{i + 1}",
+            "revolute",
+            "base_link" if i == 0 else f"link{i}",
+            f"link{i + 1}",
+            T,
+            extra,
+        )
+    link("flange")
+    joint("flange_joint", "fixed", "link6", "flange", F)
+    out.append("</robot>")
+    return "\n".join(out) + "\n"

@@ -308,3 +308,34 @@ def test_a_calibrated_description_keeps_its_urdf():
     robot = load_robot("z1")
     cal = replace(robot, name="z1-cal")
     assert cal.urdf is robot.urdf
+
+
+@pytest.mark.parametrize("make", ["seed", "ur5", "puma", "rokae", "calibrated"])
+def test_a_dh_arm_written_as_urdf_reads_back_as_itself(tmp_path, make):
+    """RobotDescription.to_urdf: Pinocchio and load_robot read the DH table's own kinematics
+    (flange included) and masses from it, to 1e-12 m."""
+    from tests.conftest import puma_arm, rokae_arm
+
+    robot = {
+        "seed": lambda: load_robot("seed"),
+        "ur5": lambda: load_robot("ur5"),
+        "puma": puma_arm,
+        "rokae": rokae_arm,
+        "calibrated": lambda: replace(
+            load_robot("seed"),
+            joints=tuple(
+                replace(j, beta=1e-3 * k, theta_offset=0.01 * k, alpha=j.alpha + 2e-4)
+                for k, j in enumerate(load_robot("seed").joints)
+            ),
+        ),
+    }[make]()
+    path = tmp_path / "arm.urdf"
+    path.write_text(robot.to_urdf())
+    back = load_robot(path, tip="flange")
+    q = _random_q(robot, 100, seed=3)
+    expected = forward_pose(robot, q)  # frame 0 <- flange
+    np.testing.assert_allclose(_lab_tip(back, q), expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(_pin_tip(back, q), expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        gravity_torques(back, q), gravity_torques(robot, q), rtol=0, atol=1e-10
+    )
