@@ -11,6 +11,7 @@ results/benchmarks.md.
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
@@ -84,7 +85,9 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
+    load0 = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     rows = {name: measure(name, args.seconds, args.repeats) for name in AGENTS}
+    load1 = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines = [
         "## isolation",
         "",
@@ -93,7 +96,9 @@ def main() -> None:
         "a process of its own (`agents.isolation`), interleaved; the time of each `act` call as "
         "the runner sees it (for the isolated agent: the observation and `info` sent, the agent's "
         "`act`, the action back), median over every step. For scale: an env step costs about "
-        "340 µs (section `env`).",
+        f"340 µs (section `env`). Load average {load0:.1f} and {load1:.1f} (at the start and the "
+        "end) on this machine's cores: the 95th percentiles are the scheduler's as much as the "
+        "pipe's when it is loaded.",
         "",
         "| agent | `act` in the runner's process (µs) | `act` in its own process (µs) | "
         "isolation's cost per step (µs, median) | at the 95th percentile (µs) | "
