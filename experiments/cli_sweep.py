@@ -238,8 +238,8 @@ def leaderboard(
     compute budget), leaderboard_runs.csv (every run, its seed and commit), leaderboard_pairs.csv
     and the plots. Records from a tree with local changes are refused unless --allow-dirty."""
     from experiments.leaderboard import (
+        analysis_cell,
         build_leaderboard,
-        cell_text,
         ordering_text,
         readme_block,
         to_json,
@@ -270,8 +270,9 @@ def leaderboard(
     console.print(
         leaderboard_grid(
             board,
-            f"{m}: mean over episodes (bold: best contender; intervals in {out / 'leaderboard.md'})",
-            lambda r: cell_text(r.stats[m], m, r, spread=False),
+            f"{m}: geometric mean over episodes (bold: best contender; intervals in "
+            f"{out / 'leaderboard.md'})",
+            lambda r: analysis_cell(board, r, m, spread=False),
         )
     )
     for s in board.scenarios:

@@ -6,8 +6,10 @@ leaderboard section are all written.
 
 What it holds (:mod:`experiments.statistics` computes every interval):
 
-- ``cells``: per agent, scenario and metric, the mean over episodes with its bootstrap interval.
-- ``ranking``: per scenario, the agents by their mean ``rank_by`` (lowest first), and ``best``,
+- ``cells``: per agent, scenario and metric, the geometric mean over episodes (``value``) with its
+  bootstrap interval, and the arithmetic mean (``mean``).
+- ``ranking``: per scenario, the agents by their geometric mean ``rank_by`` (lowest first; the
+  ratio of two is their paired ratio, so the ranking and the orderings agree), and ``best``,
   the best *contender*: an agent neither given the truth (oracle) nor told the scenario's effects
   (informed).
 - ``orderings``: per scenario, each agent against the next one in that ranking: the paired ratio
@@ -31,7 +33,12 @@ from typing import Any
 import numpy as np
 
 from experiments.metrics import METRICS
-from experiments.statistics import Interval, aggregate_to_reference, mean_interval, paired_ratio
+from experiments.statistics import (
+    Interval,
+    aggregate_to_reference,
+    geometric_mean_interval,
+    paired_ratio,
+)
 
 __all__ = ["NOMINAL", "analyse", "episode_key"]
 
@@ -87,11 +94,13 @@ def analyse(
             row = cells.setdefault(a, {}).setdefault(s, {})
             for m in metrics:
                 values = list(series(a, s, m).values())
+                finite = [v for v in values if math.isfinite(v)]
                 if METRICS[m].aggregate == "sum":
-                    finite = [v for v in values if math.isfinite(v)]
                     row[m] = {"total": float(sum(finite)), "n": len(finite)}
-                else:
-                    row[m] = _interval(mean_interval(values))
+                else:  # the geometric mean (see experiments.statistics), and the plain mean
+                    row[m] = _interval(geometric_mean_interval(values)) | {
+                        "mean": float(np.mean(finite)) if finite else None
+                    }
 
     def mean_of(a: str, s: str) -> float:
         v = (cells.get(a, {}).get(s, {}).get(rank_by) or {}).get("value")

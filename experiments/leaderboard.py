@@ -45,6 +45,7 @@ from experiments.records import RecordError, RunStore, jsonable
 __all__ = [
     "Leaderboard",
     "Row",
+    "analysis_cell",
     "build_leaderboard",
     "cell_text",
     "interval_text",
@@ -253,16 +254,6 @@ def build_leaderboard(
                     informed=any(is_informed(r) for r in everyone),
                 )
             )
-    for scen in scenarios:  # the best contender: given neither the truth nor the effects
-        cands = [
-            r
-            for r in rows
-            if r.scenario == scen
-            and math.isfinite(r.stats[rank_by].mean)
-            and not (r.oracle or r.informed)
-        ]
-        if cands:
-            min(cands, key=lambda r: r.stats[rank_by].mean).best = True
     agents = [a for a in agents if any(r.agent == a for r in rows)]
     scenarios = [s for s in scenarios if any(r.scenario == s for r in rows)]
     if reference is None and "feedforward" in agents:
@@ -282,6 +273,8 @@ def build_leaderboard(
         oracles={r.agent for r in rows if r.oracle},
         informed={r.agent for r in rows if r.informed},
     )
+    for r in rows:  # the best contender (neither given the truth nor told the effects)
+        r.best = analysis["best"].get(r.scenario) == r.agent
     return Leaderboard(
         runs_dir=Path(runs_dir),
         metrics=metrics,
@@ -353,6 +346,17 @@ def cell_text(s: Summary, metric: str, row: Row | None = None, spread: bool = Tr
     else:
         text = _fmt(s.mean)
     return f"{text} ({k}/{never.n} never)" if k else text
+
+
+def analysis_cell(board: Leaderboard, row: Row, metric: str, spread: bool = True) -> str:
+    """A headline cell: the geometric mean over episodes [its 95 % interval] from the analysis
+    (``spread=False``: the value alone); the summary's text for other metrics."""
+    iv = (board.analysis.get("cells", {}).get(row.agent, {}).get(row.scenario) or {}).get(metric)
+    if not iv or "value" not in iv:
+        return cell_text(row.stats[metric], metric, row, spread)
+    if not spread:
+        return _fmt(iv["value"]) if iv["value"] is not None else "–"
+    return interval_text(iv)
 
 
 def interval_text(iv: Mapping[str, Any] | None, digits: int = 3) -> str:
@@ -604,8 +608,12 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
             if m0 == "rms_settled_mm"
             else f"{METRICS[m0].description}. "
         )
-        + "The start-up (the first second) and the whole episode are columns of their own. "
-        f"Cells: {spread_words(board)}; lower is better. **Bold**: the best contender of each "
+        + "The start-up (the first second) and the whole episode are tables of their own. Cells "
+        "of those three tables: the geometric mean over episodes [95 % bootstrap interval] "
+        "(every agent runs the same episodes, whose difficulty spreads tenfold: the ratio of "
+        "two cells is then their paired ratio, and the order of a table agrees with its "
+        "orderings); the long table and `leaderboard.csv` also have the arithmetic means "
+        f"({spread_words(board)}). Lower is better. **Bold**: the best contender of each "
         "scenario. (oracle): given the plant's truth, what knowing the arm is worth, not what a "
         "controller can do; (informed): told the scenario's effects in its config. Orderings are "
         "claimed only where the paired interval resolves them (`<`); `≈` is not resolved. "
@@ -649,7 +657,7 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
 
     grid(
         f"## {m0} ({METRICS[m0].unit}): the ranking",
-        lambda r: cell_text(r.stats[m0], m0, r),
+        lambda r: analysis_cell(board, r, m0),
         note=f"Agents in the order of their aggregate against `{ref}` (below)." if ref else "",
         bold=True,
     )
@@ -676,8 +684,9 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
     lines += [
         "## Which orderings are resolved",
         "",
-        f"Each scenario's agents by their mean `{m0}`, each against the next: `<` where the "
-        "paired interval of their per-episode ratio lies below 1, `≈` where it does not. Every "
+        f"Each scenario's agents by their geometric mean `{m0}`, each against the next: `<` "
+        "where the paired interval of their per-episode ratio lies below 1, `≈` where it does "
+        "not. Every "
         f"pair of agents is in `{PAIRS_CSV_NAME}`.",
         "",
         "| scenario | ranking |",
@@ -702,7 +711,7 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
         ("rms_mm", "## rms_mm (mm): the whole episode, start-up included (not the ranking)"),
     ):
         if metric in board.metrics and metric != m0:
-            grid(title, lambda r, m=metric: cell_text(r.stats[m], m, r))
+            grid(title, lambda r, m=metric: analysis_cell(board, r, m))
     cost = an.get("cost_of_effect") or {}
     if cost:
         scen = [s for s in board.scenarios if s != "nominal"]
@@ -943,6 +952,21 @@ def to_json(board: Leaderboard, command: str | None = None) -> dict[str, Any]:
     man = board.manifest or {}
     commits = sorted({(r.get("git") or {}).get("commit") or "" for r in board.records})
     episodes = sorted({episode_key(r) for r in board.records})
+    everyone = board.records + board.failed
+    stamps = [
+        (t.get("started"), t.get("finished"))
+        for t in (r.get("timing") or {} for r in everyone)
+        if t.get("started") and t.get("finished")
+    ]
+    wall = None
+    if stamps:
+        from datetime import datetime
+
+        first = min(datetime.fromisoformat(a) for a, _ in stamps)
+        last = max(datetime.fromisoformat(b) for _, b in stamps)
+        wall = (last - first).total_seconds()
+    run_s = sum(float((r.get("timing") or {}).get("wall_time_s") or 0.0) for r in everyone)
+    hosts = sorted({(r.get("timing") or {}).get("host") or "" for r in everyone} - {""})
     return jsonable(
         {
             "config_name": man.get("config_name"),
@@ -956,6 +980,10 @@ def to_json(board: Leaderboard, command: str | None = None) -> dict[str, Any]:
             "episodes": len(episodes),
             "drawn_seeds": any(r["spec"].get("episode") is not None for r in board.records),
             "settle_seconds": (man.get("config") or {}).get("settle_seconds"),
+            # from the first run's start to the last one's end (a resumed sweep's pauses count)
+            "sweep_wall_s": wall,
+            "runs_wall_s": run_s,
+            "hosts": hosts,
             **board.analysis,
         }
     )
@@ -1042,7 +1070,15 @@ def readme_block(data: Mapping[str, Any]) -> str:
         f"(`results/leaderboard.md`, with every interval): {data['episodes']} episodes per agent "
         "and scenario"
         + (", their seeds drawn when the sweep started" if data.get("drawn_seeds") else "")
-        + f", {data['runs']} runs ({data['failed']} failed). Each cell is the mean `{m0}` "
+        + f", {data['runs']} runs ({data['failed']} failed"
+        + (
+            f"; the sweep took {_duration(data['sweep_wall_s'])} on "
+            f"{len(data.get('hosts') or [])} host(s), {_duration(data.get('runs_wall_s'))} of "
+            "run time"
+            if data.get("sweep_wall_s")
+            else ""
+        )
+        + f"). Each cell is the geometric mean over the episodes of `{m0}` "
         + (f"(the tracking RMS after {settle:g} s, mm)" if isinstance(settle, (int, float)) else "")
         + "; **bold**: the best contender of the scenario; (oracle): given the plant's truth; "
         "(informed): told the scenario's effects."
@@ -1067,8 +1103,8 @@ def readme_block(data: Mapping[str, Any]) -> str:
         lines.append(f"| {mark(a)} | " + " | ".join(row) + " |")
     lines += [
         "",
-        f"Each scenario's agents by their mean `{m0}`, each against the next: `<` where the "
-        "paired 95 % interval of the per-episode ratio resolves the step, `≈` where it does not:",
+        "Each scenario's agents in that order, each against the next: `<` where the paired 95 % "
+        "interval of their per-episode ratio resolves the step, `≈` where it does not:",
         "",
     ]
     lines += [f"- `{s}`: {ordering_text(data, s)}" for s in scen]
@@ -1103,8 +1139,8 @@ def _readme_sentences(data: Mapping[str, Any]) -> list[str]:
         else:
             names = ", ".join(f"`{a}`" for a in unresolved)
             out.append(
-                f"- On `{s}`, `{best}` has the lowest mean among the contenders; not resolved "
-                f"from it: {names}."
+                f"- On `{s}`, `{best}` comes first among the contenders; not resolved from it: "
+                f"{names}."
             )
     below = {}
     for p in pairs:

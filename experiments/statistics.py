@@ -18,7 +18,10 @@ path, the arm's errors, the noise). An aggregate across scenarios resamples epis
 in every scenario at once (episode k has the same seed in each).
 
 Ratios are taken episode by episode and summarised by their geometric mean (the mean of the
-log-ratios): scale-free, symmetric (A/B is 1/(B/A)), and not hostage to one hard episode.
+log-ratios): scale-free, symmetric (A/B is 1/(B/A)), and not hostage to one hard episode. A cell
+of the ranking is the geometric mean over its episodes for the same reason: every agent runs the
+same episodes, so the ratio of two cells is exactly their paired ratio, and a table's order and
+its orderings agree (with arithmetic means they need not).
 
 Aggregates, as rliable recommends for few runs over many tasks: the interquartile mean (IQM) of
 the per-episode ratios of an agent's settled RMS to a reference agent's on the same episode, over
@@ -44,6 +47,7 @@ __all__ = [
     "RESAMPLES",
     "Interval",
     "aggregate_to_reference",
+    "geometric_mean_interval",
     "iqm",
     "mean_interval",
     "paired_ratio",
@@ -129,6 +133,24 @@ def mean_interval(values: Sequence[float] | np.ndarray) -> Interval:
         return Interval(m, m, m, n)
     lo, hi = _bootstrap((x,), lambda s, axis: np.mean(s, axis=axis), paired=False)
     return Interval(m, lo, hi, n)
+
+
+def geometric_mean_interval(values: Sequence[float] | np.ndarray) -> Interval:
+    """The geometric mean of the finite positive ``values`` (``exp(mean(log x))``) and its
+    bootstrap interval (the interval of the mean log, exponentiated)."""
+    x = _finite(values)
+    x = x[x > 0]
+    n = int(x.size)
+    if n == 0:
+        return NAN
+    logs = np.log(x)
+    g = float(np.exp(np.mean(logs)))
+    if n < 2:
+        return Interval(g, math.nan, math.nan, n)
+    if np.ptp(logs) == 0:
+        return Interval(g, g, g, n)
+    lo, hi = _bootstrap((logs,), lambda s, axis: np.mean(s, axis=axis), paired=False)
+    return Interval(g, float(np.exp(lo)), float(np.exp(hi)), n)
 
 
 def _pairs(a: Mapping[int, float], b: Mapping[int, float]) -> tuple[np.ndarray, np.ndarray]:

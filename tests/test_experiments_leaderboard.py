@@ -93,21 +93,39 @@ def test_csv_has_mean_interval_and_n_per_agent_and_scenario(runs):
         assert float(row["solve_time_median_ms_mean"]) >= 0  # timing metrics are summarised too
 
 
-def test_best_per_scenario_is_the_lowest_mean_and_marked(runs):
+def test_the_ranking_is_by_geometric_mean_and_agrees_with_the_paired_orderings(runs):
     _, path = runs
     board = build_leaderboard(path)
     table = rows(to_csv(board))
     md = to_markdown(board)
+    store = RunStore(path)
+    an = board.analysis
     for scen in ("nominal", "geometric"):
-        mine = [r for r in table if r["scenario"] == scen]
-        best = min(mine, key=lambda r: float(r["rms_mm_mean"]))
-        assert [r["agent"] for r in mine if r["best"] == "1"] == [best["agent"]]
-        cell = f"{float(best['rms_mm_mean']):.3g}"[:3]
+        geo = {
+            a: float(
+                np.exp(
+                    np.mean(
+                        [
+                            np.log(store.load(f"{a}__{scen}__seed{s}")["metrics"]["rms_mm"])
+                            for s in (0, 1, 2)
+                        ]
+                    )
+                )
+            )
+            for a in ("hold", "nominal", "calibrated")
+        }
+        best = min(geo, key=geo.__getitem__)
+        assert an["ranking"][scen] == sorted(geo, key=geo.__getitem__)
+        assert [r["agent"] for r in table if r["scenario"] == scen and r["best"] == "1"] == [best]
         assert any(
-            f"**{cell}" in line
+            f"**{geo[best]:.3g}"[:5] in line
             for line in md.splitlines()
-            if line.startswith(f"| {best['agent']} |")
+            if line.startswith(f"| {best} |")
         )
+        # the ratio of two cells is their paired ratio: the orderings follow the ranking
+        for o in an["orderings"][scen]:
+            assert o["value"] == pytest.approx(geo[o["better"]] / geo[o["worse"]], rel=1e-12)
+            assert o["value"] <= 1
 
 
 def test_markdown_states_the_commands_config_and_failures(runs):
