@@ -1,0 +1,596 @@
+"""The spectral scan: which cyclic joint errors a fitted model misses, every joint's orders per
+turn searched at once by orthogonal matching pursuit.
+
+    problem = problem_of_fit(result)            # the fit's linearised problem, row by row
+    scan = cyclic_scan(problem, order=64, level=0.005 / M)
+    scan.spec           # "cyclic[1:13,27;2:26]": what to fit
+    for t in scan.terms:
+        print(t.joint, t.order, t.p_value, t.alternatives)   # orders the data cannot tell apart
+
+A cyclic joint error of order k adds ``a_s sin(k q_j) + a_c cos(k q_j)`` to joint j's angle
+(the ``cyclic`` effect, ``arm.effects.Cyclic``). Orders of tens per turn are physical: whatever
+turns faster than the joint repeats its error k times per output turn (a strain-wave gear twice
+per turn of its wave generator, an encoder with its pole pairs, a gear stage with its teeth).
+
+Method.
+
+1. **The problem** (:class:`CyclicProblem`) is any weighted linear least-squares problem of a
+   fit, row by row: the residual rows ``e`` (m), the model's columns ``J`` (m, p) (what the fit
+   explains), each row's derivative by the joint angles ``D`` (m, 6) and the pose it belongs to
+   (rows need not be three per pose: orientation rows, weights and missing rows are rows like
+   any other). :func:`problem_of_fit` builds it from a :class:`lab.FitResult`.
+2. **Candidates.** For every joint j and order k = 1..K_j the pair of columns ``D_j cos(k q_j)``,
+   ``D_j sin(k q_j)``; K_j is ``order`` unless the sampling of joint j resolves fewer
+   (:func:`resolvable_order`): a joint measured on a grid of step h cannot tell order k from
+   2 pi / h - k (the orders above pi / h are aliases of lower ones: identical on the data), and a
+   joint measured at n distinct angles has at most (n - 1) / 2 orders. Other functions of a
+   pose (discovery's library: torques, temperature...) join as candidates of one or two
+   columns (:class:`ExtraColumns`).
+3. **Scoring, vectorised.** A candidate's correlation with the residual, ``x^T e = sum_n g_n
+   f(q_n)`` with ``g_n`` the pose's rows of ``D_j e`` summed, is a non-uniform Fourier sum: for
+   all orders of a joint one complex matrix product ``g^T exp(i k q)``. Its Gram matrix follows
+   from the same sums of ``D_j^2``, and its part in the model's span from ``(Q^T X)``, kept as
+   running sums: each selected term adds its columns' rows to them. No Python loop runs over
+   candidates; per step the cost is one pass over the poses per joint.
+4. **Selection: orthogonal matching pursuit.** Each step takes the candidate with the smallest
+   p-value of the F-test of nested linear models (the residual with everything chosen so far
+   projected out). It is kept when that p-value is at most ``level`` (the caller's Bonferroni
+   share, ``alpha_t / M`` over the M candidates, at every step) and it lowers the
+   leave-one-pose-out RMS; otherwise the scan stops. Nothing is kept unless a first step is
+   significant, so on data the model explains the chance of any term is at most ``M * level``
+   (lab.discovery derives the family-wise rate from it).
+5. **Orders the data cannot tell apart.** At the step a term is chosen, every other candidate
+   that explains as much, within the chi-square quantile (``alias_level``) of the noise left, is
+   one the data cannot tell from it; on a grid-sampled joint the orders that alias the chosen
+   one (``m * 2 pi / h +- k`` up to ``order``) are named too (:attr:`ScanTerm.alternatives`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import sparse, stats
+
+from lab.identifiability import orthonormal_basis
+
+__all__ = [
+    "DEFAULT_ORDER",
+    "CyclicProblem",
+    "CyclicScan",
+    "ExtraColumns",
+    "JointSampling",
+    "ScanTerm",
+    "cyclic_scan",
+    "joint_sampling",
+    "problem_of_fit",
+    "resolvable_order",
+]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_ORDER = 64  # orders per turn scanned on every joint
+MAX_TERMS = 40  # at most this many candidates are selected
+ALIAS_LEVEL = 0.05  # the candidates within this chi-square quantile of the best are ties
+_BLOCK = 4096  # poses per block of the Fourier sums (bounds the scratch memory)
+_DEPENDENT = 1e-9  # a candidate's projected Gram below this share of its own: explained
+_ANGLE_TOL = 1e-7  # rad: joint angles closer than this are one angle
+_GRID_TOL = 1e-3  # a spacing within this share of a multiple of the grid step is on the grid
+
+
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CyclicProblem:
+    """A fit's linear least-squares problem, row by row (all arrays weighted alike).
+
+    ``residual`` (m,): the residual rows; ``model`` (m, p): the model's (identifiable) columns,
+    whose span the fit explains; ``joint`` (m, 6): each row's derivative by the effective joint
+    angles theta_1..6; ``pose`` (m,): the pose of each row, 0..N-1; ``q`` (N, 6): the joint
+    angles (rad) of each pose."""
+
+    residual: np.ndarray
+    model: np.ndarray
+    joint: np.ndarray
+    pose: np.ndarray
+    q: np.ndarray
+
+    def __post_init__(self) -> None:
+        m = self.residual.shape[0]
+        if self.model.shape[0] != m or self.joint.shape != (m, 6) or self.pose.shape != (m,):
+            raise ValueError(
+                f"rows disagree: residual {self.residual.shape}, model {self.model.shape}, "
+                f"joint {self.joint.shape}, pose {self.pose.shape}"
+            )
+        if self.q.ndim != 2 or self.q.shape[1] != 6:
+            raise ValueError(f"q must be (N, 6), got {self.q.shape}")
+        if m and (self.pose.min() < 0 or self.pose.max() >= self.q.shape[0]):
+            raise ValueError("pose indices must lie within 0..N-1")
+
+    @property
+    def n_poses(self) -> int:
+        return self.q.shape[0]
+
+
+def problem_of_fit(result) -> CyclicProblem:
+    """The problem of a :class:`lab.FitResult`: its residual rows, its identifiable Jacobian
+    columns (scaled as the identifiability analysis scales them) and d point / d theta at the
+    fitted parameters, three rows (x, y, z) per pose."""
+    n = result.n_points
+    free = result.identifiable
+    J = result.jacobian[:, :, free] * result.identifiability.scale[free]
+    _, Jq = result.model.joint_jacobian(result.inputs, result.params)
+    return CyclicProblem(
+        residual=np.asarray(result.residuals, dtype=float).reshape(-1),
+        model=J.reshape(3 * n, -1),
+        joint=Jq.reshape(3 * n, 6),
+        pose=np.repeat(np.arange(n), 3),
+        q=np.asarray(result.inputs.q, dtype=float),
+    )
+
+
+@dataclass(frozen=True)
+class ExtraColumns:
+    """Candidates other than the harmonics, on joint ``joint``: ``values`` (N, c) per-pose
+    functions f (a column is ``D_joint * f``), grouped into candidates of one or two columns by
+    ``groups`` (column indices) named by ``keys``."""
+
+    joint: int
+    values: np.ndarray
+    groups: tuple[tuple[int, ...], ...]
+    keys: tuple[str, ...]
+
+
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class JointSampling:
+    """How a joint was sampled: ``distinct`` angles; ``grid`` the step (rad) of the lattice its
+    angles lie on, or None; ``resolvable`` the highest order the sampling can tell from the
+    others (see :func:`resolvable_order`)."""
+
+    joint: int
+    distinct: int
+    span: float
+    grid: float | None
+    resolvable: int
+
+    def aliases(self, k: int, order: int) -> list[int]:
+        """The orders up to ``order`` that are identical to order ``k`` on this joint's grid."""
+        if self.grid is None:
+            return []
+        period = 2.0 * math.pi / self.grid  # orders per turn that the grid cannot see
+        out: set[int] = set()
+        for m in range(1, int((order + k) / period) + 2):
+            for a in (m * period - k, m * period + k):
+                if abs(a - round(a)) < 1e-6 * period and 1 <= round(a) <= order:
+                    out.add(round(a))
+        out.discard(k)
+        return sorted(out)
+
+    def note(self) -> str | None:
+        """A sentence on what the sampling cannot resolve, or None."""
+        if self.grid is not None:
+            return (
+                f"joint {self.joint} was measured on a grid of {math.degrees(self.grid):.4g} deg "
+                f"({self.distinct} angles): orders above {self.resolvable} per turn are aliases "
+                "of lower ones there"
+            )
+        if self.distinct < 2:
+            return f"joint {self.joint} did not move: no order of it can be seen"
+        return None
+
+
+def _float_gcd(values: np.ndarray, tol: float, floor: float) -> float | None:
+    """The largest step h whose whole multiples all ``values`` (positive) are, within ``tol``:
+    Euclid's algorithm with a tolerance; None once h falls to ``floor`` or below."""
+    h = float(values[0])
+    for v in values[1:]:
+        a, b = max(h, float(v)), min(h, float(v))
+        while b > tol:
+            r = math.fmod(a, b)
+            a, b = b, (0.0 if r < tol or b - r < tol else r)
+        h = a
+        if h <= floor:
+            return None
+    return h
+
+
+def joint_sampling(q: np.ndarray, joint: int, order: int) -> JointSampling:
+    """The sampling of joint ``joint`` (1..6) in ``q`` (N, 6): its distinct angles, a grid it
+    lies on (when that limits the orders below ``order``) and the highest order it resolves."""
+    v = np.unique(np.round(q[:, joint - 1] / _ANGLE_TOL).astype(np.int64))
+    distinct = len(v)
+    span = float((v[-1] - v[0]) * _ANGLE_TOL) if distinct else 0.0
+    res = max(0, (distinct - 1) // 2)
+    grid = None
+    if distinct >= 3:
+        d = np.diff(v).astype(float) * _ANGLE_TOL
+        # a grid matters where its step h is coarser than the scan's orders: pi / h < order
+        h = _float_gcd(np.unique(d), 4 * _ANGLE_TOL, math.pi / order)
+        if h is not None and np.all(np.abs(d / h - np.round(d / h)) < _GRID_TOL):
+            grid = h
+            res = min(res, math.floor(math.pi / h - 1e-9))
+    return JointSampling(joint, distinct, span, grid, min(res, order) if distinct > 1 else 0)
+
+
+def resolvable_order(q: np.ndarray, joint: int, order: int = DEFAULT_ORDER) -> int:
+    """The highest order (at most ``order``) that the sampling of joint ``joint`` resolves: on a
+    grid of step h, pi / h (higher orders alias lower ones); with n distinct angles, (n - 1) / 2;
+    0 for a joint that did not move."""
+    return joint_sampling(q, joint, order).resolvable
+
+
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ScanTerm:
+    """One selected candidate: on ``joint``, the harmonic of ``order`` (``key`` None) or an extra
+    candidate ``key``; its F-test ``p_value`` when chosen (unadjusted), the residual sum of
+    squares it explained, the RMS and leave-one-pose-out RMS after it (per pose), and the
+    ``alternatives``: (joint, order or key) the data cannot tell from it."""
+
+    joint: int
+    order: int | None
+    key: str | None
+    p_value: float
+    explained: float
+    rms_after: float
+    cv_after: float
+    alternatives: tuple[tuple[int, int | str], ...] = ()
+
+    @property
+    def label(self) -> str:
+        return f"q{self.joint} order {self.order}" if self.order is not None else f"{self.key}"
+
+
+@dataclass
+class CyclicScan:
+    """What :func:`cyclic_scan` found: the ``terms`` in the order chosen, the number of
+    candidates (``n_candidates``, M), the orders scanned per joint and how each was sampled,
+    the residual sum of squares and degrees of freedom before and after, the leave-one-pose-out
+    RMS before and after, and the smallest first-step p-value (unadjusted)."""
+
+    terms: list[ScanTerm]
+    n_candidates: int
+    orders: dict[int, int]
+    sampling: dict[int, JointSampling]
+    rss0: float
+    dof0: int
+    rss: float
+    dof: int
+    cv0: float
+    cv: float
+    first_p: float
+    level: float
+    residual: np.ndarray = field(repr=False)
+
+    @property
+    def harmonics(self) -> dict[int, list[int]]:
+        """The selected orders of each joint, ascending."""
+        out: dict[int, list[int]] = {}
+        for t in self.terms:
+            if t.order is not None:
+                out.setdefault(t.joint, []).append(t.order)
+        return {j: sorted(ks) for j, ks in sorted(out.items())}
+
+    @property
+    def spec(self) -> str | None:
+        """The ``cyclic[...]`` effect of the selected harmonics, or None."""
+        h = self.harmonics
+        if not h:
+            return None
+        return "cyclic[" + ";".join(f"{j}:{','.join(map(str, ks))}" for j, ks in h.items()) + "]"
+
+    def notes(self) -> list[str]:
+        """Sentences on what the sampling of the joints cannot resolve."""
+        return [n for s in self.sampling.values() if (n := s.note()) is not None]
+
+
+# --------------------------------------------------------------------------------------------------
+class _Layout:
+    """Rows grouped by pose: the sum over each pose's rows (a sparse (N, m) matrix) and the
+    padded (N, R) slots of the leave-one-pose-out blocks."""
+
+    def __init__(self, pose: np.ndarray, n: int) -> None:
+        m = len(pose)
+        self.n = n
+        self.sum = sparse.csr_matrix((np.ones(m), (pose, np.arange(m))), shape=(n, m))
+        order = np.argsort(pose, kind="stable")
+        counts = np.bincount(pose, minlength=n)
+        self.R = int(counts.max()) if m else 0
+        start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        slot = np.empty(m, dtype=int)
+        slot[order] = np.arange(m) - np.repeat(start, counts)
+        self.slot = slot
+        self.pose = pose
+
+    def pad(self, x: np.ndarray) -> np.ndarray:
+        """Rows (m, ...) as (N, R, ...), zero where a pose has fewer rows."""
+        out = np.zeros((self.n, self.R, *x.shape[1:]))
+        out[self.pose, self.slot] = x
+        return out
+
+
+def _hat(Qp: np.ndarray) -> np.ndarray:
+    return np.matmul(Qp, Qp.transpose(0, 2, 1))
+
+
+def _loo_rms(e_pad: np.ndarray, H: np.ndarray) -> float:
+    """Leave-one-pose-out RMS per pose: e_(-n) = (I - H_nn)^-1 e_n."""
+    n, R = e_pad.shape
+    loo = np.linalg.solve(np.eye(R) - H, e_pad[:, :, None])[:, :, 0]
+    return float(np.sqrt(np.sum(loo**2) / max(n, 1)))
+
+
+class _Candidates:
+    """The running statistics of every candidate (flat arrays over all of them): per candidate
+    columns a and b (b absent for a single column), their Gram entries, the same restricted to
+    the span chosen so far, and their correlations with the residual."""
+
+    def __init__(
+        self,
+        prob: CyclicProblem,
+        lay: _Layout,
+        orders: dict[int, int],
+        extras: Sequence[ExtraColumns],
+    ) -> None:
+        self.prob, self.lay, self.orders = prob, lay, orders
+        self.extras = {j: [x for x in extras if x.joint == j] for j in range(1, 7)}
+        joint, order, key, ia, ib = [], [], [], [], []
+        self.offset: dict[int, int] = {}  # where each joint's columns start (harmonics first)
+        self.ncols: dict[int, int] = {}
+        col = 0
+        for j in range(1, 7):
+            K = orders.get(j, 0)
+            self.offset[j] = col
+            ks = np.arange(1, K + 1)
+            joint += [j] * K
+            order += ks.tolist()
+            key += [None] * K
+            ia += (col + ks - 1).tolist()  # cos(k q)
+            ib += (col + K + ks - 1).tolist()  # sin(k q)
+            c = col + 2 * K
+            for x in self.extras[j]:
+                for g, name in zip(x.groups, x.keys, strict=True):
+                    joint.append(j)
+                    order.append(None)
+                    key.append(name)
+                    ia.append(c + g[0])
+                    ib.append(c + g[1] if len(g) > 1 else -1)
+                c += x.values.shape[1]
+            self.ncols[j] = c - col
+            col = c
+        self.joint = np.array(joint, dtype=int)
+        self.order: list[int | None] = order
+        self.key: list[str | None] = key
+        self.ia = np.array(ia, dtype=int)
+        self.ib = np.array(ib, dtype=int)
+        self.total = col
+        # per column: Gram diagonal, and per candidate the cross term; the projected parts
+        self.G = np.zeros(col)
+        self.Gab = np.zeros(len(joint))
+        self.S = np.zeros(col)
+        self.Sab = np.zeros(len(joint))
+        self.c = np.zeros(col)
+
+    def __len__(self) -> int:
+        return len(self.joint)
+
+    # -- the per-pose functions of a joint, block by block ---------------------------------------
+    def functions(self, j: int, sl: slice) -> np.ndarray:
+        """(n, columns of joint j): cos(k q), sin(k q) for k = 1..K_j, then the extras."""
+        K = self.orders.get(j, 0)
+        qj = self.prob.q[sl, j - 1]
+        parts = []
+        if K:
+            z = np.exp(1j * qj)
+            Z = np.cumprod(np.broadcast_to(z[:, None], (len(qj), K)), axis=1)
+            parts += [Z.real, Z.imag]
+        parts += [x.values[sl] for x in self.extras[j]]
+        return np.hstack(parts) if parts else np.zeros((len(qj), 0))
+
+    def project(self, A: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
+        """Per joint j, ``A[j]^T F_j`` ((k, columns)) for per-pose weights A[j] (N, k)."""
+        out = {}
+        for j, a in A.items():
+            acc = np.zeros((a.shape[1], self.ncols[j]))
+            for s in range(0, self.lay.n, _BLOCK):
+                sl = slice(s, s + _BLOCK)
+                acc += a[sl].T @ self.functions(j, sl)
+            out[j] = acc
+        return out
+
+    def initialise(self, Q: np.ndarray, e: np.ndarray) -> None:
+        prob, lay = self.prob, self.lay
+        D = prob.joint
+        for j in range(1, 7):
+            if not self.ncols[j]:
+                continue
+            w = lay.sum @ (D[:, j - 1] ** 2)  # (N,)
+            g = lay.sum @ (D[:, j - 1] * e)
+            A = np.asarray(lay.sum @ (D[:, j - 1 : j] * Q))  # (N, r)
+            o, n = self.offset[j], self.ncols[j]
+            sel = (self.joint == j) & (self.ib >= 0)
+            pa, pb = self.ia[sel] - o, self.ib[sel] - o
+            G = np.zeros(n)
+            Gab = np.zeros(int(sel.sum()))
+            c = np.zeros(n)
+            P = np.zeros((A.shape[1], n))  # Q^T X of the joint's columns
+            for s in range(0, lay.n, _BLOCK):
+                sl = slice(s, s + _BLOCK)
+                F = self.functions(j, sl)
+                G += w[sl] @ F**2
+                Gab += w[sl] @ (F[:, pa] * F[:, pb])
+                P += A[sl].T @ F
+                c += g[sl] @ F
+            self.G[o : o + n] = G
+            self.S[o : o + n] = np.sum(P**2, axis=0)
+            self.c[o : o + n] = c
+            self.Gab[sel] = Gab
+            self.Sab[sel] = np.sum(P[:, pa] * P[:, pb], axis=0)
+
+    def add(self, Qn: np.ndarray, b: np.ndarray) -> None:
+        """New orthonormal columns ``Qn`` (m, k) joined the span; ``b = Qn^T e`` before the
+        residual lost them: the statistics follow."""
+        D = self.prob.joint
+        A = {
+            j: np.asarray(self.lay.sum @ (D[:, j - 1 : j] * Qn))
+            for j in range(1, 7)
+            if self.ncols[j]
+        }
+        P = self.project(A)
+        for j, Pj in P.items():
+            o, n = self.offset[j], self.ncols[j]
+            self.S[o : o + n] += np.sum(Pj**2, axis=0)
+            self.c[o : o + n] -= b @ Pj
+            sel = (self.joint == j) & (self.ib >= 0)
+            self.Sab[sel] += np.sum(Pj[:, self.ia[sel] - o] * Pj[:, self.ib[sel] - o], axis=0)
+
+    def scores(self, rss: float, dof: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per candidate: explained sum of squares, degrees of freedom (0: explained already)
+        and the F-test's p-value."""
+        ia, ib = self.ia, self.ib
+        pair = ib >= 0
+        ibs = np.where(pair, ib, ia)
+        Ga, Gb = self.G[ia], np.where(pair, self.G[ibs], 1.0)
+        Paa = Ga - self.S[ia]
+        Pbb = np.where(pair, Gb - self.S[ibs], 1.0)
+        Pab = np.where(pair, self.Gab - self.Sab, 0.0)
+        ca = self.c[ia]
+        cb = np.where(pair, self.c[ibs], 0.0)
+        M = np.stack([np.stack([Paa, Pab], -1), np.stack([Pab, Pbb], -1)], -2)
+        lam, V = np.linalg.eigh(M)  # ascending, (L, 2), (L, 2, 2)
+        ref = np.stack([Ga, Gb], -1).max(axis=-1)
+        keep = lam > _DEPENDENT * ref[:, None]
+        keep[~pair, :] &= np.abs(V[~pair, 0, :]) > 0.5  # a single column: its own direction
+        proj = V[:, 0, :] * ca[:, None] + V[:, 1, :] * cb[:, None]  # (L, 2): v^T c
+        ss = np.sum(np.where(keep, proj**2 / np.where(keep, lam, 1.0), 0.0), axis=1)
+        k = keep.sum(axis=1)
+        ss = np.minimum(ss, rss)
+        ok = (k > 0) & (dof - k > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            F = (ss / np.maximum(k, 1)) / ((rss - ss) / np.maximum(dof - k, 1))
+        p = np.where(
+            ok, stats.f.sf(np.where(ok, F, 0.0), np.maximum(k, 1), np.maximum(dof - k, 1)), 1.0
+        )
+        return np.where(ok, ss, 0.0), np.where(ok, k, 0), p
+
+    def columns(self, i: int) -> np.ndarray:
+        """The candidate's columns (m, 1 or 2), explicitly."""
+        j = int(self.joint[i])
+        o = self.offset[j]
+        F = self.functions(j, slice(None))
+        cols = [self.ia[i] - o] + ([self.ib[i] - o] if self.ib[i] >= 0 else [])
+        f = F[self.prob.pose][:, cols]
+        return self.prob.joint[:, j - 1 : j] * f
+
+
+def cyclic_scan(
+    problem: CyclicProblem,
+    order: int = DEFAULT_ORDER,
+    level: float | None = None,
+    *,
+    alpha: float = 0.02,
+    extras: Sequence[ExtraColumns] = (),
+    joints: Sequence[int] = (1, 2, 3, 4, 5, 6),
+    max_terms: int = MAX_TERMS,
+    alias_level: float = ALIAS_LEVEL,
+) -> CyclicScan:
+    """Scan every joint's cyclic errors up to ``order`` (and the ``extras``) for what the
+    problem's model misses; see the module docstring. ``level``: the p-value a step must reach
+    (default ``alpha`` over the number of candidates, Bonferroni)."""
+    if order < 1:
+        raise ValueError(f"order must be at least 1, got {order}")
+    prob = problem
+    n = prob.n_poses
+    lay = _Layout(prob.pose, n)
+    sampling = {j: joint_sampling(prob.q, j, order) for j in range(1, 7)}
+    moves = np.sqrt(np.asarray(lay.sum @ (prob.joint**2)).sum(axis=0) / max(n, 1))  # per joint
+    orders = {
+        j: (sampling[j].resolvable if j in joints and moves[j - 1] > 0 else 0) for j in range(1, 7)
+    }
+    Q = orthonormal_basis(np.array(prob.model, dtype=float), overwrite=True)
+    e = prob.residual - Q @ (Q.T @ prob.residual)
+    rss0 = float(e @ e)
+    dof0 = len(e) - Q.shape[1]
+    H = _hat(lay.pad(Q))
+    e_pad = lay.pad(e)
+    cv0 = _loo_rms(e_pad, H)
+    cand = _Candidates(prob, lay, orders, extras)
+    cand.initialise(Q, e)
+    ss, k, p = cand.scores(rss0, dof0)
+    M = int(np.count_nonzero(k))
+    if level is None:
+        level = alpha / max(M, 1)
+    first_p = float(p.min()) if len(p) else 1.0
+    terms: list[ScanTerm] = []
+    rss, dof, cv = rss0, dof0, cv0
+    chosen: set[int] = set()
+    while len(terms) < max_terms and len(cand):
+        if terms:
+            ss, k, p = cand.scores(rss, dof)
+        p = p.copy()
+        p[list(chosen)] = 1.0
+        i = int(np.lexsort((-ss, p))[0])  # the smallest p-value, the largest ss among ties
+        if not (k[i] > 0 and p[i] <= level):
+            break
+        X = cand.columns(i)
+        X -= Q @ (Q.T @ X)
+        Qn = orthonormal_basis(X, overwrite=True)
+        if Qn.shape[1] == 0:
+            chosen.add(i)
+            continue
+        b = Qn.T @ e
+        e_new = e - Qn @ b
+        H_new = H + _hat(lay.pad(Qn))
+        cv_new = _loo_rms(lay.pad(e_new), H_new)
+        if not cv_new < cv:
+            break
+        # the candidates the data cannot tell from this one, at this step
+        s2 = (rss - ss[i]) / max(dof - k[i], 1)
+        tie = ss >= ss[i] - s2 * stats.chi2.ppf(1.0 - alias_level, max(int(k[i]), 1))
+        tie[i] = False
+        tie &= k > 0
+        j = int(cand.joint[i])
+        alts: list[tuple[int, int | str]] = []
+        for t in np.flatnonzero(tie):
+            o_t = cand.order[t]
+            key_t = cand.key[t]
+            alts.append((int(cand.joint[t]), o_t if o_t is not None else str(key_t)))
+        o_i = cand.order[i]
+        if o_i is not None:
+            alts += [(j, a) for a in sampling[j].aliases(o_i, order)]
+        rss_new = float(e_new @ e_new)
+        terms.append(
+            ScanTerm(
+                joint=j,
+                order=o_i,
+                key=cand.key[i],
+                p_value=float(p[i]),
+                explained=rss - rss_new,
+                rms_after=math.sqrt(rss_new / max(n, 1)),
+                cv_after=cv_new,
+                alternatives=tuple(dict.fromkeys(alts)),
+            )
+        )
+        log.debug("scan: %s (p = %.3g, %d alternatives)", terms[-1].label, p[i], len(alts))
+        cand.add(Qn, b)
+        Q = np.hstack([Q, Qn])
+        e, H, cv, rss, dof = e_new, H_new, cv_new, rss_new, dof - Qn.shape[1]
+        chosen.add(i)
+    return CyclicScan(
+        terms=terms,
+        n_candidates=M,
+        orders=orders,
+        sampling=sampling,
+        rss0=rss0,
+        dof0=dof0,
+        rss=rss,
+        dof=dof,
+        cv0=cv0,
+        cv=cv,
+        first_p=first_p,
+        level=float(level),
+        residual=e,
+    )
