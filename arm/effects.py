@@ -44,6 +44,7 @@ from arm.so3 import rotation_matrix
 
 __all__ = [
     "EFFECTS",
+    "FAST_PARTS",
     "PLAUSIBLE_FACTOR",
     "Backlash",
     "ChainEffect",
@@ -58,6 +59,7 @@ __all__ = [
     "Transmission",
     "candidate_effects",
     "check_robot_effects",
+    "cyclic_readings",
     "effect_origin",
     "is_catalogued",
     "load_effect_module",
@@ -378,6 +380,32 @@ def order_reading(k: int) -> str:
         f"stage's with its teeth (order {k}: {k} teeth on a wheel that turns once per output "
         "turn, or fewer on a faster one)"
     )
+
+
+FAST_PARTS = (
+    "a part that turns faster than the joint, seen at its output: a strain-wave gear's error "
+    "repeats twice per turn of its wave generator (order 2r if it turns r times per output "
+    "turn), a magnetic encoder's with its pole pairs (p pole pairs on a shaft turning s times "
+    "per output turn: order p*s), a gear stage's with its teeth"
+)
+
+
+def cyclic_readings(orders: Mapping[int, Sequence[int]]) -> list[str]:
+    """What the cyclic errors of ``orders`` (joint -> orders per turn) usually are, one line per
+    kind: orders 1, 2 and 3 each their own, the higher ones together."""
+    by_order: dict[int, list[int]] = {}
+    for j, ks in sorted(orders.items()):
+        for k in ks:
+            by_order.setdefault(int(k), []).append(int(j))
+    out = []
+    for k in (1, 2, 3):
+        if k in by_order:
+            js = ", ".join(map(str, by_order[k]))
+            out.append(f"order {k} (joint {js}): {order_reading(k)}")
+    high = sorted(k for k in by_order if k > 3)
+    if high:
+        out.append(f"orders {', '.join(map(str, high))}: {FAST_PARTS}")
+    return out
 
 
 _CYCLIC_SYNTAX = (

@@ -112,7 +112,8 @@ EffectsOpt = Annotated[
         "-e",
         help="Effects to fit, comma separated, optionally on some joints: "
         "geometric,compliance[2,3]. Catalogue: geometric, compliance, transmission, joint_scale, "
-        "backlash, load_backlash, thermal, and any --effect-module defines.",
+        "backlash, load_backlash, thermal, cyclic with its joints and orders per turn "
+        "(cyclic[2:17,29;4:2]), and any --effect-module defines.",
     ),
 ]
 ModuleOpt = Annotated[
@@ -401,8 +402,50 @@ def fit_cmd(
     _emit_json(result.to_dict(), as_json, out)
 
 
+# -- what the user gave, for the commands printed as next steps ---------------------------------------
+def _context(
+    robot: str = "seed",
+    length_unit: str = "m",
+    angle_unit: str = "rad",
+    effect_module: Sequence[Path] | None = None,
+    noise_mm: float | None = None,
+    loss: str = "linear",
+    outliers: str = "auto",
+    accept_large: bool = False,
+) -> dict[str, Any]:
+    """The options of a command that a printed next step must repeat to work on the same data
+    (the arm, the units, the effect modules, the noise and the screening), as command-line flags;
+    the defaults left out."""
+    return {
+        "--robot": None if robot == "seed" else robot,
+        "--length-unit": None if length_unit == "m" else length_unit,
+        "--angle-unit": None if angle_unit == "rad" else angle_unit,
+        "--effect-module": [str(m) for m in effect_module or ()],
+        "--noise-mm": noise_mm,
+        "--loss": None if loss == "linear" else loss,
+        "--outliers": None if outliers == "auto" else outliers,
+        "--accept-large": accept_large,
+    }
+
+
+def _print_noise(obj) -> None:
+    """The noise floor's source (repeated poses) and, when only noise is left, what it implies."""
+    from lab.repeatability import NoiseFloor
+
+    text = NoiseFloor(obj.noise_mm, obj.noise_source, obj.repeatability).text()
+    if text:
+        console.print(escape(text), highlight=False, soft_wrap=True)
+    if obj.noise_note:
+        console.print(f"[yellow]{escape(obj.noise_note)}[/yellow]", highlight=False, soft_wrap=True)
+
+
+def _print_notes(notes: Sequence[str], title: str) -> None:
+    for n in notes:
+        console.print(f"{title}: {escape(n)}", highlight=False, soft_wrap=True)
+
+
 # -- diagnose ---------------------------------------------------------------------------------------
-def _print_diagnosis(d, data: Path) -> None:
+def _print_diagnosis(d, data: Path, context: dict[str, Any] | None = None) -> None:
     floor = f", noise floor {d.noise_floor_mm:.4f} mm" if d.noise_floor_mm else ""
     console.print(
         f"model [bold]{escape(', '.join(d.effects))}[/bold] on {d.fit.n_points} points: RMS "
@@ -410,7 +453,9 @@ def _print_diagnosis(d, data: Path) -> None:
         highlight=False,
         soft_wrap=True,
     )
-    colour = {"none": "green", "unexplained": "yellow"}.get(d.verdict, "red")
+    ctx = dict(context or {})
+    _print_noise(d)
+    colour = {"none": "green", "unexplained": "yellow", "noise": "yellow"}.get(d.verdict, "red")
     line = f"verdict: [bold {colour}]{escape(d.verdict)}[/bold {colour}]"
     if d.verdict == "none" and d.noise_mm is None:
         line += (
@@ -419,19 +464,34 @@ def _print_diagnosis(d, data: Path) -> None:
         )
     elif d.verdict == "none":
         line += " (the residual is consistent with the noise: nothing missing)"
+    elif d.verdict == "noise":
+        line += " (nothing is missing, but the noise is above the one the tests used)"
     elif d.verdict == "unexplained":
         line += " (the residual is above the noise and no catalogued effect explains it)"
     if d.suggestion:
-        then = escape(command_line("lab", "fit", data, **{"--effects": d.suggestion}))
+        then = escape(command_line("lab", "fit", data, **{"--effects": d.suggestion}, **ctx))
         if d.verdict == "unexplained":
             line += f"; the catalogue's best, which explains part: {then}"
         else:
             line += f"; next: {then}"
     console.print(line, highlight=False, soft_wrap=True)
+    if d.cyclic_orders:
+        console.print(
+            "cyclic errors, orders per turn: "
+            + "; ".join(
+                f"joint {j}: {', '.join(map(str, ks))}" for j, ks in d.cyclic_orders.items()
+            ),
+            highlight=False,
+            soft_wrap=True,
+        )
+        for reading in d.readings:
+            console.print(f"  {escape(reading)}", highlight=False, soft_wrap=True)
+    _print_notes(d.notes, "cannot resolve")
+    _print_notes(d.implausible, "passed over as implausible")
     if d.verdict == "unexplained":
         console.print(
             "next: let the lab search for the missing term's form: "
-            + escape(discover_command(data, d)),
+            + escape(discover_command(data, d, ctx)),
             highlight=False,
             soft_wrap=True,
         )
@@ -461,20 +521,22 @@ def _print_diagnosis(d, data: Path) -> None:
         console.print(hints_table(d.hints[:6]))
 
 
-def discover_command(data: Path, d) -> str:
+def discover_command(data: Path, d, context: dict[str, Any] | None = None) -> str:
     """The ``sixaxis lab discover`` command that continues an ``unexplained`` diagnosis: from
     the diagnosed model (not the catalogue's partial explanation, whose approximating terms would
-    hide the form), with its noise."""
+    hide the form), with its noise (the one stated, not one measured from repeated poses, which
+    discover measures again) and the options the diagnosis was given."""
     effects = ",".join(d.effects)
+    ctx = dict(context or {})
+    ctx.pop("--accept-large", None)  # discover's own fits keep the bounds
+    if d.noise_source == "stated":
+        ctx["--noise-mm"] = d.noise_mm
     return command_line(
         "lab",
         "discover",
         data,
-        **{
-            "--effects": None if effects == "geometric" else effects,
-            "--noise-mm": d.noise_mm,
-            "-o": "discovered.py",
-        },
+        **{"--effects": None if effects == "geometric" else effects, "-o": "discovered.py"},
+        **ctx,
     )
 
 
@@ -521,31 +583,41 @@ def diagnose_cmd(
         with console.status("fitting and testing the candidate effects..."):
             d = diagnose(meas, arm, effects, options=opts, alpha=alpha)
     if not as_json:
-        _print_diagnosis(d, data)
+        ctx = _context(
+            robot, length_unit, angle_unit, effect_module, noise_mm, loss, outliers, accept_large
+        )
+        _print_diagnosis(d, data, ctx)
     _emit_json(d.to_dict(), as_json, out)
 
 
 # -- discover ---------------------------------------------------------------------------------------
-def _print_discovery(d, output: Path | None) -> None:
+def _print_discovery(
+    d, output: Path | None, data: Path | None = None, context: dict[str, Any] | None = None
+) -> None:
     floor = f", noise floor {d.noise_floor_mm:.4f} mm" if d.noise_floor_mm else ""
     console.print(
         f"model [bold]{escape(', '.join(d.effects))}[/bold] on {d.base.n_points} points: RMS "
         f"{d.rms_mm:.4f} mm{floor}; {d.n_candidates} candidate terms (harmonics to order "
-        f"{d.order}), family-wise false-discovery rate {d.alpha:g}",
+        f"{d.order} per turn, fewer where the sampling resolves fewer), family-wise "
+        f"false-discovery rate {d.alpha:g}",
         highlight=False,
         soft_wrap=True,
     )
-    colour = {"none": "green", "unexplained": "yellow"}.get(d.verdict, "red")
+    _print_noise(d)
+    colour = {"none": "green", "unexplained": "yellow", "noise": "yellow"}.get(d.verdict, "red")
     line = f"verdict: [bold {colour}]{escape(d.verdict)}[/bold {colour}]"
     if d.verdict == "none" and d.noise_mm is None:
         line += " (no term is significant; give --noise-mm to test the residual against the noise)"
     elif d.verdict == "none":
         line += " (the residual is consistent with the noise: nothing missing)"
+    elif d.verdict == "noise":
+        line += " (no term is significant, but the noise is above the one the tests used)"
     elif d.verdict == "unexplained" and d.terms:
         line += " (the terms found explain part; the residual stays above the noise)"
     elif d.verdict == "unexplained":
         line += " (the residual is above the noise and no term of the library explains it)"
     console.print(line, highlight=False, soft_wrap=True)
+    _print_notes(d.notes, "cannot resolve")
     if not d.terms:
         return
     for f in d.formulas.values():
@@ -559,14 +631,17 @@ def _print_discovery(d, output: Path | None) -> None:
         f"with the terms: RMS {d.rms_after_mm:.4f} mm{held}", highlight=False, soft_wrap=True
     )
     if output is not None:
+        ctx = dict(context or {})
+        modules = [*ctx.pop("--effect-module", []), str(output)]
         console.print(
             f"wrote the effect to {escape(str(output))}; fit it with: "
             + escape(
                 command_line(
                     "lab",
                     "fit",
-                    "DATA.csv",
-                    **{"--effect-module": str(output), "--effects": d.suggestion},
+                    data if data is not None else "DATA.csv",
+                    **{"--effect-module": modules, "--effects": d.suggestion},
+                    **ctx,
                 )
             ),
             highlight=False,
@@ -606,8 +681,12 @@ def discover_cmd(
         float, typer.Option(help="Family-wise false-discovery rate (as diagnose's --alpha).")
     ] = 0.02,
     order: Annotated[
-        int, typer.Option(help="The highest harmonic sin/cos(m*q) in the library.")
-    ] = 4,
+        int,
+        typer.Option(
+            help="The highest harmonic sin/cos(m*q) per turn scanned on every joint (fewer on a "
+            "joint whose sampling resolves fewer: a grid aliases high orders)."
+        ),
+    ] = 64,
     name: Annotated[
         str, typer.Option(help="The discovered effect's name (lower case, digits, _).")
     ] = "discovered",
@@ -647,7 +726,8 @@ def discover_cmd(
         with _writing(output):
             written = d.write_module(output)
     if not as_json:
-        _print_discovery(d, written)
+        ctx = _context(robot, length_unit, angle_unit, effect_module, noise_mm)
+        _print_discovery(d, written, data, ctx)
     _emit_json(d.to_dict(), as_json, out)
 
 

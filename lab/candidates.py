@@ -86,7 +86,8 @@ def candidate_model(
     have = {e.name for e in model.effects}
     effects: list[Effect] = []
     for e in model.effects:  # a per-joint effect fitted on some joints: the others are candidates
-        effects.append(type(e)() if e.per_joint and e.joints is not None else e)
+        whole = e.per_joint and e.joints is not None and not e.scan_only
+        effects.append(type(e)() if whole else e)  # a scanned effect's other orders: the scan
     for spec in candidate_effects() if candidates is None else list(candidates):
         if isinstance(spec, str) and spec.strip() in EFFECTS and EFFECTS[spec.strip()].scan_only:
             continue  # its terms are scanned (lab.spectral), not tested whole

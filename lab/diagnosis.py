@@ -66,10 +66,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from arm.description import RobotDescription
-from arm.effects import Effect
+from arm.effects import Cyclic, Effect, cyclic_readings
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from lab import blocks as _blocks
@@ -85,9 +84,11 @@ from lab.candidates import (
 from lab.errors import FitError
 from lab.identifiability import gram_factor, lower_inverse, orthonormal_basis, typical_magnitudes
 from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
+from lab.repeatability import Repeatability, implied_noise_text, noise_floor, noise_p_value
 from lab.result import SCHEMA_VERSION, FitResult, Outlier
-from lab.screening import Screen, annotate, screened
+from lab.screening import Screen, annotate, outlier_radius, screened
 from lab.selection import DEPENDENT, ForwardSelection, f_test, hat_blocks, holm, press_rms
+from lab.spectral import CyclicProblem, CyclicScan, CyclicScanner
 
 __all__ = ["Candidate", "Diagnosis", "Hint", "diagnose"]
 
@@ -95,6 +96,7 @@ log = logging.getLogger(__name__)
 
 HARMONICS = 3  # sin/cos(k q), k = 1..HARMONICS, for the angle hints
 MAX_EFFECT_STEPS = 6  # forward selection adds at most this many candidates
+TIE = 1e-6  # held-out RMS within this share of each other: the same explanation
 
 
 @dataclass(frozen=True)
@@ -111,11 +113,14 @@ class Candidate:
     p_value: float
     significant: bool = False
     confirmed: bool = False
+    orders: tuple[int, ...] | None = None  # a cyclic error's orders (of its one joint)
 
     @property
     def label(self) -> str:
         if self.joints is None:
             return self.effect
+        if self.orders is not None:
+            return f"{self.effect}[{self.joints[0]}:{','.join(map(str, self.orders))}]"
         return f"{self.effect}[{','.join(map(str, self.joints))}]"
 
     def to_dict(self) -> dict:
@@ -128,6 +133,7 @@ class Candidate:
             "cv_rms_mm": self.cv_rms_mm,
             "confirmed": self.confirmed,
             "parameters": list(self.parameters),
+            "orders": None if self.orders is None else list(self.orders),
         }
 
 
@@ -166,6 +172,38 @@ class Diagnosis:
     outlier_list: list[Outlier] = field(default_factory=list)
     outliers_mode: str = "keep"
     outlier_rule: str | None = None
+    # what the cyclic scan could not resolve: grid aliases, orders the data cannot tell apart
+    notes: list[str] = field(default_factory=list)
+    # parameters of the catalogue's candidates left out of the explanation: beyond the plausible
+    # bound of their kind (lab.plausibility) given the others, as lab.fit would refuse them
+    implausible: list[str] = field(default_factory=list)
+    # where noise_mm came from ("stated", "repeated poses" or None), the scatter of repeated
+    # poses where the data have them, and, when no structure is left but the residual is above
+    # noise_mm, the per-axis noise the residual implies (mm)
+    noise_source: str | None = None
+    repeatability: Repeatability | None = None
+    implied_noise_mm: float | None = None
+
+    @property
+    def noise_note(self) -> str | None:
+        """``no structure is left: the residual is noise of ..., 6 % above ...``, or None."""
+        if self.implied_noise_mm is None or self.noise_mm is None:
+            return None
+        return implied_noise_text(self.implied_noise_mm, self.noise_mm, self.noise_source)
+
+    @property
+    def cyclic_orders(self) -> dict[int, list[int]]:
+        """The cyclic errors of the explanation: joint -> orders per turn, ascending."""
+        out: dict[int, list[int]] = {}
+        for c in self.explanation:
+            if c.orders is not None and c.joints is not None:
+                out.setdefault(c.joints[0], []).extend(c.orders)
+        return {j: sorted(ks) for j, ks in sorted(out.items())}
+
+    @property
+    def readings(self) -> list[str]:
+        """What the explanation's cyclic errors usually are (one line per kind of order)."""
+        return cyclic_readings(self.cyclic_orders)
 
     @property
     def effects(self) -> list[str]:
@@ -208,6 +246,11 @@ class Diagnosis:
             "duplicates": [d.to_dict() for d in self.fit.duplicates],
             "n_rows": self.fit.to_dict()["n_rows"],
             "n_tested": self.n_tested,
+            "notes": list(self.notes),
+            "implausible": list(self.implausible),
+            "noise_source": self.noise_source,
+            "repeatability": None if self.repeatability is None else self.repeatability.to_dict(),
+            "implied_noise_mm": self.implied_noise_mm,
         }
 
     def summary(self) -> str:
@@ -229,6 +272,9 @@ class Diagnosis:
                 f"p = {c.p_value:.3g} ({flag})"
             )
         lines.append("hints: " + ", ".join(f"{h.variable} {h.score:.2f}" for h in self.hints[:5]))
+        lines += self.readings
+        if self.noise_note:
+            lines.append(self.noise_note)
         return "\n".join(lines)
 
 
@@ -274,7 +320,9 @@ def diagnose(
         register=register,
     )
     s = screened(data, robot, effects, opts, candidates=candidates, tests=True)
-    noise_mm = s.options.noise_mm
+    # the noise the tests use: the stated one, else the scatter of repeated poses
+    floor = noise_floor(s.options.noise_mm, s.kept)
+    noise_mm = floor.noise_mm
     res, data, given = s.fit, s.kept, s.data
     assert s.untested_rows is not None  # screened(tests=True) judged them
     model = res.model
@@ -309,13 +357,17 @@ def diagnose(
     H0 = hat_blocks(Q0)
     cv0 = press_rms(e0, H0)
     alpha_c = alpha / 2 if noise_mm is not None else alpha
+    # the cyclic errors' orders are scanned (lab.spectral) unless the candidates leave them out;
+    # the catalogue's tests and the scan then share alpha_c equally (a union bound)
+    scanning = _scans(s.candidates)
+    alpha_cat = alpha_c / 2 if scanning else alpha_c
 
     sel = ForwardSelection(e0, rss0, dof0, H0, cv0)
     norms = np.sqrt(np.einsum("ij,ij->j", Jc, Jc))
     project_out(Jc, Q0)  # every candidate column with the model's span projected out
     norms_p = np.sqrt(np.einsum("ij,ij->j", Jc, Jc))
-    hints = _hints(res, data, Q0, e0, rss0, dof0, inlier)
-    del Q0  # the candidates' columns are model-free now
+    Jq = _joint_jacobian(res, inlier)
+    hints = _hints(res, data, Q0, e0, rss0, dof0, inlier, Jq)
     tested: list[np.ndarray] = []  # each candidate's columns (of Jc) that were tested
     rows: list[Candidate] = []
     for g in groups:
@@ -355,7 +407,7 @@ def diagnose(
             )
         )
     pvals = np.array([c.p_value for c in rows])
-    sig = holm(pvals, alpha_c) if rows else np.zeros(0, dtype=bool)
+    sig = holm(pvals, alpha_cat) if rows else np.zeros(0, dtype=bool)
     cands = [
         Candidate(**{**c.__dict__, "significant": bool(s), "confirmed": c.cv_rms_mm < 1e3 * cv0})
         for c, s in zip(rows, sig, strict=True)
@@ -373,23 +425,64 @@ def diagnose(
     keys = list(order)  # each candidate's key in the selection's remembered first trials
     n_tested = len(cands)
     bases = [lambda cols=cols: orthonormal_basis(Jc[:, cols], overwrite=True) for cols in tested]
-    chosen = _forward(cands, bases, keys, sel, alpha_c) if cands and cands[0].significant else []
+    # the cyclic errors' scan (lab.spectral), kept in step with the selection: it also judges
+    # the plausibility of every parameter of the explanation, catalogued or cyclic (without the
+    # scan, joints=(): no cyclic candidate, the same judge)
+    scanner = CyclicScanner(
+        CyclicProblem(
+            residual=e0,
+            model=Q0,
+            joint=Jq.reshape(3 * n, 6),
+            pose=np.repeat(np.arange(n), 3),
+            q=data.q[inlier] if n < N else data.q,
+            orthonormal=True,
+        ),
+        alpha=alpha_c / 2,
+        joints=(1, 2, 3, 4, 5, 6) if scanning else (),
+        bound=Cyclic({1: [1]}).plausible_bound("cs1_1"),
+    )
+    p_full = full.nominal()
+
+    def columns_of(names: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A candidate's columns (the model's span projected out), nominal values, bounds."""
+        idx = full.layout.indices(names)
+        bounds = [full.effects[_effect_index(full, nm)].plausible_bound(nm) for nm in names]
+        return (
+            Jc[:, [column[int(i)] for i in idx]],
+            p_full[idx],
+            np.array([np.nan if b is None else b for b in bounds], dtype=float),
+        )
+
+    rejected: list[str] = []
+    explanation = _forward(cands, bases, keys, sel, alpha_cat, scanner, columns_of, rejected)
+    chosen = [c for c in explanation if c.effect != Cyclic.name]
+    scan = scanner.result()
+    notes = scan.notes() + _alternative_notes(scan)
+    rejected += scan.implausible
+    rss_after, dof_after = sel.rss, sel.dof
     # the explanation first (each given the ones before it), then every other candidate
     picked = {(c.effect, c.joints) for c in chosen}
-    cands = chosen + [c for c in cands if (c.effect, c.joints) not in picked]
+    cands = explanation + [c for c in cands if (c.effect, c.joints) not in picked]
 
     chi2_p = chi2_after = None
-    if noise_mm is not None:
-        chi2_p = float(stats.chi2.sf(rss0 / sigma**2, max(dof0, 1)))
-        chi2_after = float(stats.chi2.sf(sel.rss / sigma**2, max(sel.dof, 1)))
+    if noise_mm is not None:  # chi-square against a stated noise, F against a measured one
+        chi2_p = noise_p_value(rss0, dof0, floor)
+        chi2_after = noise_p_value(rss_after, dof_after, floor)
+    # above the noise after the explanation: is any structure left? The selection found no
+    # more; the hints say whether the residual still depends on a measured variable
+    implied = None
+    if chi2_after is not None and chi2_after < alpha / 2:
+        implied = _implied_noise(res, data, Q0, sel, inlier, Jq, alpha / 2)
+    del Q0
     suggestion = None
-    if chosen:
-        suggestion = _suggestion(model, chosen)
-        # what the catalogue offers must bring the residual down to the noise
-        ok = chi2_after is None or chi2_after >= alpha / 2
-        verdict = chosen[0].effect if ok else "unexplained"
+    if explanation:
+        suggestion = _suggestion(model, explanation)
+        # what the catalogue offers must bring the residual down to the noise, or leave noise
+        # alone (then the noise is above the one stated)
+        ok = chi2_after is None or chi2_after >= alpha / 2 or implied is not None
+        verdict = explanation[0].effect if ok else "unexplained"
     elif chi2_p is not None and chi2_p < alpha / 2:
-        verdict = "unexplained"
+        verdict = "noise" if implied is not None else "unexplained"
     else:
         verdict = "none"
 
@@ -409,45 +502,121 @@ def diagnose(
         chi2_p_value=chi2_p,
         chi2_p_value_after=chi2_after,
         suggestion=suggestion,
-        explanation=chosen,
+        explanation=explanation,
         outliers=np.array(sorted(o.index for o in left_out), dtype=int),
         n_tested=n_tested,
         skipped=skipped,
         outlier_list=left_out,
         outliers_mode=s.options.outliers,
         outlier_rule=s.test_rule,
+        notes=notes,
+        implausible=rejected,
+        noise_source=floor.source,
+        repeatability=floor.repeatability,
+        implied_noise_mm=implied,
     )
     log.info("%s", d.summary())
     return d
 
 
-def _forward(cands, bases, keys, sel: ForwardSelection, alpha) -> list[Candidate]:
-    """Effect-level forward selection. Each step tries every candidate of the effects not yet
-    chosen given those chosen, takes the one that predicts held-out poses best among those whose
-    F-test is significant at ``alpha`` over all the candidates (Bonferroni, at every step, so
-    that a chance addition stays rare however many steps there are) and that lower the held-out
-    RMS, and then settles the joints of its effect by forward selection over that effect's single
-    joints (the same rule). Returns the chosen effects as candidates (joints merged), in the
-    order chosen, each with the F-test of all its columns given the effects chosen before it and
-    the training and held-out RMS after it."""
+def _implied_noise(res, data, Q0, sel: ForwardSelection, inlier, Jq, alpha) -> float | None:
+    """The per-axis noise (mm) that the residual left after the explanation implies, when it
+    looks like noise: no measured variable explains any of it (the hints, Bonferroni at
+    ``alpha``) and no pose lies beyond the outlier radius of that noise (a gross error is not
+    noise); None when it does not."""
+    left = _hints(res, data, [Q0, sel.Q], sel.e, sel.rss, sel.dof, inlier, Jq)
+    if any(h.p_value <= alpha / max(len(left), 1) for h in left):
+        return None
+    s = math.sqrt(sel.rss / max(sel.dof, 1))
+    r = sel.e.reshape(-1, 3)
+    if np.max(np.sum(r**2, axis=1)) > (outlier_radius(len(r)) * s) ** 2:
+        return None
+    return 1e3 * s
+
+
+def _scans(candidates: Sequence[str] | None) -> bool:
+    """Whether the cyclic errors are among the candidates (all of them by default)."""
+    if candidates is None:
+        return True
+    return any(str(c).strip().split("[")[0] == Cyclic.name for c in candidates)
+
+
+def _effect_index(model: ErrorModel, name: str) -> int:
+    return model.layout.effects.index(model.layout.effect_of(name))
+
+
+def _forward(
+    cands, bases, keys, sel: ForwardSelection, alpha, scanner: CyclicScanner, columns_of, rejected
+) -> list[Candidate]:
+    """Forward selection over the catalogue's effects and the cyclic errors' orders. Each step
+    tries every candidate of the effects not yet chosen given those chosen, and the scan's next
+    cyclic term; it takes the one that predicts held-out poses best among those significant at
+    their level (an effect: ``alpha`` over all the catalogue's candidates, Bonferroni, at every
+    step, so that a chance addition stays rare however many steps there are; a cyclic term: the
+    scan's own, :mod:`lab.spectral`), that lower the held-out RMS and whose parameters stay
+    plausible with those chosen (as :func:`lab.fit` judges them: ``scanner.implausible``; each
+    one passed over is described in ``rejected``). An effect's joints are then settled by
+    forward selection over its single joints (the same rule). Returns the explanation in the
+    order chosen (an effect's joints merged), each with the F-test of its columns given those
+    chosen before it and the training and held-out RMS after it."""
     chosen: list[Candidate] = []
     done: set[str] = set()
     level = alpha / max(len(cands), 1)
-    while len(chosen) < MAX_EFFECT_STEPS:
-        live = [i for i, c in enumerate(cands) if c.effect not in done]
-        if not live:
-            break
-        best = None
+    n_effects = 0
+
+    def fails(c: Candidate) -> bool:
+        X, nominal, bounds = columns_of(c.parameters)
+        bad = scanner.implausible(X, list(c.parameters), nominal, bounds)
+        if bad and not any(r.startswith(c.label + ":") for r in rejected):
+            rejected.append(f"{c.label}: {', '.join(bad)}")
+        return bool(bad)
+
+    def joins(c: Candidate) -> None:  # the scan learns the columns the selection took
+        X, nominal, bounds = columns_of(c.parameters)
+        scanner.add_columns(X, list(c.parameters), nominal, bounds)
+
+    def best_of(live: list[int]):
+        tried = []
         for i in live:
             t = sel.trial(bases[i], keys[i])
             if t is not None and t[1] <= level and t[0] < sel.cv:
-                if best is None or t[0] < best[0][0]:
-                    best = (t, i)
-        if best is None:
+                tried.append((t[0], t, i))
+        tried.sort(key=lambda x: x[0])
+        return next(((t, i) for _, t, i in tried if not fails(cands[i])), None)
+
+    while True:
+        live = [i for i, c in enumerate(cands) if c.effect not in done]
+        best = best_of(live) if live and n_effects < MAX_EFFECT_STEPS else None
+        term = scanner.propose()
+        if best is None and term is None:
             break
+        rss_before, dof_before = sel.rss, sel.dof
+        # an effect tested whole (the catalogue's, a user's) wins a tie with a cyclic term
+        if term is not None and (best is None or term.cv < best[0][0] * (1.0 - TIE)):
+            t = scanner.accept(term)
+            proj = term.basis.T @ sel.e
+            sel.add(term.cv, (term.basis, proj, float(proj @ proj), sel.H + hat_blocks(term.basis)))
+            F, pv = f_test(rss_before - sel.rss, dof_before - sel.dof, sel.rss, sel.dof)
+            j, k = t.joint, int(t.order or 0)
+            chosen.append(
+                Candidate(
+                    effect=Cyclic.name,
+                    joints=(j,),
+                    parameters=(f"cs{j}_{k}", f"cc{j}_{k}"),
+                    rms_mm=1e3 * math.sqrt(max(sel.rss, 0.0) / (sel.e.size // 3)),
+                    cv_rms_mm=1e3 * sel.cv,
+                    statistic=F,
+                    p_value=pv,
+                    significant=True,
+                    confirmed=True,
+                    orders=(k,),
+                )
+            )
+            continue
+        assert best is not None
         c = cands[best[1]]
         done.add(c.effect)
-        rss_before, dof_before = sel.rss, sel.dof
+        n_effects += 1
         singles = [
             i
             for i in live
@@ -466,12 +635,17 @@ def _forward(cands, bases, keys, sel: ForwardSelection, alpha) -> list[Candidate
                         pick = (t, i)
             if pick is None:
                 break
+            if fails(cands[pick[1]]):
+                singles.remove(pick[1])
+                continue
             sel.add(pick[0][0], pick[0][2], bases[pick[1]])
+            joins(cands[pick[1]])
             joints.append(cands[pick[1]].joints[0])
             names += cands[pick[1]].parameters
             singles.remove(pick[1])
         if not joints:  # no single joint carries it alone: take the whole group
             sel.add(best[0][0], best[0][2], bases[best[1]])
+            joins(c)
             names = list(c.parameters)
         F, pv = f_test(rss_before - sel.rss, dof_before - sel.dof, sel.rss, sel.dof)
         chosen.append(
@@ -490,13 +664,39 @@ def _forward(cands, bases, keys, sel: ForwardSelection, alpha) -> list[Candidate
     return chosen
 
 
+def _alternative_notes(scan: CyclicScan) -> list[str]:
+    """``cyclic[1:27]: the data cannot tell it from order 26 of the same joint`` for each term
+    with ties (those of other joints counted)."""
+    out = []
+    for t in scan.terms:
+        if t.order is None or not t.alternatives:
+            continue
+        same = [o for jj, o in t.alternatives if jj == t.joint and isinstance(o, int)]
+        others = len(t.alternatives) - len(same)
+        text = f"orders {', '.join(map(str, same))} of the same joint" if same else ""
+        if others:
+            text += (" and " if text else "") + f"{others} candidate(s) of other joints"
+        out.append(f"cyclic[{t.joint}:{t.order}]: the data cannot tell it from {text}")
+    return out
+
+
 def _suggestion(model: ErrorModel, chosen: list[Candidate]) -> str:
-    """The model to fit next: the fitted effects plus the chosen candidates, joints merged."""
+    """The model to fit next: the fitted effects plus the chosen candidates, joints merged (a
+    cyclic error's orders merged per joint)."""
     joints: dict[str, set[int] | None] = {}
+    orders: dict[int, set[int]] = {}
     for e in model.effects:
         joints[e.name] = None if e.joints is None else set(e.joints)
+        if isinstance(e, Cyclic):
+            for j, ks in e.orders.items():
+                orders.setdefault(j, set()).update(ks)
     order = [e.name for e in model.effects]
     for c in chosen:
+        if c.orders is not None and c.joints is not None:
+            orders.setdefault(c.joints[0], set()).update(c.orders)
+            if c.effect not in order:
+                order.append(c.effect)
+            continue
         if c.effect not in joints:
             order.append(c.effect)
             joints[c.effect] = set()
@@ -507,6 +707,9 @@ def _suggestion(model: ErrorModel, chosen: list[Candidate]) -> str:
             current |= set(c.joints)
     out = []
     for name in order:
+        if name == Cyclic.name and orders:
+            out.append(Cyclic({j: sorted(ks) for j, ks in orders.items()}).label)
+            continue
         js = joints[name]
         out.append(name if js is None else f"{name}[{','.join(map(str, sorted(js)))}]")
     return ",".join(out)
@@ -558,22 +761,27 @@ def _max_hint_width(data: MeasurementSet) -> int:
     return width
 
 
-def _hints(res, data, Q0, e0, rss0, dof0, inlier) -> list[Hint]:
+def _joint_jacobian(res: FitResult, inlier: np.ndarray) -> np.ndarray:
+    """d point / d theta (N, 3, 6) at the fit, of the poses ``inlier``, block by block."""
+    Jq = np.empty((res.n_points, 3, 6))
+    for sl, part in Blocks(res.model, res.inputs):
+        Jq[sl] = res.model.joint_jacobian(part, res.params)[1]
+    return Jq[inlier] if inlier.sum() < res.n_points else Jq
+
+
+def _hints(res, data, Q0, e0, rss0, dof0, inlier, Jq) -> list[Hint]:
+    """(``Q0``: the model's orthonormal columns, one array or a list of blocks of columns.)"""
     """Score each variable's block ``phi_k(v) * direction_d`` by the F-test of adding it to the
     fitted model. The block's Gram matrices come from the Kronecker structure (per pose
     ``D^T D``, ``Q0^T D``, ``e^T D``), so no (3N, K * 9) matrix is formed, and all variables go
     through three matrix products together, summed over blocks of poses (many small
     multithreaded BLAS calls stall on a busy machine; one product of 200k poses holds GBs)."""
     n = int(inlier.sum())
-    Jq = np.empty((res.n_points, 3, 6))  # d point / d theta, block by block
-    for sl, part in Blocks(res.model, res.inputs):
-        Jq[sl] = res.model.joint_jacobian(part, res.params)[1]
-    if n < res.n_points:
-        Jq = Jq[inlier]
     rms = np.sqrt(np.mean(np.sum(Jq**2, axis=1), axis=0))
     js = [j for j in range(6) if rms[j] > 0]
     nd = 3 + len(js)
-    r0 = Q0.shape[1]
+    Qs = [Q0] if isinstance(Q0, np.ndarray) else [Q for Q in Q0 if Q.shape[1]]
+    r0 = sum(Q.shape[1] for Q in Qs)
 
     names, spans = [], []
     width = 0
@@ -600,7 +808,9 @@ def _hints(res, data, Q0, e0, rss0, dof0, inlier) -> list[Hint]:
         D = np.stack(dirs, axis=-1)  # (m, 3, nd)
         Dt = D.transpose(0, 2, 1)
         M = np.matmul(Dt, D).reshape(m, nd * nd)
-        Qb = Q0[3 * blk.start : 3 * blk.stop].reshape(m, 3, r0).transpose(0, 2, 1)
+        rows = slice(3 * blk.start, 3 * blk.stop)
+        Qr = Qs[0][rows] if len(Qs) == 1 else np.hstack([Q[rows] for Q in Qs])
+        Qb = Qr.reshape(m, 3, r0).transpose(0, 2, 1)
         Q0D = np.matmul(Qb, D).reshape(m, r0 * nd)
         eD = np.matmul(Dt, e0[3 * blk.start : 3 * blk.stop].reshape(m, 3, 1))[:, :, 0]  # (m, nd)
         P = Phi[blk]

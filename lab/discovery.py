@@ -73,18 +73,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from arm.description import RobotDescription
-from arm.effects import REFERENCE_TEMPERATURE, Effect, JointAngleEffect
+from arm.effects import (
+    FAST_PARTS,
+    MAX_ORDER,
+    REFERENCE_TEMPERATURE,
+    Effect,
+    JointAngleEffect,
+    order_reading,
+)
 from arm.files import atomic_write_text
 from arm.measurements import MeasurementSet, as_measurements
 from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
 from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
+from lab.repeatability import Repeatability, implied_noise_text, noise_floor, noise_p_value
 from lab.result import SCHEMA_VERSION, FitResult
-from lab.screening import Screen, screen, screened
-from lab.selection import ForwardSelection, hat_blocks, press_rms
+from lab.screening import Screen, outlier_radius, screen, screened
+from lab.spectral import DEFAULT_ORDER as SCAN_ORDER
+from lab.spectral import MAX_TERMS, CyclicScan, ExtraColumns, cyclic_scan, problem_of_fit
 
 __all__ = [
     "DEFAULT_ORDER",
@@ -93,20 +101,21 @@ __all__ = [
     "LibraryTerm",
     "Term",
     "discover",
+    "harmonic_terms",
     "library_problem",
     "library_terms",
 ]
 
 log = logging.getLogger(__name__)
 
-DEFAULT_ORDER = 4  # harmonics sin/cos(m q_j), m = 1..4
+DEFAULT_ORDER = SCAN_ORDER  # harmonics sin/cos(m q_j), m = 1..64 (fewer where unresolved)
 # Shares of alpha (see the module docstring): the term tests (Bonferroni over the candidates) and,
 # with the noise known, the chi-square test of the residual; the union bound keeps the family-wise
 # false-discovery rate at most 3/4 alpha (a margin below alpha). The chi-square share is the
 # diagnosis's, so both call the same residual consistent with the noise.
 TERMS_SHARE = 0.25
 CHI2_SHARE = 0.5
-MAX_STEPS = 6  # at most this many candidates (a harmonic pair counts once) are selected
+MAX_STEPS = MAX_TERMS  # at most this many candidates (a harmonic pair counts once) are selected
 _MOVES_NOTHING = 1e-12  # m RMS per pose: a term on a joint whose angle moves no measured point
 
 
@@ -144,6 +153,7 @@ class Term:
     std: float | None
     variables: tuple[str, ...]
     reading: str
+    alternatives: tuple[str, ...] = ()  # the terms the data cannot tell from this one
 
     def to_dict(self) -> dict:
         return {
@@ -154,18 +164,31 @@ class Term:
             "variables": list(self.variables),
             "parameter": self.name,
             "reading": self.reading,
+            "alternatives": list(self.alternatives),
         }
 
 
 def _ordinal(m: int) -> str:
-    return {1: "1st", 2: "2nd", 3: "3rd"}.get(m, f"{m}th")
+    if 10 <= m % 100 <= 20:
+        return f"{m}th"
+    return f"{m}" + {1: "st", 2: "nd", 3: "rd"}.get(m % 10, "th")
 
 
-_HARMONIC_READING = {
-    1: "gear or encoder eccentricity (the catalogue's transmission)",
-    2: "strain-wave gear (elliptical flexspline) or encoder eccentricity",
-    3: "a three-lobed shape of a bearing race or wave generator",
-}
+def harmonic_terms(joint: int, m: int) -> list[LibraryTerm]:
+    """The sine and cosine of order ``m`` of joint ``joint`` as library terms (``k_sin3q1``)."""
+    q = f"q{joint}"
+    if m <= 3:
+        reading = f"{_ordinal(m)} harmonic of joint {joint}: {order_reading(m)}"
+    else:  # one reading for the higher orders of a joint: the CLI and the module group by it
+        reading = f"a harmonic of order 4 or more of joint {joint}: {FAST_PARTS}"
+    mq = q if m == 1 else f"{m}*{q}"
+    mc = "q" if m == 1 else f"{m} * q"
+    return [
+        LibraryTerm(
+            joint, f"k_{fn}{m}q", f"{fn}({mq})", f"np.{fn}({mc})", (q,), f"h{m}{q}", reading
+        )
+        for fn in ("sin", "cos")
+    ]
 
 
 def _varies(v: np.ndarray) -> bool:
@@ -184,17 +207,7 @@ def library_terms(
     for j in range(1, 7):
         q = f"q{j}"
         for m in range(1, order + 1):
-            reading = f"{_ordinal(m)} harmonic of joint {j}: " + _HARMONIC_READING.get(
-                m, "a gear or encoder error repeating that often per turn"
-            )
-            mq = q if m == 1 else f"{m}*{q}"
-            mc = "q" if m == 1 else f"{m} * q"
-            for fn in ("sin", "cos"):
-                out.append(
-                    LibraryTerm(
-                        j, f"k_{fn}{m}q", f"{fn}({mq})", f"np.{fn}({mc})", (q,), f"h{m}{q}", reading
-                    )
-                )
+            out += harmonic_terms(j, m)
         out.append(
             LibraryTerm(
                 j,
@@ -354,6 +367,22 @@ class Discovery:
     selected: list[LibraryTerm] = field(default_factory=list)
     effect_module: str | None = None
     source: str = "<memory>"
+    # what the sampling of the joints cannot resolve (grid-sampled joints alias high orders)
+    notes: list[str] = field(default_factory=list)
+    scan: CyclicScan | None = field(default=None, repr=False)
+    # where noise_mm came from ("stated", "repeated poses" or None), the scatter of repeated
+    # poses, and, when nothing the library holds is left but the residual is above noise_mm,
+    # the per-axis noise the residual implies (mm)
+    noise_source: str | None = None
+    repeatability: Repeatability | None = None
+    implied_noise_mm: float | None = None
+
+    @property
+    def noise_note(self) -> str | None:
+        """``no structure is left: the residual is noise of ..., 6 % above ...``, or None."""
+        if self.implied_noise_mm is None or self.noise_mm is None:
+            return None
+        return implied_noise_text(self.implied_noise_mm, self.noise_mm, self.noise_source)
 
     @property
     def effects(self) -> list[str]:
@@ -434,6 +463,10 @@ class Discovery:
             "p_value": self.p_value,
             "n_points": self.base.n_points,
             "source": self.source,
+            "notes": list(self.notes),
+            "noise_source": self.noise_source,
+            "repeatability": None if self.repeatability is None else self.repeatability.to_dict(),
+            "implied_noise_mm": self.implied_noise_mm,
         }
 
     def summary(self) -> str:
@@ -640,56 +673,47 @@ def discover(
         max_evaluations=max_evaluations,
         register=register,
     )
-    if not 1 <= order <= 12:
-        raise FitError(f"order (the highest harmonic) must lie in 1..12, got {order}")
+    if not 1 <= order <= MAX_ORDER:
+        raise FitError(f"order (the highest harmonic) must lie in 1..{MAX_ORDER}, got {order}")
     if not _NAME.fullmatch(name) or keyword.iskeyword(name):
         raise FitError(f"effect name {name!r} must be lower-case letters, digits and _")
     s = screened(data, robot, effects, opts, tests=False)
-    noise_mm = s.options.noise_mm
+    # the noise the tests use: the stated one, else the scatter of repeated poses
+    floor = noise_floor(s.options.noise_mm, s.kept)
+    noise_mm = floor.noise_mm
     res = s.fit
     data = s.kept  # without the rows the screen left out (duplicates, outliers)
     if name in res.model.layout.effects:
         raise FitError(f"the model already has an effect named {name!r}; choose another name")
-    N = res.n_points
-    prob = library_problem(data, res, order)
-    e0, X, kept, groups = prob.residual, prob.columns, prob.terms, prob.groups
-    rss0 = float(e0 @ e0)
-    dof0 = 3 * N - prob.model_basis.shape[1]
-    H0 = hat_blocks(prob.model_basis)
-    cv0 = press_rms(e0, H0)
-    Jq, tau = prob.joint_jacobian, res.inputs.tau
-    bases = {g: orthonormal_basis(X[:, idx]) for g, idx in groups.items()}
-    bases = {g: b for g, b in bases.items() if b.shape[1]}
-    M = len(bases)
+    # the library's other terms (torques, temperature, ...) join the scan of every joint's
+    # harmonics as candidates of their own (lab.spectral: one vectorised selection)
+    tau = res.inputs.tau
+    others = library_terms(data, tau, order=0)
+    extras = _extra_columns(others, data, tau)
     # without the noise there is no chi-square test: the terms get both shares
-    level_terms = (
-        (TERMS_SHARE if noise_mm is not None else TERMS_SHARE + CHI2_SHARE) * alpha / max(M, 1)
+    share = TERMS_SHARE if noise_mm is not None else TERMS_SHARE + CHI2_SHARE
+    scan = cyclic_scan(
+        problem_of_fit(res), order, alpha=share * alpha, extras=extras, max_terms=MAX_STEPS
     )
+    M = scan.n_candidates
+    rss0, dof0 = scan.rss0, scan.dof0
+    # in the library's order (harmonics by order, then tau2 before tau2^3; joints in turn)
+    rank = {t.group: k for k, t in enumerate(others)}
+    selected: list[LibraryTerm] = []
+    alternatives: dict[str, tuple[str, ...]] = {}
+    for st in sorted(scan.terms, key=lambda t: (t.joint, t.order or 0, rank.get(t.key or "", -1))):
+        if st.order is not None:
+            found = harmonic_terms(st.joint, st.order)
+        else:
+            found = [t for t in others if t.group == st.key]
+        selected += found
+        alts = tuple(_alternative(a) for a in st.alternatives)
+        for t in found:
+            alternatives[t.name] = alts
+    for st in scan.terms:
+        log.debug("discovery: %s (p = %.3g)", st.label, st.p_value)
 
-    sel = ForwardSelection(e0, rss0, dof0, H0, cv0)
-    chosen: list[str] = []
-    first_p = 1.0  # the first step's smallest p-value among terms that predict better
-    while len(chosen) < MAX_STEPS:
-        best = None
-        for g, b in bases.items():
-            if g in chosen:
-                continue
-            t = sel.trial(b)
-            if not chosen and t is not None and t[0] < sel.cv:
-                first_p = min(first_p, t[1])
-            if t is not None and t[1] <= level_terms and t[0] < sel.cv:
-                if best is None or t[0] < best[0][0]:
-                    best = (t, g)
-        if best is None:
-            break
-        sel.add(best[0][0], best[0][2])
-        chosen.append(best[1])
-        log.debug("discovery: %s (p = %.3g)", best[1], best[0][1])
-
-    sigma = None if noise_mm is None else noise_mm * 1e-3
-    chi2_p = None if sigma is None else float(stats.chi2.sf(rss0 / sigma**2, max(dof0, 1)))
-    # in the library's order (tau2 before tau2^3, joints in turn), not the order selected
-    selected = [t for t in kept if t.group in chosen]
+    chi2_p = noise_p_value(rss0, dof0, floor)
     disc = Discovery(
         base=res,
         verdict="none",
@@ -700,26 +724,43 @@ def discover(
         n_candidates=M,
         effect_name=name,
         chi2_p_value=chi2_p,
-        p_value=min(1.0, first_p * max(M, 1)),
+        p_value=min(1.0, scan.first_p * max(M, 1)),
         selected=selected,
         source=data.source,
+        notes=scan.notes() + list(scan.implausible),
+        scan=scan,
+        noise_source=floor.source,
+        repeatability=floor.repeatability,
     )
     if not selected:
         if chi2_p is not None and chi2_p < CHI2_SHARE * alpha:
-            disc.verdict = "unexplained"
+            # above the noise: structure the library does not hold, or only noise (more of it
+            # than stated) when no candidate is left that the residual depends on
+            if scan.exhausted and _noise_like(scan.residual):
+                disc.verdict = "noise"
+                disc.implied_noise_mm = 1e3 * math.sqrt(rss0 / max(dof0, 1))
+            else:
+                disc.verdict = "unexplained"
         if validate is not None:
             disc.base = res.validate(as_measurements(validate))
         log.info("%s", disc.summary())
         return disc
 
     # refit E plus the discovered effect, written as the module a user gets
-    disc.terms = [
-        Term(t.joint, t.name, t.expression, 0.0, None, t.variables, t.reading) for t in selected
-    ]
     # first pass: sizes for the module's typical ranges from the linear selection
+    _, Jq = res.model.joint_jacobian(res.inputs, res.params)
     amp = _linear_coefficients(res, Jq, selected, data, tau)
     disc.terms = [
-        Term(t.joint, t.name, t.expression, float(a), None, t.variables, t.reading)
+        Term(
+            t.joint,
+            t.name,
+            t.expression,
+            float(a),
+            None,
+            t.variables,
+            t.reading,
+            alternatives[t.name],
+        )
         for t, a in zip(selected, amp, strict=True)
     ]
     cls = _load_class(disc.module_source(), name)
@@ -731,20 +772,63 @@ def discover(
     std = refit.standard_errors()
     disc.refit = refit
     disc.terms = [
-        Term(t.joint, t.name, t.expression, refit[t.name], std[t.name], t.variables, t.reading)
+        Term(
+            t.joint,
+            t.name,
+            t.expression,
+            refit[t.name],
+            std[t.name],
+            t.variables,
+            t.reading,
+            alternatives[t.name],
+        )
         for t in selected
     ]
-    if sigma is not None:
+    if noise_mm is not None:
         rss = float(np.sum(refit.residuals**2))
-        disc.chi2_p_value_after = float(
-            stats.chi2.sf(rss / sigma**2, max(refit.residuals.size - refit.rank, 1))
-        )
-        ok = disc.chi2_p_value_after >= CHI2_SHARE * alpha
-        disc.verdict = "discovered" if ok else "unexplained"
+        dof = max(refit.residuals.size - refit.rank, 1)
+        disc.chi2_p_value_after = noise_p_value(rss, dof, floor)
+        ok = (disc.chi2_p_value_after or 0.0) >= CHI2_SHARE * alpha
+        # the rest is noise (more of it than stated) where nothing of the library is left and
+        # no pose misses grossly
+        noise = not ok and scan.exhausted and _noise_like(refit.residuals.reshape(-1))
+        if noise:
+            disc.implied_noise_mm = 1e3 * math.sqrt(rss / dof)
+        disc.verdict = "discovered" if ok or noise else "unexplained"
     else:
         disc.verdict = "discovered"
     log.info("%s", disc.summary())
     return disc
+
+
+def _noise_like(e: np.ndarray) -> bool:
+    """No pose of the residual ``e`` (3N) lies beyond the outlier radius of its own scale."""
+    r = e.reshape(-1, 3)
+    s2 = float(np.sum(r**2)) / max(r.size, 1)
+    return bool(np.max(np.sum(r**2, axis=1)) <= outlier_radius(len(r)) ** 2 * s2)
+
+
+def _extra_columns(
+    terms: Sequence[LibraryTerm], data: MeasurementSet, tau: np.ndarray
+) -> list[ExtraColumns]:
+    """The library's terms other than the harmonics as the scan's candidates: per joint, each
+    group (one term, or the sine and cosine of one product) one candidate."""
+    out = []
+    for j in range(1, 7):
+        ts = [t for t in terms if t.joint == j]
+        if not ts:
+            continue
+        values = np.column_stack([_evaluate(t.code, data.q, tau, data.columns, j) for t in ts])
+        keys = list(dict.fromkeys(t.group for t in ts))
+        groups = tuple(tuple(k for k, t in enumerate(ts) if t.group == g) for g in keys)
+        out.append(ExtraColumns(j, values, groups, tuple(keys)))
+    return out
+
+
+def _alternative(a: tuple[int, int | str]) -> str:
+    """``order 26 of joint 1``, or a library term's group."""
+    joint, what = a
+    return f"order {what} of joint {joint}" if isinstance(what, int) else f"{what} (joint {joint})"
 
 
 @dataclass(frozen=True)

@@ -379,8 +379,24 @@ def _diagnosis_html(run: ModelRun, r: LabReport, k: int) -> str:
     if d.chi2_p_value is not None:
         facts.append(f"χ² test of the residual against the noise: p = {d.chi2_p_value:.3g}")
     out.append(f"<p>{'; '.join(facts)}.</p>")
+    if d.noise_note:
+        out.append(f"<p>{_e(d.noise_note)}.</p>")
     if d.suggestion:
         out.append(f"<p>Next model: <code>--effects {_e(d.suggestion)}</code></p>")
+    if d.readings:
+        orders = "; ".join(
+            f"joint {j}: {', '.join(map(str, ks))}" for j, ks in d.cyclic_orders.items()
+        )
+        out.append(
+            f"<p>Cyclic errors found (orders per turn: {_e(orders)}), and what such an order "
+            "usually is:</p><ul>" + "".join(f"<li>{_e(r)}</li>" for r in d.readings) + "</ul>"
+        )
+    if d.notes:
+        out.append(
+            "<p>What the data cannot resolve:</p><ul>"
+            + "".join(f"<li>{_e(n)}</li>" for n in d.notes)
+            + "</ul>"
+        )
     elif d.verdict == "unexplained":
         out.append(
             '<p class="warn">The residual is above the noise floor and no catalogued effect '

@@ -55,6 +55,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import sparse, stats
 
+from arm.params import parameter_unit
 from lab.identifiability import orthonormal_basis
 
 __all__ = [
@@ -63,6 +64,7 @@ __all__ = [
     "CyclicScan",
     "ExtraColumns",
     "JointSampling",
+    "Prior",
     "ScanTerm",
     "cyclic_scan",
     "joint_sampling",
@@ -87,15 +89,17 @@ class CyclicProblem:
     """A fit's linear least-squares problem, row by row (all arrays weighted alike).
 
     ``residual`` (m,): the residual rows; ``model`` (m, p): the model's (identifiable) columns,
-    whose span the fit explains; ``joint`` (m, 6): each row's derivative by the effective joint
-    angles theta_1..6; ``pose`` (m,): the pose of each row, 0..N-1; ``q`` (N, 6): the joint
-    angles (rad) of each pose."""
+    whose span the fit explains (``orthonormal``: they are orthonormal already, and the scan
+    uses them as they are, without a copy); ``joint`` (m, 6): each row's derivative by the
+    effective joint angles theta_1..6; ``pose`` (m,): the pose of each row, 0..N-1; ``q`` (N,
+    6): the joint angles (rad) of each pose."""
 
     residual: np.ndarray
     model: np.ndarray
     joint: np.ndarray
     pose: np.ndarray
     q: np.ndarray
+    orthonormal: bool = False
 
     def __post_init__(self) -> None:
         m = self.residual.shape[0]
@@ -115,19 +119,20 @@ class CyclicProblem:
 
 
 def problem_of_fit(result) -> CyclicProblem:
-    """The problem of a :class:`lab.FitResult`: its residual rows, its identifiable Jacobian
-    columns (scaled as the identifiability analysis scales them) and d point / d theta at the
-    fitted parameters, three rows (x, y, z) per pose."""
+    """The problem of a :class:`lab.FitResult`: its residual rows, an orthonormal basis of its
+    identifiable Jacobian columns and d point / d theta at the fitted parameters, three rows
+    (x, y, z) per pose."""
     n = result.n_points
     free = result.identifiable
     J = result.jacobian[:, :, free] * result.identifiability.scale[free]
     _, Jq = result.model.joint_jacobian(result.inputs, result.params)
     return CyclicProblem(
         residual=np.asarray(result.residuals, dtype=float).reshape(-1),
-        model=J.reshape(3 * n, -1),
+        model=orthonormal_basis(J.reshape(3 * n, -1), overwrite=True),
         joint=Jq.reshape(3 * n, 6),
         pose=np.repeat(np.arange(n), 3),
         q=np.asarray(result.inputs.q, dtype=float),
+        orthonormal=True,
     )
 
 
@@ -264,6 +269,16 @@ class CyclicScan:
     first_p: float
     level: float
     residual: np.ndarray = field(repr=False)
+    # candidates passed over: with them, a parameter would go beyond its plausible bound
+    implausible: list[str] = field(default_factory=list)
+    # why the scan stopped (CyclicScanner.stop)
+    stop: str | None = None
+
+    @property
+    def exhausted(self) -> bool:
+        """Whether no candidate is left that the residual significantly depends on (the scan
+        did not stop at ``max_terms``)."""
+        return self.stop in ("not significant", "no better held-out", "no candidates")
 
     @property
     def harmonics(self) -> dict[int, list[int]]:
@@ -312,6 +327,18 @@ class _Layout:
         return out
 
 
+def _powers(z: np.ndarray, K: int) -> np.ndarray:
+    """(n, K): z, z^2, ..., z^K, by doubling (log2 K products of blocks)."""
+    Z = np.empty((len(z), K), dtype=complex)
+    Z[:, 0] = z
+    n = 1
+    while n < K:
+        m = min(n, K - n)
+        np.multiply(Z[:, :m], Z[:, n - 1 : n], out=Z[:, n : n + m])
+        n += m
+    return Z
+
+
 def _hat(Qp: np.ndarray) -> np.ndarray:
     return np.matmul(Qp, Qp.transpose(0, 2, 1))
 
@@ -337,7 +364,18 @@ class _Candidates:
     ) -> None:
         self.prob, self.lay, self.orders = prob, lay, orders
         self.extras = {j: [x for x in extras if x.joint == j] for j in range(1, 7)}
-        joint, order, key, ia, ib = [], [], [], [], []
+        self.z = np.exp(1j * prob.q)  # (N, 6): the first harmonic of every joint
+        self._extra_at: dict[int, int] = {}  # where each extra's columns start, per joint
+        for j in range(1, 7):
+            at = 0
+            for x in self.extras[j]:
+                self._extra_at[id(x)] = at
+                at += x.values.shape[1]
+        joint: list[int] = []
+        order: list[int | None] = []
+        key: list[str | None] = []
+        ia: list[int] = []
+        ib: list[int] = []
         self.offset: dict[int, int] = {}  # where each joint's columns start (harmonics first)
         self.ncols: dict[int, int] = {}
         col = 0
@@ -346,7 +384,7 @@ class _Candidates:
             self.offset[j] = col
             ks = np.arange(1, K + 1)
             joint += [j] * K
-            order += ks.tolist()
+            order += [int(k) for k in ks]
             key += [None] * K
             ia += (col + ks - 1).tolist()  # cos(k q)
             ib += (col + K + ks - 1).tolist()  # sin(k q)
@@ -362,8 +400,8 @@ class _Candidates:
             self.ncols[j] = c - col
             col = c
         self.joint = np.array(joint, dtype=int)
-        self.order: list[int | None] = order
-        self.key: list[str | None] = key
+        self.order = order
+        self.key = key
         self.ia = np.array(ia, dtype=int)
         self.ib = np.array(ib, dtype=int)
         self.total = col
@@ -384,20 +422,27 @@ class _Candidates:
         qj = self.prob.q[sl, j - 1]
         parts = []
         if K:
-            z = np.exp(1j * qj)
-            Z = np.cumprod(np.broadcast_to(z[:, None], (len(qj), K)), axis=1)
+            Z = _powers(self.z[sl, j - 1], K)
             parts += [Z.real, Z.imag]
         parts += [x.values[sl] for x in self.extras[j]]
         return np.hstack(parts) if parts else np.zeros((len(qj), 0))
 
     def project(self, A: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
-        """Per joint j, ``A[j]^T F_j`` ((k, columns)) for per-pose weights A[j] (N, k)."""
+        """Per joint j, ``A[j]^T F_j`` ((k, columns)) for per-pose weights A[j] (N, k): the
+        harmonics as one complex product (a non-uniform Fourier sum), block by block."""
         out = {}
         for j, a in A.items():
+            K = self.orders.get(j, 0)
             acc = np.zeros((a.shape[1], self.ncols[j]))
+            h = np.zeros((a.shape[1], K), dtype=complex)
             for s in range(0, self.lay.n, _BLOCK):
                 sl = slice(s, s + _BLOCK)
-                acc += a[sl].T @ self.functions(j, sl)
+                if K:
+                    h += a[sl].T @ _powers(self.z[sl, j - 1], K)
+                for x in self.extras[j]:
+                    c = 2 * K + self._extra_at[id(x)]
+                    acc[:, c : c + x.values.shape[1]] += a[sl].T @ x.values[sl]
+            acc[:, :K], acc[:, K : 2 * K] = h.real, h.imag
             out[j] = acc
         return out
 
@@ -476,14 +521,330 @@ class _Candidates:
         )
         return np.where(ok, ss, 0.0), np.where(ok, k, 0), p
 
-    def columns(self, i: int) -> np.ndarray:
-        """The candidate's columns (m, 1 or 2), explicitly."""
+    def values(self, i: int, rows: slice = slice(None)) -> np.ndarray:
+        """The candidate's per-row functions (rows, 1 or 2): cos(k q), sin(k q) of a harmonic,
+        an extra's values."""
         j = int(self.joint[i])
-        o = self.offset[j]
-        F = self.functions(j, slice(None))
+        pose = self.prob.pose[rows]
+        k = self.order[i]
+        if k is not None:
+            angle = k * self.prob.q[pose, j - 1]
+            return np.column_stack([np.cos(angle), np.sin(angle)])
+        o = self.offset[j] + 2 * self.orders.get(j, 0)
         cols = [self.ia[i] - o] + ([self.ib[i] - o] if self.ib[i] >= 0 else [])
-        f = F[self.prob.pose][:, cols]
-        return self.prob.joint[:, j - 1 : j] * f
+        values = np.hstack([x.values for x in self.extras[j]])
+        return values[pose][:, cols]
+
+    def columns(self, i: int, rows: slice = slice(None)) -> np.ndarray:
+        """The candidate's columns (rows, 1 or 2), explicitly: D_j times its functions."""
+        j = int(self.joint[i])
+        return self.prob.joint[rows, j - 1 : j] * self.values(i, rows)
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Columns already in the explanation beside the model (a diagnosis's catalogued effects):
+    ``columns`` (m, p) raw or with the model's span projected out (the same coefficients, by
+    Frisch-Waugh-Lovell), their parameters' ``names``, ``nominal`` values and plausible
+    ``bounds`` (NaN: none)."""
+
+    columns: np.ndarray
+    names: tuple[str, ...]
+    nominal: np.ndarray
+    bounds: np.ndarray
+
+
+class _Explanation:
+    """The columns chosen beside the model, Y (m, p), as orthonormal blocks ``Qall`` (each m x k,
+    the model's span and the blocks before projected out) and the triangular factor ``R`` with
+    Y (model's span projected out) = Qall R; ``c = Qall^T e0``; the parameters' names, nominal
+    values and plausible bounds. The linearised estimate of every parameter is nominal minus
+    ``lstsq(R, c)``, from these small matrices alone."""
+
+    def __init__(self, Q0: np.ndarray, e0: np.ndarray) -> None:
+        self.Q0, self.e0 = Q0, e0
+        self.blocks: list[np.ndarray] = []
+        self.R = np.zeros((0, 0))
+        self.c = np.zeros(0)
+        self.names: list[str] = []
+        self.nominal: list[float] = []
+        self.bounds: list[float] = []
+
+    def _against(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """x minus its projections on the model's span and the blocks (in x's memory), and its
+        coefficients on the blocks (q, k)."""
+        x -= self.Q0 @ (self.Q0.T @ x)
+        r = [B.T @ x for B in self.blocks]
+        for B, rb in zip(self.blocks, r, strict=True):
+            x -= B @ rb
+        return x, np.vstack(r) if r else np.zeros((0, x.shape[1]))
+
+    def trial(self, X: np.ndarray):
+        """New raw columns ``X`` (m, k): their orthonormal block with everything chosen
+        projected out, the factors that add them, and the coefficients of Y and X fitting e0."""
+        x, r = self._against(np.array(X, dtype=float))
+        x, r2 = self._against(x)  # twice is enough (Gram-Schmidt)
+        r = r + r2
+        Qn = orthonormal_basis(x.copy(), overwrite=True)
+        Rnn = Qn.T @ x
+        q, p = self.R.shape
+        R = np.zeros((q + Qn.shape[1], p + X.shape[1]))
+        R[:q, :p] = self.R
+        R[:q, p:] = r
+        R[q:, p:] = Rnn
+        c = np.concatenate([self.c, Qn.T @ self.e0])
+        coef = np.linalg.lstsq(R, c, rcond=1e-12)[0]
+        return Qn, R, c, coef
+
+    def add(self, Qn: np.ndarray, R: np.ndarray, c: np.ndarray, names, nominal, bounds) -> None:
+        if Qn.shape[1]:
+            self.blocks.append(Qn)
+        self.R, self.c = R, c
+        self.names += list(names)
+        self.nominal += [float(v) for v in nominal]
+        self.bounds += [float(b) for b in bounds]
+
+    def beyond(self, coef: np.ndarray, names, bounds, nominal) -> list[str]:
+        """``name = value (bound)`` of the parameters beyond their bound, the linearised
+        estimate being nominal minus the coefficient (the fit steps against the residual)."""
+        allnames = self.names + list(names)
+        values = np.array(self.nominal + [float(v) for v in nominal]) - coef
+        bound = np.array(self.bounds + [float(b) for b in bounds], dtype=float)
+        bad = np.flatnonzero(np.isfinite(bound) & (np.abs(values) > bound))
+        out = []
+        for k in bad:
+            unit = parameter_unit(allnames[k])
+            if unit == "rad":
+                out.append(
+                    f"{allnames[k]} = {values[k] * 1e3:+.4g} mrad (bound {bound[k] * 1e3:g} mrad)"
+                )
+            else:
+                out.append(f"{allnames[k]} = {values[k]:+.4g} {unit} (bound {bound[k]:.3g})")
+        return out
+
+
+@dataclass
+class Proposal:
+    """The scan's next term, tried but not yet taken: candidate ``index``, its columns with
+    everything chosen projected out (``basis``, orthonormal), the residual and hat blocks after
+    it, its F-test p-value, and what :meth:`CyclicScanner.accept` needs."""
+
+    index: int
+    basis: np.ndarray
+    residual: np.ndarray
+    hat: np.ndarray
+    cv: float
+    p_value: float
+    ss: float
+    k: int
+    factors: tuple[np.ndarray, np.ndarray]
+    names: list[str]
+    bounds: list[float]
+
+
+class CyclicScanner:
+    """The scan as a sequence of steps (:func:`cyclic_scan` runs them to the end): ``propose``
+    the next term, ``accept`` it; columns chosen elsewhere (a diagnosis's catalogued effects) join
+    the explanation with ``add_columns``, and ``implausible`` says what a set of columns would do
+    to the plausibility of the explanation. See :func:`cyclic_scan` for the arguments."""
+
+    def __init__(
+        self,
+        problem: CyclicProblem,
+        order: int = DEFAULT_ORDER,
+        level: float | None = None,
+        *,
+        alpha: float = 0.02,
+        extras: Sequence[ExtraColumns] = (),
+        joints: Sequence[int] = (1, 2, 3, 4, 5, 6),
+        max_terms: int = MAX_TERMS,
+        alias_level: float = ALIAS_LEVEL,
+        prior: Prior | None = None,
+        bound: float | None = None,
+    ) -> None:
+        if order < 1:
+            raise ValueError(f"order must be at least 1, got {order}")
+        prob = problem
+        self.prob, self.order, self.max_terms = prob, order, max_terms
+        self.alias_level, self.bound = alias_level, bound
+        n = self.n = prob.n_poses
+        self.lay = lay = _Layout(prob.pose, n)
+        self.sampling = {j: joint_sampling(prob.q, j, order) for j in range(1, 7)}
+        moves = np.sqrt(np.asarray(lay.sum @ (prob.joint**2)).sum(axis=0) / max(n, 1))
+        self.orders = {
+            j: (self.sampling[j].resolvable if j in joints and moves[j - 1] > 0 else 0)
+            for j in range(1, 7)
+        }
+        Q0 = prob.model
+        if not prob.orthonormal:
+            Q0 = orthonormal_basis(np.array(prob.model), overwrite=True)
+        e0 = prob.residual - Q0 @ (Q0.T @ prob.residual)
+        self.cand = _Candidates(prob, lay, self.orders, extras)
+        self.cand.initialise(Q0, e0)
+        self.expl = _Explanation(Q0, e0)
+        self.e = e0
+        self.H = _hat(lay.pad(Q0))
+        self.dof = len(e0) - Q0.shape[1]
+        self.rss = float(e0 @ e0)
+        if prior is not None and prior.columns.shape[1]:
+            self.add_columns(prior.columns, list(prior.names), prior.nominal, prior.bounds)
+        self.rss0, self.dof0 = self.rss, self.dof
+        self.cv = self.cv0 = _loo_rms(lay.pad(self.e), self.H)
+        self._scores: tuple[np.ndarray, np.ndarray, np.ndarray] | None = self.cand.scores(
+            self.rss, self.dof
+        )
+        _, k, p = self._scores
+        self.M = int(np.count_nonzero(k))
+        self.level = float(alpha / max(self.M, 1) if level is None else level)
+        self.first_p = float(p.min()) if len(p) else 1.0
+        self.terms: list[ScanTerm] = []
+        self.implausible_terms: list[str] = []
+        self.done: set[int] = set()
+        # why the last proposal was none: "not significant", "no better held-out",
+        # "max_terms" or "no candidates"
+        self.stop: str | None = None
+
+    # -- the explanation ------------------------------------------------------------------------
+    def _step(self, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        b = basis.T @ self.e
+        return b, self.e - basis @ b, self.H + _hat(self.lay.pad(basis))
+
+    def add_columns(
+        self, X: np.ndarray, names: list[str], nominal: np.ndarray, bounds: np.ndarray
+    ) -> None:
+        """Columns ``X`` (m, k) (raw, or with the model's span projected out) chosen elsewhere
+        join the explanation, with their parameters' names, nominal values and bounds."""
+        Qn, R, c, _ = self.expl.trial(X)
+        self.expl.add(Qn, R, c, names, nominal, bounds)
+        if Qn.shape[1]:
+            b, self.e, self.H = self._step(Qn)
+            self.cand.add(Qn, b)
+            self.dof -= Qn.shape[1]
+            self.rss = float(self.e @ self.e)
+        self.cv = _loo_rms(self.lay.pad(self.e), self.H)
+        self._scores = None
+
+    def implausible(self, X: np.ndarray, names: list[str], nominal, bounds) -> list[str]:
+        """The parameters of the explanation and of columns ``X`` beyond their bounds, at the
+        linearised estimate of the explanation with ``X``."""
+        coef = self.expl.trial(X)[3]
+        return self.expl.beyond(coef, names, bounds, nominal)
+
+    # -- the steps ------------------------------------------------------------------------------
+    def propose(self) -> Proposal | None:
+        """The next term: among the candidates not yet taken, the smallest p-value whose
+        parameters stay plausible; None when it is not significant at the level, does not lower
+        the leave-one-pose-out RMS, or the scan has its ``max_terms``."""
+        if len(self.terms) >= self.max_terms:
+            self.stop = "max_terms"
+            return None
+        if not len(self.cand):
+            self.stop = "no candidates"
+            return None
+        cand = self.cand
+        while True:
+            if self._scores is None:
+                self._scores = cand.scores(self.rss, self.dof)
+            ss, k, p = self._scores
+            p = p.copy()
+            p[list(self.done)] = 1.0
+            i = int(np.lexsort((-ss, p))[0])  # the smallest p-value, the largest ss among ties
+            if not (k[i] > 0 and p[i] <= self.level):
+                self.stop = "not significant"
+                return None
+            j, o_i = int(cand.joint[i]), cand.order[i]
+            x = cand.columns(i)
+            if o_i is not None:  # the columns are cos(k q), sin(k q): amplitudes cc, cs
+                names = [f"cc{j}_{o_i}", f"cs{j}_{o_i}"]
+            else:
+                names = [f"{cand.key[i]}:{c}" for c in range(x.shape[1])]
+            use = self.bound is not None and o_i is not None
+            bounds = [float(self.bound) if use else np.nan] * x.shape[1]  # type: ignore[arg-type]
+            Qn, R, c, coef = self.expl.trial(x)
+            bad = self.expl.beyond(coef, names, bounds, [0.0] * len(names))
+            if bad:
+                label = f"cyclic[{j}:{o_i}]" if o_i is not None else f"{cand.key[i]}"
+                self.implausible_terms.append(f"{label}: {', '.join(bad)}")
+                self.done.add(i)
+                continue
+            if Qn.shape[1] == 0:
+                self.done.add(i)
+                continue
+            _, e_new, H_new = self._step(Qn)
+            cv_new = _loo_rms(self.lay.pad(e_new), H_new)
+            if not cv_new < self.cv:
+                self.stop = "no better held-out"
+                return None
+            return Proposal(
+                i,
+                Qn,
+                e_new,
+                H_new,
+                cv_new,
+                float(p[i]),
+                float(ss[i]),
+                int(k[i]),
+                (R, c),
+                names,
+                bounds,
+            )
+
+    def accept(self, pr: Proposal) -> ScanTerm:
+        """Take a proposed term."""
+        cand, i = self.cand, pr.index
+        ss, k, _ = self._scores if self._scores is not None else cand.scores(self.rss, self.dof)
+        j, o_i = int(cand.joint[i]), cand.order[i]
+        # the candidates the data cannot tell from this one, at this step
+        s2 = (self.rss - pr.ss) / max(self.dof - pr.k, 1)
+        tie = ss >= pr.ss - s2 * stats.chi2.ppf(1.0 - self.alias_level, max(pr.k, 1))
+        tie[i] = False
+        tie &= k > 0
+        alts: list[tuple[int, int | str]] = []
+        for t in np.flatnonzero(tie):
+            o_t = cand.order[t]
+            alts.append((int(cand.joint[t]), o_t if o_t is not None else str(cand.key[t])))
+        if o_i is not None:
+            alts += [(j, a) for a in self.sampling[j].aliases(o_i, self.order)]
+        rss_new = float(pr.residual @ pr.residual)
+        term = ScanTerm(
+            joint=j,
+            order=o_i,
+            key=cand.key[i],
+            p_value=pr.p_value,
+            explained=self.rss - rss_new,
+            rms_after=math.sqrt(rss_new / max(self.n, 1)),
+            cv_after=pr.cv,
+            alternatives=tuple(dict.fromkeys(alts)),
+        )
+        self.terms.append(term)
+        log.debug("scan: %s (p = %.3g, %d alternatives)", term.label, pr.p_value, len(alts))
+        cand.add(pr.basis, pr.basis.T @ self.e)
+        R, c = pr.factors
+        self.expl.add(pr.basis, R, c, pr.names, [0.0] * len(pr.names), pr.bounds)
+        self.e, self.H, self.cv, self.rss = pr.residual, pr.hat, pr.cv, rss_new
+        self.dof -= pr.basis.shape[1]
+        self.done.add(i)
+        self._scores = None
+        return term
+
+    def result(self) -> CyclicScan:
+        return CyclicScan(
+            terms=list(self.terms),
+            n_candidates=self.M,
+            orders=self.orders,
+            sampling=self.sampling,
+            rss0=self.rss0,
+            dof0=self.dof0,
+            rss=self.rss,
+            dof=self.dof,
+            cv0=self.cv0,
+            cv=self.cv,
+            first_p=self.first_p,
+            level=self.level,
+            residual=self.e,
+            implausible=list(self.implausible_terms),
+            stop=self.stop,
+        )
 
 
 def cyclic_scan(
@@ -496,101 +857,27 @@ def cyclic_scan(
     joints: Sequence[int] = (1, 2, 3, 4, 5, 6),
     max_terms: int = MAX_TERMS,
     alias_level: float = ALIAS_LEVEL,
+    prior: Prior | None = None,
+    bound: float | None = None,
 ) -> CyclicScan:
     """Scan every joint's cyclic errors up to ``order`` (and the ``extras``) for what the
-    problem's model misses; see the module docstring. ``level``: the p-value a step must reach
-    (default ``alpha`` over the number of candidates, Bonferroni)."""
-    if order < 1:
-        raise ValueError(f"order must be at least 1, got {order}")
-    prob = problem
-    n = prob.n_poses
-    lay = _Layout(prob.pose, n)
-    sampling = {j: joint_sampling(prob.q, j, order) for j in range(1, 7)}
-    moves = np.sqrt(np.asarray(lay.sum @ (prob.joint**2)).sum(axis=0) / max(n, 1))  # per joint
-    orders = {
-        j: (sampling[j].resolvable if j in joints and moves[j - 1] > 0 else 0) for j in range(1, 7)
-    }
-    Q = orthonormal_basis(np.array(prob.model, dtype=float), overwrite=True)
-    e = prob.residual - Q @ (Q.T @ prob.residual)
-    rss0 = float(e @ e)
-    dof0 = len(e) - Q.shape[1]
-    H = _hat(lay.pad(Q))
-    e_pad = lay.pad(e)
-    cv0 = _loo_rms(e_pad, H)
-    cand = _Candidates(prob, lay, orders, extras)
-    cand.initialise(Q, e)
-    ss, k, p = cand.scores(rss0, dof0)
-    M = int(np.count_nonzero(k))
-    if level is None:
-        level = alpha / max(M, 1)
-    first_p = float(p.min()) if len(p) else 1.0
-    terms: list[ScanTerm] = []
-    rss, dof, cv = rss0, dof0, cv0
-    chosen: set[int] = set()
-    while len(terms) < max_terms and len(cand):
-        if terms:
-            ss, k, p = cand.scores(rss, dof)
-        p = p.copy()
-        p[list(chosen)] = 1.0
-        i = int(np.lexsort((-ss, p))[0])  # the smallest p-value, the largest ss among ties
-        if not (k[i] > 0 and p[i] <= level):
-            break
-        X = cand.columns(i)
-        X -= Q @ (Q.T @ X)
-        Qn = orthonormal_basis(X, overwrite=True)
-        if Qn.shape[1] == 0:
-            chosen.add(i)
-            continue
-        b = Qn.T @ e
-        e_new = e - Qn @ b
-        H_new = H + _hat(lay.pad(Qn))
-        cv_new = _loo_rms(lay.pad(e_new), H_new)
-        if not cv_new < cv:
-            break
-        # the candidates the data cannot tell from this one, at this step
-        s2 = (rss - ss[i]) / max(dof - k[i], 1)
-        tie = ss >= ss[i] - s2 * stats.chi2.ppf(1.0 - alias_level, max(int(k[i]), 1))
-        tie[i] = False
-        tie &= k > 0
-        j = int(cand.joint[i])
-        alts: list[tuple[int, int | str]] = []
-        for t in np.flatnonzero(tie):
-            o_t = cand.order[t]
-            key_t = cand.key[t]
-            alts.append((int(cand.joint[t]), o_t if o_t is not None else str(key_t)))
-        o_i = cand.order[i]
-        if o_i is not None:
-            alts += [(j, a) for a in sampling[j].aliases(o_i, order)]
-        rss_new = float(e_new @ e_new)
-        terms.append(
-            ScanTerm(
-                joint=j,
-                order=o_i,
-                key=cand.key[i],
-                p_value=float(p[i]),
-                explained=rss - rss_new,
-                rms_after=math.sqrt(rss_new / max(n, 1)),
-                cv_after=cv_new,
-                alternatives=tuple(dict.fromkeys(alts)),
-            )
-        )
-        log.debug("scan: %s (p = %.3g, %d alternatives)", terms[-1].label, p[i], len(alts))
-        cand.add(Qn, b)
-        Q = np.hstack([Q, Qn])
-        e, H, cv, rss, dof = e_new, H_new, cv_new, rss_new, dof - Qn.shape[1]
-        chosen.add(i)
-    return CyclicScan(
-        terms=terms,
-        n_candidates=M,
-        orders=orders,
-        sampling=sampling,
-        rss0=rss0,
-        dof0=dof0,
-        rss=rss,
-        dof=dof,
-        cv0=cv0,
-        cv=cv,
-        first_p=first_p,
-        level=float(level),
-        residual=e,
+    problem's model (and the ``prior`` columns) miss; see the module docstring. ``level``: the
+    p-value a step must reach (default ``alpha`` over the number of candidates, Bonferroni).
+    ``bound``: the plausible bound of a cyclic error's amplitudes (rad, each of sine and cosine);
+    a term whose linearised estimate, or the prior's, goes beyond a bound with it is passed over
+    (named in :attr:`CyclicScan.implausible`), as :func:`lab.fit` would refuse it."""
+    scanner = CyclicScanner(
+        problem,
+        order,
+        level,
+        alpha=alpha,
+        extras=extras,
+        joints=joints,
+        max_terms=max_terms,
+        alias_level=alias_level,
+        prior=prior,
+        bound=bound,
     )
+    while (pr := scanner.propose()) is not None:
+        scanner.accept(pr)
+    return scanner.result()

@@ -141,10 +141,10 @@ def test_the_task_contract_loads_no_plant():
 # docs/architecture.md, "Inside lab": each row builds only on the rows above it (and its own)
 LAB_ORDER = [
     {"errors", "options", "text"},
-    {"blocks", "identifiability", "selection", "plausibility"},
+    {"blocks", "identifiability", "selection", "plausibility", "repeatability"},
     {"solver", "registration", "result"},
     {"estimation"},
-    {"candidates"},
+    {"candidates", "spectral"},
     {"screening"},
     {"identification"},
     {"diagnosis", "discovery", "planning", "export"},

@@ -97,12 +97,19 @@ def test_an_effect_outside_the_catalogue(seed, joint, user_effects):
 
 
 def test_unexplained_when_nothing_in_the_catalogue_fits(seed, user_effects):
+    """A 2nd harmonic on joint 1 (the example module's effect): no effect tested whole explains
+    it, and the cyclic errors' scan names its joint and order."""
     load_effect_module(EXAMPLE)
     c = campaign(seed, "geometric,second_harmonic[1]", seed=310)
-    d = diagnose(c.measure(200), seed, "geometric", noise_mm=NOISE_MM, candidates=CATALOGUE)
+    data = c.measure(200)
+    whole = [n for n in CATALOGUE if n != "cyclic"]
+    d = diagnose(data, seed, "geometric", noise_mm=NOISE_MM, candidates=whole)
     assert d.verdict == "unexplained"
     assert d.chi2_p_value < 1e-6
     assert d.hints[0].variable == "q1"
+    scanned = diagnose(data, seed, "geometric", noise_mm=NOISE_MM, candidates=CATALOGUE)
+    assert scanned.verdict == "cyclic", scanned.summary()
+    assert scanned.suggestion == "geometric,cyclic[1:2]"
 
 
 def test_a_robust_diagnosis_leaves_outliers_out(seed):

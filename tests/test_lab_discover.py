@@ -227,11 +227,17 @@ def test_cli_discover_writes_a_module_that_fit_and_diagnose_load(
 
 
 def test_cli_prints_the_formula_and_diagnose_points_to_discover(seed, tmp_path):
-    _, data, _ = _files(tmp_path, seed, "harmonic3_q1")
-    d = lab("diagnose", data, "--noise-mm", NOISE_MM)
+    (tmp_path / "drift").mkdir()
+    _, drift, _ = _files(tmp_path / "drift", seed, "thermal_zero_q3")
+    d = lab("diagnose", drift, "--noise-mm", NOISE_MM)
     assert d.exit_code == 0, d.output
     assert "unexplained" in d.output
     assert "sixaxis lab discover" in " ".join(d.output.split())
+    # a 3rd harmonic: the diagnosis's scan of cyclic errors names it, discovery writes its form
+    _, data, _ = _files(tmp_path, seed, "harmonic3_q1")
+    d = lab("diagnose", data, "--noise-mm", NOISE_MM)
+    assert d.exit_code == 0, d.output
+    assert "cyclic[1:3]" in " ".join(d.output.split())
     res = lab("discover", data, "--noise-mm", NOISE_MM, "-o", tmp_path / "h3.py")
     assert res.exit_code == 0, res.output
     text = " ".join(res.output.split())
