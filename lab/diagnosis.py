@@ -20,6 +20,16 @@ correction). A significant candidate must also **predict held-out poses** better
 alone: leave-one-pose-out residuals of the linearised model, from the (3 x 3) diagonal blocks of
 the hat matrix, no refits. Significant, confirmed candidates rank by that held-out RMS.
 
+**Cyclic errors** (the ``cyclic`` effect) are not tested whole: every joint's orders up to 64 per
+turn are scanned (:mod:`lab.spectral`) and compete with the catalogued effects in the forward
+selection below, term by term, at their own level (the candidates' share of ``alpha`` is split
+equally between the catalogue's tests and the scan's); the orders a joint's sampling cannot
+resolve, and those the data cannot tell from a chosen one, are named (``notes``).
+
+**Plausibility**: a candidate whose parameters (or the explanation's, with it) would go beyond
+the plausible bound of their kind at the linearised estimate is passed over (``implausible``),
+as :func:`lab.fit` would refuse that model: what the diagnosis suggests, fit accepts.
+
 The **explanation** is built by effect-level forward selection from that ranking: the best
 effect, on the joints that each add significantly (given the ones before), then the next effect
 given the first, while one is significant (Bonferroni over all candidates at every step) and
@@ -28,6 +38,13 @@ is known and even the whole explanation leaves a residual above the noise (chi-s
 then it is ``unexplained``, the catalogue explains part only. ``suggestion`` is the model to fit
 next (``geometric,compliance[2,3]``); ``candidates`` lists the explanation first
 (each entry tested given those before it), then every other candidate.
+
+**The noise**: ``noise_mm`` as stated, else the scatter of the poses the data repeat
+(:mod:`lab.repeatability`; then an F-test takes the chi-square test's place, that noise being
+estimated too). When the explanation leaves a residual above the noise but nothing in it is
+structure (no hint significant, no pose beyond the outlier radius of its own scale), the verdict
+says so: the explanation's first effect, or ``noise`` when there is none, with the per-axis noise
+the residual implies (``implied_noise_mm``), instead of ``unexplained``.
 
 Otherwise, with the instrument's per-axis noise ``noise_mm`` known, a **chi-square test** of the
 residual sum of squares with 3N minus the identifiable parameters as degrees of freedom says

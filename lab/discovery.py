@@ -12,7 +12,8 @@ Method.
    explains, and its residual (with that span projected out) is what is left to explain.
 2. **A library of candidate terms**, each a joint-angle term ``theta_j = q_j + k * f(variables)``
    for one joint j and one function f of the measured variables (:func:`library_terms`):
-   harmonics ``sin(m*q_j)``, ``cos(m*q_j)`` for m = 1..``order`` (default 4), ``q_j``; powers and
+   harmonics ``sin(m*q_j)``, ``cos(m*q_j)`` for m = 1..``order`` (default 64 per turn, fewer on
+   a joint whose sampling resolves fewer: :func:`lab.spectral.resolvable_order`), ``q_j``; powers and
    the sign of the joint's gravity torque ``tau_j``, ``tau_j^2``, ``tau_j^3``, ``sign(tau_j)``;
    with a temperature column ``(temperature - 20)`` and its products with ``tau_j``,
    ``sin(q_j)``, ``cos(q_j)``; ``t``; ``payload``; ``dir_j`` and ``dir_j*tau_j``. A term's
@@ -21,11 +22,14 @@ Method.
    already explains (the column lies in E's span) or that moves no point is not a candidate.
    The sine and cosine of one harmonic are one candidate (the phase is unknown), every other
    term is one on its own.
-3. **Forward stepwise selection** over the candidates, by the F-test of nested linear models and
-   leave-one-pose-out prediction, exactly as :func:`lab.diagnose` tests catalogued effects (it
-   shares its code): each step adds the candidate whose addition predicts held-out poses best
-   among those significant at ``alpha_t / M`` (Bonferroni over the M candidates, at every step)
-   that lower the held-out RMS. With the instrument's noise known, the residual is also tested
+3. **Orthogonal matching pursuit** over the candidates (:mod:`lab.spectral`: every joint's
+   harmonics scanned at once as Fourier sums, the other terms beside them, no loop over
+   candidates), by the F-test of nested linear models and leave-one-pose-out prediction: each
+   step adds the candidate with the smallest p-value, if it is significant at ``alpha_t / M``
+   (Bonferroni over the M candidates, at every step), lowers the held-out RMS and leaves every
+   harmonic's amplitude within the cyclic effect's plausible bound (as :func:`lab.fit` judges
+   it); the candidates the data cannot tell from it (ties within the chi-square quantile, a
+   grid's aliases) are named. With the instrument's noise known, the residual is also tested
    against it by the chi-square test at ``alpha_c = alpha / 2``, the same test at the same level
    as the diagnosis's (so the two agree on whether anything is missing), and the terms get
    ``alpha_t = alpha / 4`` (:data:`TERMS_SHARE`, :data:`CHI2_SHARE`); without the noise the terms
@@ -53,10 +57,15 @@ Method.
    effect is **refitted with the lab's own non-linear least squares** (:func:`lab.fit`): the
    coefficients and their standard errors are that fit's.
 
+The noise: the one stated (``noise_mm``), else the scatter of repeated poses
+(:mod:`lab.repeatability`, tested by F since it is estimated itself), else none.
+
 Verdict: ``discovered`` when terms were selected and, with the noise known, the refitted
-residual is consistent with it; ``unexplained`` when the residual stays above the noise (with
-the terms found, if any, explaining part); ``none`` when nothing was selected and the residual
-is noise (or the noise is not known).
+residual is consistent with it, or is above it with nothing of the library left and no gross
+miss (then ``implied_noise_mm`` says how much noise the residual implies); ``noise`` when nothing
+was selected in that case; ``unexplained`` when the residual stays above the noise with structure
+left (the terms found, if any, explaining part); ``none`` when nothing was selected and the
+residual is noise (or the noise is not known).
 
 It is one module, longer than most, because the steps above are one method: the library, the
 selection, the refit and the effect module written from it read top to bottom.
@@ -473,7 +482,7 @@ class Discovery:
         floor = f", noise floor {self.noise_floor_mm:.4f} mm" if self.noise_floor_mm else ""
         lines = [
             f"model {', '.join(self.effects)}: RMS {self.rms_mm:.4f} mm{floor}; "
-            f"{self.n_candidates} candidate terms (harmonics to order {self.order})",
+            f"{self.n_candidates} candidate terms (harmonics to order {self.order} per turn)",
             f"verdict: {self.verdict}",
         ]
         for f in self.formulas.values():
