@@ -101,9 +101,15 @@ from lab.candidates import (
 from lab.errors import FitError
 from lab.identifiability import gram_factor, lower_inverse, orthonormal_basis, typical_magnitudes
 from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
-from lab.repeatability import Repeatability, implied_noise_text, noise_floor, noise_p_value
+from lab.repeatability import (
+    Repeatability,
+    implied_noise_text,
+    noise_floor,
+    noise_like,
+    noise_p_value,
+)
 from lab.result import SCHEMA_VERSION, FitResult, Outlier
-from lab.screening import Screen, annotate, outlier_radius, screened
+from lab.screening import Screen, annotate, screened
 from lab.selection import DEPENDENT, ForwardSelection, f_test, hat_blocks, holm, press_rms
 from lab.spectral import CyclicProblem, CyclicScan, CyclicScanner
 
@@ -544,11 +550,9 @@ def _implied_noise(res, data, Q0, sel: ForwardSelection, inlier, Jq, alpha) -> f
     left = _hints(res, data, [Q0, sel.Q], sel.e, sel.rss, sel.dof, inlier, Jq)
     if any(h.p_value <= alpha / max(len(left), 1) for h in left):
         return None
-    s = math.sqrt(sel.rss / max(sel.dof, 1))
-    r = sel.e.reshape(-1, 3)
-    if np.max(np.sum(r**2, axis=1)) > (outlier_radius(len(r)) * s) ** 2:
+    if not noise_like(sel.e):
         return None
-    return 1e3 * s
+    return 1e3 * math.sqrt(sel.rss / max(sel.dof, 1))
 
 
 def _scans(candidates: Sequence[str] | None) -> bool:

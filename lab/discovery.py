@@ -97,9 +97,15 @@ from arm.measurements import MeasurementSet, as_measurements
 from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
 from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
-from lab.repeatability import Repeatability, implied_noise_text, noise_floor, noise_p_value
+from lab.repeatability import (
+    Repeatability,
+    implied_noise_text,
+    noise_floor,
+    noise_like,
+    noise_p_value,
+)
 from lab.result import SCHEMA_VERSION, FitResult
-from lab.screening import Screen, outlier_radius, screen, screened
+from lab.screening import Screen, screen, screened
 from lab.spectral import DEFAULT_ORDER as SCAN_ORDER
 from lab.spectral import MAX_TERMS, CyclicScan, ExtraColumns, cyclic_scan, problem_of_fit
 
@@ -745,7 +751,7 @@ def discover(
         if chi2_p is not None and chi2_p < CHI2_SHARE * alpha:
             # above the noise: structure the library does not hold, or only noise (more of it
             # than stated) when no candidate is left that the residual depends on
-            if scan.exhausted and _noise_like(scan.residual):
+            if scan.exhausted and noise_like(scan.residual):
                 disc.verdict = "noise"
                 disc.implied_noise_mm = 1e3 * math.sqrt(rss0 / max(dof0, 1))
             else:
@@ -800,7 +806,7 @@ def discover(
         ok = (disc.chi2_p_value_after or 0.0) >= CHI2_SHARE * alpha
         # the rest is noise (more of it than stated) where nothing of the library is left and
         # no pose misses grossly
-        noise = not ok and scan.exhausted and _noise_like(refit.residuals.reshape(-1))
+        noise = not ok and scan.exhausted and noise_like(refit.residuals.reshape(-1))
         if noise:
             disc.implied_noise_mm = 1e3 * math.sqrt(rss / dof)
         disc.verdict = "discovered" if ok or noise else "unexplained"
@@ -808,13 +814,6 @@ def discover(
         disc.verdict = "discovered"
     log.info("%s", disc.summary())
     return disc
-
-
-def _noise_like(e: np.ndarray) -> bool:
-    """No pose of the residual ``e`` (3N) lies beyond the outlier radius of its own scale."""
-    r = e.reshape(-1, 3)
-    s2 = float(np.sum(r**2)) / max(r.size, 1)
-    return bool(np.max(np.sum(r**2, axis=1)) <= outlier_radius(len(r)) ** 2 * s2)
 
 
 def _extra_columns(

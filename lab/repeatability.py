@@ -127,6 +127,18 @@ class NoiseFloor:
         return None
 
 
+def noise_like(e: np.ndarray, alpha: float = 0.01) -> bool:
+    """Whether no pose of the residual ``e`` (3N) lies beyond the 3-D radius that Gaussian noise
+    of the residual's own per-axis scale exceeds at one of N poses with probability ``alpha``
+    (Bonferroni): a gross miss is not noise."""
+    r = np.asarray(e, dtype=float).reshape(-1, 3)
+    if not len(r):
+        return True
+    s2 = float(np.sum(r**2)) / r.size
+    radius2 = float(stats.chi2.isf(alpha / len(r), 3))
+    return bool(np.max(np.sum(r**2, axis=1)) <= radius2 * s2)
+
+
 def noise_p_value(rss: float, dof: int, floor: NoiseFloor) -> float | None:
     """The p-value of a residual sum of squares ``rss`` (m^2) with ``dof`` degrees of freedom
     being noise of the floor: chi-square against a stated noise (known), F against the

@@ -272,7 +272,7 @@ def _table(head: Sequence[str], rows: Sequence[Sequence[Cell]], left: int = 1) -
 
 
 def _verdict(v: str) -> str:
-    cls = v if v in ("none", "unexplained") else "effect"
+    cls = {"none": "none", "unexplained": "unexplained", "noise": "unexplained"}.get(v, "effect")
     return f'<span class="verdict {cls}">{_e(v)}</span>'
 
 

@@ -190,10 +190,11 @@ def test_a_user_effect_module_brings_the_error_to_the_floor(harmonic_files, own_
 
 def test_diagnose_names_a_user_effect_once_its_module_is_loaded(harmonic_files, own_effects):
     h2 = harmonic_files[0]
-    # the catalogue alone: the residual stays above the noise, and depends on q3
+    # the catalogue alone: no effect tested whole explains it, the residual depends on q3, and
+    # the scan of cyclic errors names its joint and order
     alone = lab_json("diagnose", h2, "--noise-mm", NOISE)
-    assert alone["verdict"] == "unexplained"
     assert alone["hints"][0]["variable"] == "q3"
+    assert alone["verdict"] == "cyclic" and alone["suggestion"] == "geometric,cyclic[3:2]"
     mod = lab_json("diagnose", h2, "--noise-mm", NOISE, "--effect-module", SECOND_HARMONIC)
     assert mod["verdict"] == "second_harmonic"
     assert mod["candidates"][0]["effect"] == "second_harmonic"
