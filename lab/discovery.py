@@ -716,15 +716,19 @@ def discover(
     rank = {t.group: k for k, t in enumerate(others)}
     selected: list[LibraryTerm] = []
     alternatives: dict[str, tuple[str, ...]] = {}
+    size: dict[str, float] = {}  # each term's coefficient in the scan's linearised fit
     for st in sorted(scan.terms, key=lambda t: (t.joint, t.order or 0, rank.get(t.key or "", -1))):
         if st.order is not None:
-            found = harmonic_terms(st.joint, st.order)
+            found = harmonic_terms(st.joint, st.order)  # sine, cosine: the cyclic cs, cc
+            scan_names = [f"cs{st.joint}_{st.order}", f"cc{st.joint}_{st.order}"]
         else:
             found = [t for t in others if t.group == st.key]
+            scan_names = [f"{st.key}:{c}" for c in range(len(found))]
         selected += found
         alts = tuple(_alternative(a) for a in st.alternatives)
-        for t in found:
+        for t, sn in zip(found, scan_names, strict=True):
             alternatives[t.name] = alts
+            size[t.name] = scan.estimates.get(sn, 0.0)
     for st in scan.terms:
         log.debug("discovery: %s (p = %.3g)", st.label, st.p_value)
 
@@ -762,21 +766,19 @@ def discover(
         return disc
 
     # refit E plus the discovered effect, written as the module a user gets
-    # first pass: sizes for the module's typical ranges from the linear selection
-    _, Jq = res.model.joint_jacobian(res.inputs, res.params)
-    amp = _linear_coefficients(res, Jq, selected, data, tau)
+    # first pass: sizes for the module's typical ranges from the scan's linearised fit
     disc.terms = [
         Term(
             t.joint,
             t.name,
             t.expression,
-            float(a),
+            size[t.name],
             None,
             t.variables,
             t.reading,
             alternatives[t.name],
         )
-        for t, a in zip(selected, amp, strict=True)
+        for t in selected
     ]
     cls = _load_class(disc.module_source(), name)
     # the discovered model is a new model of the rows that count: the rule judges its own misses
@@ -885,27 +887,6 @@ def library_problem(
         kept.append(term)
     X = np.column_stack(cols) if cols else np.zeros((3 * N, 0))
     return LibraryProblem(e0, X, kept, groups, Q0, Jq)
-
-
-def _linear_coefficients(res, Jq, selected, data, tau) -> np.ndarray:
-    """The terms' coefficients of the linearised problem (E's parameters free too)."""
-    N = res.n_points
-    free = res.identifiable
-    J0 = res.jacobian[:, :, free].reshape(3 * N, -1)
-    X = np.column_stack(
-        [
-            (
-                Jq[:, :, t.joint - 1]
-                * _evaluate(t.code, data.q, tau, data.columns, t.joint)[:, None]
-            ).reshape(-1)
-            for t in selected
-        ]
-    )
-    A = np.hstack([J0, X])
-    s = np.linalg.norm(A, axis=0)
-    s[s == 0] = 1.0
-    sol = np.linalg.lstsq(A / s, -res.residuals.reshape(-1), rcond=None)[0] / s
-    return sol[J0.shape[1] :]
 
 
 def _load_class(source: str, name: str) -> type[JointAngleEffect]:

@@ -56,6 +56,7 @@ import numpy as np
 from scipy import sparse, stats
 
 from arm.params import parameter_unit
+from lab.blocks import Blocks
 from lab.identifiability import orthonormal_basis
 
 __all__ = [
@@ -123,12 +124,18 @@ def problem_of_fit(result) -> CyclicProblem:
     identifiable Jacobian columns and d point / d theta at the fitted parameters, three rows
     (x, y, z) per pose."""
     n = result.n_points
-    free = result.identifiable
-    J = result.jacobian[:, :, free] * result.identifiability.scale[free]
-    _, Jq = result.model.joint_jacobian(result.inputs, result.params)
+    free = np.flatnonzero(result.identifiable)
+    scale = result.identifiability.scale[free]
+    J = np.empty((3 * n, free.size))  # block by block: no copy of the whole Jacobian
+    Jq = np.empty((n, 3, 6))
+    blocks = Blocks(result.model, result.inputs)
+    for sl, _, Jb in blocks.jacobians(result.params, keep_cache=False):
+        J[3 * sl.start : 3 * sl.stop] = Jb[:, :, free].reshape(-1, free.size) * scale
+    for sl, part in blocks:
+        Jq[sl] = result.model.joint_jacobian(part, result.params)[1]
     return CyclicProblem(
         residual=np.asarray(result.residuals, dtype=float).reshape(-1),
-        model=orthonormal_basis(J.reshape(3 * n, -1), overwrite=True),
+        model=orthonormal_basis(J, overwrite=True),
         joint=Jq.reshape(3 * n, 6),
         pose=np.repeat(np.arange(n), 3),
         q=np.asarray(result.inputs.q, dtype=float),
@@ -273,6 +280,8 @@ class CyclicScan:
     implausible: list[str] = field(default_factory=list)
     # why the scan stopped (CyclicScanner.stop)
     stop: str | None = None
+    # the linearised estimate of every parameter chosen (CyclicScanner.estimates)
+    estimates: dict[str, float] = field(default_factory=dict)
 
     @property
     def exhausted(self) -> bool:
@@ -304,26 +313,47 @@ class CyclicScan:
 
 # --------------------------------------------------------------------------------------------------
 class _Layout:
-    """Rows grouped by pose: the sum over each pose's rows (a sparse (N, m) matrix) and the
-    padded (N, R) slots of the leave-one-pose-out blocks."""
+    """Rows grouped by pose: sums over each pose's rows and the padded (N, R) slots of the
+    leave-one-pose-out blocks. Rows that come R to a pose, in order (a fit's x, y, z), are
+    regular: views and reshapes then, no index arrays."""
 
     def __init__(self, pose: np.ndarray, n: int) -> None:
         m = len(pose)
         self.n = n
-        self.sum = sparse.csr_matrix((np.ones(m), (pose, np.arange(m))), shape=(n, m))
-        order = np.argsort(pose, kind="stable")
         counts = np.bincount(pose, minlength=n)
         self.R = int(counts.max()) if m else 0
+        self.regular = bool(
+            m == n * self.R and np.all(counts == self.R) and np.all(np.diff(pose) >= 0)
+        )
+        self.pose = pose
+        if self.regular:
+            return
+        self.sum = sparse.csr_matrix((np.ones(m), (pose, np.arange(m))), shape=(n, m))
+        order = np.argsort(pose, kind="stable")
         start = np.concatenate([[0], np.cumsum(counts)[:-1]])
         slot = np.empty(m, dtype=int)
         slot[order] = np.arange(m) - np.repeat(start, counts)
         self.slot = slot
-        self.pose = pose
 
     def pad(self, x: np.ndarray) -> np.ndarray:
-        """Rows (m, ...) as (N, R, ...), zero where a pose has fewer rows."""
+        """Rows (m, ...) as (N, R, ...), zero where a pose has fewer rows (a view if regular)."""
+        if self.regular:
+            return x.reshape(self.n, self.R, *x.shape[1:])
         out = np.zeros((self.n, self.R, *x.shape[1:]))
         out[self.pose, self.slot] = x
+        return out
+
+    def per_pose(self, x: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
+        """Sum over each pose's rows of ``x`` (m,) or (m, k), times ``w`` (m,) if given;
+        block by block (no (m, k) product is made)."""
+        if not self.regular:
+            return np.asarray(self.sum @ (x if w is None else (w * x.T).T))
+        out = np.empty((self.n, *x.shape[1:]))
+        for s in range(0, self.n, _BLOCK):
+            sl = slice(s, min(s + _BLOCK, self.n))
+            rows = slice(self.R * sl.start, self.R * sl.stop)
+            xb = x[rows] if w is None else (w[rows] * x[rows].T).T
+            out[sl] = xb.reshape(sl.stop - sl.start, self.R, *x.shape[1:]).sum(axis=1)
         return out
 
 
@@ -452,9 +482,9 @@ class _Candidates:
         for j in range(1, 7):
             if not self.ncols[j]:
                 continue
-            w = lay.sum @ (D[:, j - 1] ** 2)  # (N,)
-            g = lay.sum @ (D[:, j - 1] * e)
-            A = np.asarray(lay.sum @ (D[:, j - 1 : j] * Q))  # (N, r)
+            w = lay.per_pose(D[:, j - 1] ** 2)  # (N,)
+            g = lay.per_pose(D[:, j - 1] * e)
+            A = lay.per_pose(Q, D[:, j - 1])  # (N, r)
             o, n = self.offset[j], self.ncols[j]
             sel = (self.joint == j) & (self.ib >= 0)
             pa, pb = self.ia[sel] - o, self.ib[sel] - o
@@ -479,11 +509,7 @@ class _Candidates:
         """New orthonormal columns ``Qn`` (m, k) joined the span; ``b = Qn^T e`` before the
         residual lost them: the statistics follow."""
         D = self.prob.joint
-        A = {
-            j: np.asarray(self.lay.sum @ (D[:, j - 1 : j] * Qn))
-            for j in range(1, 7)
-            if self.ncols[j]
-        }
+        A = {j: self.lay.per_pose(Qn, D[:, j - 1]) for j in range(1, 7) if self.ncols[j]}
         P = self.project(A)
         for j, Pj in P.items():
             o, n = self.offset[j], self.ncols[j]
@@ -640,6 +666,7 @@ class Proposal:
     factors: tuple[np.ndarray, np.ndarray]
     names: list[str]
     bounds: list[float]
+    coef: np.ndarray
 
 
 class CyclicScanner:
@@ -670,7 +697,7 @@ class CyclicScanner:
         n = self.n = prob.n_poses
         self.lay = lay = _Layout(prob.pose, n)
         self.sampling = {j: joint_sampling(prob.q, j, order) for j in range(1, 7)}
-        moves = np.sqrt(np.asarray(lay.sum @ (prob.joint**2)).sum(axis=0) / max(n, 1))
+        moves = np.sqrt(np.sum(prob.joint**2, axis=0) / max(n, 1))
         self.orders = {
             j: (self.sampling[j].resolvable if j in joints and moves[j - 1] > 0 else 0)
             for j in range(1, 7)
@@ -700,6 +727,9 @@ class CyclicScanner:
         self.terms: list[ScanTerm] = []
         self.implausible_terms: list[str] = []
         self.done: set[int] = set()
+        self.coef: np.ndarray = np.zeros(
+            0
+        )  # the explanation's coefficients on e0, in its names' order
         # why the last proposal was none: "not significant", "no better held-out",
         # "max_terms" or "no candidates"
         self.stop: str | None = None
@@ -787,6 +817,7 @@ class CyclicScanner:
                 (R, c),
                 names,
                 bounds,
+                coef,
             )
 
     def accept(self, pr: Proposal) -> ScanTerm:
@@ -821,6 +852,7 @@ class CyclicScanner:
         cand.add(pr.basis, pr.basis.T @ self.e)
         R, c = pr.factors
         self.expl.add(pr.basis, R, c, pr.names, [0.0] * len(pr.names), pr.bounds)
+        self.coef = pr.coef
         self.e, self.H, self.cv, self.rss = pr.residual, pr.hat, pr.cv, rss_new
         self.dof -= pr.basis.shape[1]
         self.done.add(i)
@@ -844,7 +876,16 @@ class CyclicScanner:
             residual=self.e,
             implausible=list(self.implausible_terms),
             stop=self.stop,
+            estimates=self.estimates(),
         )
+
+    def estimates(self) -> dict[str, float]:
+        """The linearised estimate of every parameter of the explanation (the given columns' by
+        name, a harmonic's ``cc{j}_{k}``, ``cs{j}_{k}``, an extra's ``key:column``)."""
+        if len(self.coef) != len(self.expl.names):  # columns joined since the last term
+            self.coef = np.linalg.lstsq(self.expl.R, self.expl.c, rcond=1e-12)[0]
+        values = np.array(self.expl.nominal) - self.coef
+        return dict(zip(self.expl.names, map(float, values), strict=True))
 
 
 def cyclic_scan(
