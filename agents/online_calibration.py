@@ -45,7 +45,7 @@ import scipy.linalg
 from scipy.linalg import lapack
 
 from agents.tool_model import BufferedFunction, ToolModel
-from arm.effects import Effect, parse_effects
+from arm.effects import Cyclic, Effect, parse_effects
 from arm.errormodel import ErrorModel
 from arm.kinematics import gravity_torques
 from arm.measurements import MeasurementSet
@@ -133,12 +133,17 @@ def identifiable_parameters(
 def merge_effects(model: ErrorModel, effects: str | Sequence[str | Effect]) -> list[str]:
     """The effect labels of ``model`` with ``effects`` added: a per-joint effect that the model
     has already takes the union of the joints (``backlash[1]`` + ``backlash[5]`` =
-    ``backlash[1,5]``; on all joints it stays on all), a new one is appended. A diagnosis's
+    ``backlash[1,5]``; on all joints it stays on all; a cyclic effect takes the union of the
+    orders of each joint), a new one is appended. A diagnosis's
     suggestion (``geometric,backlash[1,5]``), which repeats the model's effects, merges to
     itself."""
     order: list[str] = []
     joints: dict[str, set[int] | None] = {}
+    orders: dict[int, set[int]] = {}  # a cyclic effect's orders per joint, merged
     for e in [*model.effects, *parse_effects(effects)]:
+        if isinstance(e, Cyclic):
+            for j, ks in e.orders.items():
+                orders.setdefault(j, set()).update(ks)
         if e.name not in joints:
             order.append(e.name)
             joints[e.name] = None if e.joints is None else set(e.joints)
@@ -149,6 +154,9 @@ def merge_effects(model: ErrorModel, effects: str | Sequence[str | Effect]) -> l
                 joints[e.name] |= set(e.joints)  # type: ignore[operator]
     out = []
     for name in order:
+        if name == Cyclic.name and orders:
+            out.append(Cyclic({j: sorted(ks) for j, ks in orders.items()}).label)
+            continue
         js = joints[name]
         out.append(name if js is None else f"{name}[{','.join(map(str, sorted(js)))}]")
     return out

@@ -93,7 +93,7 @@ from scipy import stats
 from agents.model_selection import SequentialSelection, candidate_families
 from agents.mpc import MPCAgent, Widening
 from agents.online_calibration import MeasurementBuffer, RecursiveLeastSquares, merge_effects
-from arm.effects import make_effect
+from arm.effects import candidate_effects, make_effect
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from envs.task import TaskInfo, Truth
@@ -193,7 +193,8 @@ class DiagnosingMPCAgent(MPCAgent):
     ratio an effect must reach on the buffer's last ``holdout`` fraction), ``window`` (the most
     recent points a diagnosis uses; re-learning uses all the buffer holds), ``monitor_points``
     and ``monitor_p`` (the innovation test that starts a new diagnosis), ``candidates`` (effects
-    to test; default the lab's catalogue), ``relearn`` (re-run the widened estimator over the
+    to test; default the lab's catalogue of effects tested whole, without the scan of cyclic
+    errors, which ``"cyclic"`` among them adds), ``relearn`` (re-run the widened estimator over the
     buffer), ``test_first`` (the held-out test for the first effect too, not only the extras),
     ``prune`` (drop effects added earlier that a later, wider model no longer needs; with
     ``relearn`` only); for the sequential test ``select`` (on/off), ``select_alpha`` (its
@@ -424,7 +425,8 @@ class DiagnosingMPCAgent(MPCAgent):
             list(model.effect_names),
             options=self._lab_options(),
             alpha=self.alpha,
-            candidates=self.candidates,
+            # by default the effects tested whole (the cyclic scan only when asked for)
+            candidates=candidate_effects() if self.candidates is None else self.candidates,
         )
         rec.verdict, rec.suggestion, rec.chi2_p_value = d.verdict, d.suggestion, d.chi2_p_value
         if not d.explanation:
@@ -459,7 +461,10 @@ class DiagnosingMPCAgent(MPCAgent):
         if len(model.effects) == 1:
             # the first effect found goes on every joint, as the sequential test adds it: the
             # joints the buffer has not moved yet stay at their prior until they do
-            labels = [e if e in model.effect_names else make_effect(e).name for e in labels]
+            labels = [
+                e if e in model.effect_names or make_effect(e).scan_only else make_effect(e).name
+                for e in labels
+            ]  # (a cyclic error keeps its joints and orders: it has no "every joint")
         job.widening = self._prepare(model, labels)
         if self.relearn:
             job.estimator = self._relearned(job.widening.model, held)

@@ -462,14 +462,20 @@ def diagnose(
         ),
         alpha=alpha_c / 2,
         joints=(1, 2, 3, 4, 5, 6) if scanning else (),
-        bound=Cyclic({1: [1]}).plausible_bound("cs1_1"),
+        # accept_large: the user keeps large values, so nothing is passed over for them
+        bound=None if s.options.accept_large else Cyclic({1: [1]}).plausible_bound("cs1_1"),
     )
     p_full = full.nominal()
 
     def columns_of(names: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """A candidate's columns (the model's span projected out), nominal values, bounds."""
         idx = full.layout.indices(names)
-        bounds = [full.effects[_effect_index(full, nm)].plausible_bound(nm) for nm in names]
+        bounds = [
+            None
+            if s.options.accept_large
+            else full.effects[_effect_index(full, nm)].plausible_bound(nm)
+            for nm in names
+        ]
         return (
             Jc[:, [column[int(i)] for i in idx]],
             p_full[idx],

@@ -245,6 +245,13 @@ def test_merge_effects_unions_joints():
         "geometric",
         "backlash",
     ]
+    # a cyclic error: the orders of each joint merge
+    c = ErrorModel(seed_robot(), "geometric,cyclic[2:17],compliance[2]")
+    assert merge_effects(c, "geometric,cyclic[2:5;3:9],compliance[3]") == [
+        "geometric",
+        "cyclic[2:5,17;3:9]",
+        "compliance[2,3]",
+    ]
 
 
 def test_buffer_keeps_points_with_the_lab_columns_and_drops_the_oldest():
