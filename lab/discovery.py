@@ -498,6 +498,9 @@ class Discovery:
             lines.append(f"  {t.name} = {t.coefficient:.4g} +- {std}: {t.reading}")
         if self.terms:
             lines.append(f"with the terms: RMS {self.rms_after_mm:.4f} mm; fit {self.suggestion}")
+        if self.noise_note:
+            lines.append(self.noise_note)
+        lines += self.notes
         return "\n".join(lines)
 
 
