@@ -396,6 +396,13 @@ class ErrorModel:
         sens = Sensitivities(st, f, point, None, self._pose_stations(inputs))
         return point.T.copy(), np.ascontiguousarray(sens.d_theta)
 
+    def joint_turns(self, inputs: ModelInputs, p: np.ndarray) -> np.ndarray:
+        """The tool frame's rotation by each effective joint angle (N, 3, 6): joint i's axis in
+        the measurement frame (:meth:`joint_jacobian`'s companion for orientations)."""
+        st, f = self._evaluate(inputs, np.asarray(p, dtype=float))
+        turn = AngularSensitivities(st, f, f.o[6], None, self._pose_stations(inputs))
+        return np.ascontiguousarray(turn.d_theta)
+
     def _numeric_columns(self, inputs: ModelInputs, p: np.ndarray, sl: slice) -> np.ndarray:
         """Central differences for an effect without analytic columns."""
         cols = []

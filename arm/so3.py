@@ -14,6 +14,7 @@ import numpy as np
 
 __all__ = [
     "left_jacobian",
+    "left_jacobian_inverse",
     "rot_x",
     "rot_y",
     "rot_z",
@@ -91,3 +92,18 @@ def left_jacobian(r: np.ndarray) -> np.ndarray:
     if th < _SMALL:
         return np.eye(3) + 0.5 * K
     return np.eye(3) + (1 - math.cos(th)) / th**2 * K + (th - math.sin(th)) / th**3 * (K @ K)
+
+
+def left_jacobian_inverse(r: np.ndarray) -> np.ndarray:
+    """The inverse of the left Jacobian at rotation vectors (..., 3) -> (..., 3, 3): where
+    ``e = log(R R_0^T)``, a small rotation ``w`` of R changes e by ``J_l(e)^-1 w`` (to first
+    order), ``J_l^-1 = I - K/2 + (1/th^2 - (1 + cos th) / (2 th sin th)) K^2``, K = [r]x."""
+    r = np.asarray(r, dtype=float)
+    th = np.linalg.norm(r, axis=-1)
+    K = skew(r)
+    small = th < 1e-4
+    t = np.where(small, 1.0, th)
+    c = np.where(
+        small, 1.0 / 12.0 + th**2 / 720.0, 1.0 / t**2 - (1 + np.cos(t)) / (2 * t * np.sin(t))
+    )
+    return np.eye(3) - 0.5 * K + c[..., None, None] * (K @ K)

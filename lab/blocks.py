@@ -14,10 +14,14 @@ array (the numbers do not depend on the blocking for them).
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from arm.errormodel import ErrorModel, ModelInputs
+
+if TYPE_CHECKING:
+    from lab.observations import Observations
 
 __all__ = ["BLOCK", "Blocks"]
 
@@ -25,10 +29,20 @@ BLOCK = 4096  # poses per block: the Jacobian of 70 parameters is then 6.9 MB
 
 
 class Blocks:
-    """The inputs of ``model`` cut into consecutive blocks of at most ``size`` poses."""
+    """The inputs of ``model`` cut into consecutive blocks of at most ``size`` poses.
 
-    def __init__(self, model: ErrorModel, inputs: ModelInputs, size: int | None = None) -> None:
+    With ``observations`` (:class:`lab.observations.Observations`, not plain) the blocks give
+    the weighted rows a fit compares with, k per pose, instead of the points."""
+
+    def __init__(
+        self,
+        model: ErrorModel,
+        inputs: ModelInputs,
+        size: int | None = None,
+        observations: Observations | None = None,
+    ) -> None:
         self.model, self.inputs = model, inputs
+        self.obs = None if observations is None or observations.plain else observations
         size = BLOCK if size is None else size
         n = inputs.n
         self.slices = [slice(a, min(a + size, n)) for a in range(0, max(n, 1), size)]
@@ -47,13 +61,25 @@ class Blocks:
     def __iter__(self) -> Iterator[tuple[slice, ModelInputs]]:
         return iter(zip(self.slices, self.parts, strict=True))
 
+    @property
+    def per_pose(self) -> int:
+        """Rows per pose: 3 (a point) or 6 (a point and an orientation)."""
+        return 3 if self.obs is None else self.obs.per_pose
+
+    def _rows(self, sl: slice, part: ModelInputs, p: np.ndarray, jacobian: bool):
+        if self.obs is None:
+            if jacobian:
+                return self.model.predict(part, p, jacobian=True)
+            return np.asarray(self.model.predict(part, p)), None
+        return self.obs.rows(self.model, part, p, sl, jacobian)
+
     def predict(self, p: np.ndarray) -> np.ndarray:
-        """Predicted points (N, 3)."""
+        """Predicted points (N, 3), or rows (N, k) with observations."""
         if self.single:
-            return np.asarray(self.model.predict(self.inputs, p))
-        out = np.empty((self.n, 3))
+            return self._rows(self.slices[0], self.inputs, p, False)[0]
+        out = np.empty((self.n, self.per_pose))
         for sl, part in self:
-            out[sl] = self.model.predict(part, p)
+            out[sl] = self._rows(sl, part, p, False)[0]
         return out
 
     def jacobians(
@@ -63,7 +89,7 @@ class Blocks:
         ``keep_cache=False`` forgets each block's cached regressors once used (a single pass:
         kept for every block, they would grow with the pose count)."""
         for sl, part in self:
-            pred, J = self.model.predict(part, p, jacobian=True)
+            pred, J = self._rows(sl, part, p, True)
             if not keep_cache and not self.single:
                 part._cache.clear()
             yield sl, pred, J

@@ -38,6 +38,7 @@ from lab import blocks as _blocks
 from lab.blocks import Blocks
 from lab.errors import FitError
 from lab.identifiability import Identifiability, gram_factor, lower_inverse
+from lab.observations import Observations
 
 __all__ = [
     "CandidateGroup",
@@ -71,6 +72,10 @@ class ModelFit(Protocol):
     @property
     def residuals(self) -> np.ndarray: ...
     @property
+    def row_residuals(self) -> np.ndarray: ...
+    @property
+    def observations(self) -> Observations | None: ...
+    @property
     def n_points(self) -> int: ...
     @property
     def rank(self) -> int: ...
@@ -99,7 +104,14 @@ def candidate_model(
             skipped[e.label] = f"needs {why}"
             continue
         effects.append(e)
-    return ErrorModel(model.robot, effects, targets=model.targets), skipped
+    full = ErrorModel(
+        model.robot,
+        effects,
+        targets=model.targets,
+        stations=model.stations,
+        orientation=model.orientation,
+    )
+    return full, skipped
 
 
 Columns = Callable[[], Iterator[tuple[slice, np.ndarray]]]
@@ -186,17 +198,21 @@ def group_label(g: CandidateGroup) -> str:
 def candidate_columns(
     res: ModelFit, full: ErrorModel, inputs: ModelInputs, p: np.ndarray, cand: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The fitted model's identifiable Jacobian columns, scaled (3N, r0), and the candidate
-    columns ``cand`` of the full model at ``p`` (3N, m), block by block."""
+    """The fitted model's identifiable Jacobian columns, scaled (kN, r0), and the candidate
+    columns ``cand`` of the full model at ``p`` (kN, m), block by block; k rows per pose (3, or
+    the fit's weighted rows: :mod:`lab.observations`)."""
     free = np.flatnonzero(res.identifiable)
     s = res.identifiability.scale[free]
     N = res.n_points
-    J0 = np.empty((3 * N, free.size))
-    Jc = np.empty((3 * N, cand.size))
-    for sl, _, J in Blocks(res.model, res.inputs).jacobians(res.params, keep_cache=False):
-        J0[3 * sl.start : 3 * sl.stop] = J[:, :, free].reshape(-1, free.size) * s
-    for sl, _, J in Blocks(full, inputs).jacobians(p, keep_cache=False):
-        Jc[3 * sl.start : 3 * sl.stop] = J[:, :, cand].reshape(-1, cand.size)
+    obs = res.observations
+    k = res.row_residuals.shape[1]
+    J0 = np.empty((k * N, free.size))
+    Jc = np.empty((k * N, cand.size))
+    blocks = Blocks(res.model, res.inputs, observations=obs)
+    for sl, _, J in blocks.jacobians(res.params, keep_cache=False):
+        J0[k * sl.start : k * sl.stop] = J[:, :, free].reshape(-1, free.size) * s
+    for sl, _, J in Blocks(full, inputs, observations=obs).jacobians(p, keep_cache=False):
+        Jc[k * sl.start : k * sl.stop] = J[:, :, cand].reshape(-1, cand.size)
     return J0, Jc
 
 

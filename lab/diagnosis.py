@@ -315,6 +315,9 @@ def diagnose(
     f_scale_mm: float | None = None,
     max_evaluations: int = 100,
     register: bool = True,
+    noise_ppm: float = 0.0,
+    noise_mrad: float | None = None,
+    measured: tuple[str, ...] | None = None,
     options: LabOptions | None = None,
     alpha: float = 0.02,
     candidates: Sequence[str] | None = None,
@@ -341,6 +344,9 @@ def diagnose(
         f_scale_mm=f_scale_mm,
         max_evaluations=max_evaluations,
         register=register,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        measured=measured,
     )
     s = screened(data, robot, effects, opts, candidates=candidates, tests=True)
     # the noise the tests use: the stated one, else the scatter of repeated poses
@@ -360,7 +366,13 @@ def diagnose(
     cand = candidate_indices(full, groups)
     column = {int(j): k for k, j in enumerate(cand)}
     J0, Jc = candidate_columns(res, full, inputs, p, cand)
-    e = res.residuals.reshape(-1).copy()
+    # the fit's rows: the points, or the weighted rows (orientations too) of lab.observations,
+    # whose common noise is the instrument's reference sigma
+    rows_of = res.row_residuals
+    k_pose = rows_of.shape[1]
+    e = rows_of.reshape(-1).copy()
+    if res.weighted:
+        noise_mm = None if res.noise_ref is None else 1e3 * res.noise_ref
 
     # the poses the screen left out of the tests: they would look like a missing effect
     far = s.untested_rows
@@ -368,16 +380,19 @@ def diagnose(
     inlier[far] = False
     n = int(inlier.sum())
     if far.size:
-        keep3 = np.repeat(inlier, 3)
+        keep3 = np.repeat(inlier, k_pose)
         J0, Jc, e = compact(J0, keep3), compact(Jc, keep3), e[keep3]
 
     Q0 = orthonormal_basis(J0, overwrite=True)
     del J0
     e0 = e - Q0 @ (Q0.T @ e)
     rss0 = float(e0 @ e0)
-    dof0 = 3 * n - Q0.shape[1]
+    n_rows = 3 * n
+    if res.weighted and res.observations is not None:
+        n_rows = int(res.observations.measured[inlier].sum())  # rows not measured weigh 0
+    dof0 = n_rows - Q0.shape[1]
     sigma = noise_mm * 1e-3 if noise_mm is not None else math.sqrt(rss0 / max(dof0, 1))
-    H0 = hat_blocks(Q0)
+    H0 = hat_blocks(Q0, k_pose)
     cv0 = press_rms(e0, H0)
     alpha_c = alpha / 2 if noise_mm is not None else alpha
     # the cyclic errors' orders are scanned (lab.spectral) unless the candidates leave them out;
@@ -455,8 +470,8 @@ def diagnose(
         CyclicProblem(
             residual=e0,
             model=Q0,
-            joint=Jq.reshape(3 * n, 6),
-            pose=np.repeat(np.arange(n), 3),
+            joint=Jq.reshape(-1, 6),
+            pose=np.repeat(np.arange(n), Jq.shape[1]),
             q=data.q[inlier] if n < N else data.q,
             orthonormal=True,
         ),
@@ -680,7 +695,7 @@ def _forward(
                 effect=c.effect,
                 joints=tuple(sorted(joints)) if joints else c.joints,
                 parameters=tuple(sorted(names, key=names.index)),
-                rms_mm=1e3 * math.sqrt(max(sel.rss, 0.0) / (sel.e.size // 3)),
+                rms_mm=1e3 * math.sqrt(max(sel.rss, 0.0) / (sel.e.size // sel.H.shape[1])),
                 cv_rms_mm=1e3 * sel.cv,
                 statistic=F,
                 p_value=pv,
@@ -789,10 +804,15 @@ def _max_hint_width(data: MeasurementSet) -> int:
 
 
 def _joint_jacobian(res: FitResult, inlier: np.ndarray) -> np.ndarray:
-    """d point / d theta (N, 3, 6) at the fit, of the poses ``inlier``, block by block."""
-    Jq = np.empty((res.n_points, 3, 6))
+    """d point / d theta (N, 3, 6) at the fit, of the poses ``inlier``, block by block; of the
+    fit's weighted rows (N, k, 6) where it has them (:mod:`lab.observations`)."""
+    obs = res.observations if res.weighted else None
+    Jq = np.empty((res.n_points, 3 if obs is None else obs.per_pose, 6))
     for sl, part in Blocks(res.model, res.inputs):
-        Jq[sl] = res.model.joint_jacobian(part, res.params)[1]
+        if obs is None:
+            Jq[sl] = res.model.joint_jacobian(part, res.params)[1]
+        else:
+            Jq[sl] = obs.joint_rows(res.model, part, res.params, sl)
     return Jq[inlier] if inlier.sum() < res.n_points else Jq
 
 
@@ -804,9 +824,16 @@ def _hints(res, data, Q0, e0, rss0, dof0, inlier, Jq) -> list[Hint]:
     through three matrix products together, summed over blocks of poses (many small
     multithreaded BLAS calls stall on a busy machine; one product of 200k poses holds GBs)."""
     n = int(inlier.sum())
+    obs = res.observations if res.weighted else None
+    kp = Jq.shape[1]  # rows per pose: 3, or the weighted rows of lab.observations
+    scale = None
+    if obs is not None:  # each measured row's own direction, weighted as the rows are
+        scale = np.ones((res.n_points, kp)) if obs.scale is None else obs.scale
+        if n < res.n_points:
+            scale = scale[inlier]
     rms = np.sqrt(np.mean(np.sum(Jq**2, axis=1), axis=0))
     js = [j for j in range(6) if rms[j] > 0]
-    nd = 3 + len(js)
+    nd = kp + len(js)
     Qs = [Q0] if isinstance(Q0, np.ndarray) else [Q for Q in Q0 if Q.shape[1]]
     r0 = sum(Q.shape[1] for Q in Qs)
 
@@ -830,16 +857,20 @@ def _hints(res, data, Q0, e0, rss0, dof0, inlier, Jq) -> list[Hint]:
     size = _blocks.BLOCK
     for blk in (slice(a, min(a + size, n)) for a in range(0, n, size)):
         m = blk.stop - blk.start
-        dirs = [np.broadcast_to(np.eye(3)[a], (m, 3)) for a in range(3)]
+        if scale is None:
+            dirs = [np.broadcast_to(np.eye(3)[a], (m, 3)) for a in range(3)]
+        else:  # each measured row's own direction, weighted as the rows are
+            dirs = [np.eye(kp)[a] * scale[blk, a : a + 1] for a in range(kp)]
         dirs += [Jq[blk, :, j] / rms[j] for j in js]
-        D = np.stack(dirs, axis=-1)  # (m, 3, nd)
+        D = np.stack(dirs, axis=-1)  # (m, k, nd)
         Dt = D.transpose(0, 2, 1)
         M = np.matmul(Dt, D).reshape(m, nd * nd)
-        rows = slice(3 * blk.start, 3 * blk.stop)
+        rows = slice(kp * blk.start, kp * blk.stop)
         Qr = Qs[0][rows] if len(Qs) == 1 else np.hstack([Q[rows] for Q in Qs])
-        Qb = Qr.reshape(m, 3, r0).transpose(0, 2, 1)
+        Qb = Qr.reshape(m, kp, r0).transpose(0, 2, 1)
         Q0D = np.matmul(Qb, D).reshape(m, r0 * nd)
-        eD = np.matmul(Dt, e0[3 * blk.start : 3 * blk.stop].reshape(m, 3, 1))[:, :, 0]  # (m, nd)
+        eb = e0[kp * blk.start : kp * blk.stop].reshape(m, kp, 1)
+        eD = np.matmul(Dt, eb)[:, :, 0]  # (m, nd)
         P = Phi[blk]
         pairs = np.hstack(
             [(P[:, c : c + K, None] * P[:, None, c : c + K]).reshape(m, -1) for c, K in spans]

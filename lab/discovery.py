@@ -664,6 +664,9 @@ def discover(
     f_scale_mm: float | None = None,
     max_evaluations: int = 100,
     register: bool = True,
+    noise_ppm: float = 0.0,
+    noise_mrad: float | None = None,
+    measured: tuple[str, ...] | None = None,
     options: LabOptions | None = None,
     alpha: float = 0.02,
     validate: MeasurementSet | str | Path | None = None,
@@ -690,6 +693,9 @@ def discover(
         f_scale_mm=f_scale_mm,
         max_evaluations=max_evaluations,
         register=register,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        measured=measured,
     )
     if not 1 <= order <= MAX_ORDER:
         raise FitError(f"order (the highest harmonic) must lie in 1..{MAX_ORDER}, got {order}")

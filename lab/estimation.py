@@ -40,13 +40,14 @@ from arm.effect_api import EffectError, ModelInputs
 from arm.effects import Effect, missing_inputs
 from arm.errormodel import ErrorModel
 from arm.errors import warn
-from arm.measurements import MeasurementSet, as_measurements
+from arm.measurements import COMPONENTS, MeasurementSet, as_measurements
 from lab.blocks import Blocks
 from lab.errors import FitError, ImplausibleAcceptedWarning
 from lab.identifiability import Identifiability, analyse_jacobian
+from lab.observations import observations_of, uses_orientation
 from lab.options import LabOptions
 from lab.plausibility import Implausible, implausible, likely_cause
-from lab.registration import register_base, tool_indices
+from lab.registration import register_base, register_tool_rotation, tool_indices
 from lab.result import FitResult, inputs_of, rms
 from lab.solver import (
     HUBER_K,
@@ -73,10 +74,16 @@ def build_model(
     data: MeasurementSet,
     robot: RobotDescription,
     effects: str | Sequence[str | Effect],
+    measured: tuple[str, ...] | None = None,
 ) -> tuple[ErrorModel, ModelInputs]:
-    """The error model for these data (one tool offset per target) and its inputs."""
+    """The error model for these data (one tool offset per target, one base per tracker
+    station, the tool frame's rotation where orientations are fitted: ``measured``) and its
+    inputs."""
+    turn = uses_orientation(data, measured)
     try:
-        model = ErrorModel(robot, effects, targets=data.targets)
+        model = ErrorModel(
+            robot, effects, targets=data.targets, stations=data.stations, orientation=turn
+        )
     except EffectError as exc:
         raise FitError(str(exc)) from None
     for e in model.effects:
@@ -85,11 +92,17 @@ def build_model(
             raise FitError(f"{data.source}: {e.label} cannot be fitted without {why}")
     inputs = inputs_of(model, data)
     n, P = len(data), len(model.layout)
-    if 3 * n <= P:
+    equations = 3 * n
+    if turn:
+        mask = data.measured
+        if measured is not None:
+            mask = mask & np.array([c in measured for c in COMPONENTS])
+        equations = int(mask.sum())
+    if equations <= P:
         need = P // 3 + 1
         raise FitError(
-            f"{data.source}: {n} poses give {3 * n} equations, not more than the {P} parameters "
-            f"of {','.join(model.effect_names)}; at least {need} poses are needed"
+            f"{data.source}: {n} poses give {equations} equations, not more than the {P} "
+            f"parameters of {','.join(model.effect_names)}; at least {need} poses are needed"
         )
     return model, inputs
 
@@ -107,9 +120,11 @@ def fit_rows(
     identifiability again with the noise known, standard errors (the module docstring). Nothing
     is left out here: :mod:`lab.screening` decides which rows count."""
     loss, noise_mm, f_scale_mm = options.loss, options.noise_mm, options.f_scale_mm
-    model, inputs = build_model(data, robot, effects)
+    model, inputs = build_model(data, robot, effects, options.measured)
+    obs = observations_of(data, options.instrument, options.measured)
     lay = model.layout
     xyz = data.xyz
+    target = obs.target  # the points themselves in the plain case
     p = model.nominal()
     if start:
         p = lay.vector(start, default=p)
@@ -125,13 +140,23 @@ def fit_rows(
         if after < before:
             log.debug("registration: RMS %.4g mm -> %.4g mm", before * 1e3, after * 1e3)
             p = p_reg
+        if obs.rotation is not None:
+            turn = lay.indices(["trx", "try", "trz"])
+            if not held[turn].any():
+                seen = np.asarray(obs.measured[:, 3:].any(axis=1))
+                p = register_tool_rotation(model, inputs, p, obs.rotation, seen)
 
-    blocks = Blocks(model, inputs)
+    blocks = Blocks(model, inputs, observations=obs)
+    n_eq = obs.n_equations
 
     def solved(p, free, scale, loss="linear", f_scale=1.0):
         return solve(
-            blocks, xyz, p, free, scale, loss, f_scale, options.max_evaluations, options.solver
+            blocks, target, p, free, scale, loss, f_scale, options.max_evaluations, options.solver
         )
+
+    def points(sol) -> np.ndarray:
+        """The fit's position residuals (N, 3), m: the rows themselves in the plain case."""
+        return sol.residuals if obs.plain else model.predict(inputs, sol.params) - xyz
 
     def identifiability(p, J, **kw):
         """At ``p``: from the whole Jacobian ``J`` when there is one block, else from the R of
@@ -144,10 +169,10 @@ def fit_rows(
 
     # identifiability at the start (the structure), fit, again with the noise known, refit
     if blocks.single:
-        pred, J = model.predict(inputs, p, jacobian=True)
+        pred, J = next(blocks.jacobians(p))[1:]
     else:
         pred, J = blocks.predict(p), None
-    initial_rms = rms(pred - xyz)
+    initial_rms = rms(pred - xyz) if obs.plain else rms(model.predict(inputs, p) - xyz)
     # held parameters are known: the others' identifiability is judged without their columns
     # (with the base held, row 1 is identifiable; with it free, the base absorbs row 1)
     ident = identifiability(p, J, tol=START_TOL, warn=False)
@@ -157,20 +182,23 @@ def fit_rows(
     sol = solved(p, free, ident.scale)
     iterations, evaluations = sol.iterations, sol.evaluations
     if loss == "linear":
-        sigma = float(np.sqrt(np.sum(sol.residuals**2) / max(sol.residuals.size - free.sum(), 1)))
+        sigma = float(np.sqrt(np.sum(sol.residuals**2) / max(n_eq - free.sum(), 1)))
     else:
-        sigma = robust_sigma(sol.residuals)
+        sigma = robust_sigma(sol.residuals[obs.measured])
     # the median pose, not the RMS: a few gross outliers must not condemn the model
-    typical_miss = float(np.median(np.linalg.norm(sol.residuals, axis=1)))
+    miss = points(sol)
+    typical_miss = float(np.median(np.linalg.norm(miss, axis=1)))
     if typical_miss > IMPLAUSIBLE_RMS:
         raise FitError(
             f"{data.source}: the model cannot follow these measurements (RMS "
-            f"{rms(sol.residuals) * 1e3:.4g} mm, median {typical_miss * 1e3:.4g} mm after fitting "
+            f"{rms(miss) * 1e3:.4g} mm, median {typical_miss * 1e3:.4g} mm after fitting "
             f"{', '.join(lay.effects)}); are they in other units (length in mm, angles in deg: "
             "say so when reading) or of another robot?"
         )
-    if noise_mm is not None:
+    if noise_mm is not None and obs.plain:
         noise = noise_mm * 1e-3
+    elif obs.sigma_ref is not None:  # the weighted rows' noise, as the instrument states it
+        noise = obs.sigma_ref
     else:  # the residual's, unless a few gross errors inflate it (then its robust scale)
         rs = robust_sigma(sol.residuals)
         noise = sigma if sigma <= 3.0 * rs else rs
@@ -194,20 +222,22 @@ def fit_rows(
             sol = solved(sol.params, free, ident.scale, loss, f_scale)
             iterations, evaluations = iterations + sol.iterations, evaluations + sol.evaluations
             if not f_scale_mm:
-                f_scale = HUBER_K * robust_sigma(sol.residuals)
+                f_scale = HUBER_K * robust_sigma(sol.residuals[obs.measured])
 
     r = sol.residuals
     w = irls_weights(r, loss, f_scale) if f_scale is not None else None
     gram, scale = sol.gram, sol.scale  # the Gram matrix of the columns as scaled in the solve
     if w is not None:  # the robust fit's IRLS weights in the Gram matrix
         gram = weighted_gram(blocks, sol.params, free, scale, w)
-    std, sigma = standard_errors(gram, r, free, scale, w)
+    std, sigma = standard_errors(gram, r, free, scale, w, None if obs.plain else n_eq)
     return FitResult(
         model=model,
         params=sol.params,
         std=std,
         identifiable=free,
-        residuals=r,
+        residuals=points(sol),
+        weighted_rows=None if obs.plain else r,
+        observations=obs,
         identifiability=ident,
         loss=loss,
         iterations=iterations,

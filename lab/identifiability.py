@@ -188,9 +188,9 @@ def priority_order(names: Sequence[str], geometric: Sequence[str] = ()) -> np.nd
         n = names[k]
         p = parse_parameter_name(n) if n in geo else None
         if p is not None:
-            if p.kind == "base":
-                return (0, BASE_NAMES.index(n), 0)
-            if p.kind == "tool":
+            if p.kind == "base":  # with several stations: station by station, as laid out
+                return (0, BASE_NAMES.index(n) if p.number is None else k, 0)
+            if p.kind in ("tool", "tool_rotation"):
                 return (1, k, 0)
             if p.kind == "beta":  # beta_{i-1} sits in row i in place of dd_i
                 return (2, p.row, 3)

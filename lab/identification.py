@@ -51,6 +51,9 @@ def fit(
     f_scale_mm: float | None = None,
     max_evaluations: int = 100,
     register: bool = True,
+    noise_ppm: float = 0.0,
+    noise_mrad: float | None = None,
+    measured: tuple[str, ...] | None = None,
     options: LabOptions | None = None,
     validate: MeasurementSet | str | Path | None = None,
     start: Mapping[str, float] | None = None,
@@ -84,6 +87,9 @@ def fit(
         f_scale_mm=f_scale_mm,
         max_evaluations=max_evaluations,
         register=register,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        measured=measured,
     )
     if isinstance(data, Screen):
         if start or tuple(fixed):

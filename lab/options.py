@@ -23,6 +23,8 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from arm.constraints import Interval, choices, declare, problems, refuse
+from arm.measurements import COMPONENTS
+from arm.noise import InstrumentNoise
 from lab.errors import FitError
 
 __all__ = [
@@ -41,6 +43,7 @@ OutlierMode = Literal["auto", "keep"]
 Solver = Literal["lm", "minpack"]
 
 POSITIVE = Interval(float, 0.0, None, closed="neither")
+NON_NEGATIVE = Interval(float, 0.0, None, closed="left")
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,13 @@ class LabOptions:
     loss. ``f_scale_mm``: the robust loss's threshold (default 1.345 robust sigmas).
     ``max_evaluations``: of the model, per solve. ``register``: place a geometric model's base
     and tool offsets in closed form first (:mod:`lab.registration`).
+
+    The instrument model (:class:`arm.noise.InstrumentNoise`, docs/format.md): ``noise_ppm``,
+    the growth of the per-axis sigma with the distance from the tracker (um per m: sigma =
+    ``noise_mm`` + ``noise_ppm`` x distance); ``noise_mrad``, an orientation's per-axis sigma.
+    With them, or with the rows' own ``std_*`` columns, every row is weighted by its sigma and
+    every test compares the residual with it. ``measured``: the components (of ``x y z rx ry
+    rz``) to fit, default every one the data measured (``x,y,z``: the positions alone).
     """
 
     noise_mm: float | None = declare(None, POSITIVE)
@@ -68,14 +78,28 @@ class LabOptions:
     f_scale_mm: float | None = declare(None, POSITIVE)
     max_evaluations: int = declare(100, Interval(int, 1, None))
     register: bool = True
+    noise_ppm: float = declare(0.0, NON_NEGATIVE)
+    noise_mrad: float | None = declare(None, POSITIVE)
+    measured: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         refuse(problems(self), FitError)
+        if self.measured is not None:
+            bad = [c for c in self.measured if c not in COMPONENTS]
+            if bad or not {"x", "y", "z"} <= set(self.measured):
+                raise FitError(
+                    f"measured must name x, y, z and any of rx, ry, rz, got {','.join(self.measured)}"
+                )
 
     @property
     def noise(self) -> float | None:
         """``noise_mm`` in m."""
         return None if self.noise_mm is None else 1e-3 * self.noise_mm
+
+    @property
+    def instrument(self) -> InstrumentNoise:
+        """The instrument model these options state."""
+        return InstrumentNoise(self.noise_mm, self.noise_ppm, self.noise_mrad)
 
     def replace(self, **changes: Any) -> LabOptions:
         return dataclasses.replace(self, **changes)

@@ -9,6 +9,11 @@ squares, so it converges from a tool hundreds of millimetres off.
 
     p = register_base(model, inputs, xyz, model.nominal())
     p0 = nominal_parameters(model, inputs, xyz)     # the "before" of a calibration
+
+With several tracker stations each station's base is registered on its own rows, the tool offsets
+shared; where the tool frame's orientation is measured, its rotation (``trx try trz``) is the
+rotation that best maps the arm's last frame onto the measured frames, given the bases
+(:func:`register_tool_rotation`, the orthogonal Procrustes solution).
 """
 
 from __future__ import annotations
@@ -22,7 +27,13 @@ from arm.kinematics import link_frames
 from arm.so3 import rotation_vector
 from lab.blocks import Blocks
 
-__all__ = ["nominal_parameters", "register_base", "tool_indices"]
+__all__ = [
+    "nominal_parameters",
+    "register_base",
+    "register_points",
+    "register_tool_rotation",
+    "tool_indices",
+]
 
 
 def register_base(
@@ -52,6 +63,8 @@ def register_base(
     tgt = inputs.target
     n, K = inputs.n, len(model.targets)
     rows = np.arange(n)
+    if len(model.stations) > 1:
+        return _register_stations(model, inputs, xyz, p, o6, R6, tools, iterations)
     R = st.base_R
     t = st.base_t
     for _ in range(iterations):
@@ -88,6 +101,94 @@ def register_base(
         tool_names = [x for x in names[geo] if x[:1] == "t" and x[1:2] in ("x", "y", "z")]
         idx = lay.indices(tool_names).reshape(K, 3)
         p[idx] += tool - st.tools
+    return p
+
+
+def register_points(pred: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rigid transform (R, t) that best maps the points ``pred`` (N, 3) onto ``xyz``
+    (Kabsch's rotation about the centroids): a base registered on given points."""
+    pc, mc = pred.mean(axis=0), xyz.mean(axis=0)
+    rot, _ = Rotation.align_vectors(xyz - mc, pred - pc)
+    R = rot.as_matrix()
+    return R, mc - R @ pc
+
+
+def _register_stations(
+    model: ErrorModel,
+    inputs: ModelInputs,
+    xyz: np.ndarray,
+    p: np.ndarray,
+    o6: np.ndarray,
+    R6: np.ndarray,
+    tools: bool,
+    iterations: int,
+) -> np.ndarray:
+    """:func:`register_base` with one base per station (``bx{s}`` ...) and the tools shared."""
+    lay = model.layout
+    st = model.state(inputs, p)
+    tool = st.tools.copy()
+    tgt, which = inputs.target, inputs.stations
+    n, K, S = inputs.n, len(model.targets), len(model.stations)
+    Rs = np.repeat(np.eye(3)[None], S, axis=0)
+    ts = np.zeros((S, 3))
+    for _ in range(iterations):
+        pts = o6 + np.einsum("nij,nj->ni", R6, tool[tgt])
+        for s in range(S):
+            on = which == s
+            if on.sum() >= 3:
+                Rs[s], ts[s] = register_points(pts[on], xyz[on])
+        if not tools:
+            break
+        # xyz - R_s o6 = R_s R6 tool[target] + t_s, linear in (t_1..t_S, tools)
+        A = np.zeros((n, 3, 3 * S + 3 * K))
+        RR6 = np.einsum("nij,njk->nik", Rs[which], R6)
+        for s in range(S):
+            A[which == s, :, 3 * s : 3 * s + 3] = np.eye(3)
+        for k in range(K):
+            A[tgt == k, :, 3 * S + 3 * k : 3 * S + 3 * k + 3] = RR6[tgt == k]
+        b = xyz - np.einsum("nij,nj->ni", Rs[which], o6)
+        b = b - np.einsum("nij,nj->ni", RR6, tool[tgt])
+        A2 = A.reshape(-1, 3 * S + 3 * K)
+        sol, *_ = np.linalg.lstsq(A2.T @ A2, A2.T @ b.reshape(-1), rcond=None)
+        ts = sol[: 3 * S].reshape(S, 3)
+        step = sol[3 * S :].reshape(K, 3)
+        tool = tool + step
+        if np.max(np.abs(step)) < 1e-10:
+            break
+    for s, sid in enumerate(model.stations):
+        for c, v in zip("xyz", ts[s], strict=True):
+            p[lay.index(f"b{c}{sid}")] = v
+        for c, v in zip("xyz", rotation_vector(Rs[s]), strict=True):
+            p[lay.index(f"br{c}{sid}")] = v
+    if tools:
+        idx = tool_indices(model).reshape(K, 3)
+        p[idx] += tool - st.tools
+    return p
+
+
+def register_tool_rotation(
+    model: ErrorModel,
+    inputs: ModelInputs,
+    params: np.ndarray,
+    rotations: np.ndarray,
+    seen: np.ndarray,
+) -> np.ndarray:
+    """``params`` with the tool frame's rotation (``trx try trz``) that best maps the model's last
+    frame onto the measured orientations ``rotations`` (N, 3, 3) of the rows ``seen``, given the
+    bases in ``params``: R_tool = argmin sum |R_b R6 R_tool - R_measured|^2, the orthogonal
+    Procrustes solution (the SVD of sum R6^T R_b^T R_measured)."""
+    p = np.array(params, dtype=float)
+    lay = model.layout
+    if not seen.any() or "trx" not in lay:
+        return p
+    idx = lay.indices(["trx", "try", "trz"])
+    q = p.copy()
+    q[idx] = 0.0
+    _, R = model.predict_pose(inputs, q)  # the last frame, with the bases, no tool rotation
+    M = np.einsum("nji,njk->ik", R[seen], rotations[seen])
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    p[idx] = rotation_vector(U @ D @ Vt)
     return p
 
 

@@ -81,6 +81,9 @@ def build_report(
     f_scale_mm: float | None = None,
     max_evaluations: int = 100,
     register: bool = True,
+    noise_ppm: float = 0.0,
+    noise_mrad: float | None = None,
+    measured: tuple[str, ...] | None = None,
     options: LabOptions | None = None,
     validate: MeasurementSet | str | Path | None = None,
     rounds: int = 3,
@@ -108,6 +111,9 @@ def build_report(
         f_scale_mm=f_scale_mm,
         max_evaluations=max_evaluations,
         register=register,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        measured=measured,
     )
     val = None if validate is None else as_measurements(validate)
     shown = "geometric" if effects is None else effects

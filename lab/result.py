@@ -25,7 +25,9 @@ from arm.params import ROW_FAMILIES, parameter_unit, parse_parameter_name
 from lab.blocks import Blocks
 from lab.errors import FitError
 from lab.identifiability import Identifiability
+from lab.observations import Observations
 from lab.plausibility import Implausible
+from lab.registration import register_points
 from lab.solver import OUTLIER_RADIUS, robust_sigma
 from lab.text import left_out_lines, parameter_cells
 
@@ -90,6 +92,12 @@ class FitResult:
     ``params`` is the full vector (fixed parameters at nominal) laid out by ``model.layout``;
     ``std`` its standard errors (NaN where fixed); ``residuals`` (N, 3) predicted minus measured
     points. Lengths in m and angles in rad throughout; the ``*_mm`` properties are for people.
+
+    Beyond one 3-D point (:mod:`lab.observations`): ``observations``, the rows the fit compared
+    with; ``weighted_rows`` (N, k), its weighted residual rows where they are not the points
+    (weights, orientations), else None (:attr:`row_residuals` gives either). With a ``--validate`` set,
+    ``validation_registered`` names the stations the fit had not seen, whose bases were
+    registered rigidly on the validation points.
     """
 
     model: ErrorModel
@@ -120,6 +128,10 @@ class FitResult:
     outlier_note: str = ""
     # parameters beyond the plausible bound of their kind, accepted (fit(accept_large=True))
     implausible: tuple[Implausible, ...] = ()
+    weighted_rows: np.ndarray | None = field(default=None, repr=False)
+    observations: Observations | None = field(default=None, repr=False)
+    validation_rotation: np.ndarray | None = field(default=None, repr=False)
+    validation_registered: tuple[int, ...] = ()
 
     # -- metrics ---------------------------------------------------------------------------------
     @property
@@ -181,9 +193,56 @@ class FitResult:
     @property
     def jacobian(self) -> np.ndarray:
         """The identification Jacobian (N, 3, P) at the solution, computed on demand (it is not
-        kept: 200,000 poses of geometric + compliance make 190 MB)."""
+        kept: 200,000 poses of geometric + compliance make 190 MB); of the weighted rows (N, k,
+        P) where they are not the points (:attr:`row_residuals`)."""
+        if self.weighted_rows is not None and self.observations is not None:
+            J = self.observations.rows(self.model, self.inputs, self.params)[1]
+            assert J is not None
+            return J
         _, J = self.model.predict(self.inputs, self.params, jacobian=True)
         return J
+
+    @property
+    def row_residuals(self) -> np.ndarray:
+        """The fit's residual rows (N, k), weighted: what every statistic of the lab tests
+        (:mod:`lab.observations`); the points' residuals (N, 3) in the plain case."""
+        return self.residuals if self.weighted_rows is None else self.weighted_rows
+
+    @property
+    def n_equations(self) -> int:
+        """The rows measured (3 per point in the plain case)."""
+        if self.observations is None or self.weighted_rows is None:
+            return int(self.residuals.size)
+        return self.observations.n_equations
+
+    @property
+    def weighted(self) -> bool:
+        """Whether the rows were weighted by differing uncertainties (or orientations fitted)."""
+        return self.weighted_rows is not None
+
+    @property
+    def noise_ref(self) -> float | None:
+        """The per-row noise (m) after weighting, where the instrument states it."""
+        return None if self.observations is None else self.observations.sigma_ref
+
+    @property
+    def orientation_rms_mrad(self) -> float | None:
+        """RMS of the orientation residuals' rotation angle (mrad), over the rows that measured
+        an orientation; None where none was fitted."""
+        obs = self.observations
+        if obs is None or obs.rotation is None:
+            return None
+        e = obs.orientation_errors(self.model, self.inputs, self.params)
+        e = e[np.isfinite(e[:, 0])]
+        return 1e3 * float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if len(e) else None
+
+    @property
+    def validation_orientation_rms_mrad(self) -> float | None:
+        e = self.validation_rotation
+        if e is None:
+            return None
+        e = e[np.isfinite(e[:, 0])]
+        return 1e3 * float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if len(e) else None
 
     @property
     def outliers(self) -> np.ndarray:
@@ -229,8 +288,91 @@ class FitResult:
         return self.predict(data) - data.xyz
 
     def validate(self, data: MeasurementSet) -> FitResult:
-        """This result with validation metrics on ``data`` (held-out poses)."""
-        return replace(self, validation_residuals=self.residuals_of(data))
+        """This result with validation metrics on ``data`` (held-out poses).
+
+        Rows of a station the fit had not seen (a ``station`` id not among the model's) have no
+        fitted base: the arm's fitted model is placed there by a rigid registration of its
+        predicted points on theirs (6 parameters, the base alone), named in
+        ``validation_registered``; the validation then measures the arm, not the new base."""
+        model = self.model
+        which = data.columns.get("station")
+        known = set(model.stations)
+        if which is None:
+            if len(model.stations) > 1:
+                raise FitError(
+                    f"{data.source}: no station column, but the fit has stations "
+                    f"{', '.join(map(str, model.stations))}: say which station measured it"
+                )
+            return self._validated(data, self.predict(data), None, ())
+        ids = sorted({int(v) for v in which})
+        new = tuple(i for i in ids if i not in known) if len(known) > 1 else ()
+        if len(known) == 1 and ids != [model.stations[0]]:
+            new = tuple(ids)  # one base fitted: every other station is placed anew
+        if not new:
+            return self._validated(data, self.predict(data), None, ())
+        # the arm as fitted, in the frame of the fit's first station; each new station's base
+        # is the rigid transform that best maps those points onto its measured ones
+        cols = {k: v for k, v in data.columns.items() if k != "station"}
+        first = MeasurementSet(data.q, data.xyz, cols, data.source, data.lines)
+        inputs = inputs_of(model, first)
+        if len(model.stations) > 1:
+            inputs.station = np.zeros(len(data), dtype=int)
+        pred = Blocks(model, inputs).predict(self.params)
+        pts = np.array(pred, dtype=float)
+        turns = np.repeat(np.eye(3)[None], len(data), axis=0)
+        for sid in ids:
+            on = which == sid
+            if sid in new:
+                if on.sum() < 3:
+                    raise FitError(
+                        f"{data.source}: station {sid}, which the fit has not seen, has "
+                        f"{int(on.sum())} rows: at least 3 place its base"
+                    )
+                R, t = register_points(pred[on], data.xyz[on])
+            else:
+                sub = data.subset(np.flatnonzero(on))
+                pts[on] = self.predict(sub)
+                continue
+            pts[on] = pred[on] @ R.T + t
+            turns[on] = R
+        return self._validated(data, pts, (first, turns), new)
+
+    def _validated(self, data, pts, moved, new) -> FitResult:
+        rot = None
+        if self.observations is not None and self.observations.rotation is not None:
+            if data.has_orientation:
+                rot = self._orientation_errors(data, moved)
+        return replace(
+            self,
+            validation_residuals=pts - data.xyz,
+            validation_rotation=rot,
+            validation_registered=tuple(new),
+        )
+
+    def _orientation_errors(self, data: MeasurementSet, moved) -> np.ndarray:
+        """The held-out orientation errors (M, 3), rad; NaN where not measured."""
+        from arm.so3 import rotation_matrix, rotation_vector
+
+        model = self.model
+        if moved is None:
+            _, R = model.predict_pose(inputs_of(model, data), self.params)
+        else:
+            first, turns = moved
+            inputs = inputs_of(model, first)
+            if len(model.stations) > 1:
+                inputs.station = np.zeros(len(data), dtype=int)
+            _, R = model.predict_pose(inputs, self.params)
+            R = turns @ R
+            for sid in {int(v) for v in data.columns["station"]} & set(model.stations):
+                on = data.columns["station"] == sid
+                if len(model.stations) > 1:
+                    _, R[on] = model.predict_pose(
+                        inputs_of(model, data.subset(np.flatnonzero(on))), self.params
+                    )
+        assert data.orientation is not None
+        e = rotation_vector(R @ rotation_matrix(data.orientation).transpose(0, 2, 1))
+        e[~data.measured[:, 3:].any(axis=1)] = np.nan
+        return e
 
     def description(self, name: str | None = None) -> RobotDescription:
         """The calibrated arm: a description whose nominal model reproduces this fit."""
@@ -277,11 +419,19 @@ class FitResult:
             f"RMS {self.initial_rms * 1e3:.4f} mm -> {self.rms_mm:.4f} mm, max {self.max_mm:.4f} mm, "
             f"{self.iterations} iterations"
         ]
+        if self.orientation_rms_mrad is not None:
+            out.append(f"orientation RMS {self.orientation_rms_mrad:.4f} mrad")
         if self.validation_residuals is not None:
             out.append(
                 f"validation on {len(self.validation_residuals)} points: RMS "
                 f"{self.validation_rms_mm:.4f} mm, median {self.validation_median_mm:.4f} mm"
             )
+            if self.validation_registered:
+                ids = ", ".join(map(str, self.validation_registered))
+                out.append(
+                    f"validation: station(s) {ids} not in the fit: each one's base registered "
+                    "rigidly (6 parameters) on its validation points, the arm as fitted"
+                )
         out.append(self.identifiability.summary())
         out += self.screening_lines()
         return "\n".join(out)
@@ -336,6 +486,12 @@ class FitResult:
             "outlier_rule": self.outlier_rule,
             "duplicates": [d.to_dict() for d in self.duplicates],
             "implausible": [b.to_dict() for b in self.implausible],
+            "stations": list(self.model.stations) if "station" in self.inputs.columns else None,
+            "weighted": self.weighted,
+            "noise_ref_mm": None if self.noise_ref is None else 1e3 * self.noise_ref,
+            "orientation_rms_mrad": self.orientation_rms_mrad,
+            "validation_orientation_rms_mrad": self.validation_orientation_rms_mrad,
+            "validation_registered": list(self.validation_registered),
         }
 
 

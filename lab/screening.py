@@ -77,6 +77,7 @@ from lab.candidates import (
 )
 from lab.errors import FitError, RowsLeftOutWarning
 from lab.estimation import check_plausible, fit_rows
+from lab.observations import Observations, observations_of
 from lab.options import DEFAULTS, LabOptions, Loss, OutlierMode, Solver, resolve
 from lab.result import Duplicate, FitResult, Outlier, inputs_of
 from lab.solver import HUBER_K, OUTLIER_RADIUS, robust_sigma
@@ -111,10 +112,11 @@ MIN_SCALE = 1e-9  # m
 Effects = str | Sequence[str | Effect]
 
 
-def outlier_radius(n: int, alpha: float = OUTLIER_ALPHA) -> float:
-    """The 3-D radius, in standard deviations of per-axis Gaussian noise, that one of ``n``
-    poses exceeds with probability ``alpha`` (Bonferroni over the poses)."""
-    return math.sqrt(float(chi2.isf(alpha / max(int(n), 1), 3)))
+def outlier_radius(n: int, alpha: float = OUTLIER_ALPHA, per_pose: int = 3) -> float:
+    """The 3-D radius (``per_pose``-D: a pose's rows), in standard deviations of per-axis
+    Gaussian noise, that one of ``n`` poses exceeds with probability ``alpha`` (Bonferroni over
+    the poses)."""
+    return math.sqrt(float(chi2.isf(alpha / max(int(n), 1), per_pose)))
 
 
 def _line(data: MeasurementSet, i: int) -> int | None:
@@ -181,13 +183,19 @@ def judge(
     every pose (N, 3) and the fit made on ``keep`` with ``rank`` parameters. Returns (mask,
     sigma (m), radius (sigmas))."""
     r = np.asarray(residuals, dtype=float)
-    n = len(r)
+    n, k = r.shape
     m = int(np.sum(keep))
-    dof = 3 * m - rank
+    if k == 3:
+        rows = 3 * m
+        s = robust_sigma(r[keep])
+    else:  # weighted rows, some not measured (zero): the scale of those measured
+        rows = int(np.count_nonzero(r[keep]))
+        s = robust_sigma(r[keep][r[keep] != 0])
+    dof = rows - rank
     if dof < MIN_DOF:
         return np.zeros(n, dtype=bool), float("nan"), float("nan")
-    s = max(robust_sigma(r[keep]) * math.sqrt(3 * m / dof), MIN_SCALE)
-    radius = outlier_radius(n, alpha)
+    s = max(s * math.sqrt(rows / dof), MIN_SCALE)
+    radius = outlier_radius(n, alpha, k)
     if not s > 0:
         return np.zeros(n, dtype=bool), s, radius
     return np.sum(r**2, axis=1) > (radius * s) ** 2, s, radius
@@ -217,26 +225,29 @@ class _Judged:
 
 
 def _explain_with_candidates(
-    res: ModelFit, data: MeasurementSet, keep: np.ndarray
+    res: ModelFit, data: MeasurementSet, keep: np.ndarray, obs: Observations
 ) -> tuple[np.ndarray, int]:
-    """The residual (N, 3) of every pose of ``data`` that is left once the model's parameters
-    *and every candidate effect* (:func:`lab.candidates.candidate_model`) have explained what
-    they can, to first order, on the poses of ``keep``; and the number of columns fitted."""
+    """The residual rows (N, k) of every pose of ``data`` (its rows ``obs``) that are left once
+    the model's parameters *and every candidate effect* (:func:`lab.candidates.candidate_model`)
+    have explained what they can, to first order, on the poses of ``keep``; and the number of
+    columns fitted."""
     try:
         full, _ = candidate_model(res.model, data)
     except EffectError:  # a user's effect that cannot be built here: the model alone
         full = res.model
     p = full.nominal()
     p[full.layout.indices(res.model.layout.names)] = res.params
-    blocks = Blocks(full, inputs_of(full, data))
-    e = (blocks.predict(p) - data.xyz).reshape(-1)  # the model's residual: candidates are zero
+    blocks = Blocks(full, inputs_of(full, data), observations=obs)
+    k = blocks.per_pose
+    # the model's residual: candidates are zero
+    e = (blocks.predict(p) - (data.xyz if obs.plain else obs.target)).reshape(-1)
 
     def columns():
         for sl, _, J in blocks.jacobians(p, keep_cache=False):
-            yield slice(3 * sl.start, 3 * sl.stop), J.reshape(-1, J.shape[2])
+            yield slice(k * sl.start, k * sl.stop), J.reshape(-1, J.shape[2])
 
-    r, k = explained_residual(e, columns, np.repeat(keep, 3).astype(float))
-    return r.reshape(-1, 3), k
+    r, n = explained_residual(e, columns, np.repeat(keep, k).astype(float))
+    return r.reshape(-1, k), n
 
 
 @dataclass(frozen=True)
@@ -254,16 +265,24 @@ class _Model:
             data, self.robot, self.effects, self.options, start=self.start, fixed=self.fixed
         )
 
+    def observations(self, data: MeasurementSet) -> Observations:
+        return observations_of(data, self.options.instrument, self.options.measured)
+
 
 def _flags(
-    res: FitResult, data: MeasurementSet, keep: np.ndarray
+    res: FitResult, data: MeasurementSet, keep: np.ndarray, obs: Observations
 ) -> tuple[np.ndarray, float, float, np.ndarray]:
-    """The rule on the residuals of every pose of ``data`` under ``res`` (fitted on ``keep``);
-    once the model's own residual flags a pose, on the residual every candidate explains too."""
-    r = res.residuals_of(data)
+    """The rule on the residuals of every pose of ``data`` (its rows ``obs``: weighted where
+    the rows' uncertainties differ) under ``res`` (fitted on ``keep``); once the model's own
+    residual flags a pose, on the residual every candidate explains too."""
+    if obs.plain:
+        r = res.residuals_of(data)
+    else:
+        r = Blocks(res.model, inputs_of(res.model, data), observations=obs).predict(res.params)
+        r = r - obs.target
     far, s, radius = judge(r, keep, res.rank)
     if far.any():
-        r_all, k = _explain_with_candidates(res, data, keep)
+        r_all, k = _explain_with_candidates(res, data, keep, obs)
         far, s, radius = judge(r_all, keep, k)
     return far, s, radius, r
 
@@ -276,7 +295,8 @@ def _fit_outliers(
     n = len(data)
     keep = np.ones(n, dtype=bool)
     res = first
-    far, s, radius, r = _flags(res, data, keep)
+    obs = model.observations(data)
+    far, s, radius, r = _flags(res, data, keep, obs)
     if not math.isfinite(s):
         note = "too few poses for the parameters to judge outliers by"
         return first, _Judged(keep, [], s, radius, 0, note)
@@ -293,7 +313,7 @@ def _fit_outliers(
         keep = ~far
         res = model.fit(data.subset(keep))
         rounds += 1
-        far, s, radius, r = _flags(res, data, keep)
+        far, s, radius, r = _flags(res, data, keep, obs)
     if not far.any():
         if rounds:  # the poses once flagged are back within the radius: every pose is fitted
             return first, _Judged(np.ones(n, dtype=bool), [], s, radius, rounds)
@@ -315,18 +335,18 @@ def _fit_outliers(
 
 # -- the tests' rows -------------------------------------------------------------------------------
 def _beyond_candidates(
-    e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, rule: str | None
+    e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, rule: str | None, per_pose: int = 3
 ) -> tuple[np.ndarray, str | None]:
     """The poses that stay gross outliers once the model *and every candidate* may explain the
     residual ``e`` (3N): least squares on their columns, the rule, iterated. Returns their
     indices and the rule as applied."""
-    n = e.size // 3
+    n = e.size // per_pose
     keep = np.ones(n, dtype=bool)
     far = np.zeros(n, dtype=bool)
     radius = s = float("nan")
     for _ in range(MAX_ROUNDS + 1):
-        r, k = explained(e, J0, Jc, np.repeat(keep, 3).astype(float))
-        far, s, radius = judge(r.reshape(n, 3), keep, k)
+        r, k = explained(e, J0, Jc, np.repeat(keep, per_pose).astype(float))
+        far, s, radius = judge(r.reshape(n, per_pose), keep, k)
         if not np.isfinite(s) or far.sum() > MAX_OUTLIER_FRACTION * n:
             return np.empty(0, dtype=int), rule
         if np.array_equal(~far, keep):
@@ -342,12 +362,14 @@ def _beyond_candidates(
     return np.flatnonzero(far), rule
 
 
-def _robust_far(e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, iterations: int = 20) -> np.ndarray:
+def _robust_far(
+    e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, iterations: int = 20, per_pose: int = 3
+) -> np.ndarray:
     """The points a robust fit's tests leave out (``outliers="keep"`` with a robust loss):
     Huber IRLS of the residual ``e`` (3N) on every column the model and all candidates have, so
     that a missing effect is explained, not mistaken for outliers; then the points farther off
     than :data:`lab.solver.OUTLIER_RADIUS` robust standard deviations."""
-    n = e.size // 3
+    n = e.size // per_pose
     r, k = explained(e, J0, Jc, None)
     if k > e.size // 2:  # too few poses for the catalogue: the fit's residual as it is
         r = e
@@ -360,8 +382,9 @@ def _robust_far(e: np.ndarray, J0: np.ndarray, Jc: np.ndarray, iterations: int =
             if np.max(np.abs(w_new - w)) < 1e-6:
                 break
             w = w_new
-    dist = np.linalg.norm(r.reshape(n, 3), axis=1)
-    return np.flatnonzero(dist > OUTLIER_RADIUS * robust_sigma(r))
+    dist = np.linalg.norm(r.reshape(n, per_pose), axis=1)
+    radius = OUTLIER_RADIUS if per_pose == 3 else math.sqrt(chi2.ppf(0.999, per_pose))
+    return np.flatnonzero(dist > radius * robust_sigma(r))
 
 
 def _untested(
@@ -376,10 +399,11 @@ def _untested(
     p = full.nominal()
     p[full.layout.indices(model.layout.names)] = res.params
     J0, Jc = candidate_columns(res, full, inputs, p, candidate_indices(full, groups))
-    e = res.residuals.reshape(-1).copy()
+    e = res.row_residuals.reshape(-1).copy()
+    k = res.row_residuals.shape[1]
     if mode == "auto":
-        return _beyond_candidates(e, J0, Jc, rule)
-    return _robust_far(e, J0, Jc), rule
+        return _beyond_candidates(e, J0, Jc, rule, k)
+    return _robust_far(e, J0, Jc, per_pose=k), rule
 
 
 # -- the screen ------------------------------------------------------------------------------------
@@ -537,10 +561,10 @@ def _screened_fit(
         return replace(s, untested_rows=np.empty(0, dtype=int))
     far, test_rule = _untested(result, s.kept, cands, opts.outliers)
     rows = s._rows()
-    dist = np.linalg.norm(result.residuals, axis=1)
+    dist = np.linalg.norm(result.row_residuals, axis=1)
     inlier = np.ones(len(dist), dtype=bool)
     inlier[far] = False
-    scale = robust_sigma(result.residuals[inlier])
+    scale = robust_sigma(result.row_residuals[inlier])
     lines = s.kept.lines
     untested = tuple(
         Outlier(
@@ -567,6 +591,9 @@ def screen(
     f_scale_mm: float | None = None,
     max_evaluations: int = 100,
     register: bool = True,
+    noise_ppm: float = 0.0,
+    noise_mrad: float | None = None,
+    measured: tuple[str, ...] | None = None,
     options: LabOptions | None = None,
     candidates: Sequence[str] | None = None,
     tests: bool = True,
@@ -593,6 +620,9 @@ def screen(
         f_scale_mm=f_scale_mm,
         max_evaluations=max_evaluations,
         register=register,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        measured=measured,
     )
     model = _Model(
         as_robot(robot), "geometric" if effects is None else effects, opts, start, tuple(fixed)

@@ -17,17 +17,19 @@ __all__ = ["DEPENDENT", "ForwardSelection", "f_test", "hat_blocks", "holm", "pre
 DEPENDENT = 1e-6  # a candidate column this much outside the model's span is dependent on it
 
 
-def hat_blocks(Q: np.ndarray) -> np.ndarray:
-    """The (N, 3, 3) diagonal blocks of the hat matrix of orthonormal regressors ``Q`` (3N, m)."""
-    Qb = Q.reshape(Q.shape[0] // 3, 3, -1)
+def hat_blocks(Q: np.ndarray, per_pose: int = 3) -> np.ndarray:
+    """The (N, k, k) diagonal blocks of the hat matrix of orthonormal regressors ``Q`` (kN, m),
+    k rows per pose (3: a point; 6: a point and an orientation)."""
+    Qb = Q.reshape(Q.shape[0] // per_pose, per_pose, -1)
     return np.matmul(Qb, Qb.transpose(0, 2, 1))
 
 
 def press_rms(e: np.ndarray, H: np.ndarray) -> float:
-    """Leave-one-pose-out RMS (3-D) of a linear least-squares fit whose residual is ``e`` (3N)
-    and whose hat matrix has the diagonal blocks ``H`` (N, 3, 3): e_(-i) = (I - H_ii)^-1 e_i."""
-    n = H.shape[0]
-    loo = np.linalg.solve(np.eye(3) - H, e.reshape(n, 3, 1))[:, :, 0]
+    """Leave-one-pose-out RMS (3-D: of a pose's k rows) of a linear least-squares fit whose
+    residual is ``e`` (kN) and whose hat matrix has the diagonal blocks ``H`` (N, k, k):
+    e_(-i) = (I - H_ii)^-1 e_i."""
+    n, k = H.shape[0], H.shape[1]
+    loo = np.linalg.solve(np.eye(k) - H, e.reshape(n, k, 1))[:, :, 0]
     return float(np.sqrt(np.mean(np.sum(loo**2, axis=1))))
 
 
@@ -91,7 +93,7 @@ class ForwardSelection:
         proj = Qc.T @ self.e
         ss = float(proj @ proj)
         _, pv = f_test(ss, k, self.rss - ss, self.dof - k)
-        H = self.H + hat_blocks(Qc)
+        H = self.H + hat_blocks(Qc, self.H.shape[1])
         return press_rms(self.e - Qc @ proj, H), pv, (Qc, proj, ss, H)
 
     def add(self, cv, pieces, basis: np.ndarray | Callable[[], np.ndarray] | None = None) -> None:

@@ -263,15 +263,17 @@ def standard_errors(
     free: np.ndarray,
     scale: np.ndarray,
     w: np.ndarray | None = None,
+    n_rows: int | None = None,
 ) -> tuple[np.ndarray, float]:
     """Standard errors from the Gram matrix ``G`` of the scaled free columns (weighted for a
-    robust fit): ``cov = s^2 G^-1``, ``s^2 = sum w r^2 / (rows - rank)``. Returns the standard
-    errors (NaN where not free) and ``s``."""
+    robust fit): ``cov = s^2 G^-1``, ``s^2 = sum w r^2 / (rows - rank)``, ``n_rows`` the rows
+    measured (default every row of ``r``). Returns the standard errors (NaN where not free) and
+    ``s``."""
     idx = np.flatnonzero(free)
     rr = r.reshape(-1)
     if w is not None:
         rr = rr * np.sqrt(w.reshape(-1))
-    dof = max(rr.size - idx.size, 1)
+    dof = max((rr.size if n_rows is None else n_rows) - idx.size, 1)
     sigma = float(np.sqrt(rr @ rr / dof))
     std = np.full(len(free), np.nan)
     if idx.size:
