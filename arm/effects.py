@@ -683,6 +683,7 @@ class Geometric(ChainEffect):
         "dd": (1e-4, 3e-4),
         "b": (2e-4, 1e-3),  # base: small for the seed arm (m, rad)
         "t": (1e-4, 3e-4),  # tool offsets
+        "tr": (2e-4, 1e-3),  # the tool frame's rotation: small for a probe aligned to the flange
     }
     description = "DH errors (Hayati beta on parallel axes), base transform and tool offsets"
     # 10 mm for a length error, 50 mrad (2.9 deg) for an angle error: a machined arm is never

@@ -83,12 +83,13 @@ def collect_measurements(
     path: str | Path | None = None,
     progress: Callable[[int, int], None] | None = None,
     noise_ppm: float = 0.0,
-    stations: int | Sequence[TrackerStation] = 1,
+    stations: int | Sequence[TrackerStation] = 0,
     orientation: bool = False,
     noise_mrad: float = 0.1,
     orientation_fraction: float = 1.0,
     stds: bool = False,
     tool_rotation: Sequence[float] | None = None,
+    first_station: int = 1,
 ) -> MeasurementSet:
     """Simulate a calibration measurement campaign and return (and, with ``path``, write) it.
 
@@ -103,10 +104,11 @@ def collect_measurements(
     ``payloads`` (kg per pose) overrides the truth's payload. ``progress(i, n)`` is called
     after each pose. Deterministic for a given seed.
 
-    ``stations``: 1, the world frame (the truth's measurement frame) itself; a number above one,
-    that many stations placed around the arm (:func:`envs.instrument.place_stations`), or the
+    ``stations``: 0, the world frame (the truth's measurement frame) itself, no station column;
+    a number, that many stations placed around the arm (:func:`envs.instrument.place_stations`), or the
     stations themselves; the poses are measured in consecutive blocks, one per station, each in
-    its station's frame, and the set gets a ``station`` column (ids 1, 2, ...).
+    its station's frame, and the set gets a ``station`` column (ids ``first_station``, the next,
+    ...: a held-out campaign from other stations of the same arm takes other ids).
     ``orientation``: a 6-DoF probe, mounted on the last link turned by ``tool_rotation`` (a
     rotation vector; default a random rotation), also measures the tool frame's orientation with
     ``noise_mrad`` per axis, in a random ``orientation_fraction`` of the rows (the others leave it
@@ -152,7 +154,9 @@ def collect_measurements(
     # stay those of a seed
     (campaign_rng,) = rng.spawn(1)
     if isinstance(stations, int):
-        placed = place_stations(stations, campaign_rng) if stations > 1 else None
+        if stations < 0:
+            raise CollectError(f"stations must be >= 0, got {stations}")
+        placed = place_stations(stations, campaign_rng) if stations > 0 else None
     else:
         placed = list(stations)
         if not placed:
@@ -231,6 +235,7 @@ def collect_measurements(
             orientation_fraction,
             stds,
             tool_rotation,
+            first_station,
         )
     if path is not None:
         write_measurements(data, path)
@@ -253,6 +258,7 @@ def _beyond_points(
     fraction: float,
     stds: bool,
     tool_rotation: Sequence[float] | None,
+    first_station: int = 1,
 ) -> MeasurementSet:
     """The measured set of a campaign from stations, with distance-dependent noise, a 6-DoF
     probe and stated uncertainties (see :func:`collect_measurements`)."""
@@ -262,7 +268,7 @@ def _beyond_points(
         which = np.zeros(n, dtype=int)
     else:
         which = (np.arange(n) * len(stations)) // n  # consecutive blocks, one per station
-        columns = columns | {"station": which + 1.0}
+        columns = columns | {"station": which + float(first_station)}
     xyz = np.empty((n, 3))
     point_sigma = np.empty(n)
     rotations = np.empty((n, 3, 3))

@@ -148,6 +148,40 @@ NoiseOpt = Annotated[
         "RMS is this times sqrt(3). Default: estimated from the residual.",
     ),
 ]
+NoisePpmOpt = Annotated[
+    float,
+    typer.Option(
+        "--noise-ppm",
+        help="How the per-axis sigma grows with the distance from the tracker, um per m (a "
+        "GTS3800: 6): sigma = --noise-mm + --noise-ppm x distance, the tracker at the origin of "
+        "the measurement frame (of each station). Rows are weighted by it.",
+    ),
+]
+NoiseMradOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--noise-mrad",
+        help="The per-axis standard uncertainty of a measured orientation (mrad); needed to "
+        "weigh orientation rows against positions (or std_rx, std_ry, std_rz columns).",
+    ),
+]
+OrientationUnitOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--orientation-unit",
+        help="Unit of the orientation columns (rvx.. or roll, pitch, yaw) and their stds: rad "
+        "or deg. Default: the --angle-unit.",
+    ),
+]
+MeasuredOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--measured",
+        help="The components the instrument measures, of x,y,z,rx,ry,rz (rx..rz: the "
+        "orientation about the measurement frame's axes). Default: every one the file has "
+        "columns for; x,y,z fits the positions alone.",
+    ),
+]
 OutliersOpt = Annotated[
     str,
     typer.Option(
@@ -240,11 +274,30 @@ def _robot(robot: str):
         return arm
 
 
-def _read(path: Path, length_unit: str, angle_unit: str):
-    from arm.measurements import read_measurements
+def _read(
+    path: Path,
+    length_unit: str,
+    angle_unit: str,
+    orientation_unit: str | None = None,
+    measured: str | None = None,
+):
+    import warnings
 
-    with user_errors():
-        return read_measurements(path, length_unit=length_unit, angle_unit=angle_unit)
+    from arm.measurements import MeasurementWarning, read_measurements
+
+    parts = None if measured is None else tuple(m.strip() for m in measured.split(","))
+    with user_errors(), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MeasurementWarning)
+        data = read_measurements(
+            path,
+            length_unit=length_unit,
+            angle_unit=angle_unit,
+            orientation_unit=orientation_unit,
+            measured=parts,
+        )
+    for w in caught:  # unknown columns: said, not dropped
+        console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
+    return data
 
 
 def _check_outputs(
@@ -291,18 +344,26 @@ def _prepare(
     length_unit: str,
     angle_unit: str,
     outputs: Sequence[tuple[Path | None, str]] = (),
+    orientation_unit: str | None = None,
+    measured: str | None = None,
     **options: Any,
 ):
     """Check the options (cheap ones first: the lab's ``options``, :class:`lab.LabOptions`) and
     the output places, register effect modules, read the robot and data."""
     opts = _lab_options(**options)
     _check_units(length_unit, angle_unit)
+    if orientation_unit is not None and orientation_unit not in ANGLE_UNITS:
+        fail(
+            f"--orientation-unit must be one of {', '.join(ANGLE_UNITS)}, got {orientation_unit!r}"
+        )
     _check_outputs(outputs, [data, validate, robot, *(modules or ())])
     _load_modules(modules)
     _parse_effects(effects)
     arm = _robot(robot)
-    meas = _read(data, length_unit, angle_unit)
-    val = None if validate is None else _read(validate, length_unit, angle_unit)
+    meas = _read(data, length_unit, angle_unit, orientation_unit, measured)
+    val = None
+    if validate is not None:
+        val = _read(validate, length_unit, angle_unit, orientation_unit, measured)
     return arm, meas, val, opts
 
 
@@ -372,6 +433,10 @@ def fit_cmd(
     length_unit: LengthOpt = "m",
     angle_unit: AngleOpt = "rad",
     noise_mm: NoiseOpt = None,
+    noise_ppm: NoisePpmOpt = 0.0,
+    noise_mrad: NoiseMradOpt = None,
+    orientation_unit: OrientationUnitOpt = None,
+    measured: MeasuredOpt = None,
     outliers: OutliersOpt = "auto",
     accept_large: AcceptLargeOpt = False,
     as_json: JsonOpt = False,
@@ -392,6 +457,10 @@ def fit_cmd(
         angle_unit,
         outputs=[(out, "--out")],
         noise_mm=noise_mm,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        orientation_unit=orientation_unit,
+        measured=measured,
         loss=loss,
         outliers=outliers,
         accept_large=accept_large,
@@ -546,6 +615,10 @@ def diagnose_cmd(
     robot: RobotOpt = "seed",
     effects: EffectsOpt = "geometric",
     noise_mm: NoiseOpt = None,
+    noise_ppm: NoisePpmOpt = 0.0,
+    noise_mrad: NoiseMradOpt = None,
+    orientation_unit: OrientationUnitOpt = None,
+    measured: MeasuredOpt = None,
     loss: LossOpt = "linear",
     effect_module: ModuleOpt = None,
     length_unit: LengthOpt = "m",
@@ -573,6 +646,10 @@ def diagnose_cmd(
         angle_unit,
         outputs=[(out, "--out")],
         noise_mm=noise_mm,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        orientation_unit=orientation_unit,
+        measured=measured,
         loss=loss,
         outliers=outliers,
         accept_large=accept_large,
@@ -673,6 +750,10 @@ def discover_cmd(
         ),
     ] = "geometric",
     noise_mm: NoiseOpt = None,
+    noise_ppm: NoisePpmOpt = 0.0,
+    noise_mrad: NoiseMradOpt = None,
+    orientation_unit: OrientationUnitOpt = None,
+    measured: MeasuredOpt = None,
     validate: ValidateOpt = None,
     effect_module: ModuleOpt = None,
     length_unit: LengthOpt = "m",
@@ -713,6 +794,10 @@ def discover_cmd(
         angle_unit,
         outputs=[(output, "--output"), (out, "--out")],
         noise_mm=noise_mm,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        orientation_unit=orientation_unit,
+        measured=measured,
     )
     if not 0 < alpha < 1:
         fail(f"--alpha must lie in (0, 1), got {alpha}")
@@ -742,6 +827,10 @@ def report_cmd(
     effects: EffectsOpt = "geometric",
     validate: ValidateOpt = None,
     noise_mm: NoiseOpt = None,
+    noise_ppm: NoisePpmOpt = 0.0,
+    noise_mrad: NoiseMradOpt = None,
+    orientation_unit: OrientationUnitOpt = None,
+    measured: MeasuredOpt = None,
     loss: LossOpt = "linear",
     effect_module: ModuleOpt = None,
     length_unit: LengthOpt = "m",
@@ -768,6 +857,10 @@ def report_cmd(
         angle_unit,
         outputs=[(output, "--output")],
         noise_mm=noise_mm,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        orientation_unit=orientation_unit,
+        measured=measured,
         loss=loss,
         outliers=outliers,
         accept_large=accept_large,
@@ -784,6 +877,10 @@ def report_cmd(
             "--effects": None if effects == "geometric" else effects,
             "--validate": validate,
             "--noise-mm": noise_mm,
+            "--noise-ppm": noise_ppm or None,
+            "--noise-mrad": noise_mrad,
+            "--orientation-unit": orientation_unit,
+            "--measured": measured,
             "--loss": None if loss == "linear" else loss,
             "--effect-module": [str(m) for m in effect_module or []],
             "--length-unit": None if length_unit == "m" else length_unit,
@@ -884,6 +981,14 @@ def plan_cmd(
     angle_unit: Annotated[
         str, typer.Option("--angle-unit", help="Unit of q1..q6 in the file: rad or deg.")
     ] = "rad",
+    noise_mrad: Annotated[
+        float | None,
+        typer.Option(
+            "--noise-mrad",
+            help="Plan for an instrument that measures the tool frame's orientation too, with "
+            "this per-axis noise (mrad): six rows a pose, weighted against the position's.",
+        ),
+    ] = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Choose N calibration poses that identify the most; write their joint angles.
@@ -894,7 +999,7 @@ def plan_cmd(
     from lab import plan
 
     _check_units("m", angle_unit)
-    _lab_options(noise_mm=noise_mm)
+    _lab_options(noise_mm=noise_mm, noise_mrad=noise_mrad)
     crit = criterion.lower()
     if crit not in ("o1", "o4"):
         fail(f"--criterion must be O1 or O4, got {criterion!r}")
@@ -909,7 +1014,14 @@ def plan_cmd(
     with user_errors():
         with console.status(f"choosing {n} of {candidates} poses by {crit.upper()}..."):
             p = plan(
-                n, arm, effects, criterion=crit, candidates=candidates, noise_mm=noise_mm, seed=seed
+                n,
+                arm,
+                effects,
+                criterion=crit,
+                candidates=candidates,
+                noise_mm=noise_mm,
+                seed=seed,
+                noise_mrad=noise_mrad,
             )
     with _writing(output):
         write_poses(p.q, output, angle_unit)
@@ -926,7 +1038,12 @@ def plan_cmd(
     )
     if ident.unidentifiable:
         console.print(
-            "not identifiable from positions (fixed): " + escape("; ".join(ident.unidentifiable)),
+            (
+                "not identifiable from poses (fixed): "
+                if noise_mrad
+                else "not identifiable from positions (fixed): "
+            )
+            + escape("; ".join(ident.unidentifiable)),
             highlight=False,
             soft_wrap=True,
         )
@@ -969,11 +1086,63 @@ def collect_cmd(
         ),
     ] = None,
     robot: RobotOpt = "seed",
+    noise_ppm: Annotated[
+        float,
+        typer.Option(
+            "--noise-ppm",
+            help="The noise grows with the distance from the tracker: sigma = --noise-mm + "
+            "--noise-ppm um per m of distance, per axis.",
+        ),
+    ] = 0.0,
+    stations: Annotated[
+        int,
+        typer.Option(
+            "--stations",
+            help="Tracker stations around the arm (2-6 m away, each its own frame): the poses "
+            "are measured in blocks, one per station, with a station column. 0: the world "
+            "frame, no station column.",
+        ),
+    ] = 0,
+    first_station: Annotated[
+        int,
+        typer.Option(
+            "--first-station",
+            help="The first station's id (the others follow): a held-out campaign from other "
+            "stations of the same arm takes other ids.",
+        ),
+    ] = 1,
+    orientation: Annotated[
+        bool,
+        typer.Option(
+            "--orientation",
+            help="A 6-DoF probe on the flange measures the tool frame's orientation too "
+            "(roll, pitch, yaw columns).",
+        ),
+    ] = False,
+    noise_mrad: Annotated[
+        float, typer.Option("--noise-mrad", help="The orientation's per-axis noise (mrad).")
+    ] = 0.1,
+    orientation_fraction: Annotated[
+        float,
+        typer.Option(
+            "--orientation-fraction",
+            help="The fraction of rows in which the probe's orientation is seen (the others "
+            "leave it blank: the measurement mask).",
+        ),
+    ] = 1.0,
+    stds: Annotated[
+        bool,
+        typer.Option(
+            "--stds", help="Write each row's stated uncertainty (std_x ... std_rz columns)."
+        ),
+    ] = False,
 ) -> None:
     """Measure the simulated arm (MuJoCo) like a laser-tracker campaign.
 
     Each pose is approached from a random side, settled, and its tool point measured with
-    noise; the CSV (docs/format.md, the measurement CSV) has every optional column."""
+    noise; the CSV (docs/format.md, the measurement CSV) has every optional column. A campaign
+    can be measured from several tracker stations, with distance-dependent noise, a 6-DoF probe
+    and each row's stated uncertainty."""
     import numpy as np
 
     from arm.measurements import read_poses
@@ -984,8 +1153,17 @@ def collect_cmd(
     _check_outputs([(output, "--output")], [poses, robot])
     if scenario not in SCENARIOS:
         fail(f"--scenario: unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
-    if not (math.isfinite(noise_mm) and noise_mm >= 0):
-        fail(f"--noise-mm must be >= 0, got {noise_mm}")
+    for flag, v in (
+        ("--noise-mm", noise_mm),
+        ("--noise-ppm", noise_ppm),
+        ("--noise-mrad", noise_mrad),
+    ):
+        if not (math.isfinite(v) and v >= 0):
+            fail(f"{flag} must be >= 0, got {v}")
+    if stations < 0:
+        fail(f"--stations must be >= 0, got {stations}")
+    if not 0.0 <= orientation_fraction <= 1.0:
+        fail(f"--orientation-fraction must lie in [0, 1], got {orientation_fraction}")
     if poses is None and n < 1:
         fail(f"--n must be at least 1, got {n}")
     arm = _robot(robot)
@@ -1027,10 +1205,22 @@ def collect_cmd(
                 robot=arm,
                 path=output,
                 progress=lambda i, _n: bar.update(task, completed=i),
+                noise_ppm=noise_ppm,
+                stations=stations,
+                first_station=first_station,
+                orientation=orientation,
+                noise_mrad=noise_mrad,
+                orientation_fraction=orientation_fraction,
+                stds=stds,
             )
     console.print(
         f"wrote {len(meas)} measurements of the simulated arm ({scenario}, noise "
-        f"{noise_mm:g} mm per axis) to {output} in {time.perf_counter() - t0:.1f} s",
+        f"{noise_mm:g} mm"
+        + (f" + {noise_ppm:g} um/m" if noise_ppm else "")
+        + " per axis"
+        + (f", {stations} station(s)" if stations else "")
+        + (f", orientations ({noise_mrad:g} mrad)" if orientation else "")
+        + f") to {output} in {time.perf_counter() - t0:.1f} s",
         highlight=False,
         soft_wrap=True,
     )
@@ -1051,6 +1241,10 @@ def export_cmd(
     length_unit: LengthOpt = "m",
     angle_unit: AngleOpt = "rad",
     noise_mm: NoiseOpt = None,
+    noise_ppm: NoisePpmOpt = 0.0,
+    noise_mrad: NoiseMradOpt = None,
+    orientation_unit: OrientationUnitOpt = None,
+    measured: MeasuredOpt = None,
     name: Annotated[
         str | None, typer.Option(help="The calibrated arm's name (default: <robot>-calibrated).")
     ] = None,
@@ -1073,6 +1267,10 @@ def export_cmd(
         angle_unit,
         outputs=[(output, "--output")],
         noise_mm=noise_mm,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        orientation_unit=orientation_unit,
+        measured=measured,
         loss=loss,
         outliers=outliers,
         accept_large=accept_large,

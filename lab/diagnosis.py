@@ -102,6 +102,7 @@ from lab.errors import FitError
 from lab.identifiability import gram_factor, lower_inverse, orthonormal_basis, typical_magnitudes
 from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
 from lab.repeatability import (
+    NoiseFloor,
     Repeatability,
     implied_noise_text,
     noise_floor,
@@ -371,8 +372,9 @@ def diagnose(
     rows_of = res.row_residuals
     k_pose = rows_of.shape[1]
     e = rows_of.reshape(-1).copy()
-    if res.weighted:
-        noise_mm = None if res.noise_ref is None else 1e3 * res.noise_ref
+    if res.weighted and res.noise_ref is not None:  # stated by the rows' uncertainties
+        floor = NoiseFloor(1e3 * res.noise_ref, "stated", floor.repeatability)
+        noise_mm = floor.noise_mm
 
     # the poses the screen left out of the tests: they would look like a missing effect
     far = s.untested_rows

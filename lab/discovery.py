@@ -98,6 +98,7 @@ from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
 from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
 from lab.repeatability import (
+    NoiseFloor,
     Repeatability,
     implied_noise_text,
     noise_floor,
@@ -704,8 +705,10 @@ def discover(
     s = screened(data, robot, effects, opts, tests=False)
     # the noise the tests use: the stated one, else the scatter of repeated poses
     floor = noise_floor(s.options.noise_mm, s.kept)
-    noise_mm = floor.noise_mm
     res = s.fit
+    if res.weighted and res.noise_ref is not None:  # stated by the rows' uncertainties
+        floor = NoiseFloor(1e3 * res.noise_ref, "stated", floor.repeatability)
+    noise_mm = floor.noise_mm
     data = s.kept  # without the rows the screen left out (duplicates, outliers)
     if name in res.model.layout.effects:
         raise FitError(f"the model already has an effect named {name!r}; choose another name")
@@ -811,13 +814,14 @@ def discover(
         for t in selected
     ]
     if noise_mm is not None:
-        rss = float(np.sum(refit.residuals**2))
-        dof = max(refit.residuals.size - refit.rank, 1)
+        rows = refit.row_residuals  # the points, or the weighted rows (lab.observations)
+        rss = float(np.sum(rows**2))
+        dof = max(refit.n_equations - refit.rank, 1)
         disc.chi2_p_value_after = noise_p_value(rss, dof, floor)
         ok = (disc.chi2_p_value_after or 0.0) >= CHI2_SHARE * alpha
         # the rest is noise (more of it than stated) where nothing of the library is left and
         # no pose misses grossly
-        noise = not ok and scan.exhausted and noise_like(refit.residuals.reshape(-1))
+        noise = not ok and scan.exhausted and noise_like(rows[rows != 0].reshape(-1))
         if noise:
             disc.implied_noise_mm = 1e3 * math.sqrt(rss / dof)
         disc.verdict = "discovered" if ok or noise else "unexplained"
@@ -872,12 +876,13 @@ def library_problem(
     projected out: each term's column is d point / d theta_j times f; a term the model explains
     already (its column in the span) or that moves no point is left out."""
     N = res.n_points
+    k = res.row_residuals.shape[1]  # rows per pose: 3, or the weighted rows of lab.observations
     free = res.identifiable
-    J0 = res.jacobian[:, :, free].reshape(3 * N, -1) * res.identifiability.scale[free]
+    J0 = res.jacobian[:, :, free].reshape(k * N, -1) * res.identifiability.scale[free]
     Q0 = orthonormal_basis(J0)
-    e = res.residuals.reshape(-1)
+    e = res.row_residuals.reshape(-1)
     e0 = e - Q0 @ (Q0.T @ e)
-    _, Jq = res.model.joint_jacobian(res.inputs, res.params)  # (N, 3, 6)
+    Jq = _joint_rows(res)  # (N, k, 6)
     tau = res.inputs.tau
     groups: dict[str, list[int]] = {}
     cols: list[np.ndarray] = []
@@ -894,8 +899,16 @@ def library_problem(
         groups.setdefault(term.group, []).append(len(cols))
         cols.append(xp)
         kept.append(term)
-    X = np.column_stack(cols) if cols else np.zeros((3 * N, 0))
+    X = np.column_stack(cols) if cols else np.zeros((k * N, 0))
     return LibraryProblem(e0, X, kept, groups, Q0, Jq)
+
+
+def _joint_rows(res: FitResult) -> np.ndarray:
+    """d point / d theta (N, 3, 6) at the fit; of its weighted rows (N, k, 6) where the fit has
+    them (:meth:`lab.observations.Observations.joint_rows`)."""
+    if res.weighted and res.observations is not None:
+        return res.observations.joint_rows(res.model, res.inputs, res.params)
+    return res.model.joint_jacobian(res.inputs, res.params)[1]
 
 
 def _load_class(source: str, name: str) -> type[JointAngleEffect]:

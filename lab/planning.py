@@ -9,7 +9,7 @@ Candidates are random within the joint limits with the tool point above the floo
 parameters is column-scaled once, by each column's RMS per pose over all candidates, so that
 pose sets of one size compare on one scale; only the parameters identifiable from the candidates
 (:mod:`lab.identifiability`) count. A set's information matrix is ``M = sum_i A_i^T A_i`` over its
-poses' (3, L) scaled blocks, whose eigenvalues are the squared singular values:
+poses' (3, L) scaled blocks (6 rows with an orientation measured), whose eigenvalues are the squared singular values:
 
 * ``o1`` (Borm & Menq): ``(s_1 ... s_L)^(1/L) / sqrt(N)``, i.e. D-optimality, ``log det M``;
 * ``o4`` (Nahvi & Hollerbach, noise amplification): ``s_min^2 / s_max``.
@@ -125,6 +125,7 @@ def plan(
     noise_mm: float | None = 0.015,
     seed: int | np.random.Generator = 0,
     max_exchanges: int = 1000,
+    noise_mrad: float | None = None,
 ) -> Plan:
     """Choose ``n`` poses from ``candidates`` (an (M, 6) array, or how many random ones to draw)
     that maximise ``criterion`` (``o1`` or ``o4``) for identifying ``effects`` of ``robot``.
@@ -132,7 +133,12 @@ def plan(
     ``noise_mm`` (the instrument's per-axis noise; None: structure only) leaves out parameters
     that ``n`` such poses could not determine better than their typical size (a tool a millimetre
     off joint 6's axis makes dalpha6 barely separable from dd5): chasing them would spend the
-    poses on directions no calibration resolves."""
+    poses on directions no calibration resolves.
+
+    ``noise_mrad``: the instrument measures the tool frame's orientation too, with this
+    per-axis noise: each pose gives six rows, the orientation's weighted against the position's
+    by ``noise_mm / noise_mrad`` (:mod:`lab.observations`), and the tool frame's rotation is a
+    parameter."""
     if criterion not in CRITERIA:
         raise FitError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
     robot = as_robot(robot)
@@ -144,22 +150,31 @@ def plan(
             cand = np.asarray(candidates, dtype=float).reshape(-1, 6)
     except SamplingError as exc:
         raise FitError(str(exc)) from None
+    turn = noise_mrad is not None
+    if turn and noise_mm is None:
+        raise FitError("noise_mrad (orientations) needs noise_mm too: the rows are weighed by both")
     try:
-        model = ErrorModel(robot, effects)
+        model = ErrorModel(robot, effects, orientation=turn)
         inputs = model.inputs(cand, columns, source="candidate poses")
     except EffectError as exc:
         raise FitError(f"{exc}; give them for every candidate with columns=") from None
     if n > len(cand):
         raise FitError(f"cannot choose {n} poses from {len(cand)} candidates")
-    _, J = model.predict(inputs, model.nominal(), jacobian=True)
+    if turn:
+        assert noise_mm is not None and noise_mrad is not None
+        _, _, JP, JW = model.predict_pose(inputs, model.nominal(), jacobian=True)
+        J = np.concatenate([JP, JW * (1e-3 * noise_mm / (1e-3 * noise_mrad))], axis=1)
+    else:
+        _, J = model.predict(inputs, model.nominal(), jacobian=True)
+    k = J.shape[1]  # rows per pose
     # a parameter's effect grows with sqrt(poses): judged for n poses, not for all candidates
     noise = None if noise_mm is None else 1e-3 * noise_mm * math.sqrt(len(cand) / n)
     ident = analyse_jacobian(model, J, noise=noise, warn=False)
     L = ident.rank
-    if 3 * n < L:
+    if k * n < L:
         raise FitError(
-            f"{n} poses give {3 * n} equations for the {L} identifiable parameters of "
-            f"{','.join(model.effect_names)}; at least {math.ceil(L / 3)} poses are needed"
+            f"{n} poses give {k * n} equations for the {L} identifiable parameters of "
+            f"{','.join(model.effect_names)}; at least {math.ceil(L / k)} poses are needed"
         )
     free = ident.identifiable
     A = J[:, :, free] * ident.scale[free]  # (M, 3, L), columns of RMS 1 per pose over candidates
@@ -206,8 +221,8 @@ def _sequential(A: np.ndarray, n: int) -> np.ndarray:
     taken = np.zeros(m, dtype=bool)
     chosen = []
     for _ in range(n):
-        W = A @ Minv  # (m, 3, L)
-        S = np.eye(3) + np.einsum("nai,nbi->nab", W, A)
+        W = A @ Minv  # (m, k, L)
+        S = np.eye(A.shape[1]) + np.einsum("nai,nbi->nab", W, A)
         gain = np.linalg.slogdet(S)[1]
         gain[taken] = -np.inf
         i = int(np.argmax(gain))
@@ -232,7 +247,7 @@ def _exchange(A, chosen, criterion, max_exchanges) -> tuple[np.ndarray, int]:
         # add the candidate that raises the criterion most
         if criterion == "o1":
             Minv = np.linalg.inv(M)
-            S = np.eye(3) + np.einsum("nai,ij,nbj->nab", A, Minv, A)
+            S = np.eye(A.shape[1]) + np.einsum("nai,ij,nbj->nab", A, Minv, A)
             gain = np.linalg.slogdet(S)[1]
             gain[taken] = -np.inf
             add = int(np.argmax(gain))

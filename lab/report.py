@@ -135,7 +135,7 @@ def build_report(
         ModelRun(
             "nominal",
             first.model.predict(first.inputs, p0) - data.xyz,
-            None if val is None else first.model.predict(inputs_of(first.model, val), p0) - val.xyz,
+            None if val is None else _nominal_validation(first, p0, val),
         )
     ]
     seen = {",".join(first.effects)}
@@ -180,6 +180,17 @@ def build_report(
     step("plotting")
     report.figures = _figures(report)
     return report
+
+
+def _nominal_validation(first: FitResult, p0: np.ndarray, val: MeasurementSet) -> np.ndarray:
+    """The nominal arm's residuals on the held-out poses: as a fit's validation does it (a
+    station the fit has not seen gets its base registered), with the nominal parameters."""
+    if "station" not in val.columns:
+        return first.model.predict(inputs_of(first.model, val), p0) - val.xyz
+    nominal = replace(first, params=p0)
+    r = nominal.validate(val).validation_residuals
+    assert r is not None
+    return r
 
 
 # -- the residual against the hinted variables -------------------------------------------------------

@@ -104,6 +104,40 @@ def geometric_table(result: FitResult) -> list[dict]:
 
 
 # --------------------------------------------------------------------------------------------------
+def _beyond_points_html(r: LabReport) -> str:
+    """What the fit compared beyond one 3-D point: stations, orientations, the weights, and
+    the validation stations whose bases were registered (lab.observations)."""
+    fit = r.final.fit
+    if fit is None:
+        return ""
+    bits = []
+    if "station" in fit.inputs.columns:
+        ids = ", ".join(map(str, fit.model.stations))
+        bits.append(f"tracker stations {ids}, one base each, the arm shared")
+    if fit.orientation_rms_mrad is not None:
+        bits.append(
+            f"orientations fitted too (RMS after the fit {fit.orientation_rms_mrad:.4f} mrad"
+            + (
+                f", held out {fit.validation_orientation_rms_mrad:.4f} mrad"
+                if fit.validation_orientation_rms_mrad is not None
+                else ""
+            )
+            + ")"
+        )
+    if fit.weighted and fit.noise_ref is not None:
+        bits.append(
+            "each row weighted by its stated uncertainty, every statistic on the weighted rows "
+            f"(reference sigma {1e3 * fit.noise_ref:.4g} mm)"
+        )
+    if fit.validation_registered:
+        ids = ", ".join(map(str, fit.validation_registered))
+        bits.append(
+            f"validation station(s) {ids} not in the fit: each one's base registered rigidly "
+            "on its held-out points, the arm as fitted"
+        )
+    return f"<p>{_e('; '.join(bits))}.</p>" if bits else ""
+
+
 @dataclass
 class ModelRun:
     """One model of the comparison: its residuals on the fitted and held-out poses; the fit and
@@ -565,7 +599,8 @@ def _render(r: LabReport) -> str:
             if r.validation is not None
             else ""
         )
-        + f"; nominal arm <code>{_e(r.robot.name)}</code>.</p>{_left_out_html(r)}</header>",
+        + f"; nominal arm <code>{_e(r.robot.name)}</code>.</p>{_beyond_points_html(r)}"
+        + f"{_left_out_html(r)}</header>",
         f'<div class="cards">{"".join(cards)}</div>',
         "<h2>1. Error before and after each model</h2>",
         "<p>The nominal arm (its base transform and tool offsets registered to the measurements), "

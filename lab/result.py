@@ -313,11 +313,10 @@ class FitResult:
         # the arm as fitted, in the frame of the fit's first station; each new station's base
         # is the rigid transform that best maps those points onto its measured ones
         cols = {k: v for k, v in data.columns.items() if k != "station"}
+        if "station" in self.inputs.columns:  # as measured from the fit's first station
+            cols["station"] = np.full(len(data), float(model.stations[0]))
         first = MeasurementSet(data.q, data.xyz, cols, data.source, data.lines)
-        inputs = inputs_of(model, first)
-        if len(model.stations) > 1:
-            inputs.station = np.zeros(len(data), dtype=int)
-        pred = Blocks(model, inputs).predict(self.params)
+        pred = Blocks(model, inputs_of(model, first)).predict(self.params)
         pts = np.array(pred, dtype=float)
         turns = np.repeat(np.eye(3)[None], len(data), axis=0)
         for sid in ids:
@@ -358,10 +357,7 @@ class FitResult:
             _, R = model.predict_pose(inputs_of(model, data), self.params)
         else:
             first, turns = moved
-            inputs = inputs_of(model, first)
-            if len(model.stations) > 1:
-                inputs.station = np.zeros(len(data), dtype=int)
-            _, R = model.predict_pose(inputs, self.params)
+            _, R = model.predict_pose(inputs_of(model, first), self.params)
             R = turns @ R
             for sid in {int(v) for v in data.columns["station"]} & set(model.stations):
                 on = data.columns["station"] == sid

@@ -126,18 +126,24 @@ def problem_of_fit(result) -> CyclicProblem:
     n = result.n_points
     free = np.flatnonzero(result.identifiable)
     scale = result.identifiability.scale[free]
-    J = np.empty((3 * n, free.size))  # block by block: no copy of the whole Jacobian
-    Jq = np.empty((n, 3, 6))
-    blocks = Blocks(result.model, result.inputs)
+    # the fit's rows: three a pose, or its weighted rows (orientations too: lab.observations)
+    obs = result.observations if result.weighted else None
+    k = 3 if obs is None else obs.per_pose
+    J = np.empty((k * n, free.size))  # block by block: no copy of the whole Jacobian
+    Jq = np.empty((n, k, 6))
+    blocks = Blocks(result.model, result.inputs, observations=obs)
     for sl, _, Jb in blocks.jacobians(result.params, keep_cache=False):
-        J[3 * sl.start : 3 * sl.stop] = Jb[:, :, free].reshape(-1, free.size) * scale
+        J[k * sl.start : k * sl.stop] = Jb[:, :, free].reshape(-1, free.size) * scale
     for sl, part in blocks:
-        Jq[sl] = result.model.joint_jacobian(part, result.params)[1]
+        if obs is None:
+            Jq[sl] = result.model.joint_jacobian(part, result.params)[1]
+        else:
+            Jq[sl] = obs.joint_rows(result.model, part, result.params, sl)
     return CyclicProblem(
-        residual=np.asarray(result.residuals, dtype=float).reshape(-1),
+        residual=np.asarray(result.row_residuals, dtype=float).reshape(-1),
         model=orthonormal_basis(J, overwrite=True),
-        joint=Jq.reshape(3 * n, 6),
-        pose=np.repeat(np.arange(n), 3),
+        joint=Jq.reshape(k * n, 6),
+        pose=np.repeat(np.arange(n), k),
         q=np.asarray(result.inputs.q, dtype=float),
         orthonormal=True,
     )

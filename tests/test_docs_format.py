@@ -18,7 +18,7 @@ import pytest
 from typer.testing import CliRunner
 
 from arm.description import RobotDescription, seed_robot
-from arm.effects import CATALOGUE, EFFECTS, make_effect
+from arm.effects import CATALOGUE, Geometric, EFFECTS, make_effect
 from arm.measurements import (
     JOINTS,
     KNOWN,
@@ -104,7 +104,10 @@ def code_families() -> dict[str, tuple[str, str, tuple[float, float] | None]]:
     for name in CATALOGUE:
         effect = make_effect(EFFECTS[name].example or name)
         for targets in ((0,), (0, 1)):
-            for p in effect.parameter_names(seed, targets):
+            names = effect.parameter_names(seed, targets)
+            if isinstance(effect, Geometric):  # several stations, an orientation measured
+                names += effect.parameter_names(seed, targets, (1, 2), True)
+            for p in names:
                 parsed = parse_parameter_name(p)
                 assert parsed is not None, f"{p} of {name} is not in the name grammar"
                 out[parsed.family] = (name, parameter_unit(p), effect.typical_range(p))
@@ -438,3 +441,17 @@ def test_the_real_data_options_and_keys_are_documented():
         assert set(ds) <= keys, set(ds) - keys
         for row in ds["rows"]:
             assert set(row) <= keys, set(row) - keys
+
+
+# -- the lab's options ------------------------------------------------------------------------------
+@pytest.mark.parametrize("command", ["fit", "diagnose", "discover", "plan", "collect", "report"])
+def test_every_option_of_the_lab_commands_is_documented(command):
+    """Each ``--option`` of the command is named in docs/format.md as a whole word (``--stations``
+    is not ``--stations-x``)."""
+    from typer.main import get_command
+
+    lab_group = get_command(app).commands["lab"]  # type: ignore[attr-defined]
+    params = lab_group.commands[command].params
+    flags = {o for p in params for o in p.opts if o.startswith("--")} - {"--help"}
+    missing = sorted(f for f in flags if not re.search(re.escape(f) + r"(?![\w-])", TEXT))
+    assert not missing, f"lab {command}: {missing} not in docs/format.md"
