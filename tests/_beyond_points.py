@@ -66,7 +66,9 @@ class PoseCampaign:
         return data, x
 
 
-def pose_campaign(robot: RobotDescription, seed: int = 0, effects: str = "geometric") -> PoseCampaign:
+def pose_campaign(
+    robot: RobotDescription, seed: int = 0, effects: str = "geometric"
+) -> PoseCampaign:
     """The truth: geometric errors of the paper's size (0.1-0.3 mm, 0.6-1.5 mrad), three
     stations' bases, the probe's rotation on the flange; with ``effects`` naming compliance,
     c2 = c3 = 8e-6 rad/(N m) (the top of the typical range) besides."""

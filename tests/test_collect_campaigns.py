@@ -82,3 +82,44 @@ def test_noise_grows_with_distance_as_the_stated_uncertainties_say(truth, tmp_pa
     assert back.stations == (1, 2)
     with pytest.raises(CollectError, match="orientation_fraction"):
         collect_measurements(truth, n=2, orientation=True, orientation_fraction=1.5)
+
+
+def test_the_command_line_collects_fits_and_validates_a_campaign_from_stations(tmp_path):
+    """lab collect from two stations with a 6-DoF probe; lab fit of it weighs each row by its
+    stated uncertainty, fits one base per station and the orientation; a validation campaign of
+    the same arm from a third station has its base registered, and the output says so."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from experiments.cli import app
+
+    runner = CliRunner()
+    common = ["--scenario", "geometric", "--orientation", "--noise-ppm", "6", "--stds"]
+    fit_csv, val_csv = tmp_path / "fit.csv", tmp_path / "val.csv"
+    args = ["-n", "40", "--seed", "1", "--stations", "2", "--orientation-fraction", "0.8"]
+    r = runner.invoke(app, ["lab", "collect", "-o", str(fit_csv), *args, *common])
+    assert r.exit_code == 0, r.output
+    args = ["-n", "12", "--seed", "2", "--arm-seed", "1", "--stations", "1", "--first-station", "3"]
+    r = runner.invoke(app, ["lab", "collect", "-o", str(val_csv), *args, *common])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["lab", "fit", str(fit_csv), "--validate", str(val_csv), "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert out["stations"] == [1, 2] and out["weighted"] is True
+    assert out["validation_registered"] == [3]
+    assert {"trx", "try", "trz", "bx1", "bx2"} <= set(out["parameters"])
+    assert out["orientation_rms_mrad"] < 0.5 and out["validation_rms_mm"] < 0.2
+    # the positions alone, from the same file
+    r = runner.invoke(app, ["lab", "fit", str(fit_csv), "--measured", "x,y,z", "--json"])
+    assert r.exit_code == 0, r.output
+    pos = json.loads(r.stdout)
+    assert pos["orientation_rms_mrad"] is None and "trx" not in pos["parameters"]
+    assert pos["rank"] < out["rank"]
+    # an unknown column is named, not dropped
+    text = fit_csv.read_text().splitlines()
+    extra = tmp_path / "extra.csv"
+    extra.write_text("\n".join([text[0] + ",humidity"] + [t + ",40" for t in text[1:]]) + "\n")
+    r = runner.invoke(app, ["lab", "fit", str(extra)])
+    assert r.exit_code == 0, r.output
+    assert "warning:" in r.output and "'humidity'" in r.output

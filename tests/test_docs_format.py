@@ -18,7 +18,7 @@ import pytest
 from typer.testing import CliRunner
 
 from arm.description import RobotDescription, seed_robot
-from arm.effects import CATALOGUE, Geometric, EFFECTS, make_effect
+from arm.effects import CATALOGUE, EFFECTS, Geometric, make_effect
 from arm.measurements import (
     JOINTS,
     KNOWN,

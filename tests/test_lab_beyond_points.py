@@ -81,7 +81,7 @@ def test_orientation_rows_raise_the_rank_and_lower_the_condition_number(campaign
 
 def test_a_station_the_fit_has_not_seen_has_only_its_base_registered(campaign):
     c, data, _, _ = campaign
-    other, truth = c.measure(30, stations=(3,))
+    other, _ = c.measure(30, stations=(3,))
     res = _quiet_fit(data, validate=other)
     assert res.validation_registered == (3,)
     assert "station(s) 3 not in the fit" in res.summary()
