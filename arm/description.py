@@ -564,9 +564,13 @@ def load_robot(
     A URDF (a ``.urdf`` file) gives the serial chain of six revolute joints from link ``base``
     (default the root) to link ``tip`` (default: found when one such chain hangs below the base),
     converted exactly by :func:`arm.urdf.read_urdf`. ``tip`` and ``base`` are refused for a TOML.
+    In a string they may follow the file after ``#``, as on the command line:
+    ``"ur5_robot.urdf#tip=tool0,base=base"`` (``--robot 'ur5_robot.urdf#tip=tool0'``).
     """
     if name_or_path is None:
         name_or_path = "seed"
+    if isinstance(name_or_path, str) and "#" in name_or_path and not os.path.lexists(name_or_path):
+        name_or_path, tip, base = _chain_spec(name_or_path, tip, base)
     p = Path(name_or_path)
     shipped = resources.files("arm") / "robots"
     if p.suffix.lower() != ".urdf" and not os.path.lexists(p) and (shipped / f"{p}.urdf").is_file():
@@ -595,6 +599,27 @@ def load_robot(
             f"({', '.join(n for n in names if not n.startswith('LICENSE') and n != 'README')})"
         )
     return RobotDescription.from_toml(toml.read_text(), source=f"robots/{name_or_path}.toml")
+
+
+def _chain_spec(spec: str, tip: str | None, base: str | None) -> tuple[str, str | None, str | None]:
+    """``"arm.urdf#tip=tool0,base=base"`` -> (``"arm.urdf"``, ``"tool0"``, ``"base"``)."""
+    path, _, fragment = spec.partition("#")
+    chosen: dict[str, str] = {}
+    for item in filter(None, (f.strip() for f in fragment.replace("&", ",").split(","))):
+        key, eq, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if not eq or key not in ("tip", "base") or not value:
+            raise DescriptionError(
+                f"{spec}: after '#' give tip=LINK and/or base=LINK (e.g. {path}#tip=tool0), "
+                f"got {item!r}"
+            )
+        if key in chosen:
+            raise DescriptionError(f"{spec}: {key} given twice")
+        chosen[key] = value
+    for key, given in (("tip", tip), ("base", base)):
+        if given is not None and key in chosen and chosen[key] != given:
+            raise DescriptionError(f"{spec}: {key}={chosen[key]!r} there, {key}={given!r} given")
+    return path, chosen.get("tip", tip), chosen.get("base", base)
 
 
 def seed_robot() -> RobotDescription:

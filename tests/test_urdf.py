@@ -291,6 +291,27 @@ def test_several_chains_need_a_tip(tmp_path):
     assert load_robot(path, tip="l6b").urdf.tip_link == "l6b"
 
 
+def test_the_chain_may_follow_the_file_in_a_robot_string(tmp_path):
+    """--robot 'arm.urdf#tip=tool0,base=base' is load_robot(..., tip=, base=); bad fragments are
+    named; a file whose name holds '#' is still that file."""
+    a = load_robot("ur5_robot.urdf#tip=tool0,base=base")
+    assert (a.urdf.base_link, a.urdf.tip_link) == ("base", "tool0")
+    assert a == load_robot("ur5_robot", tip="tool0", base="base")
+    assert load_robot("z1#tip=gripperStator").urdf.tip_link == "gripperStator"
+    for bad, message in [
+        ("ur5_robot.urdf#tool0", "give tip=LINK and/or base=LINK"),
+        ("ur5_robot.urdf#tip=a,tip=b", "tip given twice"),
+        ("ur5_robot.urdf#tip=nowhere", "no link 'nowhere' for the tip"),
+    ]:
+        with pytest.raises(DescriptionError, match=message):
+            load_robot(bad)
+    with pytest.raises(DescriptionError, match="tip='tool0' there, tip='ee_link' given"):
+        load_robot("ur5_robot.urdf#tip=tool0", tip="ee_link")
+    odd = tmp_path / "arm#1.urdf"
+    odd.write_text(load_robot("ur5_robot").urdf.text)
+    assert load_robot(str(odd)).urdf.tip_link == "wrist_3_link"
+
+
 def test_tip_and_base_are_for_urdfs_only():
     with pytest.raises(DescriptionError, match="a tip or base link is chosen in a URDF"):
         load_robot("seed", tip="tool0")
