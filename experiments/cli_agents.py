@@ -322,7 +322,9 @@ def _episode_seconds() -> float:
     from agents.runner import ENV_ID
     from envs.plant import PHYSICS_DT, SUBSTEPS
 
-    return gym.spec(ENV_ID).max_episode_steps * PHYSICS_DT * SUBSTEPS
+    steps = gym.spec(ENV_ID).max_episode_steps
+    assert steps is not None  # registered with a time limit (envs/__init__.py)
+    return steps * PHYSICS_DT * SUBSTEPS
 
 
 def register(app: typer.Typer) -> None:

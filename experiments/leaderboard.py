@@ -173,7 +173,9 @@ def build_leaderboard(
         raise RecordError(f"{store.root}: no such runs directory")
     manifest = store.manifest()
     wanted = manifest.get("runs") if manifest else None
-    records, failed, ignored = [], [], 0
+    records: list[dict[str, Any]] = []
+    failed: list[dict[str, Any]] = []
+    ignored = 0
     for rec in store.records():
         if wanted is not None and wanted.get(rec["run_key"]) != rec.get("run_hash"):
             ignored += 1
@@ -336,7 +338,7 @@ def cell_text(s: Summary, metric: str, row: Row | None = None, spread: bool = Tr
     never = row.stats.get(companion) if row is not None and companion else None
     k = round(never.total) if never is not None and never.n else 0
     if s.n == 0:
-        return ("never" if not spread else f"never ({k}/{never.n})") if k else "–"
+        return ("never" if not spread or never is None else f"never ({k}/{never.n})") if k else "–"
     if not spread:
         text = _fmt(s.mean)
     elif s.has_ci:
@@ -345,7 +347,7 @@ def cell_text(s: Summary, metric: str, row: Row | None = None, spread: bool = Tr
         text = f"{_fmt(s.mean)} ({_fmt(s.min)}–{_fmt(s.max)})"
     else:
         text = _fmt(s.mean)
-    return f"{text} ({k}/{never.n} never)" if k else text
+    return f"{text} ({k}/{never.n} never)" if k and never is not None else text
 
 
 def analysis_cell(board: Leaderboard, row: Row, metric: str, spread: bool = True) -> str:
@@ -807,10 +809,10 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
 
     if board.failed:
         lines += ["## Failed runs", ""]
-        for r in sorted(board.failed, key=lambda r: r["run_key"]):
-            err = r.get("error") or {}
+        for rec in sorted(board.failed, key=lambda f: f["run_key"]):
+            err = rec.get("error") or {}
             msg = str(err.get("message", "")).splitlines()[0][:200] if err.get("message") else ""
-            lines.append(f"- `{r['run_key']}`: {err.get('type', '?')}: {msg}")
+            lines.append(f"- `{rec['run_key']}`: {err.get('type', '?')}: {msg}")
         lines.append("")
     return "\n".join(lines)
 

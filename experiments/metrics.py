@@ -213,7 +213,8 @@ def episode_metrics(
         meas = np.asarray(getattr(result, "measurement", np.empty((0, 3))), dtype=float)
         values["tracker_points"] = float(np.isfinite(meas).all(axis=-1).sum()) if meas.size else 0.0
     values["calib_rms_mm"] = float("nan") if calib_rms_mm is None else float(calib_rms_mm)
-    out, timing = {}, {}
+    out: dict[str, float] = {}
+    timing: dict[str, float] = {}
     for n in names:
         (timing if METRICS[n].timing else out)[n] = values[n]
     return out, timing
@@ -268,9 +269,9 @@ def calibration_error_mm(
     from arm.sampling import sample_poses
 
     names = list(names)
-    values = np.asarray(values, dtype=float)
+    vals = np.asarray(values, dtype=float)
     if est_model is not None and tuple(est_model.layout.names) == tuple(names):
-        model, p_est = est_model, values
+        model, p_est = est_model, vals
     else:
         missing = [n for n in names if n not in truth_model.layout]
         if missing:
@@ -280,7 +281,7 @@ def calibration_error_mm(
             )
         model = truth_model
         p_est = truth_model.nominal()
-        for n, v in zip(names, values, strict=True):
+        for n, v in zip(names, vals, strict=True):
             p_est[truth_model.layout.index(n)] = v
     robot = truth_model.robot
     q = sample_poses(robot, n_poses, np.random.default_rng(CALIBRATION_POSE_SEED))

@@ -314,7 +314,7 @@ class RunStore:
 @functools.lru_cache(maxsize=1)
 def environment_info() -> dict[str, Any]:
     """Python and package versions, and the git commit of the code (once per process)."""
-    versions = {"python": platform.python_version()}
+    versions: dict[str, str | None] = {"python": platform.python_version()}
     for pkg in _PACKAGES:
         try:
             versions[pkg] = importlib.metadata.version(pkg)

@@ -687,8 +687,8 @@ def _run_local(
                         report(spec, result)
                 if broken and inflight:  # the pool is unusable: every run in flight died with it
                     for fut, (spec, _) in inflight.items():
-                        exc = fut.exception() if fut.done() else BrokenProcessPool("pool broken")
-                        report(spec, _failed_outcome(exc, "a worker process died"))
+                        err = fut.exception() if fut.done() else BrokenProcessPool("pool broken")
+                        report(spec, _failed_outcome(err, "a worker process died"))
                     inflight.clear()
                     log.warning("a worker process died; starting a new pool")
             except BaseException:  # an interrupt, or a record that cannot be written

@@ -50,7 +50,7 @@ class VideoInfo:
 
 def _writer():
     try:
-        import imageio_ffmpeg
+        import imageio_ffmpeg  # type: ignore[import-untyped]
     except ImportError as exc:  # pragma: no cover - depends on the installed extras
         raise VideoError(
             "writing videos needs the 'video' extra: pip install 'sixaxis-track[video]'"
@@ -94,8 +94,9 @@ def render_episode(
         "height": int(height),
         "episode_seconds": max(float(seconds), 10.0),
     }
-    state = {"step": 0, "frames": 0, "fps": None}
-    total = None
+    state = {"step": 0, "frames": 0}
+    fps = 0.0
+    total: int | None = None
     writer = None
 
     def encode(send: Callable[[], Any]) -> None:
@@ -106,19 +107,19 @@ def render_episode(
             raise VideoError(f"{out}: ffmpeg could not encode the video ({exc})") from None
 
     def on_step(env) -> None:
-        nonlocal writer, total
+        nonlocal writer, total, fps
         state["step"] += 1
         if state["step"] % every:
             return
         frame = env.render()
         if writer is None:
             dt = float(env.unwrapped.task.dt)
-            state["fps"] = 1.0 / (dt * every)
+            fps = 1.0 / (dt * every)
             total = round(seconds / dt) // every
             writer = ffmpeg.write_frames(
                 str(tmp),
                 (int(width), int(height)),
-                fps=state["fps"],
+                fps=fps,
                 codec="libx264",
                 pix_fmt_out="yuv420p",
                 macro_block_size=2,
@@ -146,5 +147,5 @@ def render_episode(
             if writer is not None:
                 with contextlib.suppress(Exception):
                     writer.close()
-    log.info("wrote %s: %d frames at %g fps", out, state["frames"], state["fps"])
-    return VideoInfo(out, int(state["frames"]), float(state["fps"]), int(width), int(height))
+    log.info("wrote %s: %d frames at %g fps", out, state["frames"], fps)
+    return VideoInfo(out, int(state["frames"]), float(fps), int(width), int(height))
