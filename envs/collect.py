@@ -36,7 +36,7 @@ from envs.instrument import TrackerStation, place_stations
 if TYPE_CHECKING:
     from envs.scenarios import EpisodeTruth
 
-__all__ = ["CollectError", "collect_measurements"]
+__all__ = ["CollectError", "check_poses", "collect_measurements"]
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +67,27 @@ def _move(plant, target: np.ndarray, v_cruise: np.ndarray, decel: np.ndarray) ->
         speed = np.minimum(np.minimum(v_cruise, np.sqrt(2.0 * decel * np.abs(r))), np.abs(r) / dt)
         plant.step(np.sign(r) * speed)
     plant.step(np.zeros(6))
+
+
+def check_poses(
+    poses: np.ndarray, robot: RobotDescription, source: str | None = None
+) -> np.ndarray:
+    """``poses`` (N, 6) as floats, refused unless finite and within ``robot``'s joint limits;
+    ``source``: the file they came from, named (with the pose's line-free number) in the error."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    if poses.ndim != 2 or poses.shape[1] != 6:
+        raise CollectError(f"poses must have shape (N, 6), got {poses.shape}")
+    if not np.all(np.isfinite(poses)):
+        raise CollectError("poses contain NaN or inf")
+    outside = ~robot.within_limits(poses)
+    if outside.any():
+        i = int(np.flatnonzero(outside)[0])
+        if source is not None:
+            raise CollectError(
+                f"{source}: pose {i + 1} is outside the joint limits of {robot.name}: {poses[i]}"
+            )
+        raise CollectError(f"pose {i} is outside the joint limits: {poses[i]}")
+    return poses
 
 
 def collect_measurements(
@@ -134,15 +155,7 @@ def collect_measurements(
     nominal = truth.model.robot
     if poses is None:
         poses = sample_poses(nominal, int(n), pose_rng)
-    poses = np.atleast_2d(np.asarray(poses, dtype=float))
-    if poses.ndim != 2 or poses.shape[1] != 6:
-        raise CollectError(f"poses must have shape (N, 6), got {poses.shape}")
-    if not np.all(np.isfinite(poses)):
-        raise CollectError("poses contain NaN or inf")
-    outside = ~nominal.within_limits(poses)
-    if outside.any():
-        i = int(np.flatnonzero(outside)[0])
-        raise CollectError(f"pose {i} is outside the joint limits: {poses[i]}")
+    poses = check_poses(poses, nominal)
     if payloads is not None and len(payloads) != len(poses):
         raise CollectError(f"{len(payloads)} payloads for {len(poses)} poses")
     for name, v in (("noise_mm", noise_mm), ("noise_ppm", noise_ppm), ("noise_mrad", noise_mrad)):

@@ -12,19 +12,20 @@ import warnings
 import typer
 from rich.console import Console
 from rich.logging import RichHandler
-from typer.core import TyperGroup
 
 from arm.errors import SixAxisError
 from experiments import cli_agents, cli_demo, cli_lab, cli_sweep
+from experiments.cli_inputs import OneLineErrors
 from experiments.cli_output import fail
 from lab.errors import LabWarning
 
 
-class _Commands(TyperGroup):
+class _Commands(OneLineErrors):
     """The ``sixaxis`` group: an error the project raises on purpose (:class:`SixAxisError`: bad
     input, named) that a command did not turn into its own line still ends as one line
     ``error: ...`` and exit code 2, never a traceback; so does an exception raised in a user's
-    ``--effect-module``, named by its file and line. Anything else is a bug and keeps its
+    ``--effect-module``, named by its file and line, and a refused option value
+    (:class:`~experiments.cli_inputs.OneLineErrors`). Anything else is a bug and keeps its
     traceback."""
 
     def invoke(self, ctx: typer.Context):

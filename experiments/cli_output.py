@@ -10,9 +10,12 @@ and units read as in every other place the lab shows them (:mod:`lab.text`).
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import shlex
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any, NoReturn
+from pathlib import Path
+from typing import Any, Literal, NoReturn
 
 import typer
 from rich.console import Console
@@ -55,10 +58,22 @@ def user_errors(*extra: type[BaseException], prefix: str = "") -> Iterator[None]
     """The project's own errors (:class:`~arm.errors.SixAxisError`: bad input, with the file,
     line, column, key or parameter named) and ``extra`` become one line ``error: {prefix}...``
     and exit code 2; anything else is a bug and keeps its traceback."""
+    caught: tuple[type[BaseException], ...] = (SixAxisError, *extra)
     try:
         yield
-    except (SixAxisError, *extra) as exc:
+    except caught as exc:
         fail(f"{prefix}{exc}")
+
+
+Justify = Literal["left", "right"]
+
+
+def _table(title: str, *columns: tuple[str, Justify]) -> Table:
+    """A rich table titled on the left, with these (header, justification) columns."""
+    table = Table(title=title, title_justify="left")
+    for header, justify in columns:
+        table.add_column(header, justify=justify)
+    return table
 
 
 # -- commands as text ------------------------------------------------------------------------------
@@ -81,40 +96,35 @@ def fit_table(result: Any) -> Table:
     """The paper's Table 3 and more: nominal, identified error and its standard error per
     parameter of a :class:`lab.FitResult` (lengths in mm; angles: nominal in deg, errors in
     mrad)."""
-    table = Table(
-        title=f"identified parameters ({result.rank} of {result.n_parameters} fitted)",
-        title_justify="left",
-    )
-    for c, j in (
+    table = _table(
+        f"identified parameters ({result.rank} of {result.n_parameters} fitted)",
         ("parameter", "left"),
         ("effect", "left"),
         ("nominal", "right"),
         ("error", "right"),
         ("std", "right"),
         ("unit", "left"),
-    ):
-        table.add_column(c, justify=j)
+    )
     for row in result.rows():
-        c = parameter_cells(row)
-        error = "[dim]fixed[/dim]" if c["fitted"] == "no" else c["error"]
-        table.add_row(c["name"], c["effect"], c["nominal"], error, c["std"], c["unit"])
+        cell = parameter_cells(row)
+        error = "[dim]fixed[/dim]" if cell["fitted"] == "no" else cell["error"]
+        table.add_row(
+            cell["name"], cell["effect"], cell["nominal"], error, cell["std"], cell["unit"]
+        )
     return table
 
 
 def candidates_table(candidates: Sequence[Any]) -> Table:
     """A diagnosis's candidate effects, best first: RMS and held-out RMS after adding each, its
     p-value and whether it is significant."""
-    table = Table(
-        title="candidate effects, best first (RMS after adding each)", title_justify="left"
-    )
-    for c, j in (
+    table = _table(
+        "candidate effects, best first (RMS after adding each)",
         ("candidate", "left"),
         ("RMS mm", "right"),
         ("held-out mm", "right"),
         ("p-value", "right"),
         ("significant", "left"),
-    ):
-        table.add_column(c, justify=j)
+    )
     for c in candidates:
         sig = "[bold]yes[/bold]" if c.significant else "no"
         table.add_row(
@@ -127,10 +137,12 @@ def candidates_table(candidates: Sequence[Any]) -> Table:
 
 def hints_table(hints: Sequence[Any]) -> Table:
     """The measured variables the residual still depends on, with their scores and p-values."""
-    table = Table(title="what the residual depends on", title_justify="left")
-    table.add_column("variable")
-    table.add_column("score (adjusted R^2)", justify="right")
-    table.add_column("p-value", justify="right")
+    table = _table(
+        "what the residual depends on",
+        ("variable", "left"),
+        ("score (adjusted R^2)", "right"),
+        ("p-value", "right"),
+    )
     for h in hints:
         table.add_row(escape(h.variable), f"{h.score:.3f}", p_value_text(h.p_value))
     return table
@@ -139,15 +151,14 @@ def hints_table(hints: Sequence[Any]) -> Table:
 def discovery_table(terms: Sequence[Any]) -> Table:
     """The terms a discovery found, refitted with the model: joint, expression, coefficient,
     standard error and parameter name."""
-    table = Table(title="discovered terms (refitted with the model)", title_justify="left")
-    for c, j in (
+    table = _table(
+        "discovered terms (refitted with the model)",
         ("joint", "right"),
         ("term", "left"),
         ("coefficient", "right"),
         ("std", "right"),
         ("parameter", "left"),
-    ):
-        table.add_column(c, justify=j)
+    )
     for t in terms:
         table.add_row(
             str(t.joint),
@@ -202,3 +213,319 @@ def leaderboard_grid(board: Any, title: str, cell: Callable[[Any], str]) -> Tabl
             cells.append(f"[bold green]{c}[/bold green]" if r is not None and r.best else c)
         table.add_row(next(r for r in rows if r is not None).display, *cells)
     return table
+
+
+# -- JSON -------------------------------------------------------------------------------------------
+def _json_safe(obj: Any) -> Any:
+    """Plain JSON: numpy scalars and arrays as numbers and lists, NaN and inf as null."""
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {str(k): _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _json_safe(obj.tolist())
+    if isinstance(obj, np.bool_ | bool):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        return float(obj) if math.isfinite(obj) else None
+    return obj
+
+
+def json_text(obj: dict) -> str:
+    """A result's JSON object as text (strict JSON: NaN and inf are null)."""
+    return json.dumps(_json_safe(obj), indent=2, allow_nan=False)
+
+
+def emit_json(obj: dict, as_json: bool, out: Path | None) -> None:
+    """Write the JSON object to ``out`` (atomically), print it with ``as_json`` (stdout carries
+    nothing else), else say where it went."""
+    from arm.files import OutputError, atomic_write_text, is_stdout
+
+    text = json_text(obj)
+    if out is not None:
+        try:
+            atomic_write_text(out, text + "\n")
+        except OutputError as exc:
+            fail(str(exc))
+        except OSError as exc:
+            fail(f"{out}: cannot write ({exc.strerror or exc})")
+    if as_json and not is_stdout(out):
+        print(text)
+    elif out is not None:
+        say(f"wrote {out}")
+
+
+def say(text: str) -> None:
+    """One line of plain text (no markup, no highlighting, not wrapped)."""
+    console.print(escape(text), highlight=False, soft_wrap=True)
+
+
+# -- the lab's commands -----------------------------------------------------------------------------
+def print_fit(result: Any) -> None:
+    console.print(fit_table(result))
+    say(result.summary())
+
+
+def print_left_out(duplicates: Sequence[Any], outliers: Sequence[Any], rule: Any, of: str) -> None:
+    from lab.text import left_out_lines
+
+    for text in left_out_lines(duplicates, outliers, rule, of=of):
+        say(text)
+
+
+def _verdict_line(d: Any, what: str, none_without_noise: str) -> str:
+    colour = {"none": "green", "unexplained": "yellow", "noise": "yellow"}.get(d.verdict, "red")
+    line = f"verdict: [bold {colour}]{escape(d.verdict)}[/bold {colour}]"
+    if d.verdict == "none" and d.noise_mm is None:
+        line += f" ({none_without_noise}; give --noise-mm to test the residual against the {what})"
+    elif d.verdict == "none":
+        line += " (the residual is consistent with the noise: nothing missing)"
+    return line
+
+
+def print_noise(obj: Any) -> None:
+    """The noise floor's source (repeated poses) and, when only noise is left, what it implies."""
+    from lab.repeatability import NoiseFloor
+
+    text = NoiseFloor(obj.noise_mm, obj.noise_source, obj.repeatability).text()
+    if text:
+        say(text)
+    if obj.noise_note:
+        console.print(f"[yellow]{escape(obj.noise_note)}[/yellow]", highlight=False, soft_wrap=True)
+
+
+def print_notes(notes: Sequence[str], title: str) -> None:
+    for n in notes:
+        say(f"{title}: {n}")
+
+
+def discover_command(data: Path, d: Any, context: dict[str, Any] | None = None) -> str:
+    """The ``sixaxis lab discover`` command that continues an ``unexplained`` diagnosis: from
+    the diagnosed model (not the catalogue's partial explanation, whose approximating terms would
+    hide the form), with its noise (the one stated, not one measured from repeated poses, which
+    discover measures again) and the options the diagnosis was given."""
+    effects = ",".join(d.effects)
+    ctx = dict(context or {})
+    ctx.pop("--accept-large", None)  # discover's own fits keep the bounds
+    if d.noise_source == "stated":
+        ctx["--noise-mm"] = d.noise_mm
+    return command_line(
+        "lab",
+        "discover",
+        data,
+        **{"--effects": None if effects == "geometric" else effects, "-o": "discovered.py"},
+        **ctx,
+    )
+
+
+def print_diagnosis(d: Any, data: Path, context: dict[str, Any] | None = None) -> None:
+    """A diagnosis for people; ``context``: the options the next steps printed repeat."""
+    ctx = dict(context or {})
+    floor = f", noise floor {d.noise_floor_mm:.4f} mm" if d.noise_floor_mm else ""
+    console.print(
+        f"model [bold]{escape(', '.join(d.effects))}[/bold] on {d.fit.n_points} points: RMS "
+        f"{d.rms_mm:.4f} mm, held-out {d.cv_rms_mm:.4f} mm{floor}",
+        highlight=False,
+        soft_wrap=True,
+    )
+    print_noise(d)
+    line = _verdict_line(d, "instrument's noise", "no catalogued effect is significant")
+    if d.verdict == "noise":
+        line += " (nothing is missing, but the noise is above the one the tests used)"
+    elif d.verdict == "unexplained":
+        line += " (the residual is above the noise and no catalogued effect explains it)"
+    if d.suggestion:
+        then = escape(command_line("lab", "fit", data, **{"--effects": d.suggestion}, **ctx))
+        if d.verdict == "unexplained":
+            line += f"; the catalogue's best, which explains part: {then}"
+        else:
+            line += f"; next: {then}"
+    console.print(line, highlight=False, soft_wrap=True)
+    if d.cyclic_orders:
+        say(
+            "cyclic errors, orders per turn: "
+            + "; ".join(
+                f"joint {j}: {', '.join(map(str, ks))}" for j, ks in d.cyclic_orders.items()
+            )
+        )
+        for reading in d.readings:
+            say(f"  {reading}")
+    print_notes(d.notes, "cannot resolve")
+    print_notes(d.implausible, "passed over as implausible")
+    if d.verdict == "unexplained":
+        say(
+            "next: let the lab search for the missing term's form: "
+            + discover_command(data, d, ctx)
+        )
+    print_left_out(d.fit.duplicates, d.outlier_list, d.outlier_rule, "the fit and the tests")
+    lack: dict[str, list[str]] = {}  # what is missing -> the candidates that need it
+    for label, why in d.skipped.items():
+        if why.startswith("needs "):
+            lack.setdefault(why[len("needs ") :], []).append(label)
+    if lack:
+        console.print(
+            "[yellow]not tested[/yellow], for lack of data: "
+            + escape("; ".join(f"{', '.join(k)} (needs {v})" for v, k in lack.items())),
+            highlight=False,
+            soft_wrap=True,
+        )
+    shown = d.candidates[:10]
+    if shown:
+        console.print(candidates_table(shown))
+    if len(d.candidates) > len(shown):
+        console.print(f"... and {len(d.candidates) - len(shown)} more (--json lists all)")
+    if d.hints:
+        console.print(hints_table(d.hints[:6]))
+
+
+def print_discovery(
+    d: Any, output: Path | None, data: Path | None = None, context: dict[str, Any] | None = None
+) -> None:
+    """A discovery for people; ``context``: the options the next step printed repeats."""
+    floor = f", noise floor {d.noise_floor_mm:.4f} mm" if d.noise_floor_mm else ""
+    console.print(
+        f"model [bold]{escape(', '.join(d.effects))}[/bold] on {d.base.n_points} points: RMS "
+        f"{d.rms_mm:.4f} mm{floor}; {d.n_candidates} candidate terms (harmonics to order "
+        f"{d.order} per turn, fewer where the sampling resolves fewer), family-wise "
+        f"false-discovery rate {d.alpha:g}",
+        highlight=False,
+        soft_wrap=True,
+    )
+    print_noise(d)
+    line = _verdict_line(d, "noise", "no term is significant")
+    if d.verdict == "noise":
+        line += " (no term is significant, but the noise is above the one the tests used)"
+    elif d.verdict == "unexplained" and d.terms:
+        line += " (the terms found explain part; the residual stays above the noise)"
+    elif d.verdict == "unexplained":
+        line += " (the residual is above the noise and no term of the library explains it)"
+    console.print(line, highlight=False, soft_wrap=True)
+    print_notes(d.notes, "cannot resolve")
+    if not d.terms:
+        return
+    for f in d.formulas.values():
+        console.print(f"  [bold]{escape(f)}[/bold]", highlight=False, soft_wrap=True)
+    console.print(discovery_table(d.terms))
+    for reading in dict.fromkeys(t.reading for t in d.terms):
+        terms = ", ".join(t.expression for t in d.terms if t.reading == reading)
+        say(f"  {terms}: {reading}")
+    held = f", held-out {d.validation_rms_mm:.4f} mm" if d.validation_rms_mm is not None else ""
+    say(f"with the terms: RMS {d.rms_after_mm:.4f} mm{held}")
+    if output is not None:
+        ctx = dict(context or {})
+        modules = [*ctx.pop("--effect-module", []), str(output)]
+        fit = command_line(
+            "lab",
+            "fit",
+            data if data is not None else "DATA.csv",
+            **{"--effect-module": modules, "--effects": d.suggestion},
+            **ctx,
+        )
+        say(f"wrote the effect to {output}; fit it with: {fit}")
+
+
+@contextlib.contextmanager
+def steps(console_: Console | None = None) -> Iterator[Callable[[str | None], None]]:
+    """A spinner for work done in named steps: ``step("fitting ...")`` says the last step done
+    with its time and shows the next; ``step(None)`` ends."""
+    import time
+
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        TimeElapsedColumn(),
+        console=console_ or console,
+        transient=True,
+    ) as bar:
+        task = bar.add_task("starting", total=None)
+        last: list[Any] = [None, time.perf_counter()]
+
+        def step(message: str | None) -> None:
+            now = time.perf_counter()
+            if last[0] is not None:
+                bar.console.print(
+                    f"[green]done[/green] {escape(last[0])} ({now - last[1]:.2f} s)",
+                    highlight=False,
+                    soft_wrap=True,
+                )
+            last[:] = [message, now]
+            if message is not None:
+                bar.update(task, description=escape(message))
+
+        yield step
+
+
+def print_report(rep: Any, output: Path, seconds: float) -> None:
+    print_left_out(rep.duplicates, rep.outliers, rep.outlier_rule, "every model and every test")
+    for run in rep.runs:
+        verdict = f", verdict {run.diagnosis.verdict}" if run.diagnosis is not None else ""
+        held = (
+            f", held-out {run.validation_rms_mm:.4f} mm"
+            if run.validation_rms_mm is not None
+            else ""
+        )
+        say(f"  {run.label:<28} RMS {run.rms_mm:.4f} mm{held}{verdict}")
+    size = "" if str(output) == "-" else f" ({output.stat().st_size / 1024:.0f} KB)"
+    say(f"wrote {output}{size} in {seconds:.1f} s")
+
+
+def print_plan(p: Any, criterion: str, output: Path, angle_unit: str) -> None:
+    console.print(plan_table(p, criterion))
+    ident = p.identifiability
+    say(
+        f"{ident.rank} of {ident.n_parameters} parameters identifiable, condition number "
+        f"{p.condition_number:.3g}"
+    )
+    if ident.unidentifiable:
+        say("not identifiable from positions (fixed): " + "; ".join(ident.unidentifiable))
+    say(f"wrote {output} (q1..q6 in {angle_unit})")
+
+
+@contextlib.contextmanager
+def counted(description: str, total: int) -> Iterator[Callable[[int, int], None]]:
+    """A progress bar of ``total`` items; yields ``progress(done, total)``."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+        console=console,
+    ) as bar:
+        task = bar.add_task(description, total=total)
+        yield lambda i, _n: bar.update(task, completed=i)
+
+
+def print_compensation(
+    cal: Any, nom: Any, comp: Any, summary: dict[str, Any], output: Path
+) -> None:
+    console.print(compensation_table(cal.name, nom.name, comp.n, summary))
+    say(
+        f"compensation removes {summary['nominal_rms_mm'] - summary['rms_mm']:.4f} mm RMS "
+        f"(largest joint change {summary['max_joint_change_mrad']:.3f} mrad); "
+        f"{summary['converged']} of {comp.n} converged"
+    )
+    if summary["not_converged"]:
+        console.print(
+            f"[yellow]not converged (out of reach?):[/yellow] rows "
+            f"{', '.join(str(i + 1) for i in summary['not_converged'][:20])}",
+            highlight=False,
+            soft_wrap=True,
+        )
+    say(f"wrote {output}")

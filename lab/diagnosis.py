@@ -98,9 +98,8 @@ from lab.candidates import (
     group_label,
     project_out,
 )
-from lab.errors import FitError
 from lab.identifiability import gram_factor, lower_inverse, orthonormal_basis, typical_magnitudes
-from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
+from lab.options import LabOptions, Loss, OutlierMode, Solver, check_alpha, resolve
 from lab.repeatability import (
     NoiseFloor,
     Repeatability,
@@ -333,8 +332,7 @@ def diagnose(
     ``unexplained``. ``alpha``: the family-wise false-alarm rate. ``candidates``: effect names
     to test (default: every registered effect).
     """
-    if not 0 < alpha < 1:
-        raise FitError(f"alpha must lie in (0, 1), got {alpha}")
+    check_alpha(alpha)
     opts = resolve(
         options,
         noise_mm=noise_mm,

@@ -86,7 +86,6 @@ import numpy as np
 from arm.description import RobotDescription
 from arm.effects import (
     FAST_PARTS,
-    MAX_ORDER,
     REFERENCE_TEMPERATURE,
     Effect,
     JointAngleEffect,
@@ -96,7 +95,7 @@ from arm.files import atomic_write_text
 from arm.measurements import MeasurementSet, as_measurements
 from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
-from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
+from lab.options import ORDER, LabOptions, Loss, OutlierMode, Solver, check_alpha, resolve
 from lab.repeatability import (
     NoiseFloor,
     Repeatability,
@@ -116,6 +115,7 @@ __all__ = [
     "LibraryProblem",
     "LibraryTerm",
     "Term",
+    "check_module_path",
     "discover",
     "harmonic_terms",
     "library_problem",
@@ -450,7 +450,7 @@ class Discovery:
         """Write :meth:`module_source` atomically to ``path``; refuses when nothing was found."""
         if not self.selected:
             raise FitError("nothing was discovered: there is no effect module to write")
-        path = Path(path)
+        path = check_module_path(path)
         atomic_write_text(path, self.module_source())
         self.effect_module = str(path)
         return path
@@ -652,6 +652,15 @@ class {_class_name(name)}(JointAngleEffect):
 _NAME = re.compile(r"[a-z][a-z0-9_]*")
 
 
+def check_module_path(path: str | Path) -> Path:
+    """``path`` if an effect module can be written there (a ``.py`` file: ``--effect-module``
+    imports it), else a :class:`FitError`."""
+    path = Path(path)
+    if path.suffix != ".py" and not path.is_dir():
+        raise FitError(f"{path}: the effect module must be a .py file")
+    return path
+
+
 def discover(
     data: Screen | MeasurementSet | str | Path,
     robot: RobotDescription | str | Path | None = None,
@@ -682,8 +691,7 @@ def discover(
     decides the verdict ``none`` against ``unexplained``. ``alpha``: the family-wise
     false-discovery rate; ``validate``: held-out data for the refitted model; ``order``: the
     highest harmonic; ``name``: the discovered effect's name."""
-    if not 0 < alpha < 1:
-        raise FitError(f"alpha must lie in (0, 1), got {alpha}")
+    check_alpha(alpha)
     opts = resolve(
         options,
         noise_mm=noise_mm,
@@ -698,8 +706,8 @@ def discover(
         noise_mrad=noise_mrad,
         measured=measured,
     )
-    if not 1 <= order <= MAX_ORDER:
-        raise FitError(f"order (the highest harmonic) must lie in 1..{MAX_ORDER}, got {order}")
+    if not ORDER.holds(order):
+        raise FitError(f"order (the highest harmonic) must {ORDER.predicate}, got {order!r}")
     if not _NAME.fullmatch(name) or keyword.iskeyword(name):
         raise FitError(f"effect name {name!r} must be lower-case letters, digits and _")
     s = screened(data, robot, effects, opts, tests=False)

@@ -72,6 +72,7 @@ __all__ = [
     "export_robot",
     "exported_difference",
     "read_targets",
+    "target_id_list",
     "torque_difference",
     "write_joints",
 ]
@@ -210,6 +211,19 @@ class TargetSet:
 
     def __len__(self) -> int:
         return len(self.xyz)
+
+
+def target_id_list(text: str | None) -> list[int] | None:
+    """``"0,1"`` -> ``[0, 1]``: the calibration's target ids in the order of the arm's tool
+    points (None: not given)."""
+    if text is None:
+        return None
+    try:
+        return [int(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise CompensationError(
+            f"target ids must be integers separated by commas, got {text!r}"
+        ) from None
 
 
 def read_targets(path: str | Path, length_unit: str = "m", angle_unit: str = "rad") -> TargetSet:

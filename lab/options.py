@@ -23,18 +23,24 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from arm.constraints import Interval, choices, declare, problems, refuse
+from arm.effects import MAX_ORDER
 from arm.measurements import COMPONENTS
 from arm.noise import InstrumentNoise
 from lab.errors import FitError
 
 __all__ = [
+    "ALPHA",
+    "CRITERIA",
     "LOSSES",
+    "ORDER",
     "OUTLIER_MODES",
+    "ROUNDS",
     "SOLVERS",
     "LabOptions",
     "Loss",
     "OutlierMode",
     "Solver",
+    "check_alpha",
     "resolve",
 ]
 
@@ -108,6 +114,12 @@ class LabOptions:
         return dataclasses.asdict(self)
 
 
+# the entry points' own settings, declared here so that the command line takes them alike
+ALPHA = Interval(float, 0.0, 1.0, closed="neither")  # a family-wise rate (diagnose, discover)
+ORDER = Interval(int, 1, MAX_ORDER)  # the highest order per turn discover scans
+ROUNDS = Interval(int, 0, None)  # the report's rounds of diagnose-and-refit
+CRITERIA = ("o1", "o4")  # lab.plan's pose-set criteria (Borm & Menq, Nahvi & Hollerbach)
+
 LOSSES: tuple[str, ...] = choices(LabOptions, "loss")
 OUTLIER_MODES: tuple[str, ...] = choices(LabOptions, "outliers")
 SOLVERS: tuple[str, ...] = choices(LabOptions, "solver")
@@ -131,3 +143,9 @@ def resolve(options: LabOptions | None, **given: Any) -> LabOptions:
 
 def _same(a: Any, b: Any) -> bool:
     return type(a) is type(b) and a == b
+
+
+def check_alpha(alpha: float) -> None:
+    """Refuse a family-wise rate outside (0, 1), in the declared words."""
+    if not ALPHA.holds(alpha):
+        raise FitError(f"alpha must {ALPHA.predicate}, got {alpha!r}")

@@ -39,13 +39,13 @@ from arm.errormodel import ErrorModel
 from arm.sampling import SamplingError, check_count, rng_from, sample_poses
 from lab.errors import FitError
 from lab.identifiability import Identifiability, analyse_jacobian
+from lab.options import CRITERIA
 from lab.result import SCHEMA_VERSION
 
 __all__ = ["CRITERIA", "Plan", "observability", "plan"]
 
 log = logging.getLogger(__name__)
 
-CRITERIA = ("o1", "o4")
 _SCREEN = 24  # o4: candidates evaluated exactly per addition
 #: the most random candidates a plan draws: their identification Jacobian takes 80 MB for the
 #: geometric model's 33 parameters at 100,000
