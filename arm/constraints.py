@@ -33,27 +33,51 @@ from dataclasses import dataclass
 from typing import Any, Literal, Protocol
 
 __all__ = [
+    "AnyOf",
     "Constraint",
     "Interval",
+    "ListOf",
     "OneOf",
     "TypeOf",
     "check",
     "choices",
     "constraints_of",
     "declare",
+    "expectation",
+    "from_annotation",
     "problems",
     "refuse",
+    "type_name",
 ]
 
 
 class Constraint(Protocol):
-    """What a value must be: ``holds(value)``, and ``predicate`` for the message
-    (``"be positive"``: "noise_mm must be positive, got -1")."""
+    """What a value must be: ``holds(value)``; ``predicate`` for the message ("be positive":
+    "noise_mm must be positive, got -1"), and ``noun``, the kind of value it takes ("a
+    number": "expected a number, got a string '15um'")."""
 
     @property
     def predicate(self) -> str: ...
 
+    @property
+    def noun(self) -> str: ...
+
     def holds(self, value: Any) -> bool: ...
+
+    def kind_holds(self, value: Any) -> bool: ...
+
+
+def type_name(v: Any) -> str:
+    """A value's kind as a config's author reads it (TOML's words)."""
+    return {
+        bool: "a boolean",
+        int: "an integer",
+        float: "a float",
+        str: "a string",
+        list: "an array",
+        tuple: "an array",
+        dict: "a table",
+    }.get(type(v), type(v).__name__)
 
 
 def _number(v: Any, kind: type) -> bool:
@@ -71,6 +95,14 @@ class Interval:
     low: float | None = None
     high: float | None = None
     closed: Literal["both", "left", "right", "neither"] = "both"
+    why: str = ""  # the reason for the bound, said with it: "(seeds below are the leaderboard's)"
+
+    @property
+    def noun(self) -> str:
+        return "an integer" if self.kind is int else "a number"
+
+    def kind_holds(self, value: Any) -> bool:
+        return _number(value, self.kind)
 
     def holds(self, value: Any) -> bool:
         if not _number(value, self.kind) or not math.isfinite(value):
@@ -85,6 +117,9 @@ class Interval:
 
     @property
     def predicate(self) -> str:
+        return self._bound() + (f" ({self.why})" if self.why else "")
+
+    def _bound(self) -> str:
         lo_in, hi_in = self.closed in ("both", "left"), self.closed in ("both", "right")
         noun = "an integer" if self.kind is int else "a number"
         if self.low is not None and self.high is not None:
@@ -92,7 +127,7 @@ class Interval:
                 f"lie in {'[' if lo_in else '('}{self.low:g}, {self.high:g}{']' if hi_in else ')'}"
             )
         if self.low == 0 and self.kind is float:
-            return "be non-negative" if lo_in else "be positive"
+            return "be >= 0" if lo_in else "be positive"
         if self.low is not None:
             return f"be {noun} {'>=' if lo_in else '>'} {self.low:g}"
         if self.high is not None:
@@ -115,9 +150,16 @@ class OneOf:
     def holds(self, value: Any) -> bool:
         return any(type(value) is type(v) and value == v for v in self.values)
 
+    def kind_holds(self, value: Any) -> bool:
+        return True
+
     @property
     def predicate(self) -> str:
         return f"be one of {', '.join(map(str, self.values))}"
+
+    @property
+    def noun(self) -> str:
+        return f"one of {', '.join(map(str, self.values))}"
 
 
 @dataclass(frozen=True)
@@ -127,13 +169,65 @@ class TypeOf:
     kind: type
 
     def holds(self, value: Any) -> bool:
+        if self.kind is not bool and isinstance(value, bool):
+            return False  # TOML keeps booleans and numbers apart, and so do we
         return isinstance(value, self.kind)
+
+    kind_holds = holds
 
     @property
     def predicate(self) -> str:
         if self.kind is bool:
             return "be true or false"
-        return f"be a {self.kind.__name__}"
+        return f"be {self.noun}"
+
+    @property
+    def noun(self) -> str:
+        return {bool: "a boolean", str: "a string", list: "an array", dict: "a table"}.get(
+            self.kind, f"a {self.kind.__name__}"
+        )
+
+
+@dataclass(frozen=True)
+class ListOf:
+    """An array (a list or tuple) whose every item meets ``item``."""
+
+    item: Constraint
+
+    def kind_holds(self, value: Any) -> bool:
+        return isinstance(value, list | tuple)
+
+    def holds(self, value: Any) -> bool:
+        return self.kind_holds(value) and all(self.item.holds(v) for v in value)
+
+    @property
+    def predicate(self) -> str:
+        return f"be an array of {self.item.noun.removeprefix('a ').removeprefix('an ')}s"
+
+    @property
+    def noun(self) -> str:
+        return "an array"
+
+
+@dataclass(frozen=True)
+class AnyOf:
+    """One of several kinds (``int | str``; a count or an array of seeds)."""
+
+    options: tuple[Constraint, ...]
+
+    def holds(self, value: Any) -> bool:
+        return any(c.holds(value) for c in self.options)
+
+    def kind_holds(self, value: Any) -> bool:
+        return any(c.kind_holds(value) for c in self.options)
+
+    @property
+    def predicate(self) -> str:
+        return "be " + self.noun
+
+    @property
+    def noun(self) -> str:
+        return " or ".join(c.noun for c in self.options)
 
 
 def declare(default: Any, *constraints: Constraint) -> Any:
@@ -141,16 +235,32 @@ def declare(default: Any, *constraints: Constraint) -> Any:
     return dataclasses.field(default=default, metadata={"constraints": constraints})
 
 
-def _from_hint(hint: Any) -> tuple[list[Constraint], bool]:
-    """The constraints a type annotation states, and whether it lets None through."""
+@dataclass(frozen=True)
+class _Anything:
+    predicate = "be anything"
+    noun = "anything"
+
+    def holds(self, value: Any) -> bool:
+        return True
+
+    kind_holds = holds
+
+
+_ANYTHING = _Anything()
+
+
+def from_annotation(hint: Any) -> tuple[list[Constraint], bool]:
+    """The constraints a type annotation states (nothing for one it cannot judge: ``Any``, a
+    class), and whether it lets None through."""
     origin = typing.get_origin(hint)
     if origin in (typing.Union, types.UnionType):
-        args = typing.get_args(hint)
-        out: list[Constraint] = []
-        for a in args:
-            if a is not type(None):
-                out += _from_hint(a)[0]
-        return out, type(None) in args
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        parts = [from_annotation(a)[0] for a in args]
+        none_ok = type(None) in typing.get_args(hint)
+        if any(not p for p in parts):  # one alternative cannot be judged: neither can the union
+            return [], none_ok
+        flat = [p[0] for p in parts]
+        return ([flat[0]] if len(flat) == 1 else [AnyOf(tuple(flat))]), none_ok
     if origin is Literal:
         return [OneOf(typing.get_args(hint))], False
     if hint is bool:
@@ -159,7 +269,25 @@ def _from_hint(hint: Any) -> tuple[list[Constraint], bool]:
         return [Interval(hint)], False
     if hint is str:
         return [TypeOf(str)], False
+    target = origin or hint
+    if target in (list, tuple, Sequence, typing.Sequence):
+        items = [a for a in typing.get_args(hint) if a is not Ellipsis]
+        inner = from_annotation(items[0])[0] if len(items) == 1 else []
+        return [ListOf(inner[0]) if inner else ListOf(_ANYTHING)], False
+    if target in (dict, Mapping, typing.Mapping):
+        return [TypeOf(dict)], False
     return [], False
+
+
+def expectation(constraint: Constraint, value: Any) -> str | None:
+    """Why ``value`` breaks ``constraint``, in a config's words: ``expected a number, got a string
+    '15um'`` when it is not of the kind, ``must be positive, got -1.0`` when it is but out of
+    range; None when it holds."""
+    if not constraint.kind_holds(value):
+        return f"expected {constraint.noun}, got {type_name(value)} {value!r}"
+    if not constraint.holds(value):
+        return f"must {constraint.predicate}, got {value!r}"
+    return None
 
 
 _CACHE: dict[type, dict[str, tuple[list[Constraint], bool]]] = {}
@@ -177,7 +305,7 @@ def _constraints_of(cls: type) -> dict[str, tuple[list[Constraint], bool]]:
     hints = typing.get_type_hints(cls)
     out: dict[str, tuple[list[Constraint], bool]] = {}
     for f in dataclasses.fields(cls):
-        typed, none_ok = _from_hint(hints.get(f.name))
+        typed, none_ok = from_annotation(hints.get(f.name))
         declared = list(f.metadata.get("constraints", ()))
         out[f.name] = (declared or typed, none_ok)
     return out

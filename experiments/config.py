@@ -80,13 +80,21 @@ import json
 import logging
 import re
 import tomllib
-import types
 import typing
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from arm.constraints import (
+    AnyOf,
+    Constraint,
+    Interval,
+    TypeOf,
+    expectation,
+    from_annotation,
+    type_name,
+)
 from arm.errors import SixAxisError
 from experiments.metrics import (
     DEFAULT_CONVERGE_MM,
@@ -412,40 +420,31 @@ class ExperimentConfig:
 
 # -- parsing and validation -------------------------------------------------------------------
 
-_TOP_KEYS = {
-    "name": str,
-    "description": str,
-    "env_id": str,
-    "seeds": (list, int),
-    "episode_seconds": (int, float),
-    "settle_seconds": (int, float),
-    "converge_mm": (int, float),
-    "metrics": list,
-    "rank_by": str,
-    "env": dict,
-    "agents": list,
-    "scenarios": list,
-    "phases": list,
-    "campaign": dict,
-    "time_limit_s": (int, float),
-    "memory_limit_mb": int,
-    "isolate": str,
+# every top-level key and what it takes, declared (arm.constraints): its kind is checked first
+# (a config of the wrong shape is refused before anything else), its range with the rest
+_TOP: dict[str, Constraint] = {
+    "name": TypeOf(str),
+    "description": TypeOf(str),
+    "env_id": TypeOf(str),
+    "seeds": AnyOf((TypeOf(list), Interval(int, 1, None))),
+    "episode_seconds": Interval(float),  # at least one control step: checked with the phases
+    "settle_seconds": Interval(float, 0.0, None),
+    "converge_mm": Interval(float, 0.0, None, closed="neither"),
+    "metrics": TypeOf(list),
+    "rank_by": TypeOf(str),
+    "env": TypeOf(dict),
+    "agents": TypeOf(list),
+    "scenarios": TypeOf(list),
+    "phases": TypeOf(list),
+    "campaign": TypeOf(dict),
+    "time_limit_s": Interval(float),
+    "memory_limit_mb": Interval(int),
+    "isolate": TypeOf(str),
 }
 _REQUIRED = ("seeds", "agents", "scenarios")
 _AGENT_KEYS = {"name", "label", "settings", "env", "scenario_settings"}
 _SCENARIO_KEYS = {"name", "scenario", "env"}
 _PHASE_KEYS = {"name", "seconds", "judged", "env"}
-
-
-def _tname(v: Any) -> str:
-    return {
-        bool: "a boolean",
-        int: "an integer",
-        float: "a float",
-        str: "a string",
-        list: "an array",
-        dict: "a table",
-    }.get(type(v), type(v).__name__)
 
 
 def _is(v: Any, types_: type | tuple[type, ...]) -> bool:
@@ -472,7 +471,7 @@ def load_config(path: str | Path, check_agents: bool = True) -> ExperimentConfig
     return parse_config(raw, source=str(p), default_name=p.stem, check_agents=check_agents)
 
 
-def parse_config(
+def parse_config(  # noqa: C901  (the config schema: each branch a key, every problem named at once)
     raw: Mapping[str, Any],
     source: str = "<config>",
     default_name: str = "experiment",
@@ -484,14 +483,11 @@ def parse_config(
     bad = problems.append
 
     for key in raw:
-        if key not in _TOP_KEYS:
-            bad(f"{key}: unknown key; known: {', '.join(_TOP_KEYS)}")
-    for key, types_ in _TOP_KEYS.items():
-        if key in raw and not _is(raw[key], types_):
-            want = " or ".join(
-                _tname(t()) for t in (types_ if isinstance(types_, tuple) else (types_,))
-            )
-            bad(f"{key}: expected {want}, got {_tname(raw[key])} {raw[key]!r}")
+        if key not in _TOP:
+            bad(f"{key}: unknown key; known: {', '.join(_TOP)}")
+    for key, constraint in _TOP.items():
+        if key in raw and not constraint.kind_holds(raw[key]):
+            bad(f"{key}: {expectation(constraint, raw[key])}")
     for key in _REQUIRED:
         if key not in raw:
             bad(f"{key}: missing (required)")
@@ -519,7 +515,7 @@ def parse_config(
     else:
         for i, s in enumerate(seeds_raw):
             if not _is(s, int) or s < 0:
-                bad(f"seeds[{i}]: expected a non-negative integer, got {_tname(s)} {s!r}")
+                bad(f"seeds[{i}]: expected a non-negative integer, got {type_name(s)} {s!r}")
             else:
                 seeds.append(s)
         if not seeds_raw:
@@ -552,17 +548,16 @@ def parse_config(
             f"({CONTROL_DT:g} s)"
         )
     settle_seconds = float(raw.get("settle_seconds", DEFAULT_SETTLE_SECONDS))
-    if settle_seconds < 0:
-        bad(f"settle_seconds: must not be negative, got {settle_seconds}")
     converge_mm = float(raw.get("converge_mm", DEFAULT_CONVERGE_MM))
-    if not converge_mm > 0:
-        bad(f"converge_mm: must be positive, got {converge_mm}")
+    for key, value in (("settle_seconds", settle_seconds), ("converge_mm", converge_mm)):
+        if (why := expectation(_TOP[key], value)) is not None:
+            bad(f"{key}: {why}")
 
     # metrics (a metric's companion, e.g. never_converged of converge_s, comes with it)
     metrics = list(raw.get("metrics", list(DEFAULT_METRICS)))
     for i, m in enumerate(metrics):
-        if not _is(m, str):
-            bad(f"metrics[{i}]: expected a string, got {_tname(m)} {m!r}")
+        if not isinstance(m, str):
+            bad(f"metrics[{i}]: expected a string, got {type_name(m)} {m!r}")
         elif m not in METRICS:
             bad(f"metrics[{i}]: unknown metric {m!r}; known: {', '.join(METRICS)}")
     if len(set(map(str, metrics))) != len(metrics):
@@ -596,9 +591,9 @@ def parse_config(
 
     scenario_labels = {s.label for s in scenarios}
     agents = [
-        e
+        ae
         for _, where, a in _entries(raw["agents"], "agents", _AGENT_KEYS, bad, "an agent")
-        if (e := _agent_entry(a, where, env_info, scenario_labels, check_agents, bad)) is not None
+        if (ae := _agent_entry(a, where, env_info, scenario_labels, check_agents, bad)) is not None
     ]
     _no_repeats([a.label for a in agents], "agents", "label", "give one a 'label'", bad)
     if not raw["agents"]:
@@ -684,13 +679,15 @@ def _entries(
     known = sorted(keys)
     for i, item in enumerate(items):
         where = f"{section}[{i}]"
-        if shorthand is not None and _is(item, str):
+        if shorthand is not None and isinstance(item, str):
             item = {"name": item}
         if not _is(item, dict):
             if shorthand is None:
-                bad(f"{where}: expected a table, got {_tname(item)}")
+                bad(f"{where}: expected a table, got {type_name(item)}")
             else:
-                bad(f"{where}: expected {shorthand} name or a table, got {_tname(item)} {item!r}")
+                bad(
+                    f"{where}: expected {shorthand} name or a table, got {type_name(item)} {item!r}"
+                )
             continue
         for k in item:
             if k not in known:
@@ -705,7 +702,7 @@ def _entry_env(
     it may not set the scenario (None: it may)."""
     env = entry.get("env", {})
     if not _is(env, dict):
-        bad(f"{where}.env: expected a table, got {_tname(env)}")
+        bad(f"{where}.env: expected a table, got {type_name(env)}")
         env = {}
     if scenario is not None and "scenario" in env:
         bad(f"{where}.env.scenario: {scenario}")
@@ -723,11 +720,11 @@ def _scenario_entry(
 ) -> ScenarioEntry | None:
     label = s.get("name")
     scen = s.get("scenario", label)
-    if not _is(label, str):
-        bad(f"{where}.name: expected a string, got {_tname(label)} {label!r}")
+    if not isinstance(label, str):
+        bad(f"{where}.name: expected a string, got {type_name(label)} {label!r}")
         return None
-    if not _is(scen, str):
-        bad(f"{where}.scenario: expected a string, got {_tname(scen)} {scen!r}")
+    if not isinstance(scen, str):
+        bad(f"{where}.scenario: expected a string, got {type_name(scen)} {scen!r}")
         return None
     if not LABEL_RE.match(label):
         bad(f"{where}.name: {label!r} must be letters, digits and _ . + -")
@@ -747,18 +744,18 @@ def _agent_entry(
     bad,
 ) -> AgentEntry | None:
     agent = a.get("name")
-    if not _is(agent, str):
+    if not isinstance(agent, str):
         bad(
-            f"{where}.name: expected a string (an agent name or 'package.module:Class'), got {_tname(agent)} {agent!r}"
+            f"{where}.name: expected a string (an agent name or 'package.module:Class'), got {type_name(agent)} {agent!r}"
         )
         return None
     label = a.get("label", agent.rpartition(":")[2] if ":" in agent else agent)
-    if not _is(label, str) or not LABEL_RE.match(label):
+    if not isinstance(label, str) or not LABEL_RE.match(label):
         bad(f"{where}.label: {label!r} must be letters, digits and _ . + -")
         return None
     settings = a.get("settings", {})
     if not _is(settings, dict):
-        bad(f"{where}.settings: expected a table, got {_tname(settings)}")
+        bad(f"{where}.settings: expected a table, got {type_name(settings)}")
         settings = {}
     env = _entry_env(a, where, env_info, bad)
     per = a.get("scenario_settings", {})
@@ -792,13 +789,13 @@ def _phase_entry(ph: Mapping[str, Any], default_name: str, where: str, env_info,
     pname = ph.get("name", default_name)
     secs = ph.get("seconds")
     judged = ph.get("judged", True)
-    if not _is(pname, str):
-        bad(f"{where}.name: expected a string, got {_tname(pname)}")
-    if not _is(secs, (int, float)) or secs <= 0:
-        bad(f"{where}.seconds: expected a positive number, got {_tname(secs)} {secs!r}")
+    if not isinstance(pname, str):
+        bad(f"{where}.name: expected a string, got {type_name(pname)}")
+    if isinstance(secs, bool) or not isinstance(secs, int | float) or secs <= 0:
+        bad(f"{where}.seconds: expected a positive number, got {type_name(secs)} {secs!r}")
         secs = 1.0
     if not _is(judged, bool):
-        bad(f"{where}.judged: expected a boolean, got {_tname(judged)} {judged!r}")
+        bad(f"{where}.judged: expected a boolean, got {type_name(judged)} {judged!r}")
     env = _entry_env(ph, where, env_info, bad, "a phase keeps the episode's scenario")
     return PhaseEntry(str(pname), float(secs), bool(judged), env)
 
@@ -815,7 +812,7 @@ def _env_class(env_id: str):
     ep = spec.entry_point
     if callable(ep):
         return ep
-    module, _, attr = ep.partition(":")
+    module, _, attr = str(ep).partition(":")
     return getattr(importlib.import_module(module), attr)
 
 
@@ -839,7 +836,7 @@ def known_scenarios(env_id: str = DEFAULT_ENV_ID) -> tuple[str, ...] | None:
     return None if found is None else tuple(found)
 
 
-def _env_signature(env_id: str, bad) -> dict[str, inspect.Parameter] | None:
+def _env_signature(env_id: str, bad) -> dict[str, tuple[inspect.Parameter, Any]] | None:
     """The env constructor's keyword parameters (None: cannot tell, so env keys are not checked)."""
     try:
         import gymnasium as gym
@@ -888,7 +885,10 @@ def _campaign_phases(raw: dict[str, Any], bad) -> list[PhaseEntry]:
     except (TypeError, ValueError) as exc:
         bad(f"campaign: {exc}")
         return []
-    return [PhaseEntry(p.name, float(p.seconds), bool(p.judged), dict(p.overrides)) for p in phases]
+    return [
+        PhaseEntry(p.name, float(p.seconds or 0.0), bool(p.judged), dict(p.overrides))
+        for p in phases
+    ]
 
 
 def _check_lengths(env, scenarios, agents, phases, episode_seconds, raw, env_info, bad) -> None:
@@ -929,17 +929,20 @@ def _check_env_options(env_id, env, scenarios, agents, phases, raw, problems) ->
         return
     s_where = {}
     for i, s in enumerate(raw.get("scenarios") or []):
-        s_where[s if _is(s, str) else s.get("name") if _is(s, dict) else None] = f"scenarios[{i}]"
+        s_where[s if isinstance(s, str) else s.get("name") if _is(s, dict) else None] = (
+            f"scenarios[{i}]"
+        )
     a_where = {}
     for i, a in enumerate(raw.get("agents") or []):
-        a = {"name": a} if _is(a, str) else a
+        a = {"name": a} if isinstance(a, str) else a
         if _is(a, dict) and _is(a.get("name"), str):
             a_where[a.get("label", a["name"].rpartition(":")[2])] = f"agents[{i}]"
     if raw.get("phases"):
         p_where = [f"phases[{i}]" for i in range(len(phases))]
     else:
         p_where = [f"campaign (phase {i}: {ph.name})" for i, ph in enumerate(phases)]
-    runs = list(zip(phases, p_where, strict=True)) or [(None, None)]
+    runs: list[tuple[PhaseEntry | None, str | None]] = [*zip(phases, p_where, strict=True)]
+    runs = runs or [(None, None)]
     seen, checked = set(), set()
     for s in scenarios:
         for a in agents:
@@ -1107,58 +1110,15 @@ def check_agent_in_process(agent: str, settings: dict, where: str, bad, construc
 
 
 def _type_problem(value: Any, hint: Any, default: Any) -> str | None:
-    """Why ``value`` does not fit a parameter annotated ``hint`` (default ``default``), or None.
-    Unknown or complex annotations are let through: the agent or env will judge."""
+    """Why ``value`` does not fit a parameter annotated ``hint`` (default ``default``), by the
+    constraints the annotation declares (:func:`arm.constraints.from_annotation`), or None. An
+    annotation that says nothing checkable (a class, ``Any``) lets the value through: the agent or
+    env judges it."""
     if hint is None:
         if default is inspect.Parameter.empty or default is None:
             return None
         hint = type(default)
-    ok = _fits(value, hint)
-    if ok is False:
-        return f"expected {_hint_name(hint)}, got {_tname(value)} {value!r}"
-    return None
-
-
-def _fits(value: Any, hint: Any) -> bool | None:
-    """True/False when the annotation can be judged, None when it cannot."""
-    if hint is Any or hint is inspect.Parameter.empty:
+    constraints, none_ok = from_annotation(hint)
+    if not constraints or (value is None and none_ok):
         return None
-    origin = typing.get_origin(hint)
-    if origin in (typing.Union, types.UnionType):
-        results = [_fits(value, h) for h in typing.get_args(hint)]
-        if any(r is True for r in results):
-            return True
-        return None if any(r is None for r in results) else False
-    if hint is type(None):
-        return value is None
-    if hint is bool:
-        return isinstance(value, bool)
-    if hint is int:
-        return _is(value, int)
-    if hint is float:
-        return _is(value, (int, float))
-    if hint is str:
-        return isinstance(value, str)
-    target = origin or hint
-    if target in (list, tuple) or target in (Sequence, typing.Sequence):
-        if isinstance(value, str) or not isinstance(value, (list, tuple)):
-            return False
-        args = [a for a in typing.get_args(hint) if a is not Ellipsis]
-        if len(args) == 1:
-            inner = [_fits(v, args[0]) for v in value]
-            if any(r is False for r in inner):
-                return False
-        return True
-    if target in (dict, Mapping, typing.Mapping):
-        return isinstance(value, dict)
-    if isinstance(hint, type) and hint.__module__ == "builtins":
-        return isinstance(value, hint)
-    return None
-
-
-def _hint_name(hint: Any) -> str:
-    if isinstance(hint, type):
-        return {bool: "a boolean", int: "an integer", float: "a number", str: "a string"}.get(
-            hint, hint.__name__
-        )
-    return str(hint).replace("typing.", "")
+    return expectation(constraints[0], value)

@@ -148,7 +148,7 @@ def test_user_agent_by_class_path_is_accepted():
         ({"seeds": "0,1"}, "seeds", "expected an array or an integer"),
         ({"seeds": [0, 1.5]}, "seeds[1]", "non-negative integer"),
         ({"seeds": [0, 0]}, "seeds", "repeated"),
-        ({"episode_seconds": "long"}, "episode_seconds", "expected an integer or a float"),
+        ({"episode_seconds": "long"}, "episode_seconds", "expected a number"),
         ({"episode_seconds": 30.0}, "episode_seconds", "longer than the env's reference"),
         ({"metrics": ["rms_mm", "happiness"]}, "metrics[1]", "unknown metric 'happiness'"),
         ({"rank_by": "max_mm", "metrics": ["rms_mm"]}, "rank_by", "not one of the metrics"),
