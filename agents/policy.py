@@ -42,11 +42,12 @@ from __future__ import annotations
 import json
 import logging
 import time
+import typing
 import zipfile
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -59,10 +60,12 @@ __all__ = [
     "ALGOS",
     "POLICY_DIR",
     "VARIANTS",
+    "Algo",
     "PolicyAgent",
     "PolicyFileError",
     "PolicyIO",
     "PolicyNetwork",
+    "Variant",
     "load_policy_file",
     "save_policy_file",
 ]
@@ -70,8 +73,10 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
-VARIANTS = ("residual", "plain")
-ALGOS = ("ppo", "sac", "td3")
+Variant = Literal["residual", "plain"]
+Algo = Literal["ppo", "sac", "td3"]
+VARIANTS: tuple[str, ...] = typing.get_args(Variant)
+ALGOS: tuple[str, ...] = typing.get_args(Algo)
 MM = 1e3
 #: preview steps the residual policy sees (relative to the reference now)
 RESIDUAL_PREVIEW = (0, 1, 2, 4, 9)
@@ -335,7 +340,7 @@ def save_policy_file(
     return path
 
 
-def load_policy_file(path: str | Path) -> tuple[PolicyNetwork, dict[str, Any]]:
+def load_policy_file(path: str | Path) -> tuple[PolicyNetwork, dict[str, Any]]:  # noqa: C901  (one reader: each branch refuses one way a policy file can be wrong)
     """The network and description of a policy file (``.npz`` with its ``.json``), loaded without
     unpickling; anything else (a stable-baselines3 ``.zip``, a pickle) is refused."""
     path = Path(path)

@@ -40,25 +40,27 @@ import json
 import logging
 import math
 import time
+import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
 
 from agents.policy import (
-    ALGOS,
     POLICY_DIR,
-    VARIANTS,
+    Algo,
     PolicyAgent,
     PolicyIO,
     PolicyNetwork,
+    Variant,
     policy_kwargs_for_sb3,
     save_policy_file,
 )
 from agents.reference import FeedforwardAgent
+from arm.constraints import Interval, check, constraints_of, declare, problems
 from arm.errors import SixAxisError
 from envs.task import controller_info
 
@@ -102,7 +104,11 @@ SEED_STRIDE = 100_000
 #: the lowest episode seed a training run may use
 MIN_EPISODE_SEED = 1000
 #: the training rewards (see :class:`PolicyEnv`)
-REWARDS = ("log", "improvement", "env")
+Reward = Literal["log", "improvement", "env"]
+REWARDS: tuple[str, ...] = typing.get_args(Reward)
+AT_LEAST_1 = Interval(int, 1, None)
+NON_NEGATIVE = Interval(float, 0.0, None)
+POSITIVE = Interval(float, 0.0, None, closed="neither")
 #: keys of [train.hyperparameters] that the trainer sets itself
 _RESERVED = {"policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model"}
 
@@ -113,30 +119,36 @@ class TrainConfigError(SixAxisError, ValueError):
 
 @dataclass
 class TrainConfig:
-    """A training run (``[train]`` of a config file); see the module docstring."""
+    """A training run (``[train]`` of a config file); see the module docstring. What each key
+    takes is declared beside it (:mod:`arm.constraints`: the ``Literal`` modes, the ranges);
+    :meth:`check` adds the rules between keys."""
 
-    algo: str = "ppo"
-    variant: str = "residual"
+    algo: Algo = "ppo"
+    variant: Variant = "residual"
     name: str = ""
     scenarios: tuple[str, ...] = LEADERBOARD_SCENARIOS
     env: dict[str, Any] = field(default_factory=lambda: dict(LEADERBOARD_ENV))
-    total_timesteps: int = 300_000
-    n_envs: int = 8
-    seed: int = 1
-    episode_seed_base: int = 10_000
-    offset_mm: float = 0.5
-    reward: str = "log"
-    reward_scale_mm: float = 0.05
-    action_penalty: float = 0.0
-    action_change_penalty: float = 0.0
-    critic_burn_in: int = 0
+    total_timesteps: int = declare(300_000, AT_LEAST_1)
+    n_envs: int = declare(8, AT_LEAST_1)
+    seed: int = declare(1, Interval(int, 0, None))
+    episode_seed_base: int = declare(
+        10_000, Interval(int, MIN_EPISODE_SEED, None, why="seeds below are the leaderboard's")
+    )
+    offset_mm: float = declare(0.5, POSITIVE)
+    reward: Reward = "log"
+    reward_scale_mm: float = declare(0.05, POSITIVE)
+    action_penalty: float = declare(0.0, NON_NEGATIVE)
+    action_change_penalty: float = declare(0.0, NON_NEGATIVE)
+    critic_burn_in: int = declare(0, Interval(int, 0, None))
     normalize_reward: bool = True
-    init_output_scale: float = 0.01
-    action_noise_std: float = 0.1
-    eval_every: int = 25_000
-    eval_seed_base: int = 900_000
-    eval_episodes: int = 1
-    checkpoint_every: int = 50_000
+    init_output_scale: float = declare(0.01, POSITIVE)
+    action_noise_std: float = declare(0.1, NON_NEGATIVE)
+    eval_every: int = declare(25_000, AT_LEAST_1)
+    eval_seed_base: int = declare(
+        900_000, Interval(int, MIN_EPISODE_SEED, None, why="seeds below are the leaderboard's")
+    )
+    eval_episodes: int = declare(1, AT_LEAST_1)
+    checkpoint_every: int = declare(50_000, AT_LEAST_1)
     output: str = ""
     hyperparameters: dict[str, Any] = field(default_factory=dict)
 
@@ -168,79 +180,61 @@ class TrainConfig:
         return range(self.eval_seed_base, self.eval_seed_base + self.eval_episodes)
 
     def check(self, source: str = "config") -> None:
-        """Refuse what cannot run, naming the key."""
+        """Refuse what cannot run, naming every key at fault: the declared kinds and ranges of
+        each key, then the rules between keys."""
+        found = problems(self) + self._rules()
+        if found:
+            raise TrainConfigError(f"{source}: [train] " + "; ".join(found))
 
-        def bad(msg: str) -> None:
-            raise TrainConfigError(f"{source}: [train] {msg}")
-
-        if self.algo not in ALGOS:
-            bad(f"algo must be one of {', '.join(ALGOS)}, got {self.algo!r}")
-        if self.variant not in VARIANTS:
-            bad(f"variant must be one of {', '.join(VARIANTS)}, got {self.variant!r}")
+    def _rules(self) -> list[str]:
+        """The rules between keys (the scenarios the env knows, seeds apart from the
+        leaderboard's and the evaluation's, what each algorithm and variant takes)."""
         from envs.scenarios import SCENARIOS
 
-        for i, sc in enumerate(self.scenarios):
-            if sc not in SCENARIOS:
-                bad(f"scenarios[{i}]: unknown scenario {sc!r}; known: {', '.join(SCENARIOS)}")
+        out = [
+            f"scenarios[{i}]: unknown scenario {sc!r}; known: {', '.join(SCENARIOS)}"
+            for i, sc in enumerate(self.scenarios)
+            if sc not in SCENARIOS
+        ]
         if not self.scenarios:
-            bad("scenarios: empty")
-        for key in ("total_timesteps", "n_envs", "eval_every", "eval_episodes", "checkpoint_every"):
-            if getattr(self, key) < 1:
-                bad(f"{key} must be at least 1, got {getattr(self, key)}")
-        if self.seed < 0:
-            bad(f"seed must be >= 0, got {self.seed}")
-        if self.episode_seed_base < MIN_EPISODE_SEED:
-            bad(
-                f"episode_seed_base must be at least {MIN_EPISODE_SEED} (seeds below are the "
-                f"leaderboard's), got {self.episode_seed_base}"
-            )
+            out.append("scenarios: empty")
+        if out or problems(self):  # the rest needs every key of its kind
+            return out
         if self.max_episodes() > SEED_STRIDE:
-            bad(f"total_timesteps: more than {SEED_STRIDE} episodes overlap the next seed's")
-        train = self.training_seeds()
-        ev = self.evaluation_seeds()
+            out.append(f"total_timesteps: more than {SEED_STRIDE} episodes overlap the next seed's")
+        train, ev = self.training_seeds(), self.evaluation_seeds()
         if ev.start < train.stop and train.start < ev.stop:
-            bad(f"eval_seed_base {self.eval_seed_base}: evaluation seeds overlap training seeds")
-        if self.eval_seed_base < MIN_EPISODE_SEED:
-            bad(f"eval_seed_base must be at least {MIN_EPISODE_SEED}, got {self.eval_seed_base}")
-        if not self.offset_mm > 0:
-            bad(f"offset_mm must be > 0, got {self.offset_mm}")
-        if not self.action_noise_std >= 0:
-            bad(f"action_noise_std must be >= 0, got {self.action_noise_std}")
+            out.append(
+                f"eval_seed_base {self.eval_seed_base}: evaluation seeds overlap training seeds"
+            )
         if "action_noise" in self.hyperparameters:
-            bad("hyperparameters: action_noise is set by the trainer (action_noise_std)")
-        if not self.init_output_scale > 0:
-            bad(f"init_output_scale must be > 0, got {self.init_output_scale}")
-        if self.reward not in REWARDS:
-            bad(f"reward must be one of {', '.join(REWARDS)}, got {self.reward!r}")
+            out.append("hyperparameters: action_noise is set by the trainer (action_noise_std)")
         if self.reward == "improvement" and self.variant != "residual":
-            bad("reward 'improvement' (over the base controller) is for residual policies")
-        if not self.reward_scale_mm > 0:
-            bad(f"reward_scale_mm must be > 0, got {self.reward_scale_mm}")
-        if self.critic_burn_in < 0:
-            bad(f"critic_burn_in must be >= 0, got {self.critic_burn_in}")
+            out.append("reward 'improvement' (over the base controller) is for residual policies")
         if self.critic_burn_in and self.algo == "ppo":
-            bad("critic_burn_in is for the off-policy algorithms (sac, td3): PPO has no critic")
-        for key in ("action_penalty", "action_change_penalty"):
-            if not getattr(self, key) >= 0:
-                bad(f"{key} must be >= 0, got {getattr(self, key)}")
+            out.append(
+                "critic_burn_in is for the off-policy algorithms (sac, td3): PPO has no critic"
+            )
         cls = _algorithm(self.algo)
         params = inspect.signature(cls.__init__).parameters
         unknown = sorted(set(self.hyperparameters) - set(params) - _RESERVED)
         reserved = sorted(set(self.hyperparameters) & _RESERVED)
         if unknown:
-            bad(f"hyperparameters: {cls.__name__} takes no {', '.join(unknown)}")
+            out.append(f"hyperparameters: {cls.__name__} takes no {', '.join(unknown)}")
         if reserved:
-            bad(f"hyperparameters: {', '.join(reserved)} are set by the trainer")
+            out.append(f"hyperparameters: {', '.join(reserved)} are set by the trainer")
         try:
             policy_kwargs_for_sb3(self.hyperparameters.get("policy_kwargs", {}))
         except ValueError as exc:
-            bad(f"hyperparameters.policy_kwargs: {exc}")
-        try:
-            import envs  # noqa: F401
+            out.append(f"hyperparameters.policy_kwargs: {exc}")
+        if not out:
+            try:
+                import envs  # noqa: F401
 
-            gym.make("SixAxisTrack-v0", scenario=self.scenarios[0], **self.env).close()
-        except (TypeError, ValueError) as exc:
-            bad(f"env: {exc}")
+                gym.make("SixAxisTrack-v0", scenario=self.scenarios[0], **self.env).close()
+            except (TypeError, ValueError) as exc:
+                out.append(f"env: {exc}")
+        return out
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -274,16 +268,9 @@ def load_train_config(path: str | Path, **overrides: Any) -> TrainConfig:
     unknown = sorted(set(table) - set(fields))
     if unknown:
         raise TrainConfigError(f"{path}: [train] has unknown key(s) {', '.join(unknown)}")
-    defaults = TrainConfig()
-    for k, v in table.items():
-        want = type(getattr(defaults, k))
-        ok = isinstance(v, want) and not (want is int and isinstance(v, bool))
-        ok |= want is float and isinstance(v, int) and not isinstance(v, bool)
-        ok |= want is tuple and isinstance(v, list)
-        if not ok:
-            raise TrainConfigError(
-                f"{path}: [train] {k} must be {want.__name__}, got {type(v).__name__} {v!r}"
-            )
+    wrong = check(table, constraints_of(TrainConfig))  # each key's kind, before building it
+    if wrong:
+        raise TrainConfigError(f"{path}: [train] " + "; ".join(wrong))
     values = dict(table) | {k: v for k, v in overrides.items() if v is not None}
     if "output" not in table and "output" not in values:
         values["output"] = ""
@@ -498,10 +485,12 @@ def train(
     import torch
 
     torch.set_num_threads(1)
-    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList
     from stable_baselines3.common.monitor import Monitor
     from stable_baselines3.common.noise import NormalActionNoise
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from agents.callbacks import CriticBurnIn, EveryCrossing, Progress
 
     cfg.check()
     out = Path(cfg.output)
@@ -619,28 +608,22 @@ def train(
         with atomic_path(out / "checkpoint.npz") as tmp, open(tmp, "wb") as fh:
             np.savez(fh, **state)
 
-    actor = None if cfg.algo == "ppo" else model.policy.actor
-
-    class _Callback(BaseCallback):
-        def _on_step(self) -> bool:
-            n = self.num_timesteps
-            k = cfg.n_envs
-            if actor is not None:  # the critic's burn-in: the actor learns once it is over
-                actor.requires_grad_(n >= cfg.critic_burn_in)
-            if n // cfg.eval_every != (n - k) // cfg.eval_every:
-                evaluate_now(n)
-            if n // cfg.checkpoint_every != (n - k) // cfg.checkpoint_every:
-                checkpoint()
-            if progress is not None:
-                progress(n, cfg.total_timesteps)
-            return True
+    callbacks: list[BaseCallback] = []
+    if cfg.algo != "ppo":  # the critic's burn-in: the actor learns once it is over
+        callbacks.append(CriticBurnIn(cfg.critic_burn_in))
+    callbacks += [
+        EveryCrossing(cfg.eval_every, cfg.n_envs, evaluate_now),
+        EveryCrossing(cfg.checkpoint_every, cfg.n_envs, lambda n: checkpoint()),
+    ]
+    if progress is not None:
+        callbacks.append(Progress(progress, cfg.total_timesteps))
 
     if done_before == 0:
         evaluate_now(0)
     try:
         model.learn(
             total_timesteps=cfg.total_timesteps - done_before,
-            callback=_Callback(),
+            callback=CallbackList(callbacks),
             reset_num_timesteps=done_before == 0,
         )
         if model.num_timesteps % cfg.eval_every:

@@ -362,7 +362,7 @@ def test_bad_training_configs_are_refused(tmp_path):
     p = tmp_path / "c.toml"
     cases = {
         "[train]\nlearnig_rate = 1e-3\n": r"unknown key.*learnig_rate",
-        "[train]\nn_envs = 'four'\n": "n_envs must be int",
+        "[train]\nn_envs = 'four'\n": "n_envs must be an integer",
         "[train]\nvariant = 'fancy'\n": "variant",
         "[train]\nepisode_seed_base = 3\n": "leaderboard",
         "[train]\nalgo = 'sac'\n[train.hyperparameters]\nclip_range = 0.2\n": "SAC takes no clip_range",

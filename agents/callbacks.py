@@ -1,0 +1,58 @@
+"""The training run's callbacks, as stable-baselines3 writes its own: module-level classes, each one
+concern, combined in a ``CallbackList`` by :func:`agents.training.train`.
+
+    CallbackList([CriticBurnIn(20_000), EveryCrossing(25_000, 8, evaluate), Progress(report, n)])
+
+Importing this module imports stable-baselines3 (and torch): :mod:`agents.training` imports it
+only when it trains.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+__all__ = ["CriticBurnIn", "EveryCrossing", "Progress"]
+
+
+class CriticBurnIn(BaseCallback):
+    """An off-policy actor (SAC, TD3) stays still for the first ``steps`` steps while its critic
+    learns (residual policy learning's burn-in): no gradient reaches it until then."""
+
+    def __init__(self, steps: int) -> None:
+        super().__init__()
+        self.steps = int(steps)
+
+    def _on_step(self) -> bool:
+        actor = getattr(self.model.policy, "actor", None)
+        if actor is not None:
+            actor.requires_grad_(self.num_timesteps >= self.steps)
+        return True
+
+
+class EveryCrossing(BaseCallback):
+    """``action(steps)`` each time the step count crosses a multiple of ``every`` (the vectorised
+    env takes ``n_envs`` steps at a time, so the count steps over the multiples)."""
+
+    def __init__(self, every: int, n_envs: int, action: Callable[[int], None]) -> None:
+        super().__init__()
+        self.every, self.n_envs, self.action = int(every), int(n_envs), action
+
+    def _on_step(self) -> bool:
+        n = self.num_timesteps
+        if n // self.every != (n - self.n_envs) // self.every:
+            self.action(n)
+        return True
+
+
+class Progress(BaseCallback):
+    """``report(steps, total)`` after every step (a progress bar)."""
+
+    def __init__(self, report: Callable[[int, int], None], total: int) -> None:
+        super().__init__()
+        self.report, self.total = report, int(total)
+
+    def _on_step(self) -> bool:
+        self.report(self.num_timesteps, self.total)
+        return True
