@@ -1,19 +1,9 @@
 """Agents by name: ``make_agent("mpc", horizon=15)``, or a user's class by import path
 ``make_agent("my_package.controllers:MyAgent", gain=2.0)``.
 
-| name           | what it is                                                                  |
-|----------------|-----------------------------------------------------------------------------|
-| `hold`         | zero velocity: the floor                                                    |
-| `nominal`      | resolved-rate tracking on the nominal model, no measurements                |
-| `feedforward`  | nominal tracking of the reference minus the last measured model error       |
-| `calibrated`   | calibrate from a measurement phase (least squares), then track blind        |
-| `mpc`          | kinematic MPC (QP, daqp) with online recursive least-squares calibration    |
-| `mpc-ipopt`    | the same MPC as a nonlinear program solved by IPOPT                         |
-| `mpc-oracle`   | the MPC given the plant's true model (needs the env's truth)                |
-| `mpc-diagnose` | the MPC that diagnoses its own model with the lab and widens it             |
-| `sac`          | the shipped plain SAC policy (stable-baselines3): joint velocities          |
-| `ppo-residual` | the shipped residual PPO policy on top of ``feedforward`` (+-0.5 mm)        |
-| `sac-residual` | the shipped residual SAC policy on top of ``feedforward`` (+-0.5 mm)        |
+Every agent is one row of :data:`AGENTS`, an :class:`AgentSpec` (Gymnasium's ``EnvSpec`` is the
+model): its name, the class that makes it, the settings it is made with, what it is.
+``sixaxis agents`` lists them.
 
 Every ``agents/policies/<name>.npz`` is registered as ``<name>``: a learned policy loads from that
 file (weights as arrays, no unpickling) or from ``path``, another such file.
@@ -24,68 +14,53 @@ only classes you trust.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import inspect
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from agents.base import Agent
+from arm.constraints import check, constraints_of
 from arm.errors import SixAxisError
 
-__all__ = ["AGENTS", "AgentError", "agent_names", "check_settings", "make_agent", "resolve_agent"]
+__all__ = [
+    "AGENTS",
+    "POLICIES",
+    "AgentError",
+    "AgentSpec",
+    "agent_names",
+    "check_settings",
+    "make_agent",
+    "resolve_agent",
+]
 
 
 class AgentError(SixAxisError, ValueError):
     """An unknown agent or bad settings, with the name at fault."""
 
 
-def _hold(**kw):
-    from agents.reference import HoldAgent
+@dataclass(frozen=True)
+class AgentSpec:
+    """One registered agent, as Gymnasium's ``EnvSpec`` registers an environment: its ``name``,
+    the class that makes it (``entry_point``, ``"package.module:Class"``, imported only when the
+    agent is made), the ``kwargs`` it is made with before the user's settings, and one line of
+    what it is."""
 
-    return HoldAgent(**kw)
+    name: str
+    entry_point: str
+    summary: str
+    kwargs: Mapping[str, Any] = field(default_factory=dict)
 
+    def load(self) -> type[Agent]:
+        """The agent's class."""
+        module, _, attr = self.entry_point.partition(":")
+        return getattr(importlib.import_module(module), attr)
 
-def _nominal(**kw):
-    from agents.reference import NominalAgent
-
-    return NominalAgent(**kw)
-
-
-def _feedforward(**kw):
-    from agents.reference import FeedforwardAgent
-
-    return FeedforwardAgent(**kw)
-
-
-def _calibrated(**kw):
-    from agents.reference import CalibratedAgent
-
-    return CalibratedAgent(**kw)
-
-
-def _mpc(**kw):
-    from agents.mpc import MPCAgent
-
-    return MPCAgent(**kw)
-
-
-def _mpc_ipopt(**kw):
-    from agents.mpc import MPCAgent
-
-    return MPCAgent(**({"solver": "ipopt"} | kw))
-
-
-def _mpc_oracle(**kw):
-    from agents.mpc import MPCAgent
-
-    return MPCAgent(**({"oracle": True} | kw))
-
-
-def _mpc_diagnose(**kw):
-    from agents.self_diagnosis import DiagnosingMPCAgent
-
-    return DiagnosingMPCAgent(**kw)
+    def make(self, **settings: Any) -> Agent:
+        return self.load()(**(dict(self.kwargs) | settings))
 
 
 #: the learned policies shipped in agents/policies/ (<name>.npz), each registered by its name
@@ -93,26 +68,58 @@ POLICIES = tuple(
     sorted(p.stem for p in (Path(__file__).resolve().parent / "policies").glob("*.npz"))
 )
 
-
-def _policy(name: str) -> Callable[..., Agent]:
-    def make(**kw):
-        from agents.policy import PolicyAgent
-
-        return PolicyAgent(name, **kw)
-
-    return make
-
-
-AGENTS: dict[str, Callable[..., Agent]] = {
-    "hold": _hold,
-    "nominal": _nominal,
-    "feedforward": _feedforward,
-    "calibrated": _calibrated,
-    "mpc": _mpc,
-    "mpc-ipopt": _mpc_ipopt,
-    "mpc-oracle": _mpc_oracle,
-    "mpc-diagnose": _mpc_diagnose,
-    **{name: _policy(name) for name in POLICIES},
+#: every agent by name: the one table (``sixaxis agents`` lists it)
+AGENTS: dict[str, AgentSpec] = {
+    s.name: s
+    for s in (
+        AgentSpec("hold", "agents.reference:HoldAgent", "zero velocity: the floor"),
+        AgentSpec(
+            "nominal",
+            "agents.reference:NominalAgent",
+            "resolved-rate tracking on the nominal model, no measurements",
+        ),
+        AgentSpec(
+            "feedforward",
+            "agents.reference:FeedforwardAgent",
+            "nominal tracking of the reference minus the last measured model error",
+        ),
+        AgentSpec(
+            "calibrated",
+            "agents.reference:CalibratedAgent",
+            "calibrate from a measurement phase (least squares), then track blind",
+        ),
+        AgentSpec(
+            "mpc",
+            "agents.mpc:MPCAgent",
+            "kinematic MPC (QP, daqp) with online recursive least-squares calibration",
+        ),
+        AgentSpec(
+            "mpc-ipopt",
+            "agents.mpc:MPCAgent",
+            "the same MPC as a nonlinear program solved by IPOPT",
+            {"solver": "ipopt"},
+        ),
+        AgentSpec(
+            "mpc-oracle",
+            "agents.mpc:MPCAgent",
+            "the MPC given the plant's true model (needs the env's truth)",
+            {"oracle": True},
+        ),
+        AgentSpec(
+            "mpc-diagnose",
+            "agents.self_diagnosis:DiagnosingMPCAgent",
+            "the MPC that diagnoses its own model with the lab and widens it",
+        ),
+        *(
+            AgentSpec(
+                p,
+                "agents.policy:PolicyAgent",
+                f"the shipped learned policy agents/policies/{p}.npz",
+                {"policy": p},
+            )
+            for p in POLICIES
+        ),
+    )
 }
 
 
@@ -123,20 +130,8 @@ def agent_names() -> list[str]:
 def resolve_agent(name: str) -> tuple[Callable[..., Agent], Callable[..., Any]]:
     """The factory of ``name`` and the callable whose signature its settings must fit."""
     if name in AGENTS:
-        from agents import mpc, policy, reference, self_diagnosis
-
-        cls = {
-            "hold": reference.HoldAgent,
-            "nominal": reference.NominalAgent,
-            "feedforward": reference.FeedforwardAgent,
-            "calibrated": reference.CalibratedAgent,
-            "mpc": mpc.MPCAgent,
-            "mpc-ipopt": mpc.MPCAgent,
-            "mpc-oracle": mpc.MPCAgent,
-            "mpc-diagnose": self_diagnosis.DiagnosingMPCAgent,
-            **{p: policy.PolicyAgent for p in POLICIES},
-        }[name]
-        return AGENTS[name], cls
+        spec = AGENTS[name]
+        return spec.make, spec.load()
     if ":" in name:
         module, _, attr = name.partition(":")
         try:
@@ -155,8 +150,15 @@ def resolve_agent(name: str) -> tuple[Callable[..., Agent], Callable[..., Any]]:
 
 
 def check_settings(name: str, settings: dict[str, Any]) -> None:
-    """Refuse settings that the agent does not take, before any run starts."""
+    """Refuse settings that the agent does not take, before any run starts; an agent that
+    declares its settings (a dataclass ``Settings`` with :mod:`arm.constraints`, as
+    ``mpc-diagnose``) has every bad value named at once."""
     _, cls = resolve_agent(name)
+    declared = getattr(cls, "Settings", None)
+    if dataclasses.is_dataclass(declared) and isinstance(declared, type):
+        bad = check(settings, constraints_of(declared))
+        if bad:
+            raise AgentError(f"agent {name!r}: " + "; ".join(bad))
     sig = inspect.signature(cls.__init__)
     params = sig.parameters
     if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):

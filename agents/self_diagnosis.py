@@ -78,14 +78,15 @@ the widening and the fixed-step schedule that keeps them reproducible.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from scipy import stats
@@ -93,6 +94,7 @@ from scipy import stats
 from agents.model_selection import SequentialSelection, candidate_families
 from agents.mpc import MPCAgent, Widening
 from agents.online_calibration import MeasurementBuffer, RecursiveLeastSquares, merge_effects
+from arm.constraints import Interval, declare, problems, refuse
 from arm.effects import candidate_effects, make_effect
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
@@ -183,6 +185,99 @@ class _Outcome:
     live_from: int = 0  # buffer points numbered below this were a replay (no decisions)
 
 
+class Deferred:
+    """One kind of background job: started in a worker thread at a control step, its result
+    adopted ``lag`` control steps later whatever the work really took (so that the same seed gives
+    the same episode on any machine), with the thread time each job cost and how many cost more
+    than their lag (``late``). The agent runs two: the lab's diagnosis and the sequential test."""
+
+    def __init__(self, lag: int, label: str) -> None:
+        self.lag, self.label = int(lag), label
+        self.job: _Outcome | None = None
+        self.thread: threading.Thread | None = None
+        self.started = -1
+        self.costs: list[float] = []
+        self.late = 0
+
+    @property
+    def running(self) -> bool:
+        return self.thread is not None
+
+    def due(self, step: int) -> bool:
+        """Whether the running job's result is to be adopted at control step ``step``."""
+        return self.thread is not None and step >= self.started + self.lag
+
+    def start(self, step: int, job: _Outcome, work: Callable[..., None], *args: Any) -> None:
+        """Run ``work(job, *args)`` in a worker thread from control step ``step``."""
+        self.job, self.started = job, step
+        self.thread = threading.Thread(
+            target=work, args=(job, *args), name=f"{WORKER} {self.label}step {step}", daemon=True
+        )
+        self.thread.start()
+
+    def join(self) -> float:
+        """Wait for the running job (if any); returns the wall time waited."""
+        if self.thread is None:
+            return 0.0
+        t0 = time.perf_counter()
+        self.thread.join()
+        return time.perf_counter() - t0
+
+    def finish(self, dt: float) -> tuple[_Outcome, float]:
+        """The finished job (waited for) and the wall time waited; its cost is recorded, late if
+        it cost more than its lag of ``dt`` steps."""
+        waited = self.join()
+        job, self.thread, self.job = self.job, None, None
+        assert job is not None
+        self.costs.append(job.cost_s)
+        if job.cost_s > self.lag * dt:
+            self.late += 1
+        return job, waited
+
+
+def _in(low: float, high: float, closed: Literal["both", "neither"] = "neither") -> Interval:
+    return Interval(float, low, high, closed=closed)
+
+
+@dataclass(frozen=True)
+class DiagnosisSettings:
+    """The diagnosing agent's own settings (beyond :class:`~agents.mpc.MPCAgent`'s), each with
+    what it takes declared beside it (:mod:`arm.constraints`): a bad value is refused with every
+    other bad one, in one error, and a config names them before any run. See
+    :class:`DiagnosingMPCAgent` for what each does."""
+
+    first_points: int = declare(15, Interval(int, MIN_FIT_POINTS, None))
+    growth: float = declare(1.3, Interval(float, 1.0, None, closed="neither"))
+    lag_steps: int = declare(25, Interval(int, 1, None))
+    alpha: float = declare(0.02, _in(0.0, 1.0))
+    guard: float = declare(0.95, _in(0.0, 1.0))
+    holdout: float = declare(0.3, _in(0.1, 0.5, "both"))
+    window: int = declare(1000, Interval(int, 1, None))
+    monitor_points: int = declare(10, Interval(int, 1, None))
+    monitor_p: float = declare(1e-4, _in(0.0, 1.0))
+    candidates: tuple[str, ...] | None = None
+    relearn: bool = True
+    test_first: bool = True
+    prune: bool = True
+    select: bool = True
+    select_alpha: float = declare(0.02, _in(0.0, 1.0))
+    burn_in: int = declare(5, Interval(int, 0, None))
+    select_every: int = declare(5, Interval(int, 1, None))
+    select_lag: int = declare(5, Interval(int, 1, None))
+    replay_chunk: int = declare(50, Interval(int, 1, None))
+    drift: float | None = declare(0.95, _in(0.0, 1.0))
+
+    def __post_init__(self) -> None:
+        if self.candidates is not None and not isinstance(self.candidates, tuple):
+            object.__setattr__(self, "candidates", tuple(self.candidates))
+        found = problems(self)
+        if not found and self.window < self.first_points:
+            found.append(
+                f"window ({self.window}) must be at least first_points ({self.first_points})"
+            )
+        refuse(found, ValueError)
+
+
 class DiagnosingMPCAgent(MPCAgent):
     """The MPC that diagnoses its own model; see the module docstring.
 
@@ -206,114 +301,51 @@ class DiagnosingMPCAgent(MPCAgent):
 
     name = "mpc-diagnose"
 
+    Settings = DiagnosisSettings
+
     def __init__(
         self,
-        first_points: int = 15,
-        growth: float = 1.3,
-        lag_steps: int = 25,
-        alpha: float = 0.02,
-        guard: float = 0.95,
-        holdout: float = 0.3,
-        window: int = 1000,
-        monitor_points: int = 10,
-        monitor_p: float = 1e-4,
-        candidates: Sequence[str] | None = None,
-        relearn: bool = True,
-        test_first: bool = True,
-        prune: bool = True,
-        select: bool = True,
-        select_alpha: float = 0.02,
-        burn_in: int = 5,
-        select_every: int = 5,
-        select_lag: int = 5,
-        replay_chunk: int = 50,
-        drift: float | None = 0.95,
+        settings: DiagnosisSettings | None = None,
+        *,
         buffer: int = 5000,
         effects: str | Sequence[str] = "geometric",
         name: str | None = None,
-        **mpc_settings: Any,
+        **settings_and_mpc: Any,
     ) -> None:
-        if mpc_settings.get("oracle"):
+        own = {f.name for f in dataclasses.fields(DiagnosisSettings)}
+        given = {k: settings_and_mpc.pop(k) for k in list(settings_and_mpc) if k in own}
+        if settings is not None and given:
+            raise ValueError(f"give the settings once: settings= and {', '.join(given)}")
+        if settings_and_mpc.get("oracle"):
             raise ValueError("mpc-diagnose is not an oracle: it diagnoses its own model")
-        super().__init__(effects=effects, buffer=buffer, name=name, **mpc_settings)
-        if first_points < MIN_FIT_POINTS:
-            raise ValueError(f"first_points must be >= 12, got {first_points}")
-        if growth <= 1.0:
-            raise ValueError(f"growth must be > 1, got {growth}")
-        if lag_steps < 1:
-            raise ValueError(f"lag_steps must be >= 1, got {lag_steps}")
-        if not 0.0 < alpha < 1.0:
-            raise ValueError(f"alpha must lie in (0, 1), got {alpha}")
-        if not 0.0 < guard < 1.0:
-            raise ValueError(f"guard must lie in (0, 1), got {guard}")
-        if window < first_points:
-            raise ValueError(f"window ({window}) must be at least first_points ({first_points})")
-        if buffer < window:
-            raise ValueError(f"buffer ({buffer}) must hold the window ({window} points)")
-        self.first_points = int(first_points)
-        self.growth = float(growth)
-        self.lag_steps = int(lag_steps)
-        self.alpha = float(alpha)
-        self.guard = float(guard)
-        if not 0.1 <= holdout <= 0.5:
-            raise ValueError(f"holdout must lie in [0.1, 0.5], got {holdout}")
-        self.holdout = float(holdout)
-        self.window = int(window)
-        self.monitor_points = int(monitor_points)
-        self.monitor_p = float(monitor_p)
-        self.candidates = None if candidates is None else list(candidates)
-        self.relearn = bool(relearn)
-        self.test_first = bool(test_first)
-        self.prune = bool(prune)
-        if not 0.0 < select_alpha < 1.0:
-            raise ValueError(f"select_alpha must lie in (0, 1), got {select_alpha}")
-        if select_every < 1 or select_lag < 1:
-            raise ValueError(
-                f"select_every and select_lag must be >= 1 step, got {select_every}, {select_lag}"
-            )
-        if burn_in < 0:
-            raise ValueError(f"burn_in must be >= 0 points, got {burn_in}")
-        self.select = bool(select)
-        self.select_alpha = float(select_alpha)
-        self.burn_in = int(burn_in)
-        self.select_every = int(select_every)
-        self.select_lag = int(select_lag)
-        if replay_chunk < 1:
-            raise ValueError(f"replay_chunk must be >= 1 point, got {replay_chunk}")
-        if drift is not None and not 0.0 < drift < 1.0:
-            raise ValueError(f"drift must lie in (0, 1) or be None, got {drift}")
-        self.replay_chunk = int(replay_chunk)
-        self.drift = None if drift is None else float(drift)
+        st = settings if settings is not None else DiagnosisSettings(**given)
+        if buffer < st.window:
+            raise ValueError(f"buffer ({buffer}) must hold the window ({st.window} points)")
+        super().__init__(effects=effects, buffer=buffer, name=name, **settings_and_mpc)
+        self.settings = st
 
     # -- episode ----------------------------------------------------------------------------------
     def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
-        self._join_worker()
-        self._join_worker("_sel_thread")
+        for worker in (getattr(self, "_diagnosis", None), getattr(self, "_selecting", None)):
+            if worker is not None:
+                worker.join()
         super().reset(task, seed, truth)
         self._k = 0  # control steps since the episode's start, over every phase
-        self._next_points = self.first_points
+        self._next_points = self.settings.first_points
         self._adequate = False  # the last diagnosis found nothing to add
         self._since_diagnosis = 0
-        self._innov: deque[float] = deque(maxlen=self.monitor_points)
-        self._job: _Outcome | None = None
-        self._thread: threading.Thread | None = None
-        self._job_start = -1
+        self._innov: deque[float] = deque(maxlen=self.settings.monitor_points)
+        self._diagnosis = Deferred(self.settings.lag_steps, "")
         self.records: list[DiagnosisRecord] = []
-        self._costs: list[float] = []
         self._waits: list[float] = []
         self._service: list[float] = []
-        self._late = 0
         # the sequential test (agents.model_selection), in a worker of its own
         self._sel: SequentialSelection | None = (
-            self._selection_for(self.model) if self.select else None
+            self._selection_for(self.model) if self.settings.select else None
         )
         self._sel_fed = 0  # buffer points (by number, rejected ones too) the selection has taken
         self._sel_live_from = 0  # the points before this one are replayed, without decisions
-        self._sel_job: _Outcome | None = None
-        self._sel_thread: threading.Thread | None = None
-        self._sel_start = -1
-        self._sel_costs: list[float] = []
-        self._sel_late = 0
+        self._selecting = Deferred(self.settings.select_lag, "selection ")
 
     def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
         n_before = self.buffer.total if self.buffer is not None else 0
@@ -325,13 +357,17 @@ class DiagnosingMPCAgent(MPCAgent):
             e = self.rls.last_innovation if self.rls is not None else None
             if e is not None and np.all(np.isfinite(e)) and self.rls is not None:
                 self._innov.append(float(e @ e) / self.rls.sigma**2)
-        if self._sel_thread is not None and self._k >= self._sel_start + self.select_lag:
+        if self._selecting.due(self._k):
             self._adopt_selection()
-        if self._thread is not None and self._k >= self._job_start + self.lag_steps:
+        if self._diagnosis.due(self._k):
             self._adopt()
-        elif self._thread is None and self._due():
+        elif not self._diagnosis.running and self._due():
             self._start()
-        if self.select and self._sel_thread is None and self._k % self.select_every == 0:
+        if (
+            self.settings.select
+            and not self._selecting.running
+            and self._k % self.settings.select_every == 0
+        ):
             self._start_selection()
         self._service.append(time.perf_counter() - t0)
         return action
@@ -344,19 +380,22 @@ class DiagnosingMPCAgent(MPCAgent):
         points = self.buffer.count()
         if not self._adequate:
             return "more data" if points >= self._next_points else None
-        if len(self._innov) < self.monitor_points or self._since_diagnosis < self.monitor_points:
+        if (
+            len(self._innov) < self.settings.monitor_points
+            or self._since_diagnosis < self.settings.monitor_points
+        ):
             return None
         # chi-square with 3 degrees of freedom per point when the model is right (the
         # estimate's own uncertainty makes it a little larger: the level is strict)
         s = float(np.sum(self._innov))
-        if stats.chi2.sf(s, 3 * len(self._innov)) < self.monitor_p:
+        if stats.chi2.sf(s, 3 * len(self._innov)) < self.settings.monitor_p:
             return "innovations"
         return None
 
     def _start(self) -> None:
         reason = self._due() or "more data"
         assert self.buffer is not None and self.model is not None
-        since = max(self.buffer.total - self.window, 0)
+        since = max(self.buffer.total - self.settings.window, 0)
         data = self.buffer.to_measurements(since=since, source="mpc-diagnose buffer")
         rec = DiagnosisRecord(
             step=self._k,
@@ -365,20 +404,13 @@ class DiagnosingMPCAgent(MPCAgent):
             effects_before=list(self.model.effect_names),
             reason=reason,
         )
-        self._job = _Outcome(rec)
-        self._job_start = self._k
         self._since_diagnosis = 0
         self._innov.clear()
-        job, model, total = self._job, self.model, self.buffer.total
         # everything the buffer holds, for re-learning (the diagnosis takes the window)
         held = self.buffer.to_measurements(since=self.buffer.first, source="mpc-diagnose buffer")
-        self._thread = threading.Thread(
-            target=self._work,
-            args=(job, data, held, model, total),
-            name=f"{WORKER} step {self._k}",
-            daemon=True,
+        self._diagnosis.start(
+            self._k, _Outcome(rec), self._work, data, held, self.model, self.buffer.total
         )
-        self._thread.start()
 
     # -- the worker ---------------------------------------------------------------------------------
     def _work(
@@ -424,9 +456,13 @@ class DiagnosingMPCAgent(MPCAgent):
             model.robot,
             list(model.effect_names),
             options=self._lab_options(),
-            alpha=self.alpha,
+            alpha=self.settings.alpha,
             # by default the effects tested whole (the cyclic scan only when asked for)
-            candidates=candidate_effects() if self.candidates is None else self.candidates,
+            candidates=(
+                candidate_effects()
+                if self.settings.candidates is None
+                else self.settings.candidates
+            ),
         )
         rec.verdict, rec.suggestion, rec.chi2_p_value = d.verdict, d.suggestion, d.chi2_p_value
         if not d.explanation:
@@ -435,9 +471,9 @@ class DiagnosingMPCAgent(MPCAgent):
         # confirmation); each further one must also predict the buffer's last points from a fit
         # on the points before them (the held-out test against spurious extras)
         first, *extras = d.explanation
-        kept: list[str] = [] if self.test_first else [first.label]
-        tested = list(d.explanation) if self.test_first else extras
-        cut = round(len(data) * (1.0 - self.holdout))
+        kept: list[str] = [] if self.settings.test_first else [first.label]
+        tested = list(d.explanation) if self.settings.test_first else extras
+        cut = round(len(data) * (1.0 - self.settings.holdout))
         train, test = data.subset(np.arange(cut)), data.subset(np.arange(cut, len(data)))
         if tested and cut < MIN_FIT_POINTS:  # too few points to fit without the held-out ones
             rec.error = (
@@ -449,14 +485,14 @@ class DiagnosingMPCAgent(MPCAgent):
             for c in tested:
                 rms = self._held_out_rms(model, [*kept, c.label], train, test)
                 rec.tried[c.label] = rms / base_rms if 0 < base_rms < math.inf else math.inf
-                if math.isfinite(rms) and rms <= self.guard * base_rms:
+                if math.isfinite(rms) and rms <= self.settings.guard * base_rms:
                     kept.append(c.label)
                     base_rms = rms
         if not kept:
             return
         rec.kept = kept
         labels = merge_effects(model, kept)
-        if self.prune and self.relearn and cut >= MIN_FIT_POINTS:
+        if self.settings.prune and self.settings.relearn and cut >= MIN_FIT_POINTS:
             labels = self._pruned(model, labels, train, test, rec)
         if len(model.effects) == 1:
             # the first effect found goes on every joint, as the sequential test adds it: the
@@ -466,7 +502,7 @@ class DiagnosingMPCAgent(MPCAgent):
                 for e in labels
             ]  # (a cyclic error keeps its joints and orders: it has no "every joint")
         job.widening = self._prepare(model, labels)
-        if self.relearn:
+        if self.settings.relearn:
             job.estimator = self._relearned(job.widening.model, held)
         job.replayed = total
 
@@ -495,7 +531,7 @@ class DiagnosingMPCAgent(MPCAgent):
         for e in old:
             trial = [x for x in labels if x != e]
             rms = self._held_out_rms(base, trial[1:], train, test)
-            if math.isfinite(rms) and rms <= full / self.guard:
+            if math.isfinite(rms) and rms <= full / self.settings.guard:
                 rec.dropped.append(e)
                 labels, full = trial, min(rms, full)
         return labels
@@ -504,7 +540,7 @@ class DiagnosingMPCAgent(MPCAgent):
         """The model, tool model and MPC of exactly ``labels`` (wider, or pruned)."""
         from agents.tool_model import cached_tool_model
 
-        if set(labels) >= set(model.effect_names) and not self.relearn:
+        if set(labels) >= set(model.effect_names) and not self.settings.relearn:
             return self.prepare_widening(labels)
         new = ErrorModel(model.robot, labels, targets=model.targets)
         tm = cached_tool_model(new)
@@ -546,23 +582,10 @@ class DiagnosingMPCAgent(MPCAgent):
         return est
 
     # -- adoption -------------------------------------------------------------------------------------
-    def _join_worker(self, name: str = "_thread") -> float:
-        th = getattr(self, name, None)
-        if th is None:
-            return 0.0
-        t0 = time.perf_counter()
-        th.join()
-        return time.perf_counter() - t0
-
     def _adopt(self) -> None:
-        waited = self._join_worker()
-        job = self._job
-        self._thread, self._job = None, None
-        assert job is not None and self.model is not None
+        job, waited = self._diagnosis.finish(float(self.task.dt))
+        assert self.model is not None
         self._waits.append(waited)
-        self._costs.append(job.cost_s)
-        if job.cost_s > self.lag_steps * float(self.task.dt):
-            self._late += 1
         rec = job.record
         rec.adopt_step = self._k
         if job.widening is not None and list(self.model.effect_names) != rec.effects_before:
@@ -574,7 +597,7 @@ class DiagnosingMPCAgent(MPCAgent):
         ):
             job.widening = job.estimator = None  # nothing new
         if job.widening is not None:
-            if self.relearn and job.estimator is not None and self.buffer is not None:
+            if self.settings.relearn and job.estimator is not None and self.buffer is not None:
                 est = job.estimator
                 # the points that arrived while the worker ran
                 rows = self.buffer.to_measurements(since=job.replayed)
@@ -586,15 +609,17 @@ class DiagnosingMPCAgent(MPCAgent):
                 self.adopt_widening(job.widening)
             self._sel_outdated()
             self._adequate = False  # look again with the wider model
-            self._next_points = self.buffer.count() + self.first_points if self.buffer else 0
+            self._next_points = (
+                self.buffer.count() + self.settings.first_points if self.buffer else 0
+            )
         elif rec.verdict == "none" or (rec.error and rec.error.startswith("superseded")):
             self._adequate = rec.verdict == "none"
             if not self._adequate and self.buffer is not None:
-                self._next_points = self.buffer.count() + self.first_points
+                self._next_points = self.buffer.count() + self.settings.first_points
         else:
             self._adequate = False
             points = self.buffer.count() if self.buffer is not None else 0
-            self._next_points = max(math.ceil(rec.points * self.growth), points + 1)
+            self._next_points = max(math.ceil(rec.points * self.settings.growth), points + 1)
         rec.effects_after = list(self.model.effect_names)
         self.records.append(rec)
         log.info(
@@ -633,7 +658,7 @@ class DiagnosingMPCAgent(MPCAgent):
         elif fed >= total:
             return
         fed = max(fed, self.buffer.first)  # (a buffer full for long drops its oldest points)
-        until = min(total, fed + self.replay_chunk)
+        until = min(total, fed + self.settings.replay_chunk)
         rec = DiagnosisRecord(
             step=self._k,
             time_s=self._k * float(self.task.dt),
@@ -645,14 +670,9 @@ class DiagnosingMPCAgent(MPCAgent):
         job = _Outcome(rec, selection=sel, fed=fed)
         new = self.buffer.to_measurements(since=fed, until=until, accepted_only=False)
         held = self.buffer.to_measurements(since=self.buffer.first, until=until)
-        self._sel_job, self._sel_start = job, self._k
-        self._sel_thread = threading.Thread(
-            target=self._select_work,
-            args=(job, new, held, self.model, until, live_from),
-            name=f"{WORKER} selection step {self._k}",
-            daemon=True,
+        self._selecting.start(
+            self._k, job, self._select_work, new, held, self.model, until, live_from
         )
-        self._sel_thread.start()
 
     def _select_work(
         self,
@@ -689,7 +709,7 @@ class DiagnosingMPCAgent(MPCAgent):
                 if len(model.effects) > 1:  # an extra: the held-out test and pruning, as the lab's
                     tested = self._tested_extra(model, chosen, held, rec)
                     if tested is None:
-                        sel.veto(chosen, math.ceil(sel.n_points * self.growth))
+                        sel.veto(chosen, math.ceil(sel.n_points * self.settings.growth))
                         chosen = None
                     labels = tested or labels
             if chosen is not None:
@@ -711,8 +731,8 @@ class DiagnosingMPCAgent(MPCAgent):
         predicts the buffer's last ``holdout`` points better from a fit on the points before them
         (the lab path's test of extras), then pruned of effects it makes unnecessary; None: it
         fails, or the buffer is too short to test it."""
-        data = held.subset(np.arange(max(len(held) - self.window, 0), len(held)))
-        cut = round(len(data) * (1.0 - self.holdout))
+        data = held.subset(np.arange(max(len(held) - self.settings.window, 0), len(held)))
+        cut = round(len(data) * (1.0 - self.settings.holdout))
         if cut < MIN_FIT_POINTS:
             rec.error = (
                 f"not tested: the held-out test needs {MIN_FIT_POINTS} points before the last"
@@ -722,10 +742,10 @@ class DiagnosingMPCAgent(MPCAgent):
         base = self._held_out_rms(model, [], train, test)
         rms = self._held_out_rms(model, [chosen], train, test)
         rec.tried[chosen] = rms / base if 0 < base < math.inf else math.inf
-        if not (math.isfinite(rms) and rms <= self.guard * base):
+        if not (math.isfinite(rms) and rms <= self.settings.guard * base):
             return None
         labels = merge_effects(model, [chosen])
-        if self.prune and self.relearn:
+        if self.settings.prune and self.settings.relearn:
             labels = self._pruned(model, labels, train, test, rec)
         return labels
 
@@ -733,27 +753,22 @@ class DiagnosingMPCAgent(MPCAgent):
         """A selection for ``model``: its null and a shadow per candidate family (their CasADi
         builds are cached per process)."""
         assert self.rls is not None and model is not None
-        fams = candidate_families(model, self.candidates, MeasurementBuffer.COLUMNS)
+        fams = candidate_families(model, self.settings.candidates, MeasurementBuffer.COLUMNS)
         if not fams:
             return None
         return SequentialSelection(
             model,
             fams,
             self.rls.sigma,
-            alpha=self.select_alpha,
-            burn_in=self.burn_in,
+            alpha=self.settings.select_alpha,
+            burn_in=self.settings.burn_in,
             forgetting=self.rls.forgetting,
-            drift=self.drift,
+            drift=self.settings.drift,
         )
 
     def _adopt_selection(self) -> None:
-        waited = self._join_worker("_sel_thread")
-        job = self._sel_job
-        self._sel_thread, self._sel_job = None, None
-        assert job is not None and self.model is not None
-        self._sel_costs.append(job.cost_s)
-        if job.cost_s > self.select_lag * float(self.task.dt):
-            self._sel_late += 1
+        job, waited = self._selecting.finish(float(self.task.dt))
+        assert self.model is not None
         rec = job.record
         if list(self.model.effect_names) != rec.effects_before:
             return  # the lab widened the model meanwhile: the next job starts afresh
@@ -782,13 +797,13 @@ class DiagnosingMPCAgent(MPCAgent):
             rec.points,
             rec.verdict,
         )
-        if self._thread is None:  # the lab looks again at the wider model
+        if not self._diagnosis.running:  # the lab looks again at the wider model
             self._adequate = False
-            self._next_points = self.buffer.count() + self.first_points
+            self._next_points = self.buffer.count() + self.settings.first_points
 
     def report(self) -> dict[str, float | list]:
-        self._join_worker()
-        self._join_worker("_sel_thread")
+        self._diagnosis.join()
+        self._selecting.join()
         out = super().report()
         out["diagnoses"] = [r.to_dict() for r in self.records]
         out["diagnosis_verdicts"] = [r.verdict for r in self.records]
@@ -797,11 +812,11 @@ class DiagnosingMPCAgent(MPCAgent):
         out["widened_at_s"] = (
             [r.adopt_step * float(self.task.dt) for r in widened] if self._task is not None else []
         )
-        out["diagnosis_cost_time_s"] = list(self._costs)
+        out["diagnosis_cost_time_s"] = list(self._diagnosis.costs)
         out["diagnosis_wait_time_s"] = list(self._waits)
-        out["diagnosis_late"] = self._late
-        out["selection_cost_time_s"] = list(self._sel_costs)
-        out["selection_late"] = self._sel_late
+        out["diagnosis_late"] = self._diagnosis.late
+        out["selection_cost_time_s"] = list(self._selecting.costs)
+        out["selection_late"] = self._selecting.late
         if self._sel is not None:
             out["selection_evidence"] = [
                 {"family": f, "log_bf": v} for f, v in self._sel.evidence().items()

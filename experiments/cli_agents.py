@@ -327,8 +327,17 @@ def _episode_seconds() -> float:
     return steps * PHYSICS_DT * SUBSTEPS
 
 
+def agents() -> None:
+    """List the registered agents: name, class and what each is."""
+    from agents.registry import AGENTS
+    from experiments.cli_output import agents_table
+
+    console.print(agents_table(list(AGENTS.values())))
+
+
 def register(app: typer.Typer) -> None:
     """Mount this module's commands on the main app."""
+    app.command("agents")(agents)
     app.add_typer(train_app, name="train")
     app.command("evaluate")(evaluate)
     app.command("render")(render)

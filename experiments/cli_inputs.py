@@ -70,7 +70,20 @@ class OneLineErrors(TyperGroup):
         try:
             return super().invoke(ctx)
         except typer.BadParameter as exc:
-            fail(exc.format_message())
+            fail(_declared(exc) or exc.format_message())
+
+
+def _declared(exc: BaseException) -> str | None:
+    """The message of the :class:`DeclaredError` behind a refused option value (typer converts
+    values with pydantic, which wraps a parser's ValueError in its own error), if there is one."""
+    if isinstance(exc, DeclaredError):
+        return exc.message
+    errors = getattr(exc.__cause__, "errors", None)
+    for e in errors() if callable(errors) else ():
+        found = (e.get("ctx") or {}).get("error")
+        if isinstance(found, DeclaredError):
+            return found.message
+    return None
 
 
 def declared(

@@ -197,6 +197,20 @@ def compensation_table(calibrated: str, nominal: str, n: int, summary: dict[str,
     return table
 
 
+def agents_table(specs: Sequence[Any]) -> Table:
+    """The registered agents (``agents.registry.AgentSpec`` s): name, class, what it is."""
+    table = _table(
+        "agents (sixaxis evaluate AGENT, or an agent's name in a config)",
+        ("name", "left"),
+        ("class", "left"),
+        ("what it is", "left"),
+    )
+    for spec in specs:
+        made = ", ".join(f"{k}={v!r}" for k, v in spec.kwargs.items())
+        table.add_row(spec.name, spec.entry_point + (f" ({made})" if made else ""), spec.summary)
+    return table
+
+
 # -- the leaderboard --------------------------------------------------------------------------------
 def leaderboard_grid(board: Any, title: str, cell: Callable[[Any], str]) -> Table:
     """One row per agent, one column per scenario, ``cell(row)`` in each; the best of each

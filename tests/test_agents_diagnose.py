@@ -110,3 +110,25 @@ def test_the_labs_path_widens_the_estimator_by_the_whole_family():
     assert lab and all(d["method"] == "lab" for d in lab)
     assert any(k.startswith("backlash[") for k in lab[0]["kept"]), lab[0]
     assert "backlash" in r.report["diagnosed_effects"], r.report["diagnosed_effects"]
+
+
+def test_the_settings_are_declared_and_every_bad_one_named_at_once():
+    """The agent's own settings are a declared, frozen DiagnosisSettings: bad values are refused
+    together, by the agent, by make_agent and by a config's check, in the same words."""
+    from agents.registry import AgentError, check_settings
+    from agents.self_diagnosis import DiagnosingMPCAgent, DiagnosisSettings
+
+    with pytest.raises(ValueError) as info:
+        DiagnosingMPCAgent(alpha=2.0, growth=0.5, holdout=0.7)
+    for part in (
+        "alpha must lie in (0, 1), got 2.0",
+        "growth must be a number > 1, got 0.5",
+        "holdout must lie in [0.1, 0.5], got 0.7",
+    ):
+        assert part in str(info.value)
+    with pytest.raises(AgentError, match=r"alpha must lie in \(0, 1\), got 2.0"):
+        check_settings("mpc-diagnose", {"alpha": 2.0})
+    with pytest.raises(ValueError, match=r"window .* must be at least first_points"):
+        DiagnosisSettings(window=12, first_points=20)
+    agent = make_agent("mpc-diagnose", alpha=0.05, horizon=12)
+    assert agent.settings == DiagnosisSettings(alpha=0.05)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import json
 import pickle
 
@@ -125,3 +126,26 @@ def test_oracle_without_truth_is_refused():
     agent = make_agent("mpc-oracle")
     with pytest.raises(ValueError, match="truth"):
         agent.reset(type("T", (), {"robot": None})(), seed=0, truth=None)
+
+
+def test_the_registry_is_one_table_of_specs():
+    """Every agent is one AgentSpec (Gymnasium's EnvSpec as the model): its class loads, is an
+    Agent, and takes the settings the spec makes it with; `sixaxis agents` lists every one."""
+    from typer.testing import CliRunner
+
+    from agents.base import Agent
+    from agents.registry import AGENTS
+    from experiments.cli import app
+
+    for name, spec in AGENTS.items():
+        assert spec.name == name and spec.summary
+        cls = spec.load()
+        assert issubclass(cls, Agent), name
+        params = inspect.signature(cls.__init__).parameters
+        assert set(spec.kwargs) <= set(params) or any(
+            p.kind is p.VAR_KEYWORD for p in params.values()
+        ), name
+    listed = CliRunner().invoke(app, ["agents"], env={"COLUMNS": "200"})
+    assert listed.exit_code == 0
+    for name in AGENTS:
+        assert f" {name} " in listed.stdout

@@ -441,3 +441,21 @@ def test_the_lab_commands_but_collect_do_not_load_mujoco(files):
         [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
     )
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_the_options_choices_and_ranges_are_the_librarys(files):
+    """The CLI shows the vocabulary's choices and ranges and refuses a bad value in the library's
+    words, naming the flag, on one line (it has no checks of its own)."""
+    from lab.options import LOSSES, LabOptions
+
+    res = runner.invoke(app, ["lab", "fit", "--help"], env={"COLUMNS": "200"})
+    assert "[" + "|".join(LOSSES) + "]" in res.stdout and "[auto|keep]" in res.stdout
+    for args, line in (
+        (["--noise-mm", "-1"], "error: --noise-mm must be positive, got -1.0"),
+        (["--loss", "l2"], "error: --loss must be one of linear, huber, soft_l1, got 'l2'"),
+        (["--length-unit", "inch"], "error: --length-unit must be one of m, mm, got 'inch'"),
+    ):
+        res = lab("fit", files["geo"], *args)
+        assert res.exit_code == 2 and res.stderr.strip() == line, res.stderr
+    with pytest.raises(Exception, match=r"noise_mm must be positive, got -1\.0"):
+        LabOptions(noise_mm=-1.0)  # the same check, in the library's own name
