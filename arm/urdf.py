@@ -278,7 +278,7 @@ def _find_tip(links: dict, up: dict, anchor: str, source: str, base: str) -> str
     )
 
 
-def read_urdf(
+def read_urdf(  # noqa: C901  (one reader: each branch a URDF construct)
     source: str | Path,
     tip: str | None = None,
     base: str | None = None,

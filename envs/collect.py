@@ -90,7 +90,7 @@ def check_poses(
     return poses
 
 
-def collect_measurements(
+def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise and poses are its cases)
     truth: EpisodeTruth | None = None,
     poses: np.ndarray | None = None,
     n: int = 100,

@@ -407,7 +407,7 @@ def _draw(
     return float(o[0])
 
 
-def draw_truth(
+def draw_truth(  # noqa: C901  (one draw: each branch an effect a scenario may hide)
     scenario: str | Scenario,
     robot: RobotDescription,
     rng: np.random.Generator,

@@ -384,7 +384,7 @@ class SixAxisTrackEnv(gym.Env):
         self._j = np.zeros(6)
 
     @classmethod
-    def check_options(cls, **options: Any) -> dict[str, str]:
+    def check_options(cls, **options: Any) -> dict[str, str]:  # noqa: C901  (one check per env option, every problem named at once)
         """What is wrong with these keyword arguments, ``{key: problem}`` (empty: the env takes
         them), without building the simulation. The constructor refuses the same, and a sweep's
         config checks every run's options with it before any run starts."""

@@ -287,7 +287,7 @@ def leaderboard(
         console.print(f"wrote {p}", highlight=False)
 
 
-def reproduce(
+def reproduce(  # noqa: C901  (one command: each branch a way a record cannot be rerun)
     record: Annotated[
         Path,
         typer.Argument(

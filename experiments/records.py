@@ -160,7 +160,7 @@ _PHASE_FIELDS = (
 )
 
 
-def record_problem(rec: Mapping[str, Any]) -> str | None:
+def record_problem(rec: Mapping[str, Any]) -> str | None:  # noqa: C901  (one check per key of a run record)
     """The first malformed field of a record, as ``field: what is wrong, got value``; None if
     the record can be read, rerun and summarised."""
     from experiments.config import RunSpec

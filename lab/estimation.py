@@ -107,7 +107,7 @@ def build_model(
     return model, inputs
 
 
-def fit_rows(
+def fit_rows(  # noqa: C901  (the five steps of the module docstring, in the order they run)
     data: MeasurementSet,
     robot: RobotDescription,
     effects: str | Sequence[str | Effect],
