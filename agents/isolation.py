@@ -358,7 +358,7 @@ class _Conditions:
         return dict(self.now)
 
 
-def _serve(rfd: int, wfd: int) -> int:
+def _serve(rfd: int, wfd: int) -> int:  # noqa: C901  (one loop: a branch per message of the pipe)
     """The agent process's loop: one request, one JSON reply, until ``close`` or EOF."""
 
     def reply(obj: dict[str, Any]) -> None:
