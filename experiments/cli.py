@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import warnings
+from typing import Any
 
 import typer
 from rich.console import Console
@@ -28,7 +29,7 @@ class _Commands(OneLineErrors):
     (:class:`~experiments.cli_inputs.OneLineErrors`). Anything else is a bug and keeps its
     traceback."""
 
-    def invoke(self, ctx: typer.Context):
+    def invoke(self, ctx: Any) -> Any:
         try:
             return super().invoke(ctx)
         except SixAxisError as exc:

@@ -126,8 +126,10 @@ def render_episode(
                 quality=7,
                 output_params=["-movflags", "+faststart", "-f", "mp4"],
             )
-            encode(lambda: writer.send(None))  # start ffmpeg
-        encode(lambda: writer.send(frame))
+        current = writer
+        if state["frames"] == 0:
+            encode(lambda: current.send(None))  # start ffmpeg
+        encode(lambda: current.send(frame))
         state["frames"] += 1
         if progress is not None:
             progress(state["frames"], total or state["frames"])
