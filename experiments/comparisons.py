@@ -65,7 +65,7 @@ def _interval(iv: Interval) -> dict[str, float | int | None]:
     return {"value": num(iv.value), "lo": num(iv.lo), "hi": num(iv.hi), "n": iv.n}
 
 
-def analyse(
+def analyse(  # noqa: C901  (the comparisons of the module docstring, in order)
     records: Iterable[Mapping[str, Any]],
     agents: Sequence[str],
     scenarios: Sequence[str],

@@ -593,7 +593,7 @@ def ordering_text(analysis: Mapping[str, Any], scenario: str) -> str:
     return " ".join(parts)
 
 
-def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[str] = ()) -> str:
+def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[str] = ()) -> str:  # noqa: C901  (one document: a branch per section of leaderboard.md)
     m0 = board.rank_by
     an = board.analysis
     man = board.manifest or {}
@@ -1144,7 +1144,7 @@ def _readme_sentences(data: Mapping[str, Any]) -> list[str]:
                 f"- On `{s}`, `{best}` comes first among the contenders; not resolved from it: "
                 f"{names}."
             )
-    below = {}
+    below: dict[tuple[str, str], list[str]] = {}
     for p in pairs:
         if p["resolved"] and p["worse"] in oracles and p["better"] not in oracles | informed:
             below.setdefault((p["better"], p["worse"]), []).append(p["scenario"])

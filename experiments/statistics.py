@@ -38,6 +38,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -85,7 +86,7 @@ NAN = Interval(math.nan, math.nan, math.nan, 0)
 
 
 def _bootstrap(
-    samples: Sequence[np.ndarray], statistic: Callable[..., np.ndarray], paired: bool
+    samples: Sequence[np.ndarray], statistic: Callable[..., Any], paired: bool
 ) -> tuple[float, float]:
     """The BCa interval of ``statistic`` (vectorized, reducing the last axis, along which the
     episodes lie), or the percentile interval where BCa is undefined (tied resamples)."""
