@@ -964,8 +964,8 @@ def to_json(board: Leaderboard, command: str | None = None) -> dict[str, Any]:
     if stamps:
         from datetime import datetime
 
-        first = min(datetime.fromisoformat(a) for a, _ in stamps)
-        last = max(datetime.fromisoformat(b) for _, b in stamps)
+        first = min(datetime.fromisoformat(str(a)) for a, _ in stamps)
+        last = max(datetime.fromisoformat(str(b)) for _, b in stamps)
         wall = (last - first).total_seconds()
     run_s = sum(float((r.get("timing") or {}).get("wall_time_s") or 0.0) for r in everyone)
     hosts = sorted({(r.get("timing") or {}).get("host") or "" for r in everyone} - {""})

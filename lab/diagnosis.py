@@ -587,7 +587,7 @@ def _effect_index(model: ErrorModel, name: str) -> int:
     return model.layout.effects.index(model.layout.effect_of(name))
 
 
-def _forward(
+def _forward(  # noqa: C901  (effect-level forward selection, the module docstring's steps)
     cands, bases, keys, sel: ForwardSelection, alpha, scanner: CyclicScanner, columns_of, rejected
 ) -> list[Candidate]:
     """Forward selection over the catalogue's effects and the cyclic errors' orders. Each step
