@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from rich.markup import escape
 from typer.core import TyperGroup
 
 from arm.constraints import Constraint, Interval, OneOf, constraints_of
@@ -36,9 +37,13 @@ __all__ = [
     "JsonOutOpt",
     "LengthOpt",
     "LossOpt",
+    "MeasuredOpt",
     "ModuleOpt",
+    "NoiseMradOpt",
     "NoiseOpt",
+    "NoisePpmOpt",
     "OneLineErrors",
+    "OrientationUnitOpt",
     "OutliersOpt",
     "RobotOpt",
     "ValidateOpt",
@@ -151,6 +156,43 @@ AcceptLargeOpt = Annotated[
         "effect's typical size) instead of refusing it; base and tool are never bounded.",
     ),
 ]
+NoisePpmOpt = Annotated[
+    float,
+    declared(
+        _option("noise_ppm"),
+        "noise_ppm",
+        "How the per-axis sigma grows with the distance from the tracker, um per m (a "
+        "GTS3800: 6): sigma = --noise-mm + --noise-ppm x distance, the tracker at the origin of "
+        "the measurement frame (of each station). Rows are weighted by it.",
+    ),
+]
+NoiseMradOpt = Annotated[
+    float | None,
+    declared(
+        _option("noise_mrad"),
+        "noise_mrad",
+        "The per-axis standard uncertainty of a measured orientation (mrad); needed to weigh "
+        "orientation rows against positions (or std_rx, std_ry, std_rz columns).",
+    ),
+]
+OrientationUnitOpt = Annotated[
+    str | None,
+    declared(
+        OneOf(tuple(ANGLE_UNITS)),
+        "orientation_unit",
+        "Unit of the orientation columns (rvx.. or roll, pitch, yaw) and their stds. Default: "
+        "the --angle-unit.",
+    ),
+]
+MeasuredOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--measured",
+        help="The components the instrument measures, of x,y,z,rx,ry,rz (rx..rz: the "
+        "orientation about the measurement frame's axes). Default: every one the file has "
+        "columns for; x,y,z fits the positions alone.",
+    ),
+]
 LengthOpt = Annotated[
     str,
     declared(OneOf(tuple(LENGTH_UNITS)), "length_unit", "Unit of x, y, z in the CSV files."),
@@ -252,11 +294,32 @@ def read_arm(robot: str, flag: str = "--robot") -> Any:
         return arm
 
 
-def read_data(path: Path, length_unit: str, angle_unit: str) -> Any:
-    from arm.measurements import read_measurements
+def read_data(
+    path: Path,
+    length_unit: str,
+    angle_unit: str,
+    orientation_unit: str | None = None,
+    measured: str | None = None,
+) -> Any:
+    """The measurement set of ``path``; the columns the format does not know are said (a
+    ``MeasurementWarning``), not dropped."""
+    import warnings
 
-    with user_errors():
-        return read_measurements(path, length_unit=length_unit, angle_unit=angle_unit)
+    from arm.measurements import MeasurementWarning, read_measurements
+
+    parts = None if measured is None else tuple(m.strip() for m in measured.split(","))
+    with user_errors(), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MeasurementWarning)
+        data = read_measurements(
+            path,
+            length_unit=length_unit,
+            angle_unit=angle_unit,
+            orientation_unit=orientation_unit,
+            measured=parts,
+        )
+    for w in caught:
+        console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
+    return data
 
 
 def check_outputs(
@@ -324,6 +387,8 @@ def lab_inputs(
     length_unit: str,
     angle_unit: str,
     outputs: Sequence[tuple[Path | None, str]] = (),
+    orientation_unit: str | None = None,
+    measured: str | None = None,
     **options: Any,
 ) -> tuple[Any, Any, Any, LabOptions]:
     """The lab's options (:class:`lab.LabOptions`, the keywords ``options``), the output places
@@ -336,6 +401,8 @@ def lab_inputs(
     load_modules(modules)
     parse_effects(effects)
     arm = read_arm(robot)
-    meas = read_data(data, length_unit, angle_unit)
-    val = None if validate is None else read_data(validate, length_unit, angle_unit)
+    meas = read_data(data, length_unit, angle_unit, orientation_unit, measured)
+    val = None
+    if validate is not None:
+        val = read_data(validate, length_unit, angle_unit, orientation_unit, measured)
     return arm, meas, val, opts

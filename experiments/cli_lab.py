@@ -36,8 +36,12 @@ from experiments.cli_inputs import (
     JsonOutOpt,
     LengthOpt,
     LossOpt,
+    MeasuredOpt,
     ModuleOpt,
+    NoiseMradOpt,
     NoiseOpt,
+    NoisePpmOpt,
+    OrientationUnitOpt,
     OutliersOpt,
     RobotOpt,
     ValidateOpt,
@@ -120,6 +124,10 @@ def fit_cmd(
     length_unit: LengthOpt = "m",
     angle_unit: AngleOpt = "rad",
     noise_mm: NoiseOpt = None,
+    noise_ppm: NoisePpmOpt = 0.0,
+    noise_mrad: NoiseMradOpt = None,
+    orientation_unit: OrientationUnitOpt = None,
+    measured: MeasuredOpt = None,
     outliers: OutliersOpt = "auto",
     accept_large: AcceptLargeOpt = False,
     as_json: JsonOpt = False,
@@ -140,6 +148,10 @@ def fit_cmd(
         angle_unit,
         outputs=[(out, "--out")],
         noise_mm=noise_mm,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        orientation_unit=orientation_unit,
+        measured=measured,
         loss=loss,
         outliers=outliers,
         accept_large=accept_large,
@@ -157,6 +169,10 @@ def diagnose_cmd(
     robot: RobotOpt = "seed",
     effects: EffectsOpt = "geometric",
     noise_mm: NoiseOpt = None,
+    noise_ppm: NoisePpmOpt = 0.0,
+    noise_mrad: NoiseMradOpt = None,
+    orientation_unit: OrientationUnitOpt = None,
+    measured: MeasuredOpt = None,
     loss: LossOpt = "linear",
     effect_module: ModuleOpt = None,
     length_unit: LengthOpt = "m",
@@ -186,6 +202,10 @@ def diagnose_cmd(
         angle_unit,
         outputs=[(out, "--out")],
         noise_mm=noise_mm,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        orientation_unit=orientation_unit,
+        measured=measured,
         loss=loss,
         outliers=outliers,
         accept_large=accept_large,
@@ -225,6 +245,10 @@ def discover_cmd(
         ),
     ] = "geometric",
     noise_mm: NoiseOpt = None,
+    noise_ppm: NoisePpmOpt = 0.0,
+    noise_mrad: NoiseMradOpt = None,
+    orientation_unit: OrientationUnitOpt = None,
+    measured: MeasuredOpt = None,
     validate: ValidateOpt = None,
     effect_module: ModuleOpt = None,
     length_unit: LengthOpt = "m",
@@ -269,6 +293,10 @@ def discover_cmd(
         angle_unit,
         outputs=[(output, "--output"), (out, "--out")],
         noise_mm=noise_mm,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        orientation_unit=orientation_unit,
+        measured=measured,
     )
     with user_errors(), console.status("fitting the model and searching the library..."):
         d = discover(
@@ -295,6 +323,10 @@ def report_cmd(
     effects: EffectsOpt = "geometric",
     validate: ValidateOpt = None,
     noise_mm: NoiseOpt = None,
+    noise_ppm: NoisePpmOpt = 0.0,
+    noise_mrad: NoiseMradOpt = None,
+    orientation_unit: OrientationUnitOpt = None,
+    measured: MeasuredOpt = None,
     loss: LossOpt = "linear",
     effect_module: ModuleOpt = None,
     length_unit: LengthOpt = "m",
@@ -321,6 +353,10 @@ def report_cmd(
         angle_unit,
         outputs=[(output, "--output")],
         noise_mm=noise_mm,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        orientation_unit=orientation_unit,
+        measured=measured,
         loss=loss,
         outliers=outliers,
         accept_large=accept_large,
@@ -336,6 +372,10 @@ def report_cmd(
             "--effects": None if effects == "geometric" else effects,
             "--validate": validate,
             "--noise-mm": noise_mm,
+            "--noise-ppm": noise_ppm or None,
+            "--noise-mrad": noise_mrad,
+            "--orientation-unit": orientation_unit,
+            "--measured": measured,
             "--loss": None if loss == default.loss else loss,
             "--effect-module": [str(m) for m in effect_module or []],
             "--length-unit": None if length_unit == "m" else length_unit,
@@ -400,6 +440,15 @@ def plan_cmd(
     ] = 0.015,
     seed: Annotated[int, typer.Option(help="Seed of the random candidates.")] = 0,
     angle_unit: AngleOpt = "rad",
+    noise_mrad: Annotated[
+        float | None,
+        declared(
+            Interval(float, 0.0, None, closed="neither"),
+            "noise_mrad",
+            "Plan for an instrument that measures the tool frame's orientation too, with this "
+            "per-axis noise (mrad): six rows a pose, weighted against the position's.",
+        ),
+    ] = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Choose N calibration poses that identify the most; write their joint angles.
@@ -422,13 +471,14 @@ def plan_cmd(
             candidates=candidates,
             noise_mm=noise_mm,
             seed=seed,
+            noise_mrad=noise_mrad,
         )
     with writing(output):
         write_poses(p.q, output, angle_unit)
     if as_json:
         print(json_text(p.to_dict() | {"output": str(output), "angle_unit": angle_unit}))
     else:
-        print_plan(p, criterion, output, angle_unit)
+        print_plan(p, criterion, output, angle_unit, poses=bool(noise_mrad))
 
 
 # -- collect ----------------------------------------------------------------------------------------
@@ -471,11 +521,69 @@ def collect_cmd(
         ),
     ] = None,
     robot: RobotOpt = "seed",
+    noise_ppm: Annotated[
+        float,
+        declared(
+            Interval(float, 0.0, None),
+            "noise_ppm",
+            "The noise grows with the distance from the tracker: sigma = --noise-mm + "
+            "--noise-ppm um per m of distance, per axis.",
+        ),
+    ] = 0.0,
+    stations: Annotated[
+        int,
+        declared(
+            Interval(int, 0, None),
+            "stations",
+            "Tracker stations around the arm (2-6 m away, each its own frame): the poses are "
+            "measured in blocks, one per station, with a station column. 0: the world frame, no "
+            "station column.",
+        ),
+    ] = 0,
+    first_station: Annotated[
+        int,
+        typer.Option(
+            "--first-station",
+            help="The first station's id (the others follow): a held-out campaign from other "
+            "stations of the same arm takes other ids.",
+        ),
+    ] = 1,
+    orientation: Annotated[
+        bool,
+        typer.Option(
+            "--orientation",
+            help="A 6-DoF probe on the flange measures the tool frame's orientation too "
+            "(roll, pitch, yaw columns).",
+        ),
+    ] = False,
+    noise_mrad: Annotated[
+        float,
+        declared(
+            Interval(float, 0.0, None), "noise_mrad", "The orientation's per-axis noise (mrad)."
+        ),
+    ] = 0.1,
+    orientation_fraction: Annotated[
+        float,
+        declared(
+            Interval(float, 0.0, 1.0),
+            "orientation_fraction",
+            "The fraction of rows in which the probe's orientation is seen (the others leave it "
+            "blank: the measurement mask).",
+        ),
+    ] = 1.0,
+    stds: Annotated[
+        bool,
+        typer.Option(
+            "--stds", help="Write each row's stated uncertainty (std_x ... std_rz columns)."
+        ),
+    ] = False,
 ) -> None:
     """Measure the simulated arm (MuJoCo) like a laser-tracker campaign.
 
     Each pose is approached from a random side, settled, and its tool point measured with
-    noise; the CSV (docs/format.md, the measurement CSV) has every optional column."""
+    noise; the CSV (docs/format.md, the measurement CSV) has every optional column. A campaign
+    can be measured from several tracker stations, with distance-dependent noise, a 6-DoF probe
+    and each row's stated uncertainty."""
     from arm.measurements import read_poses
     from arm.sampling import rng_from
     from envs.collect import check_poses, collect_measurements  # MuJoCo loads only to measure
@@ -507,10 +615,22 @@ def collect_cmd(
                 robot=arm,
                 path=output,
                 progress=progress,
+                noise_ppm=noise_ppm,
+                stations=stations,
+                first_station=first_station,
+                orientation=orientation,
+                noise_mrad=noise_mrad,
+                orientation_fraction=orientation_fraction,
+                stds=stds,
             )
     say(
         f"wrote {len(meas)} measurements of the simulated arm ({scenario}, noise "
-        f"{noise_mm:g} mm per axis) to {output} in {time.perf_counter() - t0:.1f} s"
+        f"{noise_mm:g} mm"
+        + (f" + {noise_ppm:g} um/m" if noise_ppm else "")
+        + " per axis"
+        + (f", {stations} station(s)" if stations else "")
+        + (f", orientations ({noise_mrad:g} mrad)" if orientation else "")
+        + f") to {output} in {time.perf_counter() - t0:.1f} s"
     )
 
 
@@ -529,6 +649,10 @@ def export_cmd(
     length_unit: LengthOpt = "m",
     angle_unit: AngleOpt = "rad",
     noise_mm: NoiseOpt = None,
+    noise_ppm: NoisePpmOpt = 0.0,
+    noise_mrad: NoiseMradOpt = None,
+    orientation_unit: OrientationUnitOpt = None,
+    measured: MeasuredOpt = None,
     name: Annotated[
         str | None, typer.Option(help="The calibrated arm's name (default: <robot>-calibrated).")
     ] = None,
@@ -551,6 +675,10 @@ def export_cmd(
         angle_unit,
         outputs=[(output, "--output")],
         noise_mm=noise_mm,
+        noise_ppm=noise_ppm,
+        noise_mrad=noise_mrad,
+        orientation_unit=orientation_unit,
+        measured=measured,
         loss=loss,
         outliers=outliers,
         accept_large=accept_large,

@@ -489,7 +489,7 @@ def print_report(rep: Any, output: Path, seconds: float) -> None:
     say(f"wrote {output}{size} in {seconds:.1f} s")
 
 
-def print_plan(p: Any, criterion: str, output: Path, angle_unit: str) -> None:
+def print_plan(p: Any, criterion: str, output: Path, angle_unit: str, poses: bool = False) -> None:
     console.print(plan_table(p, criterion))
     ident = p.identifiability
     say(
@@ -497,7 +497,8 @@ def print_plan(p: Any, criterion: str, output: Path, angle_unit: str) -> None:
         f"{p.condition_number:.3g}"
     )
     if ident.unidentifiable:
-        say("not identifiable from positions (fixed): " + "; ".join(ident.unidentifiable))
+        what = "poses" if poses else "positions"  # an instrument of orientations too, or not
+        say(f"not identifiable from {what} (fixed): " + "; ".join(ident.unidentifiable))
     say(f"wrote {output} (q1..q6 in {angle_unit})")
 
 
