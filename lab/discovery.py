@@ -661,7 +661,7 @@ def check_module_path(path: str | Path) -> Path:
     return path
 
 
-def discover(
+def discover(  # noqa: C901  (the method of the module docstring, in the order it runs)
     data: Screen | MeasurementSet | str | Path,
     robot: RobotDescription | str | Path | None = None,
     effects: str | Sequence[str | Effect] | None = None,
