@@ -26,14 +26,13 @@ import difflib
 import io
 import math
 import re
-import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from arm.errors import SixAxisError
+from arm.errors import SixAxisError, SixAxisWarning, warn
 from arm.files import (
     OutputError,
     atomic_path,
@@ -102,7 +101,7 @@ class MeasurementError(SixAxisError, ValueError):
     """Bad measurement input; the message names the file, the line and the column."""
 
 
-class MeasurementWarning(UserWarning):
+class MeasurementWarning(SixAxisWarning):
     """A measurement file the lab reads, with something the user should know: a column that no
     catalogued effect reads (kept for custom effects), a name close to a known one."""
 
@@ -717,7 +716,7 @@ def parse_measurements(  # noqa: C901  (one reader: each branch a column family 
                     "the row measured an orientation (give its uncertainty)"
                 )
     for note in notes:
-        warnings.warn(note, MeasurementWarning, stacklevel=3)
+        warn(note, MeasurementWarning)
     return MeasurementSet(
         q, xyz, other, source, table.lines, orientation, mask, std, form or "rotvec", notes
     )

@@ -33,8 +33,10 @@ Held-out figures are 3-D errors |predicted - measured| over the test poses: RMS,
 own ``dh_mdh_deg_mm.csv`` and ``joint_limits_deg.csv``), named by ``--rokae`` or the environment
 variable ``SIXAXIS_REAL_DATA``. With 30 poses there is no test set: every row is leave-one-out,
 the whole path (diagnosis, discovery) rerun without the pose it then predicts. When the converted
-file carries the tool's orientation (``rvx, rvy, rvz`` or ``roll, pitch, yaw``), the rows are
-given twice, with the 6-DoF rows and with the positions only, both judged on held-out positions.
+file carries the tool's orientation (``rvx, rvy, rvz`` or ``roll, pitch, yaw``: the converter
+keeps it), a geometric fit of the 6-DoF rows joins them, leave-one-out too and judged on held-out
+positions, its weights estimated on each fold's training poses (``benchmarks/pose_rows.py``),
+and is compared pose by pose with the positions' geometric fit.
 FIGAROH runs leave-one-out too, on the DH table written as a URDF (``RobotDescription.to_urdf``).
 """
 
@@ -67,6 +69,7 @@ from arm.files import atomic_write_text
 from arm.measurements import MeasurementSet, read_measurements
 from arm.params import parse_parameter_name
 from benchmarks._report import machine
+from benchmarks.pose_rows import pose_rows, summary_lines
 from lab import FitError, diagnose, discover, fit, screen
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -552,18 +555,18 @@ def rokae(folder: Path | None, skip_figaroh: bool) -> dict:
         if not skip_figaroh:
             log.info("Rokae: FIGAROH, leave-one-out")
             rows.append(figaroh_leave_one_out(_positions_only(data), robot, Path(tmp)))
-        if data.orientation is not None:  # 6-DoF rows, then the same without orientation
-            for r in leave_one_out(data, robot, ROKAE_NOISE_MM, Path(tmp)):
-                rows.append(r | {"model": r["model"] + ", 6-DoF rows"})
-            for r in leave_one_out(_positions_only(data), robot, ROKAE_NOISE_MM, Path(tmp)):
-                rows.append(r | {"model": r["model"] + ", positions only"})
-        else:
-            rows += leave_one_out(data, robot, ROKAE_NOISE_MM, Path(tmp))
+        six_dof = None
+        rows += leave_one_out(_positions_only(data), robot, ROKAE_NOISE_MM, Path(tmp))
+        if data.has_orientation:  # the 6-DoF rows against the positions alone
+            log.info("Rokae: 6-DoF rows, leave-one-out")
+            pose, six_dof = pose_rows(data, robot)
+            rows += pose
     return base | {
         "files": {"measurements.csv": _sha(folder / "measurements.csv")},
         "robot": robot.name,
         "poses": len(data),
-        "orientation_rows": data.orientation is not None,
+        "orientation_rows": data.has_orientation,
+        "six_dof": six_dof,
         "noise_mm": ROKAE_NOISE_MM,
         "rows": rows,
         "geometric_vs_figaroh": _ratio(rows),
@@ -627,6 +630,8 @@ def markdown(report: dict) -> str:
                 + f", {g['test_rms_lab_over_figaroh']:.4f}x the held-out RMS"
                 + (" (times summed over the folds)." if ds["name"] != "UR5" else ".")
             )
+        if ds.get("six_dof"):
+            extra += summary_lines(ds["six_dof"])
         for r in ds["rows"]:
             if isinstance(r.get("effects"), dict):
                 extra.append(

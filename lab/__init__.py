@@ -30,6 +30,7 @@ if TYPE_CHECKING:
         FitError,
         ImplausibleAcceptedWarning,
         LabWarning,
+        OrientationNotFittedWarning,
         PoorPoseSetWarning,
         RowsLeftOutWarning,
     )
@@ -53,6 +54,7 @@ _HOME = {
     "FitError": "lab.errors",
     "ImplausibleAcceptedWarning": "lab.errors",
     "LabWarning": "lab.errors",
+    "OrientationNotFittedWarning": "lab.errors",
     "PoorPoseSetWarning": "lab.errors",
     "RowsLeftOutWarning": "lab.errors",
     "identifiability_of": "lab.estimation",
@@ -88,6 +90,7 @@ __all__ = [
     "ImplausibleAcceptedWarning",
     "LabOptions",
     "LabWarning",
+    "OrientationNotFittedWarning",
     "Plan",
     "PoorPoseSetWarning",
     "RowsLeftOutWarning",

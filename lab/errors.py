@@ -19,6 +19,7 @@ __all__ = [
     "FitError",
     "ImplausibleAcceptedWarning",
     "LabWarning",
+    "OrientationNotFittedWarning",
     "PoorPoseSetWarning",
     "RowsLeftOutWarning",
 ]
@@ -42,3 +43,8 @@ class RowsLeftOutWarning(LabWarning):
 
 class ImplausibleAcceptedWarning(LabWarning):
     """Identified values beyond the plausible bound of their kind were kept (``accept_large``)."""
+
+
+class OrientationNotFittedWarning(LabWarning):
+    """The data measured orientations, but their uncertainty is stated nowhere: without it they
+    cannot be weighed against the positions, and the positions alone were fitted."""

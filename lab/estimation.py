@@ -41,8 +41,9 @@ from arm.effects import Effect, missing_inputs
 from arm.errormodel import ErrorModel
 from arm.errors import warn
 from arm.measurements import COMPONENTS, MeasurementSet, as_measurements
+from arm.noise import InstrumentNoise
 from lab.blocks import Blocks
-from lab.errors import FitError, ImplausibleAcceptedWarning
+from lab.errors import FitError, ImplausibleAcceptedWarning, OrientationNotFittedWarning
 from lab.identifiability import Identifiability, analyse_jacobian
 from lab.observations import observations_of, uses_orientation
 from lab.options import LabOptions
@@ -75,11 +76,12 @@ def build_model(
     robot: RobotDescription,
     effects: str | Sequence[str | Effect],
     measured: tuple[str, ...] | None = None,
+    noise: InstrumentNoise | None = None,
 ) -> tuple[ErrorModel, ModelInputs]:
     """The error model for these data (one tool offset per target, one base per tracker
-    station, the tool frame's rotation where orientations are fitted: ``measured``) and its
-    inputs."""
-    turn = uses_orientation(data, measured)
+    station, the tool frame's rotation where orientations are fitted: ``measured``, and by
+    default where ``noise`` or the data state their uncertainty) and its inputs."""
+    turn = uses_orientation(data, measured, noise)
     try:
         model = ErrorModel(
             robot, effects, targets=data.targets, stations=data.stations, orientation=turn
@@ -120,8 +122,15 @@ def fit_rows(  # noqa: C901  (the five steps of the module docstring, in the ord
     identifiability again with the noise known, standard errors (the module docstring). Nothing
     is left out here: :mod:`lab.screening` decides which rows count."""
     loss, noise_mm, f_scale_mm = options.loss, options.noise_mm, options.f_scale_mm
-    model, inputs = build_model(data, robot, effects, options.measured)
+    model, inputs = build_model(data, robot, effects, options.measured, options.instrument)
     obs = observations_of(data, options.instrument, options.measured)
+    if data.has_orientation and obs.rotation is None and options.measured is None:
+        text = (
+            f"{data.source}: the rows measure orientations, but their uncertainty is stated "
+            "nowhere (--noise-mrad, std_rx..std_rz): the positions alone are fitted"
+        )
+        log.warning("%s", text)
+        warn(text, OrientationNotFittedWarning)
     lay = model.layout
     xyz = data.xyz
     target = obs.target  # the points themselves in the plain case

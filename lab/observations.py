@@ -34,7 +34,7 @@ from arm.noise import InstrumentNoise
 from arm.so3 import left_jacobian_inverse, rotation_matrix, rotation_vector
 from lab.errors import FitError
 
-__all__ = ["Observations", "observations_of", "uses_orientation"]
+__all__ = ["Observations", "observations_of", "orientation_stated", "uses_orientation"]
 
 
 @dataclass(frozen=True)
@@ -155,12 +155,27 @@ class Observations:
         return e
 
 
-def uses_orientation(data: MeasurementSet, measured: tuple[str, ...] | None) -> bool:
+def orientation_stated(data: MeasurementSet, noise: InstrumentNoise | None) -> bool:
+    """Whether the orientations' uncertainty is stated: ``--noise-mrad`` or std_rx.. cells."""
+    if noise is not None and noise.mrad is not None:
+        return True
+    return data.std is not None and bool(np.isfinite(data.std[:, 3:]).any())
+
+
+def uses_orientation(
+    data: MeasurementSet,
+    measured: tuple[str, ...] | None,
+    noise: InstrumentNoise | None = None,
+) -> bool:
     """Whether a fit of ``data`` uses orientation rows: the data measured some, and
-    ``measured`` (None: all the data have) names one of rx, ry, rz."""
+    ``measured`` names one of rx, ry, rz; by default (``measured`` None) where the
+    orientations' uncertainty is stated (without it they cannot be weighed against the
+    positions: the positions alone are fitted, and the fit warns)."""
     if not data.has_orientation:
         return False
-    return measured is None or bool(set(measured) & {"rx", "ry", "rz"})
+    if measured is None:
+        return orientation_stated(data, noise)
+    return bool(set(measured) & {"rx", "ry", "rz"})
 
 
 def observations_of(
@@ -174,7 +189,7 @@ def observations_of(
     stated (``--noise-mm``/``std_x..`` and ``--noise-mrad``/``std_rx..``): without them there is no
     weighing a radian against a metre."""
     noise = noise or InstrumentNoise()
-    turn = uses_orientation(data, measured)
+    turn = uses_orientation(data, measured, noise)
     k = 6 if turn else 3
     mask = data.measured[:, :k].copy()
     if measured is not None:

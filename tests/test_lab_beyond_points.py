@@ -107,3 +107,21 @@ def test_the_diagnosis_tests_the_weighted_rows():
     assert d.fit.weighted and d.fit.orientation_rms_mrad is not None
     assert d.verdict == "compliance" and d.suggestion == "geometric,compliance[2,3]"
     assert d.chi2_p_value_after is not None and d.chi2_p_value_after > 0.01
+
+
+def test_orientations_without_a_stated_uncertainty_leave_the_positions_alone(campaign):
+    """No std_rx.. and no --noise-mrad: the orientations cannot be weighed against positions;
+    the positions are fitted, with a warning; asking for the orientation then is refused."""
+    _, data, _, _ = campaign
+    bare = MeasurementSet(
+        data.q, data.xyz, data.columns, "no stds", orientation=data.orientation, mask=data.mask
+    )
+    with pytest.warns(lab.OrientationNotFittedWarning):
+        res = lab.fit(bare, "seed", "geometric")
+    assert res.orientation_rms_mrad is None and "trx" not in res.names
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        stated = lab.fit(bare, "seed", "geometric", noise_mm=0.03, noise_mrad=0.05)
+    assert stated.orientation_rms_mrad is not None and "trx" in stated.names
+    with pytest.raises(lab.FitError, match="--noise-mrad"):
+        lab.fit(bare, "seed", "geometric", measured=("x", "y", "z", "rx", "ry", "rz"))
