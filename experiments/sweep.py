@@ -422,7 +422,7 @@ def build_record(
             "spec": spec.to_dict(),
             "status": result.get("status", "failed"),
             "oracle": bool(outcome.pop("oracle", False)),
-            "isolated": bool(outcome.pop("isolated", False)),
+            "isolated": bool(outcome.pop("isolated", spec.isolate)),
             "error": result.get("error"),
             "metrics": outcome.pop("metrics", {}),
             "report": outcome.pop("report", {}),
@@ -618,10 +618,14 @@ def run_sweep(
         )
 
 
+#: the least grace (s) past a run's time limit before the sweep ends its worker
+OVERDUE_GRACE_S = 30.0
+
+
 def _overdue_after(spec: RunSpec) -> float:
     """How long after its start the sweep ends a run's worker (s): its time limit, which the
     worker enforces itself, and a grace for a hang no signal can stop (inside C code)."""
-    return spec.time_limit_s + max(30.0, 0.25 * spec.time_limit_s)
+    return spec.time_limit_s + max(OVERDUE_GRACE_S, 0.25 * spec.time_limit_s)
 
 
 def _run_local(
