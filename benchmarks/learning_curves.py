@@ -210,7 +210,29 @@ def main() -> None:
         )
     total = sum(r["wall_s"] for r in table)
     lines += ["", f"Training wall time in all: {total / 3600:.2f} h (2 shared CPU cores)."]
-    pilots = sorted((args.out / "pilots").glob("*.csv"))
+    every_pilot = sorted((args.out / "pilots").glob("*.csv"))
+    pilots = [p for p in every_pilot if p.stem.startswith(("sac-", "td3-"))]
+    plain = [p for p in every_pilot if p.stem.startswith("ppo-gamma")]
+    if plain:
+        lines += [
+            "",
+            "## The plain policy's horizon, chosen by measurement",
+            "",
+            "Pilot runs of the plain PPO (`results/learning/pilots/`, their configs beside their "
+            "curves: seed 1, 300k steps, `ppo-plain.toml` but for gamma), settled RMS (mm) of the "
+            "evaluations, mean over the scenarios; the plain policy shipped before was trained "
+            "with gamma 0.99:",
+            "",
+            "| pilot | " + " | ".join(f"{int(s):,}" for s in read_curve(plain[0])["steps"]) + " |",
+            "|---|" + "---:|" * len(read_curve(plain[0])["steps"]),
+        ]
+        for p in plain:
+            c = read_curve(p)
+            lines.append(
+                f"| {p.stem} | " + " | ".join(f"{v:.2f}" for v in c["rms_settled_mm/mean"]) + " |"
+            )
+        best = min(plain, key=lambda p: float(read_curve(p)["rms_settled_mm/mean"][-1]))
+        lines += ["", f"The lowest final error: {best.stem}; its gamma is the shipped config's."]
     if pilots:
         lines += [
             "",
