@@ -86,6 +86,70 @@ def aggregate(name: str, runs: list[dict]) -> list[dict]:
     return rows
 
 
+def pilot_sections(folder: Path) -> list[str]:
+    """The README's sections on the pilots in ``folder``: the plain PPO's horizon, the
+    off-policy residuals' algorithm."""
+    lines: list[str] = []
+    every_pilot = sorted(folder.glob("*.csv"))
+    pilots = [p for p in every_pilot if p.stem.startswith(("sac-", "td3-"))]
+    plain = [p for p in every_pilot if p.stem.startswith("ppo-gamma")]
+    if plain:
+        lines += [
+            "",
+            "## The plain policy's horizon, chosen by measurement",
+            "",
+            "Pilot runs of the plain PPO (`results/learning/pilots/`, their configs beside their "
+            "curves: seed 1, 300k steps, `ppo-plain.toml` but for gamma), settled RMS (mm) of the "
+            "evaluations, mean over the scenarios; the plain policy shipped before was trained "
+            "with gamma 0.99:",
+            "",
+            "| pilot | " + " | ".join(f"{int(s):,}" for s in read_curve(plain[0])["steps"]) + " |",
+            "|---|" + "---:|" * len(read_curve(plain[0])["steps"]),
+        ]
+        for p in plain:
+            c = read_curve(p)
+            lines.append(
+                f"| {p.stem} | " + " | ".join(f"{v:.2f}" for v in c["rms_settled_mm/mean"]) + " |"
+            )
+        best = min(plain, key=lambda p: float(read_curve(p)["rms_settled_mm/mean"][-1]))
+        lines += ["", f"The lowest final error: {best.stem}; its gamma is the shipped config's."]
+    if pilots:
+        lines += [
+            "",
+            "## The off-policy algorithm, chosen by measurement",
+            "",
+            "Pilot runs of the off-policy residuals (`results/learning/pilots/`, their configs "
+            "beside their curves: seed 1, 100k steps, each scenario once, 3 evaluation episodes "
+            "per scenario; `no-burn-in`: the same without `critic_burn_in`, stopped once it was "
+            "clear), settled RMS (mm) of the evaluations:",
+            "",
+            "| pilot | steps | backlash | all | mean over scenarios |",
+            "|---|---:|---:|---:|---:|",
+        ]
+        for p in pilots:
+            c = read_curve(p)
+            for i in range(len(c["steps"])):
+                lines.append(
+                    f"| {p.stem} | {int(c['steps'][i]):,} | "
+                    f"{c['rms_settled_mm/backlash'][i]:.4f} | {c['rms_settled_mm/all'][i]:.4f} | "
+                    f"{c['rms_settled_mm/mean'][i]:.4f} |"
+                )
+        last = {
+            p.stem: float(read_curve(p)["rms_settled_mm/mean"][-1])
+            for p in pilots
+            if "no-burn-in" not in p.stem
+        }
+        order = sorted(last, key=last.__getitem__)
+        lines += [
+            "",
+            "Step 0 is the untrained residual (near-zero output: `feedforward`). The mean over the "
+            "scenarios at the last evaluation, with the burn-in: "
+            + ", ".join(f"{k} {last[k]:.4f} mm" for k in order)
+            + f"; {order[0].split('-')[0].upper()} ships.",
+        ]
+    return lines
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("names", nargs="*", default=["ppo-residual", "sac-residual", "ppo"])
@@ -210,63 +274,7 @@ def main() -> None:
         )
     total = sum(r["wall_s"] for r in table)
     lines += ["", f"Training wall time in all: {total / 3600:.2f} h (2 shared CPU cores)."]
-    every_pilot = sorted((args.out / "pilots").glob("*.csv"))
-    pilots = [p for p in every_pilot if p.stem.startswith(("sac-", "td3-"))]
-    plain = [p for p in every_pilot if p.stem.startswith("ppo-gamma")]
-    if plain:
-        lines += [
-            "",
-            "## The plain policy's horizon, chosen by measurement",
-            "",
-            "Pilot runs of the plain PPO (`results/learning/pilots/`, their configs beside their "
-            "curves: seed 1, 300k steps, `ppo-plain.toml` but for gamma), settled RMS (mm) of the "
-            "evaluations, mean over the scenarios; the plain policy shipped before was trained "
-            "with gamma 0.99:",
-            "",
-            "| pilot | " + " | ".join(f"{int(s):,}" for s in read_curve(plain[0])["steps"]) + " |",
-            "|---|" + "---:|" * len(read_curve(plain[0])["steps"]),
-        ]
-        for p in plain:
-            c = read_curve(p)
-            lines.append(
-                f"| {p.stem} | " + " | ".join(f"{v:.2f}" for v in c["rms_settled_mm/mean"]) + " |"
-            )
-        best = min(plain, key=lambda p: float(read_curve(p)["rms_settled_mm/mean"][-1]))
-        lines += ["", f"The lowest final error: {best.stem}; its gamma is the shipped config's."]
-    if pilots:
-        lines += [
-            "",
-            "## The off-policy algorithm, chosen by measurement",
-            "",
-            "Pilot runs of the off-policy residuals (`results/learning/pilots/`, their configs "
-            "beside their curves: seed 1, 100k steps, each scenario once, 3 evaluation episodes "
-            "per scenario; `no-burn-in`: the same without `critic_burn_in`, stopped once it was "
-            "clear), settled RMS (mm) of the evaluations:",
-            "",
-            "| pilot | steps | backlash | all | mean over scenarios |",
-            "|---|---:|---:|---:|---:|",
-        ]
-        for p in pilots:
-            c = read_curve(p)
-            for i in range(len(c["steps"])):
-                lines.append(
-                    f"| {p.stem} | {int(c['steps'][i]):,} | "
-                    f"{c['rms_settled_mm/backlash'][i]:.4f} | {c['rms_settled_mm/all'][i]:.4f} | "
-                    f"{c['rms_settled_mm/mean'][i]:.4f} |"
-                )
-        last = {
-            p.stem: float(read_curve(p)["rms_settled_mm/mean"][-1])
-            for p in pilots
-            if "no-burn-in" not in p.stem
-        }
-        order = sorted(last, key=last.__getitem__)
-        lines += [
-            "",
-            "Step 0 is the untrained residual (near-zero output: `feedforward`). The mean over the "
-            "scenarios at the last evaluation, with the burn-in: "
-            + ", ".join(f"{k} {last[k]:.4f} mm" for k in order)
-            + f"; {order[0].split('-')[0].upper()} ships.",
-        ]
+    lines += pilot_sections(args.out / "pilots")
     atomic_write_text(args.out / "README.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
