@@ -71,7 +71,7 @@ from experiments.cli_output import (
     steps,
     user_errors,
 )
-from lab.options import ALPHA, CRITERIA, ORDER, ROUNDS, LabOptions
+from lab.options import ALPHA, CRITERIA, EXPORT_FORMATS, ORDER, ROUNDS, LabOptions
 
 app = typer.Typer(
     help="The model lab: compare the model with measurements, find what it misses.",
@@ -639,8 +639,14 @@ def collect_cmd(
 def export_cmd(
     data: DataArg,
     output: Annotated[
-        Path, typer.Option("--output", "-o", help="The calibrated robot TOML to write.")
-    ] = Path("calibrated.toml"),
+        Path | None,
+        typer.Option(
+            "--output",
+            "-o",
+            help="The file to write (default calibrated.toml, or calibrated.urdf with --format "
+            "urdf).",
+        ),
+    ] = None,
     robot: RobotOpt = "seed",
     effects: EffectsOpt = "geometric",
     validate: ValidateOpt = None,
@@ -658,13 +664,32 @@ def export_cmd(
     ] = None,
     outliers: OutliersOpt = "auto",
     accept_large: AcceptLargeOpt = False,
+    export_format: Annotated[
+        str,
+        declared(
+            OneOf(EXPORT_FORMATS),
+            "format",
+            "toml: a robot TOML (any arm); urdf: the arm's URDF (--robot ARM.urdf) with its joint "
+            "origins corrected, and NAME.metrology.toml beside it with the tracker frame, the "
+            "tool points and the effects a URDF cannot express (docs/format.md, the calibrated "
+            "URDF).",
+            lower=True,
+        ),
+    ] = "toml",
 ) -> None:
-    """Fit, then write the calibrated arm as a robot TOML.
+    """Fit, then write the calibrated arm as a robot TOML or as its URDF.
 
     The geometric errors are folded into the DH table, base and tool, other effects' values
-    kept; the file works as --robot anywhere."""
+    kept; the TOML works as --robot anywhere. With --format urdf the arm's own URDF is written
+    with corrected joint origins, everything else as it was."""
     from lab.export import export_robot
+    from lab.urdf_export import export_urdf, metrology_path, require_urdf
 
+    if output is None:
+        output = Path(f"calibrated.{export_format}")
+    outputs = [(output, "--output")]
+    if export_format == "urdf":
+        outputs.append((metrology_path(output), "--output's metrology file"))
     arm, meas, val, opts = lab_inputs(
         data,
         robot,
@@ -673,7 +698,7 @@ def export_cmd(
         validate,
         length_unit,
         angle_unit,
-        outputs=[(output, "--output")],
+        outputs=outputs,
         noise_mm=noise_mm,
         noise_ppm=noise_ppm,
         noise_mrad=noise_mrad,
@@ -683,8 +708,22 @@ def export_cmd(
         outliers=outliers,
         accept_large=accept_large,
     )
+    if export_format == "urdf":
+        with user_errors():  # before the fit: a TOML arm has no URDF to correct
+            require_urdf(arm)
     result = _fitted(meas, arm, effects, opts, val)
     say(result.summary())
+    if export_format == "urdf":
+        with user_errors(), writing(output):
+            out = export_urdf(result, output, name=name)
+        say(
+            f"wrote the calibrated URDF {output} (the origins of {', '.join(out.joints)}) and "
+            f"{out.metrology} (the tracker frame, the tool points"
+            + (", the effects" if out.robot.effects else "")
+            + "); a controller loads the URDF and applies the rest: docs/format.md, the "
+            "calibrated URDF"
+        )
+        return
     with user_errors(), writing(output):
         cal = export_robot(result, output, name=name)
     say(f"wrote the calibrated arm {cal.name!r} to {output}; use it with --robot {output}")

@@ -31,6 +31,7 @@ from lab.errors import FitError
 __all__ = [
     "ALPHA",
     "CRITERIA",
+    "EXPORT_FORMATS",
     "LOSSES",
     "ORDER",
     "OUTLIER_MODES",
@@ -149,3 +150,8 @@ def check_alpha(alpha: float) -> None:
     """Refuse a family-wise rate outside (0, 1), in the declared words."""
     if not ALPHA.holds(alpha):
         raise FitError(f"alpha must {ALPHA.predicate}, got {alpha!r}")
+
+
+#: what `sixaxis lab export --format` writes: a robot TOML, or the arm's URDF with its metrology
+#: file beside it (lab.urdf_export)
+EXPORT_FORMATS = ("toml", "urdf")

@@ -39,14 +39,17 @@ from arm.params import TOOL_ROTATION_NAMES
 from arm.so3 import rotation_matrix, rotation_vector
 from arm.urdf import UrdfError, calibrated_urdf, joint_origins, read_urdf, rpy_of
 from lab.export import EXPORT_TOL, CompensationError, ExportError, exported_difference
+from lab.options import EXPORT_FORMATS
 from lab.result import SCHEMA_VERSION, FitResult
 
 __all__ = [
+    "EXPORT_FORMATS",
     "METROLOGY_SUFFIX",
     "UrdfExport",
     "export_urdf",
     "metrology_path",
     "read_calibrated_urdf",
+    "require_urdf",
 ]
 
 log = logging.getLogger(__name__)
@@ -96,6 +99,19 @@ def _station_bases(result: FitResult) -> list[tuple[int, np.ndarray]]:
     return out
 
 
+def _not_urdf(robot: RobotDescription) -> str:
+    return (
+        f"the arm {robot.name!r} was not read from a URDF, so there is no URDF to correct; "
+        "fit with --robot ARM.urdf, or export a robot TOML"
+    )
+
+
+def require_urdf(robot: RobotDescription) -> None:
+    """Refuse an arm that was not read from a URDF: there is no URDF to correct."""
+    if robot.urdf is None:
+        raise ExportError(_not_urdf(robot))
+
+
 def export_urdf(result: FitResult, path: str | Path, name: str | None = None) -> UrdfExport:
     """Write the calibrated arm of ``result`` (a fit of a robot read from a URDF) as a URDF at
     ``path`` and its metrology file beside it (:func:`metrology_path`), both atomically, after
@@ -105,10 +121,7 @@ def export_urdf(result: FitResult, path: str | Path, name: str | None = None) ->
     nominal = result.model.robot
     src = nominal.urdf
     if src is None:
-        raise ExportError(
-            f"{path}: the arm {nominal.name!r} was not read from a URDF, so there is no URDF to "
-            "correct; fit with --robot ARM.urdf, or export a robot TOML"
-        )
+        raise ExportError(f"{path}: {_not_urdf(nominal)}")
     if path.suffix.lower() != ".urdf":
         raise ExportError(f"{path}: a calibrated URDF's name ends in .urdf")
     side = metrology_path(path)

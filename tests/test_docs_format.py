@@ -456,3 +456,13 @@ def test_every_option_of_the_lab_commands_is_documented(command):
     flags = {o for p in params for o in p.opts if o.startswith("--")} - {"--help"}
     missing = sorted(f for f in flags if not re.search(re.escape(f) + r"(?![\w-])", TEXT))
     assert not missing, f"lab {command}: {missing} not in docs/format.md"
+
+
+def test_the_export_formats_are_documented():
+    """`sixaxis lab export --format` takes exactly the formats "The calibrated URDF" names."""
+    from lab.options import EXPORT_FORMATS
+
+    res = runner.invoke(app, ["lab", "export", "--help"])
+    assert "--format" in res.output
+    text = section("The calibrated URDF")
+    assert "--format urdf" in text and EXPORT_FORMATS == ("toml", "urdf")

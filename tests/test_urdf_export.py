@@ -174,3 +174,37 @@ def test_an_effect_tied_to_the_dh_tables_form_is_refused_not_mangled(tmp_path):
     with pytest.raises(ExportError, match=r"read back, predict the fitted poses .* mm away"):
         export_urdf(result, tmp_path / "warm.urdf")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_export_command_writes_the_calibrated_urdf(tmp_path):
+    """sixaxis lab export DATA --robot ARM.urdf --format urdf -o calibrated.urdf: both files; a
+    TOML arm with --format urdf is one error line, nothing written."""
+    from typer.testing import CliRunner
+
+    from arm.measurements import write_measurements
+    from experiments.cli import app
+
+    robot = load_robot("z1")
+    data, _ = _campaign(robot, "geometric", 150, seed=8)
+    csv = tmp_path / "data.csv"
+    write_measurements(data, csv)
+    out = tmp_path / "calibrated.urdf"
+    runner = CliRunner()
+    res = runner.invoke(
+        app, ["lab", "export", str(csv), "--robot", "z1", "--format", "urdf", "-o", str(out)]
+    )
+    assert res.exit_code == 0, res.output
+    assert out.is_file() and (tmp_path / "calibrated.metrology.toml").is_file()
+    assert "docs/format.md, the calibrated URDF" in res.output
+    back = read_calibrated_urdf(out)
+    np.testing.assert_allclose(
+        ErrorModel(back).predict(ErrorModel(back).inputs(data.q), ErrorModel(back).nominal()),
+        data.xyz,
+        atol=1e-4,  # the fit's residual: 10 um noise
+    )
+    bad = tmp_path / "seed.urdf"
+    res = runner.invoke(app, ["lab", "export", str(csv), "--format", "urdf", "-o", str(bad)])
+    assert res.exit_code == 2 and "was not read from a URDF" in res.output
+    assert not bad.exists()
+    res = runner.invoke(app, ["lab", "export", str(csv), "--format", "xml", "-o", str(bad)])
+    assert res.exit_code == 2 and "--format must be one of toml, urdf" in res.output
