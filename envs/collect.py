@@ -46,6 +46,9 @@ class CollectError(SixAxisError, ValueError):
 
 
 APPROACH = 0.03  # rad: each joint's last move towards the pose
+# the 6-DoF probe's mounting on the flange: 120 degrees about (1, 1, 1), as the Rokae set's is;
+# the same for every campaign of an arm, so that a held-out campaign sees the same probe
+PROBE_ROTATION = tuple(2.0 * math.pi / 3.0 / math.sqrt(3.0) for _ in range(3))
 APPROACH_SPEED = 0.05  # rad/s
 # rad/s^2: slow enough that friction keeps a heavy link against its driving flank when stopping
 APPROACH_DECEL = 0.1
@@ -131,7 +134,7 @@ def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise a
     its station's frame, and the set gets a ``station`` column (ids ``first_station``, the next,
     ...: a held-out campaign from other stations of the same arm takes other ids).
     ``orientation``: a 6-DoF probe, mounted on the last link turned by ``tool_rotation`` (a
-    rotation vector; default a random rotation), also measures the tool frame's orientation with
+    rotation vector; default :data:`PROBE_ROTATION`), also measures the tool frame's orientation with
     ``noise_mrad`` per axis, in a random ``orientation_fraction`` of the rows (the others leave it
     blank). ``stds``: each row states its uncertainty (the std_x... columns): the sigma its noise
     was drawn with.
@@ -287,11 +290,8 @@ def _beyond_points(
     rotations = np.empty((n, 3, 3))
     turn = None
     if mrad is not None:
-        turn = rotation_matrix(
-            np.asarray(tool_rotation, dtype=float)
-            if tool_rotation is not None
-            else rotation_vector(_random_rotation(rng))
-        )
+        given = PROBE_ROTATION if tool_rotation is None else tool_rotation
+        turn = rotation_matrix(np.asarray(given, dtype=float))
     for k, st in enumerate(stations):
         rows = which == k
         point_sigma[rows] = sigma + ppm * 1e-6 * st.distance(world[rows])
@@ -313,17 +313,3 @@ def _beyond_points(
     if std is not None:
         std[seen, 3:] = mrad * 1e-3
     return MeasurementSet(q, xyz, columns, source=source, orientation=measured, mask=mask, std=std)
-
-
-def _random_rotation(rng: np.random.Generator) -> np.ndarray:
-    """A rotation drawn uniformly (a unit quaternion of four normal draws)."""
-    w, x, y, z = rng.normal(size=4)
-    norm = math.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / norm, x / norm, y / norm, z / norm
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )

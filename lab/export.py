@@ -106,7 +106,13 @@ def calibrated_model(robot: RobotDescription, targets: Sequence[int] = (0,)) -> 
             "registered: load the module that defines them (--effect-module FILE.py)"
         )
     try:
-        effects = [EFFECTS[n].from_parameters(list(v)) for n, v in robot.effects.items()]
+        # [effects.geometric] holds what the DH table cannot (a 6-DoF fit's tool frame): the
+        # geometric effect reads it itself
+        effects = [
+            EFFECTS[n].from_parameters(list(v))
+            for n, v in robot.effects.items()
+            if n != "geometric"
+        ]
         return ErrorModel(robot, ["geometric", *effects], targets=targets)
     except EffectError as exc:
         raise CompensationError(f"robot {robot.name!r}: {exc}") from None
@@ -172,14 +178,19 @@ def export_robot(
 
 def _compare(result: FitResult, robot: RobotDescription, fit_torques: bool) -> float:
     model = calibrated_model(robot, result.model.targets)
+    # a fit of several tracker stations exports the first station's base: its rows compare
+    rows = np.ones(result.inputs.n, dtype=bool)
+    if len(result.model.stations) > 1:
+        rows = result.inputs.stations == 0
+    columns = {k: v[rows] for k, v in result.inputs.columns.items() if k != "station"}
     try:
-        inputs = model.inputs(result.inputs.q, result.inputs.columns, source=result.source)
+        inputs = model.inputs(result.inputs.q[rows], columns, source=result.source)
     except EffectError as exc:
         raise CompensationError(str(exc)) from None
     if fit_torques:
-        inputs = replace(inputs, tau=result.inputs.tau, _cache={})
+        inputs = replace(inputs, tau=result.inputs.tau[rows], _cache={})
     pred = model.predict(inputs, model.nominal())
-    fitted = result.model.predict(result.inputs, result.params)
+    fitted = result.model.predict(result.inputs, result.params)[rows]
     return float(np.max(np.linalg.norm(pred - fitted, axis=1)))
 
 

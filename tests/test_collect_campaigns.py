@@ -110,6 +110,7 @@ def test_the_command_line_collects_fits_and_validates_a_campaign_from_stations(t
     assert out["validation_registered"] == [3]
     assert {"trx", "try", "trz", "bx1", "bx2"} <= set(out["parameters"])
     assert out["orientation_rms_mrad"] < 0.5 and out["validation_rms_mm"] < 0.2
+    assert out["validation_orientation_rms_mrad"] < 0.5  # the same probe on the same arm
     # the positions alone, from the same file
     r = runner.invoke(app, ["lab", "fit", str(fit_csv), "--measured", "x,y,z", "--json"])
     assert r.exit_code == 0, r.output

@@ -125,3 +125,26 @@ def test_orientations_without_a_stated_uncertainty_leave_the_positions_alone(cam
     assert stated.orientation_rms_mrad is not None and "trx" in stated.names
     with pytest.raises(lab.FitError, match="--noise-mrad"):
         lab.fit(bare, "seed", "geometric", measured=("x", "y", "z", "rx", "ry", "rz"))
+
+
+def test_a_6dof_fit_of_two_stations_exports_and_reads_back(campaign, tmp_path):
+    """The calibrated arm carries the first station's base and the tool frame's rotation
+    ([effects.geometric] trx try trz); read back, it predicts that station's fitted poses."""
+    from arm.description import load_robot
+    from arm.errormodel import ErrorModel
+    from lab.export import export_robot
+
+    _, data, _, _ = campaign
+    res = _quiet_fit(data)
+    back = export_robot(res, tmp_path / "cal.toml")
+    assert load_robot(tmp_path / "cal.toml").effects["geometric"] == pytest.approx(
+        {n: res[n] for n in ("trx", "try", "trz")}
+    )
+    first = data.subset(np.flatnonzero(data.columns["station"] == 1))
+    model = ErrorModel(back, orientation=True)
+    inputs = model.inputs(first.q)
+    xyz, R = model.predict_pose(inputs, model.nominal())
+    fitted = res.predict(first)
+    np.testing.assert_allclose(xyz, fitted, atol=1e-9)
+    _, R_fit = res.model.predict_pose(res.model.inputs(first.q, first.columns), res.params)
+    np.testing.assert_allclose(R, R_fit, atol=1e-9)
