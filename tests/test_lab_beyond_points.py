@@ -148,3 +148,17 @@ def test_a_6dof_fit_of_two_stations_exports_and_reads_back(campaign, tmp_path):
     np.testing.assert_allclose(xyz, fitted, atol=1e-9)
     _, R_fit = res.model.predict_pose(res.model.inputs(first.q, first.columns), res.params)
     np.testing.assert_allclose(R, R_fit, atol=1e-9)
+
+
+def test_the_report_says_what_was_fitted_beyond_points(campaign, tmp_path):
+    from lab.report import build_report
+
+    c, data, _, _ = campaign
+    other, _ = c.measure(20, stations=(3,))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        report = build_report(data, "seed", "geometric", validate=other, rounds=0)
+    html = report.to_html()
+    assert "tracker stations 1, 2, one base each" in html
+    assert "orientations fitted too" in html and "weighted by its stated uncertainty" in html
+    assert "validation station(s) 3 not in the fit" in html
