@@ -466,3 +466,37 @@ def test_the_export_formats_are_documented():
     assert "--format" in res.output
     text = section("The calibrated URDF")
     assert "--format urdf" in text and EXPORT_FORMATS == ("toml", "urdf")
+
+
+def _anchors(text: str) -> set[str]:
+    """GitHub's anchors of a page's headings (lower case, punctuation dropped, spaces as hyphens)."""
+    out, fenced = set(), False
+    for line in text.splitlines():
+        fenced = fenced != line.startswith("```")
+        if not fenced and (m := re.match(r"#+ (.*)", line)):
+            out.add(re.sub(r"[^\w\- ]", "", m.group(1).lower()).replace(" ", "-"))
+    return out
+
+
+def test_every_link_of_the_readme_and_docs_leads_somewhere():
+    """The README is a door to docs/: every relative link of the README and of docs/*.md names
+    a file of the repository, and every ``page.md#anchor`` a heading of that page; every docs
+    page is linked from the README."""
+    root = DOC.parents[1]
+    pages = [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+    bad = []
+    for page in pages:
+        text = page.read_text(encoding="utf-8")
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"[a-z]+://", target) or target.startswith("#"):
+                continue
+            path, _, anchor = target.partition("#")
+            dest = (page.parent / path).resolve()
+            if not dest.exists():
+                bad.append(f"{page.name}: {target} (no such file)")
+            elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest.read_text()):
+                bad.append(f"{page.name}: {target} (no such heading)")
+    assert not bad, "\n".join(bad)
+    readme = (root / "README.md").read_text(encoding="utf-8")
+    for doc in sorted((root / "docs").glob("*.md")):
+        assert f"docs/{doc.name}" in readme, f"the README does not link docs/{doc.name}"
