@@ -39,6 +39,7 @@ from a stranger cannot run code. A stable-baselines3 ``.zip`` (which unpickles) 
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import time
@@ -54,10 +55,12 @@ import numpy as np
 from agents.base import Agent, solve_time_stats
 from agents.reference import FeedforwardAgent
 from arm.errors import SixAxisError
+from arm.files import check_input_file, read_input_text
 from envs.task import Observation, TaskInfo, Truth
 
 __all__ = [
     "ALGOS",
+    "MAX_NETWORK_PARAMETERS",
     "POLICY_DIR",
     "VARIANTS",
     "Algo",
@@ -66,6 +69,7 @@ __all__ = [
     "PolicyIO",
     "PolicyNetwork",
     "Variant",
+    "check_policy_description",
     "load_policy_file",
     "save_policy_file",
 ]
@@ -351,22 +355,18 @@ def load_policy_file(path: str | Path) -> tuple[PolicyNetwork, dict[str, Any]]: 
             "`sixaxis train export`"
         )
     meta_path = path.with_suffix(".json")
-    if not path.exists():
-        raise PolicyFileError(f"{path}: no such policy file")
+    check_input_file(path, "policy file", "weights", PolicyFileError)  # a FIFO would hang
     if not meta_path.exists():
         raise PolicyFileError(f"{path}: its description {meta_path.name} is missing")
+    text = read_input_text(meta_path, "policy description", "json", PolicyFileError)
     try:
-        meta = json.loads(meta_path.read_text())
+        meta = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise PolicyFileError(f"{meta_path}: not valid JSON: {exc}") from exc
-    if not isinstance(meta, dict):
-        raise PolicyFileError(f"{meta_path}: expected a JSON object")
-    for key in ("algo", "variant", "obs_size", "act_size", "policy_kwargs"):
-        if key not in meta:
-            raise PolicyFileError(f"{meta_path}: missing key {key!r}")
+        raise PolicyFileError(f"{meta_path}: not valid JSON: {exc}") from None
+    except RecursionError:
+        raise PolicyFileError(f"{meta_path}: JSON nested too deeply to read") from None
+    check_policy_description(meta, str(meta_path))
     algo = meta["algo"]
-    if algo not in ALGOS:
-        raise PolicyFileError(f"{meta_path}: algo {algo!r} is not one of {', '.join(ALGOS)}")
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
@@ -402,16 +402,166 @@ def load_policy_file(path: str | Path) -> tuple[PolicyNetwork, dict[str, Any]]: 
                 f"{path}: weight {k!r} has shape {v.shape} ({v.dtype}), the network needs "
                 f"{tuple(want.shape)}"
             )
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            raise PolicyFileError(
+                f"{path}: weight {k!r} has {bad.size} NaN or infinite value(s) (the first at "
+                f"flat index {bad[0]}): not a trained network"
+            )
         state[k] = torch.from_numpy(np.array(v, dtype=np.float32))
     module.load_state_dict(state, strict=True)
+    _check_normalisation(arrays, int(meta["obs_size"]), path)
+    return PolicyNetwork(algo, policy, arrays), meta
+
+
+def _check_normalisation(arrays: Mapping[str, np.ndarray], n: int, path: Path) -> None:
+    """The observation normalisation ``(x - mean) / sqrt(var + eps)``, clipped to ``clip``: mean
+    and var (n,), finite, var >= 0; eps >= 0 with var + eps > 0; clip > 0. Anything else would
+    make every action NaN (a torch error mid-episode)."""
     for k in ("obs_mean", "obs_var", "obs_clip", "obs_epsilon"):
         if k not in arrays:
             raise PolicyFileError(f"{path}: missing the observation normalisation {k!r}")
-    if arrays["obs_mean"].shape != (int(meta["obs_size"]),):
+    for k, shape in (("obs_mean", (n,)), ("obs_var", (n,)), ("obs_clip", ()), ("obs_epsilon", ())):
+        v = arrays[k]
+        if v.shape != shape or v.dtype.kind not in "fiu":
+            raise PolicyFileError(
+                f"{path}: {k} has shape {v.shape} ({v.dtype}), expected {shape} numbers"
+            )
+        if not np.all(np.isfinite(v)):
+            raise PolicyFileError(f"{path}: {k} holds NaN or infinity")
+    var, eps = arrays["obs_var"], float(arrays["obs_epsilon"])
+    if np.any(var < 0) or eps < 0:
+        i = int(np.flatnonzero(var < 0)[0]) if np.any(var < 0) else None
+        where = f"obs_var[{i}] = {var[i]:g}" if i is not None else f"obs_epsilon = {eps:g}"
+        raise PolicyFileError(f"{path}: {where} is negative; a variance is not")
+    if np.any(var + eps <= 0):
+        raise PolicyFileError(f"{path}: obs_var + obs_epsilon is 0: the features cannot be scaled")
+    if not float(arrays["obs_clip"]) > 0:
+        raise PolicyFileError(f"{path}: obs_clip = {float(arrays['obs_clip']):g} must be > 0")
+
+
+#: The largest network a policy file may describe, checked before it is built: the shipped ones
+#: have about 20,000 parameters; 200,000 units in a layer asked for tens of gigabytes.
+MAX_LAYER_UNITS = 4096
+MAX_LAYERS = 8
+MAX_OBS_SIZE = 10_000
+MAX_NETWORK_PARAMETERS = 5_000_000
+#: policy keyword arguments a file may give, as data, per algorithm (no classes: a file is data)
+POLICY_KWARGS = {
+    "ppo": {
+        "net_arch",
+        "activation_fn",
+        "ortho_init",
+        "log_std_init",
+        "full_std",
+        "use_expln",
+        "squash_output",
+        "share_features_extractor",
+    },
+    "sac": {
+        "net_arch",
+        "activation_fn",
+        "log_std_init",
+        "use_expln",
+        "clip_mean",
+        "n_critics",
+        "share_features_extractor",
+    },
+    "td3": {"net_arch", "activation_fn", "n_critics", "share_features_extractor"},
+}
+_BOOL_KWARGS = {"ortho_init", "full_std", "use_expln", "squash_output", "share_features_extractor"}
+_ARCH_KEYS = {"ppo": ("pi", "vf"), "sac": ("pi", "qf"), "td3": ("pi", "qf")}
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def check_policy_description(meta: Any, where: str) -> None:
+    """Refuse a policy description (``.json``) that does not describe a network of this project,
+    before anything is built: unknown algorithm, variant or policy keyword argument, sizes that
+    are not whole numbers in range (``obs_size`` 1e9), a layer beyond :data:`MAX_LAYER_UNITS`
+    or a network beyond :data:`MAX_NETWORK_PARAMETERS`. Raises :class:`PolicyFileError` naming
+    ``where`` and the key."""
+    if not isinstance(meta, dict):
+        raise PolicyFileError(f"{where}: expected a JSON object")
+    for key in ("algo", "variant", "obs_size", "act_size", "policy_kwargs"):
+        if key not in meta:
+            raise PolicyFileError(f"{where}: missing key {key!r}")
+    algo, variant = meta["algo"], meta["variant"]
+    if algo not in ALGOS:
+        raise PolicyFileError(f"{where}: algo {algo!r} is not one of {', '.join(ALGOS)}")
+    if variant not in VARIANTS:
+        raise PolicyFileError(f"{where}: variant {variant!r} is not one of {', '.join(VARIANTS)}")
+    obs, act = meta["obs_size"], meta["act_size"]
+    if not _is_int(obs) or not 1 <= obs <= MAX_OBS_SIZE:
         raise PolicyFileError(
-            f"{path}: obs_mean has shape {arrays['obs_mean'].shape}, expected ({meta['obs_size']},)"
+            f"{where}: obs_size must be a whole number from 1 to {MAX_OBS_SIZE}, got {obs!r}"
         )
-    return PolicyNetwork(algo, policy, arrays), meta
+    want = 3 if variant == "residual" else 6
+    if not _is_int(act) or act != want:
+        raise PolicyFileError(f"{where}: act_size of a {variant} policy is {want}, got {act!r}")
+    offset = meta.get("offset_mm", 0.5)
+    if isinstance(offset, bool) or not isinstance(offset, int | float) or not 0 < offset < 1e3:
+        raise PolicyFileError(f"{where}: offset_mm must be a positive number of mm, got {offset!r}")
+    if not isinstance(meta.get("use_sde", False), bool):
+        raise PolicyFileError(f"{where}: use_sde must be true or false, got {meta['use_sde']!r}")
+    kw = meta["policy_kwargs"]
+    if not isinstance(kw, dict):
+        raise PolicyFileError(f"{where}: policy_kwargs must be an object, got {kw!r}")
+    unknown = sorted(set(kw) - POLICY_KWARGS[algo])
+    if unknown:
+        raise PolicyFileError(
+            f"{where}: policy_kwargs {', '.join(map(repr, unknown))} unknown for {algo}; known: "
+            f"{', '.join(sorted(POLICY_KWARGS[algo]))}"
+        )
+    for k in sorted(_BOOL_KWARGS & set(kw)):
+        if not isinstance(kw[k], bool):
+            raise PolicyFileError(f"{where}: policy_kwargs.{k} must be true or false")
+    for k in ("log_std_init", "clip_mean"):
+        v = kw.get(k, 0.0)
+        if isinstance(v, bool) or not isinstance(v, int | float) or not abs(v) < 1e3:
+            raise PolicyFileError(f"{where}: policy_kwargs.{k} must be a finite number, got {v!r}")
+    if "activation_fn" in kw and kw["activation_fn"] not in ACTIVATIONS:
+        raise PolicyFileError(
+            f"{where}: policy_kwargs.activation_fn {kw['activation_fn']!r} is not one of "
+            f"{', '.join(ACTIVATIONS)}"
+        )
+    critics = kw.get("n_critics", 2)
+    if not _is_int(critics) or not 1 <= critics <= 10:
+        raise PolicyFileError(f"{where}: policy_kwargs.n_critics must be 1 to 10, got {critics!r}")
+    arch = kw.get("net_arch", [64, 64])
+    heads = _ARCH_KEYS[algo]
+    if isinstance(arch, dict):
+        extra = sorted(set(arch) - set(heads))
+        if extra:
+            raise PolicyFileError(
+                f"{where}: policy_kwargs.net_arch keys {extra} unknown; {algo} has {', '.join(heads)}"
+            )
+        layers = {h: arch.get(h, []) for h in heads}
+    else:
+        layers = {h: arch for h in heads}
+    total = 0
+    for head, units in layers.items():
+        if (
+            not isinstance(units, list)
+            or len(units) > MAX_LAYERS
+            or not all(_is_int(u) and 1 <= u <= MAX_LAYER_UNITS for u in units)
+        ):
+            raise PolicyFileError(
+                f"{where}: policy_kwargs.net_arch ({head}) must be up to {MAX_LAYERS} layers of 1 "
+                f"to {MAX_LAYER_UNITS} units, got {units!r}"
+            )
+        sizes = [obs, *units, act if head == "pi" else 1]
+        if head != "pi" and algo != "ppo":
+            sizes[0] = obs + act  # a Q-function reads the action too
+        n = sum((a + 1) * b for a, b in itertools.pairwise(sizes))
+        total += n * (critics if head == "qf" else 1)
+    if total > MAX_NETWORK_PARAMETERS:
+        raise PolicyFileError(
+            f"{where}: the network has {total:,} parameters, more than the "
+            f"{MAX_NETWORK_PARAMETERS:,} a policy file may describe"
+        )
 
 
 # --------------------------------------------------------------------------------------------------
@@ -433,6 +583,7 @@ class PolicyAgent(Agent):
                 f"no trained policy at {self.path}; train one with `sixaxis train ppo --config "
                 "experiments/configs/ppo-residual.toml --ship`"
             )
+        check_input_file(self.path, "policy file", "weights", PolicyFileError)
         self.network: PolicyNetwork | None = None
         self.meta: dict[str, Any] = {}
 

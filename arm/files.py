@@ -70,7 +70,7 @@ MAX_INPUT_BYTES: dict[str, int] = {
     "urdf": 64 << 20,
     "json": 64 << 20,
     "python": 16 << 20,
-    "weights": 1 << 30,
+    "weights": 256 << 20,
 }
 
 

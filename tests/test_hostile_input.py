@@ -706,3 +706,106 @@ def test_the_effect_loader_loads_or_refuses_any_module(tmp_path, source, small_d
             fit(small_data, seed_robot(), f"geometric,{name}")
         except SixAxisError as exc:
             assert "\n" not in str(exc).strip(), exc
+
+
+# == policy files ===================================================================================
+@pytest.fixture
+def policy(tmp_path) -> Path:
+    """A copy of the shipped ppo-residual policy (its .npz and .json) to spoil."""
+    from agents.policy import POLICY_DIR
+
+    for ext in (".npz", ".json"):
+        (tmp_path / f"p{ext}").write_bytes((POLICY_DIR / f"ppo-residual{ext}").read_bytes())
+    return tmp_path / "p.npz"
+
+
+def _edit_json(path: Path, edit) -> None:
+    import json
+
+    meta_path = path.with_suffix(".json")
+    meta = json.loads(meta_path.read_text())
+    edit(meta)
+    meta_path.write_text(json.dumps(meta))
+
+
+def _edit_arrays(path: Path, edit) -> None:
+    with np.load(path) as data:
+        arrays = {k: data[k].copy() for k in data.files}
+    edit(arrays)
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+@pytest.mark.parametrize(
+    "edit, words",
+    [
+        (lambda m: m["policy_kwargs"].update(bogus=1), ["policy_kwargs 'bogus' unknown for ppo"]),
+        (lambda m: m.update(obs_size=1e9), ["obs_size must be a whole number", "1000000000.0"]),
+        (lambda m: m.update(obs_size=10**9), ["obs_size must be a whole number"]),
+        (
+            lambda m: m["policy_kwargs"].update(net_arch={"pi": [200_000], "vf": [64]}),
+            ["net_arch (pi)", "1 to 4096 units", "200000"],
+        ),
+        (
+            lambda m: m["policy_kwargs"].update(net_arch=[4096] * 8),
+            ["parameters, more than the 5,000,000"],
+        ),
+        (lambda m: m.update(variant="bogus"), ["variant 'bogus'", "residual, plain"]),
+        (lambda m: m["policy_kwargs"].update(activation_fn="os.system"), ["activation_fn"]),
+        (lambda m: m.update(act_size=6), ["act_size of a residual policy is 3"]),
+    ],
+)
+def test_a_policy_description_is_checked_before_its_network_is_built(
+    policy, monkeypatch, edit, words
+):
+    from agents import policy as policy_module
+
+    def no_build(*a, **k):
+        raise AssertionError("the network was built before its description was checked")
+
+    monkeypatch.setattr(policy_module, "build_network", no_build)
+    _edit_json(policy, edit)
+    with pytest.raises(policy_module.PolicyFileError) as exc:
+        policy_module.load_policy_file(policy)
+    for w in ("p.json", *words):
+        assert w in str(exc.value), (w, str(exc.value))
+
+
+@pytest.mark.parametrize(
+    "edit, words",
+    [
+        (
+            lambda a: a[next(k for k in a if k.startswith("weights/"))].flat.__setitem__(3, np.nan),
+            ["NaN or infinite", "flat index 3"],
+        ),
+        (lambda a: a["obs_var"].__setitem__(0, -1.0), ["obs_var[0] = -1 is negative"]),
+        (lambda a: a["obs_mean"].__setitem__(2, np.inf), ["obs_mean holds NaN or infinity"]),
+        (lambda a: a.update(obs_clip=np.asarray(0.0)), ["obs_clip = 0 must be > 0"]),
+    ],
+)
+def test_policy_weights_that_would_act_nan_are_refused(policy, edit, words):
+    from agents.policy import PolicyFileError, load_policy_file
+
+    _edit_arrays(policy, edit)
+    with pytest.raises(PolicyFileError) as exc:
+        load_policy_file(policy)
+    for w in ("p.npz", *words):
+        assert w in str(exc.value), (w, str(exc.value))
+
+
+def test_a_fifo_as_a_policy_file_is_refused_without_waiting(policy, tmp_path):
+    from agents.policy import PolicyAgent, PolicyFileError, load_policy_file
+
+    fifo = tmp_path / "fifo.npz"
+    os.mkfifo(fifo)
+    (tmp_path / "fifo.json").write_bytes(policy.with_suffix(".json").read_bytes())
+    with pytest.raises(PolicyFileError, match="FIFO"):
+        PolicyAgent("mine", path=str(fifo))
+    with pytest.raises(PolicyFileError, match="FIFO"):
+        load_policy_file(fifo)
+    policy.with_suffix(".json").unlink()
+    os.mkfifo(policy.with_suffix(".json"))  # the description a FIFO
+    with pytest.raises(PolicyFileError, match=r"p\.json: is a FIFO"):
+        load_policy_file(policy)
+    res = sixaxis("evaluate", "ppo-residual", "--settings", f'{{"path": "{fifo}"}}')
+    one_error_line(res, "fifo.npz", "FIFO")
