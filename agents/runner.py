@@ -59,6 +59,7 @@ __all__ = [
     "JUDGE_POSTURES",
     "WORKSPACE_POSTURES",
     "AgentFailure",
+    "EpisodeError",
     "EpisodeResult",
     "Phase",
     "TimeLimitExceeded",
@@ -85,6 +86,10 @@ class AgentFailure(SixAxisError, RuntimeError):
 
 class TimeLimitExceeded(SixAxisError, TimeoutError):
     """The run was still going at its time limit."""
+
+
+class EpisodeError(SixAxisError, ValueError):
+    """An episode that cannot run as asked (a phase longer than the env's episode)."""
 
 
 def agent_seed(episode_seed: int) -> int:
@@ -403,6 +408,12 @@ def run_episode(
                     on_step(env)
                 if info.get("diverged", False):
                     diverged = True
+                if truncated and not terminated and steps is not None and n < steps:
+                    raise EpisodeError(
+                        f"phase {ph.name!r}: {ph.seconds:g} s asked, but the env's episode "
+                        f"ends after {n * dt:g} s (its episode_seconds); give episode_seconds "
+                        f"= {ph.seconds:g} in its options"
+                    )
                 if terminated or truncated or diverged or (steps is not None and n >= steps):
                     break
             t_offset = cols["time"][-1] if cols["time"] else t_offset

@@ -141,15 +141,22 @@ class TemperatureSensor:
     """See the module docstring: ``reset(rng, temperature)`` at each episode (the probe settled at
     the structure's temperature), ``read(temperature, dt)`` once per control step with the
     structure's temperature now (degC): the probe follows it with time constant ``lag`` (s; 0: no
-    lag) and each reading adds noise of standard deviation ``noise`` (K)."""
+    lag) and each reading adds noise of standard deviation ``noise`` (K); a reading saturates at
+    the ends of ``span`` (degC), the probe's range."""
 
-    def __init__(self, noise: float = 0.1, lag: float = 3.0) -> None:
+    def __init__(
+        self,
+        noise: float = 0.1,
+        lag: float = 3.0,
+        span: tuple[float, float] = (-math.inf, math.inf),
+    ) -> None:
         if not (np.isfinite(noise) and noise >= 0):
             raise InstrumentError(f"temperature_noise must be >= 0 K, got {noise}")
         if not (np.isfinite(lag) and lag >= 0):
             raise InstrumentError(f"temperature_lag must be >= 0 s, got {lag}")
         self.noise = float(noise)
         self.lag = float(lag)
+        self.span = (float(span[0]), float(span[1]))  # the probe saturates at its ends
         self._probe = 20.0
         self._rng = np.random.default_rng(0)
         self.reading = 20.0
@@ -157,14 +164,17 @@ class TemperatureSensor:
     def reset(self, rng: np.random.Generator, temperature: float) -> float:
         self._rng = rng
         self._probe = float(temperature)
-        self.reading = self._probe + self.noise * float(rng.normal())
+        self.reading = self._saturate(self._probe + self.noise * float(rng.normal()))
         return self.reading
+
+    def _saturate(self, value: float) -> float:
+        return min(max(value, self.span[0]), self.span[1])
 
     def read(self, temperature: float, dt: float) -> float:
         # the exact step response of a first-order lag over dt, the input held over the step
         a = 1.0 if self.lag == 0 else 1.0 - math.exp(-dt / self.lag)
         self._probe += a * (float(temperature) - self._probe)
-        self.reading = self._probe + self.noise * float(self._rng.normal())
+        self.reading = self._saturate(self._probe + self.noise * float(self._rng.normal()))
         return self.reading
 
 

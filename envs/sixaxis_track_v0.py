@@ -20,6 +20,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from gymnasium.error import ResetNeeded
+from gymnasium.wrappers import TimeLimit
 
 from arm.description import RobotDescription, load_robot
 from arm.errors import SixAxisError
@@ -30,12 +31,51 @@ from envs.simulator import SimulatorError, mujoco
 from envs.task import TaskInfo
 from envs.trajectories import KINDS, Trajectory, check_posture, sample_trajectory
 
-__all__ = ["EnvOptionError", "EnvStateError", "SixAxisTrackEnv"]
+__all__ = ["EnvOptionError", "EnvStateError", "SixAxisTrackEnv", "make_env"]
 
 MAX_MEASUREMENT_AGE = 10.0  # s, the age reported before the first measurement
 
 WORKSPACE = 5.0  # m, bound of every observed point
 DIVERGENCE_REWARD = -1000.0
+
+
+#: What the observation's sensors read (its ``observation_space``): the arm's temperature probe
+#: (degC, saturating at its ends, as a real probe does) and the declared payload (kg).
+TEMPERATURE_RANGE = (-50.0, 200.0)
+PAYLOAD_RANGE = (0.0, 100.0)
+
+
+def _outside_observation(overrides: Any) -> str | None:
+    """Why ``overrides`` would put the observation outside ``observation_space`` (a start
+    temperature the probe cannot read, a payload beyond its range), or None."""
+    if not isinstance(overrides, dict):
+        return None
+    for effect, key, (lo, hi), unit, hint in (
+        ("thermal", "temperature0", TEMPERATURE_RANGE, "degC", " (kelvin given as degC?)"),
+        ("payload", "payload0", PAYLOAD_RANGE, "kg", ""),
+        ("payload", "payload1", PAYLOAD_RANGE, "kg", ""),
+    ):
+        table = overrides.get(effect)
+        value = table.get(key) if isinstance(table, dict) else None
+        if value is None:
+            continue
+        try:
+            v = np.atleast_1d(np.asarray(value, dtype=float))
+        except (TypeError, ValueError):
+            continue  # draw_truth names it
+        if not np.all((v >= lo) & (v <= hi)):
+            return (
+                f"{effect}.{key} = {value!r} lies outside what the observation reports "
+                f"({lo:g} to {hi:g} {unit}){hint}"
+            )
+    return None
+
+
+def make_env(**kwargs: Any) -> gym.Env:
+    """``SixAxisTrack-v0`` as ``gym.make`` builds it: the env in a ``TimeLimit`` of its own
+    ``episode_seconds`` (500 steps by default), so that the episode and the limit agree."""
+    env = SixAxisTrackEnv(**kwargs)
+    return TimeLimit(env, env.episode_steps)
 
 
 class EnvOptionError(SixAxisError, ValueError):
@@ -204,8 +244,11 @@ class SixAxisTrackEnv(gym.Env):
     the ``posture`` argument).
 
     ## Episode End
-    Terminates only if the simulation diverges (``info["diverged"]``). Truncated by the
-    ``TimeLimit`` of the registration after 500 steps (10 s).
+    Terminates only if the simulation diverges (``info["diverged"]``). Truncated after
+    ``episode_seconds`` (500 steps, 10 s, by default) by the ``TimeLimit`` that ``gym.make``
+    puts around it (:func:`make_env`); a ``max_episode_steps`` given to ``gym.make`` can only
+    shorten the episode. ``step`` and ``render`` after ``close`` are refused (``EnvStateError``)
+    until the next ``reset``.
 
     ## Arguments
     | Parameter       | Type        | Default       | Description                                                  |
@@ -224,7 +267,7 @@ class SixAxisTrackEnv(gym.Env):
     | `preview_steps` | int         | `10`          | reference points ahead in the observation                    |
     | `jerk_weight`   | float       | `0.01`        | weight of the command-jerk penalty                           |
     | `robot`         | str or RobotDescription | `"seed"` | the nominal arm (needs a mass model)                  |
-    | `episode_seconds` | float     | `10.0`        | length of the reference computed per reset (the TimeLimit ends episodes) |
+    | `episode_seconds` | float     | `10.0`        | the episode's length (its TimeLimit) and the reference computed per reset |
     | `render_mode`   | str or None | `None`        | `"rgb_array"`: the arm, the reference path (green), the true tool path (blue), the measured points (red) |
     | `width`, `height` | int       | `640`, `480`  | rendered frame size, at most 4096 pixels a side              |
 
@@ -296,7 +339,13 @@ class SixAxisTrackEnv(gym.Env):
         nominal = robot if isinstance(robot, RobotDescription) else load_robot(robot)
         self.nominal = nominal.to_modified()
         # a region of the workspace for the path (checked now, not at the first reset)
-        self.posture = None if posture is None else check_posture(self.nominal, posture)
+        self.posture = (
+            None
+            if posture is None
+            else tuple(
+                None if math.isnan(v) else float(v) for v in check_posture(self.nominal, posture)
+            )
+        )
         self.plant = Plant(self.nominal, elastic=self.scenario.elastic)
         self.tracker = LaserTracker(
             TrackerConfig(
@@ -307,7 +356,9 @@ class SixAxisTrackEnv(gym.Env):
                 enabled=bool(measurements),
             )
         )
-        self.thermometer = TemperatureSensor(float(temperature_noise), float(temperature_lag))
+        self.thermometer = TemperatureSensor(
+            float(temperature_noise), float(temperature_lag), TEMPERATURE_RANGE
+        )
         drive = self.plant.drive
         P = int(preview_steps)
         slices = _layout(P)
@@ -347,8 +398,8 @@ class SixAxisTrackEnv(gym.Env):
             ("meas", -WORKSPACE, WORKSPACE),
             ("meas_age", 0.0, MAX_MEASUREMENT_AGE),
             ("meas_valid", 0.0, 1.0),
-            ("temperature", -50.0, 200.0),
-            ("payload", 0.0, 100.0),
+            ("temperature", *TEMPERATURE_RANGE),
+            ("payload", *PAYLOAD_RANGE),
         ):
             low[slices[name]], high[slices[name]] = lo, hi
         self.observation_space = spaces.Box(low, high, (n,), np.float32)
@@ -382,6 +433,7 @@ class SixAxisTrackEnv(gym.Env):
         self._payload_i = slices["payload"].start
         self._P = P
         self._j = np.zeros(6)
+        self._closed = False
 
     @classmethod
     def check_options(cls, **options: Any) -> dict[str, str]:  # noqa: C901  (one check per env option, every problem named at once)
@@ -482,10 +534,15 @@ class SixAxisTrackEnv(gym.Env):
                 draw_truth(o["scenario"], nominal, np.random.default_rng(0), o["overrides"])
             except (SixAxisError, ValueError) as exc:
                 problems["overrides"] = str(exc)
+            else:
+                why = _outside_observation(o["overrides"])
+                if why:
+                    problems["overrides"] = why
         return problems
 
     # -- gymnasium API --------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        self._closed = False  # a reset opens a closed env again (stable-baselines3's checker does)
         super().reset(seed=seed)
         kind = (options or {}).get("trajectory", self.trajectory_kind)
         if kind is not None and kind not in KINDS:
@@ -529,6 +586,7 @@ class SixAxisTrackEnv(gym.Env):
         return self._obs.astype(np.float32), info
 
     def step(self, action):
+        self._check_open("step")
         if self.trajectory is None:  # gym.make's wrapper says so too; the bare env must as well
             raise EnvStateError("SixAxisTrack-v0: call reset() before step()")
         a = self._check_action(action)
@@ -556,6 +614,7 @@ class SixAxisTrackEnv(gym.Env):
     def render(self):
         if self.render_mode != "rgb_array":
             return None
+        self._check_open("render")
         if self.trajectory is None:
             raise EnvStateError("SixAxisTrack-v0: call reset() before render()")
         if self._renderer is None:
@@ -596,9 +655,19 @@ class SixAxisTrackEnv(gym.Env):
         return r.render()
 
     def close(self) -> None:
+        """Release the renderer; the env cannot be stepped or rendered afterwards until a new
+        ``reset`` (a closed env handing out transitions would hide a use-after-close bug).
+        Closing twice is fine."""
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+        self._closed = True
+
+    def _check_open(self, what: str) -> None:
+        if self._closed:
+            raise EnvStateError(
+                f"SixAxisTrack-v0: {what}() after close(); reset() it first, or make a new env"
+            )
 
     # -- parts ----------------------------------------------------------------------------------
     def _check_action(self, action) -> np.ndarray:

@@ -209,9 +209,9 @@ def _comfortable(robot: RobotDescription, rng: np.random.Generator) -> np.ndarra
 
 
 def check_posture(robot: RobotDescription, posture: Sequence[float | None]) -> np.ndarray:
-    """``posture`` as a (6,) float array with NaN for the joints left free (None or NaN in the
-    input); a clear error for a wrong length, a non-number or a value outside the joint limits
-    less :data:`JOINT_MARGIN`."""
+    """``posture`` as a (6,) float array with NaN for the joints left free (None in the input);
+    a clear error for a wrong length, a non-number, NaN (a computation gone wrong, not a free
+    joint: say None) or a value outside the joint limits less :data:`JOINT_MARGIN`."""
     try:
         vals = [math.nan if v is None else float(v) for v in posture]
     except (TypeError, ValueError) as exc:
@@ -220,6 +220,11 @@ def check_posture(robot: RobotDescription, posture: Sequence[float | None]) -> n
         ) from exc
     if len(vals) != 6:
         raise TrajectoryError(f"posture must have 6 entries (one per joint), got {len(vals)}")
+    for i, v in enumerate(posture):
+        if v is not None and math.isnan(vals[i]):
+            raise TrajectoryError(
+                f"posture of joint {i + 1} is NaN; give None to leave a joint free"
+            )
     p = np.array(vals)
     lo, hi = robot.lower + JOINT_MARGIN, robot.upper - JOINT_MARGIN
     for i, v in enumerate(p):

@@ -315,16 +315,13 @@ def _scenarios() -> tuple[str, ...]:
 
 
 def _episode_seconds() -> float:
-    """The length of ``evaluate``'s episodes: the registered time limit of SixAxisTrack-v0."""
-    import gymnasium as gym
+    """The length of ``evaluate``'s episodes: SixAxisTrack-v0's default ``episode_seconds``
+    (its TimeLimit follows it)."""
+    import inspect
 
-    import envs  # noqa: F401  (registers it)
-    from agents.runner import ENV_ID
-    from envs.plant import PHYSICS_DT, SUBSTEPS
+    from envs.sixaxis_track_v0 import SixAxisTrackEnv
 
-    steps = gym.spec(ENV_ID).max_episode_steps
-    assert steps is not None  # registered with a time limit (envs/__init__.py)
-    return steps * PHYSICS_DT * SUBSTEPS
+    return float(inspect.signature(SixAxisTrackEnv).parameters["episode_seconds"].default)
 
 
 def agents() -> None:

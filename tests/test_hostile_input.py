@@ -809,3 +809,100 @@ def test_a_fifo_as_a_policy_file_is_refused_without_waiting(policy, tmp_path):
         load_policy_file(policy)
     res = sixaxis("evaluate", "ppo-residual", "--settings", f'{{"path": "{fifo}"}}')
     one_error_line(res, "fifo.npz", "FIFO")
+
+
+# == the env =========================================================================================
+def test_a_nan_posture_is_refused_and_none_leaves_a_joint_free():
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+    from envs.sixaxis_track_v0 import EnvOptionError
+
+    with pytest.raises(EnvOptionError, match="posture of joint 2 is NaN; give None"):
+        gym.make("SixAxisTrack-v0", posture=[None, float("nan"), None, None, None, None])
+    env = gym.make("SixAxisTrack-v0", posture=[None, -1.6, 0.6, None, None, None])
+    env.reset(seed=0, options={"posture": [None, -1.6, None, None, None, None]})
+    with pytest.raises(ValueError, match="NaN"):
+        env.reset(seed=0, options={"posture": [np.nan] * 6})
+
+
+@pytest.mark.parametrize(
+    "seconds, limit, steps", [(20.0, None, 1000), (3.0, None, 150), (20.0, 700, 700)]
+)
+def test_the_episode_lasts_its_episode_seconds_not_a_registered_500_steps(seconds, limit, steps):
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+
+    kw = {} if limit is None else {"max_episode_steps": limit}
+    env = gym.make("SixAxisTrack-v0", episode_seconds=seconds, **kw)
+    assert env.spec.max_episode_steps == steps
+    env.reset(seed=0)
+    n, done = 0, False
+    while not done:
+        _, _, terminated, truncated, _ = env.step(np.zeros(6))
+        n += 1
+        done = terminated or truncated
+    assert n == steps and truncated
+
+
+def test_a_phase_longer_than_the_envs_episode_is_refused_not_cut_short():
+    from agents.registry import make_agent
+    from agents.runner import EpisodeError, Phase, run_episode
+
+    with pytest.raises(
+        EpisodeError, match=r"0\.5 s asked, but the env's episode ends after 0\.2 s"
+    ):
+        run_episode(
+            make_agent("hold"), {"episode_seconds": 0.2}, seed=0, phases=[Phase("a", 0.5, {})]
+        )
+
+
+def test_a_closed_env_is_not_stepped_until_it_is_reset():
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+    from envs.sixaxis_track_v0 import EnvStateError
+
+    env = gym.make("SixAxisTrack-v0")
+    env.reset(seed=0)
+    env.step(np.zeros(6))
+    env.close()
+    env.close()  # twice is fine
+    base = env.unwrapped
+    with pytest.raises(EnvStateError, match=r"step\(\) after close\(\); reset\(\) it first"):
+        base.step(np.zeros(6))
+    base.reset(seed=0)  # opens it again, as stable-baselines3's checker expects
+    base.step(np.zeros(6))
+
+
+def test_the_observation_stays_in_its_space_whatever_the_temperature_override():
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+    from envs.sixaxis_track_v0 import EnvOptionError, SixAxisTrackEnv
+
+    with pytest.raises(EnvOptionError, match=r"temperature0 = 300 .*\(-50 to 200 degC\).*kelvin"):
+        gym.make(
+            "SixAxisTrack-v0", scenario="thermal", overrides={"thermal": {"temperature0": 300}}
+        )
+    problems = SixAxisTrackEnv.check_options(
+        scenario="payload", overrides={"payload": {"payload1": 500.0}}
+    )
+    assert "payload.payload1 = 500.0" in problems["overrides"]
+    # the hottest start the probe reads, heating far beyond any arm: the probe saturates
+    env = gym.make(
+        "SixAxisTrack-v0",
+        scenario="thermal",
+        overrides={"thermal": {"temperature0": 195.0, "heating": 5.0}},
+        episode_seconds=2.0,
+    )
+    obs, _ = env.reset(seed=0)
+    space = env.observation_space
+    temp = env.unwrapped.task.obs_slices["temperature"]
+    while True:
+        assert space.contains(obs), obs[temp]
+        obs, _, terminated, truncated, _ = env.step(np.full(6, 0.5, dtype=np.float32))
+        if terminated or truncated:
+            break
+    assert obs[temp][0] == 200.0  # saturated, not beyond the space
