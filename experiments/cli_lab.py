@@ -60,6 +60,7 @@ from experiments.cli_output import (
     counted,
     emit_json,
     err_console,
+    fail,
     json_text,
     print_compensation,
     print_diagnosis,
@@ -762,6 +763,14 @@ def compensate_cmd(
     effect_module: ModuleOpt = None,
     length_unit: LengthOpt = "m",
     angle_unit: AngleOpt = "rad",
+    keep_unreached: Annotated[
+        bool,
+        typer.Option(
+            "--keep-unreached",
+            help="Write the joints even where a target is not reached (its row has converged "
+            "= 0) instead of refusing the file.",
+        ),
+    ] = False,
     as_json: JsonOpt = False,
 ) -> None:
     """Joint angles that put the calibrated arm's tool point on each target.
@@ -781,6 +790,9 @@ def compensate_cmd(
         tset = read_targets(targets, length_unit=length_unit, angle_unit=angle_unit)
         with console.status(f"solving {len(tset)} targets..."):
             comp = compensate(cal, tset, nom, nominal_base=nominal_base, target_ids=ids)
+    unreached = comp.unreached()
+    if unreached is not None and not keep_unreached:
+        fail(f"{unreached}; nothing written (--keep-unreached writes them with converged = 0)")
     with writing(output):
         write_joints(comp, output)
     summary = comp.to_dict() | {"output": str(output)}

@@ -16,7 +16,9 @@ The steps, each a pure function of arrays:
 4. A second identifiability pass at the solution with the noise now known (``noise_mm``, else the
    residual's): a parameter whose typical-size error moves the points by less than the noise is
    fixed too, and a parameter only nearly dependent at the start is restored if the data determine
-   it; then a short refit.
+   it; then a short refit. Repeated poses count once here (:func:`distinct_poses`): repeating a
+   pose averages the instrument's noise, not the model's own error, so 8,000 measurements of 60
+   poses determine what 60 poses do.
 5. **Standard errors** from the scaled Jacobian at the solution: ``cov = s^2 (J^T J)^-1`` with
    ``s^2 = sum r^2 / (3N - rank)`` (robust fits: IRLS weights in both).
 
@@ -29,6 +31,7 @@ leaves gross outliers out, calling :func:`fit_rows` on the rows that count;
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -59,7 +62,7 @@ from lab.solver import (
     weighted_gram,
 )
 
-__all__ = ["build_model", "check_plausible", "fit_rows", "identifiability_of"]
+__all__ = ["build_model", "check_plausible", "distinct_poses", "fit_rows", "identifiability_of"]
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +72,13 @@ log = logging.getLogger(__name__)
 # restores every one that the data determine (RANK_TOL and the noise criterion) and refits.
 START_TOL = 1e-2
 IMPLAUSIBLE_RMS = 0.1  # m: after a fit, no real arm's model is this far from most measurements
+
+
+def distinct_poses(data: MeasurementSet) -> int:
+    """How many distinct poses the rows hold: distinct joint readings (with the target and the
+    station, where the data name them)."""
+    keys = [data.q] + [data.columns[c][:, None] for c in ("target", "station") if c in data.columns]
+    return max(1, len(np.unique(np.hstack(keys), axis=0)))
 
 
 def build_model(
@@ -211,7 +221,12 @@ def fit_rows(  # noqa: C901  (the five steps of the module docstring, in the ord
     else:  # the residual's, unless a few gross errors inflate it (then its robust scale)
         rs = robust_sigma(sol.residuals)
         noise = sigma if sigma <= 3.0 * rs else rs
-    ident = identifiability(sol.params, sol.jacobian, noise=noise, warn=True)
+    # Repeated poses average the instrument's noise but not the model's own error: what the poses
+    # determine is judged per distinct pose, as if each were measured once. (480,000 rows of 60
+    # poses made nearly dependent parameters "identifiable" by the row count alone; a missing
+    # effect then drove them to centimetres and the fit was refused as another robot's file.)
+    repeats = len(xyz) / distinct_poses(data)
+    ident = identifiability(sol.params, sol.jacobian, noise=noise * math.sqrt(repeats), warn=True)
     if held.any():
         ident = replace(ident, held=tuple(np.asarray(lay.names)[held]))
     free2 = ident.identifiable & ~held

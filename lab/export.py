@@ -219,9 +219,14 @@ class TargetSet:
     q: np.ndarray | None = None
     columns: dict[str, np.ndarray] = field(default_factory=dict)
     source: str = "<memory>"
+    lines: np.ndarray | None = None  # each target's line in its file
 
     def __len__(self) -> int:
         return len(self.xyz)
+
+    def row_name(self, i: int) -> str:
+        """Target ``i`` (0-based) as the user finds it: ``line 7`` of the file, else ``row 6``."""
+        return f"line {int(self.lines[i])}" if self.lines is not None else f"row {i + 1}"
 
 
 def target_id_list(text: str | None) -> list[int] | None:
@@ -273,7 +278,7 @@ def read_targets(path: str | Path, length_unit: str = "m", angle_unit: str = "ra
     xyz = np.column_stack([col[c] for c in POSITION]) * L
     q = np.column_stack([col[c] for c in JOINTS]) * A if qcols else None
     other = {h: col[h] for h in header if h not in (*POSITION, *JOINTS)}
-    return TargetSet(xyz, q, other, str(path))
+    return TargetSet(xyz, q, other, str(path), table.lines)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -334,19 +339,43 @@ class Compensation:
             "source": self.targets.source,
         }
 
+    def unreached(self) -> CompensationError | None:
+        """The error that names the targets the compensated joint angles do not reach (out of
+        reach, or only beyond the joint limits), or None when every solve met its tolerance."""
+        bad = np.flatnonzero(~self.converged)
+        if not bad.size:
+            return None
+        t = self.targets
+        miss = self.error_mm
+        shown = "; ".join(
+            f"{t.row_name(int(i))}: ({', '.join(f'{v:.4g}' for v in t.xyz[i])}) m missed by "
+            f"{miss[i]:.4g} mm"
+            for i in bad[:5]
+        )
+        more = f"; and {bad.size - 5} more" if bad.size > 5 else ""
+        return CompensationError(
+            f"{t.source}: {bad.size} of {self.n} targets not reached ({shown}{more}): out of the "
+            "arm's reach, or only beyond its joint limits"
+        )
+
     def to_csv(self) -> str:
-        """q1..q6 to command, then the target x, y, z (and target id), and the calibrated model's
-        error of the nominal and of the compensated joint angles (mm)."""
+        """q1..q6 to command, then the target x, y, z (and target id), the calibrated model's
+        error of the nominal and of the compensated joint angles (mm), and whether the solve
+        reached the target (``converged``, 1 or 0)."""
         t = self.targets
         names = [*JOINTS, "x", "y", "z"]
         cols = [self.q, t.xyz]
         if "target" in t.columns:
             names.append("target")
             cols.append(t.columns["target"][:, None])
-        names += ["nominal_error_mm", "error_mm"]
-        cols += [self.error_nominal_mm[:, None], self.error_mm[:, None]]
+        names += ["nominal_error_mm", "error_mm", "converged"]
+        cols += [
+            self.error_nominal_mm[:, None],
+            self.error_mm[:, None],
+            self.converged.astype(float)[:, None],
+        ]
         table = np.hstack(cols)
-        ints = {names.index("target")} if "target" in names else set()
+        ints = {names.index(c) for c in ("target", "converged") if c in names}
         buf = io.StringIO()
         buf.write(f"# sixaxis-track compensated joints, schema_version {SCHEMA_VERSION}\n")
         buf.write(",".join(names) + "\n")
@@ -479,7 +508,7 @@ def compensate(
             q_nom[fail[good]], ok_nom[fail[good]] = res.q[good], True
             fail = fail[~good]
     if not ok_nom.all():
-        log.warning(
+        log.info(  # Compensation.unreached() names them; the caller decides
             "the nominal inverse kinematics did not reach %d of %d targets (out of reach?)",
             int((~ok_nom).sum()),
             n,
@@ -492,7 +521,7 @@ def compensate(
     e_nom = model.predict(inp_nom, p) - targets.xyz
     e = model.predict(inp, p) - targets.xyz
     if not res.converged.all():
-        log.warning(
+        log.info(
             "compensation did not converge for %d of %d targets", int((~res.converged).sum()), n
         )
     return Compensation(

@@ -88,6 +88,10 @@ def implausible(
     return out
 
 
+#: implausible values at most this many times their bound are a model's strain, not a unit slip
+NEAR_BOUND = 2.0
+
+
 def likely_cause(model: ErrorModel, items: list[Implausible]) -> str:
     """The likeliest reason for these implausible parameters, from their pattern."""
     rob = model.robot
@@ -117,6 +121,13 @@ def likely_cause(model: ErrorModel, items: list[Implausible]) -> str:
             )
         if 0.02 < abs(r) < 0.05 or 20 < abs(r) < 50:
             return "lengths in inches or another unit: check the data's and the arm's units"
+    if all(abs(it.value) <= NEAR_BOUND * it.bound for it in items):
+        # just beyond the bound: no unit slip (those are 57 or 1000 times off) but the model
+        # leaning on parameters the poses barely separate to explain what it lacks
+        return (
+            "an effect the model lacks (sixaxis lab diagnose), taken up by parameters the poses "
+            "barely separate; or another robot's file or convention"
+        )
     quarter = [a for a in angles if abs(a) > 0.3 and _near_quarter_turn(a)]
     if quarter:
         return (

@@ -906,3 +906,111 @@ def test_the_observation_stays_in_its_space_whatever_the_temperature_override():
         if terminated or truncated:
             break
     assert obs[temp][0] == 200.0  # saturated, not beyond the space
+
+
+# == the lab on hard data ============================================================================
+def _gross(d, share: float, seed: int):
+    """``d`` with ``share`` of its points moved 2-8 mm in random directions; the rows moved."""
+    from arm.measurements import MeasurementSet
+
+    rng = np.random.default_rng(seed)
+    k = round(share * len(d))
+    idx = np.sort(rng.choice(len(d), k, replace=False))
+    u = rng.normal(size=(k, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    xyz = d.xyz.copy()
+    xyz[idx] += u * rng.uniform(2e-3, 8e-3, (k, 1))
+    return MeasurementSet(d.q, xyz, d.columns, d.source), idx
+
+
+@pytest.mark.parametrize("effects", ["geometric", "geometric,compliance"])
+@pytest.mark.parametrize("loss", ["linear", "huber"])
+def test_forty_percent_gross_outliers_are_not_called_a_calibration(tmp_path, effects, loss):
+    """The issue's case: 40 % of 60 poses 2-8 mm off gave a plain exit-0 "3.2 mm fit"
+    (2.8 mm with huber). Least squares hides them; the trimmed fit finds them, and beyond the
+    stated 10 % the lab refuses, naming the fraction and the rows; --outliers keep still fits."""
+    d = campaign(seed_robot(), effects, seed=40).measure(60)
+    bad, idx = _gross(d, 0.4, 1)
+    path = tmp_path / "gross.csv"
+    write_measurements(bad, path)
+    out = tmp_path / "fit.json"
+    err = one_error_line(
+        sixaxis("lab", "fit", path, "--loss", loss, "--out", out),
+        "gross.csv",
+        f"{len(idx)} of 60 poses (40 %) are gross outliers",
+        "more than the 10 %",
+        "not a calibration",
+        f"line {idx[0] + 2}",
+        "--outliers keep",
+    )
+    assert "2." in err and not out.exists()
+    res = sixaxis("lab", "fit", path, "--loss", loss, "--outliers", "keep", "--json")
+    assert res.exit_code == 0, res.output
+
+
+def test_a_few_gross_outliers_are_still_left_out_by_line():
+    from lab import fit
+
+    d = campaign(seed_robot(), "geometric", seed=41).measure(100)
+    bad, idx = _gross(d, 0.05, 2)
+    res = fit(bad, seed_robot(), "geometric")
+    assert list(res.outliers) == list(idx)
+
+
+def test_repeated_poses_fit_as_their_distinct_poses_do():
+    """The same 60 poses measured 200 times with fresh noise (the issue's 480,000 rows, scaled
+    down). Judged by rows, the noise let nearly dependent parameters in, the missing compliance
+    drove them past a centimetre and the fit was refused as "another robot's file"; judged by
+    distinct poses, it fits as the 60 do."""
+    from arm.measurements import MeasurementSet
+    from lab import fit
+
+    c = campaign(seed_robot(), "geometric,compliance", seed=5)
+    once = c.measure(60)
+    exact = c.truth.predict(c.truth.inputs(once.q, once.columns), c.params)
+    rng = np.random.default_rng(3)
+    reps, sigma = 200, 15e-6
+    q = np.tile(once.q, (reps, 1))
+    cols = {k: np.tile(v, reps) for k, v in once.columns.items()}
+    xyz = np.tile(exact, (reps, 1)) + rng.normal(0, sigma, (60 * reps, 3))
+    many = MeasurementSet(q, xyz, cols, "repeated")
+    mean = MeasurementSet(once.q, xyz.reshape(reps, 60, 3).mean(axis=0), once.columns)
+    res = fit(many, seed_robot(), "geometric", noise_mm=1e3 * sigma)
+    ref = fit(mean, seed_robot(), "geometric", noise_mm=1e3 * sigma)
+    assert res.n_points == 60 * reps and not res.implausible
+    assert res.rank == ref.rank and res.unidentifiable == ref.unidentifiable
+    np.testing.assert_allclose(res.params, ref.params, atol=1e-9)
+
+
+def test_one_row_beyond_a_joint_limit_is_named(data, tmp_path):
+    def beyond(lines):
+        cells = lines[8].split(",")
+        cells[2] = "2.5"  # q3 of the seed arm lies within [-1.6, 1.6] rad
+        lines[8] = ",".join(cells)
+        return lines
+
+    path = _rewrite(data, tmp_path / "q3.csv", beyond)
+    one_error_line(
+        sixaxis("lab", "fit", path),
+        "q3.csv, line 9, column 'q3'",
+        "2.5 rad is beyond joint 3's limits [-1.6, 1.6]",
+        "typo",
+    )
+
+
+def test_a_target_out_of_reach_is_refused_or_marked_failed(tmp_path):
+    targets = tmp_path / "targets.csv"
+    targets.write_text("x,y,z\n0.8,0.0,0.8\n10,0,0\n")
+    out = tmp_path / "joints.csv"
+    one_error_line(
+        sixaxis("lab", "compensate", targets, "--robot", "seed", "-o", out),
+        "targets.csv: 1 of 2 targets not reached",
+        "line 3: (10, 0, 0) m missed by",
+        "nothing written",
+        "--keep-unreached",
+    )
+    assert not out.exists()
+    res = sixaxis("lab", "compensate", targets, "--robot", "seed", "-o", out, "--keep-unreached")
+    assert res.exit_code == 0, res.output
+    rows = [line.split(",") for line in out.read_text().splitlines()[1:]]
+    assert rows[0][-1] == "converged" and [r[-1] for r in rows[1:]] == ["1", "0"]
