@@ -344,7 +344,7 @@ def save_policy_file(
     return path
 
 
-def load_policy_file(path: str | Path) -> tuple[PolicyNetwork, dict[str, Any]]:  # noqa: C901  (one reader: each branch refuses one way a policy file can be wrong)
+def load_policy_file(path: str | Path) -> tuple[PolicyNetwork, dict[str, Any]]:
     """The network and description of a policy file (``.npz`` with its ``.json``), loaded without
     unpickling; anything else (a stable-baselines3 ``.zip``, a pickle) is refused."""
     path = Path(path)
@@ -493,6 +493,20 @@ def check_policy_description(meta: Any, where: str) -> None:
         raise PolicyFileError(f"{where}: algo {algo!r} is not one of {', '.join(ALGOS)}")
     if variant not in VARIANTS:
         raise PolicyFileError(f"{where}: variant {variant!r} is not one of {', '.join(VARIANTS)}")
+    _check_sizes(meta, variant, where)
+    kw = meta["policy_kwargs"]
+    if not isinstance(kw, dict):
+        raise PolicyFileError(f"{where}: policy_kwargs must be an object, got {kw!r}")
+    _check_policy_kwargs(algo, kw, where)
+    total = _network_parameters(algo, kw, meta["obs_size"], meta["act_size"], where)
+    if total > MAX_NETWORK_PARAMETERS:
+        raise PolicyFileError(
+            f"{where}: the network has {total:,} parameters, more than the "
+            f"{MAX_NETWORK_PARAMETERS:,} a policy file may describe"
+        )
+
+
+def _check_sizes(meta: dict, variant: str, where: str) -> None:
     obs, act = meta["obs_size"], meta["act_size"]
     if not _is_int(obs) or not 1 <= obs <= MAX_OBS_SIZE:
         raise PolicyFileError(
@@ -506,9 +520,9 @@ def check_policy_description(meta: Any, where: str) -> None:
         raise PolicyFileError(f"{where}: offset_mm must be a positive number of mm, got {offset!r}")
     if not isinstance(meta.get("use_sde", False), bool):
         raise PolicyFileError(f"{where}: use_sde must be true or false, got {meta['use_sde']!r}")
-    kw = meta["policy_kwargs"]
-    if not isinstance(kw, dict):
-        raise PolicyFileError(f"{where}: policy_kwargs must be an object, got {kw!r}")
+
+
+def _check_policy_kwargs(algo: str, kw: dict, where: str) -> None:
     unknown = sorted(set(kw) - POLICY_KWARGS[algo])
     if unknown:
         raise PolicyFileError(
@@ -530,6 +544,11 @@ def check_policy_description(meta: Any, where: str) -> None:
     critics = kw.get("n_critics", 2)
     if not _is_int(critics) or not 1 <= critics <= 10:
         raise PolicyFileError(f"{where}: policy_kwargs.n_critics must be 1 to 10, got {critics!r}")
+
+
+def _network_parameters(algo: str, kw: dict, obs: int, act: int, where: str) -> int:
+    """How many parameters the network of ``net_arch`` has (the actor and its critics), each
+    layer checked first: up to :data:`MAX_LAYERS` of at most :data:`MAX_LAYER_UNITS` units."""
     arch = kw.get("net_arch", [64, 64])
     heads = _ARCH_KEYS[algo]
     if isinstance(arch, dict):
@@ -541,6 +560,7 @@ def check_policy_description(meta: Any, where: str) -> None:
         layers = {h: arch.get(h, []) for h in heads}
     else:
         layers = {h: arch for h in heads}
+    critics = kw.get("n_critics", 2)
     total = 0
     for head, units in layers.items():
         if (
@@ -557,11 +577,7 @@ def check_policy_description(meta: Any, where: str) -> None:
             sizes[0] = obs + act  # a Q-function reads the action too
         n = sum((a + 1) * b for a, b in itertools.pairwise(sizes))
         total += n * (critics if head == "qf" else 1)
-    if total > MAX_NETWORK_PARAMETERS:
-        raise PolicyFileError(
-            f"{where}: the network has {total:,} parameters, more than the "
-            f"{MAX_NETWORK_PARAMETERS:,} a policy file may describe"
-        )
+    return total
 
 
 # --------------------------------------------------------------------------------------------------
