@@ -254,11 +254,11 @@ def load_train_config(path: str | Path, **overrides: Any) -> TrainConfig:
     refused, naming the file and the key."""
     import tomllib
 
+    from arm.files import read_input_text
+
     path = Path(path)
     try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise TrainConfigError(f"{path}: config file not found") from None
+        doc = tomllib.loads(read_input_text(path, "config file", "toml", TrainConfigError))
     except tomllib.TOMLDecodeError as exc:
         raise TrainConfigError(f"{path}: not valid TOML: {exc}") from exc
     table = doc.get("train")

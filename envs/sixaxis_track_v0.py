@@ -73,7 +73,8 @@ def _outside_observation(overrides: Any) -> str | None:
 
 def make_env(**kwargs: Any) -> gym.Env:
     """``SixAxisTrack-v0`` as ``gym.make`` builds it: the env in a ``TimeLimit`` of its own
-    ``episode_seconds`` (500 steps by default), so that the episode and the limit agree."""
+    ``episode_seconds`` (500 steps by default), so that the episode and the limit agree.
+    ``make_env.env_class`` is the env's class (its options, ``check_options``)."""
     env = SixAxisTrackEnv(**kwargs)
     return TimeLimit(env, env.episode_steps)
 
@@ -826,3 +827,6 @@ class SixAxisTrackEnv(gym.Env):
                 mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_CAPSULE, 0.0025, a, b)
         if trail:
             add(mujoco.mjtGeom.mjGEOM_SPHERE, (0.008, 0, 0), trail[-1], blue)
+
+
+make_env.env_class = SixAxisTrackEnv  # type: ignore[attr-defined]

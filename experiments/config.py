@@ -96,6 +96,7 @@ from arm.constraints import (
     type_name,
 )
 from arm.errors import SixAxisError
+from arm.files import input_problem
 from experiments.metrics import (
     DEFAULT_CONVERGE_MM,
     DEFAULT_METRICS,
@@ -458,6 +459,9 @@ def _is(v: Any, types_: type | tuple[type, ...]) -> bool:
 def load_config(path: str | Path, check_agents: bool = True) -> ExperimentConfig:
     """Read and validate an experiment config file; :class:`ConfigError` names every problem."""
     p = Path(path)
+    why = input_problem(p, "config")  # a FIFO would wait for ever, /dev/zero never end
+    if why and "not found" not in why:
+        raise ConfigError(str(p), [why])
     try:
         raw = tomllib.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -810,10 +814,11 @@ def _env_class(env_id: str):
 
     spec = gym.spec(env_id)
     ep = spec.entry_point
-    if callable(ep):
-        return ep
-    module, _, attr = str(ep).partition(":")
-    return getattr(importlib.import_module(module), attr)
+    if not callable(ep):
+        module, _, attr = str(ep).partition(":")
+        ep = getattr(importlib.import_module(module), attr)
+    # a factory (SixAxisTrack-v0's wraps the env in a TimeLimit of its own length) names its class
+    return getattr(ep, "env_class", ep)
 
 
 def known_scenarios(env_id: str = DEFAULT_ENV_ID) -> tuple[str, ...] | None:
