@@ -494,8 +494,12 @@ def train(
 
     cfg.check()
     out = Path(cfg.output)
+    from arm.files import atomic_write_text, folder_problem, shown
+
+    why = folder_problem(out) or (f"{out} is not a directory" if out.is_file() else None)
+    if why:  # a name too long, a file in the way, a read-only place: before any training
+        raise TrainConfigError(f"output {shown(out)}: cannot write the run there: {why}")
     out.mkdir(parents=True, exist_ok=True)
-    from arm.files import atomic_write_text
 
     atomic_write_text(out / "config.json", json.dumps(cfg.to_dict(), indent=2) + "\n")
     seeds = cfg.training_seeds()

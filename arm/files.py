@@ -159,6 +159,9 @@ def folder_problem(folder: str | Path) -> str | None:
     """Why no file can be created in ``folder``, or in the nearest folder above it that exists
     (where it would be made): ``"... is not a directory"``, ``"cannot write in ... (reason)"``;
     None when a probe file can be made there (it is removed at once)."""
+    why = _length_problem(Path(folder))
+    if why:
+        return why
     parent = Path(folder).absolute()
     while not os.path.exists(parent) and parent != parent.parent:
         parent = parent.parent

@@ -103,8 +103,8 @@ def sweep(
     out_dir = out if out is not None else Path("runs") / cfg.name
     with user_errors():  # every check before any work (and before the progress bar)
         store = RunStore(out_dir)
-        pending, finished = plan_sweep(cfg, store, retry_failed, overwrite)
         store.check_writable()
+        pending, finished = plan_sweep(cfg, store, retry_failed, overwrite)
         if backend == "dask" and address and not dry_run:
             check_scheduler(address)
     if dry_run:

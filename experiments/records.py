@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from arm.errors import SixAxisError
-from arm.files import OutputError, atomic_write_text, folder_problem
+from arm.files import OutputError, atomic_write_text, folder_problem, shown
 
 __all__ = [
     "RECORD_SCHEMA",
@@ -214,7 +214,7 @@ def check_writable_dir(folder: str | Path, what: str = "files") -> None:
     Creates nothing."""
     why = folder_problem(folder)
     if why:
-        raise RecordError(f"{folder}: cannot write {what} there: {why}")
+        raise RecordError(f"{shown(folder)}: cannot write {what} there: {why}")
 
 
 class RunStore:
