@@ -1014,3 +1014,15 @@ def test_a_target_out_of_reach_is_refused_or_marked_failed(tmp_path):
     assert res.exit_code == 0, res.output
     rows = [line.split(",") for line in out.read_text().splitlines()[1:]]
     assert rows[0][-1] == "converged" and [r[-1] for r in rows[1:]] == ["1", "0"]
+
+
+def test_over_long_output_folders_of_sweep_leaderboard_and_train_are_one_line(tmp_path):
+    long = tmp_path / ("r" * 300)
+    config = ROOT / "experiments" / "configs" / "quick.toml"
+    one_error_line(sixaxis("sweep", config, "-o", long, "--dry-run"), "name of 300 bytes")
+    one_error_line(sixaxis("leaderboard", tmp_path, "-o", long), "rrrr")
+    train = ROOT / "experiments" / "configs" / "ppo-residual.toml"
+    one_error_line(
+        sixaxis("train", "ppo", "--config", train, "--output", long), "name of 300 bytes"
+    )
+    assert list(tmp_path.iterdir()) == []
