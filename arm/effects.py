@@ -79,6 +79,9 @@ REFERENCE_TEMPERATURE = 20.0  # degC, where thermal growth is zero
 # a compliance ten times that of a soft harmonic drive, a gap of 20 arcmin, kappa of 2.3e-4/K
 # (ten times aluminium's) come from the data's units or another robot, not from the arm.
 PLAUSIBLE_FACTOR = 10.0
+#: the largest value a basis (a joint-angle regressor) may take: far from overflow when squared,
+#: as the readers' bound on any other column (arm.ranges.MAX_EXTRA)
+MAX_BASIS = 1e12
 
 
 _SOURCES: dict[type, str] = {}  # the file each --effect-module class was loaded from
@@ -256,6 +259,8 @@ class JointAngleEffect(Effect):
         what = f"basis(joint {joint}, term {term!r})"
         with user_code(self, what):
             value = self.basis(inputs, joint, term)
+        if np.iscomplexobj(value):
+            raise EffectError(f"{effect_origin(self)}: {what} returned complex numbers")
         try:
             b = np.asarray(value, dtype=float)
         except (TypeError, ValueError):
@@ -275,6 +280,12 @@ class JointAngleEffect(Effect):
             raise EffectError(
                 f"{effect_origin(self)}: {what} returned {b[bad[0]]} at pose {bad[0] + 1} "
                 f"({bad.size} of {inputs.n} poses not finite)"
+            )
+        huge = np.flatnonzero(np.abs(b) > MAX_BASIS)
+        if huge.size:
+            raise EffectError(
+                f"{effect_origin(self)}: {what} returned {b[huge[0]]:g} at pose {huge[0] + 1}, "
+                f"beyond {MAX_BASIS:g} (a regressor must stay far from overflow when squared)"
             )
         return b
 

@@ -475,6 +475,8 @@ def test_a_modules_sys_exit_at_import_is_one_line(data, tmp_path, code, catalogu
         ("1 / 0", ["raised ZeroDivisionError: division by zero"]),
         ("__import__('sys').exit(0)", ["raised SystemExit"]),
         ("inputs.q[:, joint - 1] * {}['x']", ["raised KeyError"]),
+        ("np.full(inputs.n, 1e300)", ["returned 1e+300 at pose 1, beyond 1e+12"]),
+        ("np.ones(inputs.n) * 1j", ["returned complex numbers"]),
     ],
 )
 @pytest.mark.parametrize("command", ["fit", "diagnose"])
