@@ -213,7 +213,10 @@ RobotOpt = Annotated[
     typer.Option(
         "--robot",
         "-r",
-        help="The nominal arm: a robot TOML or URDF file, or a shipped name.",
+        help=(
+            "The nominal arm: a robot TOML or URDF file, or a shipped name; a URDF's chain "
+            "may follow it: 'ur5_robot.urdf#tip=tool0,base=base'."
+        ),
         metavar="FILE|NAME",
     ),
 ]

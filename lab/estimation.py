@@ -62,7 +62,14 @@ from lab.solver import (
     weighted_gram,
 )
 
-__all__ = ["build_model", "check_plausible", "distinct_poses", "fit_rows", "identifiability_of"]
+__all__ = [
+    "build_model",
+    "check_plausible",
+    "distinct_poses",
+    "fit_rows",
+    "identifiability_of",
+    "model_of",
+]
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +88,7 @@ def distinct_poses(data: MeasurementSet) -> int:
     return max(1, len(np.unique(np.hstack(keys), axis=0)))
 
 
-def build_model(
+def model_of(
     data: MeasurementSet,
     robot: RobotDescription,
     effects: str | Sequence[str | Effect],
@@ -102,7 +109,19 @@ def build_model(
         why = missing_inputs(e, model.robot, list(data.columns))
         if why:
             raise FitError(f"{data.source}: {e.label} cannot be fitted without {why}")
-    inputs = inputs_of(model, data)
+    return model, inputs_of(model, data)
+
+
+def build_model(
+    data: MeasurementSet,
+    robot: RobotDescription,
+    effects: str | Sequence[str | Effect],
+    measured: tuple[str, ...] | None = None,
+    noise: InstrumentNoise | None = None,
+) -> tuple[ErrorModel, ModelInputs]:
+    """:func:`model_of`, refused where the data give no more equations than it has parameters."""
+    model, inputs = model_of(data, robot, effects, measured, noise)
+    turn = model.orientation
     n, P = len(data), len(model.layout)
     equations = 3 * n
     if turn:
@@ -342,24 +361,28 @@ def identifiability_of(
     params: Mapping[str, float] | None = None,
     *,
     noise_mm: float | None = None,
+    noise_ppm: float = 0.0,
+    noise_mrad: float | None = None,
+    measured: tuple[str, ...] | None = None,
 ) -> Identifiability:
     """Which parameters of ``effects`` the poses of ``data`` (a measurement set, or joint angles
     (N, 6) alone) can identify, at ``params`` (default nominal): rank, named unidentifiable
-    combinations, condition number, O1 and O4. With ``noise_mm`` parameters whose typical-size
-    error moves the points by less than the noise are counted unidentifiable too."""
+    combinations, condition number, O1 and O4. The rows are the fit's (:mod:`lab.observations`):
+    one base per tracker station, the measured orientations where their uncertainty is stated
+    (``noise_mrad``, ``std_rx..std_rz``) or ``measured`` names them, each row weighted by the
+    instrument model (``noise_mm``, ``noise_ppm``, ``noise_mrad``, as :class:`lab.LabOptions`).
+    With a noise known, parameters whose typical-size error moves the rows by less than the
+    noise are counted unidentifiable too."""
+    options = LabOptions(
+        noise_mm=noise_mm, noise_ppm=noise_ppm, noise_mrad=noise_mrad, measured=measured
+    )
     robot = as_robot(robot)
     if isinstance(data, np.ndarray):
         data = MeasurementSet(data, np.zeros((len(np.atleast_2d(data)), 3)), source="poses")
     data = as_measurements(data)
-    try:
-        model = ErrorModel(robot, effects, targets=data.targets)
-    except EffectError as exc:
-        raise FitError(str(exc)) from None
-    for e in model.effects:
-        why = missing_inputs(e, model.robot, list(data.columns))
-        if why:
-            raise FitError(f"{data.source}: {e.label} cannot be fitted without {why}")
-    inputs = inputs_of(model, data)
+    model, inputs = model_of(data, robot, effects, options.measured, options.instrument)
+    obs = observations_of(data, options.instrument, options.measured)
     p = model.nominal() if not params else model.layout.vector(params, default=model.nominal())
-    _, J = model.predict(inputs, p, jacobian=True)
-    return analyse_jacobian(model, J, noise=None if noise_mm is None else noise_mm * 1e-3)
+    J = obs.rows(model, inputs, p)[1]
+    noise = options.noise if obs.plain else obs.sigma_ref
+    return analyse_jacobian(model, J, noise=noise)

@@ -162,3 +162,19 @@ def test_the_report_says_what_was_fitted_beyond_points(campaign, tmp_path):
     assert "tracker stations 1, 2, one base each" in html
     assert "orientations fitted too" in html and "weighted by its stated uncertainty" in html
     assert "validation station(s) 3 not in the fit" in html
+
+
+def test_identifiability_of_the_poses_is_the_fits_own(campaign):
+    """lab.identifiability_of, asked before any fit, sees the rows a fit would: one base per
+    station and the orientation rows where their uncertainty is stated. Its rank is the rank of
+    the fit's identification at the nominal arm, and the orientation rows raise it there too."""
+    _, data, _, _ = campaign
+    positions = lab.identifiability_of(data, "seed", measured=("x", "y", "z"))
+    poses = lab.identifiability_of(data, "seed")
+    assert {"bx2", "trx"} <= set(poses.names)
+    assert "trx" not in positions.names
+    assert poses.rank - 3 > positions.rank
+    assert poses.condition_number < positions.condition_number
+    fitted = _quiet_fit(data)
+    assert set(poses.names) == set(fitted.names)
+    assert poses.rank == fitted.rank
