@@ -383,6 +383,7 @@ def identifiability_of(
     model, inputs = model_of(data, robot, effects, options.measured, options.instrument)
     obs = observations_of(data, options.instrument, options.measured)
     p = model.nominal() if not params else model.layout.vector(params, default=model.nominal())
-    J = obs.rows(model, inputs, p)[1]
+    _, J = obs.rows(model, inputs, p)
+    assert J is not None  # rows(..., jacobian=True)
     noise = options.noise if obs.plain else obs.sigma_ref
     return analyse_jacobian(model, J, noise=noise)
