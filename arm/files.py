@@ -444,7 +444,17 @@ def read_input_bytes(
                 f"{path}: {_size_text(st.st_size)}; {what}s are read up to {_size_text(limit)}"
             )
         try:
-            data = fh.read(limit + 1)
+            # as much as the file holds (a read of the limit would allocate the limit), then on
+            # in chunks while it grows, up to one byte past the limit
+            chunks = [fh.read(st.st_size + 1)]
+            size = len(chunks[0])
+            while size > st.st_size and size <= limit:
+                more = fh.read(min(1 << 20, limit + 1 - size))
+                if not more:
+                    break
+                chunks.append(more)
+                size += len(more)
+            data = b"".join(chunks)
         except OSError as exc:
             raise error(f"{path}: cannot be read ({exc.strerror or exc})") from None
     if len(data) > limit:

@@ -240,6 +240,23 @@ def test_an_input_beyond_its_size_limit_is_refused_unread(tmp_path, monkeypatch)
         read_input_text(big)
 
 
+def test_a_small_input_costs_its_size_not_the_limit(tmp_path):
+    """The reader allocates what the file holds: a read of the 1 GiB limit made every CSV read
+    cost a 1 GiB buffer (the lab's memory benchmark saw it)."""
+    import tracemalloc
+
+    small = tmp_path / "small.csv"
+    small.write_text("q1\n" + "0.5\n" * 1000)
+    tracemalloc.start()
+    try:
+        text = read_input_text(small)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert text.count("\n") == 1001
+    assert peak < 100_000, peak
+
+
 # == the measurement CSV ============================================================================
 def _rewrite(data: Path, dest: Path, edit) -> Path:
     lines = data.read_text().splitlines()
