@@ -719,6 +719,8 @@ def ship_policy(
     name = name or str(meta["name"])
     dst = POLICY_DIR / f"{name}.npz"
     meta = dict(meta) | {"name": name, "source": f"{run_dir.name}/{which}.npz"}
+    # where the run wrote its records, as the default would name it (no path of this machine)
+    meta["config"] = dict(meta.get("config") or {}) | {"output": f"runs/{run_dir.name}"}
     summary_path = run_dir / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
     wall = summary.get("wall_s")
