@@ -304,15 +304,25 @@ class _WarningCollector(logging.Handler):
 
 @contextlib.contextmanager
 def _collect_warnings() -> Iterator[list[str]]:
+    """The run's logged warnings and its Python warnings (the lab's cautions are
+    ``SixAxisWarning`` s), once each, for its record instead of the workers' stderr."""
     # A spawned worker's root logger has no handler, so without this one logging's last resort
     # would print each warning to stderr; in this process the caller's handlers still see them.
+    import warnings
+
     root = logging.getLogger()
     collector = _WarningCollector()
     root.addHandler(collector)
     try:
-        yield collector.messages
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            yield collector.messages
     finally:
         root.removeHandler(collector)
+        for w in caught:
+            text = f"{w.category.__name__}: {w.message}"
+            if text not in collector.messages:
+                collector.messages.append(text)
 
 
 @contextlib.contextmanager

@@ -267,3 +267,33 @@ def test_a_record_whose_spec_was_edited_is_refused(tmp_path):
     path.write_text(json.dumps(rec))
     res = runner.invoke(app, ["reproduce", str(path)])
     one_line_refusal(res, "the record was edited, it is not the run it names")
+
+
+def cautious_run(spec):
+    """A run whose code issues a Python warning (as the lab's cautions are) and logs one."""
+    import logging
+    import warnings
+
+    from arm.errors import SixAxisWarning
+
+    warnings.warn("poor pose set: deliberate", SixAxisWarning, stacklevel=1)
+    logging.getLogger("agents.test").warning("a logged caution")
+    return {"metrics": {"rms_mm": 1.0}}
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_a_runs_warnings_go_to_its_record_not_the_terminal(tmp_path, capfd, workers):
+    raw = {
+        "name": "w",
+        "seeds": [0],
+        "episode_seconds": 1.0,
+        "settle_seconds": 0.5,
+        "metrics": ["rms_mm"],
+        "scenarios": ["geometric"],
+        "agents": ["hold"],
+    }
+    run_sweep(parse_config(raw, source="w.toml"), tmp_path, workers=workers, run_fn=cautious_run)
+    rec = RunStore(tmp_path).load("hold__geometric__seed0")
+    assert "SixAxisWarning: poor pose set: deliberate" in rec["warnings"]
+    assert "agents.test: a logged caution" in rec["warnings"]
+    assert "poor pose set" not in capfd.readouterr().err
