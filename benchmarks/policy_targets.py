@@ -1,6 +1,8 @@
-"""The learned policies against their targets, on the leaderboard's own episodes.
+"""The learned policies against their targets, on the public episodes the policy files record
+(the leaderboard's scenarios, env and episode on seeds 0-4; the leaderboard itself draws its
+seeds) and on held-out ones.
 
-The runs are the leaderboard's (``experiments/configs/full.toml``: its scenarios, seeds, env
+The runs are the leaderboard's (``experiments/configs/full.toml``: its scenarios, env
 options, episode and settling time), made by the sweep's own ``execute_run``, for ``hold``,
 ``nominal``, ``feedforward`` and the shipped policies. Targets (issue "learning baselines that
 learn"), on the settled RMS (``rms_settled_mm``), mean over the seeds:
@@ -100,7 +102,7 @@ def main() -> None:
     lines = [
         "# Learned policies against their targets",
         "",
-        f"Made by `python benchmarks/policy_targets.py` on the leaderboard's episodes "
+        f"Made by `python benchmarks/policy_targets.py` on the public episodes "
         f"(`{report['config']}`: seeds {cfg.seeds[0]}-{cfg.seeds[-1]}, settling time "
         f"{cfg.settle_seconds:g} s)"
         + (
@@ -113,7 +115,7 @@ def main() -> None:
         + ("" if clean else " (with local changes)")
         + ".",
         "",
-        "## The leaderboard's episodes",
+        "## The public episodes (the leaderboard's scenarios on seeds 0-4)",
         "",
         *_section(report, names, scenarios),
     ]
