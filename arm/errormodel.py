@@ -77,6 +77,19 @@ def _finite(
         raise EffectError(f"{who}: {what} gave NaN or infinity")
 
 
+def _index_of_ids(values: np.ndarray, ids: tuple[int, ...], what: str, source: str) -> np.ndarray:
+    """Each of ``values``' index into the model's ``ids`` (its targets or stations); an
+    EffectError names the ``what`` id(s) among ``values`` that the model does not have."""
+    arr = np.array(ids)
+    order = np.argsort(arr)
+    pos = np.clip(np.searchsorted(arr[order], values), 0, len(arr) - 1)
+    found = arr[order][pos] == values
+    if not found.all():
+        unknown = sorted({int(v) for v in values[~found]})
+        raise EffectError(f"{source}: {what} id(s) {unknown} not among the model's {ids}")
+    return order[pos]
+
+
 class ErrorModel:
     """A robot description with a list of effects; see the module docstring."""
 
@@ -177,16 +190,7 @@ class ErrorModel:
             t = cols["target"]
             if np.any(t != np.round(t)):
                 raise EffectError(f"{source}: target ids must be integers")
-            ids = np.array(self.targets)
-            order = np.argsort(ids)
-            pos = np.clip(np.searchsorted(ids[order], t), 0, len(ids) - 1)
-            found = ids[order][pos] == t
-            if not found.all():
-                unknown = sorted({int(v) for v in t[~found]})
-                raise EffectError(
-                    f"{source}: target id(s) {unknown} not among the model's {self.targets}"
-                )
-            target = order[pos]
+            target = _index_of_ids(t, self.targets, "target", source)
         else:
             if len(self.targets) > 1:
                 raise EffectError(
@@ -209,17 +213,7 @@ class ErrorModel:
                     f"{source}: station id(s) {other} not among the model's {self.stations}"
                 )
             return np.zeros(n, dtype=int)
-        s = cols["station"]
-        ids = np.array(self.stations)
-        order = np.argsort(ids)
-        pos = np.clip(np.searchsorted(ids[order], s), 0, len(ids) - 1)
-        found = ids[order][pos] == s
-        if not found.all():
-            unknown = sorted({int(v) for v in s[~found]})
-            raise EffectError(
-                f"{source}: station id(s) {unknown} not among the model's {self.stations}"
-            )
-        return order[pos]
+        return _index_of_ids(cols["station"], self.stations, "station", source)
 
     # -- evaluation ---------------------------------------------------------------------------
     def _values(self, p: np.ndarray, effect: Effect) -> np.ndarray:
