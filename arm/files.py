@@ -398,16 +398,25 @@ def check_input_file(
 ) -> Path:
     """``path`` if it is a regular file no larger than ``MAX_INPUT_BYTES[kind]``, else ``error``
     naming it (for readers that open the file themselves: an import, ``numpy.load``)."""
+    path = _regular_file(path, what, error)
+    size = os.stat(path).st_size
+    if size > MAX_INPUT_BYTES[kind]:
+        raise error(_too_large(path, size, what, MAX_INPUT_BYTES[kind]))
+    return path
+
+
+def _regular_file(path: str | Path, what: str, error: type[Exception]) -> Path:
+    """``path`` as a Path if :func:`input_problem` finds nothing wrong, else ``error`` saying
+    what is."""
     path = Path(path)
     why = input_problem(path, what)
     if why:
         raise error(f"{shown(path)}: {why}")
-    size = os.stat(path).st_size
-    if size > MAX_INPUT_BYTES[kind]:
-        raise error(
-            f"{path}: {_size_text(size)}; {what}s are read up to {_size_text(MAX_INPUT_BYTES[kind])}"
-        )
     return path
+
+
+def _too_large(path: Path, size: int, what: str, limit: int) -> str:
+    return f"{path}: {_size_text(size)}; {what}s are read up to {_size_text(limit)}"
 
 
 def _size_text(n: int) -> str:
@@ -426,11 +435,8 @@ def read_input_bytes(
     """The bytes of the regular file ``path``, at most ``MAX_INPUT_BYTES[kind]``. Anything else
     (missing, a directory, a FIFO, a device, too large, unreadable) is ``error`` naming the file:
     the file is opened without blocking and checked on its descriptor before a byte is read."""
-    path = Path(path)
+    path = _regular_file(path, what, error)
     limit = MAX_INPUT_BYTES[kind]
-    why = input_problem(path, what)
-    if why:
-        raise error(f"{shown(path)}: {why}")
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except OSError as exc:
@@ -440,9 +446,7 @@ def read_input_bytes(
         if not stat.S_ISREG(st.st_mode):  # replaced since it was looked at
             raise error(f"{path}: is {_kind(st.st_mode)}, not a regular file")
         if st.st_size > limit:
-            raise error(
-                f"{path}: {_size_text(st.st_size)}; {what}s are read up to {_size_text(limit)}"
-            )
+            raise error(_too_large(path, st.st_size, what, limit))
         try:
             # as much as the file holds (a read of the limit would allocate the limit), then on
             # in chunks while it grows, up to one byte past the limit
