@@ -566,17 +566,21 @@ def test_the_csv_readers_read_or_refuse_any_text(text):
         assert str(exc).startswith("poses.csv"), exc
 
 
+def _reads_or_refuses_bytes(path, raw: bytes, read, error: type[Exception]) -> None:
+    """``read`` of a file holding ``raw`` returns, or raises ``error`` naming the file first."""
+    path.write_bytes(raw)
+    try:
+        read(path)
+    except error as exc:
+        assert str(exc).startswith(str(path)), exc
+
+
 @PROPERTY
 @given(raw=st.binary(max_size=300))
 def test_the_csv_file_reader_reads_or_refuses_any_bytes(tmp_path, raw):
     from arm.measurements import MeasurementError, read_measurements
 
-    path = tmp_path / "raw.csv"
-    path.write_bytes(raw)
-    try:
-        read_measurements(path)
-    except MeasurementError as exc:
-        assert str(exc).startswith(str(path)), exc
+    _reads_or_refuses_bytes(tmp_path / "raw.csv", raw, read_measurements, MeasurementError)
 
 
 TOML_VALUES = st.recursive(
@@ -650,12 +654,7 @@ def test_the_robot_reader_reads_or_refuses_any_toml_document(doc):
 def test_the_robot_file_reader_reads_or_refuses_any_bytes(tmp_path, raw):
     from arm.description import DescriptionError, load_robot
 
-    path = tmp_path / "raw.toml"
-    path.write_bytes(raw)
-    try:
-        load_robot(path)
-    except DescriptionError as exc:
-        assert str(exc).startswith(str(path)), exc
+    _reads_or_refuses_bytes(tmp_path / "raw.toml", raw, load_robot, DescriptionError)
 
 
 HOSTILE_RETURNS = [
