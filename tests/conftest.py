@@ -89,6 +89,18 @@ def ur5():
     return ur5_arm()
 
 
+@pytest.fixture
+def user_effects():
+    """The effect registry (``arm.effects.EFFECTS``) as it was before the test: a module a test
+    loads registers its effects for the rest of the process."""
+    from arm.effects import EFFECTS
+
+    before = dict(EFFECTS)
+    yield EFFECTS
+    EFFECTS.clear()
+    EFFECTS.update(before)
+
+
 def random_q(robot: RobotDescription, n: int, seed: int = 0) -> np.ndarray:
     """``n`` joint configurations uniform within the limits, from a fixed seed."""
     return np.random.default_rng(seed).uniform(robot.lower, robot.upper, (n, 6))

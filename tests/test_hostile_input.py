@@ -430,18 +430,7 @@ def _basis_module(tmp_path: Path, expression: str) -> Path:
     )
 
 
-@pytest.fixture
-def catalogue():
-    """The effect catalogue as it was before the test (a module registers its effects)."""
-    from arm.effects import EFFECTS
-
-    before = dict(EFFECTS)
-    yield EFFECTS
-    EFFECTS.clear()
-    EFFECTS.update(before)
-
-
-def test_a_module_may_not_take_a_catalogued_effects_name(data, tmp_path, catalogue):
+def test_a_module_may_not_take_a_catalogued_effects_name(data, tmp_path, user_effects):
     from arm.effects import Compliance
 
     mod = _module(
@@ -454,10 +443,10 @@ def test_a_module_may_not_take_a_catalogued_effects_name(data, tmp_path, catalog
     )
     args = ("lab", "fit", data, "--effect-module", mod, "--effects", "geometric,compliance")
     one_error_line(sixaxis(*args), "mine.py", "class C", "'compliance'", "arm.effects.Compliance")
-    assert catalogue["compliance"] is Compliance
+    assert user_effects["compliance"] is Compliance
 
 
-def test_a_module_may_not_name_a_parameter_like_a_catalogued_one(data, tmp_path, catalogue):
+def test_a_module_may_not_name_a_parameter_like_a_catalogued_one(data, tmp_path, user_effects):
     mod = _module(
         tmp_path,
         "class Mine(JointAngleEffect):\n"
@@ -468,11 +457,11 @@ def test_a_module_may_not_name_a_parameter_like_a_catalogued_one(data, tmp_path,
     )
     args = ("lab", "fit", data, "--effect-module", mod, "--effects", "geometric,mine_c[2]")
     one_error_line(sixaxis(*args), "mine_c", "'c1'", "compliance")
-    assert "mine_c" not in catalogue
+    assert "mine_c" not in user_effects
 
 
 @pytest.mark.parametrize("code", [0, 3])
-def test_a_modules_sys_exit_at_import_is_one_line(data, tmp_path, code, catalogue):
+def test_a_modules_sys_exit_at_import_is_one_line(data, tmp_path, code, user_effects):
     mod = _module(tmp_path, f"import sys\nsys.exit({code})\n")
     one_error_line(
         sixaxis("lab", "fit", data, "--effect-module", mod), "mine.py", f"sys.exit({code})"
@@ -498,7 +487,7 @@ def test_a_modules_sys_exit_at_import_is_one_line(data, tmp_path, code, catalogu
 )
 @pytest.mark.parametrize("command", ["fit", "diagnose"])
 def test_a_bad_basis_is_one_line_naming_module_effect_and_term(
-    data, tmp_path, expression, words, command, catalogue
+    data, tmp_path, expression, words, command, user_effects
 ):
     mod = _basis_module(tmp_path, expression)
     args = ["lab", command, data, "--effect-module", mod, "--effects", "geometric,mine_basis"]
@@ -707,7 +696,7 @@ def small_data(data):
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
 @given(source=st.one_of(effect_modules(), st.text(alphabet=string.printable, max_size=120)))
-def test_the_effect_loader_loads_or_refuses_any_module(tmp_path, source, small_data, catalogue):
+def test_the_effect_loader_loads_or_refuses_any_module(tmp_path, source, small_data, user_effects):
     from arm.effect_api import EffectError
     from arm.errors import SixAxisError
     from lab import fit

@@ -136,18 +136,6 @@ def test_mm_data_read_as_metres_is_no_traceback(files):
         )
 
 
-@pytest.fixture
-def own_effects():
-    """The effect catalogue as it was before the test: a module loaded by --effect-module
-    registers its effects for the rest of the process."""
-    from arm import effects
-
-    before = dict(effects.EFFECTS)
-    yield
-    effects.EFFECTS.clear()
-    effects.EFFECTS.update(before)
-
-
 @pytest.fixture(scope="module")
 def harmonic_files(files):
     """An arm with a second-harmonic transmission error on joint 3 (examples/second_harmonic.py),
@@ -166,7 +154,7 @@ def harmonic_files(files):
     return d / "h2.csv", d / "h2_val.csv", true
 
 
-def test_a_user_effect_module_brings_the_error_to_the_floor(harmonic_files, own_effects):
+def test_a_user_effect_module_brings_the_error_to_the_floor(harmonic_files, user_effects):
     h2, h2_val, true = harmonic_files
     plain = lab_json("fit", h2, "--validate", h2_val)
     assert plain["validation_rms_mm"] > 2 * FLOOR_MM  # the geometric model misses it
@@ -188,7 +176,7 @@ def test_a_user_effect_module_brings_the_error_to_the_floor(harmonic_files, own_
         assert full["parameters"][name] == pytest.approx(true[name], abs=3e-5), name
 
 
-def test_diagnose_names_a_user_effect_once_its_module_is_loaded(harmonic_files, own_effects):
+def test_diagnose_names_a_user_effect_once_its_module_is_loaded(harmonic_files, user_effects):
     h2 = harmonic_files[0]
     # the catalogue alone: no effect tested whole explains it, the residual depends on q3, and
     # the scan of cyclic errors names its joint and order

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from arm import seed_robot
-from arm.effects import EFFECTS, load_effect_module
+from arm.effects import load_effect_module
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from arm.sampling import sample_parameters, sample_poses
@@ -19,14 +19,6 @@ from lab import diagnose, discover, fit
 SEED = seed_robot()
 SIGMA = 15e-6
 FLOOR_MM = 1e3 * SIGMA * math.sqrt(3)
-
-
-@pytest.fixture
-def user_effects():
-    before = set(EFFECTS)
-    yield
-    for name in set(EFFECTS) - before:
-        del EFFECTS[name]
 
 
 def _campaign(spec: str, seed: int, n: int = 300, sigma: float = SIGMA, n_val: int = 500):

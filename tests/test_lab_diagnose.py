@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from arm.effects import CATALOGUE, EFFECTS, load_effect_module
+from arm.effects import CATALOGUE, load_effect_module
 from arm.measurements import MeasurementSet
 from lab import diagnose, fit
 from tests._lab_data import DIAGNOSE_KEYS, FLOOR_MM, SIGMA, campaign
@@ -27,15 +27,6 @@ HIDDEN = [
     ("load_backlash", (2, 3)),
     ("thermal", None),
 ]
-
-
-@pytest.fixture
-def user_effects():
-    """Effects registered during a test are removed after it (the registry is global)."""
-    before = set(EFFECTS)
-    yield
-    for name in set(EFFECTS) - before:
-        del EFFECTS[name]
 
 
 @pytest.mark.parametrize(("effect", "joints"), HIDDEN, ids=[h[0] for h in HIDDEN])

@@ -17,7 +17,7 @@ import pytest
 from scipy import stats
 from typer.testing import CliRunner
 
-from arm.effects import EFFECTS, load_effect_module
+from arm.effects import load_effect_module
 from arm.errormodel import ErrorModel
 from arm.measurements import write_measurements
 from experiments.cli import app
@@ -41,15 +41,6 @@ JSON_KEYS = {
     "validation_rms_mm",
 }
 runner = CliRunner()
-
-
-@pytest.fixture
-def user_effects():
-    """Effects registered during a test are removed after it (the registry is global)."""
-    before = set(EFFECTS)
-    yield
-    for name in set(EFFECTS) - before:
-        del EFFECTS[name]
 
 
 def _check_discovery(d, form) -> None:

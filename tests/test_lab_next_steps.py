@@ -14,7 +14,6 @@ import pytest
 from typer.testing import CliRunner
 
 from arm import seed_robot
-from arm.effects import EFFECTS
 from arm.errormodel import ErrorModel
 from arm.sampling import sample_parameters, sample_poses
 from experiments.cli import app
@@ -23,14 +22,6 @@ UR5 = Path(__file__).resolve().parents[1] / "data" / "ur5"
 runner = CliRunner()
 # a printed next step: after "next:", "fit it with:" or "which explains part:", to the line's end
 NEXT = re.compile(r"(?:next:|fit it with:|which explains part:)[^\n]*?(sixaxis lab [^\n]+)")
-
-
-@pytest.fixture
-def user_effects():
-    before = set(EFFECTS)
-    yield
-    for name in set(EFFECTS) - before:
-        del EFFECTS[name]
 
 
 def _walk(command: str, depth: int = 4) -> list[str]:
