@@ -28,7 +28,6 @@ import pytest
 import tomli_w
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from typer.testing import CliRunner
 
 from arm.description import seed_robot
 from arm.effects import load_effect_module
@@ -42,27 +41,15 @@ from arm.files import (
 )
 from arm.measurements import write_measurements
 from experiments.cli import app
+from tests._cli import one_error_line, runner
 from tests._lab_data import campaign
 
-runner = CliRunner()
 ROOT = Path(__file__).resolve().parents[1]
 SIXAXIS = [sys.executable, "-m", "experiments.cli"]
 
 
 def sixaxis(*args: object, env: dict[str, str] | None = None):
     return runner.invoke(app, [str(a) for a in args], env=env)
-
-
-def one_error_line(res, *words: str) -> str:
-    """The result is a clean refusal: exit code 2, one line ``error: ...`` on stderr naming
-    ``words``, no traceback."""
-    assert res.exit_code == 2, (res.exit_code, res.output, res.exception)
-    err = res.stderr
-    assert err.startswith("error: ") and err.count("\n") == 1, err
-    assert "Traceback" not in res.output
-    for w in words:
-        assert w in err, (w, err)
-    return err
 
 
 def snapshot(folder: Path) -> dict[str, tuple[int, bytes | None]]:

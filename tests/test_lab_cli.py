@@ -17,13 +17,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
 from arm.description import load_robot, seed_robot
 from arm.effects import load_effect_module
 from arm.measurements import MeasurementError, read_measurements, read_poses, write_measurements
 from experiments.cli import app
 from lab import diagnose, fit
+from tests._cli import lab, runner
 from tests._lab_data import (
     DIAGNOSE_KEYS,
     FIT_KEYS,
@@ -35,14 +35,9 @@ from tests._lab_data import (
     requires_real_data,
 )
 
-runner = CliRunner()
 ROOT = Path(__file__).resolve().parents[1]
 SECOND_HARMONIC = ROOT / "examples" / "second_harmonic.py"
 NOISE = str(SIGMA * 1e3)  # mm per axis
-
-
-def lab(*args: object):
-    return runner.invoke(app, ["lab", *map(str, args)])
 
 
 def lab_json(*args: object) -> dict:

@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy import stats
-from typer.testing import CliRunner
 
 from arm.effects import load_effect_module
 from arm.errormodel import ErrorModel
@@ -24,6 +23,7 @@ from experiments.cli import app
 from lab import diagnose, fit
 from lab.discovery import discover, library_terms
 from tests import _hidden_forms as hidden
+from tests._cli import lab, runner
 
 NOISE_MM = 1e3 * hidden.SIGMA
 FLOOR_MM = NOISE_MM * math.sqrt(3)
@@ -40,7 +40,6 @@ JSON_KEYS = {
     "rms_after_mm",
     "validation_rms_mm",
 }
-runner = CliRunner()
 
 
 def _check_discovery(d, form) -> None:
@@ -153,10 +152,6 @@ def _files(tmp_path, seed, form, s=11):
     write_measurements(c.data, data)
     write_measurements(c.validation, val)
     return c, data, val
-
-
-def lab(*args):
-    return runner.invoke(app, ["lab", *map(str, args)])
 
 
 @pytest.mark.parametrize("form", ["harmonic2_q2", "thermal_zero_q3"])

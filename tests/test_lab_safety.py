@@ -16,29 +16,13 @@ import sys
 from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
 
 from arm.description import seed_robot
 from arm.measurements import atomic_path, atomic_write_text, write_measurements
-from experiments.cli import app
+from tests._cli import lab, one_error_line
 from tests._lab_data import campaign
 
-runner = CliRunner()
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def lab(*args: object):
-    return runner.invoke(app, ["lab", *map(str, args)])
-
-
-def one_error_line(res, *words: str) -> str:
-    assert res.exit_code == 2, res.output
-    err = res.stderr
-    assert err.startswith("error: ") and err.count("\n") == 1, err
-    assert "Traceback" not in res.output
-    for w in words:
-        assert w in err, (w, err)
-    return err
 
 
 @pytest.fixture(scope="module")
