@@ -99,7 +99,7 @@ from lab.candidates import (
     project_out,
 )
 from lab.identifiability import gram_factor, lower_inverse, orthonormal_basis, typical_magnitudes
-from lab.options import LabOptions, Loss, OutlierMode, Solver, check_alpha, resolve
+from lab.options import LabOptions, Loss, OutlierMode, Solver, call_options, check_alpha
 from lab.repeatability import (
     NoiseFloor,
     Repeatability,
@@ -333,20 +333,7 @@ def diagnose(
     to test (default: every registered effect).
     """
     check_alpha(alpha)
-    opts = resolve(
-        options,
-        noise_mm=noise_mm,
-        loss=loss,
-        outliers=outliers,
-        accept_large=accept_large,
-        solver=solver,
-        f_scale_mm=f_scale_mm,
-        max_evaluations=max_evaluations,
-        register=register,
-        noise_ppm=noise_ppm,
-        noise_mrad=noise_mrad,
-        measured=measured,
-    )
+    opts = call_options(locals())
     s = screened(data, robot, effects, opts, candidates=candidates, tests=True)
     # the noise the tests use: the stated one, else the scatter of repeated poses
     floor = noise_floor(s.options.noise_mm, s.kept)

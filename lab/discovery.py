@@ -95,7 +95,7 @@ from arm.files import atomic_write_text
 from arm.measurements import MeasurementSet, as_measurements
 from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
-from lab.options import ORDER, LabOptions, Loss, OutlierMode, Solver, check_alpha, resolve
+from lab.options import ORDER, LabOptions, Loss, OutlierMode, Solver, call_options, check_alpha
 from lab.repeatability import (
     NoiseFloor,
     Repeatability,
@@ -692,20 +692,7 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
     false-discovery rate; ``validate``: held-out data for the refitted model; ``order``: the
     highest harmonic; ``name``: the discovered effect's name."""
     check_alpha(alpha)
-    opts = resolve(
-        options,
-        noise_mm=noise_mm,
-        loss=loss,
-        outliers=outliers,
-        accept_large=accept_large,
-        solver=solver,
-        f_scale_mm=f_scale_mm,
-        max_evaluations=max_evaluations,
-        register=register,
-        noise_ppm=noise_ppm,
-        noise_mrad=noise_mrad,
-        measured=measured,
-    )
+    opts = call_options(locals())
     if not ORDER.holds(order):
         raise FitError(f"order (the highest harmonic) must {ORDER.predicate}, got {order!r}")
     if not _NAME.fullmatch(name) or keyword.iskeyword(name):

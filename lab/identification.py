@@ -29,7 +29,7 @@ from arm.description import RobotDescription
 from arm.effects import Effect
 from arm.measurements import MeasurementSet, as_measurements
 from lab.errors import FitError
-from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
+from lab.options import LabOptions, Loss, OutlierMode, Solver, call_options
 from lab.result import FitResult
 from lab.screening import Screen, screen, screened
 
@@ -77,20 +77,7 @@ def fit(
     ``validate``: held-out measurements for validation RMS and median. ``start``: starting
     values by name; ``fixed``: names to hold at their starting value.
     """
-    opts = resolve(
-        options,
-        noise_mm=noise_mm,
-        loss=loss,
-        outliers=outliers,
-        accept_large=accept_large,
-        solver=solver,
-        f_scale_mm=f_scale_mm,
-        max_evaluations=max_evaluations,
-        register=register,
-        noise_ppm=noise_ppm,
-        noise_mrad=noise_mrad,
-        measured=measured,
-    )
+    opts = call_options(locals())
     if isinstance(data, Screen):
         if start or tuple(fixed):
             raise FitError("start and fixed apply to a fit of data, not of a screen made before")

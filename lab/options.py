@@ -19,6 +19,7 @@ The command line builds its choices and ranges from the same declarations
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -140,6 +141,14 @@ def resolve(options: LabOptions | None, **given: Any) -> LabOptions:
             f"{', '.join(twice)} given both as a keyword and in options=; give each option once"
         )
     return options
+
+
+def call_options(arguments: Mapping[str, Any]) -> LabOptions:
+    """:func:`resolve` for an entry point whose keywords are the fields of :class:`LabOptions`
+    and ``options`` (the module docstring): ``arguments`` is its ``locals()``, taken before its
+    body assigns a name, so that they are the call's arguments."""
+    names = [f.name for f in dataclasses.fields(LabOptions)]
+    return resolve(arguments["options"], **{name: arguments[name] for name in names})
 
 
 def _same(a: Any, b: Any) -> bool:

@@ -36,7 +36,7 @@ from arm.params import parameter_unit
 from lab import plots
 from lab.diagnosis import diagnose, hint_variables
 from lab.identifiability import CONDITION_WARNING, typical_magnitudes
-from lab.options import LabOptions, Loss, OutlierMode, Solver, resolve
+from lab.options import LabOptions, Loss, OutlierMode, Solver, call_options
 from lab.registration import nominal_parameters
 from lab.report_html import HINT_PLOT_P, LabReport, ModelRun, Sensitivity, arm_parameters
 from lab.result import FitResult, inputs_of
@@ -100,21 +100,8 @@ def build_report(
     (:attr:`lab.Screen.counted`), so that the models compare pose by pose, and nothing more is
     left out; the report names what was. The options (``noise_mm`` ... ``register``, or
     ``options=``) are :class:`lab.LabOptions`. ``validate``: held-out measurements."""
+    opts = call_options(locals())
     step = progress or (lambda msg: None)
-    opts = resolve(
-        options,
-        noise_mm=noise_mm,
-        loss=loss,
-        outliers=outliers,
-        accept_large=accept_large,
-        solver=solver,
-        f_scale_mm=f_scale_mm,
-        max_evaluations=max_evaluations,
-        register=register,
-        noise_ppm=noise_ppm,
-        noise_mrad=noise_mrad,
-        measured=measured,
-    )
     val = None if validate is None else as_measurements(validate)
     shown = "geometric" if effects is None else effects
     step(

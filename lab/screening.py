@@ -94,7 +94,7 @@ from lab.candidates import (
 from lab.errors import FitError, RowsLeftOutWarning
 from lab.estimation import check_plausible, fit_rows
 from lab.observations import Observations, observations_of
-from lab.options import DEFAULTS, LabOptions, Loss, OutlierMode, Solver, resolve
+from lab.options import DEFAULTS, LabOptions, Loss, OutlierMode, Solver, call_options
 from lab.result import Duplicate, FitResult, Outlier, inputs_of
 from lab.solver import HUBER_K, OUTLIER_RADIUS, robust_sigma
 from lab.text import duplicates_text
@@ -881,20 +881,7 @@ def screen(
     tests' rows; ``tests``: also judge the rows a diagnosis's tests leave out (it costs every
     candidate's Jacobian: :func:`lab.fit` does without). ``start``: starting values by name;
     ``fixed``: names held at their starting value."""
-    opts = resolve(
-        options,
-        noise_mm=noise_mm,
-        loss=loss,
-        outliers=outliers,
-        accept_large=accept_large,
-        solver=solver,
-        f_scale_mm=f_scale_mm,
-        max_evaluations=max_evaluations,
-        register=register,
-        noise_ppm=noise_ppm,
-        noise_mrad=noise_mrad,
-        measured=measured,
-    )
+    opts = call_options(locals())
     model = _Model(
         as_robot(robot), "geometric" if effects is None else effects, opts, start, tuple(fixed)
     )
