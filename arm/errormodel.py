@@ -17,7 +17,7 @@ from :class:`arm.effect_api.AngularSensitivities`.
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Literal, overload
 
@@ -88,6 +88,21 @@ def _index_of_ids(values: np.ndarray, ids: tuple[int, ...], what: str, source: s
         unknown = sorted({int(v) for v in values[~found]})
         raise EffectError(f"{source}: {what} id(s) {unknown} not among the model's {ids}")
     return order[pos]
+
+
+def _central_differences(
+    p: np.ndarray, sl: slice, n: int, difference: Callable[[np.ndarray, np.ndarray], np.ndarray]
+) -> np.ndarray:
+    """``difference(p + h, p - h) / 2h`` (N, 3) for each parameter ``k`` of ``sl`` (``h`` on
+    ``p[k]`` alone, relative to its size), stacked on the last axis: (N, 3, k)."""
+    cols = []
+    for k in range(sl.start, sl.stop):
+        h = 1e-6 * max(1.0, abs(p[k]))
+        pp, pm = p.copy(), p.copy()
+        pp[k] += h
+        pm[k] -= h
+        cols.append(difference(pp, pm) / (2 * h))
+    return np.stack(cols, axis=-1) if cols else np.empty((n, 3, 0))
 
 
 class ErrorModel:
@@ -399,27 +414,21 @@ class ErrorModel:
 
     def _numeric_columns(self, inputs: ModelInputs, p: np.ndarray, sl: slice) -> np.ndarray:
         """Central differences for an effect without analytic columns."""
-        cols = []
-        for k in range(sl.start, sl.stop):
-            h = 1e-6 * max(1.0, abs(p[k]))
-            pp, pm = p.copy(), p.copy()
-            pp[k] += h
-            pm[k] -= h
-            cols.append((self.predict(inputs, pp) - self.predict(inputs, pm)) / (2 * h))
-        return np.stack(cols, axis=-1) if cols else np.empty((inputs.n, 3, 0))
+
+        def moved(pp: np.ndarray, pm: np.ndarray) -> np.ndarray:
+            return self.predict(inputs, pp) - self.predict(inputs, pm)
+
+        return _central_differences(p, sl, inputs.n, moved)
 
     def _numeric_turns(self, inputs: ModelInputs, p: np.ndarray, sl: slice) -> np.ndarray:
         """Central differences of the tool frame's rotation, as small rotations (N, 3, k)."""
-        cols = []
-        for k in range(sl.start, sl.stop):
-            h = 1e-6 * max(1.0, abs(p[k]))
-            pp, pm = p.copy(), p.copy()
-            pp[k] += h
-            pm[k] -= h
+
+        def turned(pp: np.ndarray, pm: np.ndarray) -> np.ndarray:
             Rp = self.predict_pose(inputs, pp)[1]
             Rm = self.predict_pose(inputs, pm)[1]
-            cols.append(rotation_vector(Rp @ Rm.transpose(0, 2, 1)) / (2 * h))
-        return np.stack(cols, axis=-1) if cols else np.empty((inputs.n, 3, 0))
+            return rotation_vector(Rp @ Rm.transpose(0, 2, 1))
+
+        return _central_differences(p, sl, inputs.n, turned)
 
     # -- a calibrated arm as a description -----------------------------------------------------
     def description(self, p: np.ndarray, name: str | None = None) -> RobotDescription:
