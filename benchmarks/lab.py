@@ -186,6 +186,15 @@ TASKS = {
 }
 
 
+def _in_child(path: str, task: str) -> dict:
+    """What :func:`_child` measures of ``task`` on the data at ``path``, run in a fresh
+    interpreter (its own peak memory)."""
+    run = subprocess.run(
+        [sys.executable, __file__, "_child", path, task], capture_output=True, text=True, check=True
+    )
+    return json.loads(run.stdout.strip().splitlines()[-1])
+
+
 def _child(path: str, task: str) -> None:
     """In a fresh interpreter: load the data, note the peak resident memory, run ``task``, and
     print the peak above that baseline and the time (JSON on stdout)."""
@@ -235,13 +244,7 @@ def memory() -> None:
             write_measurements(data, path[:-4] + ".csv")
             del data
             for task in TASKS:
-                run = subprocess.run(
-                    [sys.executable, __file__, "_child", path, task],
-                    capture_output=True,
-                    text=True,
-                    check=True,
-                )
-                got = json.loads(run.stdout.strip().splitlines()[-1])
+                got = _in_child(path, task)
                 rows.append(
                     (
                         task,
@@ -422,13 +425,7 @@ def scale() -> None:
             path = str(Path(tmp) / f"c{n}.npz")
             np.savez(path, q=part.q, xyz=part.xyz)
             for task in ("fit-scale", "discover-scale", "diagnose-scale"):
-                run = subprocess.run(
-                    [sys.executable, __file__, "_child", path, task],
-                    capture_output=True,
-                    text=True,
-                    check=True,
-                )
-                got = json.loads(run.stdout.strip().splitlines()[-1])
+                got = _in_child(path, task)
                 mem.append(
                     (
                         task.removesuffix("-scale"),

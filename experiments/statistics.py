@@ -136,6 +136,19 @@ def mean_interval(values: Sequence[float] | np.ndarray) -> Interval:
     return Interval(m, lo, hi, n)
 
 
+def _exp_mean_interval(logs: np.ndarray) -> Interval:
+    """``exp(mean(logs))`` of one or more ``logs`` and its bootstrap interval (the interval of
+    the mean, exponentiated)."""
+    n = int(logs.size)
+    g = float(np.exp(np.mean(logs)))
+    if n < 2:
+        return Interval(g, math.nan, math.nan, n)
+    if np.ptp(logs) == 0:
+        return Interval(g, g, g, n)
+    lo, hi = _bootstrap((logs,), lambda s, axis: np.mean(s, axis=axis), paired=False)
+    return Interval(g, float(np.exp(lo)), float(np.exp(hi)), n)
+
+
 def geometric_mean_interval(values: Sequence[float] | np.ndarray) -> Interval:
     """The geometric mean of the finite positive ``values`` (``exp(mean(log x))``) and its
     bootstrap interval (the interval of the mean log, exponentiated)."""
@@ -144,14 +157,7 @@ def geometric_mean_interval(values: Sequence[float] | np.ndarray) -> Interval:
     n = int(x.size)
     if n == 0:
         return NAN
-    logs = np.log(x)
-    g = float(np.exp(np.mean(logs)))
-    if n < 2:
-        return Interval(g, math.nan, math.nan, n)
-    if np.ptp(logs) == 0:
-        return Interval(g, g, g, n)
-    lo, hi = _bootstrap((logs,), lambda s, axis: np.mean(s, axis=axis), paired=False)
-    return Interval(g, float(np.exp(lo)), float(np.exp(hi)), n)
+    return _exp_mean_interval(np.log(x))
 
 
 def _pairs(a: Mapping[int, float], b: Mapping[int, float]) -> tuple[np.ndarray, np.ndarray]:
@@ -175,14 +181,7 @@ def paired_ratio(a: Mapping[int, float], b: Mapping[int, float]) -> Interval:
     n = int(x.size)
     if n == 0:
         return NAN
-    d = np.log(x) - np.log(y)
-    r = float(np.exp(np.mean(d)))
-    if n < 2:
-        return Interval(r, math.nan, math.nan, n)
-    if np.ptp(d) == 0:
-        return Interval(r, r, r, n)
-    lo, hi = _bootstrap((d,), lambda s, axis: np.mean(s, axis=axis), paired=False)
-    return Interval(r, float(np.exp(lo)), float(np.exp(hi)), n)
+    return _exp_mean_interval(np.log(x) - np.log(y))
 
 
 def iqm(x: np.ndarray, axis: int = -1) -> np.ndarray:
