@@ -133,3 +133,21 @@ def campaign(
         idx = truth.layout.indices(others)
         p[idx] = q[idx]
     return Campaign(truth, p, rng, robot)
+
+
+def with_gross_outliers(
+    d: MeasurementSet,
+    rng: np.random.Generator,
+    share: float = 0.02,
+    size_m: tuple[float, float] = (0.2e-3, 2e-3),
+):
+    """``d`` with ``share`` of its points (at least one) moved ``size_m`` (default 0.2-2 mm) in
+    random directions (a reflector that lost lock, a pasted row); returns the data and the rows
+    moved."""
+    k = max(1, round(share * len(d)))
+    idx = np.sort(rng.choice(len(d), k, replace=False))
+    u = rng.normal(size=(k, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    xyz = d.xyz.copy()
+    xyz[idx] += u * rng.uniform(*size_m, (k, 1))
+    return MeasurementSet(d.q, xyz, d.columns, d.source), idx

@@ -42,7 +42,7 @@ from arm.files import (
 from arm.measurements import write_measurements
 from experiments.cli import app
 from tests._cli import one_error_line, runner
-from tests._lab_data import campaign
+from tests._lab_data import campaign, with_gross_outliers
 
 ROOT = Path(__file__).resolve().parents[1]
 SIXAXIS = [sys.executable, "-m", "experiments.cli"]
@@ -905,16 +905,7 @@ def test_the_observation_stays_in_its_space_whatever_the_temperature_override():
 # == the lab on hard data ============================================================================
 def _gross(d, share: float, seed: int):
     """``d`` with ``share`` of its points moved 2-8 mm in random directions; the rows moved."""
-    from arm.measurements import MeasurementSet
-
-    rng = np.random.default_rng(seed)
-    k = round(share * len(d))
-    idx = np.sort(rng.choice(len(d), k, replace=False))
-    u = rng.normal(size=(k, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    xyz = d.xyz.copy()
-    xyz[idx] += u * rng.uniform(2e-3, 8e-3, (k, 1))
-    return MeasurementSet(d.q, xyz, d.columns, d.source), idx
+    return with_gross_outliers(d, np.random.default_rng(seed), share, size_m=(2e-3, 8e-3))
 
 
 @pytest.mark.parametrize("effects", ["geometric", "geometric,compliance"])

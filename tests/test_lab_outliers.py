@@ -20,21 +20,9 @@ from arm.sampling import sample_parameters, sample_poses
 from lab import FitError, blocks, diagnose, fit, screen
 from lab.identifiability import analyse
 from lab.screening import OUTLIER_ALPHA, outlier_radius
-from tests._lab_data import FLOOR_MM, SIGMA, campaign
+from tests._lab_data import FLOOR_MM, SIGMA, campaign, with_gross_outliers
 
 NOISE_MM = 1e3 * SIGMA
-
-
-def with_gross_outliers(d: MeasurementSet, rng: np.random.Generator, share: float = 0.02):
-    """``d`` with ``share`` of its points moved 0.2-2 mm in random directions (a reflector that
-    lost lock, a pasted row); returns the data and the rows moved."""
-    k = max(1, round(share * len(d)))
-    idx = np.sort(rng.choice(len(d), k, replace=False))
-    u = rng.normal(size=(k, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    xyz = d.xyz.copy()
-    xyz[idx] += u * rng.uniform(0.2e-3, 2e-3, (k, 1))
-    return MeasurementSet(d.q, xyz, d.columns, d.source), idx
 
 
 # -- the rule -----------------------------------------------------------------------------------
