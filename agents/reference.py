@@ -18,6 +18,7 @@ measurement feed-forward (``feedforward``) and the calibration engineer's (``cal
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Mapping, Sequence
@@ -252,7 +253,7 @@ def fit_measurements(
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
     columns = {k: np.asarray(v, dtype=float) for k, v in (columns or {}).items()}
     try:
-        from lab import LabOptions, fit
+        from lab import ContaminatedError, LabOptions, fit
     except ImportError:
         return _fit_scipy(model, q, xyz, columns, p0, loss, noise)
     from arm.measurements import MeasurementSet
@@ -260,7 +261,15 @@ def fit_measurements(
     data = MeasurementSet(q, xyz, columns, source="calibration phase")
     start = None if p0 is None else model.layout.as_dict(p0)
     options = LabOptions(loss=loss, noise_mm=noise * 1e3)  # type: ignore[arg-type]  # checked
-    res = fit(data, model.robot, model.effects, options=options, start=start)
+    try:
+        res = fit(data, model.robot, model.effects, options=options, start=start)
+    except ContaminatedError as exc:
+        # More poses far off than the lab leaves out (an effect the model lacks, such as
+        # backlash, sets a group of poses apart): the lab's own advice, every pose fitted with
+        # the robust loss, rather than no calibration at all
+        log.info("%s; fitting every pose with the %s loss", exc, loss)
+        keep = dataclasses.replace(options, outliers="keep")
+        res = fit(data, model.robot, model.effects, options=keep, start=start)
     p = model.nominal() if p0 is None else np.array(p0, dtype=float)
     fitted = [n for n, ok in zip(res.names, res.identifiable, strict=True) if ok]
     values = res.parameters()

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from lab.diagnosis import Candidate, Diagnosis, Hint, diagnose
     from lab.discovery import Discovery, discover
     from lab.errors import (
+        ContaminatedError,
         FitError,
         ImplausibleAcceptedWarning,
         LabWarning,
@@ -51,6 +52,7 @@ _HOME = {
     "diagnose": "lab.diagnosis",
     "Discovery": "lab.discovery",
     "discover": "lab.discovery",
+    "ContaminatedError": "lab.errors",
     "FitError": "lab.errors",
     "ImplausibleAcceptedWarning": "lab.errors",
     "LabWarning": "lab.errors",
@@ -81,6 +83,7 @@ def __getattr__(name: str) -> Any:
 
 __all__ = [
     "Candidate",
+    "ContaminatedError",
     "Diagnosis",
     "Discovery",
     "FitError",

@@ -16,6 +16,7 @@ from __future__ import annotations
 from arm.errors import SixAxisError, SixAxisWarning
 
 __all__ = [
+    "ContaminatedError",
     "FitError",
     "ImplausibleAcceptedWarning",
     "LabWarning",
@@ -27,6 +28,12 @@ __all__ = [
 
 class FitError(SixAxisError, ValueError):
     """A fit that cannot be done as asked: too few poses, bad options; the message says why."""
+
+
+class ContaminatedError(FitError):
+    """More of the poses are gross outliers than a calibration allows (the screen's stated
+    fraction, :data:`lab.screening.MAX_OUTLIER_FRACTION`): the fit is refused rather than called
+    a calibration. ``outliers="keep"`` fits every pose (with a robust loss, they weigh less)."""
 
 
 class LabWarning(SixAxisWarning):

@@ -91,7 +91,7 @@ from lab.candidates import (
     explained,
     explained_residual,
 )
-from lab.errors import FitError, RowsLeftOutWarning
+from lab.errors import ContaminatedError, FitError, RowsLeftOutWarning
 from lab.estimation import check_plausible, fit_rows
 from lab.observations import Observations, observations_of
 from lab.options import DEFAULTS, LabOptions, Loss, OutlierMode, Solver, call_options
@@ -408,7 +408,7 @@ def _refuse_contaminated(
         f"line {data.lines[i]}" if data.lines is not None else f"row {i + 1}" for i in rows[:8]
     )
     more = f" and {k - 8} more" if k > 8 else ""
-    raise FitError(
+    raise ContaminatedError(
         f"{data.source}: {k} of {n} poses ({100 * k / n:.0f} %) are gross outliers, "
         f"{d.min():.3g} to {d.max():.3g} mm off the fit of the other {n - k} (RMS "
         f"{1e3 * res.rms:.3g} mm; beyond {radius:.2f} robust sigmas of {1e3 * s:.3g} mm): more "
