@@ -24,7 +24,7 @@ from typer.core import TyperGroup
 from arm.constraints import Constraint, Interval, OneOf, constraints_of
 from arm.errors import SixAxisError
 from arm.measurements import ANGLE_UNITS, LENGTH_UNITS
-from experiments.cli_output import console, fail, user_errors
+from experiments.cli_output import console, err_console, fail, user_errors
 from lab.options import LabOptions
 
 __all__ = [
@@ -215,7 +215,8 @@ RobotOpt = Annotated[
         "-r",
         help=(
             "The nominal arm: a robot TOML or URDF file, or a shipped name; a URDF's chain "
-            "may follow it: 'ur5_robot.urdf#tip=tool0,base=base'."
+            "may follow it: 'ur5_robot.urdf#tip=tool0,base=base'. A calibrated URDF is read "
+            "with the metrology file that lab export wrote beside it."
         ),
         metavar="FILE|NAME",
     ),
@@ -292,9 +293,28 @@ def read_arm(robot: str, flag: str = "--robot") -> Any:
     from arm.effects import check_robot_effects
 
     with user_errors(prefix=f"{flag}: "):
-        arm = load_robot(robot)
+        arm = _calibrated_urdf(robot, flag) or load_robot(robot)
         check_robot_effects(arm, robot)  # after --effect-module registered its effects
         return arm
+
+
+def _calibrated_urdf(robot: str, flag: str) -> Any:
+    """The calibrated arm of a URDF that ``lab export --format urdf`` wrote, where its metrology
+    file lies beside it: the corrected chain with the tracker frame, the tool points and the
+    effects' values, as ``--robot calibrated.toml`` gives them (None for any other robot)."""
+    p = Path(robot)
+    if "#" in robot or p.suffix.lower() != ".urdf" or not p.is_file():
+        return None
+    from lab.urdf_export import metrology_path, read_calibrated_urdf
+
+    side = metrology_path(p)
+    if not side.is_file():
+        return None
+    err_console.print(
+        f"note: {flag} {escape(robot)}: read with {escape(str(side))} beside it (the tracker "
+        "frame, the tool points and the effects of its calibration)"
+    )
+    return read_calibrated_urdf(p, side)
 
 
 def read_data(

@@ -208,3 +208,47 @@ def test_the_export_command_writes_the_calibrated_urdf(tmp_path):
     assert not bad.exists()
     res = runner.invoke(app, ["lab", "export", str(csv), "--format", "xml", "-o", str(bad)])
     assert res.exit_code == 2 and "--format must be one of toml, urdf" in res.output
+
+
+def test_a_calibrated_urdf_with_its_metrology_file_is_the_calibrated_arm_on_the_command_line(
+    tmp_path,
+):
+    """`--robot calibrated.urdf` reads the metrology file beside it (the tracker frame, the tool
+    point, the compliance fitted): `lab compensate` gives the joint angles it gives through the
+    same calibration exported as a robot TOML, and says which file it read."""
+    import csv
+
+    from typer.testing import CliRunner
+
+    from arm.measurements import write_measurements
+    from experiments.cli import app
+
+    robot = load_robot("ur5_robot")
+    data, _ = _campaign(robot, "geometric,compliance[2,3]", 250, seed=6)
+    path = tmp_path / "data.csv"
+    write_measurements(data, path)
+    runner = CliRunner()
+    fitted = ["lab", "export", str(path), "--robot", "ur5_robot"]
+    fitted += ["--effects", "geometric,compliance[2,3]"]
+    for out, form in (("cal.urdf", "urdf"), ("cal.toml", "toml")):
+        res = runner.invoke(app, [*fitted, "--format", form, "-o", str(tmp_path / out)])
+        assert res.exit_code == 0, res.output
+    targets = tmp_path / "targets.csv"
+    with open(targets, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["x", "y", "z"])
+        w.writerows(data.xyz[:6].tolist())
+    angles, said = {}, {}
+    for arm in ("cal.urdf", "cal.toml"):
+        out = tmp_path / f"{arm}.joints.csv"
+        command = ["lab", "compensate", str(targets), "--robot", str(tmp_path / arm)]
+        res = runner.invoke(app, [*command, "--nominal", "ur5_robot", "-o", str(out)])
+        assert res.exit_code == 0, res.output
+        said[arm] = res.output
+        with open(out, newline="") as fh:
+            rows = list(csv.DictReader(line for line in fh if not line.startswith("#")))
+        angles[arm] = np.array([[float(r[f"q{j}"]) for j in range(1, 7)] for r in rows])
+    assert "cal.metrology.toml beside it" in said["cal.urdf"]
+    assert "beside it" not in said["cal.toml"]
+    assert angles["cal.urdf"].shape == (6, 6)
+    np.testing.assert_allclose(angles["cal.urdf"], angles["cal.toml"], rtol=0, atol=1e-8)
