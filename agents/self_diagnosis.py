@@ -95,7 +95,7 @@ from agents.model_selection import SequentialSelection, candidate_families
 from agents.mpc import MPCAgent, Widening
 from agents.online_calibration import MeasurementBuffer, RecursiveLeastSquares, merge_effects
 from arm.constraints import Interval, declare, problems, refuse
-from arm.effects import candidate_effects, make_effect
+from arm.effects import make_effect
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from envs.task import TaskInfo, Truth
@@ -288,8 +288,8 @@ class DiagnosingMPCAgent(MPCAgent):
     ratio an effect must reach on the buffer's last ``holdout`` fraction), ``window`` (the most
     recent points a diagnosis uses; re-learning uses all the buffer holds), ``monitor_points``
     and ``monitor_p`` (the innovation test that starts a new diagnosis), ``candidates`` (effects
-    to test; default the lab's catalogue of effects tested whole, without the scan of cyclic
-    errors, which ``"cyclic"`` among them adds), ``relearn`` (re-run the widened estimator over the
+    to test; default the lab's: every catalogued effect and the scan of cyclic errors, which a
+    list without ``"cyclic"`` leaves out), ``relearn`` (re-run the widened estimator over the
     buffer), ``test_first`` (the held-out test for the first effect too, not only the extras),
     ``prune`` (drop effects added earlier that a later, wider model no longer needs; with
     ``relearn`` only); for the sequential test ``select`` (on/off), ``select_alpha`` (its
@@ -457,12 +457,8 @@ class DiagnosingMPCAgent(MPCAgent):
             list(model.effect_names),
             options=self._lab_options(),
             alpha=self.settings.alpha,
-            # by default the effects tested whole (the cyclic scan only when asked for)
-            candidates=(
-                candidate_effects()
-                if self.settings.candidates is None
-                else self.settings.candidates
-            ),
+            # by default the lab's: every catalogued effect and the scan of cyclic errors
+            candidates=self.settings.candidates,
         )
         rec.verdict, rec.suggestion, rec.chi2_p_value = d.verdict, d.suggestion, d.chi2_p_value
         if not d.explanation:
