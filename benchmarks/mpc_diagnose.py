@@ -85,8 +85,8 @@ def episode(label: str, scenario: str, seed: int, informed: dict[str, str]) -> d
         out["selection_cost_median_s"] = float(np.median(sel)) if sel.size else 0.0
         out["selection_cost_max_s"] = float(sel.max()) if sel.size else 0.0
         out["selection_late"] = rep["selection_late"]
-        out["lag_s"] = agent.lag_steps * float(agent.task.dt)
-        out["selection_lag_s"] = agent.select_lag * float(agent.task.dt)
+        out["lag_s"] = agent.settings.lag_steps * float(agent.task.dt)
+        out["selection_lag_s"] = agent.settings.select_lag * float(agent.task.dt)
         out["solve_median_ms"] = float(np.median(r.solve_time_s)) * 1e3
         out["solve_p95_ms"] = float(np.percentile(r.solve_time_s, 95)) * 1e3
     return out
