@@ -440,10 +440,7 @@ class _Round:
         :data:`GROSS_GAP` times as far as the farthest pose kept. Gross errors do (a reflector
         that lost lock is millimetres off); a missing effect's spread does not (its largest
         deviations continue its smaller ones)."""
-        if not self.far.any() or self.far.all():
-            return False
-        d = np.linalg.norm(self.r, axis=1)
-        return bool(d[self.far].min() >= GROSS_GAP * d[~self.far].max())
+        return self._apart_by(GROSS_GAP)
 
     @property
     def apart_beyond_leverage(self) -> bool:
@@ -454,14 +451,17 @@ class _Round:
         look apart by leverage alone, and only a gap beyond it calls them gross errors. Where
         the poses kept do not over-determine the parameters :data:`REFUSE_REDUNDANCY` times
         (h above its inverse), their fit bends to them too freely to call the rest gross."""
-        if not self.separated:
-            return False
-        rows = int(np.count_nonzero(self.r[self.keep]))
-        h = self.res.rank / max(rows, 1)
+        h = self.res.rank / max(int(np.count_nonzero(self.r[self.keep])), 1)
         if h > 1 / REFUSE_REDUNDANCY:
             return False
+        return self._apart_by(GROSS_GAP * math.sqrt((1 + h) / (1 - h)))
+
+    def _apart_by(self, gap: float) -> bool:
+        """Whether the nearest pose flagged is at least ``gap`` times as far as the farthest
+        pose kept (False where none, or every one, is flagged)."""
+        if not self.far.any() or self.far.all():
+            return False
         d = np.linalg.norm(self.r, axis=1)
-        gap = GROSS_GAP * math.sqrt((1 + h) / (1 - h))
         return bool(d[self.far].min() >= gap * d[~self.far].max())
 
 
