@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from arm.description import RobotDescription, from_urdf, vec3
-from arm.files import OutputError, atomic_write_text
+from arm.files import OutputError, atomic_write_text, read_input_text
 from arm.params import TOOL_ROTATION_NAMES
 from arm.so3 import rotation_matrix, rotation_vector
 from arm.urdf import UrdfError, calibrated_urdf, joint_origins, read_urdf, rpy_of
@@ -268,9 +268,7 @@ def read_calibrated_urdf(path: str | Path, metrology: str | Path | None = None) 
     ``lab.fit`` as a new nominal arm)."""
     path = Path(path)
     side = Path(metrology) if metrology is not None else metrology_path(path)
-    for p in (path, side):
-        if not p.is_file():
-            raise ExportError(f"{p}: file not found")
+    urdf = read_input_text(path, "URDF file", "urdf", ExportError)
     return _calibrated(
-        path.read_text(encoding="utf-8"), side.read_text(encoding="utf-8"), str(path)
+        urdf, read_input_text(side, "metrology file", "toml", ExportError), str(path)
     )
