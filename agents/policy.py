@@ -221,7 +221,7 @@ class PolicyIO:
                     [payload],
                 ]
             )
-        return f.astype(np.float32)
+        return f.astype(np.float64)
 
     def action(self, a: np.ndarray) -> np.ndarray:
         """The env's action (6,) for the policy's action ``a`` at the last observation."""
@@ -294,12 +294,23 @@ def acting_module(algo: str, policy: Any) -> Any:
 
 class PolicyNetwork:
     """A policy's network with its observation normalisation: ``act(features)`` is the
-    deterministic action in [-1, 1]."""
+    deterministic action in [-1, 1].
+
+    It infers in float64 (the weights cast, the features never rounded to float32), whatever
+    precision it was trained in: float32 kernels round differently on CPUs with other vector units
+    (AVX2, AVX-512) or another BLAS, and a closed loop carries a 1e-7 difference on to the
+    metrics. In float64 the differences between machines are about 1e-16, far below the
+    ``--rtol 1e-6`` that ``sixaxis reproduce`` promises (tests/test_policy_reproducibility.py
+    perturbs every shipped policy's observations to keep that promise)."""
 
     def __init__(self, algo: str, policy: Any, norm: Mapping[str, Any]) -> None:
         self.algo = algo
         self.policy = policy
-        self.policy.set_training_mode(False)
+        # a float64 snapshot of the weights: a policy still in training keeps its own float32 ones
+        self.params = {
+            k: v.detach().to(dtype=_float64()).clone()
+            for k, v in acting_module(algo, policy).state_dict().items()
+        }
         self.mean = np.asarray(norm["obs_mean"], dtype=float)
         self.var = np.asarray(norm["obs_var"], dtype=float)
         self.clip = float(norm["obs_clip"])
@@ -310,8 +321,38 @@ class PolicyNetwork:
 
         x = np.clip((features - self.mean) / np.sqrt(self.var + self.eps), -self.clip, self.clip)
         with torch.no_grad():
-            a, _ = self.policy.predict(x.astype(np.float32), deterministic=True)
-        return np.asarray(a, dtype=float).reshape(-1)
+            a = self._deterministic_action(torch.as_tensor(x, dtype=torch.float64).reshape(1, -1))
+        return np.clip(a.numpy().reshape(-1), -1.0, 1.0)
+
+    def _deterministic_action(self, x: Any) -> Any:
+        """The distribution's mode, through the acting layers themselves: stable-baselines3's
+        ``predict`` would cast the observation to float32 (``preprocess_obs``). PPO: the actor's
+        latent, its mean action (tanh where the policy squashes); SAC: tanh of the mean; TD3:
+        its actor (ending in tanh). The features extractor of a flat Box is the identity."""
+        import torch
+
+        call = self._layer
+        if self.algo == "ppo":
+            a = call("action_net", call("mlp_extractor.policy_net", x))
+            return torch.tanh(a) if self.policy.squash_output else a
+        if self.algo == "sac":
+            return torch.tanh(call("mu", call("latent_pi", x)))
+        return call("mu", x)
+
+    def _layer(self, name: str, x: Any) -> Any:
+        """The acting module's layer ``name`` applied to ``x`` with the float64 weights."""
+        from torch.func import functional_call
+
+        layer = acting_module(self.algo, self.policy).get_submodule(name)
+        prefix = name + "."
+        params = {k[len(prefix) :]: v for k, v in self.params.items() if k.startswith(prefix)}
+        return functional_call(layer, params, (x,))
+
+
+def _float64() -> Any:
+    import torch
+
+    return torch.float64
 
 
 def save_policy_file(
@@ -408,7 +449,7 @@ def load_policy_file(path: str | Path) -> tuple[PolicyNetwork, dict[str, Any]]:
                 f"{path}: weight {k!r} has {bad.size} NaN or infinite value(s) (the first at "
                 f"flat index {bad[0]}): not a trained network"
             )
-        state[k] = torch.from_numpy(np.array(v, dtype=np.float32))
+        state[k] = torch.from_numpy(np.array(v, dtype=np.float32))  # as trained; act() casts
     module.load_state_dict(state, strict=True)
     _check_normalisation(arrays, int(meta["obs_size"]), path)
     return PolicyNetwork(algo, policy, arrays), meta

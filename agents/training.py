@@ -49,6 +49,7 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 
+from agents.base import Agent
 from agents.policy import (
     POLICY_DIR,
     Algo,
@@ -62,7 +63,7 @@ from agents.policy import (
 from agents.reference import FeedforwardAgent
 from arm.constraints import Interval, check, constraints_of, declare, problems
 from arm.errors import SixAxisError
-from envs.task import controller_info
+from envs.task import TaskInfo, Truth, controller_info
 
 __all__ = [
     "LEADERBOARD_ENV",
@@ -70,11 +71,14 @@ __all__ = [
     "LEADERBOARD_SEEDS",
     "SEED_STRIDE",
     "EpisodeSeeds",
+    "PerturbedObservations",
     "PolicyEnv",
     "TrainConfig",
     "TrainConfigError",
     "evaluate_policy",
     "load_train_config",
+    "policy_evaluation_record",
+    "rerecord_policy",
     "ship_policy",
     "train",
 ]
@@ -352,7 +356,7 @@ class PolicyEnv(gym.Wrapper):
         if self.shadow is not None:
             self._shadow_obs, self._shadow_info = self.shadow.reset(seed=seed, options=options)
             self.shadow_base.reset(self.shadow.unwrapped.task)  # type: ignore[attr-defined]
-        return self.io.features(obs, controller_info(info)), info
+        return self.io.features(obs, controller_info(info)).astype(np.float32), info
 
     def step(self, action):
         before = self.io.prev_action.copy()
@@ -365,7 +369,7 @@ class PolicyEnv(gym.Wrapper):
         r -= self.action_penalty * float(a @ a)
         r -= self.action_change_penalty * float((a - before) @ (a - before))
         return (
-            self.io.features(obs, controller_info(info)),
+            self.io.features(obs, controller_info(info)).astype(np.float32),  # trained in float32
             r,
             terminated,
             truncated,
@@ -452,16 +456,21 @@ def evaluate_network(
     reward_scale_mm: float = 0.05,
     episode_seconds: float = EPISODE_SECONDS,
     settle_seconds: float = SETTLE_SECONDS,
+    perturb_rel: float = 0.0,
 ) -> dict[str, dict[str, list[float]]]:
     """Deterministic episodes of a policy: per scenario, per seed, the settled and whole-episode
-    tracking RMS (mm) and the return under the log reward."""
+    tracking RMS (mm) and the return under the log reward. ``perturb_rel`` > 0 multiplies every
+    observation by ``1 + perturb_rel * (+-1)`` (signs drawn from the episode's seed): how far a
+    rounding difference between CPUs carries through the closed loop."""
     from agents.runner import run_episode
 
     out: dict[str, dict[str, list[float]]] = {}
     for sc in scenarios:
         rows: dict[str, list[float]] = {"rms_settled_mm": [], "rms_mm": [], "return": []}
         for s in seeds:
-            agent = PolicyAgent.from_network(str(meta.get("name", "policy")), network, meta)
+            agent: Agent = PolicyAgent.from_network(str(meta.get("name", "policy")), network, meta)
+            if perturb_rel:
+                agent = PerturbedObservations(agent, perturb_rel, seed=s)
             r = run_episode(
                 agent, dict(env_kwargs) | {"scenario": sc}, seed=s, episode_seconds=episode_seconds
             )
@@ -679,9 +688,11 @@ def evaluate_policy(
     env_kwargs: Mapping[str, Any] | None = None,
     episode_seconds: float = EPISODE_SECONDS,
     settle_seconds: float = SETTLE_SECONDS,
+    perturb_rel: float = 0.0,
 ) -> dict[str, dict[str, list[float]]]:
     """A policy file's deterministic leaderboard episodes (per scenario, per seed: settled and
-    whole-episode RMS, mm); the same numbers every time on one machine."""
+    whole-episode RMS, mm); the same numbers every time on one machine (``perturb_rel``: see
+    :func:`evaluate_network`)."""
     from agents.policy import load_policy_file
 
     network, meta = load_policy_file(path)
@@ -694,7 +705,38 @@ def evaluate_policy(
         env,
         episode_seconds=episode_seconds,
         settle_seconds=settle_seconds,
+        perturb_rel=perturb_rel,
     )
+
+
+class PerturbedObservations(Agent):
+    """An agent that sees every observation multiplied by ``1 + rel * (+-1)``, the signs drawn
+    from ``seed``: a rounding difference of relative size ``rel`` at every step, as another CPU
+    would make one. A closed loop that is not chaotic carries it on at about that size."""
+
+    def __init__(self, inner: Agent, rel: float, seed: int = 0) -> None:
+        super().__init__()
+        self.inner, self.rel = inner, float(rel)
+        self.name = inner.name
+        self.needs_truth = inner.needs_truth
+        self._rng = np.random.default_rng([0xC0FFEE, int(seed)])
+
+    def reset(self, task: TaskInfo, seed: int | None = None, truth: Truth | None = None) -> None:
+        self.task = task
+        self.inner.reset(task, seed, truth)
+
+    def next_phase(self, task: TaskInfo, truth: Truth | None = None) -> None:
+        self.task = task
+        self.inner.next_phase(task, truth)
+
+    def act(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
+        signs = self._rng.choice((-1.0, 1.0), size=np.shape(obs))
+        out = self.inner.act(np.asarray(obs, dtype=float) * (1.0 + self.rel * signs), info)
+        self.last_solve_time = self.inner.last_solve_time
+        return out
+
+    def report(self) -> dict[str, float | list]:
+        return self.inner.report()
 
 
 def ship_policy(
@@ -731,15 +773,41 @@ def ship_policy(
         "seeds_trained": int(seeds_trained),
         "wall_s_all_seeds": wall_s_all_seeds if wall_s_all_seeds is not None else wall,
     }
-    rows = evaluate_policy(src)  # the same weights
-    meta["leaderboard"] = {
-        "env": LEADERBOARD_ENV,
-        "seeds": list(LEADERBOARD_SEEDS),
-        "episode_seconds": EPISODE_SECONDS,
-        "settle_seconds": SETTLE_SECONDS,
-        "episodes": rows,
-    }
+    meta["leaderboard"] = policy_evaluation_record(src)  # the same weights
     with atomic_path(dst) as tmp:
         tmp.write_bytes(src.read_bytes())
     atomic_write_text(dst.with_suffix(".json"), json.dumps(meta, indent=2) + "\n")
     return dst
+
+
+def policy_evaluation_record(path: str | Path, commit: str | None = None) -> dict[str, Any]:
+    """The ``leaderboard`` record of a policy file's .json: its deterministic episodes on the
+    public seeds (float64 inference), with the settings that made them and, where given, the
+    clean commit of the code that evaluated it."""
+    record: dict[str, Any] = {
+        "env": LEADERBOARD_ENV,
+        "seeds": list(LEADERBOARD_SEEDS),
+        "episode_seconds": EPISODE_SECONDS,
+        "settle_seconds": SETTLE_SECONDS,
+        "inference": "float64",
+    }
+    if commit is not None:
+        record["commit"] = commit
+    record["episodes"] = evaluate_policy(path)
+    return record
+
+
+def rerecord_policy(name_or_path: str | Path, commit: str | None = None) -> Path:
+    """Evaluate a shipped policy (``agents/policies/<name>.npz``, or a policy file) again and
+    rewrite the ``leaderboard`` record of its .json atomically; the weights are not touched.
+    Used when the evaluation itself changes (float32 to float64 inference)."""
+    from agents.policy import load_policy_file
+    from arm.files import atomic_write_text
+
+    p = Path(name_or_path)
+    path = p if p.suffix == ".npz" else POLICY_DIR / f"{name_or_path}.npz"
+    _, meta = load_policy_file(path)  # refuses anything unsafe or inconsistent
+    meta = dict(meta)
+    meta["leaderboard"] = policy_evaluation_record(path, commit)
+    atomic_write_text(path.with_suffix(".json"), json.dumps(meta, indent=2) + "\n")
+    return path

@@ -129,6 +129,32 @@ def ship(
         )
 
 
+@train_app.command("record")
+def record(
+    names: Annotated[
+        list[str] | None,
+        typer.Argument(help="Shipped policies to re-evaluate (default: every one shipped)."),
+    ] = None,
+) -> None:
+    """Evaluate shipped policies again on the public episodes and rewrite the evaluation their
+    .json records (the weights are not touched), naming this checkout's commit, which must be
+    clean."""
+    from agents.policy import POLICY_DIR
+    from agents.training import rerecord_policy
+    from experiments.records import git_state
+
+    state = git_state()
+    if state["dirty"] or state["commit"] is None:
+        raise typer.BadParameter(
+            "commit your changes first: a policy's record names the clean commit that made it"
+        )
+    chosen = names or sorted(p.stem for p in POLICY_DIR.glob("*.npz"))
+    for name in chosen:
+        with user_errors(ValueError), console.status(f"evaluating {name}..."):
+            dst = rerecord_policy(name, commit=state["commit"])
+        console.print(f"recorded {dst.with_suffix('.json')} at {state['commit'][:10]}")
+
+
 EVALUATE_METRICS = (
     "rms_mm",
     "rms_settled_mm",

@@ -220,7 +220,8 @@ def _meta(algo, n, m):
 @pytest.mark.parametrize("algo", ["ppo", "sac", "td3"])
 def test_policy_files_act_as_the_trained_network(tmp_path, algo):
     """Weights exported to .npz and loaded into a freshly built network give stable-baselines3's
-    own deterministic actions, bit for bit."""
+    own deterministic actions, to float32 rounding: the loaded network infers in float64, the
+    trained one in float32."""
     model, env = _fresh_model(algo)
     n, m = env.observation_space.shape[0], env.action_space.shape[0]
     norm = _norm(n)
@@ -234,7 +235,8 @@ def test_policy_files_act_as_the_trained_network(tmp_path, algo):
         f = rng.normal(size=n).astype(np.float32) * 3
         x = np.clip((f - norm["obs_mean"]) / np.sqrt(norm["obs_var"] + 1e-8), -10, 10)
         want, _ = model.predict(x.astype(np.float32), deterministic=True)
-        np.testing.assert_array_equal(net.act(f), want)
+        np.testing.assert_allclose(net.act(f), want, rtol=0, atol=1e-5)
+        assert not np.array_equal(net.act(f), want.astype(float))  # not float32 any more
 
 
 def _evil_pickle(marker: Path) -> bytes:
@@ -409,10 +411,10 @@ def test_shipped_policy_reproduces_its_leaderboard_row(name):
         episode_seconds=row["episode_seconds"],
         settle_seconds=row["settle_seconds"],
     )[sc]
-    # On another CPU, torch's float32 kernels (AVX2 vs AVX-512) round differently and a closed
-    # loop carries the difference on: the recorded row holds to a small relative tolerance.
-    for key in ("rms_settled_mm", "rms_mm"):
-        np.testing.assert_allclose(got[key], row["episodes"][sc][key][:2], rtol=1e-3)
+    # float64 inference: on another CPU (other vector units, another BLAS) the row holds to the
+    # tolerance `sixaxis reproduce` promises there (tests/test_policy_reproducibility.py)
+    for key in ("rms_settled_mm", "rms_mm", "return"):
+        np.testing.assert_allclose(got[key], row["episodes"][sc][key][:2], rtol=1e-6)
 
 
 @pytest.mark.slow
