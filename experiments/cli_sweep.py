@@ -296,7 +296,12 @@ def reproduce(  # noqa: C901  (one command: each branch a way a record cannot be
         ),
     ],
     rtol: Annotated[
-        float, typer.Option(help="Relative tolerance of the comparison (0: exact).")
+        float,
+        typer.Option(
+            help="Relative tolerance of the comparison (0: exact, as on the machine that made "
+            "the rows; 1e-6 on another CPU, which rounds differently: the learned policies "
+            "infer in float64 and tests/test_policy_reproducibility.py keeps this promise)."
+        ),
     ] = 0.0,
     run: Annotated[
         list[str] | None,
