@@ -41,6 +41,10 @@ SI units inside (m, rad, kg). The TOML file states its own units::
 
     [effects.compliance]         # optional: calibrated effect values, SI (docs/format.md)
     c2 = 6e-6
+
+    [nominal]                    # optional, written by `lab export`: the nominal arm that was
+    name = "seed"                # calibrated, a whole description in the same form (its own
+    ...                          # units; no [nominal] of its own)
 """
 
 from __future__ import annotations
@@ -129,6 +133,8 @@ class RobotDescription:
     flange_rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)  # rotation vector
     # the URDF this arm was read from (what `lab export --format urdf` edits); not part of equality
     urdf: UrdfSource | None = field(default=None, compare=False, repr=False)
+    # a calibrated arm's nominal arm, as `lab export` records it (what a controller believes in)
+    nominal: RobotDescription | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if len(self.joints) != 6:
@@ -274,6 +280,9 @@ class RobotDescription:
     def to_toml(self, length_unit: str = "m", angle_unit: str = "deg") -> str:
         import tomli_w
 
+        return tomli_w.dumps(self._to_dict(length_unit, angle_unit))
+
+    def _to_dict(self, length_unit: str, angle_unit: str) -> dict:
         L, A = _LENGTH[length_unit], _ANGLE[angle_unit]
         doc: dict = {
             "name": self.name,
@@ -314,7 +323,9 @@ class RobotDescription:
             }
         if self.effects:
             doc["effects"] = {k: dict(v) for k, v in self.effects.items()}
-        return tomli_w.dumps(doc)
+        if self.nominal is not None:
+            doc["nominal"] = replace(self.nominal, nominal=None)._to_dict(length_unit, angle_unit)
+        return doc
 
     def save(self, path: str | Path, length_unit: str = "m", angle_unit: str = "deg") -> None:
         atomic_write_text(Path(path), self.to_toml(length_unit, angle_unit))
@@ -381,6 +392,7 @@ _KEYS = {
         "base",
         "flange",
         "effects",
+        "nominal",
     },
     "joint": {"alpha", "a", "d", "theta_offset", "limits", "mass", "com", "beta"},
     "tool": {"point"},
@@ -402,8 +414,15 @@ def _table(val, source: str, where: str, kind: str) -> dict:
     return val
 
 
-def _from_dict(doc: dict, source: str) -> RobotDescription:
+def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription:
     _table(doc, source, "", "")
+    nominal = None
+    if "nominal" in doc:
+        if nested:
+            raise DescriptionError(f"{source}: [nominal] has a [nominal] of its own")
+        nominal = _from_dict(
+            _table(doc["nominal"], source, "[nominal] ", ""), f"{source} [nominal]", nested=True
+        )
     lu = _get(doc, "length_unit", source, str, "", "m")
     au = _get(doc, "angle_unit", source, str, "", "rad")
     if lu not in _LENGTH:
@@ -508,6 +527,7 @@ def _from_dict(doc: dict, source: str) -> RobotDescription:
             flange=flange,
             flange_translation=ft,
             flange_rotation=fr,
+            nominal=nominal,
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{source}: {exc}") from None

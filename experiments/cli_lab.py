@@ -735,8 +735,10 @@ def compensate_cmd(
     targets: Annotated[
         Path,
         typer.Argument(
-            help="Desired tool points: CSV with x, y, z (and optionally q1..q6 start angles, "
-            "target, and the columns the arm's effects need)."
+            help="Desired tool poses: CSV with x, y, z in the calibration's measurement frame, "
+            "and q1..q6 (the program: its orientation is held, its branch kept) or rvx, rvy, rvz "
+            "/ roll, pitch, yaw (the tool's orientation); optionally target and the columns the "
+            "arm's effects need."
         ),
     ],
     robot: Annotated[
@@ -747,12 +749,20 @@ def compensate_cmd(
         Path, typer.Option("--output", "-o", help="The joint-angle CSV to write.")
     ] = Path("joints.csv"),
     nominal: Annotated[
-        str, typer.Option(help="The arm the controller believes in (TOML or shipped name).")
-    ] = "seed",
-    nominal_base: Annotated[
-        str,
-        typer.Option(help="Where the nominal arm stands: auto, nominal or calibrated."),
-    ] = "auto",
+        str | None,
+        typer.Option(
+            help="The arm the controller believes in (TOML or shipped name); default: the one "
+            "the calibrated file records (lab export writes it)."
+        ),
+    ] = None,
+    free_orientation: Annotated[
+        bool,
+        typer.Option(
+            "--free-orientation",
+            help="Targets are points alone: solve for the tool point and let the orientation "
+            "change (without it a file with neither q1..q6 nor an orientation is refused).",
+        ),
+    ] = False,
     target_ids: Annotated[
         str | None,
         typer.Option(
@@ -773,23 +783,23 @@ def compensate_cmd(
     ] = False,
     as_json: JsonOpt = False,
 ) -> None:
-    """Joint angles that put the calibrated arm's tool point on each target.
+    """Joint angles that put the calibrated arm's tool frame on each target pose.
 
-    Also prints the error that commanding the nominal inverse kinematics would leave."""
+    Starts at the program (q1..q6) and keeps its branch, else at the nominal arm's inverse
+    kinematics; prints the start's error and the joint change, through the calibrated model."""
     from lab.export import compensate, read_targets, target_id_list, write_joints
 
     with user_errors(prefix="--target-ids: "):
         ids = target_id_list(target_ids)
-    check_outputs(
-        [(output, "--output")], [targets, robot, nominal, *(effect_module or ())], as_json
-    )
+    inputs = [targets, robot, *([nominal] if nominal else []), *(effect_module or ())]
+    check_outputs([(output, "--output")], inputs, as_json)
     load_modules(effect_module)
     cal = read_arm(robot)
-    nom = read_arm(nominal, "--nominal")
+    nom = read_arm(nominal, "--nominal") if nominal is not None else None
     with user_errors():
         tset = read_targets(targets, length_unit=length_unit, angle_unit=angle_unit)
         with console.status(f"solving {len(tset)} targets..."):
-            comp = compensate(cal, tset, nom, nominal_base=nominal_base, target_ids=ids)
+            comp = compensate(cal, tset, nom, free_orientation=free_orientation, target_ids=ids)
     unreached = comp.unreached()
     if unreached is not None and not keep_unreached:
         fail(f"{unreached}; nothing written (--keep-unreached writes them with converged = 0)")
@@ -799,4 +809,4 @@ def compensate_cmd(
     if as_json:
         print(json_text(summary))
     else:
-        print_compensation(cal, nom, comp, summary, output)
+        print_compensation(comp, summary, output)

@@ -184,6 +184,8 @@ def export_urdf(result: FitResult, path: str | Path, name: str | None = None) ->
             effects.pop("geometric")
     if effects:
         doc["effects"] = effects
+    # the arm the controller believes in, as a robot description (compensation starts from it)
+    doc["nominal"] = tomllib.loads(replace(nominal, nominal=None).to_toml("m", "rad"))
     import tomli_w
 
     side_text = (
@@ -245,8 +247,16 @@ def _calibrated(
             effects["geometric"] = effects.get("geometric", {}) | dict(
                 zip(TOOL_ROTATION_NAMES, map(float, rotation_vector(R6)), strict=True)
             )
+        recorded = None
+        if "nominal" in doc:
+            import tomli_w
+
+            recorded = RobotDescription.from_toml(
+                tomli_w.dumps(doc["nominal"]), source=f"{metrology_path(source)} [nominal]"
+            )
         return replace(
             robot,
+            nominal=recorded,
             name=str(doc.get("robot", robot.name)),
             tools=points,
             base_translation=vec3(B[:3, 3]),
