@@ -156,6 +156,7 @@ def fit_cmd(
         loss=loss,
         outliers=outliers,
         accept_large=accept_large,
+        as_json=as_json,
     )
     result = _fitted(meas, arm, effects, opts, val)
     if not as_json:
@@ -210,6 +211,7 @@ def diagnose_cmd(
         loss=loss,
         outliers=outliers,
         accept_large=accept_large,
+        as_json=as_json,
     )
     with user_errors(), console.status("fitting and testing the candidate effects..."):
         d = diagnose(meas, arm, effects, options=opts, alpha=alpha)
@@ -298,6 +300,7 @@ def discover_cmd(
         noise_mrad=noise_mrad,
         orientation_unit=orientation_unit,
         measured=measured,
+        as_json=as_json,
     )
     with user_errors(), console.status("fitting the model and searching the library..."):
         d = discover(
@@ -644,8 +647,8 @@ def export_cmd(
         typer.Option(
             "--output",
             "-o",
-            help="The file to write (default calibrated.toml, or calibrated.urdf with --format "
-            "urdf).",
+            help="The file to write: its suffix, .toml or .urdf, says the format (default "
+            "calibrated.toml, or calibrated.urdf with --format urdf).",
         ),
     ] = None,
     robot: RobotOpt = "seed",
@@ -666,17 +669,18 @@ def export_cmd(
     outliers: OutliersOpt = "auto",
     accept_large: AcceptLargeOpt = False,
     export_format: Annotated[
-        str,
+        str | None,
         declared(
             OneOf(EXPORT_FORMATS),
             "format",
             "toml: a robot TOML (any arm); urdf: the arm's URDF (--robot ARM.urdf) with its joint "
             "origins corrected, and NAME.metrology.toml beside it with the tracker frame, the "
             "tool points and the effects a URDF cannot express (docs/format.md, the calibrated "
-            "URDF).",
+            "URDF). Default: the --output's suffix, else toml; one that disagrees with the "
+            "suffix is refused.",
             lower=True,
         ),
-    ] = "toml",
+    ] = None,
 ) -> None:
     """Fit, then write the calibrated arm as a robot TOML or as its URDF.
 
@@ -686,6 +690,7 @@ def export_cmd(
     from lab.export import export_robot
     from lab.urdf_export import export_urdf, metrology_path, require_urdf
 
+    export_format = export_format_of(output, export_format)
     if output is None:
         output = Path(f"calibrated.{export_format}")
     outputs = [(output, "--output")]
@@ -728,6 +733,20 @@ def export_cmd(
     with user_errors(), writing(output):
         cal = export_robot(result, output, name=name)
     say(f"wrote the calibrated arm {cal.name!r} to {output}; use it with --robot {output}")
+
+
+def export_format_of(output: Path | None, given: str | None) -> str:
+    """The format an export writes: ``--format`` where given, else the output's suffix (.toml,
+    .urdf), else toml; a ``--format`` that the suffix contradicts is refused (a TOML in a file
+    named .urdf fails where it is read)."""
+    suffix = output.suffix.lower().lstrip(".") if output is not None else ""
+    named = suffix if suffix in EXPORT_FORMATS else None
+    if given is not None and named is not None and given != named:
+        fail(
+            f"--format {given}: --output {output} names a .{named} file; give --output "
+            f"NAME.{given}, or leave out --format"
+        )
+    return given or named or "toml"
 
 
 @app.command("compensate")

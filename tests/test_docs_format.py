@@ -213,6 +213,7 @@ def test_the_robot_toml_tables_name_every_key_the_writer_emits():
         flange_translation=(0.0, 0.01, 0.0),  # a URDF's tip link
         flange_rotation=(0.0, 0.3, 0.0),
         effects={"compliance": {"c2": 6e-6}},
+        nominal=seed_robot(),  # what `lab export` records
     )
     assert isinstance(full, RobotDescription)
     doc = tomllib.loads(full.to_toml())
