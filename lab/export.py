@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arm.description import RobotDescription, load_robot
+from arm.description import RobotDescription, load_robot, vec3
 from arm.effect_api import EffectError
 from arm.effects import EFFECTS
 from arm.errormodel import ErrorModel
@@ -84,6 +84,7 @@ __all__ = [
     "exported_difference",
     "nominal_arm",
     "read_targets",
+    "station_bases",
     "target_id_list",
     "torque_difference",
     "write_joints",
@@ -156,6 +157,14 @@ def export_robot(
     desc = result.description(name or f"{result.model.robot.name}-calibrated")
     # the arm the controller believes in, which compensation starts from without a program
     desc = replace(desc, nominal=replace(result.model.robot, nominal=None))
+    if len(result.model.stations) > 1:  # each station's frame, for targets given in it
+        desc = replace(
+            desc,
+            stations=tuple(
+                (sid, vec3(T[:3, 3]), vec3(rotation_vector(T[:3, :3])))
+                for sid, T in station_bases(result)
+            ),
+        )
     text = desc.to_toml(length_unit, angle_unit)
     back = RobotDescription.from_toml(text, source=str(path))
     try:
@@ -190,6 +199,21 @@ def export_robot(
             result.sigma_mm,
         )
     return back
+
+
+def station_bases(result: FitResult) -> list[tuple[int, np.ndarray]]:
+    """(station id, 4x4 measurement frame <- robot base) of each station of the fit."""
+    model, params = result.model, result.parameters()
+    stations = model.stations
+    out = []
+    for s in stations:
+        suffix = "" if len(stations) == 1 else str(s)
+        t = np.array([params[f"b{c}{suffix}"] for c in "xyz"])
+        r = np.array([params[f"br{c}{suffix}"] for c in "xyz"])
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = rotation_matrix(r), t
+        out.append((int(s), T))
+    return out
 
 
 def _compare(result: FitResult, robot: RobotDescription, fit_torques: bool) -> float:
@@ -544,6 +568,38 @@ def _pose_starts(
     return out
 
 
+def _to_first_station(
+    cal: RobotDescription, targets: TargetSet, cols: Mapping[str, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The targets' points and orientations in the calibrated arm's measurement frame (its
+    first station's): a ``station`` column maps each row from its station's frame through the
+    stations the calibration recorded."""
+    station = targets.columns.get("station")
+    if station is None:
+        return targets.xyz, targets.R
+    bases = {sid: (np.array(t), rotation_matrix(np.array(r))) for sid, t, r in cal.stations}
+    if not bases:  # one station: its base is the arm's
+        bases = {int(station[0]): (np.array(cal.base_translation), cal.base_matrix[:3, :3])}
+    unknown = sorted({int(v) for v in station} - set(bases))
+    if unknown:
+        raise CompensationError(
+            f"{targets.source}: station(s) {unknown} not among the calibration's "
+            f"{sorted(bases)}: targets are given in the frame of a station the calibration "
+            "registered"
+        )
+    t0 = np.array(cal.base_translation)
+    R0 = cal.base_matrix[:3, :3]
+    xyz = np.empty_like(targets.xyz)
+    R = None if targets.R is None else np.empty_like(targets.R)
+    for sid, (t, Rs) in bases.items():
+        on = station == sid
+        M = R0 @ Rs.T  # first station <- robot base <- this station
+        xyz[on] = (targets.xyz[on] - t) @ M.T + t0
+        if R is not None and targets.R is not None:
+            R[on] = M @ targets.R[on]
+    return xyz, R
+
+
 def _take(cols: Mapping[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
     return {k: v[rows] for k, v in cols.items()}
 
@@ -597,6 +653,7 @@ def compensate(
     cols = dict(targets.columns) | {
         k: np.asarray(v, dtype=float) for k, v in (columns or {}).items()
     }
+    cols.pop("station", None)  # the rows are mapped to the first station's frame below
     ids = cols.get("target")
     model_targets = _model_targets(len(cal.tools), ids, target_ids)
     model = calibrated_model(cal, model_targets)
@@ -605,10 +662,10 @@ def compensate(
     except EffectError as exc:
         raise CompensationError(str(exc)) from None
     p = model.nominal()
-    xyz = targets.xyz
+    xyz, R_given = _to_first_station(cal, targets, cols)
 
     # the target orientations
-    R = None if free_orientation else targets.R
+    R = None if free_orientation else R_given
     orientation = "free" if free_orientation else "targets" if R is not None else "program"
     if orientation == "program" and targets.q is not None:
         R = model.predict_pose(model.inputs(targets.q, cols, source=targets.source), p)[1]

@@ -28,6 +28,7 @@ from lab.export import (
     torque_difference,
     write_joints,
 )
+from tests._beyond_points import pose_campaign
 from tests._lab_data import campaign
 
 
@@ -286,3 +287,34 @@ def test_bad_targets_are_named(tmp_path, true_arm):
     f.write_text("x,y,z,rvx,rvy,rvz,roll,pitch,yaw\n0.5,0.1,0.6,0,0,0,0,0,0\n")
     with pytest.raises(CompensationError, match=r"t.csv, line 1: give the orientation in one"):
         read_targets(f)
+
+
+def test_per_station_targets_are_mapped_through_the_calibrations_registration(seed, tmp_path):
+    """A calibration from two tracker stations records each station's frame; a program given
+    in the second station's frame compensates as the same program given in the first's (the
+    truth's own bases map one to the other), and a station the calibration never saw is refused."""
+    c = pose_campaign(seed, seed=3)
+    data, _ = c.measure(120, stations=(1, 2))
+    result = fit(data, seed, "geometric", measured=("x", "y", "z"), noise_mm=0.015)
+    path = tmp_path / "cal.toml"
+    arm = export_robot(result, path)
+    assert [s for s, _, _ in arm.stations] == [1, 2]
+    assert arm.stations[0][1] == pytest.approx(arm.base_translation, abs=1e-12)
+    assert load_robot(path).stations == arm.stations  # read back
+    q = sample_poses(seed, 8, np.random.default_rng(6))
+    seen = {}
+    for sid in (1, 2):
+        x = c.truth.predict(c.truth.inputs(q, {"station": np.full(8, float(sid))}), c.params)
+        targets = TargetSet(x, q=q, columns={"station": np.full(8, float(sid))})
+        seen[sid] = compensate(path, targets)
+        assert seen[sid].converged.all()
+    # the same program: the fitted bases map it alike, to the registration's accuracy (tens of
+    # um, the second station 12 m away), and its joints alike
+    shift = 1e3 * np.linalg.norm(seen[2].error_start - seen[1].error_start, axis=1)
+    assert shift.max() < 0.1 and seen[1].error_start_mm.max() < 0.1
+    assert np.median(np.abs(seen[2].q - seen[1].q)) < 1e-4
+    # unmapped, the second station's points lie metres from the arm
+    assert not compensate(path, TargetSet(x, q=q)).converged.any()
+    far = TargetSet(x, q=q, columns={"station": np.full(8, 3.0)})
+    with pytest.raises(CompensationError, match=r"station\(s\) \[3\] not among the calibra"):
+        compensate(path, far)
