@@ -640,14 +640,13 @@ def compensate(
             "orientation (--free-orientation)"
         )
     if nominal is None:
-        if cal.nominal is None:
-            log.warning(
-                "%s records no nominal arm (not written by lab export): its own table is taken "
-                "as the nominal one; give the arm the controller believes in (--nominal)",
-                cal.name,
-            )
+        # a shipped arm is its own nominal; one that carries a calibration's marks (effect values,
+        # Hayati's beta) and no record of its nominal arm was exported before the record existed
+        calibrated = bool(cal.effects) or any(j.beta for j in cal.joints)
+        unrecorded = cal.nominal is None and calibrated
         nom = cal.nominal if cal.nominal is not None else cal
     else:
+        unrecorded = False
         nom = nominal if isinstance(nominal, RobotDescription) else load_robot(nominal)
     cal = cal.to_modified()
     cols = dict(targets.columns) | {
@@ -674,6 +673,12 @@ def compensate(
     if targets.q is not None:
         q_start, ok_start, start = np.array(targets.q, dtype=float), np.ones(n, bool), "program"
     else:
+        if unrecorded:
+            log.warning(
+                "%s records no nominal arm (not written by lab export): its own table is taken "
+                "as the nominal one; give the arm the controller believes in (--nominal)",
+                cal.name,
+            )
         nom_model = calibrated_model(nominal_arm(cal, nom), model_targets)
         p_nom = nom_model.nominal()
         Rb = rotation_matrix(np.array(cal.base_rotation))

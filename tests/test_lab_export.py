@@ -220,6 +220,17 @@ def test_points_alone_are_refused_unless_the_orientation_is_free(seed, true_arm)
     assert comp.to_dict()["max_turn_mrad"] is None
 
 
+def test_a_calibrated_arm_without_its_nominal_arm_says_so(seed, true_arm, caplog):
+    """A calibrated description that records no nominal arm (made before export recorded it)
+    serves as its own nominal arm where the nominal inverse kinematics is needed, with a word."""
+    q = sample_poses(seed, 4, np.random.default_rng(9))
+    with caplog.at_level("WARNING", logger="lab.export"):
+        compensate(true_arm, TargetSet(true_fk(true_arm, q), q=q))  # a program: not needed
+        assert not caplog.records
+        comp = compensate(true_arm, true_fk(true_arm, q), free_orientation=True)
+    assert "records no nominal arm" in caplog.text and comp.nominal_robot == "truth"
+
+
 def test_compensation_from_an_exported_file_and_a_targets_csv(seed, tmp_path):
     """The user's path: an exported TOML (which records its nominal arm), a CSV of desired poses
     in mm and degrees with the program, a CSV of joints out."""
