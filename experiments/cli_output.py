@@ -556,9 +556,17 @@ def print_compensation(comp: Any, summary: dict[str, Any], output: Path) -> None
         f"by at most {summary['max_joint_change_mrad']:.3f} mrad; {summary['converged']} of "
         f"{comp.n} reached"
     )
+    if summary["far_from_start"]:
+        console.print(
+            "[yellow]joints moved more than 200 mrad (near a singularity, where a small change "
+            "of the pose turns the joints a lot):[/yellow] rows "
+            f"{', '.join(str(i + 1) for i in summary['far_from_start'][:20])}",
+            highlight=False,
+            soft_wrap=True,
+        )
     if summary["not_converged"]:
         console.print(
-            f"[yellow]not reached (out of reach, or off the start's branch):[/yellow] rows "
+            f"[yellow]not reached (out of reach, or only beyond the joint limits):[/yellow] rows "
             f"{', '.join(str(i + 1) for i in summary['not_converged'][:20])}",
             highlight=False,
             soft_wrap=True,
