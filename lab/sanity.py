@@ -9,9 +9,10 @@ record, on stderr), naming the file and the likely cause; the result stands.
 
 * **Validation far beyond the fit.** A fit explains held-out poses of the same arm about as well
   as its own (a little worse: the parameters fitted, the region). Held-out data whose RMS is more
-  than :data:`VALIDATION_FAR` times the fit's come from elsewhere: another arm, another frame
-  (a tracker moved, a registration not applied), other units, or poses far outside the region
-  calibrated.
+  than :data:`VALIDATION_FAR` times the fit's, and beyond :data:`VALIDATION_FAR_MM` (a model
+  tested on poses outside its region, as a self-diagnosing agent does on purpose, misses by
+  tenths of a millimetre), come from elsewhere: another arm, another frame (a tracker moved, a
+  registration not applied), other units, or poses far outside the region calibrated.
 * **A stated noise far above the residual.** With per-axis noise sigma, a fit's 3-D RMS is
   about sigma·√3·√(1 − P/(3N)), at least 0.8·sigma·√3 with three rows per parameter; a residual
   below a :data:`NOISE_FAR`-th of the stated floor cannot come from that noise. The tests that
@@ -28,11 +29,18 @@ from arm import errors
 from lab.errors import NoiseMismatchWarning, ValidationMismatchWarning
 from lab.result import FitResult
 
-__all__ = ["NOISE_FAR", "VALIDATION_FAR", "check_stated_noise", "check_validation"]
+__all__ = [
+    "NOISE_FAR",
+    "VALIDATION_FAR",
+    "VALIDATION_FAR_MM",
+    "check_stated_noise",
+    "check_validation",
+]
 
 log = logging.getLogger(__name__)
 
 VALIDATION_FAR = 10.0  # held-out RMS over the fit's RMS beyond which the data look foreign
+VALIDATION_FAR_MM = 1.0  # ... and at least this (mm): a model tested off its region misses less
 NOISE_FAR = 3.0  # the stated noise floor over the fit's RMS beyond which the noise looks wrong
 
 
@@ -43,10 +51,13 @@ def _say(text: str, category: type[errors.SixAxisWarning]) -> None:
 
 def check_validation(result: FitResult, source: str) -> bool:
     """Warn where the held-out RMS of ``result`` (validated on ``source``) is more than
-    :data:`VALIDATION_FAR` times its fit's; True when it warned."""
+    :data:`VALIDATION_FAR` times its fit's and more than :data:`VALIDATION_FAR_MM`; True when it
+    warned."""
     val = result.validation_rms_mm
     fit = result.rms_mm
-    if val is None or not math.isfinite(val) or not fit > 0 or val <= VALIDATION_FAR * fit:
+    if val is None or not math.isfinite(val) or not fit > 0:
+        return False
+    if val <= max(VALIDATION_FAR * fit, VALIDATION_FAR_MM):
         return False
     _say(
         f"{source}: validation RMS {val:.4g} mm is {val / fit:.3g} times the fit's "
