@@ -39,6 +39,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/mpc.py
 	$(BIN)/python benchmarks/mpc_diagnose.py
 	$(BIN)/python benchmarks/isolation.py
+	$(BIN)/python benchmarks/compensation.py
 
 # The lab on public real data beside the published results and FIGAROH: results/real_data.md.
 # The Rokae rows need the converted data: SIXAXIS_REAL_DATA=DIR make real-data (README).

@@ -41,6 +41,15 @@ SI units inside (m, rad, kg). The TOML file states its own units::
 
     [effects.compliance]         # optional: calibrated effect values, SI (docs/format.md)
     c2 = 6e-6
+
+    [[stations]]                 # optional, a calibration from several tracker stations: each
+    station = 1                  # station's frame <- robot base (the base above: the first's)
+    translation = [2.0, -1.2, -0.6]
+    rotation_vector = [0.0, 0.0, 126.0]
+
+    [nominal]                    # optional, written by `lab export`: the nominal arm that was
+    name = "seed"                # calibrated, a whole description in the same form (its own
+    ...                          # units; no [nominal] of its own)
 """
 
 from __future__ import annotations
@@ -129,6 +138,11 @@ class RobotDescription:
     flange_rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)  # rotation vector
     # the URDF this arm was read from (what `lab export --format urdf` edits); not part of equality
     urdf: UrdfSource | None = field(default=None, compare=False, repr=False)
+    # a calibration from several tracker stations: (id, translation, rotation vector) of each
+    # station's frame <- robot base; the base above is the first station's
+    stations: tuple[tuple[int, Vec3, Vec3], ...] = ()
+    # a calibrated arm's nominal arm, as `lab export` records it (what a controller believes in)
+    nominal: RobotDescription | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if len(self.joints) != 6:
@@ -274,6 +288,9 @@ class RobotDescription:
     def to_toml(self, length_unit: str = "m", angle_unit: str = "deg") -> str:
         import tomli_w
 
+        return tomli_w.dumps(self._to_dict(length_unit, angle_unit))
+
+    def _to_dict(self, length_unit: str, angle_unit: str) -> dict:
         L, A = _LENGTH[length_unit], _ANGLE[angle_unit]
         doc: dict = {
             "name": self.name,
@@ -314,7 +331,18 @@ class RobotDescription:
             }
         if self.effects:
             doc["effects"] = {k: dict(v) for k, v in self.effects.items()}
-        return tomli_w.dumps(doc)
+        if self.stations:
+            doc["stations"] = [
+                {
+                    "station": sid,
+                    "translation": [c / L for c in t],
+                    "rotation_vector": [c / A for c in r],
+                }
+                for sid, t, r in self.stations
+            ]
+        if self.nominal is not None:
+            doc["nominal"] = replace(self.nominal, nominal=None)._to_dict(length_unit, angle_unit)
+        return doc
 
     def save(self, path: str | Path, length_unit: str = "m", angle_unit: str = "deg") -> None:
         atomic_write_text(Path(path), self.to_toml(length_unit, angle_unit))
@@ -381,7 +409,10 @@ _KEYS = {
         "base",
         "flange",
         "effects",
+        "stations",
+        "nominal",
     },
+    "station": {"station", "translation", "rotation_vector"},
     "joint": {"alpha", "a", "d", "theta_offset", "limits", "mass", "com", "beta"},
     "tool": {"point"},
     "base": {"translation", "rotation_vector"},
@@ -402,8 +433,33 @@ def _table(val, source: str, where: str, kind: str) -> dict:
     return val
 
 
-def _from_dict(doc: dict, source: str) -> RobotDescription:
+def _stations(doc: dict, source: str, L: float, A: float) -> tuple[tuple[int, Vec3, Vec3], ...]:
+    """The ``[[stations]]`` of a description: (id, translation, rotation vector), SI."""
+    rows = doc.get("stations", [])
+    if not isinstance(rows, list):
+        raise DescriptionError(f"{source}: [[stations]] must be a list of tables")
+    out = []
+    for k, st in enumerate(rows):
+        w = f"station {k + 1}: "
+        _table(st, source, w, "station")
+        sid = _get(st, "station", source, float, w)
+        if sid != int(sid):
+            raise DescriptionError(f"{source}: {w}'station' must be an integer, got {sid:g}")
+        t = vec3(c * L for c in _get(st, "translation", source, "vec3", w))
+        r = vec3(c * A for c in _get(st, "rotation_vector", source, "vec3", w))
+        out.append((int(sid), t, r))
+    return tuple(out)
+
+
+def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription:
     _table(doc, source, "", "")
+    nominal = None
+    if "nominal" in doc:
+        if nested:
+            raise DescriptionError(f"{source}: [nominal] has a [nominal] of its own")
+        nominal = _from_dict(
+            _table(doc["nominal"], source, "[nominal] ", ""), f"{source} [nominal]", nested=True
+        )
     lu = _get(doc, "length_unit", source, str, "", "m")
     au = _get(doc, "angle_unit", source, str, "", "rad")
     if lu not in _LENGTH:
@@ -494,6 +550,7 @@ def _from_dict(doc: dict, source: str) -> RobotDescription:
                 f"{source}: [effects.{name}] must be a table of parameter values"
             )
         effects[name] = {k: _get(vals, k, source, float, f"effects.{name}: ") for k in vals}
+    stations = _stations(doc, source, L, A)
     try:
         return RobotDescription(
             name=_get(doc, "name", source, str, "", Path(source).stem),
@@ -508,6 +565,8 @@ def _from_dict(doc: dict, source: str) -> RobotDescription:
             flange=flange,
             flange_translation=ft,
             flange_rotation=fr,
+            stations=stations,
+            nominal=nominal,
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{source}: {exc}") from None

@@ -412,6 +412,27 @@ class ErrorModel:
         turn = AngularSensitivities(st, f, f.o[6], None, self._pose_stations(inputs))
         return np.ascontiguousarray(turn.d_theta)
 
+    def joint_pose_jacobian(
+        self, inputs: ModelInputs, p: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The measured points (N, 3) and the tool frame's rotation (N, 3, 3), as
+        :meth:`predict_pose`, with their derivatives by the effective joint angles: d points
+        (N, 3, 6) and the small rotations (N, 3, 6) of :meth:`joint_jacobian` and
+        :meth:`joint_turns`, from one evaluation of the chain (inverse kinematics of a pose)."""
+        st, f = self._evaluate(inputs, np.asarray(p, dtype=float))
+        point = self._point(st, f, inputs.target)
+        R = f.axes[6].transpose(2, 1, 0)
+        R = R @ st.tool_R if st.tool_R is not None else R.copy()
+        station = self._pose_stations(inputs)
+        sens = Sensitivities(st, f, point, None, station)
+        turn = AngularSensitivities(st, f, f.o[6], None, station)
+        return (
+            point.T.copy(),
+            R,
+            np.ascontiguousarray(sens.d_theta),
+            np.ascontiguousarray(turn.d_theta),
+        )
+
     def _numeric_columns(self, inputs: ModelInputs, p: np.ndarray, sl: slice) -> np.ndarray:
         """Central differences for an effect without analytic columns."""
 

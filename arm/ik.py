@@ -77,6 +77,7 @@ __all__ = [
     "flange_transform",
     "forward_pose",
     "pose_error",
+    "solve_model_pose",
     "solve_point",
     "solve_pose",
     "solve_position",
@@ -334,6 +335,42 @@ def solve_position(
         inputs = model.inputs(q, {k: v[idx] for k, v in cols.items()})
         xyz, J = model.joint_jacobian(inputs, p)
         return target_xyz[idx] - xyz, J
+
+    robot = model.robot
+    return _levenberg_marquardt(residual, q0, robot.lower, robot.upper, tol, max_iter, damping)
+
+
+def solve_model_pose(
+    model: ErrorModel,
+    columns: Mapping[str, np.ndarray] | None,
+    p: np.ndarray,
+    target_xyz: np.ndarray,
+    target_R: np.ndarray,
+    q0: np.ndarray,
+    tol: float = 1e-10,
+    max_iter: int = 100,
+    damping: float = 1e-2,
+) -> IKResult:
+    """Encoder readings q (N, 6) for which a calibrated model puts its tool frame at the poses
+    ``target_xyz`` (N, 3) and ``target_R`` (N, 3, 3) (measurement frame <- tool frame, as
+    :meth:`ErrorModel.predict_pose`), from ``q0`` (N, 6): six equations for six joints, so the
+    solution is the one of ``q0``'s branch that the damped steps reach (the nearest, for a start
+    as close as a calibration's errors make it). The error is ``|(dp, drot)|`` in m and rad; as
+    for :func:`solve_position`, the step uses the derivatives by the effective joint angles."""
+    target_xyz = np.asarray(target_xyz, dtype=float).reshape(-1, 3)
+    n = target_xyz.shape[0]
+    target_R = np.asarray(target_R, dtype=float).reshape(n, 3, 3)
+    q0 = _batch(q0, n, (6,), "q0")
+    cols = {
+        k: np.broadcast_to(np.asarray(v, dtype=float), (n,)) for k, v in (columns or {}).items()
+    }
+    p = np.asarray(p, dtype=float)
+
+    def residual(q, idx):
+        inputs = model.inputs(q, {k: v[idx] for k, v in cols.items()})
+        xyz, R, Jp, Jw = model.joint_pose_jacobian(inputs, p)
+        dr = rotation_vector(target_R[idx] @ np.swapaxes(R, 1, 2))
+        return np.concatenate([target_xyz[idx] - xyz, dr], axis=1), np.concatenate([Jp, Jw], 1)
 
     robot = model.robot
     return _levenberg_marquardt(residual, q0, robot.lower, robot.upper, tol, max_iter, damping)

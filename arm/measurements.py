@@ -505,7 +505,7 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
     if missing:
         raise error(
             f"{source}, line {hline}: missing required column(s) {', '.join(missing)} "
-            f"(found: {', '.join(header)})"
+            f"(found: {', '.join(header)}){_header_cause(header, required, comments)}"
         )
     values = np.empty((1024, len(read)))
     line_of = np.empty(1024, dtype=int)
@@ -521,7 +521,11 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
             br, bn = pending[0]
             raise error(f"{source}, line {br}: {bn} fields, but the header has {len(header)}")
         if len(row) != len(header):
-            raise error(f"{source}, line {r}: {len(row)} fields, but the header has {len(header)}")
+            comment = row[0].lstrip().startswith("#")
+            raise error(
+                f"{source}, line {r}: {len(row)} fields, but the header has {len(header)}"
+                + (" (a comment line: this file takes none; remove it)" if comment else "")
+            )
         if n == len(values):
             values = np.resize(values, (2 * n, len(read)))
             line_of = np.resize(line_of, 2 * n)
@@ -538,6 +542,8 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
                     if header[k] in KNOWN
                     else " (extra columns are kept for custom effects and must be numeric)"
                 )
+                if row[0].lstrip().startswith("#"):
+                    extra = " (a comment line: this file takes none; remove it)"
                 raise error(
                     f"{source}, line {r}, column {header[k]!r}: {cell.strip()!r} is not a number{extra}"
                 ) from None
@@ -551,6 +557,29 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
     values = values[:n].copy()
     rows = line_of[:n].copy()
     return NumericTable([header[k] for k in read], values, rows, hline)
+
+
+#: separators that a CSV written elsewhere may use instead of the comma
+_OTHER_SEPARATORS = {";": "semicolons", "\t": "tabs", "|": "bars"}
+
+
+def _header_cause(header: Sequence[str], required: Sequence[str], comments: bool) -> str:
+    """Why a header lacks the required columns, where the file says it: a comment line where the
+    header should be, or another separator than the comma."""
+    line = ",".join(header)
+    if not comments and line.lstrip().startswith("#"):
+        return (
+            "; the first line is a comment ('#'), which this file does not take: its first line "
+            "must be the header; remove the comment lines"
+        )
+    for sep, name in _OTHER_SEPARATORS.items():
+        cells = {c.strip() for part in header for c in part.split(sep)}
+        if sep in line and any(c in cells for c in required):
+            return (
+                f"; the header is separated by {name}, not commas: write the file "
+                "comma-separated (with a decimal point)"
+            )
+    return ""
 
 
 def as_measurements(data: MeasurementSet | str | Path) -> MeasurementSet:
@@ -604,7 +633,12 @@ def _unknown_columns(header: Sequence[str], source: str, line: int) -> list[str]
             )
     if not unknown:
         return []
-    close = {h: difflib.get_close_matches(h, KNOWN, n=1, cutoff=0.8) for h in unknown}
+    # a close spelling, else a known name the column begins (temp: temperature)
+    close = {
+        h: difflib.get_close_matches(h, KNOWN, n=1, cutoff=0.8)
+        or [k for k in KNOWN if len(h) >= 3 and k.startswith(h.lower()) and k != h.lower()][:1]
+        for h in unknown
+    }
     named = ", ".join(
         f"{h!r} (did you mean {close[h][0]!r}?)" if close[h] else repr(h) for h in unknown
     )

@@ -114,6 +114,7 @@ def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise a
     stds: bool = False,
     tool_rotation: Sequence[float] | None = None,
     first_station: int = 1,
+    approach: np.ndarray | None = None,
 ) -> MeasurementSet:
     """Simulate a calibration measurement campaign and return (and, with ``path``, write) it.
 
@@ -126,7 +127,9 @@ def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise a
     from the same side, until they read it within ``LANDING_TOL``; then a measurement with
     ``noise_mm`` per axis, plus ``noise_ppm`` um per metre of distance from the tracker.
     ``payloads`` (kg per pose) overrides the truth's payload. ``progress(i, n)`` is called
-    after each pose. Deterministic for a given seed.
+    after each pose. Deterministic for a given seed. ``approach`` (N, 6) of +-1: the side each
+    joint approaches each pose from (the sign of its last motion, dir1..dir6), as a program
+    states it; without it a random side (a joint near a limit approaches from the other side).
 
     ``stations``: 0, the world frame (the truth's measurement frame) itself, no station column;
     a number, that many stations placed around the arm (:func:`envs.instrument.place_stations`), or the
@@ -161,6 +164,10 @@ def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise a
     poses = check_poses(poses, nominal)
     if payloads is not None and len(payloads) != len(poses):
         raise CollectError(f"{len(payloads)} payloads for {len(poses)} poses")
+    if approach is not None:
+        approach = np.asarray(approach, dtype=float)
+        if approach.shape != poses.shape or not np.all(np.abs(approach) == 1.0):
+            raise CollectError(f"approach must be +-1 of shape {poses.shape}")
     for name, v in (("noise_mm", noise_mm), ("noise_ppm", noise_ppm), ("noise_mrad", noise_mrad)):
         if not (math.isfinite(v) and v >= 0):
             raise CollectError(f"{name} must be a finite number >= 0, got {v}")
@@ -196,7 +203,9 @@ def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise a
     dirs = np.empty((n_poses, 6))
     plant.place(np.clip(poses[0] - APPROACH, lo, hi), dirs=np.ones(6))
     for i, q in enumerate(poses):
-        side = motion_rng.choice((-1.0, 1.0), 6)
+        side = motion_rng.choice((-1.0, 1.0), 6)  # drawn either way: the same stream
+        if approach is not None:
+            side = approach[i].copy()
         before = q - side * APPROACH
         side = np.where((before < lo) | (before > hi), -side, side)  # near a limit: other side
         before = q - side * APPROACH
@@ -275,6 +284,7 @@ def _beyond_points(
     stds: bool,
     tool_rotation: Sequence[float] | None,
     first_station: int = 1,
+    approach: np.ndarray | None = None,
 ) -> MeasurementSet:
     """The measured set of a campaign from stations, with distance-dependent noise, a 6-DoF
     probe and stated uncertainties (see :func:`collect_measurements`)."""

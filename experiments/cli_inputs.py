@@ -340,8 +340,8 @@ def read_data(
             orientation_unit=orientation_unit,
             measured=parts,
         )
-    for w in caught:
-        console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
+    for w in caught:  # on stderr: stdout carries the command's output (with --json, only it)
+        err_console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
     return data
 
 
@@ -371,8 +371,10 @@ def check_outputs(
                 f"{option} -: --json prints on standard output too; give a file or leave out --json"
             )
         seen[key] = option
-    if any(path is not None and is_stdout(path) for path, _ in outputs):
-        console.stderr = True  # the command's tables and messages go to stderr until it ends
+    if as_json or any(path is not None and is_stdout(path) for path, _ in outputs):
+        # the command's tables and messages go to stderr until it ends: with --json, stdout
+        # carries the JSON object alone
+        console.stderr = True
 
 
 def next_step_options(
@@ -412,6 +414,7 @@ def lab_inputs(
     outputs: Sequence[tuple[Path | None, str]] = (),
     orientation_unit: str | None = None,
     measured: str | None = None,
+    as_json: bool = False,
     **options: Any,
 ) -> tuple[Any, Any, Any, LabOptions]:
     """The lab's options (:class:`lab.LabOptions`, the keywords ``options``), the output places
@@ -420,7 +423,7 @@ def lab_inputs(
     known = {f.name for f in fields(LabOptions)}
     with user_errors():
         opts = LabOptions(**{k: v for k, v in options.items() if k in known})
-    check_outputs(outputs, [data, validate, robot, *(modules or ())])
+    check_outputs(outputs, [data, validate, robot, *(modules or ())], as_json)
     load_modules(modules)
     parse_effects(effects)
     arm = read_arm(robot)

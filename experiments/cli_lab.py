@@ -156,6 +156,7 @@ def fit_cmd(
         loss=loss,
         outliers=outliers,
         accept_large=accept_large,
+        as_json=as_json,
     )
     result = _fitted(meas, arm, effects, opts, val)
     if not as_json:
@@ -210,6 +211,7 @@ def diagnose_cmd(
         loss=loss,
         outliers=outliers,
         accept_large=accept_large,
+        as_json=as_json,
     )
     with user_errors(), console.status("fitting and testing the candidate effects..."):
         d = diagnose(meas, arm, effects, options=opts, alpha=alpha)
@@ -298,6 +300,7 @@ def discover_cmd(
         noise_mrad=noise_mrad,
         orientation_unit=orientation_unit,
         measured=measured,
+        as_json=as_json,
     )
     with user_errors(), console.status("fitting the model and searching the library..."):
         d = discover(
@@ -644,8 +647,8 @@ def export_cmd(
         typer.Option(
             "--output",
             "-o",
-            help="The file to write (default calibrated.toml, or calibrated.urdf with --format "
-            "urdf).",
+            help="The file to write: its suffix, .toml or .urdf, says the format (default "
+            "calibrated.toml, or calibrated.urdf with --format urdf).",
         ),
     ] = None,
     robot: RobotOpt = "seed",
@@ -666,17 +669,18 @@ def export_cmd(
     outliers: OutliersOpt = "auto",
     accept_large: AcceptLargeOpt = False,
     export_format: Annotated[
-        str,
+        str | None,
         declared(
             OneOf(EXPORT_FORMATS),
             "format",
             "toml: a robot TOML (any arm); urdf: the arm's URDF (--robot ARM.urdf) with its joint "
             "origins corrected, and NAME.metrology.toml beside it with the tracker frame, the "
             "tool points and the effects a URDF cannot express (docs/format.md, the calibrated "
-            "URDF).",
+            "URDF). Default: the --output's suffix, else toml; one that disagrees with the "
+            "suffix is refused.",
             lower=True,
         ),
-    ] = "toml",
+    ] = None,
 ) -> None:
     """Fit, then write the calibrated arm as a robot TOML or as its URDF.
 
@@ -686,6 +690,7 @@ def export_cmd(
     from lab.export import export_robot
     from lab.urdf_export import export_urdf, metrology_path, require_urdf
 
+    export_format = export_format_of(output, export_format)
     if output is None:
         output = Path(f"calibrated.{export_format}")
     outputs = [(output, "--output")]
@@ -730,13 +735,29 @@ def export_cmd(
     say(f"wrote the calibrated arm {cal.name!r} to {output}; use it with --robot {output}")
 
 
+def export_format_of(output: Path | None, given: str | None) -> str:
+    """The format an export writes: ``--format`` where given, else the output's suffix (.toml,
+    .urdf), else toml; a ``--format`` that the suffix contradicts is refused (a TOML in a file
+    named .urdf fails where it is read)."""
+    suffix = output.suffix.lower().lstrip(".") if output is not None else ""
+    named = suffix if suffix in EXPORT_FORMATS else None
+    if given is not None and named is not None and given != named:
+        fail(
+            f"--format {given}: --output {output} names a .{named} file; give --output "
+            f"NAME.{given}, or leave out --format"
+        )
+    return given or named or "toml"
+
+
 @app.command("compensate")
 def compensate_cmd(
     targets: Annotated[
         Path,
         typer.Argument(
-            help="Desired tool points: CSV with x, y, z (and optionally q1..q6 start angles, "
-            "target, and the columns the arm's effects need)."
+            help="Desired tool poses: CSV with x, y, z in the calibration's measurement frame, "
+            "and q1..q6 (the program: its orientation is held, its branch kept) or rvx, rvy, rvz "
+            "/ roll, pitch, yaw (the tool's orientation); optionally target and the columns the "
+            "arm's effects need."
         ),
     ],
     robot: Annotated[
@@ -747,12 +768,20 @@ def compensate_cmd(
         Path, typer.Option("--output", "-o", help="The joint-angle CSV to write.")
     ] = Path("joints.csv"),
     nominal: Annotated[
-        str, typer.Option(help="The arm the controller believes in (TOML or shipped name).")
-    ] = "seed",
-    nominal_base: Annotated[
-        str,
-        typer.Option(help="Where the nominal arm stands: auto, nominal or calibrated."),
-    ] = "auto",
+        str | None,
+        typer.Option(
+            help="The arm the controller believes in (TOML or shipped name); default: the one "
+            "the calibrated file records (lab export writes it)."
+        ),
+    ] = None,
+    free_orientation: Annotated[
+        bool,
+        typer.Option(
+            "--free-orientation",
+            help="Targets are points alone: solve for the tool point and let the orientation "
+            "change (without it a file with neither q1..q6 nor an orientation is refused).",
+        ),
+    ] = False,
     target_ids: Annotated[
         str | None,
         typer.Option(
@@ -773,23 +802,23 @@ def compensate_cmd(
     ] = False,
     as_json: JsonOpt = False,
 ) -> None:
-    """Joint angles that put the calibrated arm's tool point on each target.
+    """Joint angles that put the calibrated arm's tool frame on each target pose.
 
-    Also prints the error that commanding the nominal inverse kinematics would leave."""
+    Starts at the program (q1..q6) and keeps its branch, else at the nominal arm's inverse
+    kinematics; prints the start's error and the joint change, through the calibrated model."""
     from lab.export import compensate, read_targets, target_id_list, write_joints
 
     with user_errors(prefix="--target-ids: "):
         ids = target_id_list(target_ids)
-    check_outputs(
-        [(output, "--output")], [targets, robot, nominal, *(effect_module or ())], as_json
-    )
+    inputs = [targets, robot, *([nominal] if nominal else []), *(effect_module or ())]
+    check_outputs([(output, "--output")], inputs, as_json)
     load_modules(effect_module)
     cal = read_arm(robot)
-    nom = read_arm(nominal, "--nominal")
+    nom = read_arm(nominal, "--nominal") if nominal is not None else None
     with user_errors():
         tset = read_targets(targets, length_unit=length_unit, angle_unit=angle_unit)
         with console.status(f"solving {len(tset)} targets..."):
-            comp = compensate(cal, tset, nom, nominal_base=nominal_base, target_ids=ids)
+            comp = compensate(cal, tset, nom, free_orientation=free_orientation, target_ids=ids)
     unreached = comp.unreached()
     if unreached is not None and not keep_unreached:
         fail(f"{unreached}; nothing written (--keep-unreached writes them with converged = 0)")
@@ -799,4 +828,4 @@ def compensate_cmd(
     if as_json:
         print(json_text(summary))
     else:
-        print_compensation(cal, nom, comp, summary, output)
+        print_compensation(comp, summary, output)

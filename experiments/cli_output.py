@@ -181,20 +181,41 @@ def plan_table(plan: Any, criterion: str) -> Table:
     return table
 
 
-def compensation_table(calibrated: str, nominal: str, n: int, summary: dict[str, Any]) -> Table:
-    """The error of the ``calibrated`` arm at ``n`` targets, commanded by the ``nominal`` arm's
-    inverse kinematics and compensated (``summary``: a compensation's ``to_dict()``)."""
-    table = Table(title=f"error of {calibrated!r} at {n} targets (mm)", title_justify="left")
+def compensation_table(summary: dict[str, Any]) -> Table:
+    """The calibrated arm's error at the targets, commanded the start's joint angles (the
+    program's or the nominal inverse kinematics') and the compensated ones, with the joint change
+    (``summary``: a compensation's ``to_dict()``)."""
+    n = summary["n_targets"]
+    table = Table(
+        title=f"error of {summary['robot']!r} at {n} targets, through its model (mm)",
+        title_justify="left",
+    )
     table.add_column("joint angles commanded")
     table.add_column("RMS", justify="right")
     table.add_column("max", justify="right")
-    table.add_row(
-        f"nominal inverse kinematics ({nominal})",
-        mm_text(summary["nominal_rms_mm"]),
-        mm_text(summary["nominal_max_mm"]),
+    table.add_column("joint change max / median (mrad)", justify="right")
+    first = (
+        "the program as it is"
+        if summary["start"] == "program"
+        else f"nominal inverse kinematics ({summary['nominal_robot']}, calibrated base and tool)"
     )
-    table.add_row("compensated", mm_text(summary["rms_mm"], 6), mm_text(summary["max_mm"], 6))
+    table.add_row(
+        first, mm_text(summary["start_rms_mm"]), mm_text(summary["start_max_mm"]), "0 / 0"
+    )
+    table.add_row(
+        "compensated",
+        mm_text(summary["rms_mm"], 6),
+        mm_text(summary["max_mm"], 6),
+        f"{summary['max_joint_change_mrad']:.3f} / {summary['median_joint_change_mrad']:.3f}",
+    )
     return table
+
+
+_ORIENTATION_SAID = {
+    "program": "held from the program (q1..q6 through the calibrated model)",
+    "targets": "the targets' own (their orientation columns)",
+    "free": "free (--free-orientation: the tool point alone)",
+}
 
 
 def agents_table(specs: Sequence[Any]) -> Table:
@@ -527,18 +548,25 @@ def counted(description: str, total: int) -> Iterator[Callable[[int, int], None]
         yield lambda i, _n: bar.update(task, completed=i)
 
 
-def print_compensation(
-    cal: Any, nom: Any, comp: Any, summary: dict[str, Any], output: Path
-) -> None:
-    console.print(compensation_table(cal.name, nom.name, comp.n, summary))
+def print_compensation(comp: Any, summary: dict[str, Any], output: Path) -> None:
+    console.print(compensation_table(summary))
     say(
-        f"compensation removes {summary['nominal_rms_mm'] - summary['rms_mm']:.4f} mm RMS "
-        f"(largest joint change {summary['max_joint_change_mrad']:.3f} mrad); "
-        f"{summary['converged']} of {comp.n} converged"
+        f"orientation {_ORIENTATION_SAID[summary['orientation']]}; the compensated joints "
+        f"differ from the {'program' if summary['start'] == 'program' else 'nominal solution'} "
+        f"by at most {summary['max_joint_change_mrad']:.3f} mrad; {summary['converged']} of "
+        f"{comp.n} reached"
     )
+    if summary["far_from_start"]:
+        console.print(
+            "[yellow]joints moved more than 200 mrad (near a singularity, where a small change "
+            "of the pose turns the joints a lot):[/yellow] rows "
+            f"{', '.join(str(i + 1) for i in summary['far_from_start'][:20])}",
+            highlight=False,
+            soft_wrap=True,
+        )
     if summary["not_converged"]:
         console.print(
-            f"[yellow]not converged (out of reach?):[/yellow] rows "
+            f"[yellow]not reached (out of reach, or only beyond the joint limits):[/yellow] rows "
             f"{', '.join(str(i + 1) for i in summary['not_converged'][:20])}",
             highlight=False,
             soft_wrap=True,

@@ -109,6 +109,7 @@ from lab.repeatability import (
     noise_p_value,
 )
 from lab.result import SCHEMA_VERSION, FitResult, Outlier
+from lab.sanity import check_stated_noise
 from lab.screening import Screen, annotate, screened
 from lab.selection import DEPENDENT, ForwardSelection, f_test, hat_blocks, holm, press_rms
 from lab.spectral import CyclicProblem, CyclicScan, CyclicScanner
@@ -339,6 +340,7 @@ def diagnose(
     floor = noise_floor(s.options.noise_mm, s.kept)
     noise_mm = floor.noise_mm
     res, data, given = s.fit, s.kept, s.data
+    check_stated_noise(res, s.options.noise_mm)
     assert s.untested_rows is not None  # screened(tests=True) judged them
     model = res.model
     N = res.n_points

@@ -20,9 +20,11 @@ __all__ = [
     "FitError",
     "ImplausibleAcceptedWarning",
     "LabWarning",
+    "NoiseMismatchWarning",
     "OrientationNotFittedWarning",
     "PoorPoseSetWarning",
     "RowsLeftOutWarning",
+    "ValidationMismatchWarning",
 ]
 
 
@@ -55,3 +57,13 @@ class ImplausibleAcceptedWarning(LabWarning):
 class OrientationNotFittedWarning(LabWarning):
     """The data measured orientations, but their uncertainty is stated nowhere: without it they
     cannot be weighed against the positions, and the positions alone were fitted."""
+
+
+class ValidationMismatchWarning(LabWarning):
+    """Held-out data fit far worse than the fitted data (:func:`lab.sanity.check_validation`):
+    another arm, another frame or other units, most likely."""
+
+
+class NoiseMismatchWarning(LabWarning):
+    """The stated noise is far above what the residual allows
+    (:func:`lab.sanity.check_stated_noise`): a unit slip, most likely."""

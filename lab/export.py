@@ -21,15 +21,22 @@ therefore compares the predictions with the fit's own gravity torques (what the 
 parameter by parameter, to round-off); :func:`torque_difference` measures the second-order term,
 which :func:`export_robot` logs (a warning when it exceeds a quarter of the fit's noise).
 
-**Compensation.** A controller with the nominal kinematics sends the joint angles of the nominal
-inverse kinematics; the real arm then misses the desired point by its calibration error. Here the
-nominal solution (:func:`arm.ik.solve_point`, damped least squares on the tool point, from the
-joint angles given with each target or from a ready pose aimed at it) starts a damped
-least-squares solve on the *calibrated* model (:func:`arm.ik.solve_position`), every effect
-included. Both are reported through the calibrated model: the error that compensation removes.
-Targets are in the measurement frame of the calibration (the calibrated arm's base transform
-applies); the nominal arm stands at its own base transform, or, when the calibration placed the
-arm far from it (a laser tracker's frame, metres away), at the calibrated one.
+**Compensation.** A program taught on the nominal arm misses on the real one by the calibration
+error. Each target is a pose: the point ``x, y, z`` in the calibration's measurement frame (the
+tracker's: the calibrated arm's base transform, its registration, maps it) and the orientation of
+the tool frame, given by orientation columns or held from the program (its joint angles through
+the calibrated model). The compensated joint angles solve the six equations of that pose on the
+calibrated model, every effect included (:func:`arm.ik.solve_model_pose`), starting at the
+program and staying on its branch: damped steps from it, each taken only where it lowers the error,
+follow the branch the program is on (targets whose joints move more than :data:`FAR_RAD` are
+named: near a wrist singularity, where joints 4 and 6 share a turn). Without a program the start is the nominal arm's inverse kinematics,
+the nominal arm placed by the calibration's base and tool (:func:`nominal_arm`): the nominal arm
+defaults to the one the calibrated file records (``[nominal]``, written by :func:`export_robot`).
+A targets file with neither joint angles nor an orientation is refused: the point alone leaves
+three degrees of freedom, in which the wrist would turn anyhow, unless the caller asks for a free
+orientation. The errors reported are the calibrated model's: at the start (the program's own
+error, or the nominal solution's) and at the compensated joint angles (zero to the solver's
+tolerance: what remains on the real arm is the calibration's own error), with the joint change.
 """
 
 from __future__ import annotations
@@ -42,27 +49,31 @@ from pathlib import Path
 
 import numpy as np
 
-from arm.description import RobotDescription, load_robot
+from arm.description import RobotDescription, load_robot, vec3
 from arm.effect_api import EffectError
 from arm.effects import EFFECTS
 from arm.errormodel import ErrorModel
 from arm.errors import SixAxisError
 from arm.files import OutputError, atomic_write_text
-from arm.ik import solve_point, solve_position
+from arm.ik import IKResult, InverseKinematics, solve_model_pose, solve_position
 from arm.measurements import (
     ANGLE_UNITS,
     JOINTS,
     LENGTH_UNITS,
+    ORIENTATION_FORMS,
     POSITION,
     check_ranges,
+    orientation_rotvec,
     parse_numeric_csv,
     read_text,
 )
-from arm.so3 import rotation_matrix
+from arm.params import TOOL_ROTATION_NAMES
+from arm.so3 import rotation_matrix, rotation_vector
 from lab.result import SCHEMA_VERSION, FitResult
 
 __all__ = [
     "EXPORT_TOL",
+    "FAR_RAD",
     "Compensation",
     "CompensationError",
     "ExportError",
@@ -71,7 +82,9 @@ __all__ = [
     "compensate",
     "export_robot",
     "exported_difference",
+    "nominal_arm",
     "read_targets",
+    "station_bases",
     "target_id_list",
     "torque_difference",
     "write_joints",
@@ -82,9 +95,9 @@ log = logging.getLogger(__name__)
 # m: with the fit's gravity torques, the exported arm predicts the fitted poses this well (TOML
 # carries every float to its last bit in m/rad; mm/deg conversions cost a few ulp: ~1e-15 m).
 EXPORT_TOL = 1e-9
-# the nominal arm is placed at the calibrated base when the two differ by more than this (m, rad)
-BASE_FAR_M = 0.05
-BASE_FAR_RAD = 0.05
+# rad: a compensated joint angle this far from its start is named (a calibration moves the joints
+# by milliradians; this much only near a wrist singularity, where joints 4 and 6 share a turn)
+FAR_RAD = 0.2
 
 
 class ExportError(SixAxisError, ValueError):
@@ -113,7 +126,9 @@ def calibrated_model(robot: RobotDescription, targets: Sequence[int] = (0,)) -> 
             for n, v in robot.effects.items()
             if n != "geometric"
         ]
-        return ErrorModel(robot, ["geometric", *effects], targets=targets)
+        # a 6-DoF fit's tool frame rotation (trx try trz) turns the tool frame it reports
+        six_dof = any(k in TOOL_ROTATION_NAMES for k in robot.effects.get("geometric", {}))
+        return ErrorModel(robot, ["geometric", *effects], targets=targets, orientation=six_dof)
     except EffectError as exc:
         raise CompensationError(f"robot {robot.name!r}: {exc}") from None
 
@@ -140,6 +155,16 @@ def export_robot(
     if angle_unit not in ANGLE_UNITS:
         raise ExportError(f"{path}: angle unit must be one of rad, deg, got {angle_unit!r}")
     desc = result.description(name or f"{result.model.robot.name}-calibrated")
+    # the arm the controller believes in, which compensation starts from without a program
+    desc = replace(desc, nominal=replace(result.model.robot, nominal=None))
+    if len(result.model.stations) > 1:  # each station's frame, for targets given in it
+        desc = replace(
+            desc,
+            stations=tuple(
+                (sid, vec3(T[:3, 3]), vec3(rotation_vector(T[:3, :3])))
+                for sid, T in station_bases(result)
+            ),
+        )
     text = desc.to_toml(length_unit, angle_unit)
     back = RobotDescription.from_toml(text, source=str(path))
     try:
@@ -174,6 +199,21 @@ def export_robot(
             result.sigma_mm,
         )
     return back
+
+
+def station_bases(result: FitResult) -> list[tuple[int, np.ndarray]]:
+    """(station id, 4x4 measurement frame <- robot base) of each station of the fit."""
+    model, params = result.model, result.parameters()
+    stations = model.stations
+    out = []
+    for s in stations:
+        suffix = "" if len(stations) == 1 else str(s)
+        t = np.array([params[f"b{c}{suffix}"] for c in "xyz"])
+        r = np.array([params[f"br{c}{suffix}"] for c in "xyz"])
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = rotation_matrix(r), t
+        out.append((int(s), T))
+    return out
 
 
 def _compare(result: FitResult, robot: RobotDescription, fit_torques: bool) -> float:
@@ -211,15 +251,18 @@ def torque_difference(result: FitResult, robot: RobotDescription) -> float:
 # --------------------------------------------------------------------------------------------------
 @dataclass
 class TargetSet:
-    """Desired tool points ``xyz`` (N, 3) in m, with optional start joint angles ``q`` (N, 6)
-    (e.g. those of the program being corrected) and the other columns (target, payload,
-    temperature, dir1..6...) that the calibrated arm's effects may need."""
+    """Desired tool poses: points ``xyz`` (N, 3) in m in the calibration's measurement frame, with
+    optional joint angles ``q`` (N, 6) (the program being corrected: its orientation is held and
+    its branch kept), an optional orientation ``R`` (N, 3, 3) (measurement frame <- tool frame,
+    from ``rvx, rvy, rvz`` or ``roll, pitch, yaw``), and the other columns (target, station,
+    payload, temperature, dir1..6...) that the calibrated arm's effects may need."""
 
     xyz: np.ndarray
     q: np.ndarray | None = None
     columns: dict[str, np.ndarray] = field(default_factory=dict)
     source: str = "<memory>"
     lines: np.ndarray | None = None  # each target's line in its file
+    R: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.xyz)
@@ -242,9 +285,29 @@ def target_id_list(text: str | None) -> list[int] | None:
         ) from None
 
 
+def _orientation_form(header: Sequence[str], source: str, line: int) -> str | None:
+    present = {f: [c for c in cols if c in header] for f, cols in ORIENTATION_FORMS.items()}
+    given = [f for f, cols in present.items() if cols]
+    if len(given) > 1:
+        raise CompensationError(
+            f"{source}, line {line}: give the orientation in one form, rvx, rvy, rvz or roll, "
+            "pitch, yaw, not both"
+        )
+    if not given:
+        return None
+    missing = [c for c in ORIENTATION_FORMS[given[0]] if c not in header]
+    if missing:
+        raise CompensationError(
+            f"{source}, line {line}: missing column(s) {', '.join(missing)} (an orientation "
+            f"takes all of {', '.join(ORIENTATION_FORMS[given[0]])})"
+        )
+    return given[0]
+
+
 def read_targets(path: str | Path, length_unit: str = "m", angle_unit: str = "rad") -> TargetSet:
-    """A CSV of desired tool points: columns x, y, z (required), target, q1..q6 (optional start
-    joint angles), any other numeric column. Errors name the file, line and column."""
+    """A CSV of desired tool poses: columns x, y, z (required), q1..q6 (the program's joint
+    angles), rvx, rvy, rvz or roll, pitch, yaw (the tool frame's orientation, in ``angle_unit``),
+    target, station, any other numeric column. Errors name the file, line and column."""
     path = Path(path)
     if length_unit not in LENGTH_UNITS:
         raise CompensationError(f"length unit must be one of m, mm, got {length_unit!r}")
@@ -259,49 +322,63 @@ def read_targets(path: str | Path, length_unit: str = "m", angle_unit: str = "ra
             f"{path}, line {table.header_line}: start joint angles need all of q1..q6, found "
             f"only {', '.join(qcols)}"
         )
+    form = _orientation_form(header, str(path), table.header_line)
     if not len(table.values):
         raise CompensationError(f"{path}: no target rows")
     col = {h: table.values[:, k] for k, h in enumerate(header)}
-    if "target" in col:
-        bad = np.flatnonzero(col["target"] != np.round(col["target"]))
-        if bad.size:
-            raise CompensationError(
-                f"{path}, line {table.lines[bad[0]]}, column 'target': {col['target'][bad[0]]:g} must be an integer"
-            )
+    for name in ("target", "station"):
+        if name in col:
+            bad = np.flatnonzero(col[name] != np.round(col[name]))
+            if bad.size:
+                raise CompensationError(
+                    f"{path}, line {table.lines[bad[0]]}, column '{name}': "
+                    f"{col[name][bad[0]]:g} must be an integer"
+                )
     L, A = LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit]
+    ocols = ORIENTATION_FORMS[form] if form else ()
     check_ranges(
         table,
         str(path),
-        {length_unit: (L, POSITION), angle_unit: (A, JOINTS)},
+        {length_unit: (L, POSITION), angle_unit: (A, (*JOINTS, *ocols))},
         error=CompensationError,
     )
     xyz = np.column_stack([col[c] for c in POSITION]) * L
     q = np.column_stack([col[c] for c in JOINTS]) * A if qcols else None
-    other = {h: col[h] for h in header if h not in (*POSITION, *JOINTS)}
-    return TargetSet(xyz, q, other, str(path), table.lines)
+    R = None
+    if form:
+        angles = np.column_stack([col[c] for c in ocols]) * A
+        R = rotation_matrix(orientation_rotvec(angles, form))
+    other = {h: col[h] for h in header if h not in (*POSITION, *JOINTS, *ocols)}
+    return TargetSet(xyz, q, other, str(path), table.lines, R)
 
 
 # --------------------------------------------------------------------------------------------------
 @dataclass
 class Compensation:
-    """Compensated joint angles for desired tool points, and what they correct.
+    """Compensated joint angles for desired tool poses, and what they correct.
 
-    ``q_nominal`` (N, 6): the nominal inverse kinematics; ``q`` (N, 6): the joint angles to command
-    (the calibrated model puts its tool point on the target); ``error_nominal`` and ``error``
-    (N, 3): the calibrated model's point minus the target at each, m. ``converged``: the solve on
-    the calibrated model met its tolerance (``nominal_converged`` likewise for the nominal IK).
-    """
+    ``q_start`` (N, 6): the joint angles compensation starts from, the program's (``start ==
+    "program"``) or the nominal arm's inverse kinematics (``"nominal_ik"``, the nominal table
+    with the calibration's base and tool); ``q`` (N, 6): the joint angles to command, on the
+    start's branch, that put the calibrated model's tool frame on the target pose (its point
+    alone with ``orientation == "free"``). ``error_start`` and ``error`` (N, 3): the calibrated
+    model's point minus the target at each, m; ``turn`` (N,): the compensated tool frame's
+    rotation from the target orientation, rad (zero with a free orientation). ``converged``: the
+    solve met its tolerance (``start_converged`` likewise for the nominal inverse kinematics; all
+    True for a program)."""
 
     targets: TargetSet
-    q_nominal: np.ndarray
+    q_start: np.ndarray
     q: np.ndarray
-    error_nominal: np.ndarray
+    error_start: np.ndarray
     error: np.ndarray
+    turn: np.ndarray
     converged: np.ndarray
-    nominal_converged: np.ndarray
+    start_converged: np.ndarray
     robot: str
     nominal_robot: str
-    nominal_base: str
+    start: str
+    orientation: str
 
     @property
     def n(self) -> int:
@@ -313,35 +390,46 @@ class Compensation:
         return 1e3 * float(np.sqrt(np.mean(d**2))), 1e3 * float(d.max())
 
     @property
-    def error_nominal_mm(self) -> np.ndarray:
-        return 1e3 * np.linalg.norm(self.error_nominal, axis=1)
+    def error_start_mm(self) -> np.ndarray:
+        return 1e3 * np.linalg.norm(self.error_start, axis=1)
 
     @property
     def error_mm(self) -> np.ndarray:
         return 1e3 * np.linalg.norm(self.error, axis=1)
 
+    @property
+    def joint_change_mrad(self) -> np.ndarray:
+        """Each target's largest joint change from the start (N,), mrad."""
+        return 1e3 * np.max(np.abs(self.q - self.q_start), axis=1)
+
     def to_dict(self) -> dict:
-        rms0, max0 = self._stats(self.error_nominal)
+        rms0, max0 = self._stats(self.error_start)
         rms1, max1 = self._stats(self.error)
+        change = self.joint_change_mrad
         return {
             "schema_version": SCHEMA_VERSION,
             "n_targets": self.n,
             "robot": self.robot,
             "nominal_robot": self.nominal_robot,
-            "nominal_base": self.nominal_base,
-            "nominal_rms_mm": rms0,
-            "nominal_max_mm": max0,
+            "start": self.start,
+            "orientation": self.orientation,
+            "start_rms_mm": rms0,
+            "start_max_mm": max0,
             "rms_mm": rms1,
             "max_mm": max1,
+            "max_turn_mrad": None if self.orientation == "free" else 1e3 * float(self.turn.max()),
             "converged": int(self.converged.sum()),
             "not_converged": [int(i) for i in np.flatnonzero(~self.converged)],
-            "max_joint_change_mrad": 1e3 * float(np.max(np.abs(self.q - self.q_nominal))),
+            "max_joint_change_mrad": float(change.max()),
+            "far_from_start": [int(i) for i in np.flatnonzero(change > 1e3 * FAR_RAD)],
+            "median_joint_change_mrad": 1e3 * float(np.median(np.abs(self.q - self.q_start))),
             "source": self.targets.source,
         }
 
     def unreached(self) -> CompensationError | None:
         """The error that names the targets the compensated joint angles do not reach (out of
-        reach, or only beyond the joint limits), or None when every solve met its tolerance."""
+        reach, or only beyond the joint limits on the start's branch), or None when every solve
+        met its tolerance."""
         bad = np.flatnonzero(~self.converged)
         if not bad.size:
             return None
@@ -355,23 +443,25 @@ class Compensation:
         more = f"; and {bad.size - 5} more" if bad.size > 5 else ""
         return CompensationError(
             f"{t.source}: {bad.size} of {self.n} targets not reached ({shown}{more}): out of the "
-            "arm's reach, or only beyond its joint limits"
+            "arm's reach, or only beyond its joint limits on the branch of "
+            + ("the program" if self.start == "program" else "the nominal solution")
         )
 
     def to_csv(self) -> str:
         """q1..q6 to command, then the target x, y, z (and target id), the calibrated model's
-        error of the nominal and of the compensated joint angles (mm), and whether the solve
-        reached the target (``converged``, 1 or 0)."""
+        error of the start and of the compensated joint angles (mm), the largest joint change
+        (mrad), and whether the solve reached the target (``converged``, 1 or 0)."""
         t = self.targets
         names = [*JOINTS, "x", "y", "z"]
         cols = [self.q, t.xyz]
         if "target" in t.columns:
             names.append("target")
             cols.append(t.columns["target"][:, None])
-        names += ["nominal_error_mm", "error_mm", "converged"]
+        names += ["start_error_mm", "error_mm", "joint_change_mrad", "converged"]
         cols += [
-            self.error_nominal_mm[:, None],
+            self.error_start_mm[:, None],
             self.error_mm[:, None],
+            self.joint_change_mrad[:, None],
             self.converged.astype(float)[:, None],
         ]
         table = np.hstack(cols)
@@ -424,115 +514,223 @@ def _ready_starts(robot: RobotDescription, xyz_base: np.ndarray) -> np.ndarray:
     return q
 
 
+def nominal_arm(calibrated: RobotDescription, nominal: RobotDescription) -> RobotDescription:
+    """The nominal arm as a controller that knows the calibration's registration sees it: the
+    nominal joint table, the calibrated arm's base (the tracker's frame) and tool points (and the
+    tool frame's rotation of a 6-DoF fit), so that its error compares like with like."""
+    cal = calibrated.to_modified()
+    nom = nominal.to_modified()
+    geometric = {"geometric": dict(cal.effects["geometric"])} if "geometric" in cal.effects else {}
+    return replace(
+        nom,
+        base_translation=cal.base_translation,
+        base_rotation=cal.base_rotation,
+        tools=cal.tools,
+        effects=geometric,
+        nominal=None,
+    )
+
+
+def _solve(
+    model: ErrorModel,
+    cols: Mapping[str, np.ndarray],
+    p: np.ndarray,
+    xyz: np.ndarray,
+    R: np.ndarray | None,
+    q0: np.ndarray,
+    tol: float,
+) -> IKResult:
+    if R is None:
+        return solve_position(model, cols, p, xyz, q0, tol=tol, max_iter=100)
+    return solve_model_pose(model, cols, p, xyz, R, q0, tol=tol, max_iter=100)
+
+
+def _pose_starts(
+    model: ErrorModel, xyz: np.ndarray, R: np.ndarray, q0: np.ndarray, tool_of: np.ndarray
+) -> np.ndarray:
+    """Per target pose, the closed-form (or multi-start) inverse kinematics solution of the
+    nominal arm ``model.robot`` nearest ``q0``, or ``q0`` where it has none: the start that damped
+    least squares on the model then finishes."""
+    robot = model.robot
+    T = np.zeros((len(xyz), 4, 4))
+    T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = R, xyz, 1.0
+    T = np.linalg.inv(robot.base_matrix) @ T  # robot base <- tool frame
+    turn = robot.effects.get("geometric", {})
+    tool = np.eye(4)
+    tool[:3, :3] = rotation_matrix(np.array([turn.get(k, 0.0) for k in TOOL_ROTATION_NAMES]))
+    out = q0.copy()
+    for k in np.unique(tool_of):
+        rows = np.flatnonzero(tool_of == k)
+        tool[:3, 3] = robot.tool_points[min(k, len(robot.tool_points) - 1)]
+        ik = InverseKinematics(robot, tool=np.linalg.inv(robot.flange_matrix) @ tool)
+        res = ik.nearest(T[rows], q0[rows])
+        out[rows[res.converged]] = res.q[res.converged]
+    return out
+
+
+def _to_first_station(
+    cal: RobotDescription, targets: TargetSet, cols: Mapping[str, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The targets' points and orientations in the calibrated arm's measurement frame (its
+    first station's): a ``station`` column maps each row from its station's frame through the
+    stations the calibration recorded."""
+    station = targets.columns.get("station")
+    if station is None:
+        return targets.xyz, targets.R
+    bases = {sid: (np.array(t), rotation_matrix(np.array(r))) for sid, t, r in cal.stations}
+    if not bases:  # one station: its base is the arm's
+        bases = {int(station[0]): (np.array(cal.base_translation), cal.base_matrix[:3, :3])}
+    unknown = sorted({int(v) for v in station} - set(bases))
+    if unknown:
+        raise CompensationError(
+            f"{targets.source}: station(s) {unknown} not among the calibration's "
+            f"{sorted(bases)}: targets are given in the frame of a station the calibration "
+            "registered"
+        )
+    t0 = np.array(cal.base_translation)
+    R0 = cal.base_matrix[:3, :3]
+    xyz = np.empty_like(targets.xyz)
+    R = None if targets.R is None else np.empty_like(targets.R)
+    for sid, (t, Rs) in bases.items():
+        on = station == sid
+        M = R0 @ Rs.T  # first station <- robot base <- this station
+        xyz[on] = (targets.xyz[on] - t) @ M.T + t0
+        if R is not None and targets.R is not None:
+            R[on] = M @ targets.R[on]
+    return xyz, R
+
+
+def _take(cols: Mapping[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
+    return {k: v[rows] for k, v in cols.items()}
+
+
 def compensate(
     robot: RobotDescription | str | Path,
     targets: TargetSet | np.ndarray,
-    nominal: RobotDescription | str | Path | None = "seed",
+    nominal: RobotDescription | str | Path | None = None,
     *,
-    nominal_base: str = "auto",
+    free_orientation: bool = False,
     target_ids: Sequence[int] | None = None,
     columns: Mapping[str, np.ndarray] | None = None,
     tol: float = 1e-10,
     seed: int = 0,
 ) -> Compensation:
-    """Joint angles that put the calibrated arm ``robot``'s tool point on ``targets``.
+    """Joint angles that put the calibrated arm ``robot``'s tool frame on the target poses.
 
-    ``nominal``: the arm the controller believes in (default the seed arm); ``nominal_base``:
-    where it stands, ``"nominal"`` (its own base transform), ``"calibrated"`` or ``"auto"`` (the
-    calibrated base when the two differ by more than 5 cm or 50 mrad). ``target_ids``: the
-    calibration's target ids, in the order of the arm's tool points. ``columns``: extra per-target
-    columns (payload, temperature, dir1..6) for the effects that need them. ``seed``: the random
-    restarts of the nominal inverse kinematics where the first start fails.
+    The orientation of each target is the targets' own (``R``) or the program's (its joint angles
+    ``q`` through the calibrated model); with neither, a :class:`CompensationError`, unless
+    ``free_orientation`` asks for the point alone. The solve starts at the program, else at the
+    nominal arm's inverse kinematics (``nominal``, default the arm the calibrated file records,
+    :func:`nominal_arm` places it), and keeps its branch. ``target_ids``: the calibration's target
+    ids, in the order of the arm's tool points. ``columns``: extra per-target columns (payload,
+    temperature, dir1..6) for the effects that need them. ``seed``: the random restarts of the
+    nominal inverse kinematics where the first start fails.
     """
     cal = robot if isinstance(robot, RobotDescription) else load_robot(robot)
-    cal = cal.to_modified()
-    nom = nominal if isinstance(nominal, RobotDescription) else load_robot(nominal)
-    nom = nom.to_modified()
     if not isinstance(targets, TargetSet):
         targets = TargetSet(np.asarray(targets, dtype=float).reshape(-1, 3))
-    cols = dict(targets.columns) | {
-        k: np.asarray(v, dtype=float) for k, v in (columns or {}).items()
-    }
     n = len(targets)
     if n == 0:
         raise CompensationError(f"{targets.source}: no targets")
+    if targets.q is None and targets.R is None and not free_orientation:
+        raise CompensationError(
+            f"{targets.source}: the targets have neither the program's joint angles (q1..q6) nor "
+            "an orientation (rvx, rvy, rvz or roll, pitch, yaw), so the tool's orientation is "
+            "free and the arm may turn its wrist anyhow; give one of them, or ask for a free "
+            "orientation (--free-orientation)"
+        )
+    if nominal is None:
+        # a shipped arm is its own nominal; one that carries a calibration's marks (effect values,
+        # Hayati's beta) and no record of its nominal arm was exported before the record existed
+        calibrated = bool(cal.effects) or any(j.beta for j in cal.joints)
+        unrecorded = cal.nominal is None and calibrated
+        nom = cal.nominal if cal.nominal is not None else cal
+    else:
+        unrecorded = False
+        nom = nominal if isinstance(nominal, RobotDescription) else load_robot(nominal)
+    cal = cal.to_modified()
+    cols = dict(targets.columns) | {
+        k: np.asarray(v, dtype=float) for k, v in (columns or {}).items()
+    }
+    cols.pop("station", None)  # the rows are mapped to the first station's frame below
     ids = cols.get("target")
     model_targets = _model_targets(len(cal.tools), ids, target_ids)
     model = calibrated_model(cal, model_targets)
     try:
-        model.inputs(np.zeros((1, 6)), {k: v[:1] for k, v in cols.items()}, source=targets.source)
+        model.inputs(np.zeros((1, 6)), _take(cols, np.arange(1)), source=targets.source)
     except EffectError as exc:
         raise CompensationError(str(exc)) from None
     p = model.nominal()
+    xyz, R_given = _to_first_station(cal, targets, cols)
 
-    # where the nominal arm stands
-    if nominal_base not in ("auto", "nominal", "calibrated"):
-        raise CompensationError(
-            f"nominal_base must be auto, nominal or calibrated, got {nominal_base!r}"
-        )
-    far = (
-        np.linalg.norm(np.subtract(nom.base_translation, cal.base_translation)) > BASE_FAR_M
-        or np.linalg.norm(np.subtract(nom.base_rotation, cal.base_rotation)) > BASE_FAR_RAD
-    )
-    where = nominal_base if nominal_base != "auto" else ("calibrated" if far else "nominal")
-    if where == "calibrated":
-        nom = replace(nom, base_translation=cal.base_translation, base_rotation=cal.base_rotation)
-    R = rotation_matrix(np.array(nom.base_rotation))
-    xyz_base = (targets.xyz - np.array(nom.base_translation)) @ R  # R^T (x - t), row-wise
+    # the target orientations
+    R = None if free_orientation else R_given
+    orientation = "free" if free_orientation else "targets" if R is not None else "program"
+    if orientation == "program" and targets.q is not None:
+        R = model.predict_pose(model.inputs(targets.q, cols, source=targets.source), p)[1]
 
-    # nominal inverse kinematics, target by target's tool point
-    index = (
-        np.searchsorted(np.array(sorted(model_targets)), ids).astype(int)
-        if ids is not None
-        else np.zeros(n, dtype=int)
-    )
-    order = np.argsort(model_targets)  # sorted position -> tool index
-    tool_of = order[index]
-    nom_tools = nom.tool_points
-    q0 = targets.q if targets.q is not None else _ready_starts(nom, xyz_base)
-    q_nom = np.empty((n, 6))
-    ok_nom = np.zeros(n, dtype=bool)
-    rng = np.random.default_rng(seed)
-    for k in np.unique(tool_of):
-        rows = np.flatnonzero(tool_of == k)
-        point = nom_tools[k] if k < len(nom_tools) else nom_tools[0]
-        res = solve_point(nom, xyz_base[rows], q0[rows], point=point, tol=1e-12, max_iter=200)
-        q_nom[rows], ok_nom[rows] = res.q, res.converged
-        fail = rows[~res.converged]
+    # the start: the program, else the nominal arm's inverse kinematics
+    if targets.q is not None:
+        q_start, ok_start, start = np.array(targets.q, dtype=float), np.ones(n, bool), "program"
+    else:
+        if unrecorded:
+            log.warning(
+                "%s records no nominal arm (not written by lab export): its own table is taken "
+                "as the nominal one; give the arm the controller believes in (--nominal)",
+                cal.name,
+            )
+        nom_model = calibrated_model(nominal_arm(cal, nom), model_targets)
+        p_nom = nom_model.nominal()
+        Rb = rotation_matrix(np.array(cal.base_rotation))
+        q0 = _ready_starts(nom_model.robot, (xyz - np.array(cal.base_translation)) @ Rb)
+        if R is not None:
+            q0 = _pose_starts(nom_model, xyz, R, q0, nom_model.inputs(q0, cols).target)
+        res = _solve(nom_model, cols, p_nom, xyz, R, q0, tol)
+        q_start, ok_start = res.q, res.converged
+        rng = np.random.default_rng(seed)
         for _ in range(7):  # random restarts where the start led nowhere
+            fail = np.flatnonzero(~ok_start)
             if fail.size == 0:
                 break
-            starts = rng.uniform(nom.lower, nom.upper, (fail.size, 6))
-            res = solve_point(nom, xyz_base[fail], starts, point=point, tol=1e-12, max_iter=200)
-            good = res.converged
-            q_nom[fail[good]], ok_nom[fail[good]] = res.q[good], True
-            fail = fail[~good]
-    if not ok_nom.all():
-        log.info(  # Compensation.unreached() names them; the caller decides
-            "the nominal inverse kinematics did not reach %d of %d targets (out of reach?)",
-            int((~ok_nom).sum()),
-            n,
-        )
+            starts = rng.uniform(nom_model.robot.lower, nom_model.robot.upper, (fail.size, 6))
+            r_f = None if R is None else R[fail]
+            res = _solve(nom_model, _take(cols, fail), p_nom, xyz[fail], r_f, starts, tol)
+            q_start[fail[res.converged]] = res.q[res.converged]
+            ok_start[fail[res.converged]] = True
+        start = "nominal_ik"
+        if not ok_start.all():
+            log.info(  # Compensation.unreached() names them; the caller decides
+                "the nominal inverse kinematics did not reach %d of %d targets (out of reach?)",
+                int((~ok_start).sum()),
+                n,
+            )
 
-    # the calibrated model, from the nominal solution
-    res = solve_position(model, cols, p, targets.xyz, q_nom, tol=tol, max_iter=100)
-    inp_nom = model.inputs(q_nom, cols, source=targets.source)
+    # the calibrated model, from the start, on its branch
+    res = _solve(model, cols, p, xyz, R, q_start, tol)
+    inp_start = model.inputs(q_start, cols, source=targets.source)
     inp = model.inputs(res.q, cols, source=targets.source)
-    e_nom = model.predict(inp_nom, p) - targets.xyz
-    e = model.predict(inp, p) - targets.xyz
-    if not res.converged.all():
-        log.info(
-            "compensation did not converge for %d of %d targets", int((~res.converged).sum()), n
-        )
+    e_start = model.predict(inp_start, p) - xyz
+    point, Rq = model.predict_pose(inp, p)
+    e = point - xyz
+    turn = (
+        np.zeros(n)
+        if R is None
+        else np.linalg.norm(rotation_vector(R @ np.swapaxes(Rq, 1, 2)), axis=1)
+    )
+    converged = res.converged & ok_start
+    if not converged.all():
+        log.info("compensation did not converge for %d of %d targets", int((~converged).sum()), n)
     return Compensation(
         targets=targets,
-        q_nominal=q_nom,
+        q_start=q_start,
         q=res.q,
-        error_nominal=e_nom,
+        error_start=e_start,
         error=e,
-        converged=res.converged,
-        nominal_converged=ok_nom,
+        turn=turn,
+        converged=converged,
+        start_converged=ok_start,
         robot=cal.name,
         nominal_robot=nom.name,
-        nominal_base=where,
+        start=start,
+        orientation=orientation,
     )

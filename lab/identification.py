@@ -31,6 +31,7 @@ from arm.measurements import MeasurementSet, as_measurements
 from lab.errors import FitError
 from lab.options import LabOptions, Loss, OutlierMode, Solver, call_options
 from lab.result import FitResult
+from lab.sanity import check_stated_noise, check_validation
 from lab.screening import Screen, screen, screened
 
 __all__ = ["fit"]
@@ -85,7 +86,10 @@ def fit(
     else:
         s = screen(data, robot, effects, options=opts, tests=False, start=start, fixed=fixed)
     result = s.fit
+    check_stated_noise(result, s.options.noise_mm)
     if validate is not None:
-        result = result.validate(as_measurements(validate))
+        held_out = as_measurements(validate)
+        result = result.validate(held_out)
+        check_validation(result, held_out.source)
     log.info("%s", result.summary())
     return result

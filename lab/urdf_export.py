@@ -38,7 +38,13 @@ from arm.files import OutputError, atomic_write_text, read_input_text
 from arm.params import TOOL_ROTATION_NAMES
 from arm.so3 import rotation_matrix, rotation_vector
 from arm.urdf import UrdfError, calibrated_urdf, joint_origins, read_urdf, rpy_of
-from lab.export import EXPORT_TOL, CompensationError, ExportError, exported_difference
+from lab.export import (
+    EXPORT_TOL,
+    CompensationError,
+    ExportError,
+    exported_difference,
+    station_bases,
+)
 from lab.options import EXPORT_FORMATS
 from lab.result import SCHEMA_VERSION, FitResult
 
@@ -82,21 +88,6 @@ def _pose(R: np.ndarray, t: np.ndarray) -> dict:
         "rotation_vector": [float(v) for v in rotation_vector(R)],
         "rpy": [float(v) for v in rpy_of(R)],
     }
-
-
-def _station_bases(result: FitResult) -> list[tuple[int, np.ndarray]]:
-    """(station id, 4x4 measurement frame <- frame 0) of each station of the fit."""
-    model, params = result.model, result.parameters()
-    stations = getattr(model, "stations", (0,))
-    out = []
-    for s in stations:
-        suffix = "" if len(stations) == 1 else str(s)
-        t = np.array([params[f"b{c}{suffix}"] for c in "xyz"])
-        r = np.array([params[f"br{c}{suffix}"] for c in "xyz"])
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = rotation_matrix(r), t
-        out.append((int(s), T))
-    return out
 
 
 def _not_urdf(robot: RobotDescription) -> str:
@@ -157,7 +148,7 @@ def export_urdf(result: FitResult, path: str | Path, name: str | None = None) ->
             "rms_mm": float(result.rms_mm),
         },
     }
-    stations = _station_bases(result)
+    stations = station_bases(result)
     if len(stations) == 1:
         T = stations[0][1] @ to_base
         doc["tracker"] = _pose(T[:3, :3], T[:3, 3])
@@ -184,6 +175,8 @@ def export_urdf(result: FitResult, path: str | Path, name: str | None = None) ->
             effects.pop("geometric")
     if effects:
         doc["effects"] = effects
+    # the arm the controller believes in, as a robot description (compensation starts from it)
+    doc["nominal"] = tomllib.loads(replace(nominal, nominal=None).to_toml("m", "rad"))
     import tomli_w
 
     side_text = (
@@ -245,8 +238,16 @@ def _calibrated(
             effects["geometric"] = effects.get("geometric", {}) | dict(
                 zip(TOOL_ROTATION_NAMES, map(float, rotation_vector(R6)), strict=True)
             )
+        recorded = None
+        if "nominal" in doc:
+            import tomli_w
+
+            recorded = RobotDescription.from_toml(
+                tomli_w.dumps(doc["nominal"]), source=f"{metrology_path(source)} [nominal]"
+            )
         return replace(
             robot,
+            nominal=recorded,
             name=str(doc.get("robot", robot.name)),
             tools=points,
             base_translation=vec3(B[:3, 3]),

@@ -143,7 +143,7 @@ LAB_ORDER = [
     {"errors", "options", "text"},
     {"blocks", "identifiability", "selection", "plausibility", "repeatability", "observations"},
     {"solver", "registration", "result"},
-    {"estimation"},
+    {"estimation", "sanity"},
     {"candidates", "spectral"},
     {"screening"},
     {"identification"},

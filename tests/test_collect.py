@@ -107,6 +107,22 @@ def test_requested_poses_are_where_the_encoders_settle(scenario):
     assert 0.2 < np.mean(dirs > 0) < 0.8  # both sides, as drawn
 
 
+def test_a_stated_approach_is_the_side_each_joint_arrives_from():
+    """A program states each joint's approach (benchmarks/compensation.py: dir1..dir6 = +1 for
+    backlash): the recorded dir columns are it, and the encoders still land on the poses."""
+    poses = sample_poses(ROBOT, 6, np.random.default_rng(12))
+    inside = (poses > ROBOT.lower + 0.1) & (poses < ROBOT.upper - 0.1)
+    poses = poses[inside.all(axis=1)]
+    approach = np.where(np.arange(6) % 2, 1.0, -1.0) * np.ones((len(poses), 6))
+    approach[0] = 1.0
+    data = collect_measurements(poses=poses, scenario="backlash", seed=2, approach=approach)
+    dirs = np.column_stack([data.columns[f"dir{j}"] for j in range(1, 7)])
+    np.testing.assert_array_equal(dirs, approach)
+    assert np.max(np.abs(data.q - poses)) < 1e-4
+    with pytest.raises(ValueError, match="approach must be"):
+        collect_measurements(poses=poses, scenario="geometric", approach=approach[:, :3])
+
+
 def test_bad_poses_are_refused():
     bad = np.zeros((2, 6))
     bad[1, 1] = 3.0  # beyond joint 2's upper limit

@@ -213,6 +213,8 @@ def test_the_robot_toml_tables_name_every_key_the_writer_emits():
         flange_translation=(0.0, 0.01, 0.0),  # a URDF's tip link
         flange_rotation=(0.0, 0.3, 0.0),
         effects={"compliance": {"c2": 6e-6}},
+        nominal=seed_robot(),  # what `lab export` records
+        stations=((1, (0.1, 0.0, 0.0), (0.0, 0.0, 0.2)), (2, (3.0, 1.0, 0.0), (0.0, 0.0, 1.0))),
     )
     assert isinstance(full, RobotDescription)
     doc = tomllib.loads(full.to_toml())
@@ -221,7 +223,7 @@ def test_the_robot_toml_tables_name_every_key_the_writer_emits():
     documented_top = {re.sub(r"[\[\]]|\.NAME", "", names(r[0])[0]): r for r in top}
     assert set(documented_top) == set(doc), set(doc) ^ set(documented_top)
     assert {names(r[0])[0] for r in joint} == set(doc["joints"][0])
-    for key in ("tools", "base", "flange"):  # the keys of each sub-table, in its row
+    for key in ("tools", "base", "flange", "stations"):  # each sub-table's keys, in its row
         value = doc[key][0] if isinstance(doc[key], list) else doc[key]
         for sub in value:
             assert f"`{sub}" in documented_top[key][2], (key, sub)

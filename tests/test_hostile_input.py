@@ -1028,14 +1028,24 @@ def test_a_target_out_of_reach_is_refused_or_marked_failed(tmp_path):
     targets.write_text("x,y,z\n0.8,0.0,0.8\n10,0,0\n")
     out = tmp_path / "joints.csv"
     one_error_line(
-        sixaxis("lab", "compensate", targets, "--robot", "seed", "-o", out),
+        sixaxis("lab", "compensate", targets, "--robot", "seed", "-o", out, "--free-orientation"),
         "targets.csv: 1 of 2 targets not reached",
         "line 3: (10, 0, 0) m missed by",
         "nothing written",
         "--keep-unreached",
     )
     assert not out.exists()
-    res = sixaxis("lab", "compensate", targets, "--robot", "seed", "-o", out, "--keep-unreached")
+    res = sixaxis(
+        "lab",
+        "compensate",
+        targets,
+        "--robot",
+        "seed",
+        "-o",
+        out,
+        "--keep-unreached",
+        "--free-orientation",
+    )
     assert res.exit_code == 0, res.output
     rows = [line.split(",") for line in out.read_text().splitlines()[1:]]
     assert rows[0][-1] == "converged" and [r[-1] for r in rows[1:]] == ["1", "0"]

@@ -370,18 +370,21 @@ def test_export_then_compensate_reaches_the_true_arm(files):
     targets = d / "targets.csv"
     targets.write_text("x,y,z\n" + "".join(",".join(map(repr, map(float, p))) + "\n" for p in xyz))
     joints = d / "joints.csv"
-    summary = lab_json("compensate", targets, "--robot", toml, "-o", joints)
+    refused = lab("compensate", targets, "--robot", toml, "-o", joints)
+    assert refused.exit_code == 2 and "--free-orientation" in refused.stderr
+    summary = lab_json("compensate", targets, "--robot", toml, "-o", joints, "--free-orientation")
     assert summary["n_targets"] == 40 and summary["converged"] == 40
+    assert summary["start"] == "nominal_ik" and summary["nominal_robot"] == "seed"
     q = read_poses(joints)
     # the true arm, commanded the compensated joint angles, lands on the targets (the fit's
     # error only), where the nominal inverse kinematics misses by millimetres
     miss = np.linalg.norm(c.truth.predict(c.truth.inputs(q, {}), c.params) - xyz, axis=1)
     assert 1e3 * math.sqrt(np.mean(miss**2)) < 0.02
-    assert summary["nominal_rms_mm"] > 1.0
+    assert summary["start_rms_mm"] > 1.0
 
-    res = lab("compensate", targets, "--robot", toml, "-o", joints)
+    res = lab("compensate", targets, "--robot", toml, "-o", joints, "--free-orientation")
     assert res.exit_code == 0, res.output
-    assert "compensation removes" in res.stdout and "nominal inverse kinematics" in res.stdout
+    assert "nominal inverse kinematics" in res.stdout and "orientation free" in res.stdout
 
     bad = d / "bad_targets.csv"
     bad.write_text("x,y,z\n0.5,0.1,0.6\n0.5,oops,0.6\n")

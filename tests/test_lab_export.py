@@ -7,23 +7,28 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from arm.description import load_robot
 from arm.effects import JointAngleEffect
-from arm.kinematics import Chain, gravity_torques, tool_points
+from arm.kinematics import Chain, gravity_torques, link_frames, tool_points
 from arm.sampling import sample_poses
 from arm.so3 import rotation_matrix
 from lab import fit
 from lab.export import (
+    FAR_RAD,
     CompensationError,
     ExportError,
+    TargetSet,
     calibrated_model,
     compensate,
     export_robot,
+    nominal_arm,
     read_targets,
     torque_difference,
     write_joints,
 )
+from tests._beyond_points import pose_campaign
 from tests._lab_data import campaign
 
 
@@ -138,42 +143,131 @@ def true_fk(arm, q):
     return fk(arm, q, q + cvals * gravity_torques(arm, q))
 
 
-def test_compensated_joints_put_the_true_arm_on_the_targets(seed, true_arm):
-    q_true = sample_poses(seed, 40, np.random.default_rng(8))
-    targets = fk(seed, q_true)  # points the nominal arm reaches: a program taught on it
+def true_frame(arm, q):
+    """The true arm's tool-frame rotation (measurement frame <- frame 6), by hand: the link
+    frames at the sagged joint angles, turned by the base rotation."""
+    cvals = np.array([arm.effects["compliance"].get(f"c{j}", 0.0) for j in range(1, 7)])
+    f = link_frames(Chain.from_description(arm), q + cvals * gravity_torques(arm, q))
+    return rotation_matrix(np.array(arm.base_rotation)) @ f.R[:, 6]
+
+
+def angle_between(Ra, Rb):
+    """Rotation angle (rad) from Rb to Ra, per pose (scipy's)."""
+    return Rotation.from_matrix(Ra @ np.swapaxes(Rb, 1, 2)).magnitude()
+
+
+def test_compensation_keeps_the_program(seed, true_arm):
+    """A program taught on the nominal arm: its joint angles and the points they were meant to
+    reach. Compensated, the true arm reaches the points with the program's tool orientation
+    (both computed by hand), each joint moved by the calibration's few milliradians."""
+    q_prog = sample_poses(seed, 40, np.random.default_rng(8))
+    targets = TargetSet(fk(seed, q_prog), q=q_prog)
     comp = compensate(true_arm, targets, nominal=seed)
-    assert comp.converged.all() and comp.nominal_converged.all()
-    assert comp.nominal_base == "nominal"
-    # the nominal inverse kinematics is right for the nominal arm...
-    assert np.max(np.linalg.norm(fk(seed, comp.q_nominal) - targets, axis=1)) < 1e-9
-    # ...and the true arm misses with it by its calibration error, which the report states
-    miss = 1e3 * np.linalg.norm(true_fk(true_arm, comp.q_nominal) - targets, axis=1)
-    assert miss.min() > 0.2 and np.sqrt(np.mean(miss**2)) > 1.0
-    np.testing.assert_allclose(comp.error_nominal_mm, miss, rtol=1e-6, atol=1e-9)
-    # the compensated joints put the true arm's tool point on the targets
-    hit = 1e3 * np.linalg.norm(true_fk(true_arm, comp.q) - targets, axis=1)
+    assert comp.converged.all() and comp.start == "program" and comp.orientation == "program"
+    np.testing.assert_array_equal(comp.q_start, q_prog)
+    # the program's own error on the true arm, which the report states
+    miss = 1e3 * np.linalg.norm(true_fk(true_arm, q_prog) - targets.xyz, axis=1)
+    assert np.sqrt(np.mean(miss**2)) > 1.0
+    np.testing.assert_allclose(comp.error_start_mm, miss, rtol=1e-6, atol=1e-9)
+    # the compensated joints put the true arm's tool point on the targets, orientation held
+    hit = 1e3 * np.linalg.norm(true_fk(true_arm, comp.q) - targets.xyz, axis=1)
     assert hit.max() < 1e-4  # mm: 0.1 um
-    np.testing.assert_allclose(comp.error_mm, hit, atol=1e-6)
+    turn = angle_between(true_frame(true_arm, comp.q), true_frame(true_arm, q_prog))
+    assert turn.max() < 1e-9
+    # on the program's branch: the joints move by what the model's error implies (milliradians;
+    # tens near a wrist singularity, where joints 4 and 6 share a turn), the wrist not flipped
+    change = np.abs(comp.q - q_prog).max(axis=1)
+    assert np.median(change) < 0.02 and change.max() < FAR_RAD
+    assert np.all(np.sign(np.sin(comp.q[:, 4])) == np.sign(np.sin(q_prog[:, 4])))
     assert np.all(true_arm.within_limits(comp.q))
     d = comp.to_dict()
-    assert d["nominal_rms_mm"] == pytest.approx(np.sqrt(np.mean(miss**2)))
-    assert d["rms_mm"] < 1e-4 and d["converged"] == 40
+    assert d["start_rms_mm"] == pytest.approx(np.sqrt(np.mean(miss**2)))
+    assert d["rms_mm"] < 1e-4 and d["converged"] == 40 and d["max_turn_mrad"] < 1e-6
+    assert d["max_joint_change_mrad"] == pytest.approx(1e3 * change.max())
+    assert d["median_joint_change_mrad"] == pytest.approx(1e3 * np.median(np.abs(comp.q - q_prog)))
 
 
-def test_compensation_from_an_exported_file_and_a_targets_csv(true_arm, tmp_path):
-    """The user's path: a calibrated TOML, a CSV of desired points in mm, a CSV of joints out."""
-    path = tmp_path / "truth.toml"
-    true_arm.save(path, "mm", "deg")
-    q = sample_poses(true_arm, 5, np.random.default_rng(2))
+def test_without_a_program_the_nominal_arm_starts_with_the_calibrations_base_and_tool(
+    seed, true_arm, tmp_path
+):
+    """Targets with an orientation and no joint angles: the nominal inverse kinematics (the
+    nominal table where the calibration put the base and the tool) reaches the pose on the
+    nominal arm, and the compensated joints reach it on the true one (poses away from the wrist
+    singularity and the joint limits, where the nominal arm reaches them too)."""
+    q_true = sample_poses(seed, 60, np.random.default_rng(3))
+    inside = (q_true > seed.lower + 0.3) & (q_true < seed.upper - 0.3)
+    q_true = q_true[inside.all(axis=1) & (np.abs(np.sin(q_true[:, 4])) > 0.3)][:20]
+    R = true_frame(true_arm, q_true)
+    targets = TargetSet(true_fk(true_arm, q_true), R=R)
+    comp = compensate(true_arm, targets, nominal=seed)
+    assert comp.start == "nominal_ik" and comp.orientation == "targets" and comp.converged.all()
+    placed = nominal_arm(true_arm, seed)
+    assert placed.tools == true_arm.tools and placed.base_rotation == true_arm.base_rotation
+    assert np.max(np.linalg.norm(fk(placed, comp.q_start) - targets.xyz, axis=1)) < 1e-9
+    hit = np.linalg.norm(true_fk(true_arm, comp.q) - targets.xyz, axis=1)
+    assert hit.max() < 1e-7
+    assert angle_between(true_frame(true_arm, comp.q), R).max() < 1e-9
+
+
+def test_points_alone_are_refused_unless_the_orientation_is_free(seed, true_arm):
+    q = sample_poses(seed, 10, np.random.default_rng(4))
     xyz = true_fk(true_arm, q)
-    lines = ["x,y,z"] + [",".join(repr(float(v) * 1e3) for v in row) for row in xyz]
+    with pytest.raises(CompensationError, match=r"neither the program's joint angles.*--free-or"):
+        compensate(true_arm, xyz, nominal=seed)
+    comp = compensate(true_arm, xyz, nominal=seed, free_orientation=True)
+    assert comp.orientation == "free" and comp.converged.all()
+    assert np.linalg.norm(true_fk(true_arm, comp.q) - xyz, axis=1).max() < 1e-7
+    assert comp.to_dict()["max_turn_mrad"] is None
+
+
+def test_a_calibrated_arm_without_its_nominal_arm_says_so(seed, true_arm, caplog):
+    """A calibrated description that records no nominal arm (made before export recorded it)
+    serves as its own nominal arm where the nominal inverse kinematics is needed, with a word."""
+    q = sample_poses(seed, 4, np.random.default_rng(9))
+    with caplog.at_level("WARNING", logger="lab.export"):
+        compensate(true_arm, TargetSet(true_fk(true_arm, q), q=q))  # a program: not needed
+        assert not caplog.records
+        comp = compensate(true_arm, true_fk(true_arm, q), free_orientation=True)
+    assert "records no nominal arm" in caplog.text and comp.nominal_robot == "truth"
+
+
+def test_compensation_from_an_exported_file_and_a_targets_csv(seed, tmp_path):
+    """The user's path: an exported TOML (which records its nominal arm), a CSV of desired poses
+    in mm and degrees with the program, a CSV of joints out."""
+    c = campaign(seed, "geometric", seed=4)
+    result = fit(c.measure(120), seed, "geometric")
+    path = tmp_path / "cal.toml"
+    export_robot(result, path)
+    arm = load_robot(path)
+    assert arm.nominal == seed and arm.nominal.name == "seed"  # what the fit started from
+    q = sample_poses(arm, 5, np.random.default_rng(2))
+    xyz = fk(seed, q)
+    rows = [np.r_[p * 1e3, np.degrees(qq)] for p, qq in zip(xyz, q, strict=True)]
+    lines = ["x,y,z,q1,q2,q3,q4,q5,q6"] + [",".join(repr(float(v)) for v in r) for r in rows]
     (tmp_path / "targets.csv").write_text("\n".join(lines) + "\n")
-    targets = read_targets(tmp_path / "targets.csv", length_unit="mm")
+    targets = read_targets(tmp_path / "targets.csv", length_unit="mm", angle_unit="deg")
+    np.testing.assert_allclose(targets.q, q, rtol=1e-12)
     comp = compensate(path, targets)
-    assert np.max(np.linalg.norm(true_fk(true_arm, comp.q) - xyz, axis=1)) < 1e-7
+    assert comp.nominal_robot == "seed"
+    assert np.max(np.linalg.norm(fk(arm, comp.q) - xyz, axis=1)) < 1e-9
     write_joints(comp, tmp_path / "joints.csv")
     out = np.loadtxt(tmp_path / "joints.csv", delimiter=",", skiprows=2)
     np.testing.assert_array_equal(out[:, :6], comp.q)
+    # the orientation as columns, a rotation vector or roll-pitch-yaw in degrees, is read alike
+    model = calibrated_model(arm)
+    R = model.predict_pose(model.inputs(q), model.nominal())[1]
+    rv = np.degrees(Rotation.from_matrix(R).as_rotvec())
+    rpy = np.degrees(Rotation.from_matrix(R).as_euler("xyz"))
+    for names, ang in (("rvx,rvy,rvz", rv), ("roll,pitch,yaw", rpy)):
+        body = [
+            ",".join(repr(float(v)) for v in np.r_[p, a]) for p, a in zip(xyz, ang, strict=True)
+        ]
+        (tmp_path / "poses.csv").write_text("\n".join([f"x,y,z,{names}", *body]) + "\n")
+        poses = read_targets(tmp_path / "poses.csv", angle_unit="deg")
+        np.testing.assert_allclose(poses.R, R, atol=1e-12)
+        again = compensate(path, poses)
+        assert again.start == "nominal_ik" and again.converged.all()
+        assert np.max(np.linalg.norm(fk(arm, again.q) - xyz, axis=1)) < 1e-9
 
 
 def test_bad_targets_are_named(tmp_path, true_arm):
@@ -195,6 +289,43 @@ def test_bad_targets_are_named(tmp_path, true_arm):
         read_targets(f)
     with pytest.raises(CompensationError, match=r"target id\(s\) \[1\] are not among"):
         two = np.array([[0.5, 0.1, 0.6], [0.5, 0.2, 0.6]])
-        compensate(true_arm, two, columns={"target": np.array([0.0, 1.0])})
+        compensate(true_arm, two, columns={"target": np.array([0.0, 1.0])}, free_orientation=True)
     with pytest.raises(CompensationError, match="no targets"):
         compensate(true_arm, np.empty((0, 3)))
+    f.write_text("x,y,z,rvx,rvy\n0.5,0.1,0.6,0,0\n")
+    with pytest.raises(CompensationError, match=r"t.csv, line 1: missing column\(s\) rvz"):
+        read_targets(f)
+    f.write_text("x,y,z,rvx,rvy,rvz,roll,pitch,yaw\n0.5,0.1,0.6,0,0,0,0,0,0\n")
+    with pytest.raises(CompensationError, match=r"t.csv, line 1: give the orientation in one"):
+        read_targets(f)
+
+
+def test_per_station_targets_are_mapped_through_the_calibrations_registration(seed, tmp_path):
+    """A calibration from two tracker stations records each station's frame; a program given
+    in the second station's frame compensates as the same program given in the first's (the
+    truth's own bases map one to the other), and a station the calibration never saw is refused."""
+    c = pose_campaign(seed, seed=3)
+    data, _ = c.measure(120, stations=(1, 2))
+    result = fit(data, seed, "geometric", measured=("x", "y", "z"), noise_mm=0.015)
+    path = tmp_path / "cal.toml"
+    arm = export_robot(result, path)
+    assert [s for s, _, _ in arm.stations] == [1, 2]
+    assert arm.stations[0][1] == pytest.approx(arm.base_translation, abs=1e-12)
+    assert load_robot(path).stations == arm.stations  # read back
+    q = sample_poses(seed, 8, np.random.default_rng(6))
+    seen = {}
+    for sid in (1, 2):
+        x = c.truth.predict(c.truth.inputs(q, {"station": np.full(8, float(sid))}), c.params)
+        targets = TargetSet(x, q=q, columns={"station": np.full(8, float(sid))})
+        seen[sid] = compensate(path, targets)
+        assert seen[sid].converged.all()
+    # the same program: the fitted bases map it alike, to the registration's accuracy (tens of
+    # um, the second station 12 m away), and its joints alike
+    shift = 1e3 * np.linalg.norm(seen[2].error_start - seen[1].error_start, axis=1)
+    assert shift.max() < 0.1 and seen[1].error_start_mm.max() < 0.1
+    assert np.median(np.abs(seen[2].q - seen[1].q)) < 1e-4
+    # unmapped, the second station's points lie metres from the arm
+    assert not compensate(path, TargetSet(x, q=q)).converged.any()
+    far = TargetSet(x, q=q, columns={"station": np.full(8, 3.0)})
+    with pytest.raises(CompensationError, match=r"station\(s\) \[3\] not among the calibra"):
+        compensate(path, far)

@@ -170,3 +170,39 @@ def test_the_real_data_benchmark_writes_its_tables(tmp_path, monkeypatch):
     md = (tmp_path / "real_data.md").read_text()
     assert "## UR5" in md and "## Rokae" in md and str(ROOT) not in md
     assert str(ROOT) not in (tmp_path / "real_data.json").read_text()
+
+
+def test_compensating_the_measured_test_poses_keeps_their_joints(tmp_path):
+    """The arm reached the 20 measured test points with the measured joints. Compensating those
+    points with those joints as the program, through the exported calibration, changes them by
+    what the model's error at them implies: within 1 mrad, median 0.2 mrad. The compensated joints
+    put the exported arm, by its plain kinematics, on the measured points."""
+    from scipy.spatial.transform import Rotation
+
+    from arm.kinematics import Chain, link_frames, tool_points
+    from arm.so3 import rotation_matrix
+    from lab.export import compensate, export_robot, read_targets
+
+    result = fit(DATA / "calibration.csv", "ur5_robot", "geometric")
+    cal = export_robot(result, tmp_path / "cal.toml")
+    assert cal.nominal is not None and cal.nominal.name == load_robot("ur5_robot").name
+    program = read_targets(DATA / "test.csv")
+    comp = compensate(tmp_path / "cal.toml", program)
+    assert comp.converged.all() and comp.start == "program"
+    change = np.abs(comp.q - program.q)
+    assert change.max() < 1e-3 and np.median(change) < 2e-4
+    # the program's own error under the calibrated model is the fit's validation residual
+    test = read_measurements(DATA / "test.csv")
+    held = np.linalg.norm(result.predict(test) - test.xyz, axis=1)
+    np.testing.assert_allclose(comp.error_start_mm, 1e3 * held, rtol=1e-9)
+    # by the exported arm's plain kinematics (tool point, base), independent of the model: the
+    # points reached, the tool's orientation that of the program
+    m = cal.to_modified()
+    chain = Chain.from_description(m)
+    base = rotation_matrix(np.array(m.base_rotation))
+    pts = tool_points(chain, comp.q, m.tool_points[0]) @ base.T + np.array(m.base_translation)
+    assert np.max(np.linalg.norm(pts - program.xyz, axis=1)) < 1e-9
+    turn = link_frames(chain, comp.q).R[:, 6] @ np.swapaxes(
+        link_frames(chain, program.q).R[:, 6], 1, 2
+    )
+    assert np.max(Rotation.from_matrix(turn).magnitude()) < 1e-9

@@ -1,0 +1,162 @@
+"""What the lab's commands write and say where the user typed something unexpected: the export's
+format follows the output's suffix, --json is the JSON object alone on stdout, and a slip (another
+arm's held-out data, a noise in the wrong unit, a CSV with another separator or a comment line)
+is named in one line with the file and the likely cause."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from arm.description import load_robot
+from arm.measurements import MeasurementError, read_measurements, write_measurements
+from lab import NoiseMismatchWarning, ValidationMismatchWarning, diagnose, fit
+from tests._cli import lab, one_error_line
+from tests._lab_data import campaign
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "ur5"
+
+
+def _with_column(src: Path, dst: Path, name: str, value: str) -> Path:
+    rows = list(csv.reader(src.open()))
+    rows[0].append(name)
+    for r in rows[1:]:
+        r.append(value)
+    with dst.open("w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    return dst
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    """300 poses of the UR5 grid: fits in a second."""
+    d = tmp_path_factory.mktemp("ur5")
+    data = read_measurements(DATA / "calibration.csv")
+    write_measurements(data.subset(np.arange(0, 1000, 3)[:300]), d / "cal.csv")
+    return d / "cal.csv"
+
+
+# -- the export's format ------------------------------------------------------------------------
+def test_the_export_format_follows_the_output_suffix(small, tmp_path):
+    urdf = tmp_path / "cal.urdf"
+    res = lab("export", small, "--robot", "ur5_robot", "-o", urdf)
+    assert res.exit_code == 0, res.output
+    assert "<robot" in urdf.read_text() and (tmp_path / "cal.metrology.toml").is_file()
+    # ... and is read back as the calibrated arm: compensation keeps the measured joints
+    joints = tmp_path / "joints.csv"
+    res = lab("compensate", DATA / "test.csv", "--robot", urdf, "-o", joints, "--json")
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout)
+    assert summary["converged"] == 20 and summary["max_joint_change_mrad"] < 2.0
+    assert summary["nominal_robot"] == load_robot("ur5_robot").name  # recorded by the export
+    toml = tmp_path / "cal.toml"
+    assert lab("export", small, "--robot", "ur5_robot", "-o", toml).exit_code == 0
+    recorded, nominal = load_robot(toml).nominal, load_robot("ur5_robot")
+    assert recorded is not None and recorded.name == nominal.name
+    for key in ("alpha", "a", "d", "theta_offset", "lower", "upper"):  # through degrees
+        np.testing.assert_allclose(recorded.column(key), nominal.column(key), atol=1e-12)
+
+
+def test_a_format_that_the_suffix_contradicts_is_refused(small, tmp_path):
+    for out, form in (("x.urdf", "toml"), ("x.toml", "urdf")):
+        one_error_line(
+            lab("export", small, "--robot", "ur5_robot", "-o", tmp_path / out, "--format", form),
+            f"--format {form}",
+            out,
+        )
+    assert not list(tmp_path.iterdir())
+
+
+# -- --json ---------------------------------------------------------------------------------------
+def test_json_is_alone_on_stdout_when_the_csv_carries_extra_columns(small, tmp_path):
+    data = _with_column(small, tmp_path / "extra.csv", "extra", "1.5")
+    targets = _with_column(DATA / "test.csv", tmp_path / "targets.csv", "extra", "2")
+    cal = tmp_path / "cal.toml"
+    assert lab("export", small, "--robot", "ur5_robot", "-o", cal).exit_code == 0
+    for args in (
+        ("fit", data, "--robot", "ur5_robot"),
+        ("diagnose", data, "--robot", "ur5_robot", "--noise-mm", "0.015"),
+        ("compensate", targets, "--robot", cal, "-o", tmp_path / "j.csv"),
+    ):
+        res = lab(*args, "--json")
+        assert res.exit_code == 0, res.output
+        assert json.loads(res.stdout)["schema_version"] == 1, args  # nothing else on stdout
+        if args[0] != "compensate":
+            assert "'extra'" in res.stderr and "warning" in res.stderr
+
+
+# -- named slips ------------------------------------------------------------------------------------
+def test_validation_far_beyond_the_fit_is_named(small, tmp_path):
+    """Held-out data in another frame (the tracker moved by 0.5 m) or of another arm."""
+    moved = read_measurements(DATA / "test.csv")
+    moved = type(moved)(moved.q, moved.xyz + np.array([0.5, 0.0, 0.0]), moved.columns, "moved.csv")
+    with pytest.warns(ValidationMismatchWarning, match=r"moved.csv: validation RMS .* another arm"):
+        fit(small, "ur5_robot", validate=moved)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ValidationMismatchWarning)
+        res = fit(small, "ur5_robot", validate=DATA / "test.csv")  # the same arm: no word
+    assert res.validation_rms_mm < 0.2
+    seed_data = tmp_path / "seed.csv"
+    write_measurements(campaign(load_robot("seed"), "geometric", seed=2).measure(60), seed_data)
+    # the command line says it on stderr (a process of its own: its log goes there), the JSON
+    # alone on stdout
+    command = ["fit", str(seed_data), "--validate", str(DATA / "test.csv"), "--json"]
+    res = subprocess.run(
+        [sys.executable, "-m", "experiments.cli", "lab", *command],
+        capture_output=True,
+        text=True,
+        env=os.environ | {"COLUMNS": "300"},
+    )
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout)["validation_rms_mm"] > 100
+    assert "test.csv: validation RMS" in res.stderr and "another arm" in res.stderr
+
+
+def test_a_stated_noise_far_above_the_residual_is_named(seed):
+    data = campaign(seed, "geometric", seed=5).measure(120)  # 15 um per axis
+    with pytest.warns(NoiseMismatchWarning, match=r"stated noise 15 mm .* unit slip"):
+        diagnose(data, seed, noise_mm=15.0)
+    with pytest.warns(NoiseMismatchWarning):
+        fit(data, seed, noise_mm=15.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", NoiseMismatchWarning)
+        diagnose(data, seed, noise_mm=0.015)  # the instrument's own: no word
+
+
+@pytest.mark.parametrize(
+    ("make", "cause"),
+    [
+        (lambda t: t.replace(",", ";"), "separated by semicolons, not commas"),
+        (lambda t: t.replace(",", "\t"), "separated by tabs, not commas"),
+        (lambda t: "# UR5, test poses\n" + t, "the first line is a comment ('#')"),
+    ],
+)
+def test_a_csv_with_another_separator_or_a_comment_line_is_named(tmp_path, make, cause):
+    path = tmp_path / "odd.csv"
+    path.write_text(make((DATA / "test.csv").read_text()))
+    with pytest.raises(MeasurementError, match=r"odd.csv, line 1: missing required") as exc:
+        read_measurements(path)
+    assert cause in str(exc.value)
+    one_error_line(lab("fit", path, "--robot", "ur5_robot"), "odd.csv", cause)
+
+
+def test_a_comment_line_inside_the_data_is_named(tmp_path):
+    lines = (DATA / "test.csv").read_text().splitlines()
+    path = tmp_path / "odd.csv"
+    path.write_text("\n".join([*lines[:3], "# second session, 2 deg warmer", *lines[3:]]) + "\n")
+    with pytest.raises(MeasurementError, match=r"odd.csv, line 4: .*a comment line"):
+        read_measurements(path)
+
+
+def test_a_column_that_begins_a_known_name_gets_a_suggestion(tmp_path):
+    path = _with_column(DATA / "test.csv", tmp_path / "t.csv", "temp", "20")
+    with pytest.warns(UserWarning, match=r"'temp' \(did you mean 'temperature'\?\)"):
+        read_measurements(path)
