@@ -340,6 +340,11 @@ def check_plausible(result: FitResult, accept: bool) -> tuple[Implausible, ...]:
     if len(bad) > 4:
         shown += f"; and {len(bad) - 4} more"
     cause = likely_cause(result.model, list(bad))
+    by_weights = weights_conditioning(result)
+    if by_weights and not accept:
+        raise FitError(f"{result.source}: {by_weights}; it gives {shown}")
+    if by_weights:
+        cause = by_weights
     if not accept:
         raise FitError(
             f"{result.source}: not a plausible model of {result.model.robot.name!r}: {shown}, "
@@ -352,6 +357,34 @@ def check_plausible(result: FitResult, accept: bool) -> tuple[Implausible, ...]:
         ImplausibleAcceptedWarning,
     )
     return bad
+
+
+#: weights under which the poses count as fewer than this share of them (Kish's effective number)
+#: concentrate a fit on a few poses: a refused fit then says so
+EFFECTIVE_SHARE = 0.25
+
+
+def weights_conditioning(result: FitResult) -> str:
+    """Why a weighted fit went astray, where its weights are the reason: the poses count as
+    fewer than :data:`EFFECTIVE_SHARE` of them (Kish's effective number, (sum w)^2 / sum w^2 of
+    the poses' squared weights), a few rows' tiny stated sigmas deciding it; else ``""``."""
+    obs = result.observations
+    if obs is None or obs.scale is None or obs.sigma_ref is None:
+        return ""
+    w2 = np.sum(obs.scale[:, :3] ** 2, axis=1)
+    n_eff = float(w2.sum() ** 2 / np.sum(w2**2))
+    if not n_eff < EFFECTIVE_SHARE * len(w2):
+        return ""
+    w = np.sqrt(w2 / 3.0)
+    return (
+        f"the rows' weights make the fit ill-conditioned: weighted by their stated sigmas, its "
+        f"{len(w2)} poses count as {n_eff:.0f} (the largest weight is "
+        f"{w.max() / np.median(w):.3g} times the median, sigma {1e3 * obs.sigma_ref / w.max():.2g}"
+        f" mm), and the {result.rank} parameters they identify have condition number "
+        f"{result.condition_number:.3g}: a few rows' std_* cells decide the fit. State the "
+        "instrument's noise (--noise-mm, --noise-ppm): no row then weighs more than it allows "
+        "(docs/format.md); or leave the std_* columns out"
+    )
 
 
 def identifiability_of(
