@@ -52,7 +52,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -129,6 +129,10 @@ class RobotDescription:
     flange_rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)  # rotation vector
     # the URDF this arm was read from (what `lab export --format urdf` edits); not part of equality
     urdf: UrdfSource | None = field(default=None, compare=False, repr=False)
+    # a calibrated arm's domain: where it was identified, {variable: (lo, hi)} in SI units
+    # (q1..q6 rad, tau1..tau6 N·m, temperature degC, payload kg, t s) and "n_poses"
+    # (lab.domain); empty for a drawn arm. Not part of equality.
+    domain: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if len(self.joints) != 6:
@@ -314,6 +318,11 @@ class RobotDescription:
             }
         if self.effects:
             doc["effects"] = {k: dict(v) for k, v in self.effects.items()}
+        if self.domain:
+            doc["domain"] = {
+                k: (int(v) if k == "n_poses" else [float(v[0]), float(v[1])])
+                for k, v in self.domain.items()
+            }
         return tomli_w.dumps(doc)
 
     def save(self, path: str | Path, length_unit: str = "m", angle_unit: str = "deg") -> None:
@@ -381,12 +390,38 @@ _KEYS = {
         "base",
         "flange",
         "effects",
+        "domain",
     },
     "joint": {"alpha", "a", "d", "theta_offset", "limits", "mass", "com", "beta"},
     "tool": {"point"},
     "base": {"translation", "rotation_vector"},
     "flange": {"a", "alpha", "translation", "rotation_vector"},
 }
+
+
+def _domain(doc, source: str) -> dict[str, Any]:
+    """``[domain]``: ``n_poses`` and each variable's fitted range ``[lo, hi]`` (SI units)."""
+    if not isinstance(doc, dict):
+        raise DescriptionError(f"{source}: [domain] must be a table of ranges")
+    out: dict[str, Any] = {}
+    for k, v in doc.items():
+        if k == "n_poses":
+            if not isinstance(v, int) or v < 0:
+                raise DescriptionError(f"{source}: domain: n_poses must be a whole number >= 0")
+            out[k] = v
+            continue
+        ok = (
+            isinstance(v, list)
+            and len(v) == 2
+            and all(isinstance(x, int | float) and math.isfinite(x) for x in v)
+            and v[0] <= v[1]
+        )
+        if not ok:
+            raise DescriptionError(
+                f"{source}: domain: {k} must be a range [lo, hi] of two finite numbers, got {v!r}"
+            )
+        out[k] = (float(v[0]), float(v[1]))
+    return out
 
 
 def _table(val, source: str, where: str, kind: str) -> dict:
@@ -494,6 +529,7 @@ def _from_dict(doc: dict, source: str) -> RobotDescription:
                 f"{source}: [effects.{name}] must be a table of parameter values"
             )
         effects[name] = {k: _get(vals, k, source, float, f"effects.{name}: ") for k in vals}
+    domain = _domain(doc.get("domain", {}), source)
     try:
         return RobotDescription(
             name=_get(doc, "name", source, str, "", Path(source).stem),
@@ -508,6 +544,7 @@ def _from_dict(doc: dict, source: str) -> RobotDescription:
             flange=flange,
             flange_translation=ft,
             flange_rotation=fr,
+            domain=domain,
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{source}: {exc}") from None

@@ -59,6 +59,7 @@ from arm.measurements import (
     read_text,
 )
 from arm.so3 import rotation_matrix
+from lab.domain import Domain, out_of_domain, warn_out_of_domain
 from lab.result import SCHEMA_VERSION, FitResult
 
 __all__ = [
@@ -424,6 +425,41 @@ def _ready_starts(robot: RobotDescription, xyz_base: np.ndarray) -> np.ndarray:
     return q
 
 
+def _within_domain(cal, model, p, cols, targets, res, e, extrapolate: bool, tol: float):
+    """The compensation's solution where the arm records a domain: a warning for poses and
+    columns outside it, and the rows outside the range a term holds over solved again without
+    that term (lab.domain), unless ``extrapolate``."""
+    dom = Domain.of_description(cal.domain)
+    if dom is None:
+        return res, e
+    inp = model.inputs(res.q, cols, source=targets.source)
+    exc, drop = out_of_domain(model, p, np.ones(len(p), dtype=bool), dom, inp, inp)
+    warn_out_of_domain(targets.source, exc, drop, extrapolate)
+    if extrapolate or not drop:
+        return res, e
+    names = list(drop)
+    marks = np.column_stack([drop[k] for k in names])
+    patterns, which = np.unique(marks, axis=0, return_inverse=True)
+    which = np.asarray(which).reshape(-1)
+    q, converged, e = res.q.copy(), res.converged.copy(), e.copy()
+    for i, pattern in enumerate(patterns):
+        if not pattern.any():
+            continue
+        rows = np.flatnonzero(which == i)
+        p2 = p.copy()
+        for k, off in zip(names, pattern, strict=True):
+            if off:
+                p2[model.layout.index(k)] = 0.0
+        sub = {k: v[rows] for k, v in cols.items()}
+        again = solve_position(
+            model, sub, p2, targets.xyz[rows], res.q[rows], tol=tol, max_iter=100
+        )
+        q[rows], converged[rows] = again.q, again.converged
+        inp2 = model.inputs(again.q, sub, source=targets.source)
+        e[rows] = model.predict(inp2, p2) - targets.xyz[rows]
+    return res._replace(q=q, converged=converged), e
+
+
 def compensate(
     robot: RobotDescription | str | Path,
     targets: TargetSet | np.ndarray,
@@ -434,6 +470,7 @@ def compensate(
     columns: Mapping[str, np.ndarray] | None = None,
     tol: float = 1e-10,
     seed: int = 0,
+    extrapolate: bool = False,
 ) -> Compensation:
     """Joint angles that put the calibrated arm ``robot``'s tool point on ``targets``.
 
@@ -443,6 +480,10 @@ def compensate(
     calibration's target ids, in the order of the arm's tool points. ``columns``: extra per-target
     columns (payload, temperature, dir1..6) for the effects that need them. ``seed``: the random
     restarts of the nominal inverse kinematics where the first start fails.
+
+    An arm that records its domain (``[domain]``, lab.domain) warns where the compensated poses
+    or the columns lie outside it, and solves the rows outside the range a term holds over
+    without that term, unless ``extrapolate``.
     """
     cal = robot if isinstance(robot, RobotDescription) else load_robot(robot)
     cal = cal.to_modified()
@@ -524,6 +565,7 @@ def compensate(
         log.info(
             "compensation did not converge for %d of %d targets", int((~res.converged).sum()), n
         )
+    res, e = _within_domain(cal, model, p, cols, targets, res, e, extrapolate, tol)
     return Compensation(
         targets=targets,
         q_nominal=q_nom,
