@@ -26,8 +26,9 @@ joint-angle effect's basis is evaluated with each variable moved, :func:`term_de
   compliance, a gear-ratio error, backlash) declare ``extrapolates = True``
   (:class:`arm.effects.Effect`) and are never dropped.
 
-Rows outside the range a term holds over are predicted by the model without that term (its
-parameters at zero), with a :class:`OutOfDomainWarning` naming the variable, how far,
+Rows outside the range a term holds over are predicted by the model without that term: the
+fit again on the same rows with the term's parameters held at zero
+(:meth:`lab.result.FitResult.without`; an arm read from a file, which has no rows, zeroes them), with a :class:`OutOfDomainWarning` naming the variable, how far,
 and the terms left out; ``extrapolate=True`` (``--extrapolate``) keeps every term everywhere,
 and still warns.
 """

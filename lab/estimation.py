@@ -32,8 +32,10 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +48,12 @@ from arm.errors import warn
 from arm.measurements import COMPONENTS, MeasurementSet, as_measurements
 from arm.noise import InstrumentNoise
 from lab.blocks import Blocks
-from lab.errors import FitError, ImplausibleAcceptedWarning, OrientationNotFittedWarning
+from lab.errors import (
+    FitError,
+    ImplausibleAcceptedWarning,
+    LabWarning,
+    OrientationNotFittedWarning,
+)
 from lab.identifiability import Identifiability, analyse_jacobian
 from lab.observations import observations_of, uses_orientation
 from lab.options import LabOptions
@@ -290,7 +297,33 @@ def fit_rows(  # noqa: C901  (the five steps of the module docstring, in the ord
         inputs=inputs,
         weights=w,
         source=data.source,
+        refit=partial(
+            _refit_without,
+            data,
+            robot,
+            effects,
+            options,
+            dict(zip(lay.names, sol.params, strict=True)),
+        ),
     )
+
+
+def _refit_without(
+    data: MeasurementSet,
+    robot: RobotDescription,
+    effects: str | Sequence[str | Effect],
+    options: LabOptions,
+    values: Mapping[str, float],
+    names: Sequence[str],
+) -> np.ndarray:
+    """The parameters of the same fit with ``names`` held at zero: the model without those
+    terms, fitted to the same rows (what validation outside a model's domain falls back to,
+    lab.domain). The rows are those given; none is left out again."""
+    start = dict(values) | {n: 0.0 for n in names}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LabWarning)
+        opts = replace(options, outliers="keep", accept_large=True)
+        return fit_rows(data, robot, effects, opts, start=start, fixed=names).params
 
 
 def _check_effects_identifiable(

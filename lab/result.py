@@ -12,6 +12,8 @@ The numbers are computed by :mod:`lab.estimation` (the fit of the rows given) an
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -35,6 +37,7 @@ from lab.text import left_out_lines, parameter_cells
 __all__ = ["SCHEMA_VERSION", "Duplicate", "FitResult", "Outlier", "inputs_of", "reference_values"]
 
 SCHEMA_VERSION = 1
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -137,6 +140,11 @@ class FitResult:
     # terms were left out of the rows they do not hold on (none with extrapolate=True)
     validation_excursions: tuple[Excursion, ...] = ()
     validation_dropped: tuple[str, ...] = ()
+    # the fit again with some parameters held at zero, on the same rows: the model without
+    # those terms (lab.estimation sets it; None: the terms' parameters are zeroed instead)
+    refit: Callable[[Sequence[str]], np.ndarray] | None = field(
+        default=None, repr=False, compare=False
+    )
 
     # -- metrics ---------------------------------------------------------------------------------
     @property
@@ -332,17 +340,26 @@ class FitResult:
         marks = np.column_stack([drop[n] for n in names])
         patterns, which = np.unique(marks, axis=0, return_inverse=True)
         which = np.asarray(which).reshape(-1)
-        lay = self.model.layout
         for i, pattern in enumerate(patterns):
             if not pattern.any():
                 continue
             rows = np.flatnonzero(which == i)
-            p = self.params.copy()
-            for n, off in zip(names, pattern, strict=True):
-                if off:
-                    p[lay.index(n)] = 0.0  # the model without the term
+            p = self.without([n for n, off in zip(names, pattern, strict=True) if off])
             pred[rows] = Blocks(self.model, inputs.subset(rows)).predict(p)
         return pred
+
+    def without(self, names: Sequence[str]) -> np.ndarray:
+        """The parameters of the model without the terms ``names``: refitted with them held at
+        zero on the rows of this fit (:attr:`refit`), or, where it cannot be refitted (a
+        result built elsewhere, a refit that fails), these parameters with them zeroed."""
+        if self.refit is not None:
+            try:
+                return self.refit(tuple(names))
+            except FitError as exc:
+                log.info("%s: the model without %s cannot be refitted: %s", self.source, names, exc)
+        p = self.params.copy()
+        p[self.model.layout.indices(list(names))] = 0.0
+        return p
 
     def residuals_of(self, data: MeasurementSet) -> np.ndarray:
         """Predicted minus measured points (M, 3) of another measurement set, m."""

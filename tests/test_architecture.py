@@ -154,7 +154,7 @@ LAB_ORDER = [
     {"estimation"},
     {"candidates", "spectral"},
     {"screening"},
-    {"identification"},
+    {"identification", "transfer"},
     {"diagnosis", "discovery", "planning", "export"},
     {"urdf_export"},
     {"report", "report_html", "plots"},

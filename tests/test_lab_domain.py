@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -88,8 +89,16 @@ def test_a_temperature_term_is_not_extrapolated_beyond_its_fitted_range():
     assert v.validation_residuals is not None
     pred = v.validation_residuals + val.xyz
     warm = temp > 24
+    # the model without the term: the same rows fitted with it held at zero
+    alone = fit(
+        cal, "seed", ["geometric", drift], noise_mm=0.015, start={"kt2": 0.0}, fixed=["kt2"]
+    )
+    assert alone.n_points == res.n_points
     np.testing.assert_allclose(
-        pred[warm], _without(res, ["kt2"], val.subset(np.flatnonzero(warm))), atol=1e-12
+        pred[warm], alone.predict(val.subset(np.flatnonzero(warm))), atol=1e-9
+    )
+    assert (
+        np.abs(pred[warm] - _without(res, ["kt2"], val.subset(np.flatnonzero(warm)))).max() > 1e-6
     )
     np.testing.assert_allclose(
         pred[~warm], res.predict(val.subset(np.flatnonzero(~warm))), atol=1e-12
@@ -132,8 +141,16 @@ def test_a_joint_out_of_range_drops_a_harmonic_whose_period_was_not_covered():
     assert set(v.validation_dropped) == {"ts2", "tc2"}  # the covered harmonic stays
     assert v.validation_residuals is not None
     out = np.flatnonzero(qv[:, 1] < lo)
+    alone = fit(
+        cal, "seed", effects, noise_mm=0.015, start={"ts2": 0.0, "tc2": 0.0}, fixed=["ts2", "tc2"]
+    )
     np.testing.assert_allclose(
-        v.validation_residuals[out] + val.xyz[out],
+        v.validation_residuals[out] + val.xyz[out], alone.predict(val.subset(out)), atol=1e-9
+    )
+    # an arm that cannot be refitted (built elsewhere) zeroes the terms instead
+    bare = replace(res, refit=None)
+    np.testing.assert_allclose(
+        bare.validate(val).validation_residuals[out] + val.xyz[out],
         _without(res, ["ts2", "tc2"], val.subset(out)),
         atol=1e-12,
     )
@@ -142,8 +159,6 @@ def test_a_joint_out_of_range_drops_a_harmonic_whose_period_was_not_covered():
 def test_the_exported_arm_records_its_domain_and_compensation_is_warned_outside_it(tmp_path):
     """export writes [domain]; compensating targets at a temperature beyond it warns, and the
     thermal term (a line in temperature) is left out there unless --extrapolate keeps it."""
-    from dataclasses import replace
-
     from arm.description import load_robot as load
     from lab.export import compensate, export_robot
 
