@@ -301,7 +301,7 @@ def fit_rows(  # noqa: C901  (the five steps of the module docstring, in the ord
             _refit_without,
             data,
             robot,
-            effects,
+            list(model.effects),  # the instances: a user's module may be unregistered by then
             options,
             dict(zip(lay.names, sol.params, strict=True)),
         ),
