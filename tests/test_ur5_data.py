@@ -157,7 +157,7 @@ def test_the_real_data_benchmark_writes_its_tables(tmp_path, monkeypatch):
     report = json.loads((tmp_path / "real_data.json").read_text())
     ur10, ur5, rokae = report["datasets"]
     assert ur10 == {"name": "UR10", "not_run": "--skip-ur10", "rows": []}
-    assert "one session" in ur5["split"]
+    assert "same session" in ur5["split"] and "not across sessions" in ur5["split"]
     rows = {r["model"]: r for r in ur5["rows"]}
     assert rows["published: MDH + neural network (ASTGCN)"]["mean_mm"] == 0.1549
     geo = rows["geometric"]
