@@ -61,7 +61,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -143,6 +143,10 @@ class RobotDescription:
     stations: tuple[tuple[int, Vec3, Vec3], ...] = ()
     # a calibrated arm's nominal arm, as `lab export` records it (what a controller believes in)
     nominal: RobotDescription | None = field(default=None, compare=False, repr=False)
+    # a calibrated arm's domain: where it was identified, {variable: (lo, hi)} in SI units
+    # (q1..q6 rad, tau1..tau6 N·m, temperature degC, payload kg, t s) and "n_poses"
+    # (lab.domain); empty for a drawn arm. Not part of equality.
+    domain: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if len(self.joints) != 6:
@@ -342,6 +346,11 @@ class RobotDescription:
             ]
         if self.nominal is not None:
             doc["nominal"] = replace(self.nominal, nominal=None)._to_dict(length_unit, angle_unit)
+        if self.domain:
+            doc["domain"] = {
+                k: (int(v) if k == "n_poses" else [float(v[0]), float(v[1])])
+                for k, v in self.domain.items()
+            }
         return doc
 
     def save(self, path: str | Path, length_unit: str = "m", angle_unit: str = "deg") -> None:
@@ -411,6 +420,7 @@ _KEYS = {
         "effects",
         "stations",
         "nominal",
+        "domain",
     },
     "station": {"station", "translation", "rotation_vector"},
     "joint": {"alpha", "a", "d", "theta_offset", "limits", "mass", "com", "beta"},
@@ -418,6 +428,31 @@ _KEYS = {
     "base": {"translation", "rotation_vector"},
     "flange": {"a", "alpha", "translation", "rotation_vector"},
 }
+
+
+def _domain(doc, source: str) -> dict[str, Any]:
+    """``[domain]``: ``n_poses`` and each variable's fitted range ``[lo, hi]`` (SI units)."""
+    if not isinstance(doc, dict):
+        raise DescriptionError(f"{source}: [domain] must be a table of ranges")
+    out: dict[str, Any] = {}
+    for k, v in doc.items():
+        if k == "n_poses":
+            if not isinstance(v, int) or v < 0:
+                raise DescriptionError(f"{source}: domain: n_poses must be a whole number >= 0")
+            out[k] = v
+            continue
+        ok = (
+            isinstance(v, list)
+            and len(v) == 2
+            and all(isinstance(x, int | float) and math.isfinite(x) for x in v)
+            and v[0] <= v[1]
+        )
+        if not ok:
+            raise DescriptionError(
+                f"{source}: domain: {k} must be a range [lo, hi] of two finite numbers, got {v!r}"
+            )
+        out[k] = (float(v[0]), float(v[1]))
+    return out
 
 
 def _table(val, source: str, where: str, kind: str) -> dict:
@@ -551,6 +586,7 @@ def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription
             )
         effects[name] = {k: _get(vals, k, source, float, f"effects.{name}: ") for k in vals}
     stations = _stations(doc, source, L, A)
+    domain = _domain(doc.get("domain", {}), source)
     try:
         return RobotDescription(
             name=_get(doc, "name", source, str, "", Path(source).stem),
@@ -567,6 +603,7 @@ def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription
             flange_rotation=fr,
             stations=stations,
             nominal=nominal,
+            domain=domain,
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{source}: {exc}") from None

@@ -148,6 +148,11 @@ class Effect:
     scan_only: ClassVar[bool] = False
     # A specification that names the effect fully (what the documentation and tests build).
     example: ClassVar[str] = ""
+    # Whether its form is a law of the arm over its whole range (a joint's stiffness, a gear
+    # ratio): then it holds outside the poses it was fitted on. Otherwise its terms are used
+    # outside the fitted range of what they depend on only where their form repeats over a
+    # range the fit covered (a harmonic of a joint angle); lab.domain.
+    extrapolates: ClassVar[bool] = False
 
     def __init__(self, joints: Sequence[int] | None = None) -> None:
         if joints is not None and not self.per_joint:
@@ -343,6 +348,7 @@ class JointAngleEffect(Effect):
 
 class Compliance(JointAngleEffect):
     name = "compliance"
+    extrapolates = True  # a law of the arm over its whole range
     terms = ("c",)
     typical = {"c": (3e-6, 1e-5)}
     positive = True
@@ -550,6 +556,7 @@ def _orders_text(ks: Sequence[int]) -> str:
 
 class JointScale(JointAngleEffect):
     name = "joint_scale"
+    extrapolates = True  # a law of the arm over its whole range
     terms = ("g",)
     typical = {"g": (1e-4, 5e-4)}
     description = "gear-ratio error: theta_i = q_i + g_i q_i"
@@ -560,6 +567,7 @@ class JointScale(JointAngleEffect):
 
 class Backlash(JointAngleEffect):
     name = "backlash"
+    extrapolates = True  # a law of the arm over its whole range
     terms = ("bl",)
     typical = {"bl": (3e-4, 6e-4)}
     positive = True
@@ -583,6 +591,7 @@ class LoadBacklash(JointAngleEffect):
     mis-models every pose within the band of an arm whose gravity does pick the side.)"""
 
     name = "load_backlash"
+    extrapolates = True  # a law of the arm over its whole range
     terms = ("lb",)
     typical = {"lb": (3e-4, 6e-4)}
     positive = True

@@ -58,6 +58,7 @@ __all__ = [
     "atomic_write_text",
     "check_output",
     "check_ranges",
+    "concatenate",
     "folder_problem",
     "parse_numeric_csv",
     "poses_csv",
@@ -381,6 +382,36 @@ def orientation_rotvec(angles: np.ndarray, form: str) -> np.ndarray:
     if form == "rpy":
         return Rotation.from_euler("xyz", angles).as_rotvec()
     raise MeasurementError(f"orientation form must be one of {', '.join(ORIENTATION_FORMS)}")
+
+
+def concatenate(sets: Sequence[MeasurementSet], source: str | None = None) -> MeasurementSet:
+    """The rows of several measurement sets as one (several sessions or stations in one fit):
+    the same columns in each (a ``station`` column says which station measured which rows); a
+    set without ``std_*`` cells contributes blank ones (its rows' sigma is the instrument
+    model's). Positions alone: a set with orientations is refused."""
+    if not sets:
+        raise MeasurementError("concatenate: no measurement sets given")
+    names = set(sets[0].columns)
+    for s in sets[1:]:
+        if set(s.columns) != names:
+            odd = sorted(names ^ set(s.columns))[0]
+            raise MeasurementError(
+                f"{s.source}: column {odd!r} is in some of the sets concatenated but not in "
+                f"{sets[0].source if odd not in names else s.source}"
+            )
+    for s in sets:
+        if s.orientation is not None:
+            raise MeasurementError(f"{s.source}: concatenate takes positions alone")
+    std = None
+    if any(s.std is not None for s in sets):
+        std = np.vstack([np.full((len(s), 6), np.nan) if s.std is None else s.std for s in sets])
+    return MeasurementSet(
+        np.vstack([s.q for s in sets]),
+        np.vstack([s.xyz for s in sets]),
+        {c: np.concatenate([s.columns[c] for s in sets]) for c in sets[0].columns},
+        source or " + ".join(s.source for s in sets),
+        std=std,
+    )
 
 
 def write_measurements(

@@ -6,8 +6,14 @@ A laser tracker's noise grows with the distance from it: per axis, sigma = a + b
 (``--noise-mm a --noise-ppm b``; the GTS3800 of the public UR5 set states 15 um + 6 um/m). The
 tracker stands at the origin of the measurement frame (of its station, with several): the distance
 is that of the measured point from the origin, where the registered base puts the arm. An
-orientation (a 6-DoF probe) has its own per-axis uncertainty (``--noise-mrad``). A row's own
-stated uncertainties (``std_x``... columns) take precedence over the model, component by component.
+orientation (a 6-DoF probe) has its own per-axis uncertainty (``--noise-mrad``).
+
+A row's own stated uncertainties (``std_x``... columns) are what an instrument reports with each
+point: the spread of its own averaging over that measurement, which can be a few micrometres
+while the tracker's uncertainty (its MPE, its registration) is tens. So they raise a row's sigma
+above the instrument model but never lower it: per component, sigma = max(std, model) where the
+model is stated; no row then weighs more than the stated noise allows. Where no model is stated
+the std is the row's sigma as given.
 
     noise = InstrumentNoise(mm=0.015, ppm=6.0, mrad=0.1)
     sigma = noise.sigmas(data)        # (N, 6) in m and rad; NaN where nothing is stated
@@ -75,9 +81,9 @@ class InstrumentNoise:
         return ", ".join(parts) or "not stated"
 
     def sigmas(self, data: MeasurementSet) -> np.ndarray:
-        """(N, 6) standard uncertainties of ``x y z rx ry rz`` (m, rad): the row's own where it
-        states one, else this model's; NaN where neither states one or the row did not measure
-        the component."""
+        """(N, 6) standard uncertainties of ``x y z rx ry rz`` (m, rad): this model's, raised to
+        the row's own where it states a larger one (or the row's own where the model states none);
+        NaN where neither states one or the row did not measure the component."""
         n = len(data)
         out = np.full((n, 6), np.nan)
         if self.positions_stated:
@@ -85,6 +91,7 @@ class InstrumentNoise:
         if self.mrad is not None:
             out[:, 3:] = self.mrad * 1e-3
         if data.std is not None:
-            out = np.where(np.isfinite(data.std), data.std, out)
+            # fmax: the row's own where the model states none
+            out = np.where(np.isfinite(data.std), np.fmax(data.std, out), out)
         out[~data.measured] = np.nan
         return out

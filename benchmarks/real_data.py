@@ -64,9 +64,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np
 
 from arm.description import RobotDescription, load_robot
-from arm.effects import load_effect_module
+from arm.effects import EFFECTS, load_effect_module
 from arm.files import atomic_write_text
-from arm.measurements import MeasurementSet, read_measurements
+from arm.measurements import MeasurementSet, concatenate, read_measurements
 from arm.params import parse_parameter_name
 from benchmarks._report import machine
 from benchmarks.pose_rows import pose_rows, summary_lines
@@ -79,6 +79,14 @@ REAL_DATA_ENV = "SIXAXIS_REAL_DATA"
 # GTS3800: 15 um + 6 um/m (data/ur5/README.md); the lab's tests take one sigma per axis
 UR5_NOISE_MM = 0.015
 ROKAE_NOISE_MM = 0.015
+UR10 = ROOT / "data" / "ur10"
+UR10_SERIES = ("A", "B", "D")
+# a Leica tracker's stated uncertainty, of the GTS3800's class (data/ur10/README.md)
+UR10_NOISE = {"noise_mm": 0.015, "noise_ppm": 6.0}
+# series A's 11,911 poses are subsampled for fitting (the whole series is validated on)
+UR10_FIT_POSES = 1000
+UR10_WITHIN_FRACTION = 0.8  # the within-session split: 80 % fitted, 20 % held out
+UR10_SEED = 0
 UR5_JOINTS = (
     "shoulder_pan_joint",
     "shoulder_lift_joint",
@@ -111,19 +119,28 @@ def _timed(fn: Callable, *a, **kw):
     return out, time.perf_counter() - t
 
 
-def lab_fit(cal, robot, effects, validate, noise_mm, *, modules=()):
+def lab_fit(cal, robot, effects, validate, noise_mm, *, modules=(), noise_ppm=0.0):
     """fit as `sixaxis lab fit` runs it; refused implausible models are kept with accept_large,
     and say so. Returns (result, seconds, note)."""
     for m in modules:
         load_effect_module(m)
     try:
-        res, s = _timed(fit, cal, robot, effects, noise_mm=noise_mm, validate=validate)
+        res, s = _timed(
+            fit, cal, robot, effects, noise_mm=noise_mm, noise_ppm=noise_ppm, validate=validate
+        )
         return res, s, ""
     except FitError as exc:
         if "not a plausible model" not in str(exc):
             raise
         res, s = _timed(
-            fit, cal, robot, effects, noise_mm=noise_mm, validate=validate, accept_large=True
+            fit,
+            cal,
+            robot,
+            effects,
+            noise_mm=noise_mm,
+            noise_ppm=noise_ppm,
+            validate=validate,
+            accept_large=True,
         )
         return res, s, f"refused as implausible, kept with accept_large: {_short(exc)}"
 
@@ -144,20 +161,44 @@ def registration_only(cal, robot, validate):
     return _timed(fit, cal, robot, "geometric", validate=validate, fixed=rows)
 
 
-def lab_path(cal, robot, validate, noise_mm, workdir: Path, tag: str = "") -> list[dict]:
+def lab_path(
+    cal,
+    robot,
+    validate,
+    noise_mm,
+    workdir: Path,
+    tag: str = "",
+    noise_ppm: float = 0.0,
+    keep_results: bool = False,
+) -> list[dict]:
     """geometric, the diagnosis's choice and the discovery's, each as the user reaches it: the
     rows screened once (lab.screen), diagnosed, the suggestion fitted; then discovery on top of
     the diagnosis's choice (from geometric when that is refused), the module it writes loaded
-    and the discovery's suggestion fitted."""
+    and the discovery's suggestion fitted. ``validate`` None: no validation; ``keep_results``:
+    each row also holds its FitResult (``result``), to validate elsewhere. The effect modules
+    the path registers are unregistered after it (another path must not find them)."""
+    registered = set(EFFECTS)
+    try:
+        rows = _lab_path(cal, robot, validate, noise_mm, workdir, tag, noise_ppm)
+    finally:
+        for extra in set(EFFECTS) - registered:
+            del EFFECTS[extra]
+    if not keep_results:
+        for r in rows:
+            r.pop("result")
+    return rows
+
+
+def _lab_path(cal, robot, validate, noise_mm, workdir, tag, noise_ppm) -> list[dict]:
     out = []
-    s, t_geo = _timed(screen, cal, robot, "geometric", noise_mm=noise_mm)
-    geo = s.fit.validate(validate)
+    s, t_geo = _timed(screen, cal, robot, "geometric", noise_mm=noise_mm, noise_ppm=noise_ppm)
+    geo = s.fit if validate is None else s.fit.validate(validate)
     out.append(("geometric", "screen", geo, t_geo, "", "geometric"))
     d, t_d = _timed(diagnose, s)
     choice = d.suggestion or "geometric"
     t_path = t_geo + t_d
     if choice != "geometric":
-        r, t, note = lab_fit(cal, robot, choice, validate, noise_mm)
+        r, t, note = lab_fit(cal, robot, choice, validate, noise_mm, noise_ppm=noise_ppm)
         out.append(("diagnosis's choice", "screen, diagnose, fit", r, t_path + t, note, choice))
     else:
         out.append(
@@ -176,7 +217,15 @@ def lab_path(cal, robot, validate, noise_mm, workdir: Path, tag: str = "") -> li
     disc_note = ""
     t0 = time.perf_counter()
     try:
-        disc = discover(cal, robot, base_effects, noise_mm=noise_mm, validate=validate, name=name)
+        disc = discover(
+            cal,
+            robot,
+            base_effects,
+            noise_mm=noise_mm,
+            noise_ppm=noise_ppm,
+            validate=validate,
+            name=name,
+        )
     except FitError as exc:  # on top of the diagnosis's choice it failed: from geometric then
         disc_note = (
             f"discover --effects {base_effects} refused ({_short(exc)}); discovered from geometric"
@@ -185,7 +234,9 @@ def lab_path(cal, robot, validate, noise_mm, workdir: Path, tag: str = "") -> li
     t_path += time.perf_counter() - t0  # the refused attempt included: the user waited for it
     if disc.terms and disc.suggestion:
         module = disc.write_module(workdir / f"{name}.py")
-        r, t, note = lab_fit(cal, robot, disc.suggestion, validate, noise_mm, modules=[module])
+        r, t, note = lab_fit(
+            cal, robot, disc.suggestion, validate, noise_mm, modules=[module], noise_ppm=noise_ppm
+        )
         note = "; ".join(n for n in (disc_note, note) if n)
         out.append(
             (
@@ -200,7 +251,7 @@ def lab_path(cal, robot, validate, noise_mm, workdir: Path, tag: str = "") -> li
     else:
         note = "; ".join(n for n in (disc_note, f"verdict {disc.verdict}: no term") if n)
         out.append(("discovery's", "screen, diagnose, discover", base, t_path, note, base_effects))
-    rows = [_lab_row(*o) for o in out]
+    rows = [_lab_row(*o) | {"result": o[2]} for o in out]
     rows[1]["verdict"] = d.verdict
     rows[2]["verdict"] = disc.verdict
     rows[2]["terms"] = [t.expression if hasattr(t, "expression") else str(t) for t in disc.terms]
@@ -445,7 +496,9 @@ def ur5(skip_figaroh: bool, repeat: int) -> dict:
             "calibration.csv": _sha(UR5 / "calibration.csv"),
             "test.csv": _sha(UR5 / "test.csv"),
         },
-        "split": f"calibrate on the {len(cal)} grid poses, test on the {len(test)} random poses",
+        "split": f"calibrate on the {len(cal)} grid poses, test on the {len(test)} random poses "
+        "of the same session (one campaign, one tracker station: within-session figures, not "
+        "across sessions)",
         "published": "MDH calibration + neural-network (ASTGCN) compensation, mean 0.1549 mm on "
         "the 20 test poses; uncalibrated 2.5664 mm (Jacobi 2025)",
         "robot": "ur5 (UR's DH table)",
@@ -533,6 +586,118 @@ def leave_one_out(data: MeasurementSet, robot, noise_mm: float, work: Path) -> l
     return out
 
 
+def _held_out(res, data: MeasurementSet) -> dict:
+    """A FitResult validated on ``data`` as a user's --validate does it (a station the fit has
+    not seen registered, terms not extrapolated out of the fitted domain): the 3-D errors, and
+    what lay outside the domain."""
+    v = res.validate(data)
+    e = 1e3 * np.linalg.norm(v.validation_residuals, axis=1)
+    return {
+        "rms_mm": float(np.sqrt(np.mean(e**2))),
+        "mean_mm": float(e.mean()),
+        "max_mm": float(e.max()),
+        "outside_domain": [x.variable for x in v.validation_excursions],
+        "terms_left_out": list(v.validation_dropped),
+    }
+
+
+def _ur10_paths(train: MeasurementSet, work: Path, tag: str) -> list[dict]:
+    rows = lab_path(
+        train,
+        "ur10_robot",
+        None,
+        UR10_NOISE["noise_mm"],
+        work,
+        tag=tag,
+        noise_ppm=UR10_NOISE["noise_ppm"],
+        keep_results=True,
+    )
+    return rows
+
+
+def ur10(fit_poses: int = UR10_FIT_POSES) -> dict:
+    """The UR10's three sessions: leave one series out (fit two, with one base per station;
+    validate on the third, its station unseen: its base registered), beside a random split
+    within each series, and each series' own calibration used on the other two."""
+    series = {k: _read(UR10 / f"series_{k}.csv", f"data/ur10/series_{k}.csv") for k in UR10_SERIES}
+    rng = np.random.default_rng(UR10_SEED)
+    fitting = {}
+    for k, d in series.items():
+        if len(d) > fit_poses:
+            d = d.subset(np.sort(rng.choice(len(d), fit_poses, replace=False)))
+        fitting[k] = d
+    models = ("geometric", "diagnosis's choice", "discovery's")
+    cross: dict[str, dict] = {m: {"model": m, "folds": {}} for m in models}
+    within: dict[str, dict] = {m: {"model": m, "series": {}} for m in models}
+    transfer: dict[str, dict] = {m: {"model": m, "pairs": {}} for m in models}
+    # the nominal arm, only its base and tool registered: what a calibration must beat
+    nominal: dict = {"model": "nominal, base and tool registered", "pairs": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        for out in UR10_SERIES:
+            log.info("UR10: leave series %s out", out)
+            train = concatenate([fitting[k] for k in UR10_SERIES if k != out])
+            for r in _ur10_paths(train, work, f"_without_{out.lower()}"):
+                res = r.pop("result")
+                cross[r["model"]]["folds"][out] = r | _held_out(res, series[out])
+        for k in UR10_SERIES:
+            log.info("UR10: within series %s, and its calibration on the others", k)
+            fit_part, test_part = fitting[k].split(UR10_WITHIN_FRACTION, rng)
+            reg, _ = registration_only(fit_part, "ur10_robot", None)
+            for other in UR10_SERIES:
+                if other != k:
+                    nominal["pairs"][f"{k}->{other}"] = {
+                        "effects": "geometric (rows fixed)"
+                    } | _held_out(reg, series[other])
+            for r in _ur10_paths(fit_part, work, f"_within_{k.lower()}"):
+                res = r.pop("result")
+                within[r["model"]]["series"][k] = r | _held_out(res, test_part)
+                for other in UR10_SERIES:
+                    if other != k:
+                        transfer[r["model"]]["pairs"][f"{k}->{other}"] = {
+                            "effects": r["effects"]
+                        } | _held_out(res, series[other])
+    geo = cross["geometric"]["folds"]
+    best = cross["discovery's"]["folds"]
+    targets = {
+        "cross_session_max_mm": max(f["rms_mm"] for f in best.values()),
+        "cross_session_le_025": all(f["rms_mm"] <= 0.25 for f in best.values()),
+        "cross_session_not_above_geometric": all(
+            best[k]["rms_mm"] <= geo[k]["rms_mm"] for k in UR10_SERIES
+        ),
+        "transfer_worst_ratio": {
+            m: max(
+                p["rms_mm"] / transfer["geometric"]["pairs"][pair]["rms_mm"]
+                for pair, p in transfer[m]["pairs"].items()
+            )
+            for m in models
+        },
+    }
+    targets["transfer_le_105"] = all(v <= 1.05 for v in targets["transfer_worst_ratio"].values())
+    return {
+        "name": "UR10",
+        "source": "data/ur10 (Landgraf et al. 2021, MIT): Leica laser tracker, T-Mac probe; "
+        "three sessions months apart, each its own tracker station, temperature and region",
+        "files": {f"series_{k}.csv": _sha(UR10 / f"series_{k}.csv") for k in UR10_SERIES},
+        "poses": {k: len(d) for k, d in series.items()},
+        "fit_poses": {k: len(d) for k, d in fitting.items()},
+        "split": "cross-session: leave one series out (the other two fitted, one base per station; "
+        "the left-out series' station unseen, its base registered rigidly); within-session: a "
+        f"random {UR10_WITHIN_FRACTION:.0%} / {1 - UR10_WITHIN_FRACTION:.0%} split of each series",
+        "subsample": f"series A fitted on {fit_poses} of its {len(series['A'])} poses "
+        f"(random, seed {UR10_SEED}); validated on all of them",
+        "robot": "ur10_robot (UR's nominal kinematics, URDF)",
+        "noise": UR10_NOISE,
+        "stds": "as given (std_x..std_z of B and D), floored by the stated noise",
+        "cross_session": list(cross.values()),
+        "within_session": list(within.values()),
+        "transfer": list(transfer.values()),
+        "transfer_nominal": nominal,
+        "targets": targets,
+        "rows": [],
+    }
+
+
 def rokae(folder: Path | None, skip_figaroh: bool) -> dict:
     base = {
         "name": "Rokae",
@@ -582,6 +747,121 @@ def _fmt(v, spec=".4f") -> str:
     return "" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
 
 
+def _ur10_markdown(ds: dict) -> list[str]:
+    """The UR10's tables: across sessions first (the headline), then within one, then one
+    session's calibration used on another."""
+    series = UR10_SERIES
+    t = ds["targets"]
+    lines = [
+        f"## {ds['name']}: across sessions (the headline)",
+        "",
+        f"- Data: {ds['source']}; poses {', '.join(f'{k} {n}' for k, n in ds['poses'].items())}.",
+        f"- Split: {ds['split']}.",
+        f"- Subsampled for time: {ds['subsample']}.",
+        f"- Robot: {ds['robot']}; noise stated {ds['noise']['noise_mm']} mm + "
+        f"{ds['noise']['noise_ppm']} um/m per axis; stds {ds['stds']}.",
+        "- Validation as `--validate` does it: outside the fitted domain (lab.domain) a term "
+        "whose form does not repeat over what was fitted is left out of those rows.",
+        "",
+        "**Cross-session: leave one series out** (held-out 3-D RMS, mm, on the whole left-out "
+        "series)",
+        "",
+        "| model | " + " | ".join(f"{k} left out" for k in series) + " | worst | effects |",
+        "|---|" + "---|" * (len(series) + 2),
+    ]
+    for row in ds["cross_session"]:
+        f = row["folds"]
+        worst = max(f[k]["rms_mm"] for k in series)
+        eff = "; ".join(f"{k}: `{_short_effects(f[k]['effects'])}`" for k in series)
+        lines.append(
+            f"| {row['model']} | "
+            + " | ".join(_fmt(f[k]["rms_mm"]) for k in series)
+            + f" | {_fmt(worst)} | {_cell(eff)} |"
+        )
+    lines += [
+        "",
+        "**Within one session: a random 80 / 20 split of each series** (held-out 3-D RMS, mm)",
+        "",
+        "| model | " + " | ".join(f"series {k}" for k in series) + " |",
+        "|---|" + "---|" * len(series),
+    ]
+    for row in ds["within_session"]:
+        f = row["series"]
+        lines.append(
+            f"| {row['model']} | " + " | ".join(_fmt(f[k]["rms_mm"]) for k in series) + " |"
+        )
+    pairs = list(ds["transfer"][0]["pairs"])
+    geo = ds["transfer"][0]["pairs"]
+    lines += [
+        "",
+        "**One session's calibration used on another** (fitted on 80 % of one series, validated "
+        "on the whole of another; held-out 3-D RMS in mm, and its ratio to the geometric fit's)",
+        "",
+        "| model | " + " | ".join(pairs) + " | worst ratio |",
+        "|---|" + "---|" * (len(pairs) + 1),
+    ]
+    n = ds["transfer_nominal"]["pairs"]
+    lines.append(
+        f"| {ds['transfer_nominal']['model']} | "
+        + " | ".join(
+            f"{_fmt(n[k]['rms_mm'])} ({n[k]['rms_mm'] / geo[k]['rms_mm']:.2f}x)" for k in pairs
+        )
+        + " | |"
+    )
+    for row in ds["transfer"]:
+        p = row["pairs"]
+        cells = [
+            f"{_fmt(p[k]['rms_mm'])} ({p[k]['rms_mm'] / geo[k]['rms_mm']:.2f}x)" for k in pairs
+        ]
+        lines.append(
+            f"| {row['model']} | "
+            + " | ".join(cells)
+            + f" | {t['transfer_worst_ratio'][row['model']]:.2f}x |"
+        )
+    dropped = sorted(
+        {
+            f"{pair}: {', '.join(v['terms_left_out'])}"
+            for row in ds["transfer"]
+            for pair, v in row["pairs"].items()
+            if v["terms_left_out"]
+        }
+        | {
+            f"{k} left out: {', '.join(v['terms_left_out'])}"
+            for row in ds["cross_session"]
+            for k, v in row["folds"].items()
+            if v["terms_left_out"]
+        }
+    )
+    met = (
+        "met" if t["cross_session_le_025"] and t["cross_session_not_above_geometric"] else "NOT met"
+    )
+    lines += [
+        "",
+        f"- Target, leave one series out, the lab's path (the discovery's) <= 0.25 mm in every "
+        f"fold and never above the geometric fit: **{met}** (worst fold "
+        f"{t['cross_session_max_mm']:.4f} mm; <= 0.25 mm in every fold: "
+        f"{t['cross_session_le_025']}; never above geometric: "
+        f"{t['cross_session_not_above_geometric']}).",
+        f"- Target, one session's calibration on another <= 1.05x the geometric fit's: "
+        f"**{'met' if t['transfer_le_105'] else 'NOT met'}** (worst ratios: "
+        + ", ".join(f"{m} {r:.2f}x" for m, r in t["transfer_worst_ratio"].items())
+        + ").",
+    ]
+    if dropped:
+        lines.append(
+            "- Terms left out of rows outside the fitted domain: " + "; ".join(dropped) + "."
+        )
+    for row in ds["cross_session"]:
+        for k, v in row["folds"].items():
+            if v.get("note"):
+                lines.append(f"- {row['model']}, {k} left out: {v['note']}")
+    return [*lines, ""]
+
+
+def _short_effects(effects: str, limit: int = 60) -> str:
+    return effects if len(effects) <= limit else effects[: limit - 3] + "..."
+
+
 def markdown(report: dict) -> str:
     lines = [
         "# Real data, reproduced",
@@ -593,6 +873,12 @@ def markdown(report: dict) -> str:
         "",
     ]
     for ds in report["datasets"]:
+        if ds["name"] == "UR10":
+            if ds.get("not_run"):
+                lines += ["## UR10", "", f"- Not run: {ds['not_run']}.", ""]
+            else:
+                lines += _ur10_markdown(ds)
+            continue
         lines += [f"## {ds['name']}", "", f"- Data: {ds['source']}.", f"- Split: {ds['split']}."]
         if "published" in ds:
             lines.append(f"- Published result: {ds['published']}.")
@@ -648,6 +934,9 @@ def main(argv: list[str] | None = None) -> int:
         "--rokae", type=Path, help=f"the converted Rokae folder (else ${REAL_DATA_ENV})"
     )
     ap.add_argument("--skip-figaroh", action="store_true", help="leave FIGAROH's row out")
+    ap.add_argument(
+        "--skip-ur10", action="store_true", help="leave the UR10's cross-session section out"
+    )
     ap.add_argument("--out", type=Path, default=OUT, help="where real_data.md/.json go")
     ap.add_argument(
         "--repeat", type=int, default=3, help="runs timed of FIGAROH and the geometric fit (median)"
@@ -665,6 +954,7 @@ def main(argv: list[str] | None = None) -> int:
     state = git_state(ROOT)  # before this script writes its own results
     t0 = time.perf_counter()
     datasets = [
+        ur10() if not args.skip_ur10 else {"name": "UR10", "not_run": "--skip-ur10", "rows": []},
         ur5(args.skip_figaroh, args.repeat),
         rokae(_rokae_dir(args.rokae), args.skip_figaroh),
     ]

@@ -105,12 +105,23 @@ def _lab(ctx: typer.Context) -> None:
     ctx.call_on_close(lambda: setattr(console, "stderr", False))  # after an output on stdout
 
 
-def _fitted(meas, arm, effects: str, opts: LabOptions, val):
+ExtrapolateOpt = Annotated[
+    bool,
+    typer.Option(
+        "--extrapolate",
+        help="Outside the fitted domain, keep every term (a line in temperature fitted over "
+        "0.4 degC, a harmonic of a joint over less than its period) instead of predicting those "
+        "rows without it; the warning is given either way.",
+    ),
+]
+
+
+def _fitted(meas, arm, effects: str, opts: LabOptions, val, extrapolate: bool = False):
     """The lab's fit of a command's data (``lab fit``, ``lab export``)."""
     from lab import fit
 
     with user_errors():
-        return fit(meas, arm, effects, options=opts, validate=val)
+        return fit(meas, arm, effects, options=opts, validate=val, extrapolate=extrapolate)
 
 
 # -- fit --------------------------------------------------------------------------------------------
@@ -131,6 +142,7 @@ def fit_cmd(
     measured: MeasuredOpt = None,
     outliers: OutliersOpt = "auto",
     accept_large: AcceptLargeOpt = False,
+    extrapolate: ExtrapolateOpt = False,
     as_json: JsonOpt = False,
     out: JsonOutOpt = None,
 ) -> None:
@@ -158,7 +170,7 @@ def fit_cmd(
         accept_large=accept_large,
         as_json=as_json,
     )
-    result = _fitted(meas, arm, effects, opts, val)
+    result = _fitted(meas, arm, effects, opts, val, extrapolate)
     if not as_json:
         print_fit(result)
     emit_json(result.to_dict(), as_json, out)
@@ -800,6 +812,7 @@ def compensate_cmd(
             "= 0) instead of refusing the file.",
         ),
     ] = False,
+    extrapolate: ExtrapolateOpt = False,
     as_json: JsonOpt = False,
 ) -> None:
     """Joint angles that put the calibrated arm's tool frame on each target pose.
@@ -818,7 +831,14 @@ def compensate_cmd(
     with user_errors():
         tset = read_targets(targets, length_unit=length_unit, angle_unit=angle_unit)
         with console.status(f"solving {len(tset)} targets..."):
-            comp = compensate(cal, tset, nom, free_orientation=free_orientation, target_ids=ids)
+            comp = compensate(
+                cal,
+                tset,
+                nom,
+                free_orientation=free_orientation,
+                target_ids=ids,
+                extrapolate=extrapolate,
+            )
     unreached = comp.unreached()
     if unreached is not None and not keep_unreached:
         fail(f"{unreached}; nothing written (--keep-unreached writes them with converged = 0)")

@@ -113,6 +113,7 @@ from lab.sanity import check_stated_noise
 from lab.screening import Screen, annotate, screened
 from lab.selection import DEPENDENT, ForwardSelection, f_test, hat_blocks, holm, press_rms
 from lab.spectral import CyclicProblem, CyclicScan, CyclicScanner
+from lab.transfer import block_column, blocked_text, confirm_groups, use_blocks
 
 __all__ = ["Candidate", "Diagnosis", "Hint", "diagnose"]
 
@@ -207,6 +208,10 @@ class Diagnosis:
     noise_source: str | None = None
     repeatability: Repeatability | None = None
     implied_noise_mm: float | None = None
+    # with a session or station column: the chosen effects confirmed by blocked
+    # cross-validation (lab.transfer): {"column", "models": [{"without", "blocked_rms_mm"}],
+    # "dropped": effects that did not help on a block they were not fitted on}
+    blocked_cv: dict | None = None
 
     @property
     def noise_note(self) -> str | None:
@@ -275,6 +280,7 @@ class Diagnosis:
             "noise_source": self.noise_source,
             "repeatability": None if self.repeatability is None else self.repeatability.to_dict(),
             "implied_noise_mm": self.implied_noise_mm,
+            "blocked_cv": self.blocked_cv,
         }
 
     def summary(self) -> str:
@@ -297,6 +303,8 @@ class Diagnosis:
             )
         lines.append("hints: " + ", ".join(f"{h.variable} {h.score:.2f}" for h in self.hints[:5]))
         lines += self.readings
+        if self.blocked_cv is not None:
+            lines.append(blocked_text(self.blocked_cv))
         if self.noise_note:
             lines.append(self.noise_note)
         return "\n".join(lines)
@@ -322,6 +330,7 @@ def diagnose(
     options: LabOptions | None = None,
     alpha: float = 0.02,
     candidates: Sequence[str] | None = None,
+    across_blocks: bool | None = None,
 ) -> Diagnosis:
     """Fit ``effects`` (default geometric) and test what they miss; see the module docstring.
 
@@ -331,7 +340,10 @@ def diagnose(
     (``noise_mm`` ... ``register``, or ``options=``) are :class:`lab.LabOptions`; ``noise_mm``,
     the instrument's per-axis standard uncertainty (mm), also decides ``none`` against
     ``unexplained``. ``alpha``: the family-wise false-alarm rate. ``candidates``: effect names
-    to test (default: every registered effect).
+    to test (default: every registered effect). ``across_blocks``: confirm the chosen effects by
+    leaving each session (or station) out in turn, dropping those that do not help where they
+    were not fitted (:mod:`lab.transfer`); None: where the data have at least
+    :data:`lab.transfer.MIN_BLOCKS` of them.
     """
     check_alpha(alpha)
     opts = call_options(locals())
@@ -507,6 +519,10 @@ def diagnose(
     if chi2_after is not None and chi2_after < alpha / 2:
         implied = _implied_noise(res, data, Q0, sel, inlier, Jq, alpha / 2)
     del Q0
+    blocked = None
+    if explanation and use_blocks(s.kept, across_blocks):
+        explanation, blocked = _confirm_across_blocks(s, model, explanation)
+        cands = explanation + [c for c in cands if c not in explanation]
     suggestion = None
     if explanation:
         suggestion = _suggestion(model, explanation)
@@ -547,9 +563,29 @@ def diagnose(
         noise_source=floor.source,
         repeatability=floor.repeatability,
         implied_noise_mm=implied,
+        blocked_cv=blocked,
     )
     log.info("%s", d.summary())
     return d
+
+
+def _confirm_across_blocks(
+    s: Screen, model: ErrorModel, explanation: list[Candidate]
+) -> tuple[list[Candidate], dict]:
+    """The explanation's effects (a cyclic effect's orders together) that help on a session or
+    station they were not fitted on (lab.transfer); the others are dropped from it."""
+    names = list(dict.fromkeys(c.effect for c in explanation))
+
+    def build(keep: list[int]) -> str:
+        return _suggestion(model, [c for c in explanation if names.index(c.effect) in keep])
+
+    kept, table = confirm_groups(s.kept, s.robot, build, names, s.options)
+    dropped = [n for i, n in enumerate(names) if i not in kept]
+    return [c for c in explanation if names.index(c.effect) in kept], {
+        "column": block_column(s.kept),
+        "models": table,
+        "dropped": dropped,
+    }
 
 
 def _implied_noise(res, data, Q0, sel: ForwardSelection, inlier, Jq, alpha) -> float | None:

@@ -108,6 +108,7 @@ from lab.result import SCHEMA_VERSION, FitResult
 from lab.screening import Screen, screen, screened
 from lab.spectral import DEFAULT_ORDER as SCAN_ORDER
 from lab.spectral import MAX_TERMS, CyclicScan, ExtraColumns, cyclic_scan, problem_of_fit
+from lab.transfer import block_column, blocked_text, confirm_groups, use_blocks
 
 __all__ = [
     "DEFAULT_ORDER",
@@ -392,6 +393,10 @@ class Discovery:
     noise_source: str | None = None
     repeatability: Repeatability | None = None
     implied_noise_mm: float | None = None
+    # with a session or station column: the discovered effect confirmed by blocked
+    # cross-validation (lab.transfer), as the diagnosis's blocked_cv; dropped when it does not
+    # help on a block it was not fitted on
+    blocked_cv: dict | None = None
 
     @property
     def noise_note(self) -> str | None:
@@ -483,6 +488,7 @@ class Discovery:
             "noise_source": self.noise_source,
             "repeatability": None if self.repeatability is None else self.repeatability.to_dict(),
             "implied_noise_mm": self.implied_noise_mm,
+            "blocked_cv": self.blocked_cv,
         }
 
     def summary(self) -> str:
@@ -502,6 +508,8 @@ class Discovery:
         if self.noise_note:
             lines.append(self.noise_note)
         lines += self.notes
+        if self.blocked_cv is not None:
+            lines.append(blocked_text(self.blocked_cv))
         return "\n".join(lines)
 
 
@@ -682,6 +690,7 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
     validate: MeasurementSet | str | Path | None = None,
     order: int = DEFAULT_ORDER,
     name: str = "discovered",
+    across_blocks: bool | None = None,
 ) -> Discovery:
     """Search the library of :func:`library_terms` for what ``effects`` (default geometric)
     miss; see the module docstring. ``data``: a measurement set (or its file), screened once
@@ -690,7 +699,9 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
     :class:`lab.LabOptions`; ``noise_mm``, the instrument's per-axis standard uncertainty, also
     decides the verdict ``none`` against ``unexplained``. ``alpha``: the family-wise
     false-discovery rate; ``validate``: held-out data for the refitted model; ``order``: the
-    highest harmonic; ``name``: the discovered effect's name."""
+    highest harmonic; ``name``: the discovered effect's name; ``across_blocks``: keep the
+    discovered effect only if it helps on a session (or station) it was not fitted on
+    (:mod:`lab.transfer`; None: where the data have at least :data:`lab.transfer.MIN_BLOCKS`)."""
     check_alpha(alpha)
     opts = call_options(locals())
     if not ORDER.holds(order):
@@ -758,7 +769,8 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
         noise_source=floor.source,
         repeatability=floor.repeatability,
     )
-    if not selected:
+
+    def nothing_kept() -> Discovery:
         if chi2_p is not None and chi2_p < CHI2_SHARE * alpha:
             # above the noise: structure the library does not hold, or only noise (more of it
             # than stated) when no candidate is left that the residual depends on
@@ -771,6 +783,9 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
             disc.base = res.validate(as_measurements(validate))
         log.info("%s", disc.summary())
         return disc
+
+    if not selected:
+        return nothing_kept()
 
     # refit E plus the discovered effect, written as the module a user gets
     # first pass: sizes for the module's typical ranges from the scan's linearised fit
@@ -788,6 +803,23 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
         for t in selected
     ]
     cls = _load_class(disc.module_source(), name)
+    if use_blocks(s.kept, across_blocks):  # does it help on a session or station not fitted?
+        base_effects = list(res.model.effects)
+        kept, table = confirm_groups(
+            s.kept,
+            s.robot,
+            lambda keep: [*base_effects, cls()] if keep else base_effects,
+            [name],
+            s.options,
+        )
+        disc.blocked_cv = {
+            "column": block_column(s.kept),
+            "models": table,
+            "dropped": [] if kept else [name],
+        }
+        if not kept:
+            disc.selected, disc.terms = [], []
+            return nothing_kept()
     # the discovered model is a new model of the rows that count: the rule judges its own misses
     # (poses where a discovered term cannot say its sign are gross misses of it, not of the base)
     refit = screen(s.kept, s.robot, [*res.model.effects, cls()], options=s.options, tests=False).fit

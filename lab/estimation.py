@@ -32,8 +32,10 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +48,12 @@ from arm.errors import warn
 from arm.measurements import COMPONENTS, MeasurementSet, as_measurements
 from arm.noise import InstrumentNoise
 from lab.blocks import Blocks
-from lab.errors import FitError, ImplausibleAcceptedWarning, OrientationNotFittedWarning
+from lab.errors import (
+    FitError,
+    ImplausibleAcceptedWarning,
+    LabWarning,
+    OrientationNotFittedWarning,
+)
 from lab.identifiability import Identifiability, analyse_jacobian
 from lab.observations import observations_of, uses_orientation
 from lab.options import LabOptions
@@ -290,7 +297,33 @@ def fit_rows(  # noqa: C901  (the five steps of the module docstring, in the ord
         inputs=inputs,
         weights=w,
         source=data.source,
+        refit=partial(
+            _refit_without,
+            data,
+            robot,
+            list(model.effects),  # the instances: a user's module may be unregistered by then
+            options,
+            dict(zip(lay.names, sol.params, strict=True)),
+        ),
     )
+
+
+def _refit_without(
+    data: MeasurementSet,
+    robot: RobotDescription,
+    effects: str | Sequence[str | Effect],
+    options: LabOptions,
+    values: Mapping[str, float],
+    names: Sequence[str],
+) -> np.ndarray:
+    """The parameters of the same fit with ``names`` held at zero: the model without those
+    terms, fitted to the same rows (what validation outside a model's domain falls back to,
+    lab.domain). The rows are those given; none is left out again."""
+    start = dict(values) | {n: 0.0 for n in names}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LabWarning)
+        opts = replace(options, outliers="keep", accept_large=True)
+        return fit_rows(data, robot, effects, opts, start=start, fixed=names).params
 
 
 def _check_effects_identifiable(
@@ -340,6 +373,11 @@ def check_plausible(result: FitResult, accept: bool) -> tuple[Implausible, ...]:
     if len(bad) > 4:
         shown += f"; and {len(bad) - 4} more"
     cause = likely_cause(result.model, list(bad))
+    by_weights = weights_conditioning(result)
+    if by_weights and not accept:
+        raise FitError(f"{result.source}: {by_weights}; it gives {shown}")
+    if by_weights:
+        cause = by_weights
     if not accept:
         raise FitError(
             f"{result.source}: not a plausible model of {result.model.robot.name!r}: {shown}, "
@@ -352,6 +390,34 @@ def check_plausible(result: FitResult, accept: bool) -> tuple[Implausible, ...]:
         ImplausibleAcceptedWarning,
     )
     return bad
+
+
+#: weights under which the poses count as fewer than this share of them (Kish's effective number)
+#: concentrate a fit on a few poses: a refused fit then says so
+EFFECTIVE_SHARE = 0.25
+
+
+def weights_conditioning(result: FitResult) -> str:
+    """Why a weighted fit went astray, where its weights are the reason: the poses count as
+    fewer than :data:`EFFECTIVE_SHARE` of them (Kish's effective number, (sum w)^2 / sum w^2 of
+    the poses' squared weights), a few rows' tiny stated sigmas deciding it; else ``""``."""
+    obs = result.observations
+    if obs is None or obs.scale is None or obs.sigma_ref is None:
+        return ""
+    w2 = np.sum(obs.scale[:, :3] ** 2, axis=1)
+    n_eff = float(w2.sum() ** 2 / np.sum(w2**2))
+    if not n_eff < EFFECTIVE_SHARE * len(w2):
+        return ""
+    w = np.sqrt(w2 / 3.0)
+    return (
+        f"the rows' weights make the fit ill-conditioned: weighted by their stated sigmas, its "
+        f"{len(w2)} poses count as {n_eff:.0f} (the largest weight is "
+        f"{w.max() / np.median(w):.3g} times the median, sigma {1e3 * obs.sigma_ref / w.max():.2g}"
+        f" mm), and the {result.rank} parameters they identify have condition number "
+        f"{result.condition_number:.3g}: a few rows' std_* cells decide the fit. State the "
+        "instrument's noise (--noise-mm, --noise-ppm): no row then weighs more than it allows "
+        "(docs/format.md); or leave the std_* columns out"
+    )
 
 
 def identifiability_of(

@@ -69,6 +69,7 @@ from arm.measurements import (
 )
 from arm.params import TOOL_ROTATION_NAMES
 from arm.so3 import rotation_matrix, rotation_vector
+from lab.domain import Domain, out_of_domain, warn_out_of_domain
 from lab.result import SCHEMA_VERSION, FitResult
 
 __all__ = [
@@ -604,6 +605,61 @@ def _take(cols: Mapping[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndar
     return {k: v[rows] for k, v in cols.items()}
 
 
+def _turn(R: np.ndarray | None, Rq: np.ndarray) -> np.ndarray:
+    """The angle (rad) between each target orientation and the tool frame reached."""
+    if R is None:
+        return np.zeros(len(Rq))
+    return np.linalg.norm(rotation_vector(R @ np.swapaxes(Rq, 1, 2)), axis=1)
+
+
+def _within_domain(
+    cal: RobotDescription,
+    model: ErrorModel,
+    p: np.ndarray,
+    cols: Mapping[str, np.ndarray],
+    xyz: np.ndarray,
+    R: np.ndarray | None,
+    source: str,
+    res: IKResult,
+    e: np.ndarray,
+    turn: np.ndarray,
+    extrapolate: bool,
+    tol: float,
+) -> tuple[IKResult, np.ndarray, np.ndarray]:
+    """The compensation's solution where the arm records a domain: a warning for poses and
+    columns outside it, and the rows outside the range a term holds over solved again without
+    that term (lab.domain), unless ``extrapolate``."""
+    dom = Domain.of_description(cal.domain)
+    if dom is None:
+        return res, e, turn
+    inp = model.inputs(res.q, cols, source=source)
+    exc, drop = out_of_domain(model, p, np.ones(len(p), dtype=bool), dom, inp, inp)
+    warn_out_of_domain(source, exc, drop, extrapolate)
+    if extrapolate or not drop:
+        return res, e, turn
+    names = list(drop)
+    marks = np.column_stack([drop[k] for k in names])
+    patterns, which = np.unique(marks, axis=0, return_inverse=True)
+    which = np.asarray(which).reshape(-1)
+    q, converged, e, turn = res.q.copy(), res.converged.copy(), e.copy(), turn.copy()
+    for i, pattern in enumerate(patterns):
+        if not pattern.any():
+            continue
+        rows = np.flatnonzero(which == i)
+        p2 = p.copy()
+        for k, off in zip(names, pattern, strict=True):
+            if off:
+                p2[model.layout.index(k)] = 0.0
+        sub = _take(cols, rows)
+        r_rows = None if R is None else R[rows]
+        again = _solve(model, sub, p2, xyz[rows], r_rows, res.q[rows], tol)
+        q[rows], converged[rows] = again.q, again.converged
+        point, Rq = model.predict_pose(model.inputs(again.q, sub, source=source), p2)
+        e[rows] = point - xyz[rows]
+        turn[rows] = _turn(r_rows, Rq)
+    return res._replace(q=q, converged=converged), e, turn
+
+
 def compensate(
     robot: RobotDescription | str | Path,
     targets: TargetSet | np.ndarray,
@@ -614,6 +670,7 @@ def compensate(
     columns: Mapping[str, np.ndarray] | None = None,
     tol: float = 1e-10,
     seed: int = 0,
+    extrapolate: bool = False,
 ) -> Compensation:
     """Joint angles that put the calibrated arm ``robot``'s tool frame on the target poses.
 
@@ -625,6 +682,10 @@ def compensate(
     ids, in the order of the arm's tool points. ``columns``: extra per-target columns (payload,
     temperature, dir1..6) for the effects that need them. ``seed``: the random restarts of the
     nominal inverse kinematics where the first start fails.
+
+    An arm that records its domain (``[domain]``, lab.domain) warns where the compensated poses
+    or the columns lie outside it, and solves the rows outside the range a term holds over
+    without that term, unless ``extrapolate``.
     """
     cal = robot if isinstance(robot, RobotDescription) else load_robot(robot)
     if not isinstance(targets, TargetSet):
@@ -712,10 +773,9 @@ def compensate(
     e_start = model.predict(inp_start, p) - xyz
     point, Rq = model.predict_pose(inp, p)
     e = point - xyz
-    turn = (
-        np.zeros(n)
-        if R is None
-        else np.linalg.norm(rotation_vector(R @ np.swapaxes(Rq, 1, 2)), axis=1)
+    turn = _turn(R, Rq)
+    res, e, turn = _within_domain(
+        cal, model, p, cols, xyz, R, targets.source, res, e, turn, extrapolate, tol
     )
     converged = res.converged & ok_start
     if not converged.all():

@@ -59,6 +59,7 @@ def fit(
     validate: MeasurementSet | str | Path | None = None,
     start: Mapping[str, float] | None = None,
     fixed: Iterable[str] = (),
+    extrapolate: bool = False,
 ) -> FitResult:
     """Identify ``effects`` (default geometric) of ``robot`` (default the seed arm) from
     ``data``: a measurement set (or its file), screened once (:func:`lab.screen`), or a
@@ -75,8 +76,10 @@ def fit(
     listed in ``result.implausible``) instead of refusing it; ``solver``, ``f_scale_mm``,
     ``max_evaluations``, ``register``: see :class:`lab.LabOptions`.
 
-    ``validate``: held-out measurements for validation RMS and median. ``start``: starting
-    values by name; ``fixed``: names to hold at their starting value.
+    ``validate``: held-out measurements for validation RMS and median; where they lie outside
+    the fitted domain a warning says so, and terms whose form does not repeat over what was
+    fitted are left out of those rows unless ``extrapolate`` (:mod:`lab.domain`). ``start``:
+    starting values by name; ``fixed``: names to hold at their starting value.
     """
     opts = call_options(locals())
     if isinstance(data, Screen):
@@ -89,7 +92,7 @@ def fit(
     check_stated_noise(result, s.options.noise_mm)
     if validate is not None:
         held_out = as_measurements(validate)
-        result = result.validate(held_out)
+        result = result.validate(held_out, extrapolate=extrapolate)
         check_validation(result, held_out.source)
     log.info("%s", result.summary())
     return result

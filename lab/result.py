@@ -12,6 +12,8 @@ The numbers are computed by :mod:`lab.estimation` (the fit of the rows given) an
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -23,6 +25,7 @@ from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from arm.params import ROW_FAMILIES, parameter_unit, parse_parameter_name
 from lab.blocks import Blocks
+from lab.domain import Domain, Excursion, out_of_domain, warn_out_of_domain
 from lab.errors import FitError
 from lab.identifiability import Identifiability
 from lab.observations import Observations
@@ -34,6 +37,7 @@ from lab.text import left_out_lines, parameter_cells
 __all__ = ["SCHEMA_VERSION", "Duplicate", "FitResult", "Outlier", "inputs_of", "reference_values"]
 
 SCHEMA_VERSION = 1
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -132,6 +136,15 @@ class FitResult:
     observations: Observations | None = field(default=None, repr=False)
     validation_rotation: np.ndarray | None = field(default=None, repr=False)
     validation_registered: tuple[int, ...] = ()
+    # the validation data outside the model's domain (lab.domain), and the parameters whose
+    # terms were left out of the rows they do not hold on (none with extrapolate=True)
+    validation_excursions: tuple[Excursion, ...] = ()
+    validation_dropped: tuple[str, ...] = ()
+    # the fit again with some parameters held at zero, on the same rows: the model without
+    # those terms (lab.estimation sets it; None: the terms' parameters are zeroed instead)
+    refit: Callable[[Sequence[str]], np.ndarray] | None = field(
+        default=None, repr=False, compare=False
+    )
 
     # -- metrics ---------------------------------------------------------------------------------
     @property
@@ -279,16 +292,85 @@ class FitResult:
 
     # -- use -------------------------------------------------------------------------------------
     def predict(self, data: MeasurementSet | ModelInputs) -> np.ndarray:
-        """Predicted tool points (M, 3) of other poses with the identified parameters."""
+        """Predicted tool points (M, 3) of other poses with the identified parameters, every
+        term extrapolated (:meth:`validate` and :meth:`predict_in_domain` are not)."""
         inputs = data if isinstance(data, ModelInputs) else inputs_of(self.model, data)
         return Blocks(self.model, inputs).predict(self.params)
+
+    @property
+    def domain(self) -> Domain:
+        """Where the model was identified: the ranges of the fitted poses (lab.domain)."""
+        return Domain.of(self.inputs)
+
+    def out_of_domain(
+        self, data: MeasurementSet | ModelInputs
+    ) -> tuple[list[Excursion], dict[str, np.ndarray]]:
+        """The variables of ``data`` outside :attr:`domain`, and the parameters whose terms do
+        not hold there with the rows they do not hold on (:func:`lab.domain.out_of_domain`)."""
+        inputs = data if isinstance(data, ModelInputs) else self._first_station_inputs(data)
+        return out_of_domain(
+            self.model, self.params, self.identifiable, self.domain, self.inputs, inputs
+        )
+
+    def _first_station_inputs(self, data: MeasurementSet) -> ModelInputs:
+        """The inputs of ``data`` as measured from the fit's first station (what a station
+        the fit has not seen is predicted from, before its base is registered)."""
+        cols = {k: v for k, v in data.columns.items() if k != "station"}
+        if "station" in self.inputs.columns:
+            cols["station"] = np.full(len(data), float(self.model.stations[0]))
+        return inputs_of(self.model, MeasurementSet(data.q, data.xyz, cols, data.source))
+
+    def predict_in_domain(
+        self, data: MeasurementSet | ModelInputs, extrapolate: bool = False, source: str = ""
+    ) -> np.ndarray:
+        """:meth:`predict`, each row outside the range a term holds over predicted without
+        that term (unless ``extrapolate``), with a warning where data lie outside the domain."""
+        inputs = data if isinstance(data, ModelInputs) else inputs_of(self.model, data)
+        exc, drop = self.out_of_domain(inputs)
+        name = source or getattr(data, "source", "") or "<memory>"
+        warn_out_of_domain(name, exc, drop, extrapolate)
+        return self._predict_rows(inputs, {} if extrapolate else drop)
+
+    def _predict_rows(self, inputs: ModelInputs, drop: dict[str, np.ndarray]) -> np.ndarray:
+        """Predictions with, in each row, the parameters ``drop`` marks there at zero."""
+        pred = Blocks(self.model, inputs).predict(self.params)
+        if not drop:
+            return pred
+        names = list(drop)
+        marks = np.column_stack([drop[n] for n in names])
+        patterns, which = np.unique(marks, axis=0, return_inverse=True)
+        which = np.asarray(which).reshape(-1)
+        for i, pattern in enumerate(patterns):
+            if not pattern.any():
+                continue
+            rows = np.flatnonzero(which == i)
+            p = self.without([n for n, off in zip(names, pattern, strict=True) if off])
+            pred[rows] = Blocks(self.model, inputs.subset(rows)).predict(p)
+        return pred
+
+    def without(self, names: Sequence[str]) -> np.ndarray:
+        """The parameters of the model without the terms ``names``: refitted with them held at
+        zero on the rows of this fit (:attr:`refit`), or, where it cannot be refitted (a
+        result built elsewhere, a refit that fails), these parameters with them zeroed."""
+        if self.refit is not None:
+            try:
+                return self.refit(tuple(names))
+            except FitError as exc:
+                log.info("%s: the model without %s cannot be refitted: %s", self.source, names, exc)
+        p = self.params.copy()
+        p[self.model.layout.indices(list(names))] = 0.0
+        return p
 
     def residuals_of(self, data: MeasurementSet) -> np.ndarray:
         """Predicted minus measured points (M, 3) of another measurement set, m."""
         return self.predict(data) - data.xyz
 
-    def validate(self, data: MeasurementSet) -> FitResult:
+    def validate(self, data: MeasurementSet, extrapolate: bool = False) -> FitResult:
         """This result with validation metrics on ``data`` (held-out poses).
+
+        Rows outside the model's domain (:mod:`lab.domain`) are named in a warning, and
+        predicted without the terms that do not hold there unless ``extrapolate``
+        (``validation_excursions``, ``validation_dropped``).
 
         Rows of a station the fit had not seen (a ``station`` id not among the model's) have no
         fitted base: the arm's fitted model is placed there by a rigid registration of its
@@ -297,26 +379,38 @@ class FitResult:
         model = self.model
         which = data.columns.get("station")
         known = set(model.stations)
+        if which is None and len(model.stations) > 1:
+            raise FitError(
+                f"{data.source}: no station column, but the fit has stations "
+                f"{', '.join(map(str, model.stations))}: say which station measured it"
+            )
+        exc, drop = self.out_of_domain(data)
+        warn_out_of_domain(data.source, exc, drop, extrapolate)
+        if extrapolate:
+            drop = {}
+        outside = (tuple(exc), tuple(drop))
+
+        def predict(d: MeasurementSet, rows: np.ndarray | None = None) -> np.ndarray:
+            sub = drop if rows is None else {n: m[rows] for n, m in drop.items()}
+            return self._predict_rows(
+                inputs_of(model, d), {n: m for n, m in sub.items() if m.any()}
+            )
+
         if which is None:
-            if len(model.stations) > 1:
-                raise FitError(
-                    f"{data.source}: no station column, but the fit has stations "
-                    f"{', '.join(map(str, model.stations))}: say which station measured it"
-                )
-            return self._validated(data, self.predict(data), None, ())
+            return self._validated(data, predict(data), None, (), outside)
         ids = sorted({int(v) for v in which})
         new = tuple(i for i in ids if i not in known) if len(known) > 1 else ()
         if len(known) == 1 and ids != [model.stations[0]]:
             new = tuple(ids)  # one base fitted: every other station is placed anew
         if not new:
-            return self._validated(data, self.predict(data), None, ())
+            return self._validated(data, predict(data), None, (), outside)
         # the arm as fitted, in the frame of the fit's first station; each new station's base
         # is the rigid transform that best maps those points onto its measured ones
         cols = {k: v for k, v in data.columns.items() if k != "station"}
         if "station" in self.inputs.columns:  # as measured from the fit's first station
             cols["station"] = np.full(len(data), float(model.stations[0]))
         first = MeasurementSet(data.q, data.xyz, cols, data.source, data.lines)
-        pred = Blocks(model, inputs_of(model, first)).predict(self.params)
+        pred = predict(first)
         pts = np.array(pred, dtype=float)
         turns = np.repeat(np.eye(3)[None], len(data), axis=0)
         for sid in ids:
@@ -330,13 +424,13 @@ class FitResult:
                 R, t = register_points(pred[on], data.xyz[on])
             else:
                 sub = data.subset(np.flatnonzero(on))
-                pts[on] = self.predict(sub)
+                pts[on] = predict(sub, on)
                 continue
             pts[on] = pred[on] @ R.T + t
             turns[on] = R
-        return self._validated(data, pts, (first, turns), new)
+        return self._validated(data, pts, (first, turns), new, outside)
 
-    def _validated(self, data, pts, moved, new) -> FitResult:
+    def _validated(self, data, pts, moved, new, outside=((), ())) -> FitResult:
         rot = None
         if self.observations is not None and self.observations.rotation is not None:
             if data.has_orientation:
@@ -346,6 +440,8 @@ class FitResult:
             validation_residuals=pts - data.xyz,
             validation_rotation=rot,
             validation_registered=tuple(new),
+            validation_excursions=outside[0],
+            validation_dropped=outside[1],
         )
 
     def _orientation_errors(self, data: MeasurementSet, moved) -> np.ndarray:
@@ -372,7 +468,9 @@ class FitResult:
 
     def description(self, name: str | None = None) -> RobotDescription:
         """The calibrated arm: a description whose nominal model reproduces this fit."""
-        return self.model.description(self.params, name=name)
+        desc = self.model.description(self.params, name=name)
+        dom = self.domain
+        return replace(desc, domain={"n_poses": dom.n_poses, **dom.ranges})
 
     # -- tables ----------------------------------------------------------------------------------
     def rows(self) -> list[dict]:
@@ -488,6 +586,9 @@ class FitResult:
             "orientation_rms_mrad": self.orientation_rms_mrad,
             "validation_orientation_rms_mrad": self.validation_orientation_rms_mrad,
             "validation_registered": list(self.validation_registered),
+            "domain": self.domain.to_dict(),
+            "validation_outside_domain": [e.to_dict() for e in self.validation_excursions],
+            "validation_terms_left_out": list(self.validation_dropped),
         }
 
 

@@ -141,12 +141,20 @@ def test_the_task_contract_loads_no_plant():
 # docs/architecture.md, "Inside lab": each row builds only on the rows above it (and its own)
 LAB_ORDER = [
     {"errors", "options", "text"},
-    {"blocks", "identifiability", "selection", "plausibility", "repeatability", "observations"},
+    {
+        "blocks",
+        "identifiability",
+        "selection",
+        "plausibility",
+        "repeatability",
+        "observations",
+        "domain",
+    },
     {"solver", "registration", "result"},
     {"estimation", "sanity"},
     {"candidates", "spectral"},
     {"screening"},
-    {"identification"},
+    {"identification", "transfer"},
     {"diagnosis", "discovery", "planning", "export"},
     {"urdf_export"},
     {"report", "report_html", "plots"},

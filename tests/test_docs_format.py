@@ -202,8 +202,8 @@ def test_the_poses_and_joints_files_are_as_documented(tmp_path):
 # -- the robot TOML ---------------------------------------------------------------------------------
 def test_the_robot_toml_tables_name_every_key_the_writer_emits():
     """A description with every optional part (a standard-DH arm folded to modified, so it has a
-    flange, and a URDF's flange transform; beta; a base; effect values) written by the writer
-    `export` uses."""
+    flange, and a URDF's flange transform; beta; a base; effect values; a domain) written by the
+    writer `export` uses."""
     std = replace(seed_robot(), convention="standard", name="full", payload=1.0)
     full = replace(
         std.to_modified(),
@@ -215,8 +215,11 @@ def test_the_robot_toml_tables_name_every_key_the_writer_emits():
         effects={"compliance": {"c2": 6e-6}},
         nominal=seed_robot(),  # what `lab export` records
         stations=((1, (0.1, 0.0, 0.0), (0.0, 0.0, 0.2)), (2, (3.0, 1.0, 0.0), (0.0, 0.0, 1.0))),
+        domain={"n_poses": 40, "q1": (-1.0, 1.0), "temperature": (20.5, 20.9)},
     )
     assert isinstance(full, RobotDescription)
+    back = RobotDescription.from_toml(full.to_toml())
+    assert back.domain == full.domain  # the domain an export records reads back
     doc = tomllib.loads(full.to_toml())
     text = section("The robot TOML")
     top, joint = rows(text.split("Keys of each")[0]), rows(text.split("Keys of each")[1])
@@ -426,14 +429,18 @@ def test_the_real_data_options_and_keys_are_documented():
     root = DOC.parents[1]
     text = section("Real data")
     table = [r for r in rows(text) if len(r) == 3 and r[0] != "option"]
-    for script in ("examples/convert_ur5_serial_robots.py", "benchmarks/real_data.py"):
+    for script in (
+        "examples/convert_ur5_serial_robots.py",
+        "examples/convert_ur10_ipa.py",
+        "benchmarks/real_data.py",
+    ):
         out = subprocess.run(
             [sys.executable, str(root / script), "--help"],
             capture_output=True,
             text=True,
             check=True,
         ).stdout
-        flags = set(re.findall(r"(?<![\w-])(--[a-z][a-z-]+)", out)) - {"--help"}
+        flags = set(re.findall(r"(?<![\w-])(--[a-z][a-z0-9-]+)", out)) - {"--help"}
         name = Path(script).name
         documented = {n for r in table if name in r[1] for n in names(r[0]) if n.startswith("--")}
         assert flags == documented, (script, flags ^ documented)

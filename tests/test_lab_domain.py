@@ -1,0 +1,189 @@
+"""A fitted model knows its domain (issue 32, item 3): it records the ranges it was identified
+over, validation outside them is warned naming the variable and how far, and a term whose form
+does not repeat over what the fit covered is not extrapolated: the rows outside are predicted by
+the model without it (``extrapolate=True`` keeps it), while a harmonic whose whole period was
+covered holds anywhere."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from arm.description import load_robot
+from arm.effects import Cyclic, JointAngleEffect, Transmission
+from arm.errormodel import ErrorModel
+from arm.measurements import MeasurementSet
+from lab import fit
+from lab.domain import Domain, OutOfDomainWarning, term_dependence
+from lab.result import inputs_of
+
+SIGMA = 15e-6
+
+
+class _TemperatureDrift(JointAngleEffect):
+    """theta_2 = q_2 + k (temperature - 20): a line in temperature (a discovered term's form)."""
+
+    name = "temperature_drift_test"
+    terms = ("kt",)
+    columns = ("temperature",)
+    typical = {"kt": (1e-4, 1e-3)}
+
+    def basis(self, inputs, joint, term):
+        return inputs.column("temperature") - 20.0
+
+
+def _poses(n: int, rng: np.random.Generator, q2: tuple[float, float]) -> np.ndarray:
+    lo = np.array([-2.5, q2[0], -1.2, -2.5, -1.8, -3.0])
+    hi = np.array([2.5, q2[1], 1.2, 2.5, 1.8, 3.0])
+    return rng.uniform(lo, hi, size=(n, 6))
+
+
+def _measured(effects, values: dict, q, temperature, seed: int) -> MeasurementSet:
+    """Points of the seed arm with ``values`` of ``effects`` and 15 um of noise per axis."""
+    model = ErrorModel(load_robot("seed"), effects)
+    p = model.layout.vector(values, default=model.nominal())
+    data = MeasurementSet(q, np.zeros((len(q), 3)), {"temperature": temperature})
+    xyz = model.predict(inputs_of(model, data), p)
+    xyz = xyz + SIGMA * np.random.default_rng(seed).standard_normal(xyz.shape)
+    return MeasurementSet(q, xyz, {"temperature": temperature}, source=f"campaign{seed}.csv")
+
+
+def _without(res, names, data):
+    p = res.params.copy()
+    for n in names:
+        p[res.model.layout.index(n)] = 0.0
+    return res.model.predict(inputs_of(res.model, data), p)
+
+
+def test_a_temperature_term_is_not_extrapolated_beyond_its_fitted_range():
+    rng = np.random.default_rng(3)
+    drift = _TemperatureDrift(joints=[2])
+    truth = {"kt2": 8e-4}
+    cal = _measured(
+        ["geometric", drift], truth, _poses(150, rng, (-2.0, 0.0)), rng.uniform(22.0, 22.4, 150), 1
+    )
+    res = fit(cal, "seed", ["geometric", drift], noise_mm=0.015)
+    assert res["kt2"] == pytest.approx(8e-4, rel=0.2)  # identified over 0.4 degC
+    dom = res.domain
+    lo, hi = dom.ranges["temperature"]
+    assert 22.0 <= lo < 22.05 and 22.35 < hi <= 22.4
+    assert Domain.from_dict(dom.to_dict()) == dom
+    assert res.to_dict()["domain"]["ranges"]["temperature"] == [lo, hi]
+    # half the validation poses at the fitted temperature, half 2.6 degC above it
+    q = cal.q[:40]  # poses within the fitted ranges
+    temp = np.where(np.arange(40) < 20, 22.2, 25.0)
+    val = _measured(["geometric", drift], truth, q, temp, 2)
+    with pytest.warns(OutOfDomainWarning) as rec:
+        v = res.validate(val)
+    text = str(rec[0].message)
+    assert "campaign2.csv" in text and "temperature up to" in text
+    assert f"{25.0 - hi:.4g} degC above" in text and "(20 of 40 rows)" in text
+    assert "kt2" in text and "--extrapolate" in text
+    assert v.validation_dropped == ("kt2",)
+    assert [e.variable for e in v.validation_excursions] == ["temperature"]
+    # the warm rows: the model without the term; the others: the whole model
+    assert v.validation_residuals is not None
+    pred = v.validation_residuals + val.xyz
+    warm = temp > 24
+    # the model without the term: the same rows fitted with it held at zero
+    alone = fit(
+        cal, "seed", ["geometric", drift], noise_mm=0.015, start={"kt2": 0.0}, fixed=["kt2"]
+    )
+    assert alone.n_points == res.n_points
+    np.testing.assert_allclose(
+        pred[warm], alone.predict(val.subset(np.flatnonzero(warm))), atol=1e-9
+    )
+    assert (
+        np.abs(pred[warm] - _without(res, ["kt2"], val.subset(np.flatnonzero(warm)))).max() > 1e-6
+    )
+    np.testing.assert_allclose(
+        pred[~warm], res.predict(val.subset(np.flatnonzero(~warm))), atol=1e-12
+    )
+    # the option keeps it, and still warns
+    with pytest.warns(OutOfDomainWarning, match="extrapolated there"):
+        kept = res.validate(val, extrapolate=True)
+    assert kept.validation_dropped == ()
+    assert kept.validation_residuals is not None
+    np.testing.assert_allclose(kept.validation_residuals + val.xyz, res.predict(val), atol=1e-12)
+    # within the domain: no warning, nothing left out
+    inside = val.subset(np.flatnonzero(~warm))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", OutOfDomainWarning)
+        assert res.validate(inside).validation_excursions == ()
+
+
+def test_a_joint_out_of_range_drops_a_harmonic_whose_period_was_not_covered():
+    """q2 fitted over 1.2 rad: its first harmonic (period 2 pi) is not extrapolated beyond it,
+    its eighth (period 0.79 rad, covered) is; joint 2 read 0.5 rad below the range is named."""
+    rng = np.random.default_rng(5)
+    effects = ["geometric", Transmission(joints=[2]), Cyclic(orders={2: [8]})]
+    truth = {"ts2": 3e-4, "tc2": -2e-4, "cs2_8": 2e-4, "cc2_8": 1e-4}
+    q = _poses(200, rng, (-1.6, -0.4))
+    cal = _measured(effects, truth, q, np.full(200, 21.0), 3)
+    res = fit(cal, "seed", effects, noise_mm=0.015)
+    deps = term_dependence(res.model, res.inputs).by_parameter
+    assert deps["ts2"] == (("q2", pytest.approx(2 * math.pi)),)
+    assert deps["cs2_8"] == (("q2", pytest.approx(2 * math.pi / 8)),)
+    assert "c2" not in deps  # nothing of the geometry is ever dropped
+    qv = cal.q[:30].copy()
+    qv[:10, 1] = -2.1  # ten rows 0.5 rad below the fitted range of q2
+    val = _measured(effects, truth, qv, np.full(30, 21.0), 4)
+    with pytest.warns(OutOfDomainWarning) as rec:
+        v = res.validate(val)
+    text = str(rec[0].message)
+    lo = res.domain.ranges["q2"][0]
+    assert f"q2 up to {lo + 2.1:.4g} rad" in text and "below the fitted" in text
+    assert "(10 of 30 rows)" in text
+    assert set(v.validation_dropped) == {"ts2", "tc2"}  # the covered harmonic stays
+    assert v.validation_residuals is not None
+    out = np.flatnonzero(qv[:, 1] < lo)
+    alone = fit(
+        cal, "seed", effects, noise_mm=0.015, start={"ts2": 0.0, "tc2": 0.0}, fixed=["ts2", "tc2"]
+    )
+    np.testing.assert_allclose(
+        v.validation_residuals[out] + val.xyz[out], alone.predict(val.subset(out)), atol=1e-9
+    )
+    # an arm that cannot be refitted (built elsewhere) zeroes the terms instead
+    bare = replace(res, refit=None)
+    np.testing.assert_allclose(
+        bare.validate(val).validation_residuals[out] + val.xyz[out],
+        _without(res, ["ts2", "tc2"], val.subset(out)),
+        atol=1e-12,
+    )
+
+
+def test_the_exported_arm_records_its_domain_and_compensation_is_warned_outside_it(tmp_path):
+    """export writes [domain]; compensating targets at a temperature beyond it warns, and the
+    thermal term (a line in temperature) is left out there unless --extrapolate keeps it."""
+    from arm.description import load_robot as load
+    from lab.export import TargetSet, compensate, export_robot
+
+    rng = np.random.default_rng(11)
+    q = _poses(150, rng, (-2.0, 0.0))
+    temp = rng.uniform(20.0, 24.0, 150)
+    cal = _measured(["geometric", "thermal"], {"kappa": 2e-5}, q, temp, 5)
+    res = fit(cal, "seed", "geometric,thermal", noise_mm=0.015)
+    assert res["kappa"] == pytest.approx(2e-5, rel=0.3)
+    path = tmp_path / "calibrated.toml"
+    export_robot(res, path)
+    arm = load(path)
+    assert arm.domain["temperature"] == pytest.approx(res.domain.ranges["temperature"])
+    assert arm.domain["n_poses"] == res.n_points
+    assert "[domain]" in path.read_text()
+    program = cal.subset(np.arange(5))
+    targets = TargetSet(res.predict(program), q=program.q)  # the program's points, its joints
+    hot = {"temperature": np.full(5, 30.0)}
+    with pytest.warns(OutOfDomainWarning, match=r"temperature up to .* degC above") as rec:
+        comp = compensate(arm, targets, arm, columns=hot)
+    assert "kappa" in str(rec[0].message)
+    # the rows outside: solved by the arm without its thermal term
+    cold = replace(arm, effects={}, domain={})
+    np.testing.assert_allclose(comp.q, compensate(cold, targets, arm, columns=hot).q, atol=1e-7)
+    with pytest.warns(OutOfDomainWarning, match="extrapolated there"):
+        kept = compensate(arm, targets, arm, columns=hot, extrapolate=True)
+    assert np.abs(kept.q - comp.q).max() > 1e-6  # kappa x 10 K moves the solution
+    assert kept.error_mm.max() < 1e-6
