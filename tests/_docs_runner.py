@@ -29,6 +29,7 @@ Every page is run in a fresh temporary folder holding links to the repository's 
 from __future__ import annotations
 
 import ast
+import hashlib
 import io
 import math
 import os
@@ -280,6 +281,46 @@ def _inside(folder: Path) -> Iterator[None]:
         os.chdir(old)
 
 
+def _files(folder: Path) -> dict[str, tuple[int, int]]:
+    return {
+        str(f.relative_to(folder)): (f.stat().st_mtime_ns, f.stat().st_size)
+        for f in folder.rglob("*")
+        if f.is_file() and not f.is_symlink() and f.relative_to(folder).parts[0] not in SHARED
+    }
+
+
+def _key(argv: list[str]) -> tuple[str, ...]:
+    """The command and the contents of the files it names."""
+    named = [a for a in argv if Path(a).is_file()]
+    return (*argv, *(hashlib.sha256(Path(a).read_bytes()).hexdigest() for a in named))
+
+
+Cache = dict[tuple[str, ...], tuple[str, dict[str, bytes]]]
+
+
+def _run_cached(command: Command, where: str, cache: Cache | None) -> str:
+    """A command run before on the same files (another page's tour) is not run again: its output
+    and the files it wrote are the first run's (the same seed gives the same numbers)."""
+    if cache is None:
+        return _run_command(command, where)
+    key = _key(command.argv)
+    if key in cache:
+        output, written = cache[key]
+        for name, data in written.items():
+            Path(name).parent.mkdir(parents=True, exist_ok=True)
+            Path(name).write_bytes(data)
+        return output
+    folder = Path.cwd()
+    before = _files(folder)
+    output = _run_command(command, where)
+    after = _files(folder)
+    cache[key] = (
+        output,
+        {n: (folder / n).read_bytes() for n in after if after[n] != before.get(n)},
+    )
+    return output
+
+
 def _run_command(command: Command, where: str) -> str:
     env = os.environ | {"COLUMNS": "300", "NO_COLOR": "1", "TERM": "dumb"}
     argv = list(command.argv)
@@ -299,9 +340,12 @@ def _run_command(command: Command, where: str) -> str:
     return output
 
 
-def run_page(path: Path, folder: Path, name: str | None = None) -> Report:
+def run_page(
+    path: Path, folder: Path, name: str | None = None, cache: Cache | None = None
+) -> Report:
     """Runs every block of the page at ``path`` in ``folder``; raises DocError at the first
-    block that fails or prints other than it quotes."""
+    block that fails or prints other than it quotes. ``cache``: commands already run on another
+    page, by their arguments and input files."""
     report = Report()
     for d in SHARED:
         if not (folder / d).exists():
@@ -317,7 +361,7 @@ def run_page(path: Path, folder: Path, name: str | None = None) -> Report:
             if block.lang == "python":
                 report.compared_lines += run_python(block, namespace)
             for command in block.commands:
-                output = _run_command(command, block.where)
+                output = _run_cached(command, block.where, cache)
                 report.commands += 1
                 compare(command, output, block.where, block.time_columns)
                 report.compared_lines += len(command.quoted)

@@ -10,11 +10,21 @@ from pathlib import Path
 
 import pytest
 
-from tests._docs_runner import ROOT, Command, DocError, compare, line_matches, parse, run_page
+from tests._docs_runner import (
+    ROOT,
+    Cache,
+    Command,
+    DocError,
+    compare,
+    line_matches,
+    parse,
+    run_page,
+)
 
 PAGES = ["README.md", *sorted(f"docs/{p.name}" for p in (ROOT / "docs").glob("*.md"))]
-# pages whose tour collects a campaign on the MuJoCo plant (about a minute each on two cores)
-SLOW = {"README.md", "docs/lab.md", "docs/agents.md"}
+# the two pages that tour the lab on the same collected campaigns: run in one test, so that the
+# second page's collect (the same command, the same seed) is the first one's files
+TOURS = ["README.md", "docs/lab.md"]
 # the skipped blocks, each with its reason in the page; a new skip must be added here on purpose
 SKIPPED = {
     "docs/benchmark.md": 1,  # the full leaderboard sweep and training
@@ -22,28 +32,30 @@ SKIPPED = {
 }
 
 
-def _check(page: str, tmp_path: Path) -> None:
-    report = run_page(ROOT / page, tmp_path, page)
+def _check(page: str, folder: Path, cache: Cache | None = None) -> None:
+    report = run_page(ROOT / page, folder, page, cache)
     print(
         f"{page}: {len(report.ran)} blocks run, {report.commands} commands, "
-        f"{report.compared_lines} quoted lines compared, {len(report.skipped)} skipped:"
+        f"{report.compared_lines} quoted lines or values compared, {len(report.skipped)} skipped"
     )
     for where, reason in report.skipped:
         print(f"  skipped {where}: {reason}")
     assert len(report.skipped) == SKIPPED.get(page, 0), report.skipped
 
 
-@pytest.mark.parametrize("page", [p for p in PAGES if p not in SLOW])
+@pytest.mark.parametrize("page", [p for p in PAGES if p not in TOURS])
 def test_the_page_runs(page, tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(ROOT))
     _check(page, tmp_path)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("page", sorted(SLOW))
-def test_the_tour_runs(page, tmp_path, monkeypatch):
+@pytest.mark.slow  # about 40 s of CPU, two thirds of it collecting the campaigns on the plant
+def test_the_tours_run(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(ROOT))
-    _check(page, tmp_path)
+    cache: Cache = {}
+    for page in TOURS:
+        (tmp_path / page).mkdir(parents=True)
+        _check(page, tmp_path / page, cache)
 
 
 def test_every_page_follows_the_conventions():
