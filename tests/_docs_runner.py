@@ -16,7 +16,11 @@ The conventions of README.md and docs/*.md (the runner enforces them):
   among the printed lines (a page may quote a few rows of a table; ``...`` lines stand for the
   rows left out). Words and table rules must match exactly (whitespace aside); numbers must match
   to the digits the page shows (1.5 units of the last digit, or 1e-3 relative, whichever is
-  larger). Times and sizes (``in 32.9 s``, ``(1019 KB)``) are not compared.
+  larger; a whole number, a count, exactly). Times and sizes (``in 32.9 s``, ``(1019 KB)``) are
+  not compared.
+- Quoted output that starts with ``{`` is a JSON object, compared key by key with the one the
+  command prints: ``{...}`` and ``[...]`` stand for a value not shown, a final ``...`` for the keys
+  left out (without it the keys must be the same); numbers to the digits shown.
 - ``<!-- docs: skip: REASON -->`` on the line before a block's fence skips the block (the test
   counts and reports these; the reason is required).
 - ``<!-- docs: time column: NAME -->`` before a block: the table column headed NAME holds times,
@@ -24,6 +28,8 @@ The conventions of README.md and docs/*.md (the runner enforces them):
 
 Every page is run in a fresh temporary folder holding links to the repository's ``data/`` and
 ``examples/``, so the pages' commands find the shipped data sets and files that earlier blocks made.
+Commands run as a user's would, each in its own process (``sixaxis`` as ``python -m
+experiments.cli``, ``python`` as this interpreter), 300 columns wide.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from __future__ import annotations
 import ast
 import hashlib
 import io
+import json
 import math
 import os
 import re
@@ -158,13 +165,16 @@ def _norm(line: str) -> str:
 
 
 def _close(shown: str, got: str) -> bool:
+    """``got`` is ``shown`` to the digits shown: 1.5 units of the last digit (a rounding on
+    another machine's kernels) or 1e-3 relative; a whole number (a count) exactly."""
     a, b = float(shown), float(got)
     if not (math.isfinite(a) and math.isfinite(b)):
         return a == b
-    mantissa = re.split(r"[eE]", shown)[0]
+    mantissa, _, exponent = shown.lower().partition("e")
+    if "." not in mantissa and not exponent:
+        return abs(a - b) <= 1e-3 * abs(a)
     decimals = len(mantissa.split(".")[1]) if "." in mantissa else 0
-    exponent = int(re.split(r"[eE]", shown)[1]) if re.search(r"[eE]", shown) else 0
-    unit = 10.0 ** (exponent - decimals)
+    unit = 10.0 ** (int(exponent or 0) - decimals)
     return abs(a - b) <= max(1.5 * unit, 1e-3 * abs(a))
 
 
@@ -183,8 +193,58 @@ def _blank_columns(line: str, columns: set[int]) -> str:
     return "│".join("" if i in columns else c for i, c in enumerate(cells))
 
 
+class _Number(str):
+    """A number as the page writes it (its digits say how close the printed one must be)."""
+
+
+ANY = "\u2026 a value the page does not show"
+
+
+def _json_matches(shown: object, got: object) -> bool:
+    if shown == ANY:
+        return True
+    if isinstance(shown, _Number):
+        return (
+            isinstance(got, int | float) and not isinstance(got, bool) and _close(shown, repr(got))
+        )
+    if isinstance(shown, dict):
+        more = shown.pop("\u2026", None) is not None
+        return (
+            isinstance(got, dict)
+            and (set(shown) <= set(got) if more else set(shown) == set(got))
+            and all(_json_matches(v, got[k]) for k, v in shown.items())
+        )
+    if isinstance(shown, list):
+        return (
+            isinstance(got, list)
+            and len(shown) == len(got)
+            and all(_json_matches(s, g) for s, g in zip(shown, got, strict=True))
+        )
+    return shown == got
+
+
+def compare_json(command: Command, output: str, where: str) -> None:
+    """The quoted JSON object (an excerpt) is the one the command prints on stdout."""
+    text = "\n".join(s for _, s in command.quoted)
+    text = re.sub(r"\{\.\.\.\}|\[\.\.\.\]", lambda _: json.dumps(ANY), text)
+    text = re.sub(r",\s*\.\.\.\s*\}\s*$", ', "\u2026": 0}', text)
+    shown = json.loads(text, parse_float=_Number, parse_int=_Number)
+    try:
+        got, _ = json.JSONDecoder().raw_decode(output[output.index("{") :])
+    except ValueError as exc:
+        raise DocError(f"{where}: '{' '.join(command.argv)}' prints no JSON object") from exc
+    if not _json_matches(shown, got):
+        raise DocError(
+            f"{where.split(':')[0]}:{command.quoted[0][0]}: the page quotes\n{text}\n"
+            f"but '{' '.join(command.argv)}' prints\n{json.dumps(got)}"
+        )
+
+
 def compare(command: Command, output: str, where: str, time_columns: tuple[str, ...] = ()) -> None:
     """Every quoted line appears, in order, among the printed lines."""
+    if command.quoted and command.quoted[0][1].lstrip().startswith("{"):
+        compare_json(command, output, where)
+        return
     printed = output.splitlines()
     times: set[int] = set()
     k = 0
@@ -230,7 +290,7 @@ def _same(shown: object, got: object) -> bool:
     if isinstance(shown, bool) or not isinstance(shown, int | float):
         return shown == got
     try:
-        return _close(repr(shown), repr(float(got)))  # type: ignore[arg-type]
+        return _close(repr(shown), repr(float(got)))
     except (TypeError, ValueError):
         return False
 
@@ -302,7 +362,7 @@ def _run_cached(command: Command, where: str, cache: Cache | None) -> str:
     """A command run before on the same files (another page's tour) is not run again: its output
     and the files it wrote are the first run's (the same seed gives the same numbers)."""
     if cache is None:
-        return _run_command(command, where)
+        return run_command(command, where)
     key = _key(command.argv)
     if key in cache:
         output, written = cache[key]
@@ -312,7 +372,7 @@ def _run_cached(command: Command, where: str, cache: Cache | None) -> str:
         return output
     folder = Path.cwd()
     before = _files(folder)
-    output = _run_command(command, where)
+    output = run_command(command, where)
     after = _files(folder)
     cache[key] = (
         output,
@@ -321,7 +381,7 @@ def _run_cached(command: Command, where: str, cache: Cache | None) -> str:
     return output
 
 
-def _run_command(command: Command, where: str) -> str:
+def run_command(command: Command, where: str) -> str:
     env = os.environ | {"COLUMNS": "300", "NO_COLOR": "1", "TERM": "dumb"}
     argv = list(command.argv)
     if argv[0] not in ("sixaxis", "python"):

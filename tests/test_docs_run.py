@@ -18,6 +18,7 @@ from tests._docs_runner import (
     compare,
     line_matches,
     parse,
+    run_command,
     run_page,
 )
 
@@ -119,6 +120,33 @@ def test_a_stated_value_that_drifted_fails(tmp_path):
         run_page(page, tmp_path / "work")
 
 
+JSON = """```text
+$ sixaxis lab fit data/ur5/test.csv --robot ur5_robot --noise-mm 0.1 --json
+{{"schema_version": 1, "effects": ["geometric"], "n_points": {n}, "rms_mm": {rms},
+ "parameters": {{...}}, "unidentifiable": [...], {more}}}
+```
+"""
+
+
+def test_a_quoted_json_object_is_compared_key_by_key(tmp_path, monkeypatch):
+    """A JSON excerpt passes as quoted and fails with a drifted number, count or key, or without
+    its final '...' for the keys it leaves out."""
+    page = _page(tmp_path, JSON.format(n=20, rms="0.07890", more="..."))
+    monkeypatch.chdir(tmp_path / "work")
+    (tmp_path / "work" / "data").symlink_to(ROOT / "data")
+    command = parse(page)[0].commands[0]
+    printed = run_command(command, "page.md:1")
+    compare(command, printed, "page.md:1")
+    for n, rms, more in [
+        (21, "0.07890", "..."),
+        (20, "0.0799", "..."),
+        (20, "0.07890", '"rmsmm": 1'),
+    ]:
+        page.write_text(JSON.format(n=n, rms=rms, more=more), encoding="utf-8")
+        with pytest.raises(DocError, match=r"page.md:3: the page quotes"):
+            compare(parse(page)[0].commands[0], printed, "page.md:1")
+
+
 def test_a_command_that_fails_or_a_bare_command_line_fails(tmp_path):
     page = _page(tmp_path, "```text\n$ sixaxis lab fit missing.csv\n```\n")
     with pytest.raises(DocError, match=r"page.md:2: 'sixaxis lab fit missing.csv' exits with 2"):
@@ -168,6 +196,7 @@ def test_a_time_column_is_not_compared_and_the_others_are():
         ("wrote report.html (1019 KB) in 1.4 s", "wrote report.html (998 KB) in 3 s", True),
         ("│ compliance[2]   │ 0.0309 │", "│ compliance[2,3,4,5] │ 0.0309 │", False),  # the name
         ("verdict: compliance", "verdict:   compliance", True),  # whitespace aside
+        ("27 of 35 parameters", "28 of 35 parameters", False),  # a count, exactly
     ],
 )
 def test_line_matching(shown, got, same):
