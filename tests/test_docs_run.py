@@ -159,6 +159,20 @@ def test_a_command_that_fails_or_a_bare_command_line_fails(tmp_path):
         parse(page)
 
 
+def test_a_command_run_on_another_page_is_reused_with_its_files(tmp_path):
+    """The tours' shared cache: the same command on the same files runs once; the second page's
+    folder gets the files it wrote and the same output."""
+    runs = tmp_path / "runs.txt"
+    script = f"open('x.csv', 'w').write('1'); open({str(runs)!r}, 'a').write('run')"
+    page = _page(tmp_path, f'```text\n$ python -c "{script}"\n```\n')
+    cache: Cache = {}
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        assert run_page(page, tmp_path / folder, cache=cache).commands == 1
+        assert (tmp_path / folder / "x.csv").read_text() == "1"
+    assert runs.read_text() == "run"
+
+
 def test_a_skipped_block_is_counted_not_run(tmp_path):
     page = _page(
         tmp_path, "<!-- docs: skip: needs the real arm -->\n```python\nraise SystemExit(1)\n```\n"
