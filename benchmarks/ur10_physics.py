@@ -195,9 +195,9 @@ def markdown(report: dict) -> str:
         f"{report['wall_s']:.0f} s on {report['machine']}.",
         "Data: data/ur10 (Landgraf et al. 2021, MIT), fitted on "
         + ", ".join(f"{k} {n}" for k, n in report["fit_poses"].items())
-        + " poses (A and B subsampled as real_data.py does, seed 0); noise stated {UR10_NOISE['noise_mm']} mm + "
-        f"{UR10_NOISE['noise_ppm']} um/m; one base per tracker station. RMS: 3-D, mm. A parameter "
-        "without a standard error was not identified or sits at its bound (a compliance at 0).",
+        + " poses (A and B subsampled as real_data.py does, seed 0); noise stated "
+        f"{UR10_NOISE['noise_mm']} mm + {UR10_NOISE['noise_ppm']} um/m; one base per tracker "
+        "station. RMS: 3-D, mm. A parameter without a standard error was not identified or sits at its bound (a compliance at 0).",
         "",
         f"**Fitted on all three series** ({report['all_three'][0]['poses']} poses)",
         "",
