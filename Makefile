@@ -45,6 +45,7 @@ bench: $(STAMP)
 # The Rokae rows need the converted data: SIXAXIS_REAL_DATA=DIR make real-data (README).
 real-data: $(STAMP)
 	$(BIN)/python benchmarks/real_data.py
+	$(BIN)/python benchmarks/ur10_physics.py
 
 # The published leaderboard, from this checkout's commit (which must have no local changes): the
 # full sweep into runs/full-<commit> (resumable: the same command continues it), then the tables,

@@ -148,8 +148,8 @@ class Effect:
     scan_only: ClassVar[bool] = False
     # A specification that names the effect fully (what the documentation and tests build).
     example: ClassVar[str] = ""
-    # Whether its form is a law of the arm over its whole range (a joint's stiffness, a gear
-    # ratio): then it holds outside the poses it was fitted on. Otherwise its terms are used
+    # Whether its form is a law of the arm over its whole range (a joint's stiffness, backlash):
+    # then it holds outside the poses it was fitted on. Otherwise its terms are used
     # outside the fitted range of what they depend on only where their form repeats over a
     # range the fit covered (a harmonic of a joint angle); lab.domain.
     extrapolates: ClassVar[bool] = False
@@ -556,7 +556,10 @@ def _orders_text(ks: Sequence[int]) -> str:
 
 class JointScale(JointAngleEffect):
     name = "joint_scale"
-    extrapolates = True  # a law of the arm over its whole range
+    # Not a law over the whole range as fitted: a line in q_i identified over part of a joint's
+    # range is its local slope, which no fit can tell from that of the joint's other errors
+    # (the UR10's series B, its joint scales carried 2-6 rad beyond its range, missed series D
+    # by 1.11x the geometric fit's). Outside the fitted range it is left out (lab.domain).
     terms = ("g",)
     typical = {"g": (1e-4, 5e-4)}
     description = "gear-ratio error: theta_i = q_i + g_i q_i"

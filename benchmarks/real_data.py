@@ -684,8 +684,12 @@ def ur10(fit_poses: int = UR10_FIT_POSES) -> dict:
         "split": "cross-session: leave one series out (the other two fitted, one base per station; "
         "the left-out series' station unseen, its base registered rigidly); within-session: a "
         f"random {UR10_WITHIN_FRACTION:.0%} / {1 - UR10_WITHIN_FRACTION:.0%} split of each series",
-        "subsample": f"series A fitted on {fit_poses} of its {len(series['A'])} poses "
-        f"(random, seed {UR10_SEED}); validated on all of them",
+        "subsample": " and ".join(
+            f"series {k} fitted on {len(fitting[k])} of its {len(d)} poses"
+            for k, d in series.items()
+            if len(fitting[k]) < len(d)
+        )
+        + f" (random, seed {UR10_SEED}); validated on all of them",
         "robot": "ur10_robot (UR's nominal kinematics, URDF)",
         "noise": UR10_NOISE,
         "stds": "as given (std_x..std_z of B and D), floored by the stated noise",

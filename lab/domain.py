@@ -21,9 +21,10 @@ joint-angle effect's basis is evaluated with each variable moved, :func:`term_de
   and ``cyclic``) holds wherever the fit covered a whole period of it: any reading of the joint
   is then a phase the fit has seen;
 * any other dependence (a line in temperature fitted over 0.4 degC, a polynomial in a joint
-  angle or a gravity torque, a term in time or payload) holds only over the fitted range;
+  angle or a gravity torque, a gear-ratio error ``g q`` fitted over part of the joint's range,
+  a term in time or payload) holds only over the fitted range;
 * effects whose form is a law of the arm's structure over its whole range (the geometry, joint
-  compliance, a gear-ratio error, backlash) declare ``extrapolates = True``
+  compliance, backlash) declare ``extrapolates = True``
   (:class:`arm.effects.Effect`) and are never dropped.
 
 Rows outside the range a term holds over are predicted by the model without that term: the

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from arm.description import load_robot
-from arm.effects import Cyclic, JointAngleEffect, Transmission
+from arm.effects import Compliance, Cyclic, JointAngleEffect, JointScale, Transmission
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from lab import fit
@@ -154,6 +154,38 @@ def test_a_joint_out_of_range_drops_a_harmonic_whose_period_was_not_covered():
         _without(res, ["ts2", "tc2"], val.subset(out)),
         atol=1e-12,
     )
+
+
+def test_a_joint_scale_holds_over_the_fitted_range_of_its_joint_only():
+    """A gear-ratio error g q fitted over part of a joint's range is a line in that joint: the
+    lab cannot tell it from the local slope of any other error of the joint, so it is left out of
+    rows beyond the range (the UR10's series B, its joint scales carried 2-6 rad beyond, missed
+    series D by 1.11x the geometric fit's; without them 0.87x). A compliance stays."""
+    rng = np.random.default_rng(7)
+    effects = ["geometric", JointScale(joints=[2]), Compliance(joints=[2])]
+    truth = {"g2": 3e-4, "c2": 5e-6}
+    q = _poses(200, rng, (-1.6, -0.4))
+    cal = _measured(effects, truth, q, np.full(200, 21.0), 8)
+    res = fit(cal, "seed", effects, noise_mm=0.015)
+    deps = term_dependence(res.model, res.inputs).by_parameter
+    assert deps["g2"] == (("q2", None),)  # a line in q2: no period
+    assert "c2" not in deps  # a joint's stiffness is a law of the arm: never dropped
+    qv = cal.q[:30].copy()
+    qv[:10, 1] = -2.4  # ten rows 0.8 rad below the fitted range of q2
+    val = _measured(effects, truth, qv, np.full(30, 21.0), 9)
+    with pytest.warns(OutOfDomainWarning, match="g2"):
+        v = res.validate(val)
+    assert v.validation_dropped == ("g2",)
+    assert v.validation_residuals is not None
+    out = np.flatnonzero(qv[:, 1] < res.domain.ranges["q2"][0])
+    assert out.size == 10
+    alone = fit(cal, "seed", effects, noise_mm=0.015, start={"g2": 0.0}, fixed=["g2"])
+    np.testing.assert_allclose(
+        v.validation_residuals[out] + val.xyz[out], alone.predict(val.subset(out)), atol=1e-9
+    )
+    with pytest.warns(OutOfDomainWarning, match="extrapolated there"):
+        kept = res.validate(val, extrapolate=True)
+    assert kept.validation_dropped == ()
 
 
 def test_the_exported_arm_records_its_domain_and_compensation_is_warned_outside_it(tmp_path):
