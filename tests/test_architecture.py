@@ -171,3 +171,20 @@ def test_the_lab_modules_build_only_on_those_above_them():
                 if dep is None or not dep.startswith("lab.") or dep == f"lab.{name}":
                     continue
                 assert row[dep.split(".")[1]] <= k, f"lab/{name}.py:{line} imports {dep}"
+
+
+# docs/architecture.md, `effects` in `arm`: one module a job, each building on the rows above it
+EFFECTS_ORDER = [{"base"}, {"joint_angle", "chain"}, {"registry"}, {"specs"}]
+
+
+def test_the_effects_modules_build_only_on_those_above_them():
+    row = {m: k for k, names in enumerate(EFFECTS_ORDER) for m in names}
+    assert set(row) == {m.split(".")[2] for m in MODULES if m.startswith("arm.effects.")}
+    for name, k in row.items():
+        for line, imported, names in _imports(MODULES[f"arm.effects.{name}"]):
+            for target in [f"{imported}.{n}" for n in names] or [imported]:
+                dep = _project_module(target)
+                if dep is None or not dep.startswith("arm.effects") or dep == f"arm.effects.{name}":
+                    continue
+                assert dep != "arm.effects", f"arm/effects/{name}.py:{line} imports the package"
+                assert row[dep.split(".")[2]] <= k, f"arm/effects/{name}.py:{line} imports {dep}"
