@@ -109,6 +109,12 @@ REWARDS: tuple[str, ...] = typing.get_args(Reward)
 AT_LEAST_1 = Interval(int, 1, None)
 NON_NEGATIVE = Interval(float, 0.0, None)
 POSITIVE = Interval(float, 0.0, None, closed="neither")
+#: how the policy's features are scaled: SB3's running mean and variance (updated all through
+#: training, from the first flailing steps on), or the fixed scales the interface declares
+#: (``envs.wrappers.ToolDisplacement.feature_scale``; the tool variant only)
+ObsNormalization = Literal["running", "fixed"]
+#: the clip of fixed-scale features, in scales (a start-up error of 100 mm is still seen)
+FIXED_SCALE_CLIP = 1000.0
 #: keys of [train.hyperparameters] that the trainer sets itself
 _RESERVED = {"policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model"}
 
@@ -135,6 +141,8 @@ class TrainConfig:
         10_000, Interval(int, MIN_EPISODE_SEED, None, why="seeds below are the leaderboard's")
     )
     offset_mm: float = declare(0.5, POSITIVE)
+    tool_step_mm: float = declare(5.0, POSITIVE)
+    obs_normalization: ObsNormalization = "running"
     reward: Reward = "log"
     reward_scale_mm: float = declare(0.05, POSITIVE)
     action_penalty: float = declare(0.0, NON_NEGATIVE)
@@ -211,6 +219,8 @@ class TrainConfig:
             out.append("hyperparameters: action_noise is set by the trainer (action_noise_std)")
         if self.reward == "improvement" and self.variant != "residual":
             out.append("reward 'improvement' (over the base controller) is for residual policies")
+        if self.obs_normalization == "fixed" and self.variant != "tool":
+            out.append("obs_normalization 'fixed' is for the tool variant (its declared scales)")
         if self.critic_burn_in and self.algo == "ppo":
             out.append(
                 "critic_burn_in is for the off-policy algorithms (sac, td3): PPO has no critic"
@@ -311,11 +321,12 @@ class PolicyEnv(gym.Wrapper):
         action_penalty: float = 0.0,
         action_change_penalty: float = 0.0,
         shadow: gym.Env | None = None,
+        tool_step_mm: float = 5.0,
     ) -> None:
         super().__init__(env)
         if reward == "improvement" and (variant != "residual" or shadow is None):
             raise ValueError("the improvement reward needs a residual policy and a shadow env")
-        self.io = PolicyIO(variant, offset_mm)
+        self.io = PolicyIO(variant, offset_mm, tool_step_mm)
         self.shadow = shadow if reward == "improvement" else None
         self.shadow_base = FeedforwardAgent()
         task = env.unwrapped.task  # type: ignore[attr-defined]
@@ -378,6 +389,28 @@ class PolicyEnv(gym.Wrapper):
         super().close()
 
 
+def _fixed_mean_std() -> type:
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
+
+    class Fixed(RunningMeanStd):
+        """A mean and variance that training does not update (fixed feature scales)."""
+
+        def __init__(self, mean: np.ndarray, var: np.ndarray) -> None:
+            super().__init__(shape=mean.shape)
+            self.mean, self.var = np.array(mean, dtype=float), np.array(var, dtype=float)
+
+        def update(self, arr: np.ndarray) -> None:
+            return None
+
+    return Fixed
+
+
+def fixed_mean_std(mean: np.ndarray, var: np.ndarray) -> Any:
+    """SB3's ``RunningMeanStd`` holding ``mean`` and ``var`` fixed: VecNormalize scales by them
+    and never updates them."""
+    return _fixed_mean_std()(mean, var)
+
+
 class EpisodeSeeds:
     """The run's episode seeds: ``start, start + 1, ...`` shared by all its envs (one process)."""
 
@@ -412,6 +445,7 @@ def make_policy_env(
         cfg.action_penalty,
         cfg.action_change_penalty,
         shadow=make() if cfg.reward == "improvement" else None,
+        tool_step_mm=cfg.tool_step_mm,
     )
 
 
@@ -424,6 +458,7 @@ def _meta(cfg: TrainConfig, obs_size: int, act_size: int) -> dict[str, Any]:
         "obs_size": obs_size,
         "act_size": act_size,
         "offset_mm": cfg.offset_mm,
+        "tool_step_mm": cfg.tool_step_mm,
         "policy_kwargs": dict(hp.get("policy_kwargs", {})),
         "use_sde": bool(hp.get("use_sde", False)),
         "config": cfg.to_dict(),
@@ -509,13 +544,20 @@ def train(
         return lambda: Monitor(make_policy_env(cfg, scenario, sequence))
 
     fns = [env_fn(cfg.scenarios[k % len(cfg.scenarios)]) for k in range(cfg.n_envs)]
+    fixed = cfg.obs_normalization == "fixed"
     venv = VecNormalize(
         DummyVecEnv(fns),
         gamma=float(cfg.hyperparameters.get("gamma", 0.99)),
         norm_obs=True,
         norm_reward=cfg.normalize_reward,
+        clip_obs=FIXED_SCALE_CLIP if fixed else 10.0,
     )
     probe = venv.venv.envs[0]  # type: ignore[attr-defined]
+    if fixed:  # the interface's declared scales, never updated (saved as the policy's own)
+        from envs.wrappers import ToolDisplacement
+
+        scale = ToolDisplacement(probe.unwrapped.task, cfg.tool_step_mm).feature_scale
+        venv.obs_rms = fixed_mean_std(np.zeros_like(scale), scale**2)
     obs_size = int(probe.observation_space.shape[0])
     act_size = int(probe.action_space.shape[0])
     meta = _meta(cfg, obs_size, act_size)
