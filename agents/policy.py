@@ -1,14 +1,21 @@
 """Learned policies as agents: what the policy observes, what its action means, and its network
 weights in a file that loads without unpickling.
 
-Two variants share one pipeline (:class:`PolicyIO`, a pure function of the env's observation and
-info stream, so the same code runs in training and in evaluation):
+Three variants share one pipeline (:class:`PolicyIO`, a pure function of the env's observation
+and info stream, so the same code runs in training and in evaluation):
 
 * ``residual`` (residual RL, Johannink et al. 2019): the base is the ``feedforward`` reference
   (:class:`~agents.reference.FeedforwardAgent`: nominal resolved-rate tracking of the reference
   minus the last measured model error). The policy's action (3) in [-1, 1] moves the base's target
   by up to ``offset_mm`` (0.5 mm) more; a zero action is the base itself.
-* ``plain``: the policy's action is the env's action, normalised joint velocities (6).
+* ``tool`` (the plain ``ppo``): the operational-space interface of
+  :class:`envs.wrappers.ToolDisplacement`, exactly as ``gym.make(..., interface="tool")`` gives it:
+  the action (3) is a tool displacement of up to ``tool_step_mm`` per step, mapped through the
+  nominal model's damped pseudo-inverse; the observation is the tracking error, the preview
+  relative to the reference, the last measured model error and its age and the previous action,
+  in mm. No base controller: what the policy does, it learned.
+* ``plain``: the policy's action is the env's action, normalised joint velocities (6); the plain
+  ``ppo`` was trained on it before the tool interface (and tracked at 6-7 mm).
 
 What the residual policy observes (mm where lengths): the encoders (angles, velocities), the
 base's last command and the joints' last directions of motion, the joint velocities the path asks

@@ -113,8 +113,10 @@ POSITIVE = Interval(float, 0.0, None, closed="neither")
 #: training, from the first flailing steps on), or the fixed scales the interface declares
 #: (``envs.wrappers.ToolDisplacement.feature_scale``; the tool variant only)
 ObsNormalization = Literal["running", "fixed"]
-#: the clip of fixed-scale features, in scales (a start-up error of 100 mm is still seen)
-FIXED_SCALE_CLIP = 1000.0
+#: the clip of fixed-scale features, in scales (VecNormalize's default): a tracking error beyond
+#: 10 mm is seen as 10 mm in its direction, so that a policy lost early in training is not fed
+#: inputs a hundred times those of the tracking it must learn
+FIXED_SCALE_CLIP = 10.0
 #: keys of [train.hyperparameters] that the trainer sets itself
 _RESERVED = {"policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model"}
 
