@@ -144,6 +144,7 @@ class TrainConfig:
     )
     offset_mm: float = declare(0.5, POSITIVE)
     tool_step_mm: float = declare(5.0, POSITIVE)
+    terminate_mm: float = declare(0.0, NON_NEGATIVE)
     obs_normalization: ObsNormalization = "running"
     reward: Reward = "log"
     reward_scale_mm: float = declare(0.05, POSITIVE)
@@ -178,7 +179,11 @@ class TrainConfig:
         return tuple(dict.fromkeys(self.scenarios))
 
     def max_episodes(self) -> int:
-        """An upper bound of the episodes a run starts (each env's last one may be cut short)."""
+        """An upper bound of the episodes a run starts (each env's last one may be cut short);
+        with early termination (``terminate_mm``) a run may start as many as its seed stride
+        holds (running out is an error naming it)."""
+        if self.terminate_mm:
+            return SEED_STRIDE
         return math.ceil(self.total_timesteps / self.episode_steps) + 2 * self.n_envs
 
     def training_seeds(self) -> range:
@@ -221,6 +226,8 @@ class TrainConfig:
             out.append("hyperparameters: action_noise is set by the trainer (action_noise_std)")
         if self.reward == "improvement" and self.variant != "residual":
             out.append("reward 'improvement' (over the base controller) is for residual policies")
+        if self.terminate_mm and self.reward != "log":
+            out.append("terminate_mm is for the log reward (its alive bonus)")
         if self.obs_normalization == "fixed" and self.variant != "tool":
             out.append("obs_normalization 'fixed' is for the tool variant (its declared scales)")
         if self.critic_burn_in and self.algo == "ppo":
@@ -308,7 +315,13 @@ class PolicyEnv(gym.Wrapper):
     the policy cannot see and which otherwise drowns the 0.01 mm it can gain.
     ``action_penalty`` and ``action_change_penalty`` subtract ``c * |a|^2`` and
     ``c * |a - a_prev|^2`` of the policy's own action (in [-1, 1]): the policy keeps zero (the
-    base controller) unless moving off it pays. The reward uses the plant's truth, as any
+    base controller) unless moving off it pays. ``terminate_mm`` (log reward only) ends an
+    episode once the true error exceeds it, as locomotion tasks end on a fall and motion
+    imitation on a lost reference (DeepMimic's early termination), and adds the alive bonus
+    ``ln(1 + terminate_mm / scale)`` to each step, so the reward is positive while tracking and
+    ending early never pays: a policy that has not learned to follow the path yet spends its
+    samples near the path, not 100 mm off it where every action earns the same. The
+    leaderboard's episodes never end early. The reward uses the plant's truth, as any
     simulated training may; the policy's observation never does (it is computed from
     :func:`~envs.task.controller_info` of each step's info)."""
 
@@ -324,8 +337,11 @@ class PolicyEnv(gym.Wrapper):
         action_change_penalty: float = 0.0,
         shadow: gym.Env | None = None,
         tool_step_mm: float = 5.0,
+        terminate_mm: float = 0.0,
     ) -> None:
         super().__init__(env)
+        if terminate_mm and reward != "log":
+            raise ValueError("terminate_mm is for the log reward (its alive bonus)")
         if reward == "improvement" and (variant != "residual" or shadow is None):
             raise ValueError("the improvement reward needs a residual policy and a shadow env")
         self.io = PolicyIO(variant, offset_mm, tool_step_mm)
@@ -340,6 +356,7 @@ class PolicyEnv(gym.Wrapper):
         self.seeds = seeds
         self.action_penalty = float(action_penalty)
         self.action_change_penalty = float(action_change_penalty)
+        self.terminate_mm = float(terminate_mm)
         self.last_seed: int | None = None
 
     def _log_error(self, info: Mapping[str, Any]) -> float:
@@ -353,6 +370,8 @@ class PolicyEnv(gym.Wrapper):
             return float(env_reward)
         if self.reward_kind == "improvement":
             return self._log_error(self._shadow_info) - self._log_error(info)
+        if self.terminate_mm:  # alive: the bonus of the worst error it may keep, minus its own
+            return math.log1p(self.terminate_mm / self.reward_scale_mm) - self._log_error(info)
         return -self._log_error(info)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -377,6 +396,11 @@ class PolicyEnv(gym.Wrapper):
         r = self.reward(float(reward), info)
         r -= self.action_penalty * float(a @ a)
         r -= self.action_change_penalty * float((a - before) @ (a - before))
+        if (
+            self.terminate_mm
+            and not float(info.get("true_error_mm", math.inf)) <= self.terminate_mm
+        ):
+            terminated = True  # lost: the episode ends, and with it the bonus
         return (
             self.io.features(obs, controller_info(info)),
             r,
@@ -448,6 +472,7 @@ def make_policy_env(
         cfg.action_change_penalty,
         shadow=make() if cfg.reward == "improvement" else None,
         tool_step_mm=cfg.tool_step_mm,
+        terminate_mm=cfg.terminate_mm,
     )
 
 

@@ -349,29 +349,34 @@ def check_row(row: Mapping[str, str], path: Path, line: int) -> None:
     row_identity(row, path, line)
 
 
-def agent_module_check(row: Mapping[str, str]) -> tuple[str | None, str | None]:
-    """For a row of a class-path agent that recorded its module (columns ``agent_module``, the
-    file, and ``agent_module_sha256``): ``(root, None)`` with the folder to import it from, or
-    ``(None, why)`` when the file is gone or holds other code than what ran. ``(None, None)``
-    for a registered agent."""
+def agent_module_check(row: Mapping[str, str]) -> str | None:
+    """Why a row of a class-path agent cannot be rerun (its recorded module file, column
+    ``agent_module``, is gone or holds other code than its ``agent_module_sha256``), or None."""
     file, recorded = row.get("agent_module") or "", row.get("agent_module_sha256") or ""
     if not file:
-        return None, None
+        return None
     module = row["agent_name"].partition(":")[0]
-    p = Path(file)
     try:
-        now = hashlib.sha256(p.read_bytes()).hexdigest()
+        now = hashlib.sha256(Path(file).read_bytes()).hexdigest()
     except OSError as exc:
-        return None, f"the agent module {module} ({file}) cannot be read: {exc}"
+        return f"the agent module {module} ({file}) cannot be read: {exc}"
     if recorded and now != recorded:
-        return None, (
+        return (
             f"the agent module {module} ({file}) changed since the run: sha256 "
             f"{recorded[:12]}... recorded, {now[:12]}... now; the row's commit does not hold it"
         )
+    return None
+
+
+def module_import_root(row: Mapping[str, str]) -> str:
+    """The folder a row's agent module was imported from (its file less the module's dotted
+    path: ``/w/mypkg/myagent.py`` of ``mypkg.myagent`` is ``/w``)."""
+    p = Path(row["agent_module"])
     root = p.parent
+    module = row["agent_name"].partition(":")[0]
     for _ in range(len(module.split(".")) - (0 if p.stem == "__init__" else 1)):
         root = root.parent
-    return str(root), None
+    return str(root)
 
 
 def reproduce_rows(
@@ -396,17 +401,21 @@ def reproduce_rows(
         check_row(row, path, line)
         o = Outcome(row, line, recorded_metrics(row, path, line), rtol=rtol)
         outcomes.append(o)
+        # a user's config and package: the sweep's config folder, and each module's import root
+        # (a config with a user's agent needs it importable for any of its rows)
+        if Path(row["config_path"]).is_absolute():
+            roots.setdefault(row["commit"], []).append(str(Path(row["config_path"]).parent))
+        if row.get("agent_module"):
+            roots.setdefault(row["commit"], []).append(module_import_root(row))
         if row.get("status") != "ok":
             o.where = "not rerun"
             o.error = f"the row is a {row.get('status') or 'unknown'} run: nothing to compare"
             continue
-        module_root, why = agent_module_check(row)
+        why = agent_module_check(row)
         if why is not None:
             o.where = "not rerun"
             o.error = why
             continue
-        if module_root is not None:
-            roots.setdefault(row["commit"], []).append(module_root)
         groups.setdefault(row["commit"], []).append(o)
     here = git_state(root)
     for commit, group in groups.items():
