@@ -116,7 +116,7 @@ ObsNormalization = Literal["running", "fixed"]
 #: the clip of fixed-scale features, in scales (VecNormalize's default): a tracking error beyond
 #: 10 mm is seen as 10 mm in its direction, so that a policy lost early in training is not fed
 #: inputs a hundred times those of the tracking it must learn
-FIXED_SCALE_CLIP = 10.0
+FIXED_SCALE_CLIP = 1000.0
 #: keys of [train.hyperparameters] that the trainer sets itself
 _RESERVED = {"policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model"}
 
