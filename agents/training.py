@@ -113,9 +113,9 @@ POSITIVE = Interval(float, 0.0, None, closed="neither")
 #: training, from the first flailing steps on), or the fixed scales the interface declares
 #: (``envs.wrappers.ToolDisplacement.feature_scale``; the tool variant only)
 ObsNormalization = Literal["running", "fixed"]
-#: the clip of fixed-scale features, in scales (VecNormalize's default): a tracking error beyond
-#: 10 mm is seen as 10 mm in its direction, so that a policy lost early in training is not fed
-#: inputs a hundred times those of the tracking it must learn
+#: the clip of fixed-scale features, in scales: wide (a tracking error of 100 mm is seen as 100),
+#: so that a lost policy still sees how far off it is; in pilots, VecNormalize's default of 10
+#: left policies running away from the path
 FIXED_SCALE_CLIP = 1000.0
 #: keys of [train.hyperparameters] that the trainer sets itself
 _RESERVED = {"policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model"}
@@ -539,11 +539,13 @@ def train(
     cfg: TrainConfig,
     progress: Callable[[int, int], None] | None = None,
     resume: bool = False,
+    stop_at: int | None = None,
 ) -> Path:
     """Train as configured (see the module docstring for what is written); ``progress(done,
     total)`` is called as steps are taken; ``resume`` continues from ``output``'s checkpoint
-    (SB3's own save of this run, which unpickles: resume only runs you made). Returns the output
-    directory."""
+    (SB3's own save of this run, which unpickles: resume only runs you made); ``stop_at`` stops
+    the run there (its checkpoint, ``final`` and summary written) to be resumed later with its
+    config unchanged (a resumed run starts new episodes, and its random streams afresh). Returns the output directory."""
     import torch
 
     torch.set_num_threads(1)
@@ -695,7 +697,7 @@ def train(
         evaluate_now(0)
     try:
         model.learn(
-            total_timesteps=cfg.total_timesteps - done_before,
+            total_timesteps=min(cfg.total_timesteps, stop_at or cfg.total_timesteps) - done_before,
             callback=CallbackList(callbacks),
             reset_num_timesteps=done_before == 0,
         )

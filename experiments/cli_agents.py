@@ -27,6 +27,7 @@ def _train(
     output: Path | None,
     ship: bool,
     resume: bool,
+    stop_at: int | None = None,
 ) -> None:
     from agents.training import load_train_config, ship_policy, train
 
@@ -59,7 +60,7 @@ def _train(
         def update(n: int, total: int) -> None:
             bar.update(job, completed=n)
 
-        out = train(cfg, progress=update, resume=resume)
+        out = train(cfg, progress=update, resume=resume, stop_at=stop_at)
     console.print(f"done in {time.perf_counter() - t0:.0f} s: {out}")
     if ship:
         with console.status("evaluating the policy on the leaderboard's episodes..."):
@@ -93,8 +94,16 @@ def _make_train_command(algo: str) -> None:
             typer.Option(help="Copy the best policy into agents/policies/ when training ends."),
         ] = False,
         resume: Annotated[bool, typer.Option(help=_RESUME_HELP)] = False,
+        stop_at: Annotated[
+            int | None,
+            typer.Option(
+                min=1,
+                help="Stop at this many steps (checkpoint written; --resume goes on), the "
+                "config's total_timesteps unchanged.",
+            ),
+        ] = None,
     ) -> None:
-        _train(algo, config, seed, timesteps, output, ship, resume)
+        _train(algo, config, seed, timesteps, output, ship, resume, stop_at)
 
     command.__doc__ = (
         f"Train {algo.upper()} (stable-baselines3) on SixAxisTrack-v0: evaluations (curve.csv), "
