@@ -85,9 +85,11 @@ class NominalKinematics:
             )
         self.rows = tuple(rows)
 
-    def _frames(self, q: Any) -> tuple[list[float], list[float], tuple[float, float, float]]:
-        """The joint axes z_i and points o_i on them (18 floats each, joint-major) and the tool
-        point."""
+    def _frames(
+        self, q: Any, axes: bool = True
+    ) -> tuple[list[float], list[float], tuple[float, float, float]]:
+        """The joint axes z_i and points o_i on them (18 floats each, joint-major; empty without
+        ``axes``) and the tool point."""
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = self.R0
         ox, oy, oz = self.o0
         z: list[float] = []
@@ -113,8 +115,9 @@ class NominalKinematics:
             r00, r01, r02 = c * m00 + s * m01, c * m01 - s * m00, m02
             r10, r11, r12 = c * m10 + s * m11, c * m11 - s * m10, m12
             r20, r21, r22 = c * m20 + s * m21, c * m21 - s * m20, m22
-            z += (m02, m12, m22)
-            org += (ox, oy, oz)
+            if axes:
+                z += (m02, m12, m22)
+                org += (ox, oy, oz)
             d = self.d[i]
             ox += m02 * d
             oy += m12 * d
@@ -133,6 +136,10 @@ class NominalKinematics:
     def point(self, q: np.ndarray) -> np.ndarray:
         """The tool point (3,) m at joint angles ``q`` (6,) rad."""
         return np.array(self._frames(q)[2])
+
+    def point_floats(self, q: Any) -> tuple[float, float, float]:
+        """The tool point at ``q`` as three floats (the frames' product alone, no axes kept)."""
+        return self._frames(q, axes=False)[2]
 
     def point_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The tool point (3,) m and its derivative by q (3, 6) m/rad: column i is
@@ -404,15 +411,17 @@ class NominalToolObservation(gym.ObservationWrapper):
         low = np.concatenate([base.low, np.full(k - n0, -np.inf, dtype=np.float32)])
         high = np.concatenate([base.high, np.full(k - n0, np.inf, dtype=np.float32)])
         self.observation_space = gym.spaces.Box(low, high, (k,), np.float32)
-        self._out = np.empty(k)
+        # the reference and its preview are one block of the env's observation: one subtraction
+        self._points = slice(self._ref.start, self._preview.stop)
+        if self._ref.stop != self._preview.start:
+            raise ValueError("NominalToolObservation needs the preview right after the reference")
 
     def observation(self, observation: Any) -> np.ndarray:
         obs = np.asarray(observation, dtype=float)
-        x = self.kin.point(obs[self._q])
-        out = self._out
+        x = np.array(self.kin.point_floats(obs[self._q].tolist()))
         n0 = self._n0
-        out[:n0] = obs
+        out = np.empty(n0 + 3 + (self._points.stop - self._points.start), dtype=np.float32)
+        out[:n0] = observation
         out[n0 : n0 + 3] = x
-        out[n0 + 3 : n0 + 6] = obs[self._ref] - x
-        out[n0 + 6 :] = (obs[self._preview].reshape(-1, 3) - x).reshape(-1)
-        return out.astype(np.float32)
+        np.subtract(obs[self._points].reshape(-1, 3), x, out=out[n0 + 3 :].reshape(-1, 3))
+        return out
