@@ -101,6 +101,9 @@ SETTLE_SECONDS = 2.0
 EPISODE_SECONDS = 10.0
 #: episode seeds of two training seeds are this far apart
 SEED_STRIDE = 100_000
+#: the episodes a run with early termination may start (half a seed stride: the ten training
+#: seeds of a config stay clear of the evaluation seeds from 900,000 up)
+TERMINATING_EPISODES = SEED_STRIDE // 2
 #: the lowest episode seed a training run may use
 MIN_EPISODE_SEED = 1000
 #: the training rewards (see :class:`PolicyEnv`)
@@ -180,10 +183,10 @@ class TrainConfig:
 
     def max_episodes(self) -> int:
         """An upper bound of the episodes a run starts (each env's last one may be cut short);
-        with early termination (``terminate_mm``) a run may start as many as its seed stride
-        holds (running out is an error naming it)."""
+        with early termination (``terminate_mm``) a run may start up to
+        :data:`TERMINATING_EPISODES` (running out is an error naming it)."""
         if self.terminate_mm:
-            return SEED_STRIDE
+            return TERMINATING_EPISODES
         return math.ceil(self.total_timesteps / self.episode_steps) + 2 * self.n_envs
 
     def training_seeds(self) -> range:
