@@ -715,17 +715,27 @@ def train(
             meta | {"timesteps": int(model.num_timesteps)},
         )
         wall = time.perf_counter() - t_start
+        before = _wall_before(out / "summary.json") if done_before else 0.0
         summary = {
             "timesteps": int(model.num_timesteps),
-            "wall_s": wall,
+            "wall_s": before + wall,  # the whole run's, over its sessions
             "steps_per_s": (int(model.num_timesteps) - done_before) / wall,
             "resumed_at": done_before,
+            "wall_s_this_session": wall,
         }
         atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
         log.info("trained %d steps in %.0f s", model.num_timesteps, wall)
     finally:
         venv.close()
     return out
+
+
+def _wall_before(path: Path) -> float:
+    """The wall time of a resumed run's earlier sessions (its last ``summary.json``), s."""
+    try:
+        return float(json.loads(path.read_text())["wall_s"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return 0.0
 
 
 def _shrink_output(model: Any, algo: str, scale: float) -> None:

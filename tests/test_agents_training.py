@@ -94,12 +94,17 @@ def test_the_critic_burn_in_keeps_the_actor_still(tmp_path):
 @pytest.mark.slow
 def test_a_run_resumes_from_its_checkpoint(tmp_path):
     cfg = _tiny(tmp_path, name="r")
-    train(cfg)
     cfg.total_timesteps = 512
+    first = json.loads((train(cfg, stop_at=256) / "summary.json").read_text())
+    assert first["timesteps"] == 256 and first["resumed_at"] == 0
     out = train(cfg, resume=True)
     steps = [int(r["steps"]) for r in _rows(out / "curve.csv")]
     assert steps == [0, 128, 256, 384, 512]
-    assert json.loads((out / "summary.json").read_text())["resumed_at"] == 256
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["resumed_at"] == 256 and summary["timesteps"] == 512
+    # the run's wall time is both sessions'
+    assert summary["wall_s"] == pytest.approx(first["wall_s"] + summary["wall_s_this_session"])
+    assert json.loads((out / "config.json").read_text())["total_timesteps"] == 512
 
 
 def test_each_shipped_policy_names_the_config_that_made_it():
