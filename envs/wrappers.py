@@ -188,15 +188,19 @@ class ToolDisplacement:
 
     | name                | size | what                                                          |
     |---------------------|------|---------------------------------------------------------------|
-    | `tracking_error`    | 3    | r - x_nom(q): the reference minus the nominal tool point      |
+    | `tracking_error`    | 3    | r - (x_nom(q) + e): the reference minus the tool point as the |
+    |                     |      | nominal model corrected by the last measurement places it     |
     | `preview`           | 3P   | the next P references minus the reference now                 |
     | `model_error`       | 3    | e = y - x_nom(q_y) at the last tracker measurement y (0 before one) |
     | `model_error_age`   | 1    | its age, s, capped at 1 (1 before the first measurement)      |
     | `previous_action`   | 3    | the last action, in [-1, 1]                                   |
 
-    The true tool point is about ``x_nom(q) + e``, so ``a = (p_1 + gain * (t - e)) / step_mm``
-    (``t`` the tracking error, ``p_1`` the first preview point) is the ``feedforward`` controller:
-    a linear policy of these features tracks as well as it does.
+    The true tool point is about ``x_nom(q) + e`` (what ``feedforward`` tracks with), so the
+    tracking error is the best estimate of the true one the agent has, and ``a = (p_1 + gain * t)
+    / step_mm`` (``t`` the tracking error, ``p_1`` the first preview point) is the ``feedforward``
+    controller: a linear policy of these features tracks as well as it does. (With ``r - x_nom(q)``
+    instead, a policy must weigh the tracking error and the model error exactly alike to reach
+    the same point; trained policies missed by 10-15 % of the model error, 0.3-0.5 mm.)
     """
 
     def __init__(self, task: Any, step_mm: float = 5.0, damping: float = 1e-3) -> None:
@@ -274,7 +278,7 @@ class ToolDisplacement:
         ref = obs[self._ref]
         out = np.empty(self.obs_size)
         sl = self.obs_slices
-        out[sl["tracking_error"]] = ref - x
+        out[sl["tracking_error"]] = ref - x - self.error
         out[sl["preview"]] = (obs[self._preview].reshape(-1, 3) - ref).reshape(-1)
         out[sl["model_error"]] = self.error
         out[: self._age] *= MM

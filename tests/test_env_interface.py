@@ -70,7 +70,7 @@ def test_the_tool_interface_passes_gymnasiums_checker_and_names_its_parts():
 def test_the_arm_moves_by_the_displacement_asked_for():
     """On a perfect arm a small displacement is what the tool does: after the servo has caught up
     (a constant request), the encoders' nominal tool point moves by ``a * step_mm`` a step, to
-    a few percent; and the observation's tracking error is r - x_nom(q) in mm."""
+    a few percent; and the observation's tracking error is r - x_nom(q) - e in mm."""
     env = gym.make("SixAxisTrack-v0", scenario="nominal", interface="tool", tool_step_mm=2.0)
     obs, info = env.reset(seed=4)
     w = _interface(env)
@@ -78,7 +78,7 @@ def test_the_arm_moves_by_the_displacement_asked_for():
     q = env.unwrapped._obs[env.unwrapped.task.obs_slices["q"]]
     np.testing.assert_allclose(
         obs[w.obs_slices["tracking_error"]],
-        (info["reference"] - kin.point(q)) * 1e3,
+        (info["reference"] - kin.point(q)) * 1e3 - obs[w.obs_slices["model_error"]],
         rtol=1e-5,
         atol=1e-4,
     )
@@ -93,8 +93,8 @@ def test_the_arm_moves_by_the_displacement_asked_for():
 
 
 def test_a_linear_policy_of_the_interface_tracks_as_feedforward_does():
-    """``a = (p_1 + 0.5 (t - e)) / step_mm`` is the feedforward law in the interface's terms:
-    its settled error is the feedforward agent's, within 30 %, on the same episode."""
+    """``a = (p_1 + 0.5 t) / step_mm`` is the feedforward law in the interface's terms: its settled
+    error is the feedforward agent's, within 30 %, on the same episode."""
     kw = {"scenario": "geometric", "noise_mm": 0.015, "measure_every": 5}
     ff = run_episode(make_agent("feedforward"), kw, seed=5, episode_seconds=4.0)
     env = gym.make("SixAxisTrack-v0", interface="tool", episode_seconds=4.0, **kw)
@@ -104,7 +104,7 @@ def test_a_linear_policy_of_the_interface_tracks_as_feedforward_does():
     done = False
     while not done:
         p1 = f[sl["preview"]][:3]
-        a = (p1 + 0.5 * (f[sl["tracking_error"]] - f[sl["model_error"]])) / 5.0
+        a = (p1 + 0.5 * f[sl["tracking_error"]]) / 5.0
         f, _, term, trunc, info = env.step(a)
         errors.append(info["true_error_mm"])
         done = term or trunc
