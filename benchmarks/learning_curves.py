@@ -104,15 +104,19 @@ def pilot_sections(folder: Path) -> list[str]:
             "differs: seed 1, 2 evaluation episodes per scenario; stopped once clear), settled "
             "RMS (mm) of the evaluations, mean over the scenarios:",
             "",
-            "| pilot | what differs | " + " | ".join(f"{k}k" for k in range(0, 201, 50)) + " |",
-            "|---|---|" + "---:|" * 5,
+        ]
+        last = max(int(read_curve(p)["steps"].max()) for p in tool)
+        ks = range(0, last // 1000 + 1, 50)
+        lines += [
+            "| pilot | what differs | " + " | ".join(f"{k}k" for k in ks) + " |",
+            "|---|---|" + "---:|" * len(ks),
         ]
         for p in tool:
             c = read_curve(p)
             note = p.with_suffix(".txt")
             what = note.read_text().strip() if note.exists() else ""
             at = {int(st): v for st, v in zip(c["steps"], c["rms_settled_mm/mean"], strict=True)}
-            cells = [f"{at[k * 1000]:.3g}" if k * 1000 in at else "" for k in range(0, 201, 50)]
+            cells = [f"{at[k * 1000]:.3g}" if k * 1000 in at else "" for k in ks]
             lines.append(f"| {p.stem} | {what} | " + " | ".join(cells) + " |")
     if plain:
         lines += [
