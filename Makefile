@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/kinematics.py
 	$(BIN)/python benchmarks/lab.py
 	$(BIN)/python benchmarks/env.py
+	$(BIN)/python benchmarks/wrappers.py
 	$(BIN)/python benchmarks/mpc.py
 	$(BIN)/python benchmarks/mpc_diagnose.py
 	$(BIN)/python benchmarks/isolation.py

@@ -1,14 +1,21 @@
 """Learned policies as agents: what the policy observes, what its action means, and its network
 weights in a file that loads without unpickling.
 
-Two variants share one pipeline (:class:`PolicyIO`, a pure function of the env's observation and
-info stream, so the same code runs in training and in evaluation):
+Three variants share one pipeline (:class:`PolicyIO`, a pure function of the env's observation
+and info stream, so the same code runs in training and in evaluation):
 
 * ``residual`` (residual RL, Johannink et al. 2019): the base is the ``feedforward`` reference
   (:class:`~agents.reference.FeedforwardAgent`: nominal resolved-rate tracking of the reference
   minus the last measured model error). The policy's action (3) in [-1, 1] moves the base's target
   by up to ``offset_mm`` (0.5 mm) more; a zero action is the base itself.
-* ``plain``: the policy's action is the env's action, normalised joint velocities (6).
+* ``tool`` (the plain ``ppo``): the operational-space interface of
+  :class:`envs.wrappers.ToolDisplacement`, exactly as ``gym.make(..., interface="tool")`` gives it:
+  the action (3) is a tool displacement of up to ``tool_step_mm`` per step, mapped through the
+  nominal model's damped pseudo-inverse; the observation is the tracking error, the preview
+  relative to the reference, the last measured model error and its age and the previous action,
+  in mm. No base controller: what the policy does, it learned.
+* ``plain``: the policy's action is the env's action, normalised joint velocities (6); the plain
+  ``ppo`` was trained on it before the tool interface (and tracked at 6-7 mm).
 
 What the residual policy observes (mm where lengths): the encoders (angles, velocities), the
 base's last command and the joints' last directions of motion, the joint velocities the path asks
@@ -57,6 +64,7 @@ from agents.reference import FeedforwardAgent
 from arm.errors import SixAxisError
 from arm.files import check_input_file, read_input_text
 from envs.task import Observation, TaskInfo, Truth
+from envs.wrappers import ToolDisplacement
 
 __all__ = [
     "ALGOS",
@@ -77,7 +85,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
-Variant = Literal["residual", "plain"]
+Variant = Literal["residual", "plain", "tool"]
 Algo = Literal["ppo", "sac", "td3"]
 VARIANTS: tuple[str, ...] = typing.get_args(Variant)
 ALGOS: tuple[str, ...] = typing.get_args(Algo)
@@ -103,22 +111,30 @@ class PolicyIO:
     (call it once per step, before :meth:`action`), and :meth:`action`, the env's action from the
     policy's."""
 
-    def __init__(self, variant: str = "residual", offset_mm: float = 0.5) -> None:
+    def __init__(
+        self, variant: str = "residual", offset_mm: float = 0.5, tool_step_mm: float = 5.0
+    ) -> None:
         if variant not in VARIANTS:
             raise ValueError(f"unknown policy variant {variant!r}; choose {', '.join(VARIANTS)}")
         if not offset_mm > 0:
             raise ValueError(f"offset_mm must be > 0, got {offset_mm}")
+        if not tool_step_mm > 0:
+            raise ValueError(f"tool_step_mm must be > 0, got {tool_step_mm}")
         self.variant = variant
         self.offset_mm = float(offset_mm)
+        self.tool_step_mm = float(tool_step_mm)
         self.base = FeedforwardAgent()
         self.task: TaskInfo | None = None
+        self.tool: ToolDisplacement | None = None
 
     @property
     def action_size(self) -> int:
-        return 3 if self.variant == "residual" else 6
+        return 6 if self.variant == "plain" else 3
 
     def observation_size(self, task: TaskInfo) -> int:
         P = int(task.preview_steps)
+        if self.variant == "tool":
+            return ToolDisplacement(task, self.tool_step_mm).obs_size
         if self.variant == "residual":
             return (
                 6 * 4
@@ -137,12 +153,20 @@ class PolicyIO:
 
     def reset(self, task: TaskInfo) -> None:
         self.task = task
-        self.base.reset(task)
+        if self.variant == "tool":
+            self.tool = ToolDisplacement(task, self.tool_step_mm)
+        else:
+            self.base.reset(task)
         self._start_phase()
 
     def next_phase(self, task: TaskInfo) -> None:
         self.task = task
-        self.base.next_phase(task)
+        if self.tool is not None:  # the tool interface keeps its model error, as feedforward does
+            error, error_time = self.tool.error, self.tool.error_time
+            self.tool = ToolDisplacement(task, self.tool_step_mm)
+            self.tool.error, self.tool.error_time = error, error_time
+        else:
+            self.base.next_phase(task)
         self._start_phase()
 
     def _start_phase(self) -> None:
@@ -155,6 +179,8 @@ class PolicyIO:
         task = self.task
         if task is None:
             raise RuntimeError("PolicyIO.features before reset(): no task yet")
+        if self.tool is not None:  # the operational-space interface: envs.wrappers's numbers
+            return self.tool.clipped(self.tool.observe(obs, info))
         o = Observation.parse(task, obs)
         self._o, self._info = o, info
         base = self.base
@@ -225,6 +251,9 @@ class PolicyIO:
 
     def action(self, a: np.ndarray) -> np.ndarray:
         """The env's action (6,) for the policy's action ``a`` at the last observation."""
+        if self.tool is not None:
+            self.prev_action = np.clip(np.asarray(a, dtype=float).reshape(-1), -1.0, 1.0)
+            return self.tool.command(a)
         if self._o is None:
             raise RuntimeError("PolicyIO.action before features(): no observation yet")
         a = np.clip(np.asarray(a, dtype=float).reshape(-1), -1.0, 1.0)
@@ -553,12 +582,17 @@ def _check_sizes(meta: dict, variant: str, where: str) -> None:
         raise PolicyFileError(
             f"{where}: obs_size must be a whole number from 1 to {MAX_OBS_SIZE}, got {obs!r}"
         )
-    want = 3 if variant == "residual" else 6
+    want = 6 if variant == "plain" else 3
     if not _is_int(act) or act != want:
         raise PolicyFileError(f"{where}: act_size of a {variant} policy is {want}, got {act!r}")
     offset = meta.get("offset_mm", 0.5)
     if isinstance(offset, bool) or not isinstance(offset, int | float) or not 0 < offset < 1e3:
         raise PolicyFileError(f"{where}: offset_mm must be a positive number of mm, got {offset!r}")
+    step = meta.get("tool_step_mm", 5.0)
+    if isinstance(step, bool) or not isinstance(step, int | float) or not 0 < step < 1e3:
+        raise PolicyFileError(
+            f"{where}: tool_step_mm must be a positive number of mm, got {step!r}"
+        )
     if not isinstance(meta.get("use_sde", False), bool):
         raise PolicyFileError(f"{where}: use_sde must be true or false, got {meta['use_sde']!r}")
 
@@ -662,7 +696,11 @@ class PolicyAgent(Agent):
         if self.network is None:
             self._load()
         self.task = task
-        self.io = PolicyIO(self.meta["variant"], float(self.meta.get("offset_mm", 0.5)))
+        self.io = PolicyIO(
+            self.meta["variant"],
+            float(self.meta.get("offset_mm", 0.5)),
+            float(self.meta.get("tool_step_mm", 5.0)),
+        )
         self.io.reset(task)
         n = self.io.observation_size(task)
         if n != int(self.meta["obs_size"]):

@@ -15,10 +15,14 @@ only classes you trust.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import importlib
 import inspect
+import os
+import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from importlib.machinery import PathFinder
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +35,7 @@ __all__ = [
     "POLICIES",
     "AgentError",
     "AgentSpec",
+    "agent_module_source",
     "agent_names",
     "check_settings",
     "make_agent",
@@ -137,7 +142,11 @@ def resolve_agent(name: str) -> tuple[Callable[..., Agent], Callable[..., Any]]:
         try:
             mod = importlib.import_module(module)
         except ImportError as exc:
-            raise AgentError(f"agent {name!r}: cannot import module {module!r}: {exc}") from exc
+            raise AgentError(
+                f"agent {name!r}: cannot import module {module!r}: {exc} (searched: the working "
+                f"folder {os.getcwd()}, PYTHONPATH and the installed packages; run sixaxis from "
+                "the folder that holds the package, or install it)"
+            ) from exc
         found = getattr(mod, attr, None)
         if found is None:
             raise AgentError(f"agent {name!r}: module {module!r} has no {attr!r}")
@@ -147,6 +156,40 @@ def resolve_agent(name: str) -> tuple[Callable[..., Agent], Callable[..., Any]]:
     raise AgentError(
         f"unknown agent {name!r}; known: {', '.join(AGENTS)}, or a class as 'package.module:Class'"
     )
+
+
+def agent_module_source(name: str) -> dict[str, Any] | None:
+    """Where a class-path agent's module is and what it holds: ``{"module", "file", "root",
+    "sha256"}`` (``file`` absolute; ``root`` the folder on ``sys.path`` it is imported from;
+    ``sha256`` of the file's bytes), found as ``import`` would find it but without running it.
+    None for a registered agent (the commit holds its code) or a module with no file."""
+    if name in AGENTS or ":" not in name:
+        return None
+    module = name.partition(":")[0]
+    parts = module.split(".")
+    spec = None
+    search: list[str] | None = None
+    for i in range(len(parts)):
+        dotted = ".".join(parts[: i + 1])
+        loaded = sys.modules.get(dotted)
+        spec = getattr(loaded, "__spec__", None) or PathFinder.find_spec(dotted, search)
+        if spec is None:
+            return None
+        search = list(spec.submodule_search_locations or [])
+    origin = getattr(spec, "origin", None)
+    if not origin or not os.path.isfile(origin):
+        return None
+    path = Path(origin).resolve()
+    up = len(parts) - (0 if path.stem == "__init__" else 1)
+    root = path.parent
+    for _ in range(up):
+        root = root.parent
+    return {
+        "module": module,
+        "file": str(path),
+        "root": str(root),
+        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+    }
 
 
 def check_settings(name: str, settings: dict[str, Any]) -> None:

@@ -105,6 +105,9 @@ SETTLE_SECONDS = 2.0
 EPISODE_SECONDS = 10.0
 #: episode seeds of two training seeds are this far apart
 SEED_STRIDE = 100_000
+#: the episodes a run with early termination may start (half a seed stride: the ten training
+#: seeds of a config stay clear of the evaluation seeds from 900,000 up)
+TERMINATING_EPISODES = SEED_STRIDE // 2
 #: the lowest episode seed a training run may use
 MIN_EPISODE_SEED = 1000
 #: the training rewards (see :class:`PolicyEnv`)
@@ -113,6 +116,14 @@ REWARDS: tuple[str, ...] = typing.get_args(Reward)
 AT_LEAST_1 = Interval(int, 1, None)
 NON_NEGATIVE = Interval(float, 0.0, None)
 POSITIVE = Interval(float, 0.0, None, closed="neither")
+#: how the policy's features are scaled: SB3's running mean and variance (updated all through
+#: training, from the first flailing steps on), or the fixed scales the interface declares
+#: (``envs.wrappers.ToolDisplacement.feature_scale``; the tool variant only)
+ObsNormalization = Literal["running", "fixed"]
+#: the clip of fixed-scale features, in scales: wide (a tracking error of 100 mm is seen as 100),
+#: so that a lost policy still sees how far off it is; in pilots, VecNormalize's default of 10
+#: left policies running away from the path
+FIXED_SCALE_CLIP = 1000.0
 #: keys of [train.hyperparameters] that the trainer sets itself
 _RESERVED = {"policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model"}
 
@@ -139,6 +150,9 @@ class TrainConfig:
         10_000, Interval(int, MIN_EPISODE_SEED, None, why="seeds below are the leaderboard's")
     )
     offset_mm: float = declare(0.5, POSITIVE)
+    tool_step_mm: float = declare(5.0, POSITIVE)
+    terminate_mm: float = declare(0.0, NON_NEGATIVE)
+    obs_normalization: ObsNormalization = "running"
     reward: Reward = "log"
     reward_scale_mm: float = declare(0.05, POSITIVE)
     action_penalty: float = declare(0.0, NON_NEGATIVE)
@@ -172,7 +186,11 @@ class TrainConfig:
         return tuple(dict.fromkeys(self.scenarios))
 
     def max_episodes(self) -> int:
-        """An upper bound of the episodes a run starts (each env's last one may be cut short)."""
+        """An upper bound of the episodes a run starts (each env's last one may be cut short);
+        with early termination (``terminate_mm``) a run may start up to
+        :data:`TERMINATING_EPISODES` (running out is an error naming it)."""
+        if self.terminate_mm:
+            return TERMINATING_EPISODES
         return math.ceil(self.total_timesteps / self.episode_steps) + 2 * self.n_envs
 
     def training_seeds(self) -> range:
@@ -215,6 +233,10 @@ class TrainConfig:
             out.append("hyperparameters: action_noise is set by the trainer (action_noise_std)")
         if self.reward == "improvement" and self.variant != "residual":
             out.append("reward 'improvement' (over the base controller) is for residual policies")
+        if self.terminate_mm and self.reward != "log":
+            out.append("terminate_mm is for the log reward (its alive bonus)")
+        if self.obs_normalization == "fixed" and self.variant != "tool":
+            out.append("obs_normalization 'fixed' is for the tool variant (its declared scales)")
         if self.critic_burn_in and self.algo == "ppo":
             out.append(
                 "critic_burn_in is for the off-policy algorithms (sac, td3): PPO has no critic"
@@ -300,7 +322,13 @@ class PolicyEnv(gym.Wrapper):
     the policy cannot see and which otherwise drowns the 0.01 mm it can gain.
     ``action_penalty`` and ``action_change_penalty`` subtract ``c * |a|^2`` and
     ``c * |a - a_prev|^2`` of the policy's own action (in [-1, 1]): the policy keeps zero (the
-    base controller) unless moving off it pays. The reward uses the plant's truth, as any
+    base controller) unless moving off it pays. ``terminate_mm`` (log reward only) ends an
+    episode once the true error exceeds it, as locomotion tasks end on a fall and motion
+    imitation on a lost reference (DeepMimic's early termination), and adds the alive bonus
+    ``ln(1 + terminate_mm / scale)`` to each step, so the reward is positive while tracking and
+    ending early never pays: a policy that has not learned to follow the path yet spends its
+    samples near the path, not 100 mm off it where every action earns the same. The
+    leaderboard's episodes never end early. The reward uses the plant's truth, as any
     simulated training may; the policy's observation never does (it is computed from
     :func:`~envs.task.controller_info` of each step's info)."""
 
@@ -315,11 +343,15 @@ class PolicyEnv(gym.Wrapper):
         action_penalty: float = 0.0,
         action_change_penalty: float = 0.0,
         shadow: gym.Env | None = None,
+        tool_step_mm: float = 5.0,
+        terminate_mm: float = 0.0,
     ) -> None:
         super().__init__(env)
+        if terminate_mm and reward != "log":
+            raise ValueError("terminate_mm is for the log reward (its alive bonus)")
         if reward == "improvement" and (variant != "residual" or shadow is None):
             raise ValueError("the improvement reward needs a residual policy and a shadow env")
-        self.io = PolicyIO(variant, offset_mm)
+        self.io = PolicyIO(variant, offset_mm, tool_step_mm)
         self.shadow = shadow if reward == "improvement" else None
         self.shadow_base = FeedforwardAgent()
         task = env.unwrapped.task  # type: ignore[attr-defined]
@@ -331,6 +363,7 @@ class PolicyEnv(gym.Wrapper):
         self.seeds = seeds
         self.action_penalty = float(action_penalty)
         self.action_change_penalty = float(action_change_penalty)
+        self.terminate_mm = float(terminate_mm)
         self.last_seed: int | None = None
 
     def _log_error(self, info: Mapping[str, Any]) -> float:
@@ -344,6 +377,8 @@ class PolicyEnv(gym.Wrapper):
             return float(env_reward)
         if self.reward_kind == "improvement":
             return self._log_error(self._shadow_info) - self._log_error(info)
+        if self.terminate_mm:  # alive: the bonus of the worst error it may keep, minus its own
+            return math.log1p(self.terminate_mm / self.reward_scale_mm) - self._log_error(info)
         return -self._log_error(info)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -368,6 +403,11 @@ class PolicyEnv(gym.Wrapper):
         r = self.reward(float(reward), info)
         r -= self.action_penalty * float(a @ a)
         r -= self.action_change_penalty * float((a - before) @ (a - before))
+        if (
+            self.terminate_mm
+            and not float(info.get("true_error_mm", math.inf)) <= self.terminate_mm
+        ):
+            terminated = True  # lost: the episode ends, and with it the bonus
         return (
             self.io.features(obs, controller_info(info)).astype(np.float32),  # trained in float32
             r,
@@ -380,6 +420,28 @@ class PolicyEnv(gym.Wrapper):
         if self.shadow is not None:
             self.shadow.close()
         super().close()
+
+
+def _fixed_mean_std() -> type:
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
+
+    class Fixed(RunningMeanStd):
+        """A mean and variance that training does not update (fixed feature scales)."""
+
+        def __init__(self, mean: np.ndarray, var: np.ndarray) -> None:
+            super().__init__(shape=mean.shape)
+            self.mean, self.var = np.array(mean, dtype=float), np.array(var, dtype=float)
+
+        def update(self, arr: np.ndarray) -> None:
+            return None
+
+    return Fixed
+
+
+def fixed_mean_std(mean: np.ndarray, var: np.ndarray) -> Any:
+    """SB3's ``RunningMeanStd`` holding ``mean`` and ``var`` fixed: VecNormalize scales by them
+    and never updates them."""
+    return _fixed_mean_std()(mean, var)
 
 
 class EpisodeSeeds:
@@ -416,6 +478,8 @@ def make_policy_env(
         cfg.action_penalty,
         cfg.action_change_penalty,
         shadow=make() if cfg.reward == "improvement" else None,
+        tool_step_mm=cfg.tool_step_mm,
+        terminate_mm=cfg.terminate_mm,
     )
 
 
@@ -428,6 +492,7 @@ def _meta(cfg: TrainConfig, obs_size: int, act_size: int) -> dict[str, Any]:
         "obs_size": obs_size,
         "act_size": act_size,
         "offset_mm": cfg.offset_mm,
+        "tool_step_mm": cfg.tool_step_mm,
         "policy_kwargs": dict(hp.get("policy_kwargs", {})),
         "use_sde": bool(hp.get("use_sde", False)),
         "config": cfg.to_dict(),
@@ -486,11 +551,13 @@ def train(
     cfg: TrainConfig,
     progress: Callable[[int, int], None] | None = None,
     resume: bool = False,
+    stop_at: int | None = None,
 ) -> Path:
     """Train as configured (see the module docstring for what is written); ``progress(done,
     total)`` is called as steps are taken; ``resume`` continues from ``output``'s checkpoint
-    (SB3's own save of this run, which unpickles: resume only runs you made). Returns the output
-    directory."""
+    (SB3's own save of this run, which unpickles: resume only runs you made); ``stop_at`` stops
+    the run there (its checkpoint, ``final`` and summary written) to be resumed later with its
+    config unchanged (a resumed run starts new episodes, and its random streams afresh). Returns the output directory."""
     import torch
 
     torch.set_num_threads(1)
@@ -518,13 +585,20 @@ def train(
         return lambda: Monitor(make_policy_env(cfg, scenario, sequence))
 
     fns = [env_fn(cfg.scenarios[k % len(cfg.scenarios)]) for k in range(cfg.n_envs)]
+    fixed = cfg.obs_normalization == "fixed"
     venv = VecNormalize(
         DummyVecEnv(fns),
         gamma=float(cfg.hyperparameters.get("gamma", 0.99)),
         norm_obs=True,
         norm_reward=cfg.normalize_reward,
+        clip_obs=FIXED_SCALE_CLIP if fixed else 10.0,
     )
     probe = venv.venv.envs[0]  # type: ignore[attr-defined]
+    if fixed:  # the interface's declared scales, never updated (saved as the policy's own)
+        from envs.wrappers import ToolDisplacement
+
+        scale = ToolDisplacement(probe.unwrapped.task, cfg.tool_step_mm).feature_scale
+        venv.obs_rms = fixed_mean_std(np.zeros_like(scale), scale**2)
     obs_size = int(probe.observation_space.shape[0])
     act_size = int(probe.action_space.shape[0])
     meta = _meta(cfg, obs_size, act_size)
@@ -635,7 +709,7 @@ def train(
         evaluate_now(0)
     try:
         model.learn(
-            total_timesteps=cfg.total_timesteps - done_before,
+            total_timesteps=min(cfg.total_timesteps, stop_at or cfg.total_timesteps) - done_before,
             callback=CallbackList(callbacks),
             reset_num_timesteps=done_before == 0,
         )
@@ -650,17 +724,27 @@ def train(
             meta | {"timesteps": int(model.num_timesteps)},
         )
         wall = time.perf_counter() - t_start
+        before = _wall_before(out / "summary.json") if done_before else 0.0
         summary = {
             "timesteps": int(model.num_timesteps),
-            "wall_s": wall,
+            "wall_s": before + wall,  # the whole run's, over its sessions
             "steps_per_s": (int(model.num_timesteps) - done_before) / wall,
             "resumed_at": done_before,
+            "wall_s_this_session": wall,
         }
         atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
         log.info("trained %d steps in %.0f s", model.num_timesteps, wall)
     finally:
         venv.close()
     return out
+
+
+def _wall_before(path: Path) -> float:
+    """The wall time of a resumed run's earlier sessions (its last ``summary.json``), s."""
+    try:
+        return float(json.loads(path.read_text())["wall_s"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return 0.0
 
 
 def _shrink_output(model: Any, algo: str, scale: float) -> None:

@@ -93,6 +93,31 @@ def pilot_sections(folder: Path) -> list[str]:
     every_pilot = sorted(folder.glob("*.csv"))
     pilots = [p for p in every_pilot if p.stem.startswith(("sac-", "td3-"))]
     plain = [p for p in every_pilot if p.stem.startswith("ppo-gamma")]
+    tool = [p for p in every_pilot if p.stem.startswith("ppo-tool-")]
+    if tool:
+        lines += [
+            "",
+            "## The plain policy on the tool interface: its recipe, chosen by measurement",
+            "",
+            "Pilot runs of the plain PPO on the operational-space interface "
+            "(`results/learning/pilots/ppo-tool-*`, each with its config and a line saying what "
+            "differs: seed 1, 2 evaluation episodes per scenario; stopped once clear), settled "
+            "RMS (mm) of the evaluations, mean over the scenarios:",
+            "",
+        ]
+        last = max(int(read_curve(p)["steps"].max()) for p in tool)
+        ks = range(0, last // 1000 + 1, 50)
+        lines += [
+            "| pilot | what differs | " + " | ".join(f"{k}k" for k in ks) + " |",
+            "|---|---|" + "---:|" * len(ks),
+        ]
+        for p in tool:
+            c = read_curve(p)
+            note = p.with_suffix(".txt")
+            what = note.read_text().strip() if note.exists() else ""
+            at = {int(st): v for st, v in zip(c["steps"], c["rms_settled_mm/mean"], strict=True)}
+            cells = [f"{at[k * 1000]:.3g}" if k * 1000 in at else "" for k in ks]
+            lines.append(f"| {p.stem} | {what} | " + " | ".join(cells) + " |")
     if plain:
         lines += [
             "",
@@ -155,7 +180,13 @@ def main() -> None:
     ap.add_argument("names", nargs="*", default=["ppo-residual", "sac-residual", "ppo"])
     ap.add_argument("--runs", type=Path, default=Path("runs"), help="the training runs' folder")
     ap.add_argument("--out", type=Path, default=OUT)
-    ap.add_argument("--ship", nargs="*", default=[], help="ship the median seed of these names")
+    ap.add_argument("--ship", nargs="*", default=[], help="ship a seed of these names")
+    ap.add_argument(
+        "--pick",
+        choices=("median", "best"),
+        default="median",
+        help="which seed --ship ships: the median by the evaluation score, or the best",
+    )
     ap.add_argument(
         "--keep",
         action="store_true",
@@ -208,7 +239,7 @@ def main() -> None:
         if "dir" not in runs[0]:  # kept from runs.json
             continue
         ordered = sorted(runs, key=lambda r: r["score"])
-        median = ordered[len(ordered) // 2]
+        median = ordered[len(ordered) // 2] if args.pick == "median" else ordered[0]
         for r in runs:
             s = r["summary"]
             table.append(
@@ -223,6 +254,7 @@ def main() -> None:
                     "best_score": round(r["score"], 4),
                     "best_rms_settled_mm": round(float(np.exp(r["score"])), 4),
                     "median": r is median,
+                    "picked": args.pick if r is median else "",
                 }
             )
         if name in args.ship:
@@ -236,7 +268,7 @@ def main() -> None:
                 seeds_trained=len(runs),
                 wall_s_all_seeds=round(sum(walls), 1),
             )
-            print(f"{name}: shipped the median seed {median['run']} to {dst}")
+            print(f"{name}: shipped the {args.pick} seed {median['run']} to {dst}")
     for (ax1, ax2), kind in zip(axes, ("residual policies", "plain policies"), strict=True):
         ax1.set_yscale("log")
         ax1.set_xlabel("training steps")
@@ -259,7 +291,9 @@ def main() -> None:
         "Evaluations: every `eval_every` steps, `eval_episodes` deterministic episodes per "
         "scenario (each config says how many) on seeds 900000+ (never trained on, never on the "
         "leaderboard). Score: the mean over the scenarios of log settled RMS; the policy of a "
-        "run's best evaluation is its `best.npz`, and the median seed by that score is shipped.",
+        "run's best evaluation is its `best.npz`, and the median seed by that score is shipped "
+        "(the plain `ppo`: the best seed; every seed of it on held-out episodes in "
+        "`results/ppo_seeds.md`).",
         "",
         "![learning curves](curves.png)",
         "",
@@ -270,7 +304,7 @@ def main() -> None:
         lines.append(
             f"| {r['name']} | {r['run']} | {r['steps']:,} | {r['wall_s']:.0f} | "
             f"{r['steps_per_s']:.0f} | {r['best_rms_settled_mm']:.4f} | "
-            f"{'yes (median)' if r['median'] else ''} |"
+            f"{'yes (' + (r.get('picked') or 'median') + ')' if r['median'] else ''} |"
         )
     total = sum(r["wall_s"] for r in table)
     lines += ["", f"Training wall time in all: {total / 3600:.2f} h (2 shared CPU cores)."]

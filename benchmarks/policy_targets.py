@@ -10,8 +10,10 @@ learn"), on the settled RMS (``rms_settled_mm``), mean over the seeds:
 * the best residual policy: at most 0.9x ``feedforward`` on ``backlash`` and ``all``, at most
   1.0x elsewhere; below ``nominal`` on every scenario; its whole-episode RMS (``rms_mm``) no
   worse than ``feedforward``'s on every scenario;
-* every plain policy: below ``hold`` on every scenario, and on every seed (its ratio to
-  ``nominal``, the nominal model's tracking law, is reported beside it);
+* every plain policy (issue "RL as the field does it"): at most 3x ``feedforward`` on every
+  scenario; below ``nominal`` on every scenario but ``nominal``; its worst episode at most 10x
+  its median episode on every scenario (every training seed on held-out episodes, IQM and worst
+  episode: ``benchmarks/ppo_seeds.py``);
 * a residual that outputs zero is ``feedforward`` itself (tests/test_agents_policy.py checks it
   step for step): ratio 1.0, so it passes none of the 0.9x targets.
 
@@ -45,6 +47,8 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results"
 REFERENCES = ("hold", "nominal", "feedforward")
 STRICT = ("backlash", "all")  # where feedforward is far from the oracle: 0.9x
+PLAIN_LIMIT = 3.0  # a plain policy: at most 3x feedforward
+WORST_LIMIT = 10.0  # ... and its worst episode at most 10x its median one
 HELDOUT_SEED = 950_000
 
 
@@ -176,16 +180,18 @@ def _targets(res, names, policies, scenarios) -> dict:
                     ),
                 }
             else:
-                worst = max(
-                    res[n][sc][k]["rms_settled_mm"] / res["hold"][sc][k]["rms_settled_mm"]
-                    for k in res[n][sc]
-                )
+                episodes = [m["rms_settled_mm"] for m in res[n][sc].values()]
+                worst = max(episodes) / float(np.median(episodes))
                 checks[sc] = {
-                    "ratio_to_hold": s / mean("hold", sc),
-                    "worst_seed_ratio_to_hold": worst,
-                    "below_hold_every_seed": worst < 1.0,
-                    # not a target: how far it is from the nominal model's tracking law
+                    "ratio_to_feedforward": s / ff,
+                    "limit": PLAIN_LIMIT,
+                    "below_limit": s <= PLAIN_LIMIT * ff,
                     "ratio_to_nominal": s / mean("nominal", sc),
+                    "below_nominal": s < mean("nominal", sc) if sc != "nominal" else None,
+                    "worst_over_median": worst,
+                    "worst_ok": worst <= WORST_LIMIT,
+                    # not a target: the floor
+                    "ratio_to_hold": s / mean("hold", sc),
                 }
         out["targets"][n] = checks
     return out
@@ -232,18 +238,22 @@ def _section(report, names, scenarios) -> list[str]:
             cells = [f"{checks[sc]['worst_seed_ratio_to_feedforward']:.3f}" for sc in scenarios]
             lines.append("| worst episode, settled / feedforward's | " + " | ".join(cells) + " |")
         else:
-            for label, k in (
-                ("mean / hold", "ratio_to_hold"),
-                ("worst seed / hold", "worst_seed_ratio_to_hold"),
+            for label, k, ok in (
+                (
+                    f"settled / feedforward (<= {PLAIN_LIMIT:g})",
+                    "ratio_to_feedforward",
+                    "below_limit",
+                ),
+                ("settled / nominal (< 1 but on nominal)", "ratio_to_nominal", "below_nominal"),
+                (f"worst / median episode (<= {WORST_LIMIT:g})", "worst_over_median", "worst_ok"),
+                ("settled / hold (not a target)", "ratio_to_hold", None),
             ):
                 cells = [
-                    f"{checks[sc][k]:.3f}"
-                    + ("" if checks[sc]["below_hold_every_seed"] else " **miss**")
+                    f"{checks[sc][k]:.3g}"
+                    + ("" if ok is None or checks[sc][ok] is not False else " **miss**")
                     for sc in scenarios
                 ]
                 lines.append(f"| {label} | " + " | ".join(cells) + " |")
-            cells = [f"{checks[sc]['ratio_to_nominal']:.3g}" for sc in scenarios]
-            lines.append("| mean / nominal (not a target) | " + " | ".join(cells) + " |")
         lines.append("")
     return lines
 

@@ -71,12 +71,30 @@ def _outside_observation(overrides: Any) -> str | None:
     return None
 
 
-def make_env(**kwargs: Any) -> gym.Env:
+def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any) -> gym.Env:
     """``SixAxisTrack-v0`` as ``gym.make`` builds it: the env in a ``TimeLimit`` of its own
     ``episode_seconds`` (500 steps by default), so that the episode and the limit agree.
-    ``make_env.env_class`` is the env's class (its options, ``check_options``)."""
+    ``interface="tool"`` puts the operational-space interface around it
+    (:class:`envs.wrappers.ToolDisplacementAction`: a tool displacement of up to ``tool_step_mm``
+    mm per step and axis, relative observations in mm); ``"joint"`` (the default) is the env's
+    own, normalised joint velocities. ``make_env.env_class`` is the env's class (its options,
+    ``check_options``)."""
+    from envs.wrappers import INTERFACES, ToolDisplacementAction
+
+    problems = {}
+    if interface not in INTERFACES:
+        problems["interface"] = f"expected one of {', '.join(INTERFACES)}, got {interface!r}"
+    if not (_real(tool_step_mm) and tool_step_mm > 0):
+        problems["tool_step_mm"] = f"expected a positive number of mm, got {tool_step_mm!r}"
+    if problems:
+        raise EnvOptionError(
+            "SixAxisTrack-v0: " + "; ".join(f"{k}: {m}" for k, m in problems.items())
+        )
     env = SixAxisTrackEnv(**kwargs)
-    return TimeLimit(env, env.episode_steps)
+    limited = TimeLimit(env, env.episode_steps)
+    if interface == "tool":
+        return ToolDisplacementAction(limited, float(tool_step_mm))
+    return limited
 
 
 class EnvOptionError(SixAxisError, ValueError):

@@ -7,6 +7,8 @@ mounted here; library code logs with :mod:`logging`, the CLI prints with rich.
 from __future__ import annotations
 
 import logging
+import os
+import sys
 import warnings
 from typing import Any
 
@@ -75,6 +77,13 @@ def _main(
 
 
 def main() -> None:
+    """The ``sixaxis`` console script. The working folder is importable, as ``python -m`` makes
+    it: an agent ``mypkg.myagent:MyAgent`` of a package beside the user's config is found by
+    ``sweep``, ``evaluate`` and ``reproduce`` without ``PYTHONPATH`` (a console script's
+    ``sys.path`` starts at its own folder, not the working one)."""
+    cwd = os.getcwd()
+    if "" not in sys.path and cwd not in sys.path:
+        sys.path.insert(0, cwd)
     app()
 
 

@@ -440,7 +440,8 @@ def _reproduce_rows(
         table.add_section()
     console.print(table)
     for o in outcomes:
-        console.print(f"{o.run_key} (line {o.line}): rerun in {o.where}", highlight=False)
+        where = "not rerun" if o.where == "not rerun" else f"rerun in {o.where}"
+        console.print(f"{o.run_key} (line {o.line}): {where}", highlight=False)
     if failed:
         err_console.print(f"[red]not reproduced:[/red] {', '.join(failed)}", highlight=False)
         raise typer.Exit(1)

@@ -441,8 +441,10 @@ def pairs_csv(board: Leaderboard) -> str:
 def runs_csv(board: Leaderboard) -> str:
     """One row per run of the leaderboard (failed ones too): agent label and name, scenario,
     seed, whether it is an oracle, status, the commit and whether the tree was dirty, the config
-    (name, path, hash), the run key and hash, whether it was informed, and every metric (timing
-    metrics last; they vary from run to run). ``sixaxis reproduce`` reruns any row."""
+    (name, path, hash), the run key and hash, whether it was informed, a class-path agent's
+    module file and its sha256 (empty for registered agents: the commit holds their code), and
+    every metric (timing metrics last; they vary from run to run). ``sixaxis reproduce`` reruns
+    any row."""
     timing = [m for m in board.metrics if METRICS[m].timing]
     plain = [m for m in board.metrics if not METRICS[m].timing]
     header = [
@@ -462,6 +464,8 @@ def runs_csv(board: Leaderboard) -> str:
         "run_key",
         "run_hash",
         "informed",
+        "agent_module",
+        "agent_module_sha256",
         *plain,
         *timing,
     ]
@@ -497,6 +501,8 @@ def runs_csv(board: Leaderboard) -> str:
                 r["run_key"],
                 r.get("run_hash", ""),
                 int(is_informed(r)),
+                (r.get("agent_module") or {}).get("file", ""),
+                (r.get("agent_module") or {}).get("sha256", ""),
                 *(_num(_value(r, m)) for m in plain),
                 *(_num(_value(r, m)) for m in timing),
             ]

@@ -331,14 +331,21 @@ def source_root() -> Path:
 def repo_path(path: str | Path | None) -> str | None:
     """``path`` relative to the repository this package runs from, when it is an existing file
     inside it (so that a record names the config as any checkout of the repository can find it);
-    otherwise as given."""
+    an existing file elsewhere (a user's config in their working folder) by its absolute path, so
+    that ``sixaxis reproduce`` finds it where the sweep did from any folder; otherwise as given."""
     if path is None:
         return None
     p = Path(path)
     try:
-        return p.resolve().relative_to(source_root()).as_posix() if p.exists() else str(path)
-    except (ValueError, OSError):
+        if not p.exists():
+            return str(path)
+        resolved = p.resolve()
+    except OSError:
         return str(path)
+    try:
+        return resolved.relative_to(source_root()).as_posix()
+    except ValueError:
+        return str(resolved)
 
 
 def git_state(root: str | Path | None = None) -> dict[str, Any]:

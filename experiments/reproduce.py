@@ -14,6 +14,12 @@ commit's code, config and shipped policies are what run (checked: the child repo
 imported the package from). A row made from a tree with local changes, or whose commit this
 repository does not have, is refused with a message that says so.
 
+A user's own sweep (its config in their working folder, its agent a class of their package) is
+found where the sweep found it: the config by the absolute path the record names, the agent's
+package by the folder its module was imported from, put on the child's path. The module's file
+must still hold what ran (its sha256, recorded per run): a changed module is named and its rows
+are not rerun, since the commit does not hold its code.
+
 The child runs a small driver that uses only long-standing APIs (``load_config``, ``execute_run``,
 ``run_in_worker``, ``build_record``), so rows of older commits rerun too.
 """
@@ -21,6 +27,7 @@ The child runs a small driver that uses only long-standing APIs (``load_config``
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import logging
 import math
@@ -249,11 +256,14 @@ def export_commit(commit: str, dest: Path, root: Path | None = None) -> Path:
     return tree
 
 
-def _run_child(tree: Path, items: list[dict[str, str]]) -> list[dict[str, Any]]:
+def _run_child(
+    tree: Path, items: list[dict[str, str]], extra_path: Sequence[str] = ()
+) -> list[dict[str, Any]]:
     env = dict(os.environ)
-    env["PYTHONPATH"] = str(tree) + (
-        os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else ""
-    )
+    paths = [str(tree), *dict.fromkeys(extra_path)]
+    if env.get("PYTHONPATH"):
+        paths.append(env["PYTHONPATH"])
+    env["PYTHONPATH"] = os.pathsep.join(paths)
     proc = subprocess.run(
         [sys.executable, "-c", _DRIVER],
         input=json.dumps(items),
@@ -331,12 +341,42 @@ def check_row(row: Mapping[str, str], path: Path, line: int) -> None:
         raise ReproduceError(f"{where}: names no commit")
     if not row.get("config_path"):
         raise ReproduceError(f"{where}: names no config (column config_path is empty)")
-    if Path(row["config_path"]).is_absolute():
+    if Path(row["config_path"]).is_absolute() and not Path(row["config_path"]).is_file():
         raise ReproduceError(
-            f"{where}: the config {row['config_path']} is outside the repository; a commit "
-            "cannot reproduce it"
+            f"{where}: the config {row['config_path']} (outside the repository, where the sweep "
+            "found it) is not there any more"
         )
     row_identity(row, path, line)
+
+
+def agent_module_check(row: Mapping[str, str]) -> str | None:
+    """Why a row of a class-path agent cannot be rerun (its recorded module file, column
+    ``agent_module``, is gone or holds other code than its ``agent_module_sha256``), or None."""
+    file, recorded = row.get("agent_module") or "", row.get("agent_module_sha256") or ""
+    if not file:
+        return None
+    module = row["agent_name"].partition(":")[0]
+    try:
+        now = hashlib.sha256(Path(file).read_bytes()).hexdigest()
+    except OSError as exc:
+        return f"the agent module {module} ({file}) cannot be read: {exc}"
+    if recorded and now != recorded:
+        return (
+            f"the agent module {module} ({file}) changed since the run: sha256 "
+            f"{recorded[:12]}... recorded, {now[:12]}... now; the row's commit does not hold it"
+        )
+    return None
+
+
+def module_import_root(row: Mapping[str, str]) -> str:
+    """The folder a row's agent module was imported from (its file less the module's dotted
+    path: ``/w/mypkg/myagent.py`` of ``mypkg.myagent`` is ``/w``)."""
+    p = Path(row["agent_module"])
+    root = p.parent
+    module = row["agent_name"].partition(":")[0]
+    for _ in range(len(module.split(".")) - (0 if p.stem == "__init__" else 1)):
+        root = root.parent
+    return str(root)
 
 
 def reproduce_rows(
@@ -356,13 +396,25 @@ def reproduce_rows(
     root = root or source_root()
     outcomes: list[Outcome] = []
     groups: dict[str, list[Outcome]] = {}
+    roots: dict[str, list[str]] = {}
     for line, row in rows:
         check_row(row, path, line)
         o = Outcome(row, line, recorded_metrics(row, path, line), rtol=rtol)
         outcomes.append(o)
+        # a user's config and package: the sweep's config folder, and each module's import root
+        # (a config with a user's agent needs it importable for any of its rows)
+        if Path(row["config_path"]).is_absolute():
+            roots.setdefault(row["commit"], []).append(str(Path(row["config_path"]).parent))
+        if row.get("agent_module"):
+            roots.setdefault(row["commit"], []).append(module_import_root(row))
         if row.get("status") != "ok":
             o.where = "not rerun"
             o.error = f"the row is a {row.get('status') or 'unknown'} run: nothing to compare"
+            continue
+        why = agent_module_check(row)
+        if why is not None:
+            o.where = "not rerun"
+            o.error = why
             continue
         groups.setdefault(row["commit"], []).append(o)
     here = git_state(root)
@@ -373,7 +425,7 @@ def reproduce_rows(
         if not isolated and here.get("commit") == commit and here.get("dirty") is False:
             where = f"this checkout (at {commit[:10]})"
             log.info("rerunning %d row(s) in this checkout, at %s", len(items), commit[:10])
-            results = _run_child(root, items)
+            results = _run_child(root, items, roots.get(commit, []))
         else:
             where = f"commit {commit[:10]} (exported)"
             with tempfile.TemporaryDirectory(prefix="sixaxis-reproduce-") as tmp:
@@ -386,7 +438,7 @@ def reproduce_rows(
                         f"{path}: commit {commit[:10]} has no config {', '.join(sorted(set(missing)))}"
                     )
                 log.info("rerunning %d row(s) at commit %s in %s", len(items), commit[:10], tree)
-                results = _run_child(tree, items)
+                results = _run_child(tree, items, roots.get(commit, []))
         for o, res in zip(group, results, strict=True):
             o.where = where
             if res.get("status") != "ok":

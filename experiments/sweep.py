@@ -108,7 +108,7 @@ def execute_run(spec: RunSpec) -> dict[str, Any]:
 
     Returns the outcome part of a record: ``metrics``, ``timing_metrics``, ``report``, ``series``
     (time, true error, judged per step), ``calibration``, ``episode``."""
-    from agents.registry import make_agent
+    from agents.registry import agent_module_source, make_agent
     from agents.runner import Phase, run_episode
     from experiments.metrics import (
         calibration_error_mm,
@@ -117,6 +117,7 @@ def execute_run(spec: RunSpec) -> dict[str, Any]:
         reports_model,
     )
 
+    module = agent_module_source(spec.agent)  # a user's class: its file and hash, before it runs
     deadline = time.monotonic() + spec.time_limit_s
     if spec.isolate:
         from agents.isolation import IsolatedAgent
@@ -175,6 +176,7 @@ def execute_run(spec: RunSpec) -> dict[str, Any]:
     return {
         "oracle": bool(result.oracle),  # read before the episode started
         "isolated": bool(spec.isolate),
+        "agent_module": module,
         "metrics": metrics,
         "timing_metrics": timing_metrics | {"report": timed},
         "report": {k: v for k, v in report.items() if k not in timed},
@@ -433,6 +435,8 @@ def build_record(
             "status": result.get("status", "failed"),
             "oracle": bool(outcome.pop("oracle", False)),
             "isolated": bool(outcome.pop("isolated", spec.isolate)),
+            # a class-path agent's module: {module, file, root, sha256} (None: registered agent)
+            "agent_module": outcome.pop("agent_module", None),
             "error": result.get("error"),
             "metrics": outcome.pop("metrics", {}),
             "report": outcome.pop("report", {}),

@@ -18,9 +18,41 @@ def test_evaluate_prints_json_rows():
     assert res.exit_code == 0, res.output
     rows = json.loads(res.output)
     assert rows[0]["scenario"] == "geometric" and rows[0]["rms_mm"] > 1.0
-    # hold never converges: no number, and said so
-    assert rows[0]["converge_s"] is None and rows[0]["never_converged"] == 1.0
     assert rows[0]["rms_settled_mm"] > 1.0
+
+
+def test_evaluate_speaks_the_leaderboards_language(tmp_path):
+    """The leaderboard's metric names (settled, start-up, whole), the same numbers as the
+    metrics module gives for the same episode, a table whose headers fit 80 columns whole, the
+    episode's length from --episode-seconds and the rows written with -o."""
+    from agents.registry import make_agent
+    from agents.runner import run_episode
+    from experiments.leaderboard import HEADLINE
+    from experiments.metrics import episode_metrics
+
+    out = tmp_path / "rows.json"
+    args = ["evaluate", "nominal", "--seeds", "2", "--episode-seconds", "2.5", "--settle", "1"]
+    res = runner.invoke(app, [*args, "-o", str(out)], env={"COLUMNS": "80"})
+    assert res.exit_code == 0, res.output
+    lines = res.output.splitlines()
+    assert max(len(line) for line in lines) <= 80
+    header = next(line for line in lines if "settled" in line and "scenario" in line)
+    for word in ("settled", "start-up", "whole", "max settled", "ms/step"):
+        assert word in header, header  # not truncated to "start-…"
+    assert "…" not in res.output
+    rows = json.loads(out.read_text())
+    assert [r["seed"] for r in rows] == [0, 1]
+    assert set(HEADLINE) <= set(rows[0]) and "converge_s" not in rows[0]
+    r = run_episode(make_agent("nominal"), {"scenario": "geometric"}, seed=1, episode_seconds=2.5)
+    m, _ = episode_metrics(r, HEADLINE, settle_seconds=1.0)
+    assert len(r.time) == 125
+    for k in HEADLINE:
+        assert rows[1][k] == m[k]
+        assert f"{m[k]:.4f}" in res.output
+    csv_out = tmp_path / "rows.csv"
+    res = runner.invoke(app, [*args, "--seeds", "1", "-o", str(csv_out)])
+    assert res.exit_code == 0, res.output
+    assert csv_out.read_text().splitlines()[0].startswith("scenario,seed,rms_settled_mm,")
 
 
 def test_evaluate_refuses_unknown_agents_and_settings():
@@ -79,7 +111,9 @@ def test_evaluate_refuses_bad_options_in_one_line_before_any_episode():
         (["--seeds", "0"], "--seeds"),
         (["--settings", "[1]"], "--settings: expected a JSON object"),
         (["--settings", '{"x"'], "--settings: not JSON"),
-        (["--converge-mm", "0"], "--converge-mm: must be > 0"),
+        (["--episode-seconds", "0"], "--episode-seconds: expected at least one control step"),
+        (["--episode-seconds", "3", "--settle", "3"], "--settle: 3 s leaves nothing of the 3 s"),
+        (["-o", "rows.txt"], "--output rows.txt: write the rows as .json or .csv"),
     ]
     for args, message in cases:
         res = runner.invoke(app, ["evaluate", "hold", *args])

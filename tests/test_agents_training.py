@@ -94,12 +94,17 @@ def test_the_critic_burn_in_keeps_the_actor_still(tmp_path):
 @pytest.mark.slow
 def test_a_run_resumes_from_its_checkpoint(tmp_path):
     cfg = _tiny(tmp_path, name="r")
-    train(cfg)
     cfg.total_timesteps = 512
+    first = json.loads((train(cfg, stop_at=256) / "summary.json").read_text())
+    assert first["timesteps"] == 256 and first["resumed_at"] == 0
     out = train(cfg, resume=True)
     steps = [int(r["steps"]) for r in _rows(out / "curve.csv")]
     assert steps == [0, 128, 256, 384, 512]
-    assert json.loads((out / "summary.json").read_text())["resumed_at"] == 256
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["resumed_at"] == 256 and summary["timesteps"] == 512
+    # the run's wall time is both sessions'
+    assert summary["wall_s"] == pytest.approx(first["wall_s"] + summary["wall_s_this_session"])
+    assert json.loads((out / "config.json").read_text())["total_timesteps"] == 512
 
 
 def test_each_shipped_policy_names_the_config_that_made_it():
@@ -128,3 +133,56 @@ def test_each_shipped_policy_names_the_config_that_made_it():
         )
         assert meta["timesteps"] <= cfg.total_timesteps + rollout, name
         assert cfg.total_timesteps <= recorded["total_timesteps"], name
+
+
+@pytest.mark.slow
+def test_a_tool_policy_trains_with_fixed_scales_and_early_termination(tmp_path):
+    """The plain policy's recipe: the tool interface, the interface's fixed feature scales (the
+    file's normalisation is exactly them, never updated) and episodes ended once lost."""
+    from envs.wrappers import ToolDisplacement
+
+    cfg = _tiny(
+        tmp_path,
+        variant="tool",
+        reward="log",
+        obs_normalization="fixed",
+        terminate_mm=5.0,
+        action_change_penalty=1.0,
+    )
+    out = train(cfg)
+    network, meta = load_policy_file(out / "final.npz")
+    assert meta["variant"] == "tool" and meta["act_size"] == 3 and meta["tool_step_mm"] == 5.0
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+
+    task = gym.make("SixAxisTrack-v0").unwrapped.task
+    scale = ToolDisplacement(task, 5.0).feature_scale
+    np.testing.assert_array_equal(network.mean, np.zeros_like(scale))
+    np.testing.assert_array_equal(network.var, scale**2)
+
+
+def test_early_termination_ends_a_lost_episode_and_pays_while_tracking():
+    import math
+
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+    from agents.training import PolicyEnv
+
+    env = PolicyEnv(gym.make("SixAxisTrack-v0", scenario="nominal"), "tool", terminate_mm=2.0)
+    env.reset(seed=3)
+    bonus = math.log1p(2.0 / 0.05)
+    rewards, ended = [], False
+    for _ in range(200):  # standing still: the path runs away
+        _, r, terminated, _, info = env.step(np.zeros(3))
+        rewards.append(r)
+        if terminated:
+            ended = True
+            assert info["true_error_mm"] > 2.0
+            break
+    assert ended
+    assert all(0 < r <= bonus for r in rewards[:-1])
+    assert rewards[-1] < 0  # beyond the threshold the step itself costs
+    with pytest.raises(ValueError, match="log reward"):
+        PolicyEnv(gym.make("SixAxisTrack-v0"), "tool", reward="env", terminate_mm=2.0)
