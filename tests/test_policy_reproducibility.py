@@ -17,7 +17,8 @@ reproduce --rtol 1e-6`` (README), kept without a second machine, two ways.
    some 1e4 times rarer. A chaotic loop moves most episodes: the median over a policy's episodes
    must stay at the floor (``MEDIAN_RTOL``) and no episode beyond ``MAX_RTOL``. The old plain
    ``ppo`` (bang-bang against the rate limit) moves by up to 0.55, its median by 1e-2, and fails
-   by name (``tests/data/chaotic-ppo``: the policy shipped before this test).
+   by name (``tests/data/chaotic-ppo``: the policy shipped before the plain PPO was retrained on
+   the operational-space interface, which passes).
 
    The issue that asked for this test named rtol 1e-6 at a 1e-12 perturbation; nothing passes that
    on this plant, the non-learned controllers included, so the test separates a chaotic loop from
@@ -47,10 +48,9 @@ PERTURBATION = 1e-12
 #: an isolated flip of a discrete feature
 MEDIAN_RTOL = 1e-4
 MAX_RTOL = 1e-2
-#: the known exception until the plain PPO is retrained on the operational-space interface (the
-#: RL issue of this wave): the old `ppo` is bang-bang against the rate limit (measured, float64:
-#: up to 0.55 relative)
-KNOWN_CHAOTIC = {"ppo": (1.0, 1.0)}
+#: no exception: the old bang-bang plain `ppo` (up to 0.55 relative) was retrained on the
+#: operational-space interface; it is kept in tests/data as the check's counterexample
+KNOWN_CHAOTIC: dict[str, tuple[float, float]] = {}
 METRICS = ("rms_settled_mm", "rms_mm", "return")
 ROOT = Path(__file__).resolve().parents[1]
 
