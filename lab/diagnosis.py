@@ -83,6 +83,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import brentq
+from scipy.stats import chi2, ncx2
 
 from arm.description import RobotDescription
 from arm.effects import Cyclic, Effect, cyclic_readings
@@ -206,6 +208,21 @@ class Diagnosis:
     noise_source: str | None = None
     repeatability: Repeatability | None = None
     implied_noise_mm: float | None = None
+    # the smallest effect (its RMS beyond what the model absorbs, over the noise floor) that the
+    # tests of these poses find nine times in ten (:func:`resolution`); None without a noise
+    resolution: float | None = None
+
+    @property
+    def resolution_note(self) -> str | None:
+        """Where the verdict names no effect, what it cannot have seen: ``an effect under 0.8x
+        the floor is not resolved from 60 poses; measure more to resolve smaller ones``."""
+        if self.resolution is None or self.verdict != "none":
+            return None
+        return (
+            f"not resolved: an effect under {self.resolution:.2g}x the noise floor (its RMS "
+            f"beyond the model) is not resolved from {self.fit.n_points} poses at this noise; "
+            "measure more poses to resolve smaller ones"
+        )
 
     @property
     def noise_note(self) -> str | None:
@@ -274,6 +291,7 @@ class Diagnosis:
             "noise_source": self.noise_source,
             "repeatability": None if self.repeatability is None else self.repeatability.to_dict(),
             "implied_noise_mm": self.implied_noise_mm,
+            "resolution": self.resolution,
         }
 
     def summary(self) -> str:
@@ -298,6 +316,8 @@ class Diagnosis:
         lines += self.readings
         if self.noise_note:
             lines.append(self.noise_note)
+        if self.resolution_note:
+            lines.append(self.resolution_note)
         return "\n".join(lines)
 
 
@@ -545,9 +565,28 @@ def diagnose(
         noise_source=floor.source,
         repeatability=floor.repeatability,
         implied_noise_mm=implied,
+        resolution=None if noise_mm is None else resolution(N, alpha_cat / max(n_tested, 1)),
     )
     log.info("%s", d.summary())
     return d
+
+
+RESOLUTION_POWER = 0.9  # the share of campaigns in which an effect at the resolution is found
+RESOLUTION_PARAMETERS = 2  # a typical candidate's columns (one joint's sine and cosine, ...)
+
+
+def resolution(n_poses: int, level: float, power: float = RESOLUTION_POWER) -> float:
+    """The smallest effect, as the RMS of its 3-D displacement beyond what the model absorbs
+    over the noise floor (``sigma sqrt(3)``), that a candidate's test at ``level`` (the
+    catalogue's share of alpha over the candidates tested) finds with probability ``power`` from
+    ``n_poses`` poses: with per-axis noise sigma, an effect of that RMS ``a`` adds a
+    non-centrality ``n a^2 / sigma^2`` to a chi-square of :data:`RESOLUTION_PARAMETERS` degrees of
+    freedom. The diagnosis's ``none`` means *not resolved* below it (measured against the
+    verdicts of thousands of campaigns in ``results/lab_decisions.md``)."""
+    k = RESOLUTION_PARAMETERS
+    crit = float(chi2.isf(level, k))
+    lam = brentq(lambda x: float(ncx2.sf(crit, k, x)) - power, 1e-6, 1e4)
+    return math.sqrt(lam / max(int(n_poses), 1) / 3.0)
 
 
 def _implied_noise(res, data, Q0, sel: ForwardSelection, inlier, Jq, alpha) -> float | None:

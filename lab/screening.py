@@ -499,7 +499,8 @@ def _confirm_apart(data: MeasurementSet, model: _Model, st: _Round, flags: Flags
 def _physics_explains(data: MeasurementSet, model: _Model, first: FitResult) -> bool:
     """Whether the poses a refusal would call gross errors are a catalogued effect's instead:
     for each candidate effect (:func:`lab.candidates.candidate_model`, the diagnosis's
-    candidates, on all their joints) in turn, the model with it fitted to every pose, and the
+    candidates, on all their joints) in turn, then for all of them at once (two effects: each
+    alone leaves the other's spread), the model with it fitted to every pose, and the
     least-trimmed-squares start of the rule (:func:`_trimmed_fit`) applied under that model:
     where it leaves no more than the stated fraction beyond the rule, the candidate brings the
     poses within it. A load-dependent
@@ -528,15 +529,16 @@ def _physics_explains(data: MeasurementSet, model: _Model, first: FitResult) -> 
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            for effect in full.effects:
-                if effect.name in have:
-                    continue
-                probe = replace(model, effects=[*first.model.effects, effect], start=None, fixed=())
+            new = [e for e in full.effects if e.name not in have]
+            # each candidate alone, then all of them (two effects at once: each alone leaves
+            # the other's spread)
+            for added in [[e] for e in new] + ([new] if len(new) > 1 else []):
+                probe = replace(model, effects=[*first.model.effects, *added], start=None, fixed=())
                 if _brings_within(data, probe, n):
                     log.info(
                         "%s: the poses apart from the rest fit %s: not gross errors",
                         data.source,
-                        effect.label,
+                        ", ".join(e.label for e in added),
                     )
                     return True
     finally:

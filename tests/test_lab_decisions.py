@@ -117,3 +117,63 @@ def test_gross_errors_stay_refused_whatever_the_catalogue():
     bad, idx = with_gross_outliers(d, np.random.default_rng(3), 0.3, size_m=(2e-3, 8e-3))
     with pytest.raises(ContaminatedError, match=f"{len(idx)} of 120 poses"):
         screen(bad, seed_robot(), "geometric", noise_mm=NOISE_MM)
+
+
+# -- where the lab cannot be right: the resolution it states ----------------------------------------
+def test_the_stated_resolution_is_the_power_of_the_test():
+    """The resolution is the effect size that a chi-square test of two columns at the stated
+    level finds nine times in ten: checked by simulating the test (Gaussian noise, an effect of
+    that RMS spread over the poses' rows), and it shrinks as one over the root of the poses."""
+    from scipy.stats import chi2
+
+    from lab.diagnosis import resolution
+
+    rng = np.random.default_rng(0)
+    level, n = 1e-3, 200
+    x = resolution(n, level)
+    # per-axis sigma 1; the effect's RMS a = x * sqrt(3) per pose, so its squared norm over the
+    # n poses is n a^2, split over two orthonormal columns
+    shift = np.sqrt(n * 3 * x**2 / 2)
+    z = rng.normal(size=(20_000, 2)) + shift
+    found = np.mean(np.sum(z**2, axis=1) > chi2.isf(level, 2))
+    assert found == pytest.approx(0.9, abs=0.01)
+    assert resolution(4 * n, level) == pytest.approx(x / 2, rel=1e-6)
+
+
+def test_a_clean_verdict_says_what_it_could_not_resolve(tmp_path):
+    """`none` on 60 poses is not `absent`: the diagnosis says how small an effect it could not
+    have seen, and an effect well above that line is named."""
+    from arm.measurements import write_measurements
+    from tests._cli import lab as sixaxis_lab
+
+    robot = seed_robot()
+    d = campaign(robot, "geometric", seed=11).measure(60)
+    dg = diagnose(d, robot, "geometric", noise_mm=NOISE_MM)
+    assert dg.verdict == "none"
+    assert dg.resolution is not None and 0.2 < dg.resolution < 1.0
+    assert "is not resolved from 60 poses" in dg.resolution_note
+    path = tmp_path / "d.csv"
+    write_measurements(d, path)
+    out = sixaxis_lab("diagnose", path, "--noise-mm", NOISE_MM)
+    assert out.exit_code == 0 and "not resolved: an effect under" in out.output
+    assert dg.to_dict()["resolution"] == dg.resolution
+
+
+# -- the benchmark's seeded slice ------------------------------------------------------------------
+@pytest.mark.slow
+def test_a_seeded_slice_of_the_decisions_benchmark(tmp_path):
+    """100 campaigns of benchmarks/lab_decisions.py (seeds 0-99, drawn as the full run draws
+    them, a few on the MuJoCo plant): no false refusal, the verdicts and the printed paths right
+    where the effects are resolvable, no false discovery."""
+    from benchmarks import lab_decisions as bench
+
+    records = bench.run(list(range(100)), tmp_path / "records.jsonl", workers=2)
+    s = bench.summarise(records)
+    assert s["campaigns"] == 100 and s["plant_campaigns"] >= 1
+    assert s["false_refusals"]["count"] == 0, bench.failures(records)
+    assert s["verdict_correct"]["of"] >= 20
+    assert s["verdict_correct"]["rate"] >= 0.9, bench.failures(records)
+    assert s["next_step_floor"]["rate"] >= 0.9, bench.failures(records)
+    assert s["false_discoveries"]["count"] <= 2, bench.failures(records)
+    again = bench.run(list(range(100)), tmp_path / "records.jsonl", workers=2)  # resumed: cached
+    assert again == records
