@@ -177,3 +177,27 @@ def test_a_seeded_slice_of_the_decisions_benchmark(tmp_path):
     assert s["false_discoveries"]["count"] <= 2, bench.failures(records)
     again = bench.run(list(range(100)), tmp_path / "records.jsonl", workers=2)  # resumed: cached
     assert again == records
+
+
+def test_the_docs_table_is_the_committed_results():
+    """README.md's and docs/lab.md's "how often the lab is right" table is written from
+    results/lab_decisions.json by the benchmark (--docs), and the two hold exactly that."""
+    import json
+    from pathlib import Path
+
+    from benchmarks import lab_decisions as bench
+
+    results = Path(bench.OUT).with_suffix(".json")
+    if not results.exists():
+        pytest.skip("no results/lab_decisions.json committed yet")
+    data = json.loads(results.read_text())
+    for path in (bench.README, bench.LAB_DOC):
+        text = path.read_text()
+        i, j = text.index(bench.DOCS_BEGIN), text.index(bench.DOCS_END)
+        block = bench.docs_block(data)
+        if path.parent != bench.ROOT:
+            block = block.replace("(results/", "(../results/")
+        assert text[i : j + len(bench.DOCS_END)] + "\n" == block
+    assert data["campaigns"] >= 2000 and not data["commit"].endswith("-dirty")
+    for key in ("false_refusals", "verdict_correct", "next_step_floor", "false_discoveries"):
+        assert set(data[key]) >= {"count", "of"}
