@@ -110,6 +110,26 @@ def test_load_backlash_under_a_changing_payload_is_diagnosed_not_refused(seed):
     assert res.validation_rms_mm <= 1.2 * FLOOR_MM
 
 
+def test_the_printed_path_of_the_refused_campaign_ends_at_none(tmp_path):
+    """The issue's path, as printed: `lab diagnose data.csv --noise-mm 0.015` names the effect
+    and the command to fit next; its model diagnosed again says `none`."""
+    import re
+
+    from arm.measurements import write_measurements
+    from tests._cli import lab as sixaxis_lab
+
+    data, _ = backlash_campaign(4, (2, 3), odd_tau=-0.05)
+    path = tmp_path / "data.csv"
+    write_measurements(data, path)
+    first = sixaxis_lab("diagnose", path, "--noise-mm", NOISE_MM)
+    assert first.exit_code == 0, first.output
+    assert "verdict: load_backlash" in first.output and "gross outliers" not in first.output
+    effects = re.search(r"next: sixaxis lab fit \S+ --effects '([^']+)'", first.output)
+    assert effects, first.output
+    again = sixaxis_lab("diagnose", path, "--noise-mm", NOISE_MM, "--effects", effects[1])
+    assert again.exit_code == 0 and "verdict: none" in again.output, again.output
+
+
 def test_gross_errors_stay_refused_whatever_the_catalogue():
     """The refusal that guards real contamination holds: 30 % of 120 poses moved 2-8 mm are
     not explained by any candidate effect, so the data are still refused."""
