@@ -9,7 +9,7 @@ own recorded seed (``SEED0 + i``) over every dimension a user's campaign varies 
 
 * the effects: none (a clean campaign), one catalogued effect, or a pair of them, each on one or
   two of the joints it can act on (cyclic errors of one order from 2 to 40 per turn);
-* each effect's size, 1x to 50x the noise floor (log-uniform; 15 % of them 0.1x to 1x, to find
+* each effect's size, 1x to 50x the noise floor (log-uniform; 15 % of them 0.03x to 1x, to find
   where the lab stops resolving): the RMS of what it moves beyond what the geometric model
   absorbs (its displacement with the geometric Jacobian's span projected out), over the floor
   ``sigma sqrt(3)``; a size beyond twice the high end of the effect's typical magnitude (no
@@ -107,8 +107,8 @@ MAX_PLANTED = 0.10
 FLOOR_FACTOR = 1.2
 MAX_STEPS = 4
 CAP = 2.0  # x the high end of an effect's typical magnitude: the largest size planted
-BELOW_SHARE = 0.15  # of the effects drawn at 0.1-1x the floor, to find the resolution line
-SIZE_BINS = (0.1, 0.3, 0.5, 1.0, 2.0, 5.0, 10.0, 50.01)
+BELOW_SHARE = 0.15  # of the effects drawn at 0.03-1x the floor, to find the resolution line
+SIZE_BINS = (0.0, 0.1, 0.3, 0.5, 1.0, 2.0, 5.0, 10.0, math.inf)
 POSE_BINS = (30, 60, 100, 300, 1000, 2001)
 TARGETS = {
     "false_refusals": ("<=", 0.0),
@@ -153,7 +153,7 @@ def draw(seed: int) -> dict[str, Any]:
                 "joints": [int(j) for j in joints],
                 "order": int(rng.integers(2, 41)) if name == "cyclic" else None,
                 "size": float(
-                    math.exp(rng.uniform(math.log(0.1), 0.0))
+                    math.exp(rng.uniform(math.log(0.03), 0.0))
                     if rng.random() < BELOW_SHARE
                     else math.exp(rng.uniform(0.0, math.log(50.0)))
                 ),
@@ -478,6 +478,14 @@ def describe(r: dict[str, Any]) -> str:
     return f"{where}: {eff}; {r['n']} poses, {r['noise_um']:.0f} um{extra}"
 
 
+def size_label(i: int) -> str:
+    """The size bin ``i`` for people: ``< 0.3x``, ``0.3-0.5x``, ..., ``>= 10x``."""
+    lo, hi = SIZE_BINS[i], SIZE_BINS[i + 1]
+    if lo == 0:
+        return f"< {hi:g}x"
+    return f">= {lo:g}x" if math.isinf(hi) else f"{lo:g}-{hi:g}x"
+
+
 def _bin(x: float, edges: tuple[float, ...]) -> int | None:
     for i in range(len(edges) - 1):
         if edges[i] <= x < edges[i + 1]:
@@ -497,13 +505,23 @@ def confusion(records: list[dict[str, Any]]) -> tuple[list[str], dict[str, Count
         elif len(r["planted"]) == 1:
             p = r["planted"][0]
             b = _bin(p["size"], SIZE_BINS)
-            size = "?" if b is None else f"{SIZE_BINS[b]:g}-{SIZE_BINS[b + 1]:.0f}x"
-            key = f"{p['effect']} {size}"
+            key = f"{p['effect']} {'?' if b is None else size_label(b)}"
         else:
             key = "pairs"
         rows[key][first_verdict(r)] += 1
     cols = sorted({v for c in rows.values() for v in c}, key=lambda v: (v != "none", v))
     return cols, rows
+
+
+def _row_order(key: str) -> tuple[int, str, int]:
+    """Clean first, then each effect by size, pairs last."""
+    if key == "clean":
+        return (0, "", 0)
+    if key == "pairs":
+        return (2, "", 0)
+    name, _, size = key.partition(" ")
+    labels = [size_label(i) for i in range(len(SIZE_BINS) - 1)]
+    return (1, name, labels.index(size) if size in labels else len(labels))
 
 
 def resolution_table(records: list[dict[str, Any]]) -> list[list[str]]:
@@ -519,7 +537,7 @@ def resolution_table(records: list[dict[str, Any]]) -> list[list[str]]:
             cells[(s, m)].append(verdict_right(r))
     table = []
     for s in range(len(SIZE_BINS) - 1):
-        row = [f"{SIZE_BINS[s]:g}-{SIZE_BINS[s + 1]:.0f}x"]
+        row = [size_label(s)]
         for m in range(len(POSE_BINS) - 1):
             v = cells.get((s, m), [])
             row.append(f"{100 * np.mean(v):.0f} % ({len(v)})" if v else "")
@@ -630,7 +648,7 @@ def report(
         "",
         _md_table(
             ["planted", *cols],
-            [[k] + [str(conf[k].get(c, "")) for c in cols] for k in sorted(conf)],
+            [[k] + [str(conf[k].get(c, "")) for c in cols] for k in sorted(conf, key=_row_order)],
         ),
         "",
         "## Where the lab cannot be right: the resolution line",
@@ -692,7 +710,7 @@ def docs_block(data: dict[str, Any]) -> str:
         "results/lab_decisions.json; tests/test_lab_decisions.py keeps them equal -->\n"
         f"{data['readme_table']}\n\n"
         f"Measured on {data['campaigns']} campaigns drawn from recorded seeds (effects and pairs "
-        "of them at 0.1-50x the noise floor, 30-2,000 poses, 5-50 um, payloads, temperatures, "
+        "of them at 0.03-50x the noise floor, 30-2,000 poses, 5-50 um, payloads, temperatures, "
         f"stations, 6-DoF rows, gross outliers; {data['plant_campaigns']} on the MuJoCo plant), "
         f"from clean commit {data['commit']}: "
         "[results/lab_decisions.md](results/lab_decisions.md) lists every failing campaign "
