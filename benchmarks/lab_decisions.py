@@ -33,7 +33,8 @@ Right answers. A campaign is *resolvable* when every planted effect is at least 
 it has at least 100 poses and at most 10 % of them are planted gross outliers; there the right
 verdict names a planted effect (``none`` on a clean campaign) and the printed path must end at
 <= 1.2x the floor held out. A refusal is false when no gross outlier was planted. A discovery is
-false when the last model already holds every planted effect (or none was planted). Below the
+false when the last model already holds every planted effect on its joints (a cyclic error
+with each of its orders; or none was planted). Below the
 resolvable line the right answer may be "not resolved": the table of right verdicts by size and
 poses shows where that line lies.
 
@@ -356,7 +357,6 @@ def _run_campaign(seed: int) -> dict[str, Any]:
             except FitError as exc:
                 rec["discovery_error"] = str(exc)
         rec["final_effects"] = list(last.effects)
-        rec["holds_planted"] = held <= have
     rec["final"] = final
     rec["seconds"] = time.perf_counter() - t0
     rec["cpu_seconds"] = time.process_time() - c0
@@ -390,9 +390,55 @@ def reaches_floor(r: dict[str, Any]) -> bool:
     return r["held_out"] is not None and not r["refusal"] and r["held_out"] <= FLOOR_FACTOR
 
 
+def _cyclic_terms(label: str) -> set[tuple[int, int]]:
+    """The (joint, order) pairs of a cyclic label: ``cyclic[2:7,31;4:2]``."""
+    inside = label[label.index("[") + 1 : -1] if "[" in label else ""
+    out = set()
+    for part in filter(None, inside.split(";")):
+        j, _, orders = part.partition(":")
+        out |= {(int(j), int(o)) for o in orders.split(",") if o}
+    return out
+
+
+def holds_planted(r: dict[str, Any]) -> bool:
+    """Whether the path's last model holds every planted effect on its joints (a cyclic error:
+    each of its joints' orders)."""
+    final = r.get("final_effects")
+    if final is None:
+        return False
+    cyclic = set().union(*(_cyclic_terms(e) for e in final if e.startswith("cyclic")))
+    joints: dict[str, set[int] | None] = {}  # None: all joints
+    for e in final:
+        name, js = _joints(e)
+        before = joints.get(name, set())
+        joints[name] = None if js is None or before is None else before | js
+    for p in r["planted"]:
+        if p["effect"] == "cyclic":
+            if not _cyclic_terms(p["label"]) <= cyclic:
+                return False
+            continue
+        name, js = _joints(p["label"])
+        if name not in joints:
+            return False
+        have = joints[name]
+        if have is not None and (js is None or not js <= have):
+            return False
+    return True
+
+
+def _joints(label: str) -> tuple[str, set[int] | None]:
+    """An effect label's name and joints (None: every joint): ``compliance[2,3]``."""
+    name, _, rest = label.partition("[")
+    if not rest:
+        return name, None
+    return name, {int(j) for j in rest.rstrip("]").split(",") if j.strip().isdigit()}
+
+
 def false_discovery(r: dict[str, Any]) -> bool | None:
-    """True/False where discovery ran from a model that holds every planted effect; else None."""
-    if r.get("discoveries") is None or not r.get("holds_planted"):
+    """True/False where discovery ran from a model that holds every planted effect; else None
+    (a term found where the model lacks a planted effect, or a cyclic error's order, is the
+    missing structure, not a false discovery)."""
+    if r.get("discoveries") is None or not holds_planted(r):
         return None
     return bool(r["discoveries"])
 

@@ -484,10 +484,15 @@ def _confirm_apart(data: MeasurementSet, model: _Model, st: _Round, flags: Flags
     """The state with the poses :func:`_apart` names left out and the others refitted, where
     they are still apart then (settled): gross errors; else None."""
     top = _apart(st)
-    if top is None or top.all():
+    # gross errors are the minority the trimmed fit leaves out: a "group apart" of more than
+    # half the poses is the spread of an effect (a fit of the few left would fail or mean nothing)
+    if top is None or top.sum() > LTS_SHARE * len(top):
         return None
     keep = ~top
-    res = model.fit(data.subset(keep))
+    try:
+        res = model.fit(data.subset(keep))
+    except FitError:
+        return None
     _, s, radius, r = flags(res, data, keep)
     again = _Round(res, keep, top, s, radius, r, st.rounds + 1)
     d = np.linalg.norm(r, axis=1)
