@@ -283,24 +283,21 @@ def plant_outliers(data: MeasurementSet, spec: dict[str, Any]) -> tuple[Measurem
 
 def run_campaign(seed: int) -> dict[str, Any]:
     """One campaign, followed as its printed output says (module docstring); an exception of
-    the lab's that no rule foresaw is recorded as the campaign's error."""
+    the lab's that no rule foresaw is recorded as the campaign's error, with what was known."""
+    rec: dict[str, Any] = {**draw(seed), "n_outliers": 0, "refusal": None, "path": []}
     try:
-        return _run_campaign(seed)
+        return _run_campaign(seed, rec)
     except Exception as exc:
-        spec = draw(seed)
-        return {
-            **spec,
-            "n_outliers": 0,
-            "refusal": None,
-            "error": f"{type(exc).__name__}: {exc}",
-            "path": [],
-            "held_out": None,
-            "discoveries": None,
-            "seconds": 0.0,
-        }
+        rec.update(
+            error=f"{type(exc).__name__}: {exc}",
+            held_out=None,
+            discoveries=None,
+            seconds=0.0,
+        )
+        return rec
 
 
-def _run_campaign(seed: int) -> dict[str, Any]:
+def _run_campaign(seed: int, rec: dict[str, Any]) -> dict[str, Any]:
     import logging
 
     from lab import ContaminatedError, diagnose, discover
@@ -311,15 +308,16 @@ def _run_campaign(seed: int) -> dict[str, Any]:
     t0, c0 = time.perf_counter(), time.process_time()
     spec = draw(seed)
     data, planted = plant_campaign(spec) if spec["source"] == "plant" else model_campaign(spec)
+    rec["planted"] = planted
     data, k = plant_outliers(data, spec)
-    rec: dict[str, Any] = {**spec, "planted": planted, "n_outliers": k}
+    rec["n_outliers"] = k
     noise_mm = spec["noise_um"] * 1e-3
     opts: dict[str, Any] = {"noise_mm": noise_mm}
     if spec.get("orientation"):
         opts["noise_mrad"] = 0.1
     floor_mm = noise_mm * math.sqrt(3)
-    effects, path = "geometric", []
-    rec["refusal"] = None
+    effects = "geometric"
+    path = rec["path"]
     last = None
     try:
         for _ in range(MAX_STEPS):
@@ -342,7 +340,6 @@ def _run_campaign(seed: int) -> dict[str, Any]:
         rec["refusal"] = str(exc)
     except FitError as exc:
         rec["error"] = str(exc)
-    rec["path"] = path
     rec["held_out"] = path[-1]["held_out"] if path else None
     rec["discoveries"] = None
     held = {pl["effect"] for pl in planted}

@@ -663,7 +663,15 @@ def _forward(  # noqa: C901  (effect-level forward selection, the module docstri
         if term is not None and (best is None or term.cv < best[0][0] * (1.0 - TIE)):
             t = scanner.accept(term)
             proj = term.basis.T @ sel.e
-            sel.add(term.cv, (term.basis, proj, float(proj @ proj), sel.H + hat_blocks(term.basis)))
+            sel.add(
+                term.cv,
+                (
+                    term.basis,
+                    proj,
+                    float(proj @ proj),
+                    sel.H + hat_blocks(term.basis, sel.H.shape[1]),
+                ),
+            )
             F, pv = f_test(rss_before - sel.rss, dof_before - sel.dof, sel.rss, sel.dof)
             j, k = t.joint, int(t.order or 0)
             chosen.append(

@@ -235,3 +235,17 @@ def test_the_docs_table_is_the_committed_results():
     assert data["campaigns"] >= 2000 and not data["commit"].endswith("-dirty")
     for key in ("false_refusals", "verdict_correct", "next_step_floor", "false_discoveries"):
         assert set(data[key]) >= {"count", "of"}
+
+
+def test_a_cyclic_error_is_diagnosed_from_six_dof_rows():
+    """Campaign 474 of benchmarks/lab_decisions.py (the MuJoCo plant's cyclic errors measured
+    with a 6-DoF probe) crashed the diagnosis: the scan's accepted term added hat-matrix blocks of
+    3 rows per pose to the selection's 6. From the error model: a cyclic error of order 17 on
+    joint 2, positions and orientations from two stations; the diagnosis names it."""
+    from tests._beyond_points import pose_campaign
+
+    c = pose_campaign(seed_robot(), seed=5, effects="geometric,cyclic[2:17]")
+    c.params[c.truth.layout.indices(["cs2_17", "cc2_17"])] = [3e-4, -2e-4]
+    data, _ = c.measure(150)
+    d = diagnose(data, seed_robot(), "geometric")
+    assert d.verdict == "cyclic" and d.cyclic_orders == {2: [17]}, d.summary()
