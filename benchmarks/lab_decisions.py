@@ -388,12 +388,14 @@ def reaches_floor(r: dict[str, Any]) -> bool:
 
 
 def _cyclic_terms(label: str) -> set[tuple[int, int]]:
-    """The (joint, order) pairs of a cyclic label: ``cyclic[2:7,31;4:2]``."""
+    """The (joint, order) pairs of a cyclic label: ``cyclic[2:7,31;4:2-4]``."""
     inside = label[label.index("[") + 1 : -1] if "[" in label else ""
     out = set()
     for part in filter(None, inside.split(";")):
         j, _, orders = part.partition(":")
-        out |= {(int(j), int(o)) for o in orders.split(",") if o}
+        for o in filter(None, orders.split(",")):
+            lo, _, hi = o.partition("-")  # a run of orders: 9-11
+            out |= {(int(j), k) for k in range(int(lo), int(hi or lo) + 1)}
     return out
 
 
@@ -624,7 +626,11 @@ def _pct(f: dict[str, Any]) -> str:
 
 
 def report(
-    records: list[dict[str, Any]], summary: dict[str, Any], commit: str, minutes: float
+    records: list[dict[str, Any]],
+    summary: dict[str, Any],
+    commit: str,
+    minutes: float,
+    records_commit: str | None = None,
 ) -> str:
     fails = failures(records)
     cols, conf = confusion(records)
@@ -632,7 +638,13 @@ def report(
     lines = [
         "# How often the lab is right",
         "",
-        f"Measured by `benchmarks/lab_decisions.py` from clean commit {commit}: "
+        f"Measured by `benchmarks/lab_decisions.py` from clean commit {records_commit or commit}"
+        + (
+            f" (the report written from its records by commit {commit})"
+            if records_commit and records_commit != commit
+            else ""
+        )
+        + ": "
         f"{summary['campaigns']} campaigns drawn from seeds {SEED0} + 0..{COUNT - 1} "
         f"({summary['plant_campaigns']} collected on the MuJoCo plant, the rest from the error "
         f"model), {minutes:.1f} min of CPU time on 2 cores (2 worker processes). The script's docstring says how the "
@@ -755,7 +767,7 @@ def docs_block(data: dict[str, Any]) -> str:
         f"Measured on {data['campaigns']} campaigns drawn from recorded seeds (effects and pairs "
         "of them at 0.03-50x the noise floor, 30-2,000 poses, 5-50 um, payloads, temperatures, "
         f"stations, 6-DoF rows, gross outliers; {data['plant_campaigns']} on the MuJoCo plant), "
-        f"from clean commit {data['commit']}: "
+        f"from clean commit {data.get('records_commit', data['commit'])}: "
         "[results/lab_decisions.md](results/lab_decisions.md) lists every failing campaign "
         "with its seed.\n"
         f"{DOCS_END}\n"
@@ -838,7 +850,6 @@ def main() -> None:
         for s in args.seeds:
             print(json.dumps(run_campaign(s), indent=1))
         return
-    t0 = time.perf_counter()
     seeds = list(range(args.first, args.first + args.count))
     commit = _commit()
     path = args.records or RUNS / f"lab_decisions-{commit}" / "records.jsonl"
@@ -848,20 +859,25 @@ def main() -> None:
     minutes = sum(r.get("cpu_seconds", r["seconds"]) for r in records) / 60 / 2
     summary = summarise(records)
     fails = failures(records)
+    made_by = path.parent.name.removeprefix("lab_decisions-")
     payload = {
         "schema_version": 1,
         "commit": commit,
+        # the commit whose lab made the records (they are resumed by commit): the same as
+        # ``commit`` unless the report was written again from them by a later one
+        "records_commit": made_by,
         "seed0": SEED0,
         "seeds": [args.first, args.first + args.count],
         **summary,
         "cpu_minutes_on_2_cores": minutes,
-        "wall_minutes": (time.perf_counter() - t0) / 60,
         "failing": fails,
         "readme_table": readme_table(summary),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.out.with_suffix(".json"), json.dumps(payload, indent=1) + "\n")
-    atomic_write_text(args.out.with_suffix(".md"), report(records, summary, commit, minutes))
+    atomic_write_text(
+        args.out.with_suffix(".md"), report(records, summary, commit, minutes, made_by)
+    )
     if args.out == OUT and not commit.endswith("-dirty"):
         update_docs(payload)
     print(

@@ -193,6 +193,24 @@ def test_a_clean_verdict_says_what_it_could_not_resolve(tmp_path):
     assert dg.to_dict()["resolution"] == dg.resolution
 
 
+def test_a_discovery_counts_as_false_only_where_the_model_holds_what_was_planted():
+    """The benchmark's rule: a term found where the last model lacks a planted effect's joint,
+    or a cyclic error's order, is the missing structure, not a false discovery."""
+    from benchmarks.lab_decisions import false_discovery
+
+    def rec(final, planted, found=("sin(9*q1) (joint 1)",)):
+        return {"final_effects": final, "planted": planted, "discoveries": list(found)}
+
+    lb = {"effect": "load_backlash", "label": "load_backlash[2,3]"}
+    cyc = {"effect": "cyclic", "label": "cyclic[1:9-11]"}
+    assert false_discovery(rec(["geometric", "load_backlash[2]"], [lb])) is None
+    assert false_discovery(rec(["geometric", "load_backlash[2,3]"], [lb])) is True
+    assert false_discovery(rec(["geometric", "load_backlash"], [lb], found=())) is False
+    assert false_discovery(rec(["geometric", "cyclic[1:9,10]"], [cyc])) is None
+    assert false_discovery(rec(["geometric", "cyclic[1:9-11;2:3]"], [cyc])) is True
+    assert false_discovery(rec(["geometric"], [])) is True
+
+
 # -- the benchmark's seeded slice ------------------------------------------------------------------
 @pytest.mark.slow
 def test_a_seeded_slice_of_the_decisions_benchmark(tmp_path):
