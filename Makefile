@@ -9,7 +9,7 @@ export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 
-.PHONY: demo test test-quick lint bench leaderboard real-data clean
+.PHONY: demo test test-quick lint bench leaderboard real-data lab-decisions clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -47,6 +47,12 @@ bench: $(STAMP)
 real-data: $(STAMP)
 	$(BIN)/python benchmarks/real_data.py
 	$(BIN)/python benchmarks/ur10_physics.py
+
+# How often the lab's decisions are right over 2,100 seeded campaigns (about 20 min of CPU on two
+# cores; resumable): results/lab_decisions.md and .json, and the table of README.md and docs/lab.md.
+lab-decisions: $(STAMP)
+	@git diff --quiet HEAD -- . || { echo "make lab-decisions: commit your changes first (the results must name a clean commit)"; exit 2; }
+	$(BIN)/python benchmarks/lab_decisions.py
 
 # The published leaderboard, from this checkout's commit (which must have no local changes): the
 # full sweep into runs/full-<commit> (resumable: the same command continues it), then the tables,

@@ -380,6 +380,8 @@ def print_diagnosis(d: Any, data: Path, context: dict[str, Any] | None = None) -
         else:
             line += f"; next: {then}"
     console.print(line, highlight=False, soft_wrap=True)
+    if d.resolution_note:
+        say(d.resolution_note)
     if d.cyclic_orders:
         say(
             "cyclic errors, orders per turn: "

@@ -83,6 +83,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import brentq
+from scipy.stats import chi2, ncx2
 
 from arm.description import RobotDescription
 from arm.effects import Cyclic, Effect, cyclic_readings
@@ -212,6 +214,21 @@ class Diagnosis:
     # cross-validation (lab.transfer): {"column", "models": [{"without", "blocked_rms_mm"}],
     # "dropped": effects that did not help on a block they were not fitted on}
     blocked_cv: dict | None = None
+    # the smallest effect (its RMS beyond what the model absorbs, over the noise floor) that the
+    # tests of these poses find nine times in ten (:func:`resolution`); None without a noise
+    resolution: float | None = None
+
+    @property
+    def resolution_note(self) -> str | None:
+        """Where the verdict names no effect, what it cannot have seen: ``an effect under 0.8x
+        the floor is not resolved from 60 poses; measure more to resolve smaller ones``."""
+        if self.resolution is None or self.verdict != "none":
+            return None
+        return (
+            f"not resolved: an effect under {self.resolution:.2g}x the noise floor (its RMS "
+            f"beyond the model) is not resolved from {self.fit.n_points} poses at this noise; "
+            "measure more poses to resolve smaller ones"
+        )
 
     @property
     def noise_note(self) -> str | None:
@@ -281,6 +298,7 @@ class Diagnosis:
             "repeatability": None if self.repeatability is None else self.repeatability.to_dict(),
             "implied_noise_mm": self.implied_noise_mm,
             "blocked_cv": self.blocked_cv,
+            "resolution": self.resolution,
         }
 
     def summary(self) -> str:
@@ -307,6 +325,8 @@ class Diagnosis:
             lines.append(blocked_text(self.blocked_cv))
         if self.noise_note:
             lines.append(self.noise_note)
+        if self.resolution_note:
+            lines.append(self.resolution_note)
         return "\n".join(lines)
 
 
@@ -564,6 +584,7 @@ def diagnose(
         repeatability=floor.repeatability,
         implied_noise_mm=implied,
         blocked_cv=blocked,
+        resolution=None if noise_mm is None else resolution(N, alpha_cat / max(n_tested, 1)),
     )
     log.info("%s", d.summary())
     return d
@@ -586,6 +607,24 @@ def _confirm_across_blocks(
         "models": table,
         "dropped": dropped,
     }
+
+
+RESOLUTION_POWER = 0.9  # the share of campaigns in which an effect at the resolution is found
+RESOLUTION_PARAMETERS = 2  # a typical candidate's columns (one joint's sine and cosine, ...)
+
+
+def resolution(n_poses: int, level: float, power: float = RESOLUTION_POWER) -> float:
+    """The smallest effect, as the RMS of its 3-D displacement beyond what the model absorbs
+    over the noise floor (``sigma sqrt(3)``), that a candidate's test at ``level`` (the
+    catalogue's share of alpha over the candidates tested) finds with probability ``power`` from
+    ``n_poses`` poses: with per-axis noise sigma, an effect of that RMS ``a`` adds a
+    non-centrality ``n a^2 / sigma^2`` to a chi-square of :data:`RESOLUTION_PARAMETERS` degrees of
+    freedom. The diagnosis's ``none`` means *not resolved* below it (measured against the
+    verdicts of thousands of campaigns in ``results/lab_decisions.md``)."""
+    k = RESOLUTION_PARAMETERS
+    crit = float(chi2.isf(level, k))
+    lam = brentq(lambda x: float(ncx2.sf(crit, k, x)) - power, 1e-6, 1e4)
+    return math.sqrt(lam / max(int(n_poses), 1) / 3.0)
 
 
 def _implied_noise(res, data, Q0, sel: ForwardSelection, inlier, Jq, alpha) -> float | None:
@@ -662,7 +701,15 @@ def _forward(  # noqa: C901  (effect-level forward selection, the module docstri
         if term is not None and (best is None or term.cv < best[0][0] * (1.0 - TIE)):
             t = scanner.accept(term)
             proj = term.basis.T @ sel.e
-            sel.add(term.cv, (term.basis, proj, float(proj @ proj), sel.H + hat_blocks(term.basis)))
+            sel.add(
+                term.cv,
+                (
+                    term.basis,
+                    proj,
+                    float(proj @ proj),
+                    sel.H + hat_blocks(term.basis, sel.H.shape[1]),
+                ),
+            )
             F, pv = f_test(rss_before - sel.rss, dof_before - sel.dof, sel.rss, sel.dof)
             j, k = t.joint, int(t.order or 0)
             chosen.append(

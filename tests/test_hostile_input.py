@@ -948,13 +948,14 @@ def test_a_small_campaign_with_a_missing_effect_is_not_called_gross_outliers(see
     misses. A fit of some 21 of them with 25 parameters explains those so well that the others
     looked apart, and these seeds (55 of 120 such campaigns) were refused as "28 % gross
     outliers, not a calibration"; so was a leave-one-out fold of the real Rokae set. They fit,
-    with every pose, and the note says the model does not fit them all."""
+    with every pose."""
     from lab import screen
 
     d = campaign(seed_robot(), "geometric,compliance", seed=seed, hidden_level="high").measure(29)
     s = screen(d, seed_robot(), "geometric", noise_mm=0.015)
     assert s.fit.n_points == 29
-    assert len(s.fit.outliers) == 0 and "does not fit these data" in s.fit.outlier_note
+    # every pose fitted (no catalogued candidate can be ruled out from 29 poses, issue 29)
+    assert len(s.fit.outliers) == 0
 
 
 def test_a_calibration_the_lab_calls_contaminated_is_fitted_robustly_by_the_calibrated_agent():
