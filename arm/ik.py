@@ -304,6 +304,19 @@ def solve_point(
     return IKResult(*(x[0] for x in res)) if single else res
 
 
+def _model_problem(
+    columns: Mapping[str, np.ndarray] | None, p: np.ndarray, target_xyz: np.ndarray, q0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """The arrays of an inverse-kinematics problem on a calibrated model: the targets (N, 3),
+    the starts (N, 6), each column broadcast to (N,), and the parameters."""
+    target_xyz = np.asarray(target_xyz, dtype=float).reshape(-1, 3)
+    n = target_xyz.shape[0]
+    cols = {
+        k: np.broadcast_to(np.asarray(v, dtype=float), (n,)) for k, v in (columns or {}).items()
+    }
+    return target_xyz, _batch(q0, n, (6,), "q0"), cols, np.asarray(p, dtype=float)
+
+
 def solve_position(
     model: ErrorModel,
     columns: Mapping[str, np.ndarray] | None,
@@ -323,13 +336,7 @@ def solve_position(
     effective joint angles, which leaves out the small dependence of joint-angle effects (gravity
     torques, transmission) on q: the iteration still converges, a little more slowly.
     """
-    target_xyz = np.asarray(target_xyz, dtype=float).reshape(-1, 3)
-    n = target_xyz.shape[0]
-    q0 = _batch(q0, n, (6,), "q0")
-    cols = {
-        k: np.broadcast_to(np.asarray(v, dtype=float), (n,)) for k, v in (columns or {}).items()
-    }
-    p = np.asarray(p, dtype=float)
+    target_xyz, q0, cols, p = _model_problem(columns, p, target_xyz, q0)
 
     def residual(q, idx):
         inputs = model.inputs(q, {k: v[idx] for k, v in cols.items()})
@@ -357,14 +364,8 @@ def solve_model_pose(
     solution is the one of ``q0``'s branch that the damped steps reach (the nearest, for a start
     as close as a calibration's errors make it). The error is ``|(dp, drot)|`` in m and rad; as
     for :func:`solve_position`, the step uses the derivatives by the effective joint angles."""
-    target_xyz = np.asarray(target_xyz, dtype=float).reshape(-1, 3)
-    n = target_xyz.shape[0]
-    target_R = np.asarray(target_R, dtype=float).reshape(n, 3, 3)
-    q0 = _batch(q0, n, (6,), "q0")
-    cols = {
-        k: np.broadcast_to(np.asarray(v, dtype=float), (n,)) for k, v in (columns or {}).items()
-    }
-    p = np.asarray(p, dtype=float)
+    target_xyz, q0, cols, p = _model_problem(columns, p, target_xyz, q0)
+    target_R = np.asarray(target_R, dtype=float).reshape(len(target_xyz), 3, 3)
 
     def residual(q, idx):
         inputs = model.inputs(q, {k: v[idx] for k, v in cols.items()})
