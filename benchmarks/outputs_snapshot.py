@@ -6,15 +6,18 @@ leaderboard and the reproduction of committed rows.
 
 Each command's stdout (and the files it writes) land in ``OUT``; paths (the output folder, the
 checkout) and times (``in 1.2 s``, ISO timestamps, durations in the JSON records) are replaced by
-placeholders so that two checkouts compare byte for byte. ``OUT/manifest.txt`` lists every file's
-sha256. Issue 31 ("no number changes") is shown by comparing a snapshot made before a refactor with
-one made after it.
+placeholders, and so are the current commit and the columns and keys that hold times, so that two
+checkouts compare byte for byte. ``OUT/files/`` holds every file the commands wrote (normalised;
+plots as written) and ``OUT/manifest.txt`` their sha256. Issue 31 ("no number changes") is shown
+by comparing a snapshot made before a refactor with one made after it, each from a clean checkout
+(the leaderboard refuses records of a tree with local changes).
 """
 
 from __future__ import annotations
 
 import argparse
 import hashlib
+import json
 import os
 import re
 import shutil
@@ -93,7 +96,7 @@ COMMANDS: list[tuple[str, str]] = [
 SWEEP = textwrap.dedent(
     """\
     name = "snapshot"
-    seeds = 2
+    seeds = [0, 1]
     scenarios = ["geometric", "compliance"]
     agents = ["nominal", "feedforward", "calibrated"]
     """
@@ -107,14 +110,71 @@ TIMES = [
     (re.compile(r"\b\d{4}-\d{2}-\d{2}\b"), "<DATE>"),
     (re.compile(r"\[\d{2}/\d{2}/\d{2} "), "[<DATE> "),
     (re.compile(r"\b(in|took) \d+(\.\d+)? ?(s|ms|min)\b"), r"\1 <T>"),
+    (re.compile(r"\(\d+(\.\d+)? ?(s|ms|min)\)"), "(<T>)"),
     (re.compile(r'"(wall_s|seconds|time_s|elapsed_s|duration_s)": [0-9.e+-]+'), r'"\1": <T>'),
     (re.compile(r"\b\d+(\.\d+)? ?s/(it|step)\b"), "<RATE>"),
     (re.compile(r"\b\d+:\d{2}:\d{2}\b"), "<CLOCK>"),
 ]
 
 
-def normalise(text: str, out: Path) -> str:
+# what a run's records, tables and JSON say about time, process and machine rather than results
+VOLATILE = ("solve_time", "wall_time", "wall_s", "timing", "started", "finished", "pid", "host")
+
+
+def _volatile(name: str) -> bool:
+    name = name.lower().replace(" ", "_")
+    return any(v in name for v in VOLATILE)
+
+
+def _head() -> str:
+    proc = subprocess.run(
+        ["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=False
+    )
+    return proc.stdout.strip()
+
+
+def _strip_json(obj: object) -> object:
+    if isinstance(obj, dict):
+        return {k: ("<T>" if _volatile(k) else _strip_json(v)) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_strip_json(v) for v in obj]
+    return obj
+
+
+def _strip_table(text: str, sep: str) -> str:
+    """Blank the columns of ``sep``-separated tables whose header names a time."""
+    out, blank = [], set[int]()
+    for line in text.split("\n"):
+        cells = line.split(sep)
+        if len(cells) < 3:
+            blank = set()
+            out.append(line)
+            continue
+        if not blank and not all(set(c.strip()) <= set("-:| ") for c in cells):
+            found = {i for i, c in enumerate(cells) if _volatile(c)}
+            if found:
+                blank = found
+                out.append(line)
+                continue
+        out.append(sep.join("<T>" if i in blank else c for i, c in enumerate(cells)))
+    return "\n".join(out)
+
+
+def normalise(text: str, out: Path, suffix: str = ".txt") -> str:
     text = text.replace(str(out), "<OUT>").replace(str(ROOT), "<REPO>")
+    head = _head()
+    if head:
+        text = text.replace(head, "<HEAD>").replace(head[:10], "<HEAD>").replace(head[:7], "<HEAD>")
+    if suffix == ".json":
+        try:
+            text = json.dumps(_strip_json(json.loads(text)), indent=1, sort_keys=True)
+        except ValueError:
+            pass
+    elif suffix == ".csv":
+        text = _strip_table(text, ",")
+    else:
+        text = _strip_table(text, "|")
+        text = _strip_table(text, "│")
     for pattern, repl in TIMES:
         text = pattern.sub(repl, text)
     return text
@@ -141,16 +201,26 @@ def run(out: Path, only: list[str] | None) -> None:
         print(f"{name}: exit {proc.returncode}", flush=True)
     files = sorted(p for p in work.rglob("*") if p.is_file())
     lines = []
+    shutil.rmtree(out / "files", ignore_errors=True)
     for p in files:
         data = p.read_bytes()
         if p.suffix in {".csv", ".json", ".md", ".toml", ".urdf", ".py", ".html", ".txt"}:
-            data = normalise(data.decode(), work).encode()
-        lines.append(f"{hashlib.sha256(data).hexdigest()}  {p.relative_to(work)}")
+            data = normalise(data.decode(), work, p.suffix).encode()
+        rel = p.relative_to(work)
+        (out / "files" / rel).parent.mkdir(parents=True, exist_ok=True)
+        (out / "files" / rel).write_bytes(data)
+        lines.append(f"{hashlib.sha256(data).hexdigest()}  {rel}")
     (out / "manifest.txt").write_text("\n".join(lines) + "\n")
 
 
 def compare(a: Path, b: Path) -> int:
-    names = sorted({p.name for p in a.glob("*.txt")} | {p.name for p in b.glob("*.txt")})
+    """Name every output (a command's text, or a file it wrote) that differs."""
+
+    def listing(root: Path) -> set[str]:
+        files = (p.relative_to(root) for p in root.rglob("*") if p.is_file())
+        return {str(p) for p in files if p.parts[0] != "work"}
+
+    names = sorted(listing(a) | listing(b))
     differ = 0
     for name in names:
         pa, pb = a / name, b / name
@@ -161,7 +231,7 @@ def compare(a: Path, b: Path) -> int:
             print(f"differs: {name}")
             differ += 1
     if not differ:
-        print(f"identical: {len(names)} outputs and the manifest of every file written")
+        print(f"identical: {len(names)} outputs (command texts and every file written)")
     return 1 if differ else 0
 
 
