@@ -61,7 +61,10 @@ COMMANDS: list[tuple[str, str]] = [
         "export",
         "sixaxis lab export data.csv --effects geometric,compliance[2,3] -o calibrated.toml",
     ),
-    ("export-urdf", "sixaxis lab export {data}/ur5/calibration.csv --robot ur5 -o ur5.urdf"),
+    (
+        "export-urdf",
+        "sixaxis lab export {data}/ur5/calibration.csv --robot ur5_robot.urdf -o ur5.urdf",
+    ),
     (
         "compensate",
         "sixaxis lab compensate validation.csv --robot calibrated.toml -o joints.csv",
@@ -84,7 +87,7 @@ COMMANDS: list[tuple[str, str]] = [
     ("leaderboard", "sixaxis leaderboard runs --out lb"),
     (
         "reproduce-local",
-        "sixaxis reproduce lb/leaderboard_runs.csv --run feedforward__geometric__ep0 --rtol 0",
+        "sixaxis reproduce lb/leaderboard_runs.csv --run feedforward__geometric__seed0 --rtol 0",
     ),
     (
         "reproduce-committed",
@@ -199,7 +202,8 @@ def run(out: Path, only: list[str] | None) -> None:
         record += proc.stderr
         (out / f"{name}.txt").write_text(normalise(record, work))
         print(f"{name}: exit {proc.returncode}", flush=True)
-    files = sorted(p for p in work.rglob("*") if p.is_file())
+    # the sweep's lock holds the pid of the process that held it
+    files = sorted(p for p in work.rglob("*") if p.is_file() and p.suffix != ".lock")
     lines = []
     shutil.rmtree(out / "files", ignore_errors=True)
     for p in files:
