@@ -2,7 +2,8 @@
 over, validation outside them is warned naming the variable and how far, and a term whose form
 does not repeat over what the fit covered is not extrapolated: the rows outside are predicted by
 the model without it (``extrapolate=True`` keeps it), while a harmonic whose whole period was
-covered holds anywhere."""
+covered holds anywhere, and one whose phase was seen a turn away holds there. A tool offset the
+fit could not identify is placed with an unseen station's base, not taken as the fit left it."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 
 from arm.description import load_robot
 from arm.effects import Compliance, Cyclic, JointAngleEffect, JointScale, Transmission
@@ -19,7 +22,7 @@ from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from lab import fit
 from lab.domain import Domain, OutOfDomainWarning, term_dependence, unseen_phase
-from lab.registration import register_points
+from lab.registration import register_points, register_stations
 from lab.result import inputs_of
 
 SIGMA = 15e-6
@@ -329,3 +332,43 @@ def test_a_harmonic_holds_a_whole_turn_from_where_it_was_fitted():
     turns = np.arange(-3, 4)[:, None] * 2 * math.pi
     seen = ((v - turns >= lo - tol) & (v - turns <= hi + tol)).any(axis=0)
     np.testing.assert_array_equal(unseen_phase(v, lo, hi, 2 * math.pi), ~seen)
+
+
+def test_stations_placed_with_a_shared_offset_are_the_least_squares_solution():
+    """register_stations against a general least-squares solve of every station's rotation
+    vector and shift and the shared parameters: the same residual, the same offsets."""
+    rng = np.random.default_rng(4)
+    n, k = 90, 2
+    pred = rng.uniform(-1.0, 1.0, (n, 3))
+    columns = rng.standard_normal((n, 3, k))
+    delta = np.array([0.03, -0.02])
+    groups = [np.arange(n) < 40, np.arange(n) >= 40]
+    turns = [Rotation.from_rotvec([0.3, -0.1, 0.2]), Rotation.from_rotvec([-0.2, 0.4, 0.1])]
+    xyz = np.empty((n, 3))
+    for g, R, t in zip(groups, turns, ([1.0, 2.0, 0.5], [-2.0, 0.3, 1.0]), strict=True):
+        xyz[g] = R.apply(pred[g] + columns[g] @ delta) + t
+    xyz += 1e-3 * rng.standard_normal(xyz.shape)
+    placed, found = register_stations(pred, xyz, groups, columns)
+
+    def residual(x):
+        pts = pred + columns @ x[12:]
+        out = []
+        for s, g in enumerate(groups):
+            R = Rotation.from_rotvec(x[6 * s : 6 * s + 3])
+            out.append(R.apply(pts[g]) + x[6 * s + 3 : 6 * s + 6] - xyz[g])
+        return np.concatenate(out).ravel()
+
+    ref = least_squares(residual, np.zeros(12 + k), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    np.testing.assert_allclose(found, ref.x[12:], atol=1e-7)
+    pts = pred + columns @ found
+    mine = np.concatenate(
+        [pts[g] @ R.T + t - xyz[g] for g, (R, t) in zip(groups, placed, strict=True)]
+    )
+    assert np.sum(mine**2) == pytest.approx(np.sum(ref.fun**2), rel=1e-9)
+    # without shared parameters: each station rigidly alone
+    alone, none = register_stations(pred, xyz, groups)
+    assert none.size == 0
+    for g, (R, t) in zip(groups, alone, strict=True):
+        R0, t0 = register_points(pred[g], xyz[g])
+        np.testing.assert_allclose(R, R0)
+        np.testing.assert_allclose(t, t0)
