@@ -598,6 +598,7 @@ def _held_out(res, data: MeasurementSet) -> dict:
         "max_mm": float(e.max()),
         "outside_domain": [x.variable for x in v.validation_excursions],
         "terms_left_out": list(v.validation_dropped),
+        "tool_placed_mm": {k: 1e3 * x for k, x in v.validation_tool_placed.items()},
     }
 
 
@@ -765,7 +766,11 @@ def _ur10_markdown(ds: dict) -> list[str]:
         f"- Robot: {ds['robot']}; noise stated {ds['noise']['noise_mm']} mm + "
         f"{ds['noise']['noise_ppm']} um/m per axis; stds {ds['stds']}.",
         "- Validation as `--validate` does it: outside the fitted domain (lab.domain) a term "
-        "whose form does not repeat over what was fitted is left out of those rows.",
+        "whose form does not repeat over what was fitted is left out of those rows (a periodic "
+        "term holds a whole number of periods from a fitted reading); at the unseen station a "
+        "tool offset the fit could not identify (D's `tz`: its ISO cubes never turn the flange) "
+        "is placed with the base, as a user must place it before the calibration is of use "
+        "there.",
         "",
         "**Cross-session: leave one series out** (held-out 3-D RMS, mm, on the whole left-out "
         "series)",
@@ -854,6 +859,19 @@ def _ur10_markdown(ds: dict) -> list[str]:
     if dropped:
         lines.append(
             "- Terms left out of rows outside the fitted domain: " + "; ".join(dropped) + "."
+        )
+    placed = sorted(
+        {
+            f"{pair}: " + ", ".join(f"{n} {x:+.1f} mm" for n, x in v["tool_placed_mm"].items())
+            for row in [*ds["transfer"], ds["transfer_nominal"]]
+            for pair, v in row["pairs"].items()
+            if v.get("tool_placed_mm")
+        }
+    )
+    if placed:
+        lines.append(
+            "- Tool offsets the fit did not identify, placed with the unseen station's base "
+            "(their change from the fit's value): " + "; ".join(placed) + "."
         )
     for row in ds["cross_session"]:
         for k, v in row["folds"].items():

@@ -23,6 +23,11 @@ the tracker's noise is stated (15 um + 6 um/m) and the stds of B and D are floor
   scale it takes (ppm) and the RMS it gains. A laser tracker's scale error is a few ppm.
 * **The geometry itself**: the geometric fit of A alone and of B alone; the DH parameters that
   differ most between them, in standard errors of the difference.
+* **What the left-out session changed**: the model that transfers (``geometric,compliance[2,3]``)
+  fitted on two series, then refitted on the whole third with every parameter held but its base
+  and one group (the joints' zeros, the links' lengths and offsets, the axes' tilts, the tool,
+  every geometric row): the RMS on that series that each group, moved, accounts for, beside the
+  series' own fit of the same model (what a calibration of that session reaches).
 """
 
 from __future__ import annotations
@@ -67,6 +72,16 @@ MODELS = (
 )
 #: the physical parameters reported with their standard errors
 REPORTED = ("kappa", "c2", "c3", "c4", "c5")
+#: the model whose parameters a session may have moved (the one that transfers)
+MOVED_MODEL = "geometric,compliance[2,3]"
+#: the groups of its parameters refitted on the left-out series, by name
+MOVED_GROUPS = {
+    "the joints' zeros (dtheta)": ("dtheta",),
+    "the links' lengths and offsets (da, dd)": ("da", "dd"),
+    "the axes' tilts (dalpha, beta2)": ("dalpha", "beta"),
+    "the tool (tx, ty, tz)": ("tx", "ty", "tz"),
+    "every geometric row and the tool": ("dalpha", "da", "dd", "dtheta", "beta", "tx", "ty", "tz"),
+}
 #: DH parameters of A alone against B alone shown (the largest differences)
 SHOWN_DIFFERENCES = 4
 log = logging.getLogger("ur10_physics")
@@ -181,6 +196,58 @@ def geometry_between(fitting) -> list[dict]:
     return rows[:SHOWN_DIFFERENCES]
 
 
+def _group(name: str, prefixes: tuple[str, ...]) -> bool:
+    """Whether parameter ``name`` is of the group: by prefix, a length ``da`` not an angle
+    ``dalpha``."""
+    for pre in prefixes:
+        if name.startswith(pre) and not (pre == "da" and name.startswith("dalpha")):
+            return True
+    return False
+
+
+def what_moved(series, fitting) -> list[dict]:
+    """Each fold's :data:`MOVED_MODEL` refitted on the whole left-out series, every parameter
+    held at the two series' fit but the base (registered anew: the station is unseen) and one
+    group of :data:`MOVED_GROUPS`; and the series' own fit of that model."""
+    out = []
+    for left in UR10_SERIES:
+        train = concatenate([fitting[k] for k in UR10_SERIES if k != left])
+        res = _fit(train, MOVED_MODEL)
+        values = {
+            str(n): float(v)
+            for n, v in zip(res.model.layout.names, res.params, strict=True)
+            if not (str(n).startswith("b") and not str(n).startswith("beta"))
+        }
+        row: dict = {"left_out": left, "groups": {}}
+        for label, prefixes in {"the base alone": (), **MOVED_GROUPS}.items():
+            free = [n for n in values if _group(n, prefixes)]
+            r = fit(
+                series[left],
+                ROBOT,
+                MOVED_MODEL,
+                start=values,
+                fixed=[n for n in values if n not in free],
+                outliers="keep",
+                accept_large=True,
+                noise_mm=UR10_NOISE["noise_mm"],
+                noise_ppm=UR10_NOISE["noise_ppm"],
+            )
+            row["groups"][label] = {"rms_mm": float(r.rms_mm), "free": len(free)}
+        own = fit(
+            series[left],
+            ROBOT,
+            MOVED_MODEL,
+            outliers="keep",
+            accept_large=True,
+            noise_mm=UR10_NOISE["noise_mm"],
+            noise_ppm=UR10_NOISE["noise_ppm"],
+        )
+        row["own_fit_rms_mm"] = float(own.rms_mm)
+        log.info("%s left out, what moved: %s", left, row)
+        out.append(row)
+    return out
+
+
 def _value(p: str, v: float) -> str:
     if p.startswith(("da", "dd")) and not p.startswith("dalpha"):
         return f"{1e3 * v:.3f} mm"
@@ -253,6 +320,30 @@ def markdown(report: dict) -> str:
     for r in report["geometry_a_b"]:
         p = r["parameter"]
         lines.append(f"| {p} | {_value(p, r['A'])} | {_value(p, r['B'])} | {r['z']:+.1f} |")
+    moved = report.get("what_moved")
+    if moved:
+        lines += [
+            "",
+            f"**What the left-out session changed** (`{MOVED_MODEL}` fitted on the other two, "
+            "refitted on the whole left-out series with every parameter held but its base and "
+            "the group named; RMS on that series)",
+            "",
+            "| refitted on the left-out series | "
+            + " | ".join(f"{m['left_out']} left out" for m in moved)
+            + " |",
+            "|---|" + "---|" * len(moved),
+        ]
+        for label in moved[0]["groups"]:
+            lines.append(
+                f"| {label} | "
+                + " | ".join(f"{m['groups'][label]['rms_mm']:.4f}" for m in moved)
+                + " |"
+            )
+        lines.append(
+            "| the series' own fit (every parameter) | "
+            + " | ".join(f"{m['own_fit_rms_mm']:.4f}" for m in moved)
+            + " |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -281,6 +372,7 @@ def main(argv: list[str] | None = None) -> int:
         "all_three": all_three(fitting),
         "leave_one_out": leave_one_out(series, fitting),
         "geometry_a_b": geometry_between(fitting),
+        "what_moved": what_moved(series, fitting),
     }
     report["wall_s"] = time.perf_counter() - t0
     args.out.mkdir(parents=True, exist_ok=True)

@@ -18,8 +18,9 @@ parameter's term is a function of some of those variables (found from the effect
 joint-angle effect's basis is evaluated with each variable moved, :func:`term_dependence`):
 
 * a term periodic in a joint angle (a harmonic ``sin(k q_j)``, the catalogue's ``transmission``
-  and ``cyclic``) holds wherever the fit covered a whole period of it: any reading of the joint
-  is then a phase the fit has seen;
+  and ``cyclic``) holds at every reading whose phase the fit has seen: everywhere where the fit
+  covered a whole period of it, and a whole number of periods from a fitted reading otherwise
+  (a joint that turned once more, :func:`unseen_phase`);
 * any other dependence (a line in temperature fitted over 0.4 degC, a polynomial in a joint
   angle or a gravity torque, a gear-ratio error ``g q`` fitted over part of the joint's range,
   a term in time or payload) holds only over the fitted range;
@@ -56,8 +57,10 @@ __all__ = [
     "Excursion",
     "OutOfDomainWarning",
     "Terms",
+    "ToolPlacedWarning",
     "out_of_domain",
     "term_dependence",
+    "unseen_phase",
 ]
 
 log = logging.getLogger(__name__)
@@ -74,6 +77,11 @@ PROBE_POSES = 16
 
 class OutOfDomainWarning(LabWarning):
     """Data outside the domain a model was identified on (lab.domain)."""
+
+
+class ToolPlacedWarning(OutOfDomainWarning):
+    """A tool offset the fit could not identify, placed on validation data with a new station's
+    base (lab.domain, :meth:`lab.result.FitResult.validate`)."""
 
 
 def _unit(variable: str) -> str:
@@ -296,6 +304,17 @@ def term_dependence(model: ErrorModel, inputs: ModelInputs) -> Terms:
     return Terms(out)
 
 
+def unseen_phase(v: np.ndarray, lo: float, hi: float, period: float) -> np.ndarray:
+    """Which readings ``v`` of a joint put a term of period ``period`` (rad) at a phase the fit
+    did not see over ``lo..hi`` (widened by :data:`MARGIN`): a reading a whole number of periods
+    from a fitted one is that reading to the term (a joint that turned once more, q1 5.6 rad
+    against a fitted -0.7). None where the fit covered a whole period."""
+    tol = MARGIN * (hi - lo) + 1e-9 * max(1.0, abs(lo), abs(hi))
+    if hi - lo + 2 * tol >= period * (1 - 1e-9):
+        return np.zeros(v.shape, dtype=bool)
+    return np.mod(v - (lo - tol), period) > (hi - lo) + 2 * tol
+
+
 def out_of_domain(
     model: ErrorModel,
     params: np.ndarray,
@@ -316,6 +335,7 @@ def out_of_domain(
     if not candidates:
         return exc, {}
     terms = term_dependence(model, fitted).by_parameter
+    values = _variables(inputs)
     drop: dict[str, np.ndarray] = {}
     for n in candidates:
         rows = np.zeros(inputs.n, dtype=bool)
@@ -323,8 +343,9 @@ def out_of_domain(
             e = by_var.get(var)
             if e is None:
                 continue
-            if period is not None and e.hi - e.lo >= period * (1 - 1e-9):
-                continue  # every phase of the term was seen: it holds on any reading
+            if period is not None:
+                rows |= e.rows & unseen_phase(values[var], e.lo, e.hi, period)
+                continue
             rows |= e.rows
         if rows.any():
             drop[n] = rows
@@ -362,3 +383,24 @@ def warn_out_of_domain(
     text = fallback_text(source, exc, drop, kept)
     log.warning("%s", text)
     warn(text, OutOfDomainWarning)
+
+
+# -- what the fit did not identify ----------------------------------------------------------------
+def tool_placed_text(stations: Sequence[int], shift: Mapping[str, float]) -> str:
+    """The line that says which unidentified tool parameters were placed with new bases."""
+    ids = ", ".join(map(str, stations))
+    moved = ", ".join(f"{k} {1e3 * v:+.3f} mm" for k, v in shift.items())
+    return (
+        f"validation: {', '.join(shift)} not identified by the fit (its poses hardly turned the "
+        f"flange: the base took it); placed with the base of station(s) {ids} on the validation "
+        f"points ({moved} from the fit's value): the prediction does not rest on a tool offset "
+        "the calibration never determined"
+    )
+
+
+def warn_tool_placed(source: str, stations: Sequence[int], shift: Mapping[str, float]) -> None:
+    if not shift:
+        return
+    text = f"{source}: {tool_placed_text(stations, shift)}"
+    log.warning("%s", text)
+    warn(text, ToolPlacedWarning)

@@ -304,8 +304,18 @@ def fit_rows(  # noqa: C901  (the five steps of the module docstring, in the ord
             list(model.effects),  # the instances: a user's module may be unregistered by then
             options,
             dict(zip(lay.names, sol.params, strict=True)),
+            _loose_tool(model, free, held),
         ),
     )
+
+
+def _loose_tool(model: ErrorModel, free: np.ndarray, held: np.ndarray) -> tuple[str, ...]:
+    """The tool-point parameters the fit could not identify (nor was told): a refit without
+    some terms holds them at this fit's values, so that the two predict from the same tool."""
+    if "geometric" not in model.layout.effects:
+        return ()
+    idx = tool_indices(model)
+    return tuple(str(model.layout.names[i]) for i in idx if not free[i] and not held[i])
 
 
 def _refit_without(
@@ -314,16 +324,19 @@ def _refit_without(
     effects: str | Sequence[str | Effect],
     options: LabOptions,
     values: Mapping[str, float],
+    loose: Sequence[str],
     names: Sequence[str],
 ) -> np.ndarray:
     """The parameters of the same fit with ``names`` held at zero: the model without those
     terms, fitted to the same rows (what validation outside a model's domain falls back to,
-    lab.domain). The rows are those given; none is left out again."""
+    lab.domain). The rows are those given; none is left out again. The tool parameters the fit
+    could not identify (``loose``) are held at its values: placed anew they would take whatever
+    the registration gives them, and the two models would predict from different tools."""
     start = dict(values) | {n: 0.0 for n in names}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LabWarning)
         opts = replace(options, outliers="keep", accept_large=True)
-        return fit_rows(data, robot, effects, opts, start=start, fixed=names).params
+        return fit_rows(data, robot, effects, opts, start=start, fixed=[*names, *loose]).params
 
 
 def _check_effects_identifiable(

@@ -31,7 +31,9 @@ __all__ = [
     "nominal_parameters",
     "register_base",
     "register_points",
+    "register_stations",
     "register_tool_rotation",
+    "tool_columns",
     "tool_indices",
 ]
 
@@ -111,6 +113,58 @@ def register_points(pred: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, np.n
     rot, _ = Rotation.align_vectors(xyz - mc, pred - pc)
     R = rot.as_matrix()
     return R, mc - R @ pc
+
+
+def register_stations(
+    pred: np.ndarray,
+    xyz: np.ndarray,
+    groups: list[np.ndarray],
+    columns: np.ndarray | None = None,
+    iterations: int = 100,
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
+    """Each group of rows' rigid transform (R, t) that best maps the points ``pred + columns @
+    delta`` (N, 3) onto ``xyz``, and ``delta`` (k,), shared by the groups: stations the arm has
+    not seen placed together with the parameters ``columns`` (N, 3, k: d point / d parameter)
+    move, e.g. a tool offset a fit could not identify. Alternately Kabsch's rotation of each
+    group (:func:`register_points`) and linear least squares for ``delta`` with each group's
+    translation given the rotations; each step lowers the sum of squares. Without ``columns``
+    each group is registered rigidly alone and ``delta`` is empty."""
+    if columns is None:
+        return [register_points(pred[g], xyz[g]) for g in groups], np.zeros(0)
+    k = columns.shape[2]
+    delta = np.zeros(k)
+    for _ in range(iterations):
+        pts = pred + columns @ delta
+        placed = [register_points(pts[g], xyz[g]) for g in groups]
+        # sum over groups of |R_g (C_i - mean C) delta - (x_i - mean x - R_g (p_i - mean p))|^2
+        A, b = [], []
+        for (R, _), g in zip(placed, groups, strict=True):
+            C, p, x = columns[g], pred[g], xyz[g]
+            A.append(np.einsum("ij,njk->nik", R, C - C.mean(axis=0)).reshape(-1, k))
+            b.append(((x - x.mean(axis=0)) - (p - p.mean(axis=0)) @ R.T).reshape(-1))
+        new, *_ = np.linalg.lstsq(np.vstack(A), np.concatenate(b), rcond=None)
+        step, delta = new - delta, new
+        if np.max(np.abs(step)) < 1e-12:
+            break
+    pts = pred + columns @ delta
+    placed = [register_points(pts[g], xyz[g]) for g in groups]
+    return placed, delta
+
+
+def tool_columns(
+    model: ErrorModel, inputs: ModelInputs, params: np.ndarray, names: list[str]
+) -> np.ndarray:
+    """(N, 3, k): how each predicted point moves with the tool-point parameters ``names`` (per
+    unit, m/m). The tool point enters the chain linearly (the base, the flange's frame, then
+    the offset), so a finite difference of one metre is exact but for rounding."""
+    blocks = Blocks(model, inputs)
+    base = blocks.predict(params)
+    out = np.empty((inputs.n, 3, len(names)))
+    for j, i in enumerate(model.layout.indices(names)):
+        p = np.array(params, dtype=float)
+        p[i] += 1.0
+        out[:, :, j] = blocks.predict(p) - base
+    return out
 
 
 def _register_stations(

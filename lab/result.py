@@ -25,12 +25,19 @@ from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from arm.params import ROW_FAMILIES, parameter_unit, parse_parameter_name
 from lab.blocks import Blocks
-from lab.domain import Domain, Excursion, out_of_domain, warn_out_of_domain
+from lab.domain import (
+    Domain,
+    Excursion,
+    out_of_domain,
+    tool_placed_text,
+    warn_out_of_domain,
+    warn_tool_placed,
+)
 from lab.errors import FitError
 from lab.identifiability import Identifiability
 from lab.observations import Observations
 from lab.plausibility import Implausible
-from lab.registration import register_points
+from lab.registration import register_stations, tool_columns, tool_indices
 from lab.solver import OUTLIER_RADIUS, robust_sigma
 from lab.text import left_out_lines, parameter_cells
 
@@ -136,6 +143,9 @@ class FitResult:
     observations: Observations | None = field(default=None, repr=False)
     validation_rotation: np.ndarray | None = field(default=None, repr=False)
     validation_registered: tuple[int, ...] = ()
+    # tool-point parameters the fit had not identified, placed with those stations' bases on the
+    # validation points: {name: its change from the fit's value (m)}
+    validation_tool_placed: dict[str, float] = field(default_factory=dict)
     # the validation data outside the model's domain (lab.domain), and the parameters whose
     # terms were left out of the rows they do not hold on (none with extrapolate=True)
     validation_excursions: tuple[Excursion, ...] = ()
@@ -413,24 +423,48 @@ class FitResult:
         pred = predict(first)
         pts = np.array(pred, dtype=float)
         turns = np.repeat(np.eye(3)[None], len(data), axis=0)
+        for sid in new:
+            if (n_on := int((which == sid).sum())) < 3:
+                raise FitError(
+                    f"{data.source}: station {sid}, which the fit has not seen, has "
+                    f"{n_on} rows: at least 3 place its base"
+                )
+        groups = [which == sid for sid in new]
+        # a tool offset the fit could not identify is placed with the new bases (lab.domain)
+        loose = self.unidentified_tool()
+        columns = (
+            tool_columns(model, inputs_of(model, first), self.params, loose) if loose else None
+        )
+        placed, delta = register_stations(pred, data.xyz, groups, columns)
+        shift = dict(zip(loose, map(float, delta), strict=True))
+        warn_tool_placed(data.source, new, shift)
+        if columns is not None:
+            pred = pred + columns @ delta
         for sid in ids:
             on = which == sid
-            if sid in new:
-                if on.sum() < 3:
-                    raise FitError(
-                        f"{data.source}: station {sid}, which the fit has not seen, has "
-                        f"{int(on.sum())} rows: at least 3 place its base"
-                    )
-                R, t = register_points(pred[on], data.xyz[on])
-            else:
+            if sid not in new:
                 sub = data.subset(np.flatnonzero(on))
                 pts[on] = predict(sub, on)
-                continue
+        for on, (R, t) in zip(groups, placed, strict=True):
             pts[on] = pred[on] @ R.T + t
             turns[on] = R
-        return self._validated(data, pts, (first, turns), new, outside)
+        return self._validated(data, pts, (first, turns), new, outside, shift)
 
-    def _validated(self, data, pts, moved, new, outside=((), ())) -> FitResult:
+    def unidentified_tool(self) -> list[str]:
+        """The tool-point parameters (``tx ty tz``, per target) this fit could not identify and
+        was not told (``fixed``): the poses never turned the flange enough to separate them
+        from the base (a series of ISO cubes at one flange orientation leaves ``tz``)."""
+        if "geometric" not in self.model.layout.effects:
+            return []
+        names = self.model.layout.names
+        held = set(self.identifiability.held)
+        return [
+            str(names[i])
+            for i in tool_indices(self.model)
+            if not self.identifiable[i] and names[i] not in held
+        ]
+
+    def _validated(self, data, pts, moved, new, outside=((), ()), placed=None) -> FitResult:
         rot = None
         if self.observations is not None and self.observations.rotation is not None:
             if data.has_orientation:
@@ -440,6 +474,7 @@ class FitResult:
             validation_residuals=pts - data.xyz,
             validation_rotation=rot,
             validation_registered=tuple(new),
+            validation_tool_placed=dict(placed or {}),
             validation_excursions=outside[0],
             validation_dropped=outside[1],
         )
@@ -526,6 +561,10 @@ class FitResult:
                     f"validation: station(s) {ids} not in the fit: each one's base registered "
                     "rigidly (6 parameters) on its validation points, the arm as fitted"
                 )
+            if self.validation_tool_placed:
+                out.append(
+                    tool_placed_text(self.validation_registered, self.validation_tool_placed)
+                )
         out.append(self.identifiability.summary())
         out += self.screening_lines()
         return "\n".join(out)
@@ -586,6 +625,9 @@ class FitResult:
             "orientation_rms_mrad": self.orientation_rms_mrad,
             "validation_orientation_rms_mrad": self.validation_orientation_rms_mrad,
             "validation_registered": list(self.validation_registered),
+            "validation_tool_placed_mm": {
+                k: 1e3 * v for k, v in self.validation_tool_placed.items()
+            },
             "domain": self.domain.to_dict(),
             "validation_outside_domain": [e.to_dict() for e in self.validation_excursions],
             "validation_terms_left_out": list(self.validation_dropped),

@@ -60,3 +60,10 @@ def test_the_study_writes_every_table_docs_quote(tmp_path):
         assert f["station"]["similarity_rms_mm"] <= f["station"]["rigid_rms_mm"]
     text = (tmp_path / "ur10_physics.md").read_text()
     assert "**The tracker's station**" in text and "**The geometry itself**" in text
+    # what the left-out session changed: the nested refits never do worse than the base alone,
+    # and every geometric row moved reaches the series' own fit of the model
+    for m in report["what_moved"]:
+        base = m["groups"]["the base alone"]["rms_mm"]
+        rows = m["groups"]["every geometric row and the tool"]["rms_mm"]
+        assert all(g["rms_mm"] <= base + 1e-4 for g in m["groups"].values())
+        assert m["own_fit_rms_mm"] - 1e-3 <= rows <= base

@@ -2,7 +2,8 @@
 over, validation outside them is warned naming the variable and how far, and a term whose form
 does not repeat over what the fit covered is not extrapolated: the rows outside are predicted by
 the model without it (``extrapolate=True`` keeps it), while a harmonic whose whole period was
-covered holds anywhere."""
+covered holds anywhere, and one whose phase was seen a turn away holds there. A tool offset the
+fit could not identify is placed with an unseen station's base, not taken as the fit left it."""
 
 from __future__ import annotations
 
@@ -12,13 +13,16 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 
 from arm.description import load_robot
 from arm.effects import Compliance, Cyclic, JointAngleEffect, JointScale, Transmission
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from lab import fit
-from lab.domain import Domain, OutOfDomainWarning, term_dependence
+from lab.domain import Domain, OutOfDomainWarning, term_dependence, unseen_phase
+from lab.registration import register_points, register_stations
 from lab.result import inputs_of
 
 SIGMA = 15e-6
@@ -219,3 +223,152 @@ def test_the_exported_arm_records_its_domain_and_compensation_is_warned_outside_
         kept = compensate(arm, targets, arm, columns=hot, extrapolate=True)
     assert np.abs(kept.q - comp.q).max() > 1e-6  # kappa x 10 K moves the solution
     assert kept.error_mm.max() < 1e-6
+
+
+def _ur10_points(q: np.ndarray, values: dict, station: int, seed: int) -> MeasurementSet:
+    """The UR10 with ``values`` (its geometric parameters, SI), 15 um of noise per axis, measured
+    from tracker station ``station``."""
+    model = ErrorModel(load_robot("ur10_robot"), ["geometric"])
+    p = model.layout.vector(values, default=model.nominal())
+    xyz = model.predict(inputs_of(model, MeasurementSet(q, np.zeros((len(q), 3)), {})), p)
+    turn = station * 0.7  # each station sees the arm from its own place
+    c, s = math.cos(turn), math.sin(turn)
+    xyz = xyz @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T + [
+        2.0 * station,
+        1.0,
+        -0.5,
+    ]
+    xyz = xyz + SIGMA * np.random.default_rng(seed).standard_normal(xyz.shape)
+    cols = {"station": np.full(len(q), float(station))}
+    return MeasurementSet(q, xyz, cols, source=f"station{station}.csv")
+
+
+def test_a_tool_offset_the_fit_could_not_identify_is_placed_with_a_new_stations_base():
+    """ISO cubes with the tool pointing down (UR10: q2 + q3 + q4 = -pi/2, q5 = -pi/2) never turn
+    the flange's axis: the tool's offset along it moves every point as the base's height does,
+    and the fit cannot tell them apart. Validated from another station on poses that turn the
+    flange, that offset is placed with the new base (and said), not taken at whatever value
+    the registration left it: the validation measures the arm that was identified."""
+    rng = np.random.default_rng(5)
+    truth = {"tx": 0.4e-3, "ty": -0.3e-3, "tz": 0.185}  # the nominal arm, a probe on its flange
+    n = 120
+    q = np.zeros((n, 6))
+    q[:, 0] = rng.uniform(-1.0, 1.0, n)
+    q[:, 1] = rng.uniform(-2.0, -1.2, n)
+    q[:, 2] = rng.uniform(0.6, 1.6, n)
+    q[:, 3] = -math.pi / 2 - q[:, 1] - q[:, 2]
+    q[:, 4] = -math.pi / 2
+    q[:, 5] = rng.uniform(-3.0, 3.0, n)
+    cubes = _ur10_points(q, truth, 4, 1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = fit(cubes, "ur10_robot", "geometric", noise_mm=0.015)
+    assert res.unidentified_tool() == ["tz"]
+    lay = res.model.layout
+    tz_fitted = res.params[lay.index("tz")] + res.params[lay.index("dd6")]
+    assert abs(tz_fitted - truth["tz"]) > 1e-3  # whatever the registration gave it: not the tool
+    # another station, anywhere in the workspace
+    q_wide = rng.uniform(
+        [-2.5, -2.5, -2.0, -2.5, -2.5, -3.0], [2.5, -0.5, 2.0, 2.5, 2.5, 3.0], (80, 6)
+    )
+    grid = _ur10_points(q_wide, truth, 1, 2)
+    with pytest.warns(OutOfDomainWarning, match=r"tz not identified by the fit") as rec:
+        v = res.validate(grid)
+    assert any("station(s) 1" in str(w.message) for w in rec)
+    assert v.validation_registered == (1,)
+    assert set(v.validation_tool_placed) == {"tz"}
+    # the placed offset is the true tool's (the fitted dd6 moves along the same axis)
+    placed = tz_fitted + v.validation_tool_placed["tz"]
+    assert placed == pytest.approx(truth["tz"], abs=0.3e-3)  # the fit had it 0.5 m off
+
+    # and the arm is predicted as well as with the true tool, placed rigidly (the reference);
+    # the fit's own tool, placed rigidly, misses by the half metre the registration left
+    def rigid_rms_mm(tz: float) -> float:
+        p = res.params.copy()
+        p[lay.index("tz")] = tz - res.params[lay.index("dd6")]
+        pred = res.model.predict(inputs_of(res.model, replace(grid, columns={})), p)
+        R, t = register_points(pred, grid.xyz)
+        return 1e3 * float(np.sqrt(np.mean(np.sum((pred @ R.T + t - grid.xyz) ** 2, axis=1))))
+
+    assert v.validation_rms_mm <= 1.001 * rigid_rms_mm(truth["tz"])
+    assert rigid_rms_mm(tz_fitted) > 100 * v.validation_rms_mm
+    assert "tz not identified by the fit" in v.summary()
+    assert v.to_dict()["validation_tool_placed_mm"]["tz"] == pytest.approx(
+        1e3 * v.validation_tool_placed["tz"]
+    )
+    # a fit that identified its tool places nothing
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        whole = fit(grid, "ur10_robot", "geometric", noise_mm=0.015)
+        assert whole.unidentified_tool() == []
+        assert whole.validate(cubes).validation_tool_placed == {}
+
+
+def test_a_harmonic_holds_a_whole_turn_from_where_it_was_fitted():
+    """Joint 1 fitted over -2.5..2.5 rad: its first harmonic is not fitted over a whole turn,
+    but a reading a turn away from a fitted one (q1 + 2 pi) is the same phase: the term holds
+    there, exactly as fitted; a reading at a phase the fit never saw (q1 = pi) still drops it.
+    A joint scale, a line in q1, is dropped at both."""
+    rng = np.random.default_rng(8)
+    effects = ["geometric", Transmission(joints=[1]), JointScale(joints=[1])]
+    truth = {"ts1": 3e-4, "tc1": -2e-4, "g1": 2e-4}
+    q = _poses(200, rng, (-2.0, 0.0))
+    cal = _measured(effects, truth, q, np.full(200, 21.0), 5)
+    res = fit(cal, "seed", effects, noise_mm=0.015)
+    qv = cal.q[:20].copy()
+    qv[:10, 0] += 2 * math.pi  # the same phases, a turn on
+    qv[10:, 0] = math.pi  # a phase the fit did not see (0.64 rad beyond its range)
+    val = _measured(effects, truth, qv, np.full(20, 21.0), 6)
+    exc, drop = res.out_of_domain(val)
+    assert [e.variable for e in exc] == ["q1"]
+    assert not drop["ts1"][:10].any() and drop["ts1"][10:].all()
+    assert drop["tc1"].tolist() == drop["ts1"].tolist()
+    assert drop["g1"].all()
+    # against the definition: phase seen iff some fitted reading lies a whole turn away (or
+    # within the domain's margin of one)
+    lo, hi = res.domain.ranges["q1"]
+    v = np.linspace(-10.0, 10.0, 401)
+    tol = 0.1 * (hi - lo)
+    turns = np.arange(-3, 4)[:, None] * 2 * math.pi
+    seen = ((v - turns >= lo - tol) & (v - turns <= hi + tol)).any(axis=0)
+    np.testing.assert_array_equal(unseen_phase(v, lo, hi, 2 * math.pi), ~seen)
+
+
+def test_stations_placed_with_a_shared_offset_are_the_least_squares_solution():
+    """register_stations against a general least-squares solve of every station's rotation
+    vector and shift and the shared parameters: the same residual, the same offsets."""
+    rng = np.random.default_rng(4)
+    n, k = 90, 2
+    pred = rng.uniform(-1.0, 1.0, (n, 3))
+    columns = rng.standard_normal((n, 3, k))
+    delta = np.array([0.03, -0.02])
+    groups = [np.arange(n) < 40, np.arange(n) >= 40]
+    turns = [Rotation.from_rotvec([0.3, -0.1, 0.2]), Rotation.from_rotvec([-0.2, 0.4, 0.1])]
+    xyz = np.empty((n, 3))
+    for g, R, t in zip(groups, turns, ([1.0, 2.0, 0.5], [-2.0, 0.3, 1.0]), strict=True):
+        xyz[g] = R.apply(pred[g] + columns[g] @ delta) + t
+    xyz += 1e-3 * rng.standard_normal(xyz.shape)
+    placed, found = register_stations(pred, xyz, groups, columns)
+
+    def residual(x):
+        pts = pred + columns @ x[12:]
+        out = []
+        for s, g in enumerate(groups):
+            R = Rotation.from_rotvec(x[6 * s : 6 * s + 3])
+            out.append(R.apply(pts[g]) + x[6 * s + 3 : 6 * s + 6] - xyz[g])
+        return np.concatenate(out).ravel()
+
+    ref = least_squares(residual, np.zeros(12 + k), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    np.testing.assert_allclose(found, ref.x[12:], atol=1e-7)
+    pts = pred + columns @ found
+    mine = np.concatenate(
+        [pts[g] @ R.T + t - xyz[g] for g, (R, t) in zip(groups, placed, strict=True)]
+    )
+    assert np.sum(mine**2) == pytest.approx(np.sum(ref.fun**2), rel=1e-9)
+    # without shared parameters: each station rigidly alone
+    alone, none = register_stations(pred, xyz, groups)
+    assert none.size == 0
+    for g, (R, t) in zip(groups, alone, strict=True):
+        R0, t0 = register_points(pred[g], xyz[g])
+        np.testing.assert_allclose(R, R0)
+        np.testing.assert_allclose(t, t0)
