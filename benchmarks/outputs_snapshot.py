@@ -61,7 +61,7 @@ COMMANDS: list[tuple[str, str]] = [
         "export",
         "sixaxis lab export data.csv --effects geometric,compliance[2,3] -o calibrated.toml",
     ),
-    ("export-urdf", "sixaxis lab export {data}/ur5/calibration.csv --robot ur5 -o ur5.urdf"),
+    ("export-urdf", "sixaxis lab export {data}/ur5/calibration.csv --robot ur5_robot -o ur5.urdf"),
     (
         "compensate",
         "sixaxis lab compensate validation.csv --robot calibrated.toml -o joints.csv",
@@ -84,7 +84,7 @@ COMMANDS: list[tuple[str, str]] = [
     ("leaderboard", "sixaxis leaderboard runs --out lb"),
     (
         "reproduce-local",
-        "sixaxis reproduce lb/leaderboard_runs.csv --run feedforward__geometric__ep0 --rtol 0",
+        "sixaxis reproduce lb/leaderboard_runs.csv --run feedforward__geometric__seed0 --rtol 0",
     ),
     (
         "reproduce-committed",
