@@ -358,101 +358,114 @@ def plan_cmd(
 
 
 # -- collect ----------------------------------------------------------------------------------------
+# the options of collect
+CollectScenarioOpt = Annotated[
+    str,
+    typer.Option(
+        help="The simulated arm's hidden effects: nominal, geometric, compliance, "
+        "transmission, backlash, thermal, payload, all, cyclic."
+    ),
+]
+CollectNOpt = Annotated[
+    int, declared(Interval(int, 1, None), "n", "Random poses to measure.", "--n", "-n")
+]
+CollectNoiseMmOpt = Annotated[
+    float,
+    declared(Interval(float, 0.0, None), "noise_mm", "The tracker's per-axis noise (mm)."),
+]
+CollectSeedOpt = Annotated[int, typer.Option(help="Seed of the poses, the motions and the noise.")]
+CollectArmSeedOpt = Annotated[
+    int | None,
+    typer.Option(
+        help="Seed of the hidden arm (default: --seed). Measure one arm twice, e.g. for "
+        "held-out data: --seed 1 and --seed 2 --arm-seed 1."
+    ),
+]
+CollectPosesOpt = Annotated[
+    Path | None,
+    typer.Option(help="A poses CSV (q1..q6, e.g. from sixaxis lab plan) instead of --n."),
+]
+CollectAngleUnitOpt = Annotated[
+    str | None,
+    declared(
+        OneOf(tuple(ANGLE_UNITS)),
+        "angle_unit",
+        "Unit of q1..q6 in --poses (default: the unit the file's # line declares, as "
+        "sixaxis lab plan writes it; else rad).",
+    ),
+]
+CollectNoisePpmOpt = Annotated[
+    float,
+    declared(
+        Interval(float, 0.0, None),
+        "noise_ppm",
+        "The noise grows with the distance from the tracker: sigma = --noise-mm + "
+        "--noise-ppm um per m of distance, per axis.",
+    ),
+]
+CollectStationsOpt = Annotated[
+    int,
+    declared(
+        Interval(int, 0, None),
+        "stations",
+        "Tracker stations around the arm (2-6 m away, each its own frame): the poses are "
+        "measured in blocks, one per station, with a station column. 0: the world frame, no "
+        "station column.",
+    ),
+]
+CollectFirstStationOpt = Annotated[
+    int,
+    typer.Option(
+        "--first-station",
+        help="The first station's id (the others follow): a held-out campaign from other "
+        "stations of the same arm takes other ids.",
+    ),
+]
+CollectOrientationOpt = Annotated[
+    bool,
+    typer.Option(
+        "--orientation",
+        help="A 6-DoF probe on the flange measures the tool frame's orientation too "
+        "(roll, pitch, yaw columns).",
+    ),
+]
+CollectNoiseMradOpt = Annotated[
+    float,
+    declared(Interval(float, 0.0, None), "noise_mrad", "The orientation's per-axis noise (mrad)."),
+]
+CollectOrientationFractionOpt = Annotated[
+    float,
+    declared(
+        Interval(float, 0.0, 1.0),
+        "orientation_fraction",
+        "The fraction of rows in which the probe's orientation is seen (the others leave it "
+        "blank: the measurement mask).",
+    ),
+]
+CollectStdsOpt = Annotated[
+    bool,
+    typer.Option("--stds", help="Write each row's stated uncertainty (std_x ... std_rz columns)."),
+]
+
+
 @app.command("collect")
 def collect_cmd(
     output: Annotated[Path, typer.Option("--output", "-o", help="The measurement CSV to write.")],
-    scenario: Annotated[
-        str,
-        typer.Option(
-            help="The simulated arm's hidden effects: nominal, geometric, compliance, "
-            "transmission, backlash, thermal, payload, all, cyclic."
-        ),
-    ] = "compliance",
-    n: Annotated[
-        int, declared(Interval(int, 1, None), "n", "Random poses to measure.", "--n", "-n")
-    ] = 200,
-    noise_mm: Annotated[
-        float,
-        declared(Interval(float, 0.0, None), "noise_mm", "The tracker's per-axis noise (mm)."),
-    ] = 0.015,
-    seed: Annotated[int, typer.Option(help="Seed of the poses, the motions and the noise.")] = 0,
-    arm_seed: Annotated[
-        int | None,
-        typer.Option(
-            help="Seed of the hidden arm (default: --seed). Measure one arm twice, e.g. for "
-            "held-out data: --seed 1 and --seed 2 --arm-seed 1."
-        ),
-    ] = None,
-    poses: Annotated[
-        Path | None,
-        typer.Option(help="A poses CSV (q1..q6, e.g. from sixaxis lab plan) instead of --n."),
-    ] = None,
-    angle_unit: Annotated[
-        str | None,
-        declared(
-            OneOf(tuple(ANGLE_UNITS)),
-            "angle_unit",
-            "Unit of q1..q6 in --poses (default: the unit the file's # line declares, as "
-            "sixaxis lab plan writes it; else rad).",
-        ),
-    ] = None,
+    scenario: CollectScenarioOpt = "compliance",
+    n: CollectNOpt = 200,
+    noise_mm: CollectNoiseMmOpt = 0.015,
+    seed: CollectSeedOpt = 0,
+    arm_seed: CollectArmSeedOpt = None,
+    poses: CollectPosesOpt = None,
+    angle_unit: CollectAngleUnitOpt = None,
     robot: RobotOpt = "seed",
-    noise_ppm: Annotated[
-        float,
-        declared(
-            Interval(float, 0.0, None),
-            "noise_ppm",
-            "The noise grows with the distance from the tracker: sigma = --noise-mm + "
-            "--noise-ppm um per m of distance, per axis.",
-        ),
-    ] = 0.0,
-    stations: Annotated[
-        int,
-        declared(
-            Interval(int, 0, None),
-            "stations",
-            "Tracker stations around the arm (2-6 m away, each its own frame): the poses are "
-            "measured in blocks, one per station, with a station column. 0: the world frame, no "
-            "station column.",
-        ),
-    ] = 0,
-    first_station: Annotated[
-        int,
-        typer.Option(
-            "--first-station",
-            help="The first station's id (the others follow): a held-out campaign from other "
-            "stations of the same arm takes other ids.",
-        ),
-    ] = 1,
-    orientation: Annotated[
-        bool,
-        typer.Option(
-            "--orientation",
-            help="A 6-DoF probe on the flange measures the tool frame's orientation too "
-            "(roll, pitch, yaw columns).",
-        ),
-    ] = False,
-    noise_mrad: Annotated[
-        float,
-        declared(
-            Interval(float, 0.0, None), "noise_mrad", "The orientation's per-axis noise (mrad)."
-        ),
-    ] = 0.1,
-    orientation_fraction: Annotated[
-        float,
-        declared(
-            Interval(float, 0.0, 1.0),
-            "orientation_fraction",
-            "The fraction of rows in which the probe's orientation is seen (the others leave it "
-            "blank: the measurement mask).",
-        ),
-    ] = 1.0,
-    stds: Annotated[
-        bool,
-        typer.Option(
-            "--stds", help="Write each row's stated uncertainty (std_x ... std_rz columns)."
-        ),
-    ] = False,
+    noise_ppm: CollectNoisePpmOpt = 0.0,
+    stations: CollectStationsOpt = 0,
+    first_station: CollectFirstStationOpt = 1,
+    orientation: CollectOrientationOpt = False,
+    noise_mrad: CollectNoiseMradOpt = 0.1,
+    orientation_fraction: CollectOrientationFractionOpt = 1.0,
+    stds: CollectStdsOpt = False,
 ) -> None:
     """Measure the simulated arm (MuJoCo) like a laser-tracker campaign.
 
