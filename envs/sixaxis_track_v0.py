@@ -150,6 +150,26 @@ def _check_world(o: dict[str, Any], problems: dict[str, str]) -> None:
                 problems["overrides"] = why
 
 
+def _observation_space(nominal: RobotDescription, slices: dict[str, slice], n: int) -> spaces.Box:
+    """The observation's bounds, entry by entry (:func:`_layout`)."""
+    low = np.empty(n, dtype=np.float32)
+    high = np.empty(n, dtype=np.float32)
+    low[slices["q"]] = nominal.lower - math.pi  # hard stops sit at the limits
+    high[slices["q"]] = nominal.upper + math.pi
+    for name, lo, hi in (
+        ("qd", -MAX_SPEED, MAX_SPEED),
+        ("ref", -WORKSPACE, WORKSPACE),
+        ("preview", -WORKSPACE, WORKSPACE),
+        ("meas", -WORKSPACE, WORKSPACE),
+        ("meas_age", 0.0, MAX_MEASUREMENT_AGE),
+        ("meas_valid", 0.0, 1.0),
+        ("temperature", *TEMPERATURE_RANGE),
+        ("payload", *PAYLOAD_RANGE),
+    ):
+        low[slices[name]], high[slices[name]] = lo, hi
+    return spaces.Box(low, high, (n,), np.float32)
+
+
 class EnvOptionError(SixAxisError, ValueError):
     """Keyword arguments the env does not take; the message names every key at fault."""
 
@@ -465,31 +485,18 @@ class SixAxisTrackEnv(gym.Env):
         self.dt = self.plant.dt
         self.episode_steps = round(float(episode_seconds) / self.dt)
         self.action_space = spaces.Box(-1.0, 1.0, (6,), np.float32)
-        n = self.task.obs_size
-        low = np.empty(n, dtype=np.float32)
-        high = np.empty(n, dtype=np.float32)
-        low[slices["q"]] = self.nominal.lower - math.pi  # hard stops sit at the limits
-        high[slices["q"]] = self.nominal.upper + math.pi
-        for name, lo, hi in (
-            ("qd", -MAX_SPEED, MAX_SPEED),
-            ("ref", -WORKSPACE, WORKSPACE),
-            ("preview", -WORKSPACE, WORKSPACE),
-            ("meas", -WORKSPACE, WORKSPACE),
-            ("meas_age", 0.0, MAX_MEASUREMENT_AGE),
-            ("meas_valid", 0.0, 1.0),
-            ("temperature", *TEMPERATURE_RANGE),
-            ("payload", *PAYLOAD_RANGE),
-        ):
-            low[slices[name]], high[slices[name]] = lo, hi
-        self.observation_space = spaces.Box(low, high, (n,), np.float32)
+        self.observation_space = _observation_space(self.nominal, slices, self.task.obs_size)
+        self._init_episode_state(slices, drive.v_max, P)
 
-        # per-episode state
+    def _init_episode_state(self, slices: dict[str, slice], v_max: np.ndarray, P: int) -> None:
+        """The per-episode state, before the first reset."""
+        n = self.task.obs_size
         self.truth: EpisodeTruth | None = None
         self.trajectory: Trajectory | None = None
         self.references = np.zeros((1, 3))
         self._obs = np.zeros(n)
         self._sl = slices
-        self._v_max = drive.v_max.astype(float)
+        self._v_max = v_max.astype(float)
         self._a = np.zeros(6)
         self._a1 = np.zeros(6)
         self._a2 = np.zeros(6)
