@@ -347,7 +347,10 @@ def test_bad_arguments_are_refused():
         ({"dropout": 1.0}, "dropout: expected a number in [0, 1) (a probability), got 1.0"),
         ({"latency_steps": -1}, "latency_steps: expected an integer >= 0"),
         ({"jerk_weight": -1.0}, "jerk_weight: expected a number >= 0, got -1.0"),
-        ({"episode_seconds": 0.001}, "episode_seconds: expected a number >= 0.02 (one control step)"),
+        (
+            {"episode_seconds": 0.001},
+            "episode_seconds: expected a number >= 0.02 (one control step)",
+        ),
         ({"measurements": "yes"}, "measurements: expected true or false, got 'yes'"),
         ({"temperature_lag": -3.0}, "temperature_lag: expected a number >= 0 (s), got -3.0"),
         ({"robot": "no-such-arm"}, "robot: unknown robot 'no-such-arm'"),
