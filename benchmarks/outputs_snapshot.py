@@ -295,6 +295,12 @@ def run(out: Path, only: list[str] | None) -> None:
         record += proc.stderr
         (out / f"{name}.txt").write_text(normalise(record, work))
         print(f"{name}: exit {proc.returncode}", flush=True)
+    snapshot_files(out, work)
+
+
+def snapshot_files(out: Path, work: Path) -> None:
+    """``out/files/``: every file the commands wrote in ``work``, normalised (a sweep's lock file
+    holds the process id of the sweep that held it: blanked), and ``out/manifest.txt``."""
     files = sorted(p for p in work.rglob("*") if p.is_file())
     lines = []
     shutil.rmtree(out / "files", ignore_errors=True)
@@ -302,6 +308,8 @@ def run(out: Path, only: list[str] | None) -> None:
         data = p.read_bytes()
         if p.suffix in {".csv", ".json", ".md", ".toml", ".urdf", ".py", ".html", ".txt"}:
             data = normalise(data.decode(), work, p.suffix).encode()
+        elif p.suffix == ".lock":
+            data = re.sub(rb"\d+", b"<PID>", data)
         rel = p.relative_to(work)
         (out / "files" / rel).parent.mkdir(parents=True, exist_ok=True)
         (out / "files" / rel).write_bytes(data)
