@@ -10,7 +10,6 @@ from __future__ import annotations
 import inspect
 import itertools
 import math
-import numbers
 import os
 import warnings
 from collections.abc import Sequence
@@ -83,10 +82,12 @@ def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any)
     from envs.wrappers import INTERFACES, ToolDisplacementAction
 
     problems = {}
-    if interface not in INTERFACES:
-        problems["interface"] = f"expected one of {', '.join(INTERFACES)}, got {interface!r}"
-    if not (_real(tool_step_mm) and tool_step_mm > 0):
-        problems["tool_step_mm"] = f"expected a positive number of mm, got {tool_step_mm!r}"
+    for key, value, constraint in (
+        ("interface", interface, OneOf(tuple(INTERFACES))),
+        ("tool_step_mm", tool_step_mm, Interval(float, 0.0, None, closed="neither", why="mm")),
+    ):
+        if not constraint.holds(value):
+            problems[key] = f"expected {description(constraint)}, got {value!r}"
     if problems:
         raise EnvOptionError(
             "SixAxisTrack-v0: " + "; ".join(f"{k}: {m}" for k, m in problems.items())
@@ -205,14 +206,6 @@ OPTION_CONSTRAINTS: dict[str, tuple[Constraint, bool]] = {
     "width": (Interval(int, 1, MAX_FRAME, why="pixels"), False),
     "height": (Interval(int, 1, MAX_FRAME, why="pixels"), False),
 }
-
-
-def _integer(v: Any) -> bool:
-    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
-
-
-def _real(v: Any) -> bool:
-    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _layout(preview: int) -> dict[str, slice]:
