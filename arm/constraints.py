@@ -43,6 +43,7 @@ __all__ = [
     "choices",
     "constraints_of",
     "declare",
+    "description",
     "expectation",
     "from_annotation",
     "problems",
@@ -288,6 +289,23 @@ def expectation(constraint: Constraint, value: Any) -> str | None:
     if not constraint.holds(value):
         return f"must {constraint.predicate}, got {value!r}"
     return None
+
+
+def description(constraint: Constraint, none_ok: bool = False) -> str:
+    """What a value must be, as a noun phrase for ``expected ..., got ...``: ``a number >= 0
+    (mm)``, ``an integer in [1, 4096] (pixels)``, ``true or false``, ``None or one of a, b``."""
+    if isinstance(constraint, Interval):
+        phrase = constraint._bound().removeprefix("lie ").removeprefix("be ")
+        if phrase == "positive":
+            phrase = "a positive number"
+        elif not phrase.startswith(("a ", "an ")):
+            phrase = f"{constraint.noun} {phrase}"
+        phrase += f" ({constraint.why})" if constraint.why else ""
+    elif isinstance(constraint, OneOf):
+        phrase = constraint.noun
+    else:
+        phrase = constraint.predicate.removeprefix("be ")
+    return f"None or {phrase}" if none_ok else phrase
 
 
 _CACHE: dict[type, dict[str, tuple[list[Constraint], bool]]] = {}

@@ -486,6 +486,41 @@ def _stations(doc: dict, source: str, L: float, A: float) -> tuple[tuple[int, Ve
     return tuple(out)
 
 
+def _joint(r: Any, i: int, source: str, lu: str, au: str) -> Joint:
+    """Joint ``i`` of a robot TOML's [[joints]] (its row ``r``) in SI units."""
+    L, A = _LENGTH[lu], _ANGLE[au]
+    half_turn = 180.0 if au == "deg" else math.pi
+    w = f"joint {i}: "
+    _table(r, source, w, "joint")
+    limits = r.get("limits", [-half_turn, half_turn])
+    if not isinstance(limits, list) or len(limits) != 2:
+        raise DescriptionError(f"{source}: {w}'limits' must be [lower, upper]")
+    lo = _get({"v": limits[0]}, "v", source, float, w + "limits: ")
+    hi = _get({"v": limits[1]}, "v", source, float, w + "limits: ")
+    if max(abs(lo), abs(hi)) * A > MAX_JOINT_TRAVEL:
+        turns = f"two turns either way ({MAX_JOINT_TRAVEL / A:.4g} {au})"
+        likely = (
+            'degrees? say angle_unit = "deg"'
+            if au == "rad" and max(abs(lo), abs(hi)) <= 720.0
+            else "no arm turns that far"
+        )
+        raise DescriptionError(
+            f"{source}: {w}limits [{lo:g}, {hi:g}] under angle_unit = {au!r} reach beyond "
+            f"{turns}: {likely}"
+        )
+    return Joint(
+        alpha=_get(r, "alpha", source, float, w) * A,
+        a=_get(r, "a", source, float, w) * L,
+        d=_get(r, "d", source, float, w) * L,
+        theta_offset=_get(r, "theta_offset", source, float, w, 0.0) * A,
+        lower=lo * A,
+        upper=hi * A,
+        mass=_get(r, "mass", source, float, w, 0.0),
+        com=tuple(c * L for c in _get(r, "com", source, "vec3", w, (0.0, 0.0, 0.0))),
+        beta=_get(r, "beta", source, float, w, 0.0) * A,
+    )
+
+
 def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription:
     _table(doc, source, "", "")
     nominal = None
@@ -512,40 +547,7 @@ def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription
     rows = doc.get("joints")
     if not isinstance(rows, list) or len(rows) != 6:
         raise DescriptionError(f"{source}: [[joints]] must appear exactly 6 times")
-    joints = []
-    half_turn = 180.0 if au == "deg" else math.pi
-    for i, r in enumerate(rows, start=1):
-        w = f"joint {i}: "
-        _table(r, source, w, "joint")
-        limits = r.get("limits", [-half_turn, half_turn])
-        if not isinstance(limits, list) or len(limits) != 2:
-            raise DescriptionError(f"{source}: {w}'limits' must be [lower, upper]")
-        lo = _get({"v": limits[0]}, "v", source, float, w + "limits: ")
-        hi = _get({"v": limits[1]}, "v", source, float, w + "limits: ")
-        if max(abs(lo), abs(hi)) * A > MAX_JOINT_TRAVEL:
-            turns = f"two turns either way ({MAX_JOINT_TRAVEL / A:.4g} {au})"
-            likely = (
-                'degrees? say angle_unit = "deg"'
-                if au == "rad" and max(abs(lo), abs(hi)) <= 720.0
-                else "no arm turns that far"
-            )
-            raise DescriptionError(
-                f"{source}: {w}limits [{lo:g}, {hi:g}] under angle_unit = {au!r} reach beyond "
-                f"{turns}: {likely}"
-            )
-        joints.append(
-            Joint(
-                alpha=_get(r, "alpha", source, float, w) * A,
-                a=_get(r, "a", source, float, w) * L,
-                d=_get(r, "d", source, float, w) * L,
-                theta_offset=_get(r, "theta_offset", source, float, w, 0.0) * A,
-                lower=lo * A,
-                upper=hi * A,
-                mass=_get(r, "mass", source, float, w, 0.0),
-                com=tuple(c * L for c in _get(r, "com", source, "vec3", w, (0.0, 0.0, 0.0))),
-                beta=_get(r, "beta", source, float, w, 0.0) * A,
-            )
-        )
+    joints = [_joint(r, i, source, lu, au) for i, r in enumerate(rows, start=1)]
     tools_doc = doc.get("tools", [{"point": [0.0, 0.0, 0.0]}])
     if not isinstance(tools_doc, list) or not tools_doc:
         raise DescriptionError(f"{source}: [[tools]] must be a non-empty list of tables")

@@ -40,6 +40,7 @@ import logging
 import math
 import re
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -278,7 +279,7 @@ def _find_tip(links: dict, up: dict, anchor: str, source: str, base: str) -> str
     )
 
 
-def read_urdf(  # noqa: C901  (one reader: each branch a URDF construct)
+def read_urdf(
     source: str | Path,
     tip: str | None = None,
     base: str | None = None,
@@ -289,17 +290,83 @@ def read_urdf(  # noqa: C901  (one reader: each branch a URDF construct)
     hangs below the base). See the module docstring for the frames chosen."""
     src = str(source)
     if text is None:
-        try:
-            text = Path(source).read_text(encoding="utf-8-sig")
-        except FileNotFoundError:
-            raise UrdfError(f"{src}: URDF file not found") from None
-        except UnicodeDecodeError as exc:
-            raise UrdfError(f"{src}: not UTF-8 text ({exc.reason})") from None
-        except OSError as exc:
-            raise UrdfError(f"{src}: cannot be read ({exc.strerror})") from None
+        text = _read_text(source)
     robot = _parse(text, src)
     links, up, down, root = _tree(robot, src)
     base = root if base is None else base
+    anchor, tip, joints = _arm_chain(links, up, base, tip, src)
+
+    # every link's pose at q = 0 relative to the anchor, the arm's subtree included
+    pose = {anchor: np.eye(4)}
+    stack = [anchor]
+    while stack:
+        parent = stack.pop()
+        for j in down[parent]:
+            pose[j.child] = pose[parent] @ _origin(j, src)
+            stack.append(j.child)
+    to_base = _inv(pose[base])
+    world = {name: to_base @ T for name, T in pose.items()}  # in the base link's frame
+    lines = []
+    for j in joints:
+        axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=float)
+        n = float(np.linalg.norm(axis))
+        if not (math.isfinite(n) and n > 1e-9):
+            raise UrdfError(f"{src}: joint {j.name!r}: <axis xyz> is zero or not finite")
+        J = world[j.child]
+        lines.append((J[:3, 3].copy(), J[:3, :3] @ (axis / n)))
+    F = _dh_frames(lines, world[tip])
+    rows = _rows(F)
+    check = mdh_frames(*rows, base=F[0])
+    err = float(np.max(np.abs(check - F)))
+    if not err < 1e-9:  # the construction is exact; this guards the code, not the file
+        raise UrdfError(f"{src}: internal error converting the chain ({err:.2g} m)")
+    lower, upper = _limits(joints, src)
+    masses, coms = _mass_model(joints, links, down, world, F, src)
+    R_anchor_0 = pose[base][:3, :3] @ F[0][:3, :3]
+    offsets = np.array([_inv(F[i + 1]) @ world[j.child] for i, j in enumerate(joints)])
+    arm = UrdfArm(
+        name=robot.name or Path(src).stem,
+        source=UrdfSource(text=text, path=src, base_link=base, tip_link=tip),
+        joint_names=tuple(j.name for j in joints),
+        alpha=rows[0],
+        a=rows[1],
+        beta=rows[2],
+        d=rows[3],
+        theta_offset=rows[4],
+        lower=np.array(lower),
+        upper=np.array(upper),
+        masses=masses,
+        coms=coms,
+        base=F[0],
+        flange=_inv(F[6]) @ world[tip],
+        link_offsets=offsets,
+        origins=np.array([_origin(j, src) for j in joints]),
+        gravity=R_anchor_0.T @ np.array(GRAVITY),
+    )
+    log.info(
+        "%s: arm %r from %r to %r, joints %s", src, arm.name, base, tip, ", ".join(arm.joint_names)
+    )
+    return arm
+
+
+def _read_text(source: str | Path) -> str:
+    """A URDF file's text; a file that cannot be read is a one-line error."""
+    src = str(source)
+    try:
+        return Path(source).read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise UrdfError(f"{src}: URDF file not found") from None
+    except UnicodeDecodeError as exc:
+        raise UrdfError(f"{src}: not UTF-8 text ({exc.reason})") from None
+    except OSError as exc:
+        raise UrdfError(f"{src}: cannot be read ({exc.strerror})") from None
+
+
+def _arm_chain(
+    links: Any, up: Any, base: str, tip: str | None, src: str
+) -> tuple[str, str, list[Any]]:
+    """The chain from the base to the tip (found where not given): the link it starts at (the
+    base, or the link it hangs off by fixed joints), the tip, and its six revolute joints."""
     for what, name in (("base", base), ("tip", tip)):
         if name is not None and name not in links:
             raise UrdfError(
@@ -333,32 +400,11 @@ def read_urdf(  # noqa: C901  (one reader: each branch a URDF construct)
             f"{src}: {len(joints)} revolute joints between {base!r} and {tip!r} "
             f"({', '.join(j.name for j in joints) or 'none'}); the lab's arms have 6"
         )
+    return anchor, tip, joints
 
-    # every link's pose at q = 0 relative to the anchor, the arm's subtree included
-    pose = {anchor: np.eye(4)}
-    stack = [anchor]
-    while stack:
-        parent = stack.pop()
-        for j in down[parent]:
-            pose[j.child] = pose[parent] @ _origin(j, src)
-            stack.append(j.child)
-    to_base = _inv(pose[base])
-    world = {name: to_base @ T for name, T in pose.items()}  # in the base link's frame
-    lines = []
-    for j in joints:
-        axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=float)
-        n = float(np.linalg.norm(axis))
-        if not (math.isfinite(n) and n > 1e-9):
-            raise UrdfError(f"{src}: joint {j.name!r}: <axis xyz> is zero or not finite")
-        J = world[j.child]
-        lines.append((J[:3, 3].copy(), J[:3, :3] @ (axis / n)))
-    F = _dh_frames(lines, world[tip])
-    rows = _rows(F)
-    check = mdh_frames(*rows, base=F[0])
-    err = float(np.max(np.abs(check - F)))
-    if not err < 1e-9:  # the construction is exact; this guards the code, not the file
-        raise UrdfError(f"{src}: internal error converting the chain ({err:.2g} m)")
 
+def _limits(joints: Sequence[Any], src: str) -> tuple[list[float], list[float]]:
+    """The joints' lower and upper limits (a continuous joint's: one turn)."""
     lower, upper = [], []
     for j in joints:
         lim = j.limit
@@ -375,33 +421,7 @@ def read_urdf(  # noqa: C901  (one reader: each branch a URDF construct)
             )
         lower.append(float(lo))
         upper.append(float(hi))
-
-    masses, coms = _mass_model(joints, links, down, world, F, src)
-    R_anchor_0 = pose[base][:3, :3] @ F[0][:3, :3]
-    offsets = np.array([_inv(F[i + 1]) @ world[j.child] for i, j in enumerate(joints)])
-    arm = UrdfArm(
-        name=robot.name or Path(src).stem,
-        source=UrdfSource(text=text, path=src, base_link=base, tip_link=tip),
-        joint_names=tuple(j.name for j in joints),
-        alpha=rows[0],
-        a=rows[1],
-        beta=rows[2],
-        d=rows[3],
-        theta_offset=rows[4],
-        lower=np.array(lower),
-        upper=np.array(upper),
-        masses=masses,
-        coms=coms,
-        base=F[0],
-        flange=_inv(F[6]) @ world[tip],
-        link_offsets=offsets,
-        origins=np.array([_origin(j, src) for j in joints]),
-        gravity=R_anchor_0.T @ np.array(GRAVITY),
-    )
-    log.info(
-        "%s: arm %r from %r to %r, joints %s", src, arm.name, base, tip, ", ".join(arm.joint_names)
-    )
-    return arm
+    return lower, upper
 
 
 def _dh_frames(lines: list, tip: np.ndarray) -> list[np.ndarray]:

@@ -61,10 +61,7 @@ COMMANDS: list[tuple[str, str]] = [
         "export",
         "sixaxis lab export data.csv --effects geometric,compliance[2,3] -o calibrated.toml",
     ),
-    (
-        "export-urdf",
-        "sixaxis lab export {data}/ur5/calibration.csv --robot ur5_robot.urdf -o ur5.urdf",
-    ),
+    ("export-urdf", "sixaxis lab export {data}/ur5/calibration.csv --robot ur5_robot -o ur5.urdf"),
     (
         "compensate",
         "sixaxis lab compensate validation.csv --robot calibrated.toml -o joints.csv",
@@ -94,6 +91,30 @@ COMMANDS: list[tuple[str, str]] = [
         "sixaxis reproduce {root}/results/leaderboard_runs.csv --run mpc__geometric__ep0 --rtol 0",
     ),
     ("evaluate", "sixaxis evaluate feedforward --scenario geometric --seeds 1"),
+    # the command line's help (its options are declared once; the text must stay the same)
+    *(
+        (f"help-{c.replace(' ', '-')}", f"sixaxis {c} --help")
+        for c in (
+            "lab",
+            "lab fit",
+            "lab diagnose",
+            "lab discover",
+            "lab report",
+            "lab export",
+            "lab compensate",
+            "lab plan",
+            "lab collect",
+            "sweep",
+            "leaderboard",
+            "reproduce",
+        )
+    ),
+    # bad input: every problem named at once, in the same words
+    ("lab-fit-bad-options", "sixaxis lab fit data.csv --noise-mm -1 --loss l2 --outliers maybe"),
+    ("sweep-bad-keys", "sixaxis sweep bad_keys.toml --out bad"),
+    ("sweep-bad-values", "sixaxis sweep bad_values.toml --out bad"),
+    ("sweep-bad-entries", "sixaxis sweep bad_entries.toml --out bad"),
+    ("env-bad-options", "python env_options.py"),
 ]
 
 SWEEP = textwrap.dedent(
@@ -104,6 +125,72 @@ SWEEP = textwrap.dedent(
     agents = ["nominal", "feedforward", "calibrated"]
     """
 )
+
+# bad configs and options whose error messages are part of the outputs
+INPUTS = {
+    "bad_keys.toml": textwrap.dedent(
+        """\
+        nmae = "typo"
+        seeds = "three"
+        agents = "nominal"
+        time_limit_s = "long"
+        """
+    ),
+    "bad_values.toml": textwrap.dedent(
+        """\
+        name = "bad name/with slash"
+        seeds = [0, -1, 0, 1.5]
+        scenarios = ["geometric"]
+        agents = ["nominal"]
+        time_limit_s = 0
+        memory_limit_mb = 12
+        isolate = "none"
+        episode_seconds = 0.001
+        settle_seconds = -1.0
+        converge_mm = 0.0
+        metrics = ["rms_mm", "rms_mm", "nonsense", 3]
+        rank_by = "speed"
+        env = { scenario = "thermal", noise_mm = -1.0, measure_every = 0, colour = "red" }
+        """
+    ),
+    "bad_entries.toml": textwrap.dedent(
+        """\
+        seeds = 100000
+        scenarios = ["geometric", "no_such", { name = "compliance", extra = 1 }, 7, "geometric"]
+        agents = ["nominal", "no_such_agent", { name = "feedforward", colour = 1 }, 3]
+        campaign = { stations = 2 }
+
+        [[phases]]
+        name = "warm"
+        seconds = 0.0001
+        judged = false
+        """
+    ),
+    "env_options.py": textwrap.dedent(
+        """\
+        from envs.sixaxis_track_v0 import SixAxisTrackEnv
+
+        cases = [
+            dict(noise_mm=-1, measure_every=0, trajectory="zig", x=1),
+            dict(scenario="nope", dropout=1.0, latency_steps=-1, measurements=1),
+            dict(temperature_noise=-1, temperature_lag="x", preview_steps=1.5, jerk_weight=-1),
+            dict(episode_seconds=0.0, render_mode="human", width=0, height=10**6),
+            dict(robot="no_such_robot", posture=[0.0]),
+            dict(scenario=3, robot=3, overrides={"nope": {}}),
+            dict(overrides={"compliance": {"nope": 1}}, scenario="compliance"),
+            dict(posture=[0.0] * 7),
+            dict(noise_mm=float("nan"), measure_every=True),
+            dict(),
+        ]
+        for kwargs in cases:
+            print(sorted(kwargs), SixAxisTrackEnv.check_options(**kwargs))
+        try:
+            SixAxisTrackEnv(noise_mm=-1, width=0)
+        except ValueError as exc:
+            print(type(exc).__name__, exc)
+        """
+    ),
+}
 
 TIMES = [
     (
@@ -189,12 +276,18 @@ def run(out: Path, only: list[str] | None) -> None:
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir()
     (work / "sweep.toml").write_text(SWEEP)
+    for name, text in INPUTS.items():
+        (work / name).write_text(text)
     env = dict(os.environ, COLUMNS="100", NO_COLOR="1", TERM="dumb")
     sixaxis = str(Path(sys.executable).parent / "sixaxis")
     for name, command in COMMANDS:
         if only and name not in only:
             continue
-        cmd = command.format(data=ROOT / "data", root=ROOT).replace("sixaxis", sixaxis, 1)
+        cmd = command.format(data=ROOT / "data", root=ROOT)
+        if cmd.startswith("python "):
+            cmd = cmd.replace("python", sys.executable, 1)
+        else:
+            cmd = cmd.replace("sixaxis", sixaxis, 1)
         proc = subprocess.run(
             cmd, shell=True, cwd=work, env=env, capture_output=True, text=True, check=False
         )
@@ -202,14 +295,21 @@ def run(out: Path, only: list[str] | None) -> None:
         record += proc.stderr
         (out / f"{name}.txt").write_text(normalise(record, work))
         print(f"{name}: exit {proc.returncode}", flush=True)
-    # the sweep's lock holds the pid of the process that held it
-    files = sorted(p for p in work.rglob("*") if p.is_file() and p.suffix != ".lock")
+    snapshot_files(out, work)
+
+
+def snapshot_files(out: Path, work: Path) -> None:
+    """``out/files/``: every file the commands wrote in ``work``, normalised (a sweep's lock file
+    holds the process id of the sweep that held it: blanked), and ``out/manifest.txt``."""
+    files = sorted(p for p in work.rglob("*") if p.is_file())
     lines = []
     shutil.rmtree(out / "files", ignore_errors=True)
     for p in files:
         data = p.read_bytes()
         if p.suffix in {".csv", ".json", ".md", ".toml", ".urdf", ".py", ".html", ".txt"}:
             data = normalise(data.decode(), work, p.suffix).encode()
+        elif p.suffix == ".lock":
+            data = re.sub(rb"\d+", b"<PID>", data)
         rel = p.relative_to(work)
         (out / "files" / rel).parent.mkdir(parents=True, exist_ok=True)
         (out / "files" / rel).write_bytes(data)

@@ -93,7 +93,7 @@ def check_poses(
     return poses
 
 
-def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise and poses are its cases)
+def collect_measurements(
     truth: EpisodeTruth | None = None,
     poses: np.ndarray | None = None,
     n: int = 100,
@@ -145,7 +145,6 @@ def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise a
     The returned set has columns q1..q6 (the encoder readings at the measurement), x, y, z,
     t, temperature, payload and dir1..dir6 (the sign of each joint's last commanded motion).
     """
-    from envs.plant import Plant
     from envs.scenarios import draw_truth
 
     try:
@@ -162,10 +161,61 @@ def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise a
     if poses is None:
         poses = sample_poses(nominal, int(n), pose_rng)
     poses = check_poses(poses, nominal)
+    if approach is not None:
+        approach = np.asarray(approach, dtype=float)
+    _check_campaign(
+        poses, payloads, approach, noise_mm, noise_ppm, noise_mrad, orientation_fraction
+    )
+    # campaigns beyond one 3-D point draw from a stream of their own: a plain campaign's numbers
+    # stay those of a seed
+    (campaign_rng,) = rng.spawn(1)
+    placed = _stations(stations, campaign_rng)
+    q_out, world, frames, columns = _measure_poses(
+        truth, poses, settle, payloads, approach, motion_rng, progress
+    )
+    noise = noise_rng.normal(size=(len(poses), 3))  # drawn pose by pose, the same numbers
+    sigma = noise_mm * 1e-3
+    source = str(path) if path is not None else f"<simulated {truth.scenario} seed {seed}>"
+    if placed is None and not noise_ppm and not orientation and not stds:
+        xyz = world + sigma * noise  # a plain campaign, in the world frame
+        data = MeasurementSet(q_out, xyz, columns, source=source)
+    else:
+        data = _beyond_points(
+            q_out,
+            world,
+            noise,
+            frames,
+            columns,
+            source,
+            placed,
+            campaign_rng,
+            sigma,
+            noise_ppm,
+            noise_mrad if orientation else None,
+            orientation_fraction,
+            stds,
+            tool_rotation,
+            first_station,
+        )
+    if path is not None:
+        write_measurements(data, path)
+        log.info("wrote %d simulated measurements to %s", len(poses), path)
+    return data
+
+
+def _check_campaign(
+    poses: np.ndarray,
+    payloads: Sequence[float] | None,
+    approach: np.ndarray | None,
+    noise_mm: float,
+    noise_ppm: float,
+    noise_mrad: float,
+    orientation_fraction: float,
+) -> None:
+    """The campaign's options agree with its poses and lie in range."""
     if payloads is not None and len(payloads) != len(poses):
         raise CollectError(f"{len(payloads)} payloads for {len(poses)} poses")
     if approach is not None:
-        approach = np.asarray(approach, dtype=float)
         if approach.shape != poses.shape or not np.all(np.abs(approach) == 1.0):
             raise CollectError(f"approach must be +-1 of shape {poses.shape}")
     for name, v in (("noise_mm", noise_mm), ("noise_ppm", noise_ppm), ("noise_mrad", noise_mrad)):
@@ -173,18 +223,37 @@ def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise a
             raise CollectError(f"{name} must be a finite number >= 0, got {v}")
     if not 0.0 <= orientation_fraction <= 1.0:
         raise CollectError(f"orientation_fraction must be in [0, 1], got {orientation_fraction}")
-    # campaigns beyond one 3-D point draw from a stream of their own: a plain campaign's numbers
-    # stay those of a seed
-    (campaign_rng,) = rng.spawn(1)
+
+
+def _stations(
+    stations: int | Sequence[TrackerStation], rng: np.random.Generator
+) -> list[TrackerStation] | None:
+    """The tracker stations: a number placed around the arm (none for 0: the world frame), or
+    those given."""
     if isinstance(stations, int):
         if stations < 0:
             raise CollectError(f"stations must be >= 0, got {stations}")
-        placed = place_stations(stations, campaign_rng) if stations > 0 else None
-    else:
-        placed = list(stations)
-        if not placed:
-            raise CollectError("stations: an empty list")
+        return place_stations(stations, rng) if stations > 0 else None
+    placed = list(stations)
+    if not placed:
+        raise CollectError("stations: an empty list")
+    return placed
 
+
+def _measure_poses(
+    truth: EpisodeTruth,
+    poses: np.ndarray,
+    settle: float,
+    payloads: Sequence[float] | None,
+    approach: np.ndarray | None,
+    motion_rng: np.random.Generator,
+    progress: Callable[[int, int], None] | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """Drive the plant to each pose and let it settle: the encoder readings, the true tool
+    points and frames, and the columns t, temperature, payload and dir1..dir6."""
+    from envs.plant import Plant
+
+    nominal = truth.model.robot
     plant = Plant(nominal, elastic=truth.hidden.needs_elastic)
     plant.configure(truth.true_robot, truth.hidden)
     lo, hi = nominal.lower, nominal.upper
@@ -192,12 +261,9 @@ def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise a
     d_transit = TRANSIT_FRACTION * plant.drive.a_max
     v_slow = np.full(6, APPROACH_SPEED)
     d_slow = np.full(6, APPROACH_DECEL)
-    sigma = noise_mm * 1e-3
-
     n_poses = len(poses)
     q_out = np.empty((n_poses, 6))
     world = np.empty((n_poses, 3))
-    noise = np.empty((n_poses, 3))
     frames = np.empty((n_poses, 3, 3))
     cols = {c: np.empty(n_poses) for c in ("t", "temperature", "payload")}
     dirs = np.empty((n_poses, 6))
@@ -230,7 +296,6 @@ def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise a
             raise RuntimeError(f"the simulation diverged at pose {i}: {q}")
         q_out[i] = plant.q
         world[i] = plant.tool_point()
-        noise[i] = noise_rng.normal(size=3)
         frames[i] = plant.tool_frame()
         cols["t"][i] = plant.time
         cols["temperature"][i] = plant.temperature
@@ -240,32 +305,7 @@ def collect_measurements(  # noqa: C901  (one campaign: stations, probe, noise a
             progress(i + 1, n_poses)
     columns = dict(cols)
     columns |= {f"dir{k + 1}": dirs[:, k] for k in range(6)}
-    source = str(path) if path is not None else f"<simulated {truth.scenario} seed {seed}>"
-    if placed is None and not noise_ppm and not orientation and not stds:
-        xyz = world + sigma * noise  # a plain campaign, in the world frame
-        data = MeasurementSet(q_out, xyz, columns, source=source)
-    else:
-        data = _beyond_points(
-            q_out,
-            world,
-            noise,
-            frames,
-            columns,
-            source,
-            placed,
-            campaign_rng,
-            sigma,
-            noise_ppm,
-            noise_mrad if orientation else None,
-            orientation_fraction,
-            stds,
-            tool_rotation,
-            first_station,
-        )
-    if path is not None:
-        write_measurements(data, path)
-        log.info("wrote %d simulated measurements to %s", n_poses, path)
-    return data
+    return q_out, world, frames, columns
 
 
 def _beyond_points(

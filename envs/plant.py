@@ -45,6 +45,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -82,6 +83,42 @@ A_MAX = (6.0, 6.0, 8.0, 12.0, 12.0, 15.0)  # rad/s^2
 SERVO_BANDWIDTH = 2 * math.pi * 8.0  # rad/s, position loop
 HOLD_POWER = 60.0  # W dissipated by an axis holding its full torque (copper losses)
 KP_MIN = 2000.0  # N*m/rad: the light axes' position loop is stiffer than their inertia asks
+
+
+def _add_scenery(spec: mujoco.MjSpec, r: RobotDescription) -> Any:
+    """The light, the sky, the floor and the base the arm stands on; returns the base body."""
+    spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
+    spec.visual.headlight.diffuse = [0.55, 0.55, 0.55]
+    sky = spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX)
+    sky.builtin = mujoco.mjtBuiltin.mjBUILTIN_GRADIENT
+    sky.rgb1, sky.rgb2 = [0.93, 0.95, 0.98], [0.62, 0.68, 0.76]
+    sky.width, sky.height = 256, 1536
+    grid = spec.add_texture(name="grid", type=mujoco.mjtTexture.mjTEXTURE_2D)
+    grid.builtin = mujoco.mjtBuiltin.mjBUILTIN_CHECKER
+    grid.rgb1, grid.rgb2 = [0.86, 0.87, 0.89], [0.78, 0.80, 0.83]
+    grid.width, grid.height = 300, 300
+    floor_mat = spec.add_material(name="floor", texrepeat=[8.0, 8.0], reflectance=0.0)
+    floor_mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "grid"
+    wb = spec.worldbody
+    wb.add_light(pos=[0.5, -0.5, 3.0], dir=[-0.2, 0.2, -1.0], castshadow=False)
+    wb.add_geom(
+        name="floor",
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
+        size=[2.0, 2.0, 0.05],
+        material="floor",
+        contype=0,
+        conaffinity=0,
+    )
+    base = wb.add_body(name="base")
+    base.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+        size=[0.09, 0.5 * max(r.joints[0].d, 0.02), 0.0],
+        pos=[0.0, 0.0, 0.5 * max(r.joints[0].d, 0.02)],
+        rgba=[0.25, 0.25, 0.28, 1.0],
+        contype=0,
+        conaffinity=0,
+    )
+    return base
 
 
 class PlantError(SixAxisError, ValueError):
@@ -289,38 +326,15 @@ class Plant:
         spec.visual.quality.shadowsize = 0
         spec.stat.center = np.array([0.3, 0.0, 0.5])
         spec.stat.extent = 1.2
+        base = _add_scenery(spec, r)
+        last = self._add_chain(base)
+        self._add_tool_and_drives(spec, last)
+        return spec
 
-        spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
-        spec.visual.headlight.diffuse = [0.55, 0.55, 0.55]
-        sky = spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX)
-        sky.builtin = mujoco.mjtBuiltin.mjBUILTIN_GRADIENT
-        sky.rgb1, sky.rgb2 = [0.93, 0.95, 0.98], [0.62, 0.68, 0.76]
-        sky.width, sky.height = 256, 1536
-        grid = spec.add_texture(name="grid", type=mujoco.mjtTexture.mjTEXTURE_2D)
-        grid.builtin = mujoco.mjtBuiltin.mjBUILTIN_CHECKER
-        grid.rgb1, grid.rgb2 = [0.86, 0.87, 0.89], [0.78, 0.80, 0.83]
-        grid.width, grid.height = 300, 300
-        floor_mat = spec.add_material(name="floor", texrepeat=[8.0, 8.0], reflectance=0.0)
-        floor_mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "grid"
-        wb = spec.worldbody
-        wb.add_light(pos=[0.5, -0.5, 3.0], dir=[-0.2, 0.2, -1.0], castshadow=False)
-        wb.add_geom(
-            name="floor",
-            type=mujoco.mjtGeom.mjGEOM_PLANE,
-            size=[2.0, 2.0, 0.05],
-            material="floor",
-            contype=0,
-            conaffinity=0,
-        )
-        base = wb.add_body(name="base")
-        base.add_geom(
-            type=mujoco.mjtGeom.mjGEOM_CYLINDER,
-            size=[0.09, 0.5 * max(r.joints[0].d, 0.02), 0.0],
-            pos=[0.0, 0.0, 0.5 * max(r.joints[0].d, 0.02)],
-            rgba=[0.25, 0.25, 0.28, 1.0],
-            contype=0,
-            conaffinity=0,
-        )
+    def _add_chain(self, base: Any) -> Any:
+        """The arm's bodies from the base, one per DH row (with a link body behind a gear where
+        the drive is elastic), their inertias and drawn shapes; returns the last link."""
+        r = self.nominal
         pos, quat = row_frames(r)
         segs = _link_segments(r)
         colours = ([0.95, 0.55, 0.1, 1.0], [0.9, 0.9, 0.92, 1.0])
@@ -378,7 +392,12 @@ class Plant:
                     group=1,
                 )
             parent = link
-        last = parent
+        return parent
+
+    def _add_tool_and_drives(self, spec: mujoco.MjSpec, last: Any) -> None:
+        """The tool site and the payload body on the last link, the gears' tendons (elastic
+        drives) and the position and velocity servos."""
+        r = self.nominal
         tool = r.tool_points[0]
         last.add_site(name="tool", pos=tool, size=[0.012, 0, 0], rgba=[0.1, 0.6, 1.0, 1.0])
         payload = last.add_body(name="payload", pos=tool)
@@ -409,7 +428,6 @@ class Plant:
             a = spec.add_actuator(name=f"velocity{k}", target=f"motor{k}")
             a.trntype = mujoco.mjtTrn.mjTRN_JOINT
             a.set_to_velocity(kv=1.0)
-        return spec
 
     def _index(self) -> None:
         m = self.model

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -407,13 +407,18 @@ def _draw(
     return float(o[0])
 
 
-def draw_truth(  # noqa: C901  (one draw: each branch an effect a scenario may hide)
+def draw_truth(
     scenario: str | Scenario,
     robot: RobotDescription,
     rng: np.random.Generator,
     overrides: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> EpisodeTruth:
-    """One episode's hidden arm: the scenario's effects with magnitudes drawn from ``rng``."""
+    """One episode's hidden arm: the scenario's effects with magnitudes drawn from ``rng``.
+
+    The steps: the geometric errors, every effect's magnitudes (each drawn in every scenario, in
+    one order, so that a scenario's draws do not move when another effect is on; the cyclic
+    terms last, in their scenario only), the plant's hidden effects, the error model that
+    approximates the plant, and the magnitudes the episode reports."""
     sc = get_scenario(scenario)
     nominal = robot.to_modified()
     if overrides is not None and not isinstance(overrides, Mapping):
@@ -425,74 +430,108 @@ def draw_truth(  # noqa: C901  (one draw: each branch an effect a scenario may h
     geo = ErrorModel(nominal, "geometric")
     _check_overrides(sc, overrides, set(geo.layout.names))
     on = set(sc.effects)
-    mags: dict[str, Any] = {}
+    p_geo = _draw_geometric(geo, rng, overrides.get("geometric", {}), "geometric" in on)
+    d = _draw_effects(rng, overrides, on)
+    hidden = _hidden_effects(d, on)
+    kind = _backlash_kinds(nominal, d["bf"], hidden.payload0) if "backlash" in on else {}
+    model = ErrorModel(nominal, _model_effects(on, kind, d["cyclic"]))
+    values = dict(geo.layout.as_dict(p_geo))
+    for family, key in (("c", "c"), ("ts", "ts"), ("tc", "tc"), ("g", "g"), ("bl", "gap")):
+        values |= {f"{family}{k}": float(d[key][k - 1]) for k in range(1, 7)}
+    values |= {f"lb{k}": float(d["gap"][k - 1]) for k in range(1, 7)}
+    values["kappa"] = d["kappa"]
+    values |= {f"cs{j}_{k}": a_s for j, k, a_s, _ in d["cyclic"]}
+    values |= {f"cc{j}_{k}": a_c for j, k, _, a_c in d["cyclic"]}
+    params = np.array([values[n] for n in model.layout.names], dtype=float)
+    true_robot = model.description(params, name=f"{nominal.name}-true")
+    true_robot = replace(true_robot, payload=hidden.payload0)
+    mags, declared = _magnitudes(d, hidden, kind, on)
+    return EpisodeTruth(sc.name, true_robot, model, params, hidden, mags, declared)
 
-    # geometric errors (always drawn, so that other effects keep their draws across scenarios)
+
+def _draw_geometric(
+    geo: ErrorModel, rng: np.random.Generator, go: Mapping[str, Any], on: bool
+) -> np.ndarray:
+    """The geometric errors: always drawn (so that other effects keep their draws across
+    scenarios), scaled by the override ``scale`` (zero when the scenario has none), any
+    parameter overridden."""
     p_geo = sample_parameters(geo, rng)
     p0 = geo.nominal()
-    go = overrides.get("geometric", {})
-    scale = float(go.get("scale", 1.0)) if "geometric" in on else 0.0
+    scale = float(go.get("scale", 1.0)) if on else 0.0
     p_geo = p0 + scale * (p_geo - p0)
     for name, v in go.items():
         if name != "scale":
             p_geo[geo.layout.index(name)] = float(v)
+    return p_geo
 
-    def per_joint(effect, family):
+
+def _draw_effects(
+    rng: np.random.Generator, overrides: Mapping[str, Mapping[str, Any]], on: set[str]
+) -> dict[str, Any]:
+    """Every effect's magnitudes, in one order (the cyclic terms last, in their scenario
+    only: no other scenario's draws move); those out of range refused."""
+
+    def per_joint(effect: str, family: str) -> np.ndarray:
         o = overrides.get(effect, {})
         return np.array([_draw(rng, effect, family, o, k) for k in range(1, 7)])
 
-    c = per_joint("compliance", "c")
-    ts = per_joint("transmission", "ts")
-    tc = per_joint("transmission", "tc")
-    g = per_joint("transmission", "g")
-    gap = per_joint("backlash", "bl")
-    bf = per_joint("backlash", "bf")
+    d: dict[str, Any] = {
+        "c": per_joint("compliance", "c"),
+        "ts": per_joint("transmission", "ts"),
+        "tc": per_joint("transmission", "tc"),
+        "g": per_joint("transmission", "g"),
+        "gap": per_joint("backlash", "bl"),
+        "bf": per_joint("backlash", "bf"),
+    }
     to = overrides.get("thermal", {})
-    kappa = _draw(rng, "thermal", "kappa", to)
-    temperature0 = _draw(rng, "thermal", "temperature0", to)
-    heating = _draw(rng, "thermal", "heating", to)
-    cooling = _draw(rng, "thermal", "cooling_time", to)
+    for key in ("kappa", "temperature0", "heating", "cooling_time"):
+        d[key] = _draw(rng, "thermal", key, to)
     po = overrides.get("payload", {})
-    payload0 = _draw(rng, "payload", "payload0", po)
-    payload1 = _draw(rng, "payload", "payload1", po)
-    change = _draw(rng, "payload", "change_time", po)
-    declare_delay = _draw(rng, "payload", "declare_delay", po)
-    declare_error = _draw(rng, "payload", "declare_error", po)
-    if declare_delay < 0:
-        raise ScenarioError(f"payload declare_delay must be >= 0 s, got {declare_delay}")
-    # last, and in this scenario only: no other scenario's draws move
-    cyclic = _draw_cyclic(rng, overrides.get("cyclic", {})) if "cyclic" in on else ()
-
-    compliant = "compliance" in on
-    if compliant and np.any(c <= 0):
-        raise ScenarioError(f"compliance c must be > 0 rad/(N*m), got {c}")
-    if np.any(gap < 0) or np.any(bf < 0):
+    for key in ("payload0", "payload1", "change_time", "declare_delay", "declare_error"):
+        d[key] = _draw(rng, "payload", key, po)
+    if d["declare_delay"] < 0:
+        raise ScenarioError(f"payload declare_delay must be >= 0 s, got {d['declare_delay']}")
+    d["cyclic"] = _draw_cyclic(rng, overrides.get("cyclic", {})) if "cyclic" in on else ()
+    if "compliance" in on and np.any(d["c"] <= 0):
+        raise ScenarioError(f"compliance c must be > 0 rad/(N*m), got {d['c']}")
+    if np.any(d["gap"] < 0) or np.any(d["bf"] < 0):
         raise ScenarioError("backlash gaps and bearing friction must be >= 0")
-    hidden = HiddenEffects(
-        stiffness=1.0 / c if compliant else np.full(6, np.inf),
-        gap=gap if "backlash" in on else np.zeros(6),
-        bearing_friction=bf if "backlash" in on else np.zeros(6),
-        ts=ts if "transmission" in on else np.zeros(6),
-        tc=tc if "transmission" in on else np.zeros(6),
-        g=g if "transmission" in on else np.zeros(6),
-        kappa=kappa if "thermal" in on else 0.0,
-        temperature0=temperature0 if "thermal" in on else AMBIENT,
-        heating=heating if "thermal" in on else 0.0,
-        cooling_time=cooling,
-        payload0=payload0 if "payload" in on else 0.0,
-        payload_schedule=((change, payload1),) if "payload" in on else (),
-        cyclic=cyclic,
+    return d
+
+
+def _hidden_effects(d: Mapping[str, Any], on: set[str]) -> HiddenEffects:
+    """The plant's hidden effects: the drawn magnitudes of the scenario's effects, the others
+    off."""
+
+    def zeros() -> np.ndarray:
+        return np.zeros(6)
+
+    return HiddenEffects(
+        stiffness=1.0 / d["c"] if "compliance" in on else np.full(6, np.inf),
+        gap=d["gap"] if "backlash" in on else zeros(),
+        bearing_friction=d["bf"] if "backlash" in on else zeros(),
+        ts=d["ts"] if "transmission" in on else zeros(),
+        tc=d["tc"] if "transmission" in on else zeros(),
+        g=d["g"] if "transmission" in on else zeros(),
+        kappa=d["kappa"] if "thermal" in on else 0.0,
+        temperature0=d["temperature0"] if "thermal" in on else AMBIENT,
+        heating=d["heating"] if "thermal" in on else 0.0,
+        cooling_time=d["cooling_time"],
+        payload0=d["payload0"] if "payload" in on else 0.0,
+        payload_schedule=((d["change_time"], d["payload1"]),) if "payload" in on else (),
+        cyclic=d["cyclic"],
     )
 
-    # the error model that approximates the plant
+
+def _model_effects(on: set[str], kind: Mapping[int, str], cyclic: Sequence[Any]) -> list[str]:
+    """The error model's effects that approximate the plant's (``kind``: each joint's backlash,
+    held by friction or by the load)."""
     effects = ["geometric"]
-    if compliant:
+    if "compliance" in on:
         effects.append("compliance")
     if "transmission" in on:
         effects += ["transmission", "joint_scale"]
-    kind = {}
     if "backlash" in on:
-        kind = _backlash_kinds(nominal, bf, hidden.payload0)
         fr = [k for k in range(1, 7) if kind[k] == "friction"]
         ld = [k for k in range(1, 7) if kind[k] == "load"]
         if fr:
@@ -506,46 +545,39 @@ def draw_truth(  # noqa: C901  (one draw: each branch an effect a scenario may h
         for j, k, _, _ in cyclic:
             orders.setdefault(j, []).append(k)
         effects.append(Cyclic(orders).label)
-    model = ErrorModel(nominal, effects)
-    values = dict(geo.layout.as_dict(p_geo))
-    values |= {f"c{k}": float(c[k - 1]) for k in range(1, 7)}
-    values |= {f"ts{k}": float(ts[k - 1]) for k in range(1, 7)}
-    values |= {f"tc{k}": float(tc[k - 1]) for k in range(1, 7)}
-    values |= {f"g{k}": float(g[k - 1]) for k in range(1, 7)}
-    values |= {f"bl{k}": float(gap[k - 1]) for k in range(1, 7)}
-    values |= {f"lb{k}": float(gap[k - 1]) for k in range(1, 7)}
-    values["kappa"] = kappa
-    values |= {f"cs{j}_{k}": a_s for j, k, a_s, _ in cyclic}
-    values |= {f"cc{j}_{k}": a_c for j, k, _, a_c in cyclic}
-    params = np.array([values[n] for n in model.layout.names], dtype=float)
-    true_robot = model.description(params, name=f"{nominal.name}-true")
-    true_robot = replace(true_robot, payload=hidden.payload0)
+    return effects
 
-    mags["stiffness"] = hidden.stiffness.copy()
-    if compliant:
-        mags["compliance"] = c.copy()
+
+def _magnitudes(
+    d: Mapping[str, Any], hidden: HiddenEffects, kind: Mapping[int, str], on: set[str]
+) -> tuple[dict[str, Any], tuple[tuple[float, float], ...]]:
+    """The magnitudes an episode reports of its scenario's effects, and the payload schedule
+    the operator declares (late, and wrong, in the payload scenario)."""
+    mags: dict[str, Any] = {"stiffness": hidden.stiffness.copy()}
+    if "compliance" in on:
+        mags["compliance"] = d["c"].copy()
     if "transmission" in on:
-        mags |= {"ts": ts.copy(), "tc": tc.copy(), "g": g.copy()}
+        mags |= {"ts": d["ts"].copy(), "tc": d["tc"].copy(), "g": d["g"].copy()}
     if "backlash" in on:
-        mags |= {"gap": gap.copy(), "bearing_friction": bf.copy(), "backlash_kind": kind}
+        mags |= {"gap": d["gap"].copy(), "bearing_friction": d["bf"].copy(), "backlash_kind": kind}
     if "thermal" in on:
-        mags |= {
-            "kappa": kappa,
-            "temperature0": temperature0,
-            "heating": heating,
-            "cooling_time": cooling,
-        }
-    if cyclic:
-        mags["cyclic"] = cyclic
+        mags |= {k: d[k] for k in ("kappa", "temperature0", "heating", "cooling_time")}
+    if d["cyclic"]:
+        mags["cyclic"] = d["cyclic"]
     declared: tuple[tuple[float, float], ...] = ((0.0, hidden.payload0),)
     if "payload" in on:
-        declared += ((change + declare_delay, max(0.0, payload1 + declare_error)),)
+        declared += (
+            (
+                d["change_time"] + d["declare_delay"],
+                max(0.0, d["payload1"] + d["declare_error"]),
+            ),
+        )
         mags |= {
-            "payload0": payload0,
+            "payload0": d["payload0"],
             "payload_schedule": hidden.payload_schedule,
             "declared_payload": declared,
         }
-    return EpisodeTruth(sc.name, true_robot, model, params, hidden, mags, declared)
+    return mags, declared
 
 
 def _backlash_kinds(

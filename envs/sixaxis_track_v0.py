@@ -10,7 +10,6 @@ from __future__ import annotations
 import inspect
 import itertools
 import math
-import numbers
 import os
 import warnings
 from collections.abc import Sequence
@@ -22,6 +21,7 @@ from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 from gymnasium.wrappers import TimeLimit
 
+from arm.constraints import Constraint, Interval, OneOf, TypeOf, description
 from arm.description import RobotDescription, load_robot
 from arm.errors import SixAxisError
 from envs.instrument import InstrumentError, LaserTracker, TemperatureSensor, TrackerConfig
@@ -82,10 +82,12 @@ def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any)
     from envs.wrappers import INTERFACES, ToolDisplacementAction
 
     problems = {}
-    if interface not in INTERFACES:
-        problems["interface"] = f"expected one of {', '.join(INTERFACES)}, got {interface!r}"
-    if not (_real(tool_step_mm) and tool_step_mm > 0):
-        problems["tool_step_mm"] = f"expected a positive number of mm, got {tool_step_mm!r}"
+    for key, value, constraint in (
+        ("interface", interface, OneOf(tuple(INTERFACES))),
+        ("tool_step_mm", tool_step_mm, Interval(float, 0.0, None, closed="neither", why="mm")),
+    ):
+        if not constraint.holds(value):
+            problems[key] = f"expected {description(constraint)}, got {value!r}"
     if problems:
         raise EnvOptionError(
             "SixAxisTrack-v0: " + "; ".join(f"{k}: {m}" for k, m in problems.items())
@@ -95,6 +97,78 @@ def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any)
     if interface == "tool":
         return ToolDisplacementAction(limited, float(tool_step_mm))
     return limited
+
+
+def _option_names(cls: type) -> frozenset[str]:
+    """The keyword arguments of an env class's constructor."""
+    return frozenset(inspect.signature(cls.__init__).parameters) - {"self"}  # type: ignore[misc]
+
+
+def _check_instrument(o: dict[str, Any], problems: dict[str, str]) -> None:
+    """The laser tracker's own rules on its options, by the key its message starts with."""
+    if "noise_mm" in problems or "measure_every" in problems:
+        return
+    try:
+        TrackerConfig(
+            noise_mm=o["noise_mm"],
+            measure_every=o["measure_every"],
+            dropout=o["dropout"],
+            latency_steps=o["latency_steps"],
+        )
+    except InstrumentError as exc:
+        key = str(exc).split(" ", 1)[0]
+        problems.setdefault(key if key in o else "noise_mm", str(exc))
+
+
+def _check_world(o: dict[str, Any], problems: dict[str, str]) -> None:
+    """The robot, the posture on it and the scenario's overrides, drawn once as a reset would."""
+    robot = o["robot"]
+    nominal = None
+    if isinstance(robot, RobotDescription):
+        nominal = robot.to_modified()
+    elif not isinstance(robot, str):
+        problems.setdefault(
+            "robot", f"expected a robot name, a TOML file or a RobotDescription, got {robot!r}"
+        )
+    else:
+        try:
+            nominal = load_robot(robot).to_modified()
+        except (SixAxisError, OSError) as exc:
+            problems["robot"] = str(exc)
+    if nominal is not None and o["posture"] is not None:
+        try:
+            check_posture(nominal, o["posture"])
+        except (SixAxisError, ValueError) as exc:
+            problems["posture"] = str(exc)
+    if nominal is not None and "scenario" not in problems:
+        try:
+            draw_truth(o["scenario"], nominal, np.random.default_rng(0), o["overrides"])
+        except (SixAxisError, ValueError) as exc:
+            problems["overrides"] = str(exc)
+        else:
+            why = _outside_observation(o["overrides"])
+            if why:
+                problems["overrides"] = why
+
+
+def _observation_space(nominal: RobotDescription, slices: dict[str, slice], n: int) -> spaces.Box:
+    """The observation's bounds, entry by entry (:func:`_layout`)."""
+    low = np.empty(n, dtype=np.float32)
+    high = np.empty(n, dtype=np.float32)
+    low[slices["q"]] = nominal.lower - math.pi  # hard stops sit at the limits
+    high[slices["q"]] = nominal.upper + math.pi
+    for name, lo, hi in (
+        ("qd", -MAX_SPEED, MAX_SPEED),
+        ("ref", -WORKSPACE, WORKSPACE),
+        ("preview", -WORKSPACE, WORKSPACE),
+        ("meas", -WORKSPACE, WORKSPACE),
+        ("meas_age", 0.0, MAX_MEASUREMENT_AGE),
+        ("meas_valid", 0.0, 1.0),
+        ("temperature", *TEMPERATURE_RANGE),
+        ("payload", *PAYLOAD_RANGE),
+    ):
+        low[slices[name]], high[slices[name]] = lo, hi
+    return spaces.Box(low, high, (n,), np.float32)
 
 
 class EnvOptionError(SixAxisError, ValueError):
@@ -108,14 +182,30 @@ class EnvStateError(SixAxisError, ResetNeeded, RuntimeError):
 #: the largest rendered frame, pixels per side (4K video is 3840 x 2160; MuJoCo's offscreen buffer
 #: and the H.264 encoder refuse frames far beyond)
 MAX_FRAME = 4096
+#: the modes ``render`` draws
+RENDER_MODES = ("rgb_array",)
+_CONTROL_DT = PHYSICS_DT * SUBSTEPS
 
-
-def _integer(v: Any) -> bool:
-    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
-
-
-def _real(v: Any) -> bool:
-    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+#: what each plain option may be (:mod:`arm.constraints`; ``True``: None too), in the constructor's
+#: order; the scenario, the robot, the posture and the overrides are judged by the libraries that
+#: read them (:func:`envs.scenarios.draw_truth`, :func:`arm.description.load_robot`,
+#: :func:`envs.trajectories.check_posture`) and the instrument's options by its own rules too
+OPTION_CONSTRAINTS: dict[str, tuple[Constraint, bool]] = {
+    "trajectory": (OneOf(KINDS), True),
+    "noise_mm": (Interval(float, 0.0, None, why="mm"), False),
+    "measure_every": (Interval(int, 1, None, why="control steps"), False),
+    "dropout": (Interval(float, 0.0, 1.0, closed="left", why="a probability"), False),
+    "latency_steps": (Interval(int, 0, None, why="control steps"), False),
+    "measurements": (TypeOf(bool), False),
+    "temperature_noise": (Interval(float, 0.0, None, why="K"), False),
+    "temperature_lag": (Interval(float, 0.0, None, why="s"), False),
+    "preview_steps": (Interval(int, 0, None), False),
+    "jerk_weight": (Interval(float, 0.0, None), False),
+    "episode_seconds": (Interval(float, _CONTROL_DT, None, why="one control step"), False),
+    "render_mode": (OneOf(RENDER_MODES), True),
+    "width": (Interval(int, 1, MAX_FRAME, why="pixels"), False),
+    "height": (Interval(int, 1, MAX_FRAME, why="pixels"), False),
+}
 
 
 def _layout(preview: int) -> dict[str, slice]:
@@ -302,7 +392,7 @@ class SixAxisTrackEnv(gym.Env):
       scenario; controllers get only the controllers' info keys from the runner.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50}
 
     def __init__(
         self,
@@ -325,26 +415,9 @@ class SixAxisTrackEnv(gym.Env):
         width: int = 640,
         height: int = 480,
     ) -> None:
-        problems = self.check_options(
-            scenario=scenario,
-            overrides=overrides,
-            trajectory=trajectory,
-            posture=posture,
-            noise_mm=noise_mm,
-            measure_every=measure_every,
-            dropout=dropout,
-            latency_steps=latency_steps,
-            measurements=measurements,
-            temperature_noise=temperature_noise,
-            temperature_lag=temperature_lag,
-            preview_steps=preview_steps,
-            jerk_weight=jerk_weight,
-            robot=robot,
-            episode_seconds=episode_seconds,
-            render_mode=render_mode,
-            width=width,
-            height=height,
-        )
+        # the arguments as given (the first statement: locals() holds nothing else yet)
+        given = {k: v for k, v in locals().items() if k in _option_names(type(self))}
+        problems = self.check_options(**given)
         if problems:
             raise EnvOptionError(
                 "SixAxisTrack-v0: " + "; ".join(f"{k}: {m}" for k, m in problems.items())
@@ -405,31 +478,18 @@ class SixAxisTrackEnv(gym.Env):
         self.dt = self.plant.dt
         self.episode_steps = round(float(episode_seconds) / self.dt)
         self.action_space = spaces.Box(-1.0, 1.0, (6,), np.float32)
-        n = self.task.obs_size
-        low = np.empty(n, dtype=np.float32)
-        high = np.empty(n, dtype=np.float32)
-        low[slices["q"]] = self.nominal.lower - math.pi  # hard stops sit at the limits
-        high[slices["q"]] = self.nominal.upper + math.pi
-        for name, lo, hi in (
-            ("qd", -MAX_SPEED, MAX_SPEED),
-            ("ref", -WORKSPACE, WORKSPACE),
-            ("preview", -WORKSPACE, WORKSPACE),
-            ("meas", -WORKSPACE, WORKSPACE),
-            ("meas_age", 0.0, MAX_MEASUREMENT_AGE),
-            ("meas_valid", 0.0, 1.0),
-            ("temperature", *TEMPERATURE_RANGE),
-            ("payload", *PAYLOAD_RANGE),
-        ):
-            low[slices[name]], high[slices[name]] = lo, hi
-        self.observation_space = spaces.Box(low, high, (n,), np.float32)
+        self.observation_space = _observation_space(self.nominal, slices, self.task.obs_size)
+        self._init_episode_state(slices, drive.v_max, P)
 
-        # per-episode state
+    def _init_episode_state(self, slices: dict[str, slice], v_max: np.ndarray, P: int) -> None:
+        """The per-episode state, before the first reset."""
+        n = self.task.obs_size
         self.truth: EpisodeTruth | None = None
         self.trajectory: Trajectory | None = None
         self.references = np.zeros((1, 3))
         self._obs = np.zeros(n)
         self._sl = slices
-        self._v_max = drive.v_max.astype(float)
+        self._v_max = v_max.astype(float)
         self._a = np.zeros(6)
         self._a1 = np.zeros(6)
         self._a2 = np.zeros(6)
@@ -455,10 +515,12 @@ class SixAxisTrackEnv(gym.Env):
         self._closed = False
 
     @classmethod
-    def check_options(cls, **options: Any) -> dict[str, str]:  # noqa: C901  (one check per env option, every problem named at once)
+    def check_options(cls, **options: Any) -> dict[str, str]:
         """What is wrong with these keyword arguments, ``{key: problem}`` (empty: the env takes
         them), without building the simulation. The constructor refuses the same, and a sweep's
-        config checks every run's options with it before any run starts."""
+        config checks every run's options with it before any run starts. The plain options are
+        judged by their declarations (:data:`OPTION_CONSTRAINTS`), the others by the libraries
+        that read them."""
         params = inspect.signature(cls.__init__).parameters
         defaults = {k: p.default for k, p in params.items() if k != "self"}
         problems: dict[str, str] = {}
@@ -466,97 +528,17 @@ class SixAxisTrackEnv(gym.Env):
             if k not in defaults:
                 problems[k] = f"unknown option; the env takes {', '.join(defaults)}"
         o = defaults | {k: v for k, v in options.items() if k in defaults}
-
-        def need(key: str, ok: bool, want: str) -> None:
-            if not ok and key not in problems:
-                problems[key] = f"expected {want}, got {o[key]!r}"
-
         sc = o["scenario"]
-        if not isinstance(sc, Scenario):
-            need("scenario", isinstance(sc, str), "a scenario name")
-            if isinstance(sc, str) and sc not in SCENARIOS:
-                problems["scenario"] = f"unknown scenario {sc!r}; known: {', '.join(SCENARIOS)}"
-        t = o["trajectory"]
-        need(
-            "trajectory",
-            t is None or (isinstance(t, str) and t in KINDS),
-            f"None or one of {', '.join(KINDS)}",
-        )
-        need("noise_mm", _real(o["noise_mm"]) and o["noise_mm"] >= 0, "a number >= 0 (mm)")
-        need(
-            "measure_every",
-            _integer(o["measure_every"]) and o["measure_every"] >= 1,
-            "an integer >= 1 (control steps)",
-        )
-        need("dropout", _real(o["dropout"]) and 0 <= o["dropout"] < 1, "a probability in [0, 1)")
-        need(
-            "latency_steps",
-            _integer(o["latency_steps"]) and o["latency_steps"] >= 0,
-            "an integer >= 0 (control steps)",
-        )
-        need("measurements", isinstance(o["measurements"], bool), "true or false")
-        for key, unit in (("temperature_noise", "K"), ("temperature_lag", "s")):
-            need(key, _real(o[key]) and o[key] >= 0, f"a number >= 0 ({unit})")
-        need(
-            "preview_steps",
-            _integer(o["preview_steps"]) and o["preview_steps"] >= 0,
-            "an integer >= 0",
-        )
-        need("jerk_weight", _real(o["jerk_weight"]) and o["jerk_weight"] >= 0, "a number >= 0")
-        dt = PHYSICS_DT * SUBSTEPS
-        need(
-            "episode_seconds",
-            _real(o["episode_seconds"]) and o["episode_seconds"] >= dt,
-            f"a duration of at least one control step ({dt:g} s)",
-        )
-        modes = cls.metadata["render_modes"]
-        need(
-            "render_mode",
-            o["render_mode"] is None or o["render_mode"] in modes,
-            f"None or one of {', '.join(modes)}",
-        )
-        for key in ("width", "height"):
-            need(
-                key,
-                _integer(o[key]) and 1 <= o[key] <= MAX_FRAME,
-                f"a number of pixels from 1 to {MAX_FRAME}",
-            )
-        if "noise_mm" not in problems and "measure_every" not in problems:
-            try:  # the instrument's own rules, by the key its message starts with
-                TrackerConfig(
-                    noise_mm=o["noise_mm"],
-                    measure_every=o["measure_every"],
-                    dropout=o["dropout"],
-                    latency_steps=o["latency_steps"],
-                )
-            except InstrumentError as exc:
-                key = str(exc).split(" ", 1)[0]
-                problems.setdefault(key if key in defaults else "noise_mm", str(exc))
-        robot = o["robot"]
-        nominal = None
-        if isinstance(robot, RobotDescription):
-            nominal = robot.to_modified()
-        elif not isinstance(robot, str):
-            need("robot", False, "a robot name, a TOML file or a RobotDescription")
-        else:
-            try:
-                nominal = load_robot(robot).to_modified()
-            except (SixAxisError, OSError) as exc:
-                problems["robot"] = str(exc)
-        if nominal is not None and o["posture"] is not None:
-            try:
-                check_posture(nominal, o["posture"])
-            except (SixAxisError, ValueError) as exc:
-                problems["posture"] = str(exc)
-        if nominal is not None and "scenario" not in problems:
-            try:  # the overrides, drawn once as a reset would
-                draw_truth(o["scenario"], nominal, np.random.default_rng(0), o["overrides"])
-            except (SixAxisError, ValueError) as exc:
-                problems["overrides"] = str(exc)
-            else:
-                why = _outside_observation(o["overrides"])
-                if why:
-                    problems["overrides"] = why
+        if not isinstance(sc, (Scenario, str)):
+            problems["scenario"] = f"expected a scenario name, got {sc!r}"
+        elif isinstance(sc, str) and sc not in SCENARIOS:
+            problems["scenario"] = f"unknown scenario {sc!r}; known: {', '.join(SCENARIOS)}"
+        for key, (constraint, none_ok) in OPTION_CONSTRAINTS.items():
+            value = o.get(key)
+            if key in o and not (value is None and none_ok) and not constraint.holds(value):
+                problems[key] = f"expected {description(constraint, none_ok)}, got {value!r}"
+        _check_instrument(o, problems)
+        _check_world(o, problems)
         return problems
 
     # -- gymnasium API --------------------------------------------------------------------------

@@ -12,8 +12,11 @@ user_errors` (one line ``error: ...``, exit code 2).
 from __future__ import annotations
 
 import contextlib
+import functools
+import inspect
+import typing
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -35,6 +38,7 @@ __all__ = [
     "EffectsOpt",
     "JsonOpt",
     "JsonOutOpt",
+    "LabArgs",
     "LengthOpt",
     "LossOpt",
     "MeasuredOpt",
@@ -49,9 +53,8 @@ __all__ = [
     "ValidateOpt",
     "check_outputs",
     "declared",
-    "lab_inputs",
+    "lab_command",
     "load_modules",
-    "next_step_options",
     "parse_effects",
     "read_arm",
     "read_data",
@@ -254,6 +257,146 @@ JsonOutOpt = Annotated[
 ]
 
 
+# -- the lab's shared options -----------------------------------------------------------------------
+_LAB_DEFAULT = LabOptions()
+
+
+@dataclass(frozen=True)
+class LabArgs:
+    """What the lab's commands that fit take alike (fit, diagnose, discover, report, export): the
+    arm, the model, the held-out data, the instrument, the fit's options and the data's units,
+    each declared once with its help (the ``...Opt`` types above) and its default (a
+    :class:`lab.LabOptions` field's own). :func:`lab_command` puts them into a command where it
+    declares ``lab: LabArgs``, in this order, and calls the command with them gathered here."""
+
+    robot: RobotOpt = "seed"
+    effects: EffectsOpt = "geometric"
+    validate: ValidateOpt = None
+    noise_mm: NoiseOpt = _LAB_DEFAULT.noise_mm
+    noise_ppm: NoisePpmOpt = _LAB_DEFAULT.noise_ppm
+    noise_mrad: NoiseMradOpt = _LAB_DEFAULT.noise_mrad
+    orientation_unit: OrientationUnitOpt = None
+    measured: MeasuredOpt = None
+    loss: LossOpt = _LAB_DEFAULT.loss
+    effect_module: ModuleOpt = None
+    length_unit: LengthOpt = "m"
+    angle_unit: AngleOpt = "rad"
+    outliers: OutliersOpt = _LAB_DEFAULT.outliers
+    accept_large: AcceptLargeOpt = _LAB_DEFAULT.accept_large
+
+    def options(self) -> LabOptions:
+        """The :class:`lab.LabOptions` these state (``measured`` is the data's: it is read with
+        them); a value the options refuse is one error line."""
+        known = {f.name for f in fields(LabOptions)} - {"measured"}
+        with user_errors():
+            return LabOptions(
+                **{f.name: getattr(self, f.name) for f in fields(self) if f.name in known}
+            )
+
+    def read(
+        self,
+        data: Path,
+        outputs: Sequence[tuple[Path | None, str]] = (),
+        as_json: bool = False,
+    ) -> tuple[Any, Any, Any, LabOptions]:
+        """The options checked, the output places checked, the effect modules registered, the
+        robot and the data read: (arm, data, held-out data or None, options)."""
+        opts = self.options()
+        check_outputs(
+            outputs, [data, self.validate, self.robot, *(self.effect_module or ())], as_json
+        )
+        load_modules(self.effect_module)
+        parse_effects(self.effects)
+        arm = read_arm(self.robot)
+        units = (self.length_unit, self.angle_unit, self.orientation_unit, self.measured)
+        meas = read_data(data, *units)
+        val = None if self.validate is None else read_data(self.validate, *units)
+        return arm, meas, val, opts
+
+    def next_step(self) -> dict[str, Any]:
+        """The options that a printed next step must repeat to work on the same data (the arm,
+        the units, the effect modules, the noise and the screening), as command-line flags; the
+        defaults left out."""
+        default = LabArgs()
+        return {
+            "--robot": _given(self.robot, default.robot),
+            "--length-unit": _given(self.length_unit, default.length_unit),
+            "--angle-unit": _given(self.angle_unit, default.angle_unit),
+            "--effect-module": [str(m) for m in self.effect_module or ()],
+            "--noise-mm": self.noise_mm,
+            "--loss": _given(self.loss, default.loss),
+            "--outliers": _given(self.outliers, default.outliers),
+            "--accept-large": self.accept_large,
+        }
+
+    def flags(self) -> dict[str, Any]:
+        """Every option given, as the command-line flags that repeat it (defaults left out)."""
+        default = LabArgs()
+        return {
+            "--robot": _given(self.robot, default.robot),
+            "--effects": _given(self.effects, default.effects),
+            "--validate": self.validate,
+            "--noise-mm": self.noise_mm,
+            "--noise-ppm": self.noise_ppm or None,
+            "--noise-mrad": self.noise_mrad,
+            "--orientation-unit": self.orientation_unit,
+            "--measured": self.measured,
+            "--loss": _given(self.loss, default.loss),
+            "--effect-module": [str(m) for m in self.effect_module or []],
+            "--length-unit": _given(self.length_unit, default.length_unit),
+            "--angle-unit": _given(self.angle_unit, default.angle_unit),
+            "--outliers": _given(self.outliers, default.outliers),
+            "--accept-large": self.accept_large,
+        }
+
+
+def _given(value: Any, default: Any) -> Any:
+    return None if value == default else value
+
+
+def lab_command(
+    app: typer.Typer, name: str, omit: Sequence[str] = (), **replace: Any
+) -> Callable[[Callable[..., None]], Callable[..., None]]:
+    """Register a function as the command ``name`` of ``app`` with :class:`LabArgs`' options in
+    place of its ``lab: LabArgs`` parameter (but those of ``omit``; those of ``replace`` with
+    the typer annotation given there), and call it with them gathered in one ``LabArgs``.
+
+        @lab_command(app, "diagnose", omit=("validate",))
+        def diagnose_cmd(data: DataArg, lab: LabArgs, alpha: AlphaOpt = 0.02) -> None: ...
+    """
+    hints = typing.get_type_hints(LabArgs, include_extras=True)
+
+    def register(func: Callable[..., None]) -> Callable[..., None]:
+        sig = inspect.signature(func, eval_str=True)
+        params = list(sig.parameters.values())
+        at = [p.name for p in params].index("lab")
+        shared = [
+            inspect.Parameter(
+                f.name,
+                params[at].kind,
+                default=f.default,
+                annotation=replace.get(f.name, hints[f.name]),
+            )
+            for f in fields(LabArgs)
+            if f.name not in omit
+        ]
+        signature = sig.replace(parameters=[*params[:at], *shared, *params[at + 1 :]])
+        names = [p.name for p in shared]
+
+        @functools.wraps(func)
+        def command(*args: Any, **kwargs: Any) -> None:
+            lab = LabArgs(**{k: kwargs.pop(k) for k in names})
+            func(*args, lab=lab, **kwargs)
+
+        command.__signature__ = signature  # type: ignore[attr-defined]
+        command.__annotations__ = {p.name: p.annotation for p in signature.parameters.values()} | {
+            "return": None
+        }
+        return app.command(name)(command)
+
+    return register
+
+
 # -- inputs -----------------------------------------------------------------------------------------
 @contextlib.contextmanager
 def writing(path: Path) -> Iterator[None]:
@@ -375,60 +518,3 @@ def check_outputs(
         # the command's tables and messages go to stderr until it ends: with --json, stdout
         # carries the JSON object alone
         console.stderr = True
-
-
-def next_step_options(
-    robot: str = "seed",
-    length_unit: str = "m",
-    angle_unit: str = "rad",
-    effect_module: Sequence[Path] | None = None,
-    noise_mm: float | None = None,
-    loss: str = "linear",
-    outliers: str = "auto",
-    accept_large: bool = False,
-) -> dict[str, Any]:
-    """The options of a command that a printed next step must repeat to work on the same data
-    (the arm, the units, the effect modules, the noise and the screening), as command-line flags;
-    the defaults left out."""
-    default = LabOptions()
-    return {
-        "--robot": None if robot == "seed" else robot,
-        "--length-unit": None if length_unit == "m" else length_unit,
-        "--angle-unit": None if angle_unit == "rad" else angle_unit,
-        "--effect-module": [str(m) for m in effect_module or ()],
-        "--noise-mm": noise_mm,
-        "--loss": None if loss == default.loss else loss,
-        "--outliers": None if outliers == default.outliers else outliers,
-        "--accept-large": accept_large,
-    }
-
-
-def lab_inputs(
-    data: Path,
-    robot: str,
-    effects: str,
-    modules: Sequence[Path] | None,
-    validate: Path | None,
-    length_unit: str,
-    angle_unit: str,
-    outputs: Sequence[tuple[Path | None, str]] = (),
-    orientation_unit: str | None = None,
-    measured: str | None = None,
-    as_json: bool = False,
-    **options: Any,
-) -> tuple[Any, Any, Any, LabOptions]:
-    """The lab's options (:class:`lab.LabOptions`, the keywords ``options``), the output places
-    checked, the effect modules registered, the robot and the data read: (arm, data, held-out
-    data or None, options)."""
-    known = {f.name for f in fields(LabOptions)}
-    with user_errors():
-        opts = LabOptions(**{k: v for k, v in options.items() if k in known})
-    check_outputs(outputs, [data, validate, robot, *(modules or ())], as_json)
-    load_modules(modules)
-    parse_effects(effects)
-    arm = read_arm(robot)
-    meas = read_data(data, length_unit, angle_unit, orientation_unit, measured)
-    val = None
-    if validate is not None:
-        val = read_data(validate, length_unit, angle_unit, orientation_unit, measured)
-    return arm, meas, val, opts

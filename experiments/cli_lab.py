@@ -28,28 +28,19 @@ import typer
 from arm.constraints import Interval, OneOf
 from arm.measurements import ANGLE_UNITS
 from experiments.cli_inputs import (
-    AcceptLargeOpt,
     AngleOpt,
     DataArg,
     EffectsOpt,
     JsonOpt,
     JsonOutOpt,
+    LabArgs,
     LengthOpt,
-    LossOpt,
-    MeasuredOpt,
     ModuleOpt,
-    NoiseMradOpt,
-    NoiseOpt,
-    NoisePpmOpt,
-    OrientationUnitOpt,
-    OutliersOpt,
     RobotOpt,
-    ValidateOpt,
     check_outputs,
     declared,
-    lab_inputs,
+    lab_command,
     load_modules,
-    next_step_options,
     parse_effects,
     read_arm,
     writing,
@@ -125,23 +116,10 @@ def _fitted(meas, arm, effects: str, opts: LabOptions, val, extrapolate: bool = 
 
 
 # -- fit --------------------------------------------------------------------------------------------
-@app.command("fit")
+@lab_command(app, "fit")
 def fit_cmd(
     data: DataArg,
-    robot: RobotOpt = "seed",
-    effects: EffectsOpt = "geometric",
-    validate: ValidateOpt = None,
-    loss: LossOpt = "linear",
-    effect_module: ModuleOpt = None,
-    length_unit: LengthOpt = "m",
-    angle_unit: AngleOpt = "rad",
-    noise_mm: NoiseOpt = None,
-    noise_ppm: NoisePpmOpt = 0.0,
-    noise_mrad: NoiseMradOpt = None,
-    orientation_unit: OrientationUnitOpt = None,
-    measured: MeasuredOpt = None,
-    outliers: OutliersOpt = "auto",
-    accept_large: AcceptLargeOpt = False,
+    lab: LabArgs,
     extrapolate: ExtrapolateOpt = False,
     as_json: JsonOpt = False,
     out: JsonOutOpt = None,
@@ -151,51 +129,21 @@ def fit_cmd(
     Prints the identified parameters with standard errors, the RMS before and after, and which
     parameters the poses cannot identify; --json prints the JSON object of docs/format.md, the
     lab's JSON output (SI units)."""
-    arm, meas, val, opts = lab_inputs(
-        data,
-        robot,
-        effects,
-        effect_module,
-        validate,
-        length_unit,
-        angle_unit,
-        outputs=[(out, "--out")],
-        noise_mm=noise_mm,
-        noise_ppm=noise_ppm,
-        noise_mrad=noise_mrad,
-        orientation_unit=orientation_unit,
-        measured=measured,
-        loss=loss,
-        outliers=outliers,
-        accept_large=accept_large,
-        as_json=as_json,
-    )
-    result = _fitted(meas, arm, effects, opts, val, extrapolate)
+    arm, meas, val, opts = lab.read(data, [(out, "--out")], as_json)
+    result = _fitted(meas, arm, lab.effects, opts, val, extrapolate)
     if not as_json:
         print_fit(result)
     emit_json(result.to_dict(), as_json, out)
 
 
 # -- diagnose ---------------------------------------------------------------------------------------
-@app.command("diagnose")
+@lab_command(app, "diagnose", omit=("validate",))
 def diagnose_cmd(
     data: DataArg,
-    robot: RobotOpt = "seed",
-    effects: EffectsOpt = "geometric",
-    noise_mm: NoiseOpt = None,
-    noise_ppm: NoisePpmOpt = 0.0,
-    noise_mrad: NoiseMradOpt = None,
-    orientation_unit: OrientationUnitOpt = None,
-    measured: MeasuredOpt = None,
-    loss: LossOpt = "linear",
-    effect_module: ModuleOpt = None,
-    length_unit: LengthOpt = "m",
-    angle_unit: AngleOpt = "rad",
+    lab: LabArgs,
     alpha: Annotated[
         float, declared(ALPHA, "alpha", "Family-wise false-alarm rate of the tests.")
     ] = 0.02,
-    outliers: OutliersOpt = "auto",
-    accept_large: AcceptLargeOpt = False,
     as_json: JsonOpt = False,
     out: JsonOutOpt = None,
 ) -> None:
@@ -206,37 +154,27 @@ def diagnose_cmd(
     the residual still depends on."""
     from lab import diagnose
 
-    arm, meas, _, opts = lab_inputs(
-        data,
-        robot,
-        effects,
-        effect_module,
-        None,
-        length_unit,
-        angle_unit,
-        outputs=[(out, "--out")],
-        noise_mm=noise_mm,
-        noise_ppm=noise_ppm,
-        noise_mrad=noise_mrad,
-        orientation_unit=orientation_unit,
-        measured=measured,
-        loss=loss,
-        outliers=outliers,
-        accept_large=accept_large,
-        as_json=as_json,
-    )
+    arm, meas, _, opts = lab.read(data, [(out, "--out")], as_json)
     with user_errors(), console.status("fitting and testing the candidate effects..."):
-        d = diagnose(meas, arm, effects, options=opts, alpha=alpha)
+        d = diagnose(meas, arm, lab.effects, options=opts, alpha=alpha)
     if not as_json:
-        context = next_step_options(
-            robot, length_unit, angle_unit, effect_module, noise_mm, loss, outliers, accept_large
-        )
-        print_diagnosis(d, data, context)
+        print_diagnosis(d, data, lab.next_step())
     emit_json(d.to_dict(), as_json, out)
 
 
 # -- discover ---------------------------------------------------------------------------------------
-@app.command("discover")
+DiscoverEffectsOpt = Annotated[
+    str,
+    typer.Option(
+        "--effects",
+        "-e",
+        help="The model E to start from (default geometric; or the diagnosis's best "
+        "catalogued model, e.g. geometric,compliance[2,3]).",
+    ),
+]
+
+
+@lab_command(app, "discover", omit=("loss", "outliers", "accept_large"), effects=DiscoverEffectsOpt)
 def discover_cmd(
     data: DataArg,
     output: Annotated[
@@ -249,25 +187,8 @@ def discover_cmd(
             metavar="MODULE.py",
         ),
     ] = None,
-    robot: RobotOpt = "seed",
-    effects: Annotated[
-        str,
-        typer.Option(
-            "--effects",
-            "-e",
-            help="The model E to start from (default geometric; or the diagnosis's best "
-            "catalogued model, e.g. geometric,compliance[2,3]).",
-        ),
-    ] = "geometric",
-    noise_mm: NoiseOpt = None,
-    noise_ppm: NoisePpmOpt = 0.0,
-    noise_mrad: NoiseMradOpt = None,
-    orientation_unit: OrientationUnitOpt = None,
-    measured: MeasuredOpt = None,
-    validate: ValidateOpt = None,
-    effect_module: ModuleOpt = None,
-    length_unit: LengthOpt = "m",
-    angle_unit: AngleOpt = "rad",
+    *,
+    lab: LabArgs,
     alpha: Annotated[
         float,
         declared(ALPHA, "alpha", "Family-wise false-discovery rate (as diagnose's --alpha)."),
@@ -298,60 +219,32 @@ def discover_cmd(
     if output is not None:
         with user_errors():
             check_module_path(output)
-    arm, meas, val, opts = lab_inputs(
-        data,
-        robot,
-        effects,
-        effect_module,
-        validate,
-        length_unit,
-        angle_unit,
-        outputs=[(output, "--output"), (out, "--out")],
-        noise_mm=noise_mm,
-        noise_ppm=noise_ppm,
-        noise_mrad=noise_mrad,
-        orientation_unit=orientation_unit,
-        measured=measured,
-        as_json=as_json,
-    )
+    arm, meas, val, opts = lab.read(data, [(output, "--output"), (out, "--out")], as_json)
     with user_errors(), console.status("fitting the model and searching the library..."):
         d = discover(
-            meas, arm, effects, options=opts, validate=val, alpha=alpha, order=order, name=name
+            meas, arm, lab.effects, options=opts, validate=val, alpha=alpha, order=order, name=name
         )
     written = None
     if output is not None and d.terms:
         with user_errors(), writing(output):
             written = d.write_module(output)
     if not as_json:
-        context = next_step_options(robot, length_unit, angle_unit, effect_module, noise_mm)
-        print_discovery(d, written, data, context)
+        print_discovery(d, written, data, lab.next_step())
     emit_json(d.to_dict(), as_json, out)
 
 
 # -- report -----------------------------------------------------------------------------------------
-@app.command("report")
+@lab_command(app, "report")
 def report_cmd(
     data: DataArg,
     output: Annotated[Path, typer.Option("--output", "-o", help="The HTML file to write.")] = Path(
         "report.html"
     ),
-    robot: RobotOpt = "seed",
-    effects: EffectsOpt = "geometric",
-    validate: ValidateOpt = None,
-    noise_mm: NoiseOpt = None,
-    noise_ppm: NoisePpmOpt = 0.0,
-    noise_mrad: NoiseMradOpt = None,
-    orientation_unit: OrientationUnitOpt = None,
-    measured: MeasuredOpt = None,
-    loss: LossOpt = "linear",
-    effect_module: ModuleOpt = None,
-    length_unit: LengthOpt = "m",
-    angle_unit: AngleOpt = "rad",
+    *,
+    lab: LabArgs,
     rounds: Annotated[
         int, declared(ROUNDS, "rounds", "At most this many rounds of diagnose-and-refit.")
     ] = 3,
-    outliers: OutliersOpt = "auto",
-    accept_large: AcceptLargeOpt = False,
 ) -> None:
     """Fit, diagnose, refit what the diagnosis suggests; write an HTML report.
 
@@ -359,47 +252,14 @@ def report_cmd(
     --rounds times); the report has the tables and plots of every model."""
     from lab.report import build_report
 
-    arm, meas, val, opts = lab_inputs(
-        data,
-        robot,
-        effects,
-        effect_module,
-        validate,
-        length_unit,
-        angle_unit,
-        outputs=[(output, "--output")],
-        noise_mm=noise_mm,
-        noise_ppm=noise_ppm,
-        noise_mrad=noise_mrad,
-        orientation_unit=orientation_unit,
-        measured=measured,
-        loss=loss,
-        outliers=outliers,
-        accept_large=accept_large,
-    )
-    default = LabOptions()
+    arm, meas, val, opts = lab.read(data, [(output, "--output")])
+    flags = lab.flags()
+    screening = {k: flags.pop(k) for k in ("--outliers", "--accept-large")}
     command = command_line(
         "lab",
         "report",
         data,
-        **{
-            "-o": output,
-            "--robot": None if robot == "seed" else robot,
-            "--effects": None if effects == "geometric" else effects,
-            "--validate": validate,
-            "--noise-mm": noise_mm,
-            "--noise-ppm": noise_ppm or None,
-            "--noise-mrad": noise_mrad,
-            "--orientation-unit": orientation_unit,
-            "--measured": measured,
-            "--loss": None if loss == default.loss else loss,
-            "--effect-module": [str(m) for m in effect_module or []],
-            "--length-unit": None if length_unit == "m" else length_unit,
-            "--angle-unit": None if angle_unit == "rad" else angle_unit,
-            "--rounds": None if rounds == 3 else rounds,
-            "--outliers": None if outliers == default.outliers else outliers,
-            "--accept-large": accept_large,
-        },
+        **{"-o": output, **flags, "--rounds": None if rounds == 3 else rounds, **screening},
     )
     t0 = time.perf_counter()
     with steps() as step:
@@ -407,7 +267,7 @@ def report_cmd(
             rep = build_report(
                 meas,
                 arm,
-                effects,
+                lab.effects,
                 options=opts,
                 validate=val,
                 rounds=rounds,
@@ -498,101 +358,114 @@ def plan_cmd(
 
 
 # -- collect ----------------------------------------------------------------------------------------
+# the options of collect
+CollectScenarioOpt = Annotated[
+    str,
+    typer.Option(
+        help="The simulated arm's hidden effects: nominal, geometric, compliance, "
+        "transmission, backlash, thermal, payload, all, cyclic."
+    ),
+]
+CollectNOpt = Annotated[
+    int, declared(Interval(int, 1, None), "n", "Random poses to measure.", "--n", "-n")
+]
+CollectNoiseMmOpt = Annotated[
+    float,
+    declared(Interval(float, 0.0, None), "noise_mm", "The tracker's per-axis noise (mm)."),
+]
+CollectSeedOpt = Annotated[int, typer.Option(help="Seed of the poses, the motions and the noise.")]
+CollectArmSeedOpt = Annotated[
+    int | None,
+    typer.Option(
+        help="Seed of the hidden arm (default: --seed). Measure one arm twice, e.g. for "
+        "held-out data: --seed 1 and --seed 2 --arm-seed 1."
+    ),
+]
+CollectPosesOpt = Annotated[
+    Path | None,
+    typer.Option(help="A poses CSV (q1..q6, e.g. from sixaxis lab plan) instead of --n."),
+]
+CollectAngleUnitOpt = Annotated[
+    str | None,
+    declared(
+        OneOf(tuple(ANGLE_UNITS)),
+        "angle_unit",
+        "Unit of q1..q6 in --poses (default: the unit the file's # line declares, as "
+        "sixaxis lab plan writes it; else rad).",
+    ),
+]
+CollectNoisePpmOpt = Annotated[
+    float,
+    declared(
+        Interval(float, 0.0, None),
+        "noise_ppm",
+        "The noise grows with the distance from the tracker: sigma = --noise-mm + "
+        "--noise-ppm um per m of distance, per axis.",
+    ),
+]
+CollectStationsOpt = Annotated[
+    int,
+    declared(
+        Interval(int, 0, None),
+        "stations",
+        "Tracker stations around the arm (2-6 m away, each its own frame): the poses are "
+        "measured in blocks, one per station, with a station column. 0: the world frame, no "
+        "station column.",
+    ),
+]
+CollectFirstStationOpt = Annotated[
+    int,
+    typer.Option(
+        "--first-station",
+        help="The first station's id (the others follow): a held-out campaign from other "
+        "stations of the same arm takes other ids.",
+    ),
+]
+CollectOrientationOpt = Annotated[
+    bool,
+    typer.Option(
+        "--orientation",
+        help="A 6-DoF probe on the flange measures the tool frame's orientation too "
+        "(roll, pitch, yaw columns).",
+    ),
+]
+CollectNoiseMradOpt = Annotated[
+    float,
+    declared(Interval(float, 0.0, None), "noise_mrad", "The orientation's per-axis noise (mrad)."),
+]
+CollectOrientationFractionOpt = Annotated[
+    float,
+    declared(
+        Interval(float, 0.0, 1.0),
+        "orientation_fraction",
+        "The fraction of rows in which the probe's orientation is seen (the others leave it "
+        "blank: the measurement mask).",
+    ),
+]
+CollectStdsOpt = Annotated[
+    bool,
+    typer.Option("--stds", help="Write each row's stated uncertainty (std_x ... std_rz columns)."),
+]
+
+
 @app.command("collect")
 def collect_cmd(
     output: Annotated[Path, typer.Option("--output", "-o", help="The measurement CSV to write.")],
-    scenario: Annotated[
-        str,
-        typer.Option(
-            help="The simulated arm's hidden effects: nominal, geometric, compliance, "
-            "transmission, backlash, thermal, payload, all, cyclic."
-        ),
-    ] = "compliance",
-    n: Annotated[
-        int, declared(Interval(int, 1, None), "n", "Random poses to measure.", "--n", "-n")
-    ] = 200,
-    noise_mm: Annotated[
-        float,
-        declared(Interval(float, 0.0, None), "noise_mm", "The tracker's per-axis noise (mm)."),
-    ] = 0.015,
-    seed: Annotated[int, typer.Option(help="Seed of the poses, the motions and the noise.")] = 0,
-    arm_seed: Annotated[
-        int | None,
-        typer.Option(
-            help="Seed of the hidden arm (default: --seed). Measure one arm twice, e.g. for "
-            "held-out data: --seed 1 and --seed 2 --arm-seed 1."
-        ),
-    ] = None,
-    poses: Annotated[
-        Path | None,
-        typer.Option(help="A poses CSV (q1..q6, e.g. from sixaxis lab plan) instead of --n."),
-    ] = None,
-    angle_unit: Annotated[
-        str | None,
-        declared(
-            OneOf(tuple(ANGLE_UNITS)),
-            "angle_unit",
-            "Unit of q1..q6 in --poses (default: the unit the file's # line declares, as "
-            "sixaxis lab plan writes it; else rad).",
-        ),
-    ] = None,
+    scenario: CollectScenarioOpt = "compliance",
+    n: CollectNOpt = 200,
+    noise_mm: CollectNoiseMmOpt = 0.015,
+    seed: CollectSeedOpt = 0,
+    arm_seed: CollectArmSeedOpt = None,
+    poses: CollectPosesOpt = None,
+    angle_unit: CollectAngleUnitOpt = None,
     robot: RobotOpt = "seed",
-    noise_ppm: Annotated[
-        float,
-        declared(
-            Interval(float, 0.0, None),
-            "noise_ppm",
-            "The noise grows with the distance from the tracker: sigma = --noise-mm + "
-            "--noise-ppm um per m of distance, per axis.",
-        ),
-    ] = 0.0,
-    stations: Annotated[
-        int,
-        declared(
-            Interval(int, 0, None),
-            "stations",
-            "Tracker stations around the arm (2-6 m away, each its own frame): the poses are "
-            "measured in blocks, one per station, with a station column. 0: the world frame, no "
-            "station column.",
-        ),
-    ] = 0,
-    first_station: Annotated[
-        int,
-        typer.Option(
-            "--first-station",
-            help="The first station's id (the others follow): a held-out campaign from other "
-            "stations of the same arm takes other ids.",
-        ),
-    ] = 1,
-    orientation: Annotated[
-        bool,
-        typer.Option(
-            "--orientation",
-            help="A 6-DoF probe on the flange measures the tool frame's orientation too "
-            "(roll, pitch, yaw columns).",
-        ),
-    ] = False,
-    noise_mrad: Annotated[
-        float,
-        declared(
-            Interval(float, 0.0, None), "noise_mrad", "The orientation's per-axis noise (mrad)."
-        ),
-    ] = 0.1,
-    orientation_fraction: Annotated[
-        float,
-        declared(
-            Interval(float, 0.0, 1.0),
-            "orientation_fraction",
-            "The fraction of rows in which the probe's orientation is seen (the others leave it "
-            "blank: the measurement mask).",
-        ),
-    ] = 1.0,
-    stds: Annotated[
-        bool,
-        typer.Option(
-            "--stds", help="Write each row's stated uncertainty (std_x ... std_rz columns)."
-        ),
-    ] = False,
+    noise_ppm: CollectNoisePpmOpt = 0.0,
+    stations: CollectStationsOpt = 0,
+    first_station: CollectFirstStationOpt = 1,
+    orientation: CollectOrientationOpt = False,
+    noise_mrad: CollectNoiseMradOpt = 0.1,
+    orientation_fraction: CollectOrientationFractionOpt = 1.0,
+    stds: CollectStdsOpt = False,
 ) -> None:
     """Measure the simulated arm (MuJoCo) like a laser-tracker campaign.
 
@@ -651,7 +524,7 @@ def collect_cmd(
 
 
 # -- export / compensate ----------------------------------------------------------------------------
-@app.command("export")
+@lab_command(app, "export")
 def export_cmd(
     data: DataArg,
     output: Annotated[
@@ -663,23 +536,11 @@ def export_cmd(
             "calibrated.toml, or calibrated.urdf with --format urdf).",
         ),
     ] = None,
-    robot: RobotOpt = "seed",
-    effects: EffectsOpt = "geometric",
-    validate: ValidateOpt = None,
-    loss: LossOpt = "linear",
-    effect_module: ModuleOpt = None,
-    length_unit: LengthOpt = "m",
-    angle_unit: AngleOpt = "rad",
-    noise_mm: NoiseOpt = None,
-    noise_ppm: NoisePpmOpt = 0.0,
-    noise_mrad: NoiseMradOpt = None,
-    orientation_unit: OrientationUnitOpt = None,
-    measured: MeasuredOpt = None,
+    *,
+    lab: LabArgs,
     name: Annotated[
         str | None, typer.Option(help="The calibrated arm's name (default: <robot>-calibrated).")
     ] = None,
-    outliers: OutliersOpt = "auto",
-    accept_large: AcceptLargeOpt = False,
     export_format: Annotated[
         str | None,
         declared(
@@ -708,28 +569,11 @@ def export_cmd(
     outputs = [(output, "--output")]
     if export_format == "urdf":
         outputs.append((metrology_path(output), "--output's metrology file"))
-    arm, meas, val, opts = lab_inputs(
-        data,
-        robot,
-        effects,
-        effect_module,
-        validate,
-        length_unit,
-        angle_unit,
-        outputs=outputs,
-        noise_mm=noise_mm,
-        noise_ppm=noise_ppm,
-        noise_mrad=noise_mrad,
-        orientation_unit=orientation_unit,
-        measured=measured,
-        loss=loss,
-        outliers=outliers,
-        accept_large=accept_large,
-    )
+    arm, meas, val, opts = lab.read(data, outputs)
     if export_format == "urdf":
         with user_errors():  # before the fit: a TOML arm has no URDF to correct
             require_urdf(arm)
-    result = _fitted(meas, arm, effects, opts, val)
+    result = _fitted(meas, arm, lab.effects, opts, val)
     say(result.summary())
     if export_format == "urdf":
         with user_errors(), writing(output):

@@ -8,9 +8,9 @@ import math
 import signal
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.markup import escape
@@ -108,23 +108,7 @@ def sweep(
         if backend == "dask" and address and not dry_run:
             check_scheduler(address)
     if dry_run:
-        drawn = (
-            f" (episode seeds drawn from [2**32, 2**63) when the sweep starts, kept in "
-            f"{out_dir / '_sweep.json'})"
-            if cfg.draw_seeds
-            else ""
-        )
-        console.print(
-            f"{cfg.name}: {len(cfg.agents)} agents x {len(cfg.scenarios)} scenarios x "
-            f"{cfg.n_seeds} seeds = {len(pending) + len(finished)} runs{drawn}; "
-            f"{len(finished)} finished in {out_dir}, {len(pending)} to run; time limit "
-            f"{cfg.time_limit_s:g} s a run, memory limit {cfg.memory_limit_mb} MiB a worker.",
-            highlight=False,
-        )
-        for spec in pending[:DRY_RUN_LISTED]:
-            console.print(f"  {spec.run_key}", highlight=False)
-        if len(pending) > DRY_RUN_LISTED:
-            console.print(f"  ... and {len(pending) - DRY_RUN_LISTED} more", highlight=False)
+        _print_plan(cfg, out_dir, pending, finished)
         return
 
     columns = (
@@ -186,6 +170,34 @@ def sweep(
                 highlight=False,
             )
             raise typer.Exit(128 + signum) from None
+    _print_summary(summary)
+    if summary.failed:
+        raise typer.Exit(1)
+
+
+def _print_plan(cfg: Any, out_dir: Path, pending: Sequence[Any], finished: Sequence[Any]) -> None:
+    """What a sweep would run (--dry-run)."""
+    drawn = (
+        f" (episode seeds drawn from [2**32, 2**63) when the sweep starts, kept in "
+        f"{out_dir / '_sweep.json'})"
+        if cfg.draw_seeds
+        else ""
+    )
+    console.print(
+        f"{cfg.name}: {len(cfg.agents)} agents x {len(cfg.scenarios)} scenarios x "
+        f"{cfg.n_seeds} seeds = {len(pending) + len(finished)} runs{drawn}; "
+        f"{len(finished)} finished in {out_dir}, {len(pending)} to run; time limit "
+        f"{cfg.time_limit_s:g} s a run, memory limit {cfg.memory_limit_mb} MiB a worker.",
+        highlight=False,
+    )
+    for spec in pending[:DRY_RUN_LISTED]:
+        console.print(f"  {spec.run_key}", highlight=False)
+    if len(pending) > DRY_RUN_LISTED:
+        console.print(f"  ... and {len(pending) - DRY_RUN_LISTED} more", highlight=False)
+
+
+def _print_summary(summary: Any) -> None:
+    """What a sweep ran, where its records are, which failed and what comes next."""
     console.print(
         f"{summary.done} runs in {summary.wall_time_s:.1f} s ({summary.skipped} already finished, "
         f"{len(summary.failed)} failed); records in {summary.out_dir}"
@@ -198,8 +210,6 @@ def sweep(
         if len(summary.failed) > 10:
             console.print(f"  ... and {len(summary.failed) - 10} more")
     console.print(f"next: sixaxis leaderboard {summary.out_dir}", highlight=False)
-    if summary.failed:
-        raise typer.Exit(1)
 
 
 def leaderboard(
@@ -287,7 +297,7 @@ def leaderboard(
         console.print(f"wrote {p}", highlight=False)
 
 
-def reproduce(  # noqa: C901  (one command: each branch a way a record cannot be rerun)
+def reproduce(
     record: Annotated[
         Path,
         typer.Argument(
@@ -334,10 +344,41 @@ def reproduce(  # noqa: C901  (one command: each branch a way a record cannot be
     if record.suffix.lower() == ".csv":
         _reproduce_rows(record, run or [], line or [], every, rtol, isolated)
         return
-    from experiments.config import RunSpec, spec_problems
-    from experiments.records import RecordError, environment_info, load_record
-    from experiments.reproduce import same_value
     from experiments.sweep import build_record, execute_run, run_in_worker
+
+    rec, spec = _rerunnable(record)
+    _note_environment(rec)
+    console.print(f"rerunning {spec.run_key} ({spec.agent} on {spec.scenario}, seed {spec.seed})")
+    t0 = time.perf_counter()
+    new = build_record(spec, run_in_worker(execute_run, spec.to_dict()))
+    if new["status"] != "ok":
+        err = new.get("error") or {}
+        err_console.print(f"[red]the rerun failed:[/red] {err.get('traceback') or err}")
+        raise typer.Exit(1)
+    if rec.get("status") != "ok":
+        console.print(
+            f"the record is a failed run ({(rec.get('error') or {}).get('type')}); the rerun succeeded"
+        )
+    title = f"{spec.run_key}: recorded vs reproduced ({time.perf_counter() - t0:.1f} s)"
+    table, differ = _compared(rec, new, rtol, title)
+    console.print(table)
+    old_t, new_t = rec.get("timing") or {}, new.get("timing") or {}
+    for k in ("wall_time_s", "solve_time_median_ms"):
+        if k in old_t and k in new_t:
+            console.print(
+                f"timing {k}: recorded {_show(old_t[k])}, now {_show(new_t[k])} (not compared)"
+            )
+    if differ:
+        err_console.print(f"[red]not reproduced:[/red] {', '.join(differ)} differ")
+        raise typer.Exit(1)
+    console.print("[green]reproduced:[/green] every metric and the error series are the same")
+
+
+def _rerunnable(record: Path) -> tuple[dict[str, Any], Any]:
+    """A record and its run's spec, refused where the spec cannot be rerun or the record was
+    edited (its spec does not hash to its run_hash)."""
+    from experiments.config import RunSpec, spec_problems
+    from experiments.records import RecordError, load_record
 
     with user_errors():
         rec = load_record(record)
@@ -350,6 +391,13 @@ def reproduce(  # noqa: C901  (one command: each branch a way a record cannot be
                 f"{record}: its spec hashes to {spec.run_hash}, not its run_hash "
                 f"{rec.get('run_hash')!r}: the record was edited, it is not the run it names"
             )
+    return rec, spec
+
+
+def _note_environment(rec: Mapping[str, Any]) -> None:
+    """Say where this checkout's versions and commit differ from the record's."""
+    from experiments.records import environment_info
+
     here = environment_info()
     for key in ("versions", "git"):
         mine, theirs = here[key], rec.get(key) or {}
@@ -361,20 +409,16 @@ def reproduce(  # noqa: C901  (one command: each branch a way a record cannot be
                     f"[yellow]note:[/yellow] {key}.{k} was {theirs.get(k)}, is {mine.get(k)}",
                     highlight=False,
                 )
-    console.print(f"rerunning {spec.run_key} ({spec.agent} on {spec.scenario}, seed {spec.seed})")
-    t0 = time.perf_counter()
-    new = build_record(spec, run_in_worker(execute_run, spec.to_dict()))
-    if new["status"] != "ok":
-        err = new.get("error") or {}
-        err_console.print(f"[red]the rerun failed:[/red] {err.get('traceback') or err}")
-        raise typer.Exit(1)
-    if rec.get("status") != "ok":
-        console.print(
-            f"the record is a failed run ({(rec.get('error') or {}).get('type')}); the rerun succeeded"
-        )
-    table = Table(
-        title=f"{spec.run_key}: recorded vs reproduced ({time.perf_counter() - t0:.1f} s)"
-    )
+
+
+def _compared(
+    rec: Mapping[str, Any], new: Mapping[str, Any], rtol: float, title: str
+) -> tuple[Table, list[str]]:
+    """The recorded and the reproduced metrics side by side, and what differs (a metric, or the
+    error series, report, calibration or episode beyond ``rtol``)."""
+    from experiments.reproduce import same_value
+
+    table = Table(title=title)
     for c in ("metric", "recorded", "reproduced", "difference", ""):
         table.add_column(c, justify="right" if c not in ("metric", "") else "left")
     differ = []
@@ -392,17 +436,7 @@ def reproduce(  # noqa: C901  (one command: each branch a way a record cannot be
         if rec.get(k) != new.get(k) and not _close_tree(rec.get(k), new.get(k), rtol):
             differ.append(k)
             table.add_row(k, "", "", "", "[red]DIFFERS[/red]")
-    console.print(table)
-    old_t, new_t = rec.get("timing") or {}, new.get("timing") or {}
-    for k in ("wall_time_s", "solve_time_median_ms"):
-        if k in old_t and k in new_t:
-            console.print(
-                f"timing {k}: recorded {_show(old_t[k])}, now {_show(new_t[k])} (not compared)"
-            )
-    if differ:
-        err_console.print(f"[red]not reproduced:[/red] {', '.join(differ)} differ")
-        raise typer.Exit(1)
-    console.print("[green]reproduced:[/green] every metric and the error series are the same")
+    return table, differ
 
 
 def _reproduce_rows(

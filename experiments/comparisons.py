@@ -65,7 +65,22 @@ def _interval(iv: Interval) -> dict[str, float | int | None]:
     return {"value": num(iv.value), "lo": num(iv.lo), "hi": num(iv.hi), "n": iv.n}
 
 
-def analyse(  # noqa: C901  (the comparisons of the module docstring, in order)
+class _Runs:
+    """The successful runs by agent and scenario, each cell's runs by episode."""
+
+    def __init__(self, records: Iterable[Mapping[str, Any]]) -> None:
+        self.by_cell: dict[tuple[str, str], dict[int, Mapping[str, Any]]] = {}
+        for rec in records:
+            cell = (rec["spec"]["agent_label"], rec["spec"]["scenario_label"])
+            self.by_cell.setdefault(cell, {})[episode_key(rec)] = rec
+
+    def series(self, agent: str, scenario: str, metric: str) -> dict[int, float]:
+        """A metric of a cell, by episode."""
+        cell = self.by_cell.get((agent, scenario), {})
+        return {k: _value(r, metric) for k, r in cell.items()}
+
+
+def analyse(
     records: Iterable[Mapping[str, Any]],
     agents: Sequence[str],
     scenarios: Sequence[str],
@@ -75,100 +90,18 @@ def analyse(  # noqa: C901  (the comparisons of the module docstring, in order)
     oracles: Iterable[str] = (),
     informed: Iterable[str] = (),
 ) -> dict[str, Any]:
-    """The analysis (see the module docstring) of the successful runs ``records``."""
+    """The analysis (see the module docstring) of the successful runs ``records``: the comparisons
+    of the module docstring, in order."""
     oracles, informed = set(oracles), set(informed)
-    by_cell: dict[tuple[str, str], dict[int, Mapping[str, Any]]] = {}
-    for rec in records:
-        cell = (rec["spec"]["agent_label"], rec["spec"]["scenario_label"])
-        by_cell.setdefault(cell, {})[episode_key(rec)] = rec
-
-    def series(agent: str, scenario: str, metric: str = rank_by) -> dict[int, float]:
-        cell = by_cell.get((agent, scenario), {})
-        return {k: _value(r, metric) for k, r in cell.items()}
-
-    cells: dict[str, dict[str, dict[str, Any]]] = {}
-    for a in agents:
-        for s in scenarios:
-            if (a, s) not in by_cell:
-                continue
-            row = cells.setdefault(a, {}).setdefault(s, {})
-            for m in metrics:
-                values = list(series(a, s, m).values())
-                finite = [v for v in values if math.isfinite(v)]
-                if METRICS[m].aggregate == "sum":
-                    row[m] = {"total": float(sum(finite)), "n": len(finite)}
-                else:  # the geometric mean (see experiments.statistics), and the plain mean
-                    row[m] = _interval(geometric_mean_interval(values)) | {
-                        "mean": float(np.mean(finite)) if finite else None
-                    }
-
-    def mean_of(a: str, s: str) -> float:
-        v = (cells.get(a, {}).get(s, {}).get(rank_by) or {}).get("value")
-        return math.inf if v is None else float(v)
-
-    ranking, best, orderings, pairs = {}, {}, {}, []
-    for s in scenarios:
-        ranked = sorted((a for a in agents if s in cells.get(a, {})), key=lambda a: mean_of(a, s))
-        ranked = [a for a in ranked if math.isfinite(mean_of(a, s))]
-        ranking[s] = ranked
-        contenders = [a for a in ranked if a not in oracles and a not in informed]
-        best[s] = contenders[0] if contenders else None
-        for i, better in enumerate(ranked):
-            for worse in ranked[i + 1 :]:
-                r = paired_ratio(series(better, s), series(worse, s))
-                pairs.append(
-                    {"scenario": s, "better": better, "worse": worse}
-                    | _interval(r)
-                    | {"resolved": r.below_one}
-                )
-        orderings[s] = [
-            next(p for p in pairs if p["scenario"] == s and p["better"] == b and p["worse"] == w)
-            for b, w in itertools.pairwise(ranked)
-        ]
-
-    aggregate: dict[str, dict[str, Any]] = {}
-    if reference is not None and reference in cells:
-        ref = {s: series(reference, s) for s in scenarios if s in cells[reference]}
-        for a in agents:
-            if a not in cells:
-                continue
-            mine = {s: series(a, s) for s in ref if s in cells[a]}
-            if set(mine) != set(ref):  # an agent missing a scenario is not aggregated
-                continue
-            agg = aggregate_to_reference(mine, ref)
-            aggregate[a] = {k: _interval(v) for k, v in agg.items()}
+    runs = _Runs(records)
+    cells = _cells(runs, agents, scenarios, metrics)
+    ranking, best, orderings, pairs = _orderings(
+        runs, cells, agents, scenarios, rank_by, oracles | informed
+    )
+    aggregate = _aggregate(runs, cells, agents, scenarios, rank_by, reference)
     order = sorted(aggregate, key=lambda a: aggregate[a]["iqm"]["value"] or math.inf) + [
         a for a in agents if a in cells and a not in aggregate
     ]
-
-    cost: dict[str, dict[str, Any]] = {}
-    if NOMINAL in scenarios:
-        for a in agents:
-            if NOMINAL not in cells.get(a, {}):
-                continue
-            base = series(a, NOMINAL)
-            cost[a] = {
-                s: _interval(paired_ratio(series(a, s), base))
-                for s in scenarios
-                if s != NOMINAL and s in cells[a]
-            }
-
-    compute: dict[str, dict[str, float | None]] = {}
-    for a in agents:
-        recs = [r for s in scenarios for r in by_cell.get((a, s), {}).values()]
-        if not recs:
-            continue
-        report = recs[0].get("report") or {}
-        points = [_value(r, "tracker_points") for r in recs if "tracker_points" in METRICS]
-        solve = [_value(r, "solve_time_median_ms") for r in recs]
-        compute[a] = {
-            "training_steps": _num(report.get("training_steps")),
-            "training_wall_s": _num(report.get("training_wall_s")),
-            "training_seeds": _num(report.get("training_seeds")),
-            "training_wall_s_all_seeds": _num(report.get("training_wall_s_all_seeds")),
-            "tracker_points": _mean(points),
-            "solve_time_median_ms": _median(solve),
-        }
     return {
         "rank_by": rank_by,
         "reference": reference if reference in aggregate else None,
@@ -183,9 +116,144 @@ def analyse(  # noqa: C901  (the comparisons of the module docstring, in order)
         "orderings": orderings,
         "pairs": pairs,
         "aggregate": aggregate,
-        "cost_of_effect": cost,
-        "compute": compute,
+        "cost_of_effect": _cost_of_effect(runs, cells, agents, scenarios, rank_by),
+        "compute": _compute(runs, agents, scenarios),
     }
+
+
+def _cells(
+    runs: _Runs, agents: Sequence[str], scenarios: Sequence[str], metrics: Sequence[str]
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """Each cell's metrics: the geometric mean over episodes with its interval (see
+    experiments.statistics) and the plain mean; a count's total."""
+    cells: dict[str, dict[str, dict[str, Any]]] = {}
+    for a in agents:
+        for s in scenarios:
+            if (a, s) not in runs.by_cell:
+                continue
+            row = cells.setdefault(a, {}).setdefault(s, {})
+            for m in metrics:
+                values = list(runs.series(a, s, m).values())
+                finite = [v for v in values if math.isfinite(v)]
+                if METRICS[m].aggregate == "sum":
+                    row[m] = {"total": float(sum(finite)), "n": len(finite)}
+                else:
+                    row[m] = _interval(geometric_mean_interval(values)) | {
+                        "mean": float(np.mean(finite)) if finite else None
+                    }
+    return cells
+
+
+def _orderings(
+    runs: _Runs,
+    cells: Mapping[str, Mapping[str, Mapping[str, Any]]],
+    agents: Sequence[str],
+    scenarios: Sequence[str],
+    rank_by: str,
+    not_contending: set[str],
+) -> tuple[dict[str, list[str]], dict[str, str | None], dict[str, list[Any]], list[Any]]:
+    """Each scenario's ranking, its best contender, every pair's paired ratio and the steps of
+    the ranking among them."""
+
+    def mean_of(a: str, s: str) -> float:
+        v = (cells.get(a, {}).get(s, {}).get(rank_by) or {}).get("value")
+        return math.inf if v is None else float(v)
+
+    ranking: dict[str, list[str]] = {}
+    best: dict[str, str | None] = {}
+    orderings: dict[str, list[Any]] = {}
+    pairs: list[Any] = []
+    for s in scenarios:
+        ranked = sorted((a for a in agents if s in cells.get(a, {})), key=lambda a: mean_of(a, s))
+        ranked = [a for a in ranked if math.isfinite(mean_of(a, s))]
+        ranking[s] = ranked
+        contenders = [a for a in ranked if a not in not_contending]
+        best[s] = contenders[0] if contenders else None
+        for i, better in enumerate(ranked):
+            for worse in ranked[i + 1 :]:
+                r = paired_ratio(runs.series(better, s, rank_by), runs.series(worse, s, rank_by))
+                pairs.append(
+                    {"scenario": s, "better": better, "worse": worse}
+                    | _interval(r)
+                    | {"resolved": r.below_one}
+                )
+        orderings[s] = [
+            next(p for p in pairs if p["scenario"] == s and p["better"] == b and p["worse"] == w)
+            for b, w in itertools.pairwise(ranked)
+        ]
+    return ranking, best, orderings, pairs
+
+
+def _aggregate(
+    runs: _Runs,
+    cells: Mapping[str, Mapping[str, Any]],
+    agents: Sequence[str],
+    scenarios: Sequence[str],
+    rank_by: str,
+    reference: str | None,
+) -> dict[str, dict[str, Any]]:
+    """Each agent against the reference over every scenario (an agent missing a scenario is not
+    aggregated)."""
+    aggregate: dict[str, dict[str, Any]] = {}
+    if reference is None or reference not in cells:
+        return aggregate
+    ref = {s: runs.series(reference, s, rank_by) for s in scenarios if s in cells[reference]}
+    for a in agents:
+        if a not in cells:
+            continue
+        mine = {s: runs.series(a, s, rank_by) for s in ref if s in cells[a]}
+        if set(mine) != set(ref):
+            continue
+        agg = aggregate_to_reference(mine, ref)
+        aggregate[a] = {k: _interval(v) for k, v in agg.items()}
+    return aggregate
+
+
+def _cost_of_effect(
+    runs: _Runs,
+    cells: Mapping[str, Mapping[str, Any]],
+    agents: Sequence[str],
+    scenarios: Sequence[str],
+    rank_by: str,
+) -> dict[str, dict[str, Any]]:
+    """Each agent on each scenario against itself on ``nominal``, episode by episode."""
+    cost: dict[str, dict[str, Any]] = {}
+    if NOMINAL not in scenarios:
+        return cost
+    for a in agents:
+        if NOMINAL not in cells.get(a, {}):
+            continue
+        base = runs.series(a, NOMINAL, rank_by)
+        cost[a] = {
+            s: _interval(paired_ratio(runs.series(a, s, rank_by), base))
+            for s in scenarios
+            if s != NOMINAL and s in cells[a]
+        }
+    return cost
+
+
+def _compute(
+    runs: _Runs, agents: Sequence[str], scenarios: Sequence[str]
+) -> dict[str, dict[str, float | None]]:
+    """Each agent's compute budget: its training (from its report) and its runs' tracker points
+    and solve times."""
+    compute: dict[str, dict[str, float | None]] = {}
+    for a in agents:
+        recs = [r for s in scenarios for r in runs.by_cell.get((a, s), {}).values()]
+        if not recs:
+            continue
+        report = recs[0].get("report") or {}
+        points = [_value(r, "tracker_points") for r in recs if "tracker_points" in METRICS]
+        solve = [_value(r, "solve_time_median_ms") for r in recs]
+        compute[a] = {
+            "training_steps": _num(report.get("training_steps")),
+            "training_wall_s": _num(report.get("training_wall_s")),
+            "training_seeds": _num(report.get("training_seeds")),
+            "training_wall_s_all_seeds": _num(report.get("training_wall_s_all_seeds")),
+            "tracker_points": _mean(points),
+            "solve_time_median_ms": _median(solve),
+        }
+    return compute
 
 
 def _num(v: Any) -> float | None:

@@ -81,7 +81,7 @@ import logging
 import re
 import tomllib
 import typing
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -90,6 +90,7 @@ from arm.constraints import (
     AnyOf,
     Constraint,
     Interval,
+    OneOf,
     TypeOf,
     expectation,
     from_annotation,
@@ -427,7 +428,8 @@ _TOP: dict[str, Constraint] = {
     "name": TypeOf(str),
     "description": TypeOf(str),
     "env_id": TypeOf(str),
-    "seeds": AnyOf((TypeOf(list), Interval(int, 1, None))),
+    # a count (1 to MAX_SEEDS) or an array of distinct seeds >= 0: judged item by item
+    "seeds": AnyOf((TypeOf(list), Interval(int))),
     "episode_seconds": Interval(float),  # at least one control step: checked with the phases
     "settle_seconds": Interval(float, 0.0, None),
     "converge_mm": Interval(float, 0.0, None, closed="neither"),
@@ -438,9 +440,9 @@ _TOP: dict[str, Constraint] = {
     "scenarios": TypeOf(list),
     "phases": TypeOf(list),
     "campaign": TypeOf(dict),
-    "time_limit_s": Interval(float),
-    "memory_limit_mb": Interval(int),
-    "isolate": TypeOf(str),
+    "time_limit_s": Interval(float, 0.0, 10**7, closed="neither", why="seconds"),
+    "memory_limit_mb": Interval(int, 256, None, why="MiB"),
+    "isolate": OneOf(ISOLATE),
 }
 _REQUIRED = ("seeds", "agents", "scenarios")
 _AGENT_KEYS = {"name", "label", "settings", "env", "scenario_settings"}
@@ -475,26 +477,21 @@ def load_config(path: str | Path, check_agents: bool = True) -> ExperimentConfig
     return parse_config(raw, source=str(p), default_name=p.stem, check_agents=check_agents)
 
 
-def parse_config(  # noqa: C901  (the config schema: each branch a key, every problem named at once)
+def parse_config(
     raw: Mapping[str, Any],
     source: str = "<config>",
     default_name: str = "experiment",
     check_agents: bool = True,
 ) -> ExperimentConfig:
     """Validate a config given as a mapping (what TOML parses to). ``check_agents=False`` skips
-    making each agent once (which catches bad setting values, at the cost of importing them)."""
+    making each agent once (which catches bad setting values, at the cost of importing them).
+
+    The steps: the keys and their kinds (a config of the wrong shape is refused before anything
+    else), each key's declared range, the seeds, the metrics, the env options, the scenarios,
+    agents and phases, then what they must agree on; every problem is named at once."""
     problems: list[str] = []
     bad = problems.append
-
-    for key in raw:
-        if key not in _TOP:
-            bad(f"{key}: unknown key; known: {', '.join(_TOP)}")
-    for key, constraint in _TOP.items():
-        if key in raw and not constraint.kind_holds(raw[key]):
-            bad(f"{key}: {expectation(constraint, raw[key])}")
-    for key in _REQUIRED:
-        if key not in raw:
-            bad(f"{key}: missing (required)")
+    _check_keys(raw, bad)
     if problems:
         raise ConfigError(source, problems)
 
@@ -502,30 +499,7 @@ def parse_config(  # noqa: C901  (the config schema: each branch a key, every pr
     if not LABEL_RE.match(name):
         bad(f"name: {name!r} must be letters, digits and _ . + - (it names the runs directory)")
     env_id = raw.get("env_id", DEFAULT_ENV_ID)
-
-    # seeds
-    seeds_raw = raw["seeds"]
-    seeds: list[int] = []
-    draw = 0
-    if _is(seeds_raw, int):
-        if seeds_raw < 1:
-            bad(f"seeds: a count must be at least 1, got {seeds_raw}")
-        elif seeds_raw > MAX_SEEDS:
-            bad(f"seeds: {seeds_raw} episodes per agent and scenario; at most {MAX_SEEDS}")
-        else:
-            draw = seeds_raw
-    elif len(seeds_raw) > MAX_SEEDS:
-        bad(f"seeds: {len(seeds_raw)} seeds; at most {MAX_SEEDS}")
-    else:
-        for i, s in enumerate(seeds_raw):
-            if not _is(s, int) or s < 0:
-                bad(f"seeds[{i}]: expected a non-negative integer, got {type_name(s)} {s!r}")
-            else:
-                seeds.append(s)
-        if not seeds_raw:
-            bad("seeds: empty")
-        if len(set(seeds)) != len(seeds):
-            bad(f"seeds: repeated seeds in {seeds_raw}")
+    seeds, draw = _parse_seeds(raw["seeds"], bad)
     n_seeds = draw or len(seeds)
     if 0 < n_seeds < MIN_VALUES_FOR_CI:
         log.warning(
@@ -535,64 +509,26 @@ def parse_config(  # noqa: C901  (the config schema: each branch a key, every pr
             n_seeds,
             MIN_VALUES_FOR_CI,
         )
+    out_of_range = _check_ranges(raw, bad)
     time_limit_s = raw.get("time_limit_s", DEFAULT_TIME_LIMIT_S)
-    if not (_is(time_limit_s, (int, float)) and 0 < time_limit_s < 10**7):
-        bad(f"time_limit_s: must be a positive number of seconds, got {time_limit_s!r}")
     memory_limit_mb = raw.get("memory_limit_mb", DEFAULT_MEMORY_LIMIT_MB)
-    if not (_is(memory_limit_mb, int) and memory_limit_mb >= 256):
-        bad(f"memory_limit_mb: must be an integer of at least 256 (MiB), got {memory_limit_mb!r}")
     isolate = raw.get("isolate", "class-path")
-    if isolate not in ISOLATE:
-        bad(f"isolate: {isolate!r}; one of {', '.join(ISOLATE)}")
-
     episode_seconds = float(raw.get("episode_seconds", 10.0))
-    if not episode_seconds >= CONTROL_DT - 1e-12:
+    if "episode_seconds" not in out_of_range and not episode_seconds >= CONTROL_DT - 1e-12:
         bad(
             f"episode_seconds: {episode_seconds:g} s is shorter than one control step "
             f"({CONTROL_DT:g} s)"
         )
     settle_seconds = float(raw.get("settle_seconds", DEFAULT_SETTLE_SECONDS))
     converge_mm = float(raw.get("converge_mm", DEFAULT_CONVERGE_MM))
-    for key, value in (("settle_seconds", settle_seconds), ("converge_mm", converge_mm)):
-        if (why := expectation(_TOP[key], value)) is not None:
-            bad(f"{key}: {why}")
-
-    # metrics (a metric's companion, e.g. never_converged of converge_s, comes with it)
-    metrics = list(raw.get("metrics", list(DEFAULT_METRICS)))
-    for i, m in enumerate(metrics):
-        if not isinstance(m, str):
-            bad(f"metrics[{i}]: expected a string, got {type_name(m)} {m!r}")
-        elif m not in METRICS:
-            bad(f"metrics[{i}]: unknown metric {m!r}; known: {', '.join(METRICS)}")
-    if len(set(map(str, metrics))) != len(metrics):
-        bad(f"metrics: repeated names in {metrics}")
-    for m in list(metrics):
-        companion = METRICS[m].companion if isinstance(m, str) and m in METRICS else None
-        if companion is not None and companion not in metrics:
-            metrics.insert(metrics.index(m) + 1, companion)
-    rank_by = raw.get("rank_by", "rms_settled_mm" if "rms_settled_mm" in metrics else "rms_mm")
-    if rank_by not in metrics:
-        bad(f"rank_by: {rank_by!r} is not one of the metrics {metrics}")
+    metrics, rank_by = _parse_metrics(raw, bad)
 
     env_info = _env_signature(env_id, bad)
-    scenarios_known = known_scenarios(env_id)
-
     env = dict(raw.get("env", {}))
     if "scenario" in env:
         bad("env.scenario: scenarios are chosen by the top-level 'scenarios' list")
     _check_env_kwargs(env, "env", env_info, bad)
-
-    scenarios = [
-        e
-        for _, where, s in _entries(
-            raw["scenarios"], "scenarios", _SCENARIO_KEYS, bad, "a scenario"
-        )
-        if (e := _scenario_entry(s, where, scenarios_known, env_info, bad)) is not None
-    ]
-    _no_repeats([s.label for s in scenarios], "scenarios", "name", "give one a different name", bad)
-    if not raw["scenarios"]:
-        bad("scenarios: empty")
-
+    scenarios = _parse_scenarios(raw["scenarios"], known_scenarios(env_id), env_info, bad)
     scenario_labels = {s.label for s in scenarios}
     agents = [
         ae
@@ -602,44 +538,10 @@ def parse_config(  # noqa: C901  (the config schema: each branch a key, every pr
     _no_repeats([a.label for a in agents], "agents", "label", "give one a 'label'", bad)
     if not raw["agents"]:
         bad("agents: empty")
-
-    phases = [
-        _phase_entry(ph, f"phase{i}", where, env_info, bad)
-        for i, where, ph in _entries(raw.get("phases", []), "phases", _PHASE_KEYS, bad)
-    ]
-    if "campaign" in raw and _is(raw["campaign"], dict):
-        if raw.get("phases"):
-            bad("campaign: give either campaign or [[phases]], not both")
-        else:
-            phases = _campaign_phases(raw["campaign"], bad)
-            for i, ph in enumerate(phases):
-                _check_env_kwargs(ph.env, f"campaign (phase {i}: {ph.name}).env", env_info, bad)
-    if phases and not any(p.judged for p in phases):
-        bad("phases: no phase is judged; mark at least one 'judged = true'")
-    if phases and "episode_seconds" in raw:
-        bad("episode_seconds: give either episode_seconds or [[phases]], not both")
-    for i, ph in enumerate(phases):
-        if not ph.seconds >= CONTROL_DT - 1e-12:
-            bad(
-                f"phases[{i}].seconds: {ph.seconds:g} s is shorter than one control step "
-                f"({CONTROL_DT:g} s)"
-            )
+    phases = _parse_phases(raw, env_info, bad)
     if phases:
         episode_seconds = float(sum(p.seconds for p in phases if p.judged))
-    if episode_seconds > 0 and settle_seconds >= episode_seconds:
-        bad(
-            f"settle_seconds: {settle_seconds:g} s is not shorter than the judged episode "
-            f"({episode_seconds:g} s): no step would be left for the settled metrics"
-        )
-    for a in agents:
-        if a.settings.get("calibration_seconds") == settle_seconds:
-            log.warning(
-                "%s: agent %s calibrates at %g s, the settling time: its uncalibrated phase, its "
-                "worst, is left out of every settled metric; rms_mm and converge_s still count it",
-                source,
-                a.label,
-                settle_seconds,
-            )
+    _check_settling(source, settle_seconds, episode_seconds, agents, bad)
     _check_lengths(env, scenarios, agents, phases, episode_seconds, raw, env_info, bad)
     _check_env_options(env_id, env, scenarios, agents, phases, raw, problems)
 
@@ -671,6 +573,146 @@ def parse_config(  # noqa: C901  (the config schema: each branch a key, every pr
         memory_limit_mb=int(memory_limit_mb),
         isolate=str(isolate),
     )
+
+
+def _check_keys(raw: Mapping[str, Any], bad: Callable[[str], None]) -> None:
+    """Every top-level key known, of its declared kind; the required ones there."""
+    for key in raw:
+        if key not in _TOP:
+            bad(f"{key}: unknown key; known: {', '.join(_TOP)}")
+    for key, constraint in _TOP.items():
+        if key in raw and not constraint.kind_holds(raw[key]):
+            bad(f"{key}: {expectation(constraint, raw[key])}")
+    for key in _REQUIRED:
+        if key not in raw:
+            bad(f"{key}: missing (required)")
+
+
+def _check_ranges(raw: Mapping[str, Any], bad: Callable[[str], None]) -> set[str]:
+    """Every top-level value given against its declared constraint (its kind is known to hold);
+    the keys out of range."""
+    out = set()
+    for key, constraint in _TOP.items():
+        if key in raw and (why := expectation(constraint, raw[key])) is not None:
+            bad(f"{key}: {why}")
+            out.add(key)
+    return out
+
+
+def _parse_seeds(seeds_raw: Any, bad: Callable[[str], None]) -> tuple[list[int], int]:
+    """The fixed seeds, or how many seeds to draw (a count)."""
+    seeds: list[int] = []
+    draw = 0
+    if _is(seeds_raw, int):
+        if seeds_raw < 1:
+            bad(f"seeds: a count must be at least 1, got {seeds_raw}")
+        elif seeds_raw > MAX_SEEDS:
+            bad(f"seeds: {seeds_raw} episodes per agent and scenario; at most {MAX_SEEDS}")
+        else:
+            draw = seeds_raw
+    elif len(seeds_raw) > MAX_SEEDS:
+        bad(f"seeds: {len(seeds_raw)} seeds; at most {MAX_SEEDS}")
+    else:
+        for i, s in enumerate(seeds_raw):
+            if not _is(s, int) or s < 0:
+                bad(f"seeds[{i}]: expected a non-negative integer, got {type_name(s)} {s!r}")
+            else:
+                seeds.append(s)
+        if not seeds_raw:
+            bad("seeds: empty")
+        if len(set(seeds)) != len(seeds):
+            bad(f"seeds: repeated seeds in {seeds_raw}")
+    return seeds, draw
+
+
+def _parse_metrics(raw: Mapping[str, Any], bad: Callable[[str], None]) -> tuple[list[Any], Any]:
+    """The metrics (a metric's companion, e.g. never_converged of converge_s, comes with it) and
+    the one that ranks."""
+    metrics = list(raw.get("metrics", list(DEFAULT_METRICS)))
+    for i, m in enumerate(metrics):
+        if not isinstance(m, str):
+            bad(f"metrics[{i}]: expected a string, got {type_name(m)} {m!r}")
+        elif m not in METRICS:
+            bad(f"metrics[{i}]: unknown metric {m!r}; known: {', '.join(METRICS)}")
+    if len(set(map(str, metrics))) != len(metrics):
+        bad(f"metrics: repeated names in {metrics}")
+    for m in list(metrics):
+        companion = METRICS[m].companion if isinstance(m, str) and m in METRICS else None
+        if companion is not None and companion not in metrics:
+            metrics.insert(metrics.index(m) + 1, companion)
+    rank_by = raw.get("rank_by", "rms_settled_mm" if "rms_settled_mm" in metrics else "rms_mm")
+    if rank_by not in metrics:
+        bad(f"rank_by: {rank_by!r} is not one of the metrics {metrics}")
+    return metrics, rank_by
+
+
+def _parse_scenarios(
+    items: Sequence[Any], known: Any, env_info: Any, bad: Callable[[str], None]
+) -> list[ScenarioEntry]:
+    """The scenarios list: each entry, no label twice, not empty."""
+    scenarios = [
+        e
+        for _, where, s in _entries(items, "scenarios", _SCENARIO_KEYS, bad, "a scenario")
+        if (e := _scenario_entry(s, where, known, env_info, bad)) is not None
+    ]
+    _no_repeats([s.label for s in scenarios], "scenarios", "name", "give one a different name", bad)
+    if not items:
+        bad("scenarios: empty")
+    return scenarios
+
+
+def _parse_phases(
+    raw: Mapping[str, Any], env_info: Any, bad: Callable[[str], None]
+) -> list[PhaseEntry]:
+    """The episode's phases: the [[phases]] tables, or those a [campaign] makes; at least one
+    judged, each at least one control step."""
+    phases = [
+        _phase_entry(ph, f"phase{i}", where, env_info, bad)
+        for i, where, ph in _entries(raw.get("phases", []), "phases", _PHASE_KEYS, bad)
+    ]
+    if "campaign" in raw and _is(raw["campaign"], dict):
+        if raw.get("phases"):
+            bad("campaign: give either campaign or [[phases]], not both")
+        else:
+            phases = _campaign_phases(raw["campaign"], bad)
+            for i, ph in enumerate(phases):
+                _check_env_kwargs(ph.env, f"campaign (phase {i}: {ph.name}).env", env_info, bad)
+    if phases and not any(p.judged for p in phases):
+        bad("phases: no phase is judged; mark at least one 'judged = true'")
+    if phases and "episode_seconds" in raw:
+        bad("episode_seconds: give either episode_seconds or [[phases]], not both")
+    for i, ph in enumerate(phases):
+        if not ph.seconds >= CONTROL_DT - 1e-12:
+            bad(
+                f"phases[{i}].seconds: {ph.seconds:g} s is shorter than one control step "
+                f"({CONTROL_DT:g} s)"
+            )
+    return phases
+
+
+def _check_settling(
+    source: str,
+    settle_seconds: float,
+    episode_seconds: float,
+    agents: Sequence[AgentEntry],
+    bad: Callable[[str], None],
+) -> None:
+    """The settling time leaves steps for the settled metrics; an agent that calibrates at it
+    is warned of."""
+    if episode_seconds > 0 and settle_seconds >= episode_seconds:
+        bad(
+            f"settle_seconds: {settle_seconds:g} s is not shorter than the judged episode "
+            f"({episode_seconds:g} s): no step would be left for the settled metrics"
+        )
+    for a in agents:
+        if a.settings.get("calibration_seconds") == settle_seconds:
+            log.warning(
+                "%s: agent %s calibrates at %g s, the settling time: its uncalibrated phase, its "
+                "worst, is left out of every settled metric; rms_mm and converge_s still count it",
+                source,
+                a.label,
+                settle_seconds,
+            )
 
 
 # -- the entries of the scenarios, agents and phases lists ------------------------------------

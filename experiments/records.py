@@ -160,7 +160,7 @@ _PHASE_FIELDS = (
 )
 
 
-def record_problem(rec: Mapping[str, Any]) -> str | None:  # noqa: C901  (one check per key of a run record)
+def record_problem(rec: Mapping[str, Any]) -> str | None:
     """The first malformed field of a record, as ``field: what is wrong, got value``; None if
     the record can be read, rerun and summarised."""
     from experiments.config import RunSpec
@@ -168,6 +168,20 @@ def record_problem(rec: Mapping[str, Any]) -> str | None:  # noqa: C901  (one ch
     spec = rec.get("spec")
     if not isinstance(spec, dict):
         return f"spec: expected an object, got {spec!r}"
+    why = _spec_problem(spec)
+    if why is not None:
+        return why
+    run_key = RunSpec.from_dict(spec).run_key
+    if rec.get("run_key") != run_key:
+        return f"run_key: {rec.get('run_key')!r} is not its spec's run ({run_key!r})"
+    return _body_problem(rec)
+
+
+def _spec_problem(spec: Mapping[str, Any]) -> str | None:
+    """The first field of a record's spec (a :class:`~experiments.config.RunSpec`'s, then its
+    phases') that is missing or malformed."""
+    from experiments.config import RunSpec
+
     hints = typing.get_type_hints(RunSpec)
     for f in dataclasses.fields(RunSpec):
         if f.name not in spec:
@@ -187,9 +201,12 @@ def record_problem(rec: Mapping[str, Any]) -> str | None:  # noqa: C901  (one ch
                 v = ph.get(key)
                 if not ok(v):
                     return f"spec.phases[{i}].{key}: expected {want}, got {v!r}"
-    run_key = RunSpec.from_dict(spec).run_key
-    if rec.get("run_key") != run_key:
-        return f"run_key: {rec.get('run_key')!r} is not its spec's run ({run_key!r})"
+    return None
+
+
+def _body_problem(rec: Mapping[str, Any]) -> str | None:
+    """The first malformed field of a record beside its spec: its status, its objects, its
+    metrics, its error."""
     if rec.get("status") not in ("ok", "failed"):
         return f"status: expected 'ok' or 'failed', got {rec.get('status')!r}"
     for key in ("metrics", "timing", "versions", "git", "series", "report", "calibration"):

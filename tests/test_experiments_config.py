@@ -104,9 +104,9 @@ def test_a_huge_seed_count_or_a_step_shorter_episode_is_refused_at_once():
     msg = refused(episode_seconds=0.01)
     assert "episode_seconds: 0.01 s is shorter than one control step (0.02 s)" in msg
     msg = refused(time_limit_s=-1, memory_limit_mb=10, isolate="maybe")
-    assert "time_limit_s: must be a positive number" in msg
-    assert "memory_limit_mb: must be an integer of at least 256" in msg
-    assert "isolate: 'maybe'; one of class-path, all, none" in msg
+    assert "time_limit_s: must lie in (0, 1e+07) (seconds), got -1" in msg
+    assert "memory_limit_mb: must be an integer >= 256 (MiB), got 10" in msg
+    assert "isolate: must be one of class-path, all, none, got 'maybe'" in msg
 
 
 def test_limits_and_isolation_reach_every_run_but_not_its_hash():
@@ -177,7 +177,7 @@ def test_user_agent_by_class_path_is_accepted():
         ({"env": {"noise_mm": -0.01}}, "env.noise_mm", "expected a number >= 0 (mm), got -0.01"),
         ({"env": {"trajectory": "zigzag"}}, "env.trajectory", "one of circle, lemniscate"),
         ({"env": {"measure_every": 0}}, "env.measure_every", "expected an integer >= 1"),
-        ({"env": {"dropout": 1.5}}, "env.dropout", "a probability in [0, 1)"),
+        ({"env": {"dropout": 1.5}}, "env.dropout", "in [0, 1) (a probability)"),
         (
             {
                 "scenarios": [

@@ -153,7 +153,7 @@ def test_huge_seed_counts_short_episodes_and_bad_limits_are_refused_in_one_line(
     config_refusal(res, cfg, "episode_seconds: 0.01 s is shorter than one control step (0.02 s)")
     cfg.write_text("seeds = 3\ntime_limit_s = 0\n" + base)
     res = runner.invoke(app, ["sweep", str(cfg), "--out", str(tmp_path / "r")])
-    config_refusal(res, cfg, "time_limit_s: must be a positive number")
+    config_refusal(res, cfg, "time_limit_s: must lie in (0, 1e+07) (seconds), got 0")
     assert not (tmp_path / "r").exists()
 
 
