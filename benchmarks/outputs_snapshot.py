@@ -40,6 +40,7 @@ COMMANDS: list[tuple[str, str]] = [
         "collect-hidden-validation",
         "sixaxis lab collect -o hidden_val.csv --scenario cyclic --n 80 --seed 4 --arm-seed 3",
     ),
+    ("collect-all", "sixaxis lab collect -o all.csv --scenario all --n 150 --seed 5"),
     ("fit", "sixaxis lab fit data.csv --validate validation.csv --noise-mm 0.015"),
     (
         "fit-json",
@@ -52,6 +53,22 @@ COMMANDS: list[tuple[str, str]] = [
     (
         "discover",
         "sixaxis lab discover hidden.csv --noise-mm 0.015 --validate hidden_val.csv -o found.py",
+    ),
+    (
+        "discover-json",
+        "sixaxis lab discover hidden.csv --noise-mm 0.015 --order 8 --name second --json",
+    ),
+    (
+        "fit-discovered",
+        "sixaxis lab fit hidden.csv --effect-module found.py --effects geometric,discovered "
+        "--validate hidden_val.csv --noise-mm 0.015",
+    ),
+    ("discover-compliance", "sixaxis lab discover data.csv --noise-mm 0.015 -o found_tau.py"),
+    ("discover-all", "sixaxis lab discover all.csv --noise-mm 0.015 --order 4 -o found_all.py"),
+    (
+        "ur10-discover",
+        "sixaxis lab discover {data}/ur10/series_D.csv --robot ur10_robot --noise-mm 0.015 "
+        "--noise-ppm 6 --order 8 -o ur10_found.py",
     ),
     (
         "report",
