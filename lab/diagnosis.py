@@ -81,6 +81,7 @@ import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Unpack
 
 import numpy as np
 from scipy.optimize import brentq
@@ -101,7 +102,7 @@ from lab.candidates import (
     project_out,
 )
 from lab.identifiability import gram_factor, lower_inverse, orthonormal_basis, typical_magnitudes
-from lab.options import LabOptions, Loss, OutlierMode, Solver, call_options, check_alpha
+from lab.options import LabOptions, OptionFields, check_alpha, resolve
 from lab.repeatability import (
     NoiseFloor,
     Repeatability,
@@ -336,21 +337,11 @@ def diagnose(
     robot: RobotDescription | str | Path | None = None,
     effects: str | Sequence[str | Effect] | None = None,
     *,
-    noise_mm: float | None = None,
-    loss: Loss = "linear",
-    outliers: OutlierMode = "auto",
-    accept_large: bool = False,
-    solver: Solver = "lm",
-    f_scale_mm: float | None = None,
-    max_evaluations: int = 100,
-    register: bool = True,
-    noise_ppm: float = 0.0,
-    noise_mrad: float | None = None,
-    measured: tuple[str, ...] | None = None,
     options: LabOptions | None = None,
     alpha: float = 0.02,
     candidates: Sequence[str] | None = None,
     across_blocks: bool | None = None,
+    **keywords: Unpack[OptionFields],
 ) -> Diagnosis:
     """Fit ``effects`` (default geometric) and test what they miss; see the module docstring.
 
@@ -366,7 +357,7 @@ def diagnose(
     :data:`lab.transfer.MIN_BLOCKS` of them.
     """
     check_alpha(alpha)
-    opts = call_options(locals())
+    opts = resolve(options, **keywords)
     s = screened(data, robot, effects, opts, candidates=candidates, tests=True)
     # the noise the tests use: the stated one, else the scatter of repeated poses
     floor = noise_floor(s.options.noise_mm, s.kept)

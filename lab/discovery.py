@@ -80,6 +80,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Unpack
 
 import numpy as np
 
@@ -95,7 +96,7 @@ from arm.files import atomic_write_text
 from arm.measurements import MeasurementSet, as_measurements
 from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
-from lab.options import ORDER, LabOptions, Loss, OutlierMode, Solver, call_options, check_alpha
+from lab.options import ORDER, LabOptions, OptionFields, check_alpha, resolve
 from lab.repeatability import (
     NoiseFloor,
     Repeatability,
@@ -105,7 +106,7 @@ from lab.repeatability import (
     noise_p_value,
 )
 from lab.result import SCHEMA_VERSION, FitResult
-from lab.screening import Screen, screen, screened
+from lab.screening import Screen, screened
 from lab.spectral import DEFAULT_ORDER as SCAN_ORDER
 from lab.spectral import MAX_TERMS, CyclicScan, ExtraColumns, cyclic_scan, problem_of_fit
 from lab.transfer import block_column, blocked_text, confirm_groups, use_blocks
@@ -674,23 +675,13 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
     robot: RobotDescription | str | Path | None = None,
     effects: str | Sequence[str | Effect] | None = None,
     *,
-    noise_mm: float | None = None,
-    loss: Loss = "linear",
-    outliers: OutlierMode = "auto",
-    accept_large: bool = False,
-    solver: Solver = "lm",
-    f_scale_mm: float | None = None,
-    max_evaluations: int = 100,
-    register: bool = True,
-    noise_ppm: float = 0.0,
-    noise_mrad: float | None = None,
-    measured: tuple[str, ...] | None = None,
     options: LabOptions | None = None,
     alpha: float = 0.02,
     validate: MeasurementSet | str | Path | None = None,
     order: int = DEFAULT_ORDER,
     name: str = "discovered",
     across_blocks: bool | None = None,
+    **keywords: Unpack[OptionFields],
 ) -> Discovery:
     """Search the library of :func:`library_terms` for what ``effects`` (default geometric)
     miss; see the module docstring. ``data``: a measurement set (or its file), screened once
@@ -703,7 +694,7 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
     discovered effect only if it helps on a session (or station) it was not fitted on
     (:mod:`lab.transfer`; None: where the data have at least :data:`lab.transfer.MIN_BLOCKS`)."""
     check_alpha(alpha)
-    opts = call_options(locals())
+    opts = resolve(options, **keywords)
     if not ORDER.holds(order):
         raise FitError(f"order (the highest harmonic) must {ORDER.predicate}, got {order!r}")
     if not _NAME.fullmatch(name) or keyword.iskeyword(name):
@@ -822,7 +813,7 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
             return nothing_kept()
     # the discovered model is a new model of the rows that count: the rule judges its own misses
     # (poses where a discovered term cannot say its sign are gross misses of it, not of the base)
-    refit = screen(s.kept, s.robot, [*res.model.effects, cls()], options=s.options, tests=False).fit
+    refit = screened(s.kept, s.robot, [*res.model.effects, cls()], s.options, tests=False).fit
     if validate is not None:
         refit = refit.validate(as_measurements(validate))
     std = refit.standard_errors()
