@@ -98,7 +98,7 @@ from lab.errors import ContaminatedError, FitError, RowsLeftOutWarning
 from lab.estimation import check_plausible, fit_rows
 from lab.observations import Observations, observations_of
 from lab.options import DEFAULTS, LabOptions, OptionFields, resolve
-from lab.result import Duplicate, FitResult, Outlier, inputs_of
+from lab.result import Duplicate, FitResult, Outlier, RowsCounted, inputs_of
 from lab.solver import HUBER_K, OUTLIER_RADIUS, robust_sigma
 from lab.text import duplicates_text
 
@@ -930,7 +930,7 @@ def _screen(
 
 def _screened_fit(
     data: MeasurementSet,
-    result: FitResult,
+    fit: FitResult,
     model: _Model,
     candidates: Sequence[str] | None,
     tests: bool,
@@ -940,13 +940,11 @@ def _screened_fit(
     rule: str | None = None,
     note: str = "",
 ) -> Screen:
-    """The screen of ``result``, the fit of the rows ``kept`` of ``data`` (None: all): its
-    plausibility checked, what was left out recorded, and with ``tests`` the tests' rows."""
+    """The screen of ``fit``, the fit of the rows ``kept`` of ``data`` (None: all): its
+    plausibility checked, the result built with what was left out (:class:`RowsCounted`, joined
+    to the fit's numbers here and nowhere else), and with ``tests`` the tests' rows."""
     opts = model.options
-    bad = check_plausible(result, opts.accept_large)
-    result = replace(
-        result,
-        implausible=bad,
+    counted = RowsCounted(
         fitted_rows=None if kept is None or len(kept) == len(data) else kept,
         n_rows=len(data),
         outlier_list=found,
@@ -954,8 +952,9 @@ def _screened_fit(
         outliers_mode=opts.outliers,
         outlier_rule=rule,
         outlier_note=note,
-        source=data.source,
+        implausible=check_plausible(fit, opts.accept_large),
     )
+    result = replace(fit, counted=counted)
     cands = None if candidates is None else tuple(candidates)
     s = Screen(data, result, model.robot, model.effects, opts, cands, None, (), rule)
     if not tests:
