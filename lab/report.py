@@ -1,9 +1,9 @@
 """Building the lab's report: the fits, diagnoses, sensitivity and figures that
-:class:`lab.report_html.LabReport` shows, written as one self-contained HTML file that a
+:class:`lab.lab_report.LabReport` shows, written as one self-contained HTML file that a
 calibration engineer can send to a colleague.
 
     report = build_report("data.csv", "seed", "geometric", validate="other.csv", noise_mm=0.015)
-    report.write("report.html")
+    lab.report_html.write(report, "report.html")
 
 The loop it documents: the nominal arm (base and tool registered), the model asked for, then as
 long as the diagnosis names a missing catalogued effect (up to ``rounds`` times) the model with
@@ -37,9 +37,10 @@ from arm.params import parameter_unit
 from lab import plots
 from lab.diagnosis import diagnose, hint_variables
 from lab.identifiability import CONDITION_WARNING, typical_magnitudes
+from lab.lab_report import LabReport, ModelRun, Sensitivity
 from lab.options import LabOptions, OptionFields, resolve
 from lab.registration import nominal_parameters
-from lab.report_html import HINT_PLOT_P, LabReport, ModelRun, Sensitivity, arm_parameters
+from lab.report_html import HINT_PLOT_P, arm_parameters
 from lab.result import FitResult, inputs_of
 from lab.screening import Screen, screened
 

@@ -1,7 +1,6 @@
-"""The lab's report as a document: what it holds (:class:`LabReport`, one :class:`ModelRun` per
-model compared, the :class:`Sensitivity` of the final model) and how it is written, as one
-self-contained HTML file (PNG figures inlined as base64, no external files, scripts or fonts).
-:func:`lab.report.build_report` fills it; nothing here fits or plots.
+"""The lab's report written as one self-contained HTML page (PNG figures inlined as base64, no
+external files, scripts or fonts): :func:`render` of a :class:`lab.lab_report.LabReport`, which
+:func:`lab.report.build_report` fills; nothing here fits or plots.
 
 The page, in order: cards (nominal, calibrated, held-out RMS, noise floor, diagnosis), the models
 compared, the residuals per pose (the seed paper's Fig. 8), each diagnosis with its candidates
@@ -18,55 +17,21 @@ from __future__ import annotations
 
 import base64
 import html
-import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-from arm.description import RobotDescription
 from arm.files import atomic_write_text
-from arm.measurements import MeasurementSet
 from arm.params import ROW_FAMILIES, parse_parameter_name
-from lab.diagnosis import Diagnosis
 from lab.identifiability import CONDITION_WARNING
-from lab.result import Duplicate, FitResult, Outlier
+from lab.lab_report import LabReport, ModelRun
+from lab.result import FitResult
 from lab.text import duplicates_text, nominal_text, readable
 
-__all__ = [
-    "HINT_PLOT_P",
-    "LabReport",
-    "ModelRun",
-    "Sensitivity",
-    "arm_parameters",
-    "geometric_table",
-    "readable",
-]
+__all__ = ["HINT_PLOT_P", "arm_parameters", "geometric_table", "render", "write"]
 
 # hints drawn only below this p-value: a smooth curve through the noise of a variable that
 # explains nothing (30 poses of real data) would suggest a dependence that is not there
 HINT_PLOT_P = 0.01
-
-
-@dataclass(frozen=True)
-class Sensitivity:
-    """How far an error of each parameter moves the tool point, RMS over the poses.
-
-    ``per_unit``: m of tool point per SI unit of the parameter (a length: mm per mm; an angle:
-    mm per mrad; the same number); ``typical_mm``: mm for an error of the parameter's typical size
-    (the upper end of its effect's ``typical`` range); ``identified_mm``: mm for the error
-    identified (``p`` minus nominal; zero for a parameter held at nominal)."""
-
-    names: tuple[str, ...]
-    units: tuple[str, ...]
-    per_unit: np.ndarray
-    typical_mm: np.ndarray
-    identified_mm: np.ndarray
-
-    def ranked(self, by: str = "typical_mm") -> list[int]:
-        v = getattr(self, by)
-        return [int(k) for k in np.argsort(-v, kind="stable")]
 
 
 def _kind(name: str) -> str | None:
@@ -136,90 +101,6 @@ def _beyond_points_html(r: LabReport) -> str:
             "on its held-out points, the arm as fitted"
         )
     return f"<p>{_e('; '.join(bits))}.</p>" if bits else ""
-
-
-@dataclass
-class ModelRun:
-    """One model of the comparison: its residuals on the fitted and held-out poses; the fit and
-    its diagnosis (both None for the nominal arm)."""
-
-    label: str
-    residuals: np.ndarray
-    validation_residuals: np.ndarray | None = None
-    fit: FitResult | None = None
-    diagnosis: Diagnosis | None = None
-    n_fitted: int = 0
-
-    @staticmethod
-    def _rms(r: np.ndarray | None) -> float | None:
-        if r is None or not len(r):
-            return None
-        return 1e3 * float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
-
-    @property
-    def fitted(self) -> FitResult:
-        """The fit: every run but the nominal arm's has one."""
-        if self.fit is None:
-            raise ValueError(f"{self.label}: the nominal arm has no fit")
-        return self.fit
-
-    @property
-    def diagnosed(self) -> Diagnosis:
-        """The diagnosis: every run but the nominal arm's has one."""
-        if self.diagnosis is None:
-            raise ValueError(f"{self.label}: the nominal arm has no diagnosis")
-        return self.diagnosis
-
-    @property
-    def rms_mm(self) -> float:
-        return 1e3 * float(np.sqrt(np.mean(np.sum(self.residuals**2, axis=1))))
-
-    @property
-    def max_mm(self) -> float:
-        return 1e3 * float(np.linalg.norm(self.residuals, axis=1).max())
-
-    @property
-    def validation_rms_mm(self) -> float | None:
-        return self._rms(self.validation_residuals)
-
-    @property
-    def validation_median_mm(self) -> float | None:
-        r = self.validation_residuals
-        return None if r is None else 1e3 * float(np.median(np.linalg.norm(r, axis=1)))
-
-
-@dataclass
-class LabReport:
-    """Everything the HTML shows; :meth:`to_html` renders it, :meth:`write` writes it atomically."""
-
-    data: MeasurementSet
-    validation: MeasurementSet | None
-    robot: RobotDescription
-    noise_mm: float | None
-    runs: list[ModelRun]
-    sensitivity: Sensitivity
-    title: str = "Calibration report"
-    command: str | None = None
-    figures: dict[str, bytes] = field(default_factory=dict, repr=False)
-    # the rows of the file every model leaves out (lab.screening), and the rule applied
-    outliers: list[Outlier] = field(default_factory=list)
-    duplicates: list[Duplicate] = field(default_factory=list)
-    outlier_rule: str | None = None
-    n_rows: int | None = None
-
-    @property
-    def final(self) -> ModelRun:
-        return self.runs[-1]
-
-    @property
-    def noise_floor_mm(self) -> float | None:
-        return None if self.noise_mm is None else self.noise_mm * math.sqrt(3.0)
-
-    def to_html(self) -> str:
-        return _render(self)
-
-    def write(self, path: str | Path) -> None:
-        atomic_write_text(Path(path), self.to_html())
 
 
 # -- HTML ----------------------------------------------------------------------------------------------
@@ -497,7 +378,12 @@ def _left_out_html(r: LabReport) -> str:
     return "".join(out)
 
 
-def _render(r: LabReport) -> str:
+def write(report: LabReport, path: str | Path) -> None:
+    """Write the report's page (:func:`render`) to ``path``, atomically."""
+    atomic_write_text(Path(path), render(report))
+
+
+def render(r: LabReport) -> str:
     from importlib.metadata import PackageNotFoundError, version
 
     try:

@@ -157,7 +157,7 @@ LAB_ORDER = [
     {"identification", "transfer"},
     {"diagnosis", "discovery", "planning", "export"},
     {"urdf_export"},
-    {"report", "report_html", "plots"},
+    {"report", "lab_report", "report_html", "plots"},
 ]
 
 
