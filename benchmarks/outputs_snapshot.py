@@ -120,6 +120,15 @@ SWEEP = textwrap.dedent(
 )
 
 TIMES = [
+    # rich's log time column, or its blank when the record's second is the one before's
+    (
+        re.compile(
+            r"^(\[\d{2}/\d{2}/\d{2} \d{1,2}:\d{2}:\d{2}\]| {19}) "
+            r"(?=(DEBUG|INFO|WARNING|ERROR|CRITICAL) )",
+            re.MULTILINE,
+        ),
+        "[<LOGTIME>] ",
+    ),
     (
         re.compile(r"\b\d{4}-\d{2}-\d{2}[T ]\d{2}:\d{2}:\d{2}(\.\d+)?([+-]\d{2}:?\d{2}|Z)?"),
         "<TIME>",
@@ -221,7 +230,9 @@ def run(out: Path, only: list[str] | None) -> None:
     shutil.rmtree(out / "files", ignore_errors=True)
     for p in files:
         data = p.read_bytes()
-        if p.suffix in {".csv", ".json", ".md", ".toml", ".urdf", ".py", ".html", ".txt"}:
+        if p.suffix == ".lock":  # a lock names the process that held it
+            data = b"<LOCK>"
+        elif p.suffix in {".csv", ".json", ".md", ".toml", ".urdf", ".py", ".html", ".txt"}:
             data = normalise(data.decode(), work, p.suffix).encode()
         rel = p.relative_to(work)
         (out / "files" / rel).parent.mkdir(parents=True, exist_ok=True)
