@@ -112,14 +112,12 @@ from lab.terms import Expr, Fn, Mul, Pow, Scaled, TermEffect, Var, term_effect, 
 from lab.transfer import block_column, blocked_text, confirm_groups, use_blocks
 
 __all__ = [
-    "DEFAULT_ORDER",
     "Discovery",
     "LibraryProblem",
     "LibraryTerm",
     "Term",
     "check_module_path",
     "discover",
-    "harmonic_terms",
     "library_problem",
     "library_terms",
 ]

@@ -69,14 +69,7 @@ from lab.solver import (
     weighted_gram,
 )
 
-__all__ = [
-    "build_model",
-    "check_plausible",
-    "distinct_poses",
-    "fit_rows",
-    "identifiability_of",
-    "model_of",
-]
+__all__ = ["fit_rows", "identifiability_of"]
 
 log = logging.getLogger(__name__)
 

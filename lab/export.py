@@ -73,21 +73,14 @@ from lab.domain import Domain, out_of_domain, warn_out_of_domain
 from lab.result import SCHEMA_VERSION, FitResult
 
 __all__ = [
-    "EXPORT_TOL",
-    "FAR_RAD",
     "Compensation",
     "CompensationError",
     "ExportError",
     "TargetSet",
-    "calibrated_model",
     "compensate",
     "export_robot",
-    "exported_difference",
-    "nominal_arm",
     "read_targets",
-    "station_bases",
     "target_id_list",
-    "torque_difference",
     "write_joints",
 ]
 

@@ -43,8 +43,6 @@ __all__ = [
     "OptionFields",
     "OutlierMode",
     "Solver",
-    "check_alpha",
-    "resolve",
 ]
 
 Loss = Literal["linear", "huber", "soft_l1"]

@@ -44,7 +44,7 @@ from lab.report_html import HINT_PLOT_P, arm_parameters
 from lab.result import FitResult, inputs_of
 from lab.screening import Screen, screened
 
-__all__ = ["build_report", "error_sensitivity", "hint_panels"]
+__all__ = ["build_report", "error_sensitivity"]
 
 log = logging.getLogger(__name__)
 

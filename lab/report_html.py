@@ -27,7 +27,7 @@ from lab.lab_report import LabReport, ModelRun
 from lab.result import FitResult
 from lab.text import duplicates_text, nominal_text, readable
 
-__all__ = ["HINT_PLOT_P", "arm_parameters", "geometric_table", "render", "write"]
+__all__ = ["arm_parameters", "geometric_table", "render", "write"]
 
 # hints drawn only below this p-value: a smooth curve through the noise of a variable that
 # explains nothing (30 poses of real data) would suggest a dependence that is not there

@@ -34,15 +34,7 @@ from lab.registration import register_points
 from lab.solver import OUTLIER_RADIUS, robust_sigma
 from lab.text import left_out_lines, parameter_cells
 
-__all__ = [
-    "SCHEMA_VERSION",
-    "Duplicate",
-    "FitResult",
-    "Outlier",
-    "RowsCounted",
-    "inputs_of",
-    "reference_values",
-]
+__all__ = ["SCHEMA_VERSION", "Duplicate", "FitResult", "Outlier", "RowsCounted"]
 
 SCHEMA_VERSION = 1
 log = logging.getLogger(__name__)

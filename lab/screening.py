@@ -103,20 +103,12 @@ from lab.solver import HUBER_K, OUTLIER_RADIUS, robust_sigma
 from lab.text import duplicates_text
 
 __all__ = [
-    "LTS_SHARE",
     "MAX_OUTLIER_FRACTION",
-    "MAX_ROUNDS",
     "OUTLIER_ALPHA",
-    "Duplicate",
-    "Outlier",
     "Screen",
-    "annotate",
     "duplicate_rows",
-    "judge",
     "outlier_radius",
-    "robust_sigma",
     "screen",
-    "screened",
 ]
 
 log = logging.getLogger(__name__)

@@ -23,7 +23,7 @@ import numpy as np
 from arm.effect_api import ModelInputs
 from arm.effects import REFERENCE_TEMPERATURE, JointAngleEffect
 
-__all__ = ["Expr", "Fn", "Mul", "Pow", "Scaled", "Var", "term_effect", "term_variables"]
+__all__ = ["Expr", "Fn", "Mul", "Pow", "Scaled", "Var", "term_effect"]
 
 # the variables a term may read, and the columns of the data they come from (None: q or tau)
 VARIABLES = ("q", "tau", "dT", "t", "payload", "direction")
