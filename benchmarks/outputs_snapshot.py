@@ -186,6 +186,22 @@ def _strip_table(text: str, sep: str) -> str:
     return "\n".join(out)
 
 
+def _strip_last_column(text: str) -> str:
+    """Blank the last column of space-aligned tables (rich's, without rules) whose header's last
+    cell names a time (``ms/step``)."""
+    out, blank = [], False
+    for line in text.split("\n"):
+        cells = line.split()
+        if not cells:
+            blank = False
+        elif cells[-1] in ("ms/step", "s/step", "ms/episode"):
+            blank = True
+        elif blank and re.fullmatch(r"[0-9.e+-]+", cells[-1]):
+            line = line[: line.rstrip().rfind(cells[-1])] + "<T>" + line[len(line.rstrip()) :]
+        out.append(line)
+    return "\n".join(out)
+
+
 def normalise(text: str, out: Path, suffix: str = ".txt") -> str:
     text = text.replace(str(out), "<OUT>").replace(str(ROOT), "<REPO>")
     head = _head()
@@ -201,6 +217,7 @@ def normalise(text: str, out: Path, suffix: str = ".txt") -> str:
     else:
         text = _strip_table(text, "|")
         text = _strip_table(text, "│")
+        text = _strip_last_column(text)
     for pattern, repl in TIMES:
         text = pattern.sub(repl, text)
     return text
