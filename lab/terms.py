@@ -23,10 +23,7 @@ import numpy as np
 from arm.effect_api import ModelInputs
 from arm.effects import REFERENCE_TEMPERATURE, JointAngleEffect
 
-__all__ = ["Expr", "Fn", "Mul", "Pow", "Scaled", "Var", "term_effect"]
-
-# the variables a term may read, and the columns of the data they come from (None: q or tau)
-VARIABLES = ("q", "tau", "dT", "t", "payload", "direction")
+__all__ = ["Expr", "Fn", "Mul", "Pow", "Scaled", "TermEffect", "Var", "term_effect"]
 
 
 class Expr:
@@ -46,7 +43,7 @@ class Expr:
 
 @dataclass(frozen=True)
 class Var(Expr):
-    """A variable of the joint (:data:`VARIABLES`)."""
+    """A variable of the joint: ``q``, ``tau``, ``dT``, ``t``, ``payload`` or ``direction``."""
 
     name: str
 
