@@ -40,6 +40,7 @@ COMMANDS: list[tuple[str, str]] = [
         "collect-hidden-validation",
         "sixaxis lab collect -o hidden_val.csv --scenario cyclic --n 80 --seed 4 --arm-seed 3",
     ),
+    ("collect-all", "sixaxis lab collect -o all.csv --scenario all --n 150 --seed 5"),
     ("fit", "sixaxis lab fit data.csv --validate validation.csv --noise-mm 0.015"),
     (
         "fit-json",
@@ -52,6 +53,22 @@ COMMANDS: list[tuple[str, str]] = [
     (
         "discover",
         "sixaxis lab discover hidden.csv --noise-mm 0.015 --validate hidden_val.csv -o found.py",
+    ),
+    (
+        "discover-json",
+        "sixaxis lab discover hidden.csv --noise-mm 0.015 --order 8 --name second --json",
+    ),
+    (
+        "fit-discovered",
+        "sixaxis lab fit hidden.csv --effect-module found.py --effects geometric,discovered "
+        "--validate hidden_val.csv --noise-mm 0.015",
+    ),
+    ("discover-compliance", "sixaxis lab discover data.csv --noise-mm 0.015 -o found_tau.py"),
+    ("discover-all", "sixaxis lab discover all.csv --noise-mm 0.015 --order 4 -o found_all.py"),
+    (
+        "ur10-discover",
+        "sixaxis lab discover {data}/ur10/series_D.csv --robot ur10_robot --noise-mm 0.015 "
+        "--noise-ppm 6 --order 8 -o ur10_found.py",
     ),
     (
         "report",
@@ -193,6 +210,15 @@ INPUTS = {
 }
 
 TIMES = [
+    # rich's log time column, or its blank when the record's second is the one before's
+    (
+        re.compile(
+            r"^(\[\d{2}/\d{2}/\d{2} \d{1,2}:\d{2}:\d{2}\]| {19}) "
+            r"(?=(DEBUG|INFO|WARNING|ERROR|CRITICAL) )",
+            re.MULTILINE,
+        ),
+        "[<LOGTIME>] ",
+    ),
     (
         re.compile(r"\b\d{4}-\d{2}-\d{2}[T ]\d{2}:\d{2}:\d{2}(\.\d+)?([+-]\d{2}:?\d{2}|Z)?"),
         "<TIME>",
@@ -250,6 +276,22 @@ def _strip_table(text: str, sep: str) -> str:
     return "\n".join(out)
 
 
+def _strip_last_column(text: str) -> str:
+    """Blank the last column of space-aligned tables (rich's, without rules) whose header's last
+    cell names a time (``ms/step``)."""
+    out, blank = [], False
+    for line in text.split("\n"):
+        cells = line.split()
+        if not cells:
+            blank = False
+        elif cells[-1] in ("ms/step", "s/step", "ms/episode"):
+            blank = True
+        elif blank and re.fullmatch(r"[0-9.e+-]+", cells[-1]):
+            line = line[: line.rstrip().rfind(cells[-1])] + "<T>" + line[len(line.rstrip()) :]
+        out.append(line)
+    return "\n".join(out)
+
+
 def normalise(text: str, out: Path, suffix: str = ".txt") -> str:
     text = text.replace(str(out), "<OUT>").replace(str(ROOT), "<REPO>")
     head = _head()
@@ -265,6 +307,7 @@ def normalise(text: str, out: Path, suffix: str = ".txt") -> str:
     else:
         text = _strip_table(text, "|")
         text = _strip_table(text, "│")
+        text = _strip_last_column(text)
     for pattern, repl in TIMES:
         text = pattern.sub(repl, text)
     return text
@@ -306,7 +349,9 @@ def snapshot_files(out: Path, work: Path) -> None:
     shutil.rmtree(out / "files", ignore_errors=True)
     for p in files:
         data = p.read_bytes()
-        if p.suffix in {".csv", ".json", ".md", ".toml", ".urdf", ".py", ".html", ".txt"}:
+        if p.suffix == ".lock":  # a lock names the process that held it
+            data = b"<LOCK>"
+        elif p.suffix in {".csv", ".json", ".md", ".toml", ".urdf", ".py", ".html", ".txt"}:
             data = normalise(data.decode(), work, p.suffix).encode()
         elif p.suffix == ".lock":
             data = re.sub(rb"\d+", b"<PID>", data)

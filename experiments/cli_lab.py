@@ -251,6 +251,7 @@ def report_cmd(
     Repeats diagnose-and-refit while the verdict names a missing catalogued effect (at most
     --rounds times); the report has the tables and plots of every model."""
     from lab.report import build_report
+    from lab.report_html import write as write_html
 
     arm, meas, val, opts = lab.read(data, [(output, "--output")])
     flags = lab.flags()
@@ -276,7 +277,7 @@ def report_cmd(
             )
         step("writing the HTML")
         with writing(output):
-            rep.write(output)
+            write_html(rep, output)
         step(None)
     print_report(rep, output, time.perf_counter() - t0)
 

@@ -12,8 +12,8 @@ physical effect is missing, add it, watch the error fall.
     print(result.table())
 
 Every entry point (``screen``, ``fit``, ``diagnose``, ``discover``, ``lab.report.build_report``)
-takes ``data, robot, effects`` and then the options of :class:`LabOptions` as keywords, in the same
-order (or ``options=``). Every result has ``to_dict()`` (the JSON of docs/format.md, the lab's JSON
+takes ``data, robot, effects`` and then the options: ``options=`` one :class:`LabOptions`, or its
+fields as keywords (``lab.options.OptionFields``), resolved once per call. Every result has ``to_dict()`` (the JSON of docs/format.md, the lab's JSON
 output) and ``summary()``. Cautions are :class:`LabWarning` s besides the log. Pure numerics: no
 simulator, no plotting here (see ``lab.report``).
 """

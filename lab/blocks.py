@@ -23,7 +23,7 @@ from arm.errormodel import ErrorModel, ModelInputs
 if TYPE_CHECKING:
     from lab.observations import Observations
 
-__all__ = ["BLOCK", "Blocks"]
+__all__ = ["Blocks"]
 
 BLOCK = 4096  # poses per block: the Jacobian of 70 parameters is then 6.9 MB
 

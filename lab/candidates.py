@@ -40,20 +40,7 @@ from lab.errors import FitError
 from lab.identifiability import Identifiability, gram_factor, lower_inverse
 from lab.observations import Observations
 
-__all__ = [
-    "CandidateGroup",
-    "ModelFit",
-    "candidate_columns",
-    "candidate_groups",
-    "candidate_indices",
-    "candidate_model",
-    "compact",
-    "explained",
-    "explained_residual",
-    "group_label",
-    "project_out",
-    "row_blocks",
-]
+__all__ = ["candidate_model"]
 
 
 class ModelFit(Protocol):

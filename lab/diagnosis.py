@@ -81,6 +81,7 @@ import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Unpack
 
 import numpy as np
 from scipy.optimize import brentq
@@ -101,7 +102,7 @@ from lab.candidates import (
     project_out,
 )
 from lab.identifiability import gram_factor, lower_inverse, orthonormal_basis, typical_magnitudes
-from lab.options import LabOptions, Loss, OutlierMode, Solver, call_options, check_alpha
+from lab.options import LabOptions, OptionFields, check_alpha, resolve
 from lab.repeatability import (
     NoiseFloor,
     Repeatability,
@@ -336,21 +337,11 @@ def diagnose(
     robot: RobotDescription | str | Path | None = None,
     effects: str | Sequence[str | Effect] | None = None,
     *,
-    noise_mm: float | None = None,
-    loss: Loss = "linear",
-    outliers: OutlierMode = "auto",
-    accept_large: bool = False,
-    solver: Solver = "lm",
-    f_scale_mm: float | None = None,
-    max_evaluations: int = 100,
-    register: bool = True,
-    noise_ppm: float = 0.0,
-    noise_mrad: float | None = None,
-    measured: tuple[str, ...] | None = None,
     options: LabOptions | None = None,
     alpha: float = 0.02,
     candidates: Sequence[str] | None = None,
     across_blocks: bool | None = None,
+    **keywords: Unpack[OptionFields],
 ) -> Diagnosis:
     """Fit ``effects`` (default geometric) and test what they miss; see the module docstring.
 
@@ -366,21 +357,150 @@ def diagnose(
     :data:`lab.transfer.MIN_BLOCKS` of them.
     """
     check_alpha(alpha)
-    opts = call_options(locals())
+    opts = resolve(options, **keywords)
     s = screened(data, robot, effects, opts, candidates=candidates, tests=True)
     # the noise the tests use: the stated one, else the scatter of repeated poses
     floor = noise_floor(s.options.noise_mm, s.kept)
-    noise_mm = floor.noise_mm
-    res, data, given = s.fit, s.kept, s.data
+    res, data = s.fit, s.kept
     check_stated_noise(res, s.options.noise_mm)
     assert s.untested_rows is not None  # screened(tests=True) judged them
+    if res.weighted and res.noise_ref is not None:  # stated by the rows' uncertainties
+        floor = NoiseFloor(1e3 * res.noise_ref, "stated", floor.repeatability)
+    noise_mm = floor.noise_mm
+    cat, Q0 = _catalogue_problem(s)
+    H0 = hat_blocks(Q0, cat.k_pose)
+    cv0 = press_rms(cat.e0, H0)
+    sel = ForwardSelection(cat.e0, cat.rss0, cat.dof0, H0, cv0)
+    sigma = noise_mm * 1e-3 if noise_mm is not None else math.sqrt(cat.rss0 / max(cat.dof0, 1))
+    alpha_c = alpha / 2 if noise_mm is not None else alpha
+    # the cyclic errors' orders are scanned (lab.spectral) unless the candidates leave them out;
+    # the catalogue's tests and the scan then share alpha_c equally (a union bound)
+    scanning = _scans(s.candidates)
+    alpha_cat = alpha_c / 2 if scanning else alpha_c
+    Jq = _joint_jacobian(res, cat.inlier)
+    hints = _hints(res, data, Q0, cat.e0, cat.rss0, cat.dof0, cat.inlier, Jq)
+    cands, bases, keys = _tested_candidates(cat, sel, sigma, alpha_cat)
+    n_tested = len(cands)
+    scanner = _scanner(s, cat, Q0, Jq, alpha_c / 2, scanning)
+    rejected: list[str] = []
+    explanation = _forward(
+        cands, bases, keys, sel, alpha_cat, scanner, cat.columns_of(s.options), rejected
+    )
+    chosen = [c for c in explanation if c.effect != Cyclic.name]
+    scan = scanner.result()
+    rejected += scan.implausible
+    # the explanation first (each given the ones before it), then every other candidate
+    picked = {(c.effect, c.joints) for c in chosen}
+    cands = explanation + [c for c in cands if (c.effect, c.joints) not in picked]
+    chi2_p = chi2_after = None
+    if noise_mm is not None:  # chi-square against a stated noise, F against a measured one
+        chi2_p = noise_p_value(cat.rss0, cat.dof0, floor)
+        chi2_after = noise_p_value(sel.rss, sel.dof, floor)
+    # above the noise after the explanation: is any structure left? The selection found no
+    # more; the hints say whether the residual still depends on a measured variable
+    implied = None
+    if chi2_after is not None and chi2_after < alpha / 2:
+        implied = _implied_noise(res, data, Q0, sel, cat.inlier, Jq, alpha / 2)
+    del Q0
+    blocked = None
+    if explanation and use_blocks(s.kept, across_blocks):
+        explanation, blocked = _confirm_across_blocks(s, res.model, explanation)
+        cands = explanation + [c for c in cands if c not in explanation]
+    verdict, suggestion = _verdict(res.model, explanation, chi2_p, chi2_after, implied, alpha)
+    # every pose left out (by the screen: of the fit, and of the tests), by its index in the data
+    # a candidate's note is said only of the model fitted or the one suggested
+    speaking = {e.name for e in res.model.effects} | {c.effect for c in chosen}
+    left_out = annotate(s.left_out, cat.full, s.data, effects=speaking)
+    d = Diagnosis(
+        fit=res,
+        verdict=verdict,
+        candidates=cands,
+        hints=hints,
+        noise_mm=noise_mm,
+        alpha=alpha,
+        cv_rms_mm=1e3 * cv0,
+        chi2_p_value=chi2_p,
+        chi2_p_value_after=chi2_after,
+        suggestion=suggestion,
+        explanation=explanation,
+        outliers=np.array(sorted(o.index for o in left_out), dtype=int),
+        n_tested=n_tested,
+        skipped=cat.skipped,
+        outlier_list=left_out,
+        outliers_mode=s.options.outliers,
+        outlier_rule=s.test_rule,
+        notes=scan.notes() + _alternative_notes(scan),
+        implausible=rejected,
+        noise_source=floor.source,
+        repeatability=floor.repeatability,
+        implied_noise_mm=implied,
+        blocked_cv=blocked,
+        resolution=None
+        if noise_mm is None
+        else resolution(res.n_points, alpha_cat / max(n_tested, 1)),
+    )
+    log.info("%s", d.summary())
+    return d
+
+
+@dataclass
+class _Catalogue:
+    """The diagnosis's problem: the fit's residual rows ``e0`` (the poses the tests keep,
+    ``inlier``) with the model's span projected out, its sum of squares and degrees of freedom;
+    the model with every candidate (``full``) and the candidates' groups; every candidate's
+    columns ``Jc`` (the model's span projected out; ``norms``, ``norms_p`` their norms before
+    and after), ``cand`` their indices in ``full``'s layout and ``column`` the reverse; the
+    candidates skipped, with why."""
+
+    full: ErrorModel
+    groups: list
+    skipped: dict[str, str]
+    cand: np.ndarray
+    column: dict[int, int]
+    Jc: np.ndarray
+    norms: np.ndarray
+    norms_p: np.ndarray
+    e0: np.ndarray
+    rss0: float
+    dof0: int
+    inlier: np.ndarray
+    n: int
+    k_pose: int
+
+    def columns_of(self, options: LabOptions):
+        """A function of a candidate's parameter names: its columns (the model's span
+        projected out), nominal values and plausible bounds (none with ``accept_large``)."""
+        full, p_full = self.full, self.full.nominal()
+
+        def columns_of(names: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            idx = full.layout.indices(names)
+            bounds = [
+                None
+                if options.accept_large
+                else full.effects[_effect_index(full, nm)].plausible_bound(nm)
+                for nm in names
+            ]
+            return (
+                self.Jc[:, [self.column[int(i)] for i in idx]],
+                p_full[idx],
+                np.array([np.nan if b is None else b for b in bounds], dtype=float),
+            )
+
+        return columns_of
+
+
+def _catalogue_problem(s: Screen) -> tuple[_Catalogue, np.ndarray]:
+    """The diagnosis's problem for the screen ``s`` (:class:`_Catalogue`) and the orthonormal
+    basis ``Q0`` of the model's identifiable columns (kept apart: the largest array, freed as
+    soon as the tests are done)."""
+    res, data = s.fit, s.kept
+    assert s.untested_rows is not None
     model = res.model
     N = res.n_points
     full, groups, skipped = candidate_groups(model, data, s.candidates)
     inputs = full.inputs(data.q, data.columns, source=data.source)
     p = full.nominal()
     p[full.layout.indices(model.layout.names)] = res.params
-    typ = typical_magnitudes(full)
     # the model's identifiable columns (scaled) and every candidate's, block by block: the
     # whole catalogue's Jacobian of 200k poses is 340 MB, and no copy of it is made
     cand = candidate_indices(full, groups)
@@ -391,10 +511,6 @@ def diagnose(
     rows_of = res.row_residuals
     k_pose = rows_of.shape[1]
     e = rows_of.reshape(-1).copy()
-    if res.weighted and res.noise_ref is not None:  # stated by the rows' uncertainties
-        floor = NoiseFloor(1e3 * res.noise_ref, "stated", floor.repeatability)
-        noise_mm = floor.noise_mm
-
     # the poses the screen left out of the tests: they would look like a missing effect
     far = s.untested_rows
     inlier = np.ones(N, dtype=bool)
@@ -403,38 +519,40 @@ def diagnose(
     if far.size:
         keep3 = np.repeat(inlier, k_pose)
         J0, Jc, e = compact(J0, keep3), compact(Jc, keep3), e[keep3]
-
     Q0 = orthonormal_basis(J0, overwrite=True)
     del J0
     e0 = e - Q0 @ (Q0.T @ e)
-    rss0 = float(e0 @ e0)
     n_rows = 3 * n
     if res.weighted and res.observations is not None:
         n_rows = int(res.observations.measured[inlier].sum())  # rows not measured weigh 0
-    dof0 = n_rows - Q0.shape[1]
-    sigma = noise_mm * 1e-3 if noise_mm is not None else math.sqrt(rss0 / max(dof0, 1))
-    H0 = hat_blocks(Q0, k_pose)
-    cv0 = press_rms(e0, H0)
-    alpha_c = alpha / 2 if noise_mm is not None else alpha
-    # the cyclic errors' orders are scanned (lab.spectral) unless the candidates leave them out;
-    # the catalogue's tests and the scan then share alpha_c equally (a union bound)
-    scanning = _scans(s.candidates)
-    alpha_cat = alpha_c / 2 if scanning else alpha_c
-
-    sel = ForwardSelection(e0, rss0, dof0, H0, cv0)
     norms = np.sqrt(np.einsum("ij,ij->j", Jc, Jc))
     project_out(Jc, Q0)  # every candidate column with the model's span projected out
     norms_p = np.sqrt(np.einsum("ij,ij->j", Jc, Jc))
-    Jq = _joint_jacobian(res, inlier)
-    hints = _hints(res, data, Q0, e0, rss0, dof0, inlier, Jq)
+    cat = _Catalogue(
+        full, groups, skipped, cand, column, Jc, norms, norms_p, e0, float(e0 @ e0),
+        n_rows - Q0.shape[1], inlier, n, k_pose,
+    )  # fmt: skip
+    return cat, Q0
+
+
+def _tested_candidates(
+    cat: _Catalogue, sel: ForwardSelection, sigma: float, alpha: float
+) -> tuple[list[Candidate], list, list[int]]:
+    """Every candidate group the model does not explain already, tested alone (F-test and
+    held-out RMS given the model), judged by Holm's procedure at ``alpha``, best first; with
+    each one's basis (a function: computed when tried) and key in the selection's remembered
+    first trials. A group whose columns lie in the model's span, or move no point above the
+    noise ``sigma`` at their typical size, is skipped."""
+    typ = typical_magnitudes(cat.full)
+    Jc, rss0, dof0 = cat.Jc, cat.rss0, cat.dof0
     tested: list[np.ndarray] = []  # each candidate's columns (of Jc) that were tested
     rows: list[Candidate] = []
-    for g in groups:
-        idx = np.array([column[int(i)] for i in full.layout.indices(g.names)], dtype=int)
-        nx, nxp = norms[idx], norms_p[idx]
-        keep = (nxp > DEPENDENT * nx) & (nxp * typ[cand[idx]] > sigma)
+    for g in cat.groups:
+        idx = np.array([cat.column[int(i)] for i in cat.full.layout.indices(g.names)], dtype=int)
+        nx, nxp = cat.norms[idx], cat.norms_p[idx]
+        keep = (nxp > DEPENDENT * nx) & (nxp * typ[cat.cand[idx]] > sigma)
         if not keep.any():
-            skipped[group_label(g)] = "unidentifiable given the model"
+            cat.skipped[group_label(g)] = "unidentifiable given the model"
             continue
         cols = idx[keep]
 
@@ -443,7 +561,7 @@ def diagnose(
 
         t = sel.trial(basis, key=len(rows))
         if t is None:
-            skipped[group_label(g)] = "unidentifiable given the model"
+            cat.skipped[group_label(g)] = "unidentifiable given the model"
             continue
         cv, pv, (Qc, _, ss, _) = t
         k = Qc.shape[1]
@@ -459,14 +577,15 @@ def diagnose(
                 effect=g.effect,
                 joints=joints,
                 parameters=names,
-                rms_mm=1e3 * math.sqrt(max(rss0 - ss, 0.0) / n),
+                rms_mm=1e3 * math.sqrt(max(rss0 - ss, 0.0) / cat.n),
                 cv_rms_mm=1e3 * cv,
                 statistic=F,
                 p_value=pv,
             )
         )
     pvals = np.array([c.p_value for c in rows])
-    sig = holm(pvals, alpha_cat) if rows else np.zeros(0, dtype=bool)
+    sig = holm(pvals, alpha) if rows else np.zeros(0, dtype=bool)
+    cv0 = sel.cv
     cands = [
         Candidate(**{**c.__dict__, "significant": bool(s), "confirmed": c.cv_rms_mm < 1e3 * cv0})
         for c, s in zip(rows, sig, strict=True)
@@ -479,115 +598,51 @@ def diagnose(
             cands[i].p_value,
         ),
     )
-    cands = [cands[i] for i in order]
-    tested = [tested[i] for i in order]
-    keys = list(order)  # each candidate's key in the selection's remembered first trials
-    n_tested = len(cands)
-    bases = [lambda cols=cols: orthonormal_basis(Jc[:, cols], overwrite=True) for cols in tested]
-    # the cyclic errors' scan (lab.spectral), kept in step with the selection: it also judges
-    # the plausibility of every parameter of the explanation, catalogued or cyclic (without the
-    # scan, joints=(): no cyclic candidate, the same judge)
-    scanner = CyclicScanner(
+    bases = [lambda cols=tested[i]: orthonormal_basis(Jc[:, cols], overwrite=True) for i in order]
+    return [cands[i] for i in order], bases, list(order)
+
+
+def _scanner(
+    s: Screen, cat: _Catalogue, Q0: np.ndarray, Jq: np.ndarray, alpha: float, scanning: bool
+) -> CyclicScanner:
+    """The cyclic errors' scan (lab.spectral) at ``alpha``, kept in step with the selection: it
+    also judges the plausibility of every parameter of the explanation, catalogued or cyclic
+    (without the scan, joints=(): no cyclic candidate, the same judge)."""
+    data, n = s.kept, cat.n
+    return CyclicScanner(
         CyclicProblem(
-            residual=e0,
+            residual=cat.e0,
             model=Q0,
             joint=Jq.reshape(-1, 6),
             pose=np.repeat(np.arange(n), Jq.shape[1]),
-            q=data.q[inlier] if n < N else data.q,
+            q=data.q[cat.inlier] if n < s.fit.n_points else data.q,
             orthonormal=True,
         ),
-        alpha=alpha_c / 2,
+        alpha=alpha,
         joints=(1, 2, 3, 4, 5, 6) if scanning else (),
         # accept_large: the user keeps large values, so nothing is passed over for them
         bound=None if s.options.accept_large else Cyclic({1: [1]}).plausible_bound("cs1_1"),
     )
-    p_full = full.nominal()
 
-    def columns_of(names: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """A candidate's columns (the model's span projected out), nominal values, bounds."""
-        idx = full.layout.indices(names)
-        bounds = [
-            None
-            if s.options.accept_large
-            else full.effects[_effect_index(full, nm)].plausible_bound(nm)
-            for nm in names
-        ]
-        return (
-            Jc[:, [column[int(i)] for i in idx]],
-            p_full[idx],
-            np.array([np.nan if b is None else b for b in bounds], dtype=float),
-        )
 
-    rejected: list[str] = []
-    explanation = _forward(cands, bases, keys, sel, alpha_cat, scanner, columns_of, rejected)
-    chosen = [c for c in explanation if c.effect != Cyclic.name]
-    scan = scanner.result()
-    notes = scan.notes() + _alternative_notes(scan)
-    rejected += scan.implausible
-    rss_after, dof_after = sel.rss, sel.dof
-    # the explanation first (each given the ones before it), then every other candidate
-    picked = {(c.effect, c.joints) for c in chosen}
-    cands = explanation + [c for c in cands if (c.effect, c.joints) not in picked]
-
-    chi2_p = chi2_after = None
-    if noise_mm is not None:  # chi-square against a stated noise, F against a measured one
-        chi2_p = noise_p_value(rss0, dof0, floor)
-        chi2_after = noise_p_value(rss_after, dof_after, floor)
-    # above the noise after the explanation: is any structure left? The selection found no
-    # more; the hints say whether the residual still depends on a measured variable
-    implied = None
-    if chi2_after is not None and chi2_after < alpha / 2:
-        implied = _implied_noise(res, data, Q0, sel, inlier, Jq, alpha / 2)
-    del Q0
-    blocked = None
-    if explanation and use_blocks(s.kept, across_blocks):
-        explanation, blocked = _confirm_across_blocks(s, model, explanation)
-        cands = explanation + [c for c in cands if c not in explanation]
-    suggestion = None
+def _verdict(
+    model: ErrorModel,
+    explanation: list[Candidate],
+    chi2_p: float | None,
+    chi2_after: float | None,
+    implied: float | None,
+    alpha: float,
+) -> tuple[str, str | None]:
+    """The verdict and the suggested model (the module docstring)."""
     if explanation:
         suggestion = _suggestion(model, explanation)
         # what the catalogue offers must bring the residual down to the noise, or leave noise
         # alone (then the noise is above the one stated)
         ok = chi2_after is None or chi2_after >= alpha / 2 or implied is not None
-        verdict = explanation[0].effect if ok else "unexplained"
-    elif chi2_p is not None and chi2_p < alpha / 2:
-        verdict = "noise" if implied is not None else "unexplained"
-    else:
-        verdict = "none"
-
-    # every pose left out (by the screen: of the fit, and of the tests), by its index in the data
-    left_out = s.left_out
-    # a candidate's note is said only of the model fitted or the one suggested
-    speaking = {e.name for e in model.effects} | {c.effect for c in chosen}
-    left_out = annotate(left_out, full, given, effects=speaking)
-    d = Diagnosis(
-        fit=res,
-        verdict=verdict,
-        candidates=cands,
-        hints=hints,
-        noise_mm=noise_mm,
-        alpha=alpha,
-        cv_rms_mm=1e3 * cv0,
-        chi2_p_value=chi2_p,
-        chi2_p_value_after=chi2_after,
-        suggestion=suggestion,
-        explanation=explanation,
-        outliers=np.array(sorted(o.index for o in left_out), dtype=int),
-        n_tested=n_tested,
-        skipped=skipped,
-        outlier_list=left_out,
-        outliers_mode=s.options.outliers,
-        outlier_rule=s.test_rule,
-        notes=notes,
-        implausible=rejected,
-        noise_source=floor.source,
-        repeatability=floor.repeatability,
-        implied_noise_mm=implied,
-        blocked_cv=blocked,
-        resolution=None if noise_mm is None else resolution(N, alpha_cat / max(n_tested, 1)),
-    )
-    log.info("%s", d.summary())
-    return d
+        return (explanation[0].effect if ok else "unexplained"), suggestion
+    if chi2_p is not None and chi2_p < alpha / 2:
+        return ("noise" if implied is not None else "unexplained"), None
+    return "none", None
 
 
 def _confirm_across_blocks(
@@ -651,7 +706,7 @@ def _effect_index(model: ErrorModel, name: str) -> int:
     return model.layout.effects.index(model.layout.effect_of(name))
 
 
-def _forward(  # noqa: C901  (effect-level forward selection, the module docstring's steps)
+def _forward(
     cands, bases, keys, sel: ForwardSelection, alpha, scanner: CyclicScanner, columns_of, rejected
 ) -> list[Candidate]:
     """Forward selection over the catalogue's effects and the cyclic errors' orders. Each step
@@ -699,33 +754,7 @@ def _forward(  # noqa: C901  (effect-level forward selection, the module docstri
         rss_before, dof_before = sel.rss, sel.dof
         # an effect tested whole (the catalogue's, a user's) wins a tie with a cyclic term
         if term is not None and (best is None or term.cv < best[0][0] * (1.0 - TIE)):
-            t = scanner.accept(term)
-            proj = term.basis.T @ sel.e
-            sel.add(
-                term.cv,
-                (
-                    term.basis,
-                    proj,
-                    float(proj @ proj),
-                    sel.H + hat_blocks(term.basis, sel.H.shape[1]),
-                ),
-            )
-            F, pv = f_test(rss_before - sel.rss, dof_before - sel.dof, sel.rss, sel.dof)
-            j, k = t.joint, int(t.order or 0)
-            chosen.append(
-                Candidate(
-                    effect=Cyclic.name,
-                    joints=(j,),
-                    parameters=(f"cs{j}_{k}", f"cc{j}_{k}"),
-                    rms_mm=1e3 * math.sqrt(max(sel.rss, 0.0) / (sel.e.size // 3)),
-                    cv_rms_mm=1e3 * sel.cv,
-                    statistic=F,
-                    p_value=pv,
-                    significant=True,
-                    confirmed=True,
-                    orders=(k,),
-                )
-            )
+            chosen.append(_cyclic_step(sel, scanner, term))
             continue
         assert best is not None
         c = cands[best[1]]
@@ -741,22 +770,16 @@ def _forward(  # noqa: C901  (effect-level forward selection, the module docstri
         joints: list[int] = []
         names: list[str] = []
         while singles:
-            pick = None
-            for i in singles:
-                t = sel.trial(bases[i], keys[i])
-                if t is not None and t[1] <= level and t[0] < sel.cv:
-                    if pick is None or t[0] < pick[0][0]:
-                        pick = (t, i)
+            pick = _best_single(singles, bases, keys, sel, level)
             if pick is None:
                 break
+            singles.remove(pick[1])
             if fails(cands[pick[1]]):
-                singles.remove(pick[1])
                 continue
             sel.add(pick[0][0], pick[0][2], bases[pick[1]])
             joins(cands[pick[1]])
             joints.append(cands[pick[1]].joints[0])
             names += cands[pick[1]].parameters
-            singles.remove(pick[1])
         if not joints:  # no single joint carries it alone: take the whole group
             sel.add(best[0][0], best[0][2], bases[best[1]])
             joins(c)
@@ -776,6 +799,49 @@ def _forward(  # noqa: C901  (effect-level forward selection, the module docstri
             )
         )
     return chosen
+
+
+def _cyclic_step(sel: ForwardSelection, scanner: CyclicScanner, term) -> Candidate:
+    """The scan's cyclic ``term`` taken into the selection: the candidate it makes, with the
+    F-test of its columns given those chosen before it."""
+    rss_before, dof_before = sel.rss, sel.dof
+    t = scanner.accept(term)
+    proj = term.basis.T @ sel.e
+    sel.add(
+        term.cv,
+        (
+            term.basis,
+            proj,
+            float(proj @ proj),
+            sel.H + hat_blocks(term.basis, sel.H.shape[1]),
+        ),
+    )
+    F, pv = f_test(rss_before - sel.rss, dof_before - sel.dof, sel.rss, sel.dof)
+    j, k = t.joint, int(t.order or 0)
+    return Candidate(
+        effect=Cyclic.name,
+        joints=(j,),
+        parameters=(f"cs{j}_{k}", f"cc{j}_{k}"),
+        rms_mm=1e3 * math.sqrt(max(sel.rss, 0.0) / (sel.e.size // 3)),
+        cv_rms_mm=1e3 * sel.cv,
+        statistic=F,
+        p_value=pv,
+        significant=True,
+        confirmed=True,
+        orders=(k,),
+    )
+
+
+def _best_single(singles: list[int], bases, keys, sel: ForwardSelection, level: float):
+    """The single joint (of ``singles``) that predicts held-out poses best among those
+    significant at ``level`` that lower the held-out RMS: (its trial, its index), or None."""
+    pick = None
+    for i in singles:
+        t = sel.trial(bases[i], keys[i])
+        if t is not None and t[1] <= level and t[0] < sel.cv:
+            if pick is None or t[0] < pick[0][0]:
+                pick = (t, i)
+    return pick
 
 
 def _alternative_notes(scan: CyclicScan) -> list[str]:

@@ -80,6 +80,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Unpack
 
 import numpy as np
 
@@ -88,14 +89,13 @@ from arm.effects import (
     FAST_PARTS,
     REFERENCE_TEMPERATURE,
     Effect,
-    JointAngleEffect,
     order_reading,
 )
 from arm.files import atomic_write_text
 from arm.measurements import MeasurementSet, as_measurements
 from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
-from lab.options import ORDER, LabOptions, Loss, OutlierMode, Solver, call_options, check_alpha
+from lab.options import ORDER, LabOptions, OptionFields, check_alpha, resolve
 from lab.repeatability import (
     NoiseFloor,
     Repeatability,
@@ -105,20 +105,19 @@ from lab.repeatability import (
     noise_p_value,
 )
 from lab.result import SCHEMA_VERSION, FitResult
-from lab.screening import Screen, screen, screened
+from lab.screening import Screen, screened
 from lab.spectral import DEFAULT_ORDER as SCAN_ORDER
 from lab.spectral import MAX_TERMS, CyclicScan, ExtraColumns, cyclic_scan, problem_of_fit
+from lab.terms import Expr, Fn, Mul, Pow, Scaled, TermEffect, Var, term_effect, term_variables
 from lab.transfer import block_column, blocked_text, confirm_groups, use_blocks
 
 __all__ = [
-    "DEFAULT_ORDER",
     "Discovery",
     "LibraryProblem",
     "LibraryTerm",
     "Term",
     "check_module_path",
     "discover",
-    "harmonic_terms",
     "library_problem",
     "library_terms",
 ]
@@ -141,15 +140,16 @@ class LibraryTerm:
     """One candidate function ``f`` on joint ``joint``: ``theta_joint += k * f``.
 
     ``key`` is the parameter's prefix (the parameter is ``key + str(joint)``, e.g. ``k_sin3q1``);
-    ``expression`` reads f in the CSV's variable names (``sin(3*q1)``); ``code`` computes f in
-    an effect's ``basis`` from the local names ``q``, ``tau`` (joint's columns), ``dT``
-    (temperature - 20 degC), ``t``, ``payload``, ``direction``; ``group`` joins the sine and
-    cosine of one harmonic into one candidate."""
+    ``expression`` reads f in the CSV's variable names (``sin(3*q1)``); ``form`` is f as data
+    (:mod:`lab.terms`: an expression tree of the joint's variables ``q``, ``tau``, ``dT``
+    (temperature - 20 degC), ``t``, ``payload``, ``direction``), evaluated on arrays and written
+    as the effect module's ``basis``; ``group`` joins the sine and cosine of one harmonic into one
+    candidate."""
 
     joint: int
     key: str
     expression: str
-    code: str
+    form: Expr
     variables: tuple[str, ...]
     group: str
     reading: str
@@ -157,6 +157,16 @@ class LibraryTerm:
     @property
     def name(self) -> str:
         return f"{self.key}{self.joint}"
+
+    @property
+    def code(self) -> str:
+        """f as the Python text of the effect module's ``basis`` (``np.sin(3 * q)``)."""
+        return self.form.code()
+
+    def values(self, q: np.ndarray, tau: np.ndarray, columns: dict) -> np.ndarray:
+        """f on every pose (N,), from the joint readings, gravity torques and columns."""
+        out = self.form.value(term_variables(q, tau, columns, self.joint))
+        return np.broadcast_to(np.asarray(out, dtype=float), (len(q),))
 
 
 @dataclass(frozen=True)
@@ -199,11 +209,9 @@ def harmonic_terms(joint: int, m: int) -> list[LibraryTerm]:
     else:  # one reading for the higher orders of a joint: the CLI and the module group by it
         reading = f"a harmonic of order 4 or more of joint {joint}: {FAST_PARTS}"
     mq = q if m == 1 else f"{m}*{q}"
-    mc = "q" if m == 1 else f"{m} * q"
+    angle = Var("q") if m == 1 else Scaled(m, Var("q"))
     return [
-        LibraryTerm(
-            joint, f"k_{fn}{m}q", f"{fn}({mq})", f"np.{fn}({mc})", (q,), f"h{m}{q}", reading
-        )
+        LibraryTerm(joint, f"k_{fn}{m}q", f"{fn}({mq})", Fn(fn, angle), (q,), f"h{m}{q}", reading)
         for fn in ("sin", "cos")
     ]
 
@@ -213,155 +221,75 @@ def _varies(v: np.ndarray) -> bool:
     return bool(np.ptp(v) > 1e-12 * max(1.0, float(np.max(np.abs(v)))))
 
 
+# The library's terms other than the harmonics, per joint, in order: (what the data must have,
+# key, expression, form, variables, group, reading). The conditions: ``tau`` the joint's gravity
+# torque varies; ``temperature``, ``t``, ``payload``, ``dir`` that column is measured and varies.
+# In the texts, {j} is the joint, {q} q_j, {t} tau_j, {d} dir_j, {T0} the reference temperature.
+_TAU, _DT, _DIR = Var("tau"), Var("dT"), Var("direction")
+_FORMS: tuple[tuple[str, str, str, Expr, tuple[str, ...], str, str], ...] = (
+    ("", "k_q", "{q}", Var("q"), ("{q}",), "{q}",
+     "proportional to {q}: a gear-ratio error (the catalogue's joint_scale)"),
+    ("tau", "k_tau", "{t}", _TAU, ("{t}",), "k_tau{j}",
+     "deflection proportional to {t}: joint elasticity (the catalogue's compliance)"),
+    ("tau", "k_tausq_", "{t}^2", Pow(_TAU, 2), ("{t}",), "k_tausq_{j}",
+     "deflection growing with {t}^2: a stiffness that differs with the load's direction"),
+    ("tau", "k_taucube_", "{t}^3", Pow(_TAU, 3), ("{t}",), "k_taucube_{j}",
+     "deflection growing with {t}^3: a non-linear (hardening) gear-mesh stiffness"),
+    ("tau", "k_sign_tau", "sign({t})", Fn("sign", _TAU), ("{t}",), "k_sign_tau{j}",
+     "deflection growing with sign({t}): gravity-loaded backlash (the catalogue's load_backlash)"),
+    ("tau temperature", "k_temp_tau", "(temperature - {T0})*{t}", Mul(_DT, _TAU),
+     ("temperature", "{t}"), "temp_tau{j}", "a stiffness of joint {j} that changes with temperature"),
+    ("temperature", "k_temp_q", "(temperature - {T0})", _DT, ("temperature",), "temp_q{j}",
+     "an encoder zero of joint {j} drifting with temperature"),
+    ("temperature", "k_temp_sinq", "(temperature - {T0})*sin({q})", Mul(_DT, Fn("sin", Var("q"))),
+     ("temperature", "{q}"), "temp_h1{q}",
+     "an eccentricity of joint {j} that changes with temperature"),
+    ("temperature", "k_temp_cosq", "(temperature - {T0})*cos({q})", Mul(_DT, Fn("cos", Var("q"))),
+     ("temperature", "{q}"), "temp_h1{q}",
+     "an eccentricity of joint {j} that changes with temperature"),
+    ("t", "k_t_q", "t", Var("t"), ("t",), "t_q{j}",
+     "joint {j}'s zero drifting with time (encoder or mounting creep)"),
+    ("payload", "k_payload_q", "payload", Var("payload"), ("payload",), "payload_q{j}",
+     "joint {j} deflecting with the payload beyond its gravity torque"),
+    ("dir", "k_dir", "{d}", _DIR, ("{d}",), "dir{j}",
+     "joint {j} lagging its last motion: friction-held backlash (the catalogue's backlash)"),
+    ("dir tau", "k_dir_tau", "{d}*tau{j}", Mul(_DIR, _TAU), ("{d}", "tau{j}"), "dir_tau{j}",
+     "a compliance of joint {j} that depends on the last motion's direction: friction "
+     "hysteresis in the gear"),
+)  # fmt: skip
+
+
 def library_terms(
     data: MeasurementSet, tau: np.ndarray, order: int = DEFAULT_ORDER
 ) -> list[LibraryTerm]:
     """The candidate terms for these data: those whose variables are measured and vary."""
     cols = data.columns
+    measured = {c for c in ("temperature", "t", "payload") if c in cols and _varies(cols[c])}
     out: list[LibraryTerm] = []
-    has_temp = "temperature" in cols and _varies(cols["temperature"])
-    T0 = f"{REFERENCE_TEMPERATURE:g}"
     for j in range(1, 7):
-        q = f"q{j}"
+        names = {"j": j, "q": f"q{j}", "t": f"tau{j}", "d": f"dir{j}"}
+        names["T0"] = f"{REFERENCE_TEMPERATURE:g}"
+        have: set[str] = set(measured)
+        if _varies(tau[:, j - 1]):
+            have.add("tau")
+        if f"dir{j}" in cols and _varies(cols[f"dir{j}"]):
+            have.add("dir")
         for m in range(1, order + 1):
             out += harmonic_terms(j, m)
-        out.append(
-            LibraryTerm(
-                j,
-                "k_q",
-                q,
-                "q",
-                (q,),
-                f"{q}",
-                f"proportional to {q}: a gear-ratio error (the catalogue's joint_scale)",
-            )
-        )
-        if _varies(tau[:, j - 1]):
-            t = f"tau{j}"
-            for key, expr, code, reading in (
-                ("k_tau", t, "tau", "joint elasticity (the catalogue's compliance)"),
-                (
-                    "k_tausq_",
-                    f"{t}^2",
-                    "tau**2",
-                    "a stiffness that differs with the load's direction",
-                ),
-                ("k_taucube_", f"{t}^3", "tau**3", "a non-linear (hardening) gear-mesh stiffness"),
-                (
-                    "k_sign_tau",
-                    f"sign({t})",
-                    "np.sign(tau)",
-                    "gravity-loaded backlash (the catalogue's load_backlash)",
-                ),
-            ):
-                if expr != t:
-                    reading = f"deflection growing with {expr}: {reading}"
-                else:
-                    reading = f"deflection proportional to {t}: {reading}"
-                out.append(LibraryTerm(j, key, expr, code, (t,), f"{key}{j}", reading))
-            if has_temp:
+        for need, key, expr, form, variables, group, reading in _FORMS:
+            if set(need.split()) <= have:
                 out.append(
                     LibraryTerm(
                         j,
-                        "k_temp_tau",
-                        f"(temperature - {T0})*{t}",
-                        "dT * tau",
-                        ("temperature", t),
-                        f"temp_tau{j}",
-                        f"a stiffness of joint {j} that changes with temperature",
-                    )
-                )
-        if has_temp:
-            out.append(
-                LibraryTerm(
-                    j,
-                    "k_temp_q",
-                    f"(temperature - {T0})",
-                    "dT",
-                    ("temperature",),
-                    f"temp_q{j}",
-                    f"an encoder zero of joint {j} drifting with temperature",
-                )
-            )
-            for fn in ("sin", "cos"):
-                out.append(
-                    LibraryTerm(
-                        j,
-                        f"k_temp_{fn}q",
-                        f"(temperature - {T0})*{fn}({q})",
-                        f"dT * np.{fn}(q)",
-                        ("temperature", q),
-                        f"temp_h1{q}",
-                        f"an eccentricity of joint {j} that changes with temperature",
-                    )
-                )
-        if "t" in cols and _varies(cols["t"]):
-            out.append(
-                LibraryTerm(
-                    j,
-                    "k_t_q",
-                    "t",
-                    "t",
-                    ("t",),
-                    f"t_q{j}",
-                    f"joint {j}'s zero drifting with time (encoder or mounting creep)",
-                )
-            )
-        if "payload" in cols and _varies(cols["payload"]):
-            out.append(
-                LibraryTerm(
-                    j,
-                    "k_payload_q",
-                    "payload",
-                    "payload",
-                    ("payload",),
-                    f"payload_q{j}",
-                    f"joint {j} deflecting with the payload beyond its gravity torque",
-                )
-            )
-        d = f"dir{j}"
-        if d in cols and _varies(cols[d]):
-            out.append(
-                LibraryTerm(
-                    j,
-                    "k_dir",
-                    d,
-                    "direction",
-                    (d,),
-                    f"dir{j}",
-                    f"joint {j} lagging its last motion: friction-held backlash (the "
-                    "catalogue's backlash)",
-                )
-            )
-            if _varies(tau[:, j - 1]):
-                out.append(
-                    LibraryTerm(
-                        j,
-                        "k_dir_tau",
-                        f"{d}*tau{j}",
-                        "direction * tau",
-                        (d, f"tau{j}"),
-                        f"dir_tau{j}",
-                        f"a compliance of joint {j} that depends on the last "
-                        "motion's direction: friction hysteresis in the gear",
+                        key,
+                        expr.format(**names),
+                        form,
+                        tuple(v.format(**names) for v in variables),
+                        group.format(**names),
+                        reading.format(**names),
                     )
                 )
     return out
-
-
-def _evaluate(code: str, q, tau, columns: dict, joint: int) -> np.ndarray:
-    """The value of one term's ``code`` (the same text the written effect's basis runs)."""
-    n = len(q)
-    env = {
-        "q": q[:, joint - 1],
-        "tau": tau[:, joint - 1],
-        "dT": columns["temperature"] - REFERENCE_TEMPERATURE if "temperature" in columns else None,
-        "t": columns.get("t"),
-        "payload": columns.get("payload"),
-        "direction": columns.get(f"dir{joint}"),
-    }
-    out = eval(code, {"np": np, "__builtins__": {}}, env)  # our own term texts, never user input
-    return np.broadcast_to(np.asarray(out, dtype=float), (n,))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -397,6 +325,8 @@ class Discovery:
     # cross-validation (lab.transfer), as the diagnosis's blocked_cv; dropped when it does not
     # help on a block it was not fitted on
     blocked_cv: dict | None = None
+    # the terms the data cannot tell from each selected one, by parameter name
+    alternatives: dict[str, tuple[str, ...]] = field(default_factory=dict, repr=False)
 
     @property
     def noise_note(self) -> str | None:
@@ -450,6 +380,13 @@ class Discovery:
         if not self.selected:
             return ""
         return _module_source(self)
+
+    def effect_class(self) -> type[TermEffect]:
+        """The effect class that :meth:`module_source` defines, built from the same terms as
+        data (the lab's refit uses it; nothing is executed)."""
+        if not self.selected:
+            raise FitError("nothing was discovered: there is no effect class")
+        return _effect_class(self)
 
     def write_module(self, path: str | Path) -> Path:
         """Write :meth:`module_source` atomically to ``path``; refuses when nothing was found."""
@@ -542,16 +479,17 @@ def _class_name(name: str) -> str:
     return "".join(p.capitalize() for p in name.split("_")) or "Discovered"
 
 
-def _module_source(d: Discovery) -> str:
-    name = d.effect_name
+def _forms(
+    d: Discovery,
+) -> tuple[dict[int, list[LibraryTerm]], list[str], dict[str, tuple[float, float]]]:
+    """The discovered effect's terms per joint, its term keys in order, and each key's typical
+    range: the size found, so that sample_parameters draws it and the fit keeps it (a
+    harmonic's sine and cosine share the pair's amplitude: one of them may be near zero)."""
     forms: dict[int, list[LibraryTerm]] = {}
     for t in d.selected:
         forms.setdefault(t.joint, []).append(t)
     coef = {t.name: t for t in d.terms}
     keys = list(dict.fromkeys(t.key for t in d.selected))
-    codes = {t.key: t.code for t in d.selected}
-    # typical: the size found, so that sample_parameters draws it and the fit keeps it
-    # (a harmonic's sine and cosine share the pair's amplitude: one of them may be near zero)
     amp: dict[str, float] = {}
     for t in d.selected:
         amp[t.group] = max(amp.get(t.group, 0.0), abs(coef[t.name].coefficient))
@@ -559,12 +497,23 @@ def _module_source(d: Discovery) -> str:
     for k in keys:
         mags = [amp[t.group] for t in d.selected if t.key == k]
         typical[k] = (0.5 * min(mags), 2.0 * max(mags))
+    return forms, keys, typical
+
+
+def _data_columns(d: Discovery) -> tuple[str, ...]:
+    """The measured columns the discovered terms read (beyond q and tau), sorted."""
+    return tuple(
+        sorted({v for t in d.selected for v in t.variables if not re.fullmatch(r"(q|tau)\d", v)})
+    )
+
+
+def _module_source(d: Discovery) -> str:
+    name = d.effect_name
+    forms, keys, typical = _forms(d)
+    codes = {t.key: t.code for t in d.selected}
     formula_lines = "\n".join(f"    {f}" for f in d.formulas.values())
     readings = "\n".join(f"    {t.name}: {t.expression} -- {t.reading}" for t in d.terms)
-    columns = sorted(
-        {v for t in d.selected for v in t.variables if not re.fullmatch(r"(q|tau)\d", v)}
-    )
-    data_cols = tuple(c for c in columns)
+    data_cols = _data_columns(d)
     forms_text = ",\n".join(
         f"        {j}: ({', '.join(_q(t.key) for t in ts)},)" for j, ts in sorted(forms.items())
     )
@@ -669,28 +618,18 @@ def check_module_path(path: str | Path) -> Path:
     return path
 
 
-def discover(  # noqa: C901  (the method of the module docstring, in the order it runs)
+def discover(
     data: Screen | MeasurementSet | str | Path,
     robot: RobotDescription | str | Path | None = None,
     effects: str | Sequence[str | Effect] | None = None,
     *,
-    noise_mm: float | None = None,
-    loss: Loss = "linear",
-    outliers: OutlierMode = "auto",
-    accept_large: bool = False,
-    solver: Solver = "lm",
-    f_scale_mm: float | None = None,
-    max_evaluations: int = 100,
-    register: bool = True,
-    noise_ppm: float = 0.0,
-    noise_mrad: float | None = None,
-    measured: tuple[str, ...] | None = None,
     options: LabOptions | None = None,
     alpha: float = 0.02,
     validate: MeasurementSet | str | Path | None = None,
     order: int = DEFAULT_ORDER,
     name: str = "discovered",
     across_blocks: bool | None = None,
+    **keywords: Unpack[OptionFields],
 ) -> Discovery:
     """Search the library of :func:`library_terms` for what ``effects`` (default geometric)
     miss; see the module docstring. ``data``: a measurement set (or its file), screened once
@@ -703,7 +642,7 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
     discovered effect only if it helps on a session (or station) it was not fitted on
     (:mod:`lab.transfer`; None: where the data have at least :data:`lab.transfer.MIN_BLOCKS`)."""
     check_alpha(alpha)
-    opts = call_options(locals())
+    opts = resolve(options, **keywords)
     if not ORDER.holds(order):
         raise FitError(f"order (the highest harmonic) must {ORDER.predicate}, got {order!r}")
     if not _NAME.fullmatch(name) or keyword.iskeyword(name):
@@ -714,10 +653,33 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
     res = s.fit
     if res.weighted and res.noise_ref is not None:  # stated by the rows' uncertainties
         floor = NoiseFloor(1e3 * res.noise_ref, "stated", floor.repeatability)
-    noise_mm = floor.noise_mm
-    data = s.kept  # without the rows the screen left out (duplicates, outliers)
     if name in res.model.layout.effects:
         raise FitError(f"the model already has an effect named {name!r}; choose another name")
+    disc = _selection(res, s.kept, floor, alpha, order, name)
+    if not disc.selected:
+        return _nothing_kept(disc, validate)
+    cls = disc.effect_class()
+    if use_blocks(s.kept, across_blocks) and not _helps_across_blocks(disc, s, cls):
+        disc.selected, disc.terms = [], []
+        return _nothing_kept(disc, validate)
+    # the discovered model is a new model of the rows that count: the rule judges its own misses
+    # (poses where a discovered term cannot say its sign are gross misses of it, not of the base)
+    refit = screened(s.kept, s.robot, [*res.model.effects, cls()], s.options, tests=False).fit
+    if validate is not None:
+        refit = refit.validate(as_measurements(validate))
+    _judge_refit(disc, refit, floor)
+    log.info("%s", disc.summary())
+    return disc
+
+
+def _selection(
+    res: FitResult, data: MeasurementSet, floor: NoiseFloor, alpha: float, order: int, name: str
+) -> Discovery:
+    """Steps 1-3 of the module docstring: the library's candidates scanned on the residual of
+    ``res`` (a fit of ``data``); the discovery with the terms selected (their sizes from the
+    scan's linearised fit, the first pass of the effect module's typical ranges) and the
+    residual's chi-square test against the noise ``floor``."""
+    noise_mm = floor.noise_mm
     # the library's other terms (torques, temperature, ...) join the scan of every joint's
     # harmonics as candidates of their own (lab.spectral: one vectorised selection)
     tau = res.inputs.tau
@@ -729,7 +691,6 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
         problem_of_fit(res), order, alpha=share * alpha, extras=extras, max_terms=MAX_STEPS
     )
     M = scan.n_candidates
-    rss0, dof0 = scan.rss0, scan.dof0
     # in the library's order (harmonics by order, then tau2 before tau2^3; joints in turn)
     rank = {t.group: k for k, t in enumerate(others)}
     selected: list[LibraryTerm] = []
@@ -749,18 +710,28 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
             size[t.name] = scan.estimates.get(sn, 0.0)
     for st in scan.terms:
         log.debug("discovery: %s (p = %.3g)", st.label, st.p_value)
-
-    chi2_p = noise_p_value(rss0, dof0, floor)
-    disc = Discovery(
+    return Discovery(
         base=res,
         verdict="none",
-        terms=[],
+        terms=[
+            Term(
+                t.joint,
+                t.name,
+                t.expression,
+                size[t.name],
+                None,
+                t.variables,
+                t.reading,
+                alternatives[t.name],
+            )
+            for t in selected
+        ],
         noise_mm=noise_mm,
         alpha=alpha,
         order=order,
         n_candidates=M,
         effect_name=name,
-        chi2_p_value=chi2_p,
+        chi2_p_value=noise_p_value(scan.rss0, scan.dof0, floor),
         p_value=min(1.0, scan.first_p * max(M, 1)),
         selected=selected,
         source=data.source,
@@ -768,63 +739,53 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
         scan=scan,
         noise_source=floor.source,
         repeatability=floor.repeatability,
+        alternatives=alternatives,
     )
 
-    def nothing_kept() -> Discovery:
-        if chi2_p is not None and chi2_p < CHI2_SHARE * alpha:
-            # above the noise: structure the library does not hold, or only noise (more of it
-            # than stated) when no candidate is left that the residual depends on
-            if scan.exhausted and noise_like(scan.residual):
-                disc.verdict = "noise"
-                disc.implied_noise_mm = 1e3 * math.sqrt(rss0 / max(dof0, 1))
-            else:
-                disc.verdict = "unexplained"
-        if validate is not None:
-            disc.base = res.validate(as_measurements(validate))
-        log.info("%s", disc.summary())
-        return disc
 
-    if not selected:
-        return nothing_kept()
-
-    # refit E plus the discovered effect, written as the module a user gets
-    # first pass: sizes for the module's typical ranges from the scan's linearised fit
-    disc.terms = [
-        Term(
-            t.joint,
-            t.name,
-            t.expression,
-            size[t.name],
-            None,
-            t.variables,
-            t.reading,
-            alternatives[t.name],
-        )
-        for t in selected
-    ]
-    cls = _load_class(disc.module_source(), name)
-    if use_blocks(s.kept, across_blocks):  # does it help on a session or station not fitted?
-        base_effects = list(res.model.effects)
-        kept, table = confirm_groups(
-            s.kept,
-            s.robot,
-            lambda keep: [*base_effects, cls()] if keep else base_effects,
-            [name],
-            s.options,
-        )
-        disc.blocked_cv = {
-            "column": block_column(s.kept),
-            "models": table,
-            "dropped": [] if kept else [name],
-        }
-        if not kept:
-            disc.selected, disc.terms = [], []
-            return nothing_kept()
-    # the discovered model is a new model of the rows that count: the rule judges its own misses
-    # (poses where a discovered term cannot say its sign are gross misses of it, not of the base)
-    refit = screen(s.kept, s.robot, [*res.model.effects, cls()], options=s.options, tests=False).fit
+def _nothing_kept(disc: Discovery, validate: MeasurementSet | str | Path | None) -> Discovery:
+    """The discovery without terms: ``none``, ``noise`` or ``unexplained`` by the residual's
+    chi-square test (the module docstring's verdict)."""
+    disc.terms = []
+    scan, chi2_p = disc.scan, disc.chi2_p_value
+    assert scan is not None
+    if chi2_p is not None and chi2_p < CHI2_SHARE * disc.alpha:
+        # above the noise: structure the library does not hold, or only noise (more of it
+        # than stated) when no candidate is left that the residual depends on
+        if scan.exhausted and noise_like(scan.residual):
+            disc.verdict = "noise"
+            disc.implied_noise_mm = 1e3 * math.sqrt(scan.rss0 / max(scan.dof0, 1))
+        else:
+            disc.verdict = "unexplained"
     if validate is not None:
-        refit = refit.validate(as_measurements(validate))
+        disc.base = disc.base.validate(as_measurements(validate))
+    log.info("%s", disc.summary())
+    return disc
+
+
+def _helps_across_blocks(disc: Discovery, s: Screen, cls: type[TermEffect]) -> bool:
+    """Whether the discovered effect helps on a session or station it was not fitted on
+    (:mod:`lab.transfer`); the table goes to ``disc.blocked_cv``."""
+    name = disc.effect_name
+    base_effects = list(s.fit.model.effects)
+    kept, table = confirm_groups(
+        s.kept,
+        s.robot,
+        lambda keep: [*base_effects, cls()] if keep else base_effects,
+        [name],
+        s.options,
+    )
+    disc.blocked_cv = {
+        "column": block_column(s.kept),
+        "models": table,
+        "dropped": [] if kept else [name],
+    }
+    return bool(kept)
+
+
+def _judge_refit(disc: Discovery, refit: FitResult, floor: NoiseFloor) -> None:
+    """Step 4: the terms' coefficients and standard errors from the refit of the model with
+    the discovered effect, and the verdict by the refit's residual against the noise."""
     std = refit.standard_errors()
     disc.refit = refit
     disc.terms = [
@@ -836,26 +797,26 @@ def discover(  # noqa: C901  (the method of the module docstring, in the order i
             std[t.name],
             t.variables,
             t.reading,
-            alternatives[t.name],
+            disc.alternatives[t.name],
         )
-        for t in selected
+        for t in disc.selected
     ]
-    if noise_mm is not None:
-        rows = refit.row_residuals  # the points, or the weighted rows (lab.observations)
-        rss = float(np.sum(rows**2))
-        dof = max(refit.n_equations - refit.rank, 1)
-        disc.chi2_p_value_after = noise_p_value(rss, dof, floor)
-        ok = (disc.chi2_p_value_after or 0.0) >= CHI2_SHARE * alpha
-        # the rest is noise (more of it than stated) where nothing of the library is left and
-        # no pose misses grossly
-        noise = not ok and scan.exhausted and noise_like(rows[rows != 0].reshape(-1))
-        if noise:
-            disc.implied_noise_mm = 1e3 * math.sqrt(rss / dof)
-        disc.verdict = "discovered" if ok or noise else "unexplained"
-    else:
+    if disc.noise_mm is None:
         disc.verdict = "discovered"
-    log.info("%s", disc.summary())
-    return disc
+        return
+    scan = disc.scan
+    assert scan is not None
+    rows = refit.row_residuals  # the points, or the weighted rows (lab.observations)
+    rss = float(np.sum(rows**2))
+    dof = max(refit.n_equations - refit.rank, 1)
+    disc.chi2_p_value_after = noise_p_value(rss, dof, floor)
+    ok = (disc.chi2_p_value_after or 0.0) >= CHI2_SHARE * disc.alpha
+    # the rest is noise (more of it than stated) where nothing of the library is left and
+    # no pose misses grossly
+    noise = not ok and scan.exhausted and noise_like(rows[rows != 0].reshape(-1))
+    if noise:
+        disc.implied_noise_mm = 1e3 * math.sqrt(rss / dof)
+    disc.verdict = "discovered" if ok or noise else "unexplained"
 
 
 def _extra_columns(
@@ -868,7 +829,7 @@ def _extra_columns(
         ts = [t for t in terms if t.joint == j]
         if not ts:
             continue
-        values = np.column_stack([_evaluate(t.code, data.q, tau, data.columns, j) for t in ts])
+        values = np.column_stack([t.values(data.q, tau, data.columns) for t in ts])
         keys = list(dict.fromkeys(t.group for t in ts))
         groups = tuple(tuple(k for k, t in enumerate(ts) if t.group == g) for g in keys)
         out.append(ExtraColumns(j, values, groups, tuple(keys)))
@@ -915,7 +876,7 @@ def library_problem(
     cols: list[np.ndarray] = []
     kept: list[LibraryTerm] = []
     for term in library_terms(data, tau, order):
-        f = _evaluate(term.code, data.q, tau, data.columns, term.joint)
+        f = term.values(data.q, tau, data.columns)
         x = (Jq[:, :, term.joint - 1] * f[:, None]).reshape(-1)
         nx = float(np.linalg.norm(x))
         if nx / math.sqrt(N) < _MOVES_NOTHING * max(1.0, float(np.max(np.abs(f)))):
@@ -938,11 +899,19 @@ def _joint_rows(res: FitResult) -> np.ndarray:
     return res.model.joint_jacobian(res.inputs, res.params)[1]
 
 
-def _load_class(source: str, name: str) -> type[JointAngleEffect]:
-    """The effect class that ``source`` defines (executed as the module a user would load)."""
-    namespace: dict = {"__name__": f"sixaxis_discovered_{name}"}
-    exec(compile(source, f"<discovered effect {name}>", "exec"), namespace)
-    for obj in namespace.values():
-        if isinstance(obj, type) and issubclass(obj, JointAngleEffect) and obj.name == name:
-            return obj
-    raise RuntimeError(f"the generated module defines no effect {name!r}")  # pragma: no cover
+def _effect_class(d: Discovery) -> type[TermEffect]:
+    """The effect class that :meth:`Discovery.module_source` defines, built from the same data
+    (:func:`lab.terms.term_effect`): the same terms, typical ranges (as the module writes them,
+    to three digits) and description, the same numpy operations."""
+    forms, keys, typical = _forms(d)
+    expressions = {t.key: t.form for t in d.selected}
+    return term_effect(
+        d.effect_name,
+        _class_name(d.effect_name),
+        f"sixaxis_discovered_{d.effect_name}",
+        "discovered: " + "; ".join(d.formulas.values()),
+        _data_columns(d),
+        {j: tuple(t.key for t in ts) for j, ts in forms.items()},
+        {k: (float(f"{lo:.3g}"), float(f"{hi:.3g}")) for k, (lo, hi) in typical.items()},
+        {k: expressions[k] for k in keys},
+    )

@@ -55,7 +55,7 @@ from lab.errors import (
     OrientationNotFittedWarning,
 )
 from lab.identifiability import Identifiability, analyse_jacobian
-from lab.observations import observations_of, uses_orientation
+from lab.observations import Observations, observations_of, uses_orientation
 from lab.options import LabOptions
 from lab.plausibility import Implausible, implausible, likely_cause
 from lab.registration import register_base, register_tool_rotation, tool_indices
@@ -69,14 +69,7 @@ from lab.solver import (
     weighted_gram,
 )
 
-__all__ = [
-    "build_model",
-    "check_plausible",
-    "distinct_poses",
-    "fit_rows",
-    "identifiability_of",
-    "model_of",
-]
+__all__ = ["fit_rows", "identifiability_of"]
 
 log = logging.getLogger(__name__)
 
@@ -145,7 +138,92 @@ def build_model(
     return model, inputs
 
 
-def fit_rows(  # noqa: C901  (the five steps of the module docstring, in the order they run)
+def _registered(
+    model: ErrorModel,
+    inputs: ModelInputs,
+    xyz: np.ndarray,
+    p: np.ndarray,
+    held: np.ndarray,
+    obs: Observations,
+) -> np.ndarray:
+    """Step 1: the start ``p`` with the base and tool offsets placed in closed form (where that
+    lowers the RMS; parameters ``held`` keep their values), and the tool frame's rotation where
+    orientations are fitted."""
+    before = rms(model.predict(inputs, p) - xyz)
+    p_reg = register_base(model, inputs, xyz, p, tools=not held[tool_indices(model)].any())
+    p_reg[held] = p[held]  # a held base keeps the value given: registration is a start only
+    after = rms(model.predict(inputs, p_reg) - xyz)
+    if after < before:
+        log.debug("registration: RMS %.4g mm -> %.4g mm", before * 1e3, after * 1e3)
+        p = p_reg
+    if obs.rotation is not None:
+        turn = model.layout.indices(["trx", "try", "trz"])
+        if not held[turn].any():
+            seen = np.asarray(obs.measured[:, 3:].any(axis=1))
+            p = register_tool_rotation(model, inputs, p, obs.rotation, seen)
+    return p
+
+
+def _noise_of(
+    noise_mm: float | None, obs: Observations, residuals: np.ndarray, sigma: float
+) -> float:
+    """The noise the second identifiability pass judges by (m): the one stated, else the
+    weighted rows' reference, else the residual's (``sigma``) unless a few gross errors inflate
+    it (then its robust scale)."""
+    if noise_mm is not None and obs.plain:
+        return noise_mm * 1e-3
+    if obs.sigma_ref is not None:  # the weighted rows' noise, as the instrument states it
+        return obs.sigma_ref
+    rs = robust_sigma(residuals)
+    return sigma if sigma <= 3.0 * rs else rs
+
+
+def _warn_positions_alone(source: str) -> None:
+    text = (
+        f"{source}: the rows measure orientations, but their uncertainty is stated "
+        "nowhere (--noise-mrad, std_rx..std_rz): the positions alone are fitted"
+    )
+    log.warning("%s", text)
+    warn(text, OrientationNotFittedWarning)
+
+
+def _check_follows(miss: np.ndarray, source: str, effects: Sequence[str]) -> None:
+    """Refuse a fit whose median pose misses by more than :data:`IMPLAUSIBLE_RMS` (the median,
+    not the RMS: a few gross outliers must not condemn the model)."""
+    typical_miss = float(np.median(np.linalg.norm(miss, axis=1)))
+    if typical_miss > IMPLAUSIBLE_RMS:
+        raise FitError(
+            f"{source}: the model cannot follow these measurements (RMS "
+            f"{rms(miss) * 1e3:.4g} mm, median {typical_miss * 1e3:.4g} mm after fitting "
+            f"{', '.join(effects)}); are they in other units (length in mm, angles in deg: "
+            "say so when reading) or of another robot?"
+        )
+
+
+def _standard_errors(blocks: Blocks, sol, free: np.ndarray, w: np.ndarray | None, n_eq):
+    """Step 5: the standard errors and the residual's sigma, from the Gram matrix of the columns
+    as scaled in the solve (with a robust fit's IRLS weights ``w``)."""
+    gram, scale = sol.gram, sol.scale
+    if w is not None:  # the robust fit's IRLS weights in the Gram matrix
+        gram = weighted_gram(blocks, sol.params, free, scale, w)
+    return standard_errors(gram, sol.residuals, free, scale, w, n_eq)
+
+
+def _robust(solved, sol, free, scale, loss: str, f_scale_mm, sigma: float, obs: Observations):
+    """Step 3's robust loss: scipy's trust-region fit from the linear solution ``sol``, with
+    ``f_scale`` the one given (mm) or 1.345 robust sigmas, re-estimated once. Returns the
+    solution, the scale, and the iterations and evaluations it took."""
+    f_scale = f_scale_mm * 1e-3 if f_scale_mm else HUBER_K * sigma
+    iterations = evaluations = 0
+    for _ in range(1 if f_scale_mm else 2):  # re-estimate the scale once, robustly
+        sol = solved(sol.params, free, scale, loss, f_scale)
+        iterations, evaluations = iterations + sol.iterations, evaluations + sol.evaluations
+        if not f_scale_mm:
+            f_scale = HUBER_K * robust_sigma(sol.residuals[obs.measured])
+    return sol, f_scale, iterations, evaluations
+
+
+def fit_rows(
     data: MeasurementSet,
     robot: RobotDescription,
     effects: str | Sequence[str | Effect],
@@ -161,38 +239,14 @@ def fit_rows(  # noqa: C901  (the five steps of the module docstring, in the ord
     model, inputs = build_model(data, robot, effects, options.measured, options.instrument)
     obs = observations_of(data, options.instrument, options.measured)
     if data.has_orientation and obs.rotation is None and options.measured is None:
-        text = (
-            f"{data.source}: the rows measure orientations, but their uncertainty is stated "
-            "nowhere (--noise-mrad, std_rx..std_rz): the positions alone are fitted"
-        )
-        log.warning("%s", text)
-        warn(text, OrientationNotFittedWarning)
-    lay = model.layout
-    xyz = data.xyz
-    target = obs.target  # the points themselves in the plain case
-    p = model.nominal()
-    if start:
-        p = lay.vector(start, default=p)
+        _warn_positions_alone(data.source)
+    lay, xyz, target = model.layout, data.xyz, obs.target  # target: the points, plain
+    p = model.nominal() if not start else lay.vector(start, default=model.nominal())
     held = np.zeros(len(lay), dtype=bool)
-    for n in fixed:
-        held[lay.index(n)] = True
-
+    held[[lay.index(n) for n in fixed]] = True
     if options.register and "geometric" in lay.effects:
-        before = rms(model.predict(inputs, p) - xyz)
-        p_reg = register_base(model, inputs, xyz, p, tools=not held[tool_indices(model)].any())
-        p_reg[held] = p[held]  # a held base keeps the value given: registration is a start only
-        after = rms(model.predict(inputs, p_reg) - xyz)
-        if after < before:
-            log.debug("registration: RMS %.4g mm -> %.4g mm", before * 1e3, after * 1e3)
-            p = p_reg
-        if obs.rotation is not None:
-            turn = lay.indices(["trx", "try", "trz"])
-            if not held[turn].any():
-                seen = np.asarray(obs.measured[:, 3:].any(axis=1))
-                p = register_tool_rotation(model, inputs, p, obs.rotation, seen)
-
-    blocks = Blocks(model, inputs, observations=obs)
-    n_eq = obs.n_equations
+        p = _registered(model, inputs, xyz, p, held, obs)
+    blocks, n_eq = Blocks(model, inputs, observations=obs), obs.n_equations
 
     def solved(p, free, scale, loss="linear", f_scale=1.0):
         return solve(
@@ -230,23 +284,8 @@ def fit_rows(  # noqa: C901  (the five steps of the module docstring, in the ord
         sigma = float(np.sqrt(np.sum(sol.residuals**2) / max(n_eq - free.sum(), 1)))
     else:
         sigma = robust_sigma(sol.residuals[obs.measured])
-    # the median pose, not the RMS: a few gross outliers must not condemn the model
-    miss = points(sol)
-    typical_miss = float(np.median(np.linalg.norm(miss, axis=1)))
-    if typical_miss > IMPLAUSIBLE_RMS:
-        raise FitError(
-            f"{data.source}: the model cannot follow these measurements (RMS "
-            f"{rms(miss) * 1e3:.4g} mm, median {typical_miss * 1e3:.4g} mm after fitting "
-            f"{', '.join(lay.effects)}); are they in other units (length in mm, angles in deg: "
-            "say so when reading) or of another robot?"
-        )
-    if noise_mm is not None and obs.plain:
-        noise = noise_mm * 1e-3
-    elif obs.sigma_ref is not None:  # the weighted rows' noise, as the instrument states it
-        noise = obs.sigma_ref
-    else:  # the residual's, unless a few gross errors inflate it (then its robust scale)
-        rs = robust_sigma(sol.residuals)
-        noise = sigma if sigma <= 3.0 * rs else rs
+    _check_follows(points(sol), data.source, lay.effects)
+    noise = _noise_of(noise_mm, obs, sol.residuals, sigma)
     # Repeated poses average the instrument's noise but not the model's own error: what the poses
     # determine is judged per distinct pose, as if each were measured once. (480,000 rows of 60
     # poses made nearly dependent parameters "identifiable" by the row count alone; a missing
@@ -267,19 +306,14 @@ def fit_rows(  # noqa: C901  (the five steps of the module docstring, in the ord
         iterations, evaluations = iterations + sol.iterations, evaluations + sol.evaluations
     f_scale = None
     if loss != "linear":
-        f_scale = f_scale_mm * 1e-3 if f_scale_mm else HUBER_K * sigma
-        for _ in range(1 if f_scale_mm else 2):  # re-estimate the scale once, robustly
-            sol = solved(sol.params, free, ident.scale, loss, f_scale)
-            iterations, evaluations = iterations + sol.iterations, evaluations + sol.evaluations
-            if not f_scale_mm:
-                f_scale = HUBER_K * robust_sigma(sol.residuals[obs.measured])
+        sol, f_scale, its, evs = _robust(
+            solved, sol, free, ident.scale, loss, f_scale_mm, sigma, obs
+        )
+        iterations, evaluations = iterations + its, evaluations + evs
 
     r = sol.residuals
     w = irls_weights(r, loss, f_scale) if f_scale is not None else None
-    gram, scale = sol.gram, sol.scale  # the Gram matrix of the columns as scaled in the solve
-    if w is not None:  # the robust fit's IRLS weights in the Gram matrix
-        gram = weighted_gram(blocks, sol.params, free, scale, w)
-    std, sigma = standard_errors(gram, r, free, scale, w, None if obs.plain else n_eq)
+    std, sigma = _standard_errors(blocks, sol, free, w, None if obs.plain else n_eq)
     return FitResult(
         model=model,
         params=sol.params,

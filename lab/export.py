@@ -73,21 +73,14 @@ from lab.domain import Domain, out_of_domain, warn_out_of_domain
 from lab.result import SCHEMA_VERSION, FitResult
 
 __all__ = [
-    "EXPORT_TOL",
-    "FAR_RAD",
     "Compensation",
     "CompensationError",
     "ExportError",
     "TargetSet",
-    "calibrated_model",
     "compensate",
     "export_robot",
-    "exported_difference",
-    "nominal_arm",
     "read_targets",
-    "station_bases",
     "target_id_list",
-    "torque_difference",
     "write_joints",
 ]
 
@@ -660,6 +653,46 @@ def _within_domain(
     return res._replace(q=q, converged=converged), e, turn
 
 
+def _nominal_start(
+    cal: RobotDescription,
+    nom_model: ErrorModel,
+    cols: dict[str, np.ndarray],
+    xyz: np.ndarray,
+    R: np.ndarray | None,
+    tol: float,
+    seed: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The compensation's start where the targets have no program: the nominal arm's inverse
+    kinematics (``nom_model``) of the targets, from ready poses (and, with orientations, pose
+    starts), with random restarts (``seed``) where a start leads nowhere. Returns the joint
+    angles and which of them reached their target."""
+    n = len(xyz)
+    p_nom = nom_model.nominal()
+    Rb = rotation_matrix(np.array(cal.base_rotation))
+    q0 = _ready_starts(nom_model.robot, (xyz - np.array(cal.base_translation)) @ Rb)
+    if R is not None:
+        q0 = _pose_starts(nom_model, xyz, R, q0, nom_model.inputs(q0, cols).target)
+    res = _solve(nom_model, cols, p_nom, xyz, R, q0, tol)
+    q_start, ok_start = res.q, res.converged
+    rng = np.random.default_rng(seed)
+    for _ in range(7):  # random restarts where the start led nowhere
+        fail = np.flatnonzero(~ok_start)
+        if fail.size == 0:
+            break
+        starts = rng.uniform(nom_model.robot.lower, nom_model.robot.upper, (fail.size, 6))
+        r_f = None if R is None else R[fail]
+        res = _solve(nom_model, _take(cols, fail), p_nom, xyz[fail], r_f, starts, tol)
+        q_start[fail[res.converged]] = res.q[res.converged]
+        ok_start[fail[res.converged]] = True
+    if not ok_start.all():
+        log.info(  # Compensation.unreached() names them; the caller decides
+            "the nominal inverse kinematics did not reach %d of %d targets (out of reach?)",
+            int((~ok_start).sum()),
+            n,
+        )
+    return q_start, ok_start
+
+
 def compensate(
     robot: RobotDescription | str | Path,
     targets: TargetSet | np.ndarray,
@@ -741,30 +774,8 @@ def compensate(
                 cal.name,
             )
         nom_model = calibrated_model(nominal_arm(cal, nom), model_targets)
-        p_nom = nom_model.nominal()
-        Rb = rotation_matrix(np.array(cal.base_rotation))
-        q0 = _ready_starts(nom_model.robot, (xyz - np.array(cal.base_translation)) @ Rb)
-        if R is not None:
-            q0 = _pose_starts(nom_model, xyz, R, q0, nom_model.inputs(q0, cols).target)
-        res = _solve(nom_model, cols, p_nom, xyz, R, q0, tol)
-        q_start, ok_start = res.q, res.converged
-        rng = np.random.default_rng(seed)
-        for _ in range(7):  # random restarts where the start led nowhere
-            fail = np.flatnonzero(~ok_start)
-            if fail.size == 0:
-                break
-            starts = rng.uniform(nom_model.robot.lower, nom_model.robot.upper, (fail.size, 6))
-            r_f = None if R is None else R[fail]
-            res = _solve(nom_model, _take(cols, fail), p_nom, xyz[fail], r_f, starts, tol)
-            q_start[fail[res.converged]] = res.q[res.converged]
-            ok_start[fail[res.converged]] = True
+        q_start, ok_start = _nominal_start(cal, nom_model, cols, xyz, R, tol, seed)
         start = "nominal_ik"
-        if not ok_start.all():
-            log.info(  # Compensation.unreached() names them; the caller decides
-                "the nominal inverse kinematics did not reach %d of %d targets (out of reach?)",
-                int((~ok_start).sum()),
-                n,
-            )
 
     # the calibrated model, from the start, on its branch
     res = _solve(model, cols, p, xyz, R, q_start, tol)

@@ -36,21 +36,7 @@ from arm.errormodel import ErrorModel
 from arm.params import BASE_NAMES, ROW_FAMILIES, parse_parameter_name
 from lab.errors import PoorPoseSetWarning
 
-__all__ = [
-    "CONDITION_WARNING",
-    "RANK_TOL",
-    "ZERO_COLUMN_M",
-    "Identifiability",
-    "analyse",
-    "analyse_jacobian",
-    "analyse_model",
-    "format_combination",
-    "gram_factor",
-    "lower_inverse",
-    "orthonormal_basis",
-    "priority_order",
-    "typical_magnitudes",
-]
+__all__ = ["CONDITION_WARNING", "Identifiability", "analyse", "analyse_jacobian", "analyse_model"]
 
 log = logging.getLogger(__name__)
 

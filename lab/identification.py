@@ -24,15 +24,16 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
+from typing import Unpack
 
 from arm.description import RobotDescription
 from arm.effects import Effect
 from arm.measurements import MeasurementSet, as_measurements
 from lab.errors import FitError
-from lab.options import LabOptions, Loss, OutlierMode, Solver, call_options
+from lab.options import LabOptions, OptionFields, resolve
 from lab.result import FitResult
 from lab.sanity import check_stated_noise, check_validation
-from lab.screening import Screen, screen, screened
+from lab.screening import Screen, screened
 
 __all__ = ["fit"]
 
@@ -44,22 +45,12 @@ def fit(
     robot: RobotDescription | str | Path | None = None,
     effects: str | Sequence[str | Effect] | None = None,
     *,
-    noise_mm: float | None = None,
-    loss: Loss = "linear",
-    outliers: OutlierMode = "auto",
-    accept_large: bool = False,
-    solver: Solver = "lm",
-    f_scale_mm: float | None = None,
-    max_evaluations: int = 100,
-    register: bool = True,
-    noise_ppm: float = 0.0,
-    noise_mrad: float | None = None,
-    measured: tuple[str, ...] | None = None,
     options: LabOptions | None = None,
     validate: MeasurementSet | str | Path | None = None,
     start: Mapping[str, float] | None = None,
     fixed: Iterable[str] = (),
     extrapolate: bool = False,
+    **keywords: Unpack[OptionFields],
 ) -> FitResult:
     """Identify ``effects`` (default geometric) of ``robot`` (default the seed arm) from
     ``data``: a measurement set (or its file), screened once (:func:`lab.screen`), or a
@@ -81,13 +72,11 @@ def fit(
     fitted are left out of those rows unless ``extrapolate`` (:mod:`lab.domain`). ``start``:
     starting values by name; ``fixed``: names to hold at their starting value.
     """
-    opts = call_options(locals())
+    opts = resolve(options, **keywords)
     if isinstance(data, Screen):
         if start or tuple(fixed):
             raise FitError("start and fixed apply to a fit of data, not of a screen made before")
-        s = screened(data, robot, effects, opts, tests=False)
-    else:
-        s = screen(data, robot, effects, options=opts, tests=False, start=start, fixed=fixed)
+    s = screened(data, robot, effects, opts, tests=False, start=start, fixed=fixed)
     result = s.fit
     check_stated_noise(result, s.options.noise_mm)
     if validate is not None:

@@ -34,7 +34,7 @@ from arm.noise import InstrumentNoise
 from arm.so3 import left_jacobian_inverse, rotation_matrix, rotation_vector
 from lab.errors import FitError
 
-__all__ = ["Observations", "observations_of", "orientation_stated", "uses_orientation"]
+__all__ = ["Observations", "observations_of"]
 
 
 @dataclass(frozen=True)

@@ -2,10 +2,11 @@
 
 Every lab entry point (:func:`lab.screen`, :func:`lab.fit`, :func:`lab.diagnose`,
 :func:`lab.discover`, :func:`lab.report.build_report`) takes the data, the robot and the effects,
-then the fields of :class:`LabOptions` as keywords in the same order (or ``options=`` one
-object), and builds one :class:`LabOptions` from them. Its checks are declared beside each field
-(:mod:`arm.constraints`): a bad value is refused with the same message wherever it is given, and
-every bad value at once.
+then ``options=`` one object or the fields of :class:`LabOptions` as keywords
+(``**keywords: Unpack[OptionFields]``, typed once here), and resolves them once
+(:func:`resolve`) into one :class:`LabOptions` that it passes down. Its checks are declared
+beside each field (:mod:`arm.constraints`): a bad value is refused with the same message wherever
+it is given, and every bad value at once.
 
     opts = LabOptions(noise_mm=0.015, loss="huber")
     lab.fit(data, "seed", "geometric", options=opts)       # the same as the keywords
@@ -19,9 +20,8 @@ The command line builds its choices and ranges from the same declarations
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, TypedDict
 
 from arm.constraints import Interval, choices, declare, problems, refuse
 from arm.effects import MAX_ORDER
@@ -40,10 +40,9 @@ __all__ = [
     "SOLVERS",
     "LabOptions",
     "Loss",
+    "OptionFields",
     "OutlierMode",
     "Solver",
-    "check_alpha",
-    "resolve",
 ]
 
 Loss = Literal["linear", "huber", "soft_l1"]
@@ -116,6 +115,23 @@ class LabOptions:
         return dataclasses.asdict(self)
 
 
+class OptionFields(TypedDict, total=False):
+    """The fields of :class:`LabOptions` as keywords: an entry point's ``**keywords:
+    Unpack[OptionFields]`` (the one signature that spells them out; a test keeps the two alike)."""
+
+    noise_mm: float | None
+    loss: Loss
+    outliers: OutlierMode
+    accept_large: bool
+    solver: Solver
+    f_scale_mm: float | None
+    max_evaluations: int
+    register: bool
+    noise_ppm: float
+    noise_mrad: float | None
+    measured: tuple[str, ...] | None
+
+
 # the entry points' own settings, declared here so that the command line takes them alike
 ALPHA = Interval(float, 0.0, 1.0, closed="neither")  # a family-wise rate (diagnose, discover)
 ORDER = Interval(int, 1, MAX_ORDER)  # the highest order per turn discover scans
@@ -129,26 +145,22 @@ DEFAULTS = LabOptions()
 
 
 def resolve(options: LabOptions | None, **given: Any) -> LabOptions:
-    """The options of an entry point's call: ``options`` if given (then every keyword must be
-    left at its default: one call states each option once), else the keywords, validated."""
+    """The options of an entry point's call, resolved once: ``options`` if given (then every
+    keyword must be left at its default: one call states each option once), else the keywords
+    (:class:`OptionFields`), validated."""
     if options is None:
         return LabOptions(**given)
     if not isinstance(options, LabOptions):
         raise FitError(f"options must be a LabOptions, got {type(options).__name__}")
+    unknown = [k for k in given if k not in OptionFields.__annotations__]
+    if unknown:
+        raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
     twice = [k for k, v in given.items() if not _same(v, getattr(DEFAULTS, k))]
     if twice:
         raise FitError(
             f"{', '.join(twice)} given both as a keyword and in options=; give each option once"
         )
     return options
-
-
-def call_options(arguments: Mapping[str, Any]) -> LabOptions:
-    """:func:`resolve` for an entry point whose keywords are the fields of :class:`LabOptions`
-    and ``options`` (the module docstring): ``arguments`` is its ``locals()``, taken before its
-    body assigns a name, so that they are the call's arguments."""
-    names = [f.name for f in dataclasses.fields(LabOptions)]
-    return resolve(arguments["options"], **{name: arguments[name] for name in names})
 
 
 def _same(a: Any, b: Any) -> bool:

@@ -42,7 +42,7 @@ from lab.identifiability import Identifiability, analyse_jacobian
 from lab.options import CRITERIA
 from lab.result import SCHEMA_VERSION
 
-__all__ = ["CRITERIA", "Plan", "observability", "plan"]
+__all__ = ["Plan", "plan"]
 
 log = logging.getLogger(__name__)
 

@@ -34,7 +34,7 @@ import numpy as np
 from arm.errormodel import ErrorModel
 from arm.params import parse_parameter_name
 
-__all__ = ["Implausible", "implausible", "likely_cause"]
+__all__ = ["Implausible", "implausible"]
 
 _LENGTH_FIELD = {"da": "a", "dd": "d"}
 

@@ -27,11 +27,8 @@ if TYPE_CHECKING:
     from matplotlib.typing import RcKeyType
 
 __all__ = [
-    "MODEL_COLORS",
-    "HintPanel",
     "candidates_figure",
     "hints_figure",
-    "png",
     "residuals_figure",
     "rms_figure",
     "sensitivity_figure",

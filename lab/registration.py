@@ -27,15 +27,7 @@ from arm.kinematics import link_frames
 from arm.so3 import rotation_vector
 from lab.blocks import Blocks
 
-__all__ = [
-    "nominal_parameters",
-    "register_base",
-    "register_points",
-    "register_stations",
-    "register_tool_rotation",
-    "tool_columns",
-    "tool_indices",
-]
+__all__ = ["register_base", "register_points", "register_stations"]
 
 
 def register_base(

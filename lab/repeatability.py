@@ -24,15 +24,7 @@ from scipy import stats
 
 from arm.measurements import MeasurementSet
 
-__all__ = [
-    "MIN_DOF",
-    "TOLERANCE",
-    "NoiseFloor",
-    "Repeatability",
-    "implied_noise_text",
-    "noise_floor",
-    "repeatability",
-]
+__all__ = ["NoiseFloor", "Repeatability", "noise_floor", "repeatability"]
 
 TOLERANCE = 1e-4  # rad: joint angles this close are one pose (0.006 deg)
 MIN_DOF = 6  # fewer degrees of freedom than this measure no repeatability

@@ -1,9 +1,9 @@
 """Building the lab's report: the fits, diagnoses, sensitivity and figures that
-:class:`lab.report_html.LabReport` shows, written as one self-contained HTML file that a
+:class:`lab.lab_report.LabReport` shows, written as one self-contained HTML file that a
 calibration engineer can send to a colleague.
 
     report = build_report("data.csv", "seed", "geometric", validate="other.csv", noise_mm=0.015)
-    report.write("report.html")
+    lab.report_html.write(report, "report.html")
 
 The loop it documents: the nominal arm (base and tool registered), the model asked for, then as
 long as the diagnosis names a missing catalogued effect (up to ``rounds`` times) the model with
@@ -24,6 +24,7 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Unpack
 
 import numpy as np
 
@@ -36,13 +37,14 @@ from arm.params import parameter_unit
 from lab import plots
 from lab.diagnosis import diagnose, hint_variables
 from lab.identifiability import CONDITION_WARNING, typical_magnitudes
-from lab.options import LabOptions, Loss, OutlierMode, Solver, call_options
+from lab.lab_report import LabReport, ModelRun, Sensitivity
+from lab.options import LabOptions, OptionFields, resolve
 from lab.registration import nominal_parameters
-from lab.report_html import HINT_PLOT_P, LabReport, ModelRun, Sensitivity, arm_parameters
+from lab.report_html import HINT_PLOT_P, arm_parameters
 from lab.result import FitResult, inputs_of
 from lab.screening import Screen, screened
 
-__all__ = ["build_report", "error_sensitivity", "hint_panels"]
+__all__ = ["build_report", "error_sensitivity"]
 
 log = logging.getLogger(__name__)
 
@@ -73,23 +75,13 @@ def build_report(
     robot: RobotDescription | str | Path | None = None,
     effects: str | Sequence[str | Effect] | None = None,
     *,
-    noise_mm: float | None = None,
-    loss: Loss = "linear",
-    outliers: OutlierMode = "auto",
-    accept_large: bool = False,
-    solver: Solver = "lm",
-    f_scale_mm: float | None = None,
-    max_evaluations: int = 100,
-    register: bool = True,
-    noise_ppm: float = 0.0,
-    noise_mrad: float | None = None,
-    measured: tuple[str, ...] | None = None,
     options: LabOptions | None = None,
     validate: MeasurementSet | str | Path | None = None,
     rounds: int = 3,
     title: str | None = None,
     command: str | None = None,
     progress: Callable[[str], None] | None = None,
+    **keywords: Unpack[OptionFields],
 ) -> LabReport:
     """Fit ``effects`` (default geometric), diagnose, and while the verdict names a missing
     catalogued effect (at most ``rounds`` times) fit the suggested model and diagnose again; see
@@ -100,7 +92,7 @@ def build_report(
     (:attr:`lab.Screen.counted`), so that the models compare pose by pose, and nothing more is
     left out; the report names what was. The options (``noise_mm`` ... ``register``, or
     ``options=``) are :class:`lab.LabOptions`. ``validate``: held-out measurements."""
-    opts = call_options(locals())
+    opts = resolve(options, **keywords)
     step = progress or (lambda msg: None)
     val = None if validate is None else as_measurements(validate)
     shown = "geometric" if effects is None else effects

@@ -1,7 +1,6 @@
-"""The lab's report as a document: what it holds (:class:`LabReport`, one :class:`ModelRun` per
-model compared, the :class:`Sensitivity` of the final model) and how it is written, as one
-self-contained HTML file (PNG figures inlined as base64, no external files, scripts or fonts).
-:func:`lab.report.build_report` fills it; nothing here fits or plots.
+"""The lab's report written as one self-contained HTML page (PNG figures inlined as base64, no
+external files, scripts or fonts): :func:`render` of a :class:`lab.lab_report.LabReport`, which
+:func:`lab.report.build_report` fills; nothing here fits or plots.
 
 The page, in order: cards (nominal, calibrated, held-out RMS, noise floor, diagnosis), the models
 compared, the residuals per pose (the seed paper's Fig. 8), each diagnosis with its candidates
@@ -18,55 +17,21 @@ from __future__ import annotations
 
 import base64
 import html
-import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-from arm.description import RobotDescription
 from arm.files import atomic_write_text
-from arm.measurements import MeasurementSet
 from arm.params import ROW_FAMILIES, parse_parameter_name
-from lab.diagnosis import Diagnosis
 from lab.identifiability import CONDITION_WARNING
-from lab.result import Duplicate, FitResult, Outlier
+from lab.lab_report import LabReport, ModelRun
+from lab.result import FitResult
 from lab.text import duplicates_text, nominal_text, readable
 
-__all__ = [
-    "HINT_PLOT_P",
-    "LabReport",
-    "ModelRun",
-    "Sensitivity",
-    "arm_parameters",
-    "geometric_table",
-    "readable",
-]
+__all__ = ["arm_parameters", "geometric_table", "render", "write"]
 
 # hints drawn only below this p-value: a smooth curve through the noise of a variable that
 # explains nothing (30 poses of real data) would suggest a dependence that is not there
 HINT_PLOT_P = 0.01
-
-
-@dataclass(frozen=True)
-class Sensitivity:
-    """How far an error of each parameter moves the tool point, RMS over the poses.
-
-    ``per_unit``: m of tool point per SI unit of the parameter (a length: mm per mm; an angle:
-    mm per mrad; the same number); ``typical_mm``: mm for an error of the parameter's typical size
-    (the upper end of its effect's ``typical`` range); ``identified_mm``: mm for the error
-    identified (``p`` minus nominal; zero for a parameter held at nominal)."""
-
-    names: tuple[str, ...]
-    units: tuple[str, ...]
-    per_unit: np.ndarray
-    typical_mm: np.ndarray
-    identified_mm: np.ndarray
-
-    def ranked(self, by: str = "typical_mm") -> list[int]:
-        v = getattr(self, by)
-        return [int(k) for k in np.argsort(-v, kind="stable")]
 
 
 def _kind(name: str) -> str | None:
@@ -136,90 +101,6 @@ def _beyond_points_html(r: LabReport) -> str:
             "on its held-out points, the arm as fitted"
         )
     return f"<p>{_e('; '.join(bits))}.</p>" if bits else ""
-
-
-@dataclass
-class ModelRun:
-    """One model of the comparison: its residuals on the fitted and held-out poses; the fit and
-    its diagnosis (both None for the nominal arm)."""
-
-    label: str
-    residuals: np.ndarray
-    validation_residuals: np.ndarray | None = None
-    fit: FitResult | None = None
-    diagnosis: Diagnosis | None = None
-    n_fitted: int = 0
-
-    @staticmethod
-    def _rms(r: np.ndarray | None) -> float | None:
-        if r is None or not len(r):
-            return None
-        return 1e3 * float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
-
-    @property
-    def fitted(self) -> FitResult:
-        """The fit: every run but the nominal arm's has one."""
-        if self.fit is None:
-            raise ValueError(f"{self.label}: the nominal arm has no fit")
-        return self.fit
-
-    @property
-    def diagnosed(self) -> Diagnosis:
-        """The diagnosis: every run but the nominal arm's has one."""
-        if self.diagnosis is None:
-            raise ValueError(f"{self.label}: the nominal arm has no diagnosis")
-        return self.diagnosis
-
-    @property
-    def rms_mm(self) -> float:
-        return 1e3 * float(np.sqrt(np.mean(np.sum(self.residuals**2, axis=1))))
-
-    @property
-    def max_mm(self) -> float:
-        return 1e3 * float(np.linalg.norm(self.residuals, axis=1).max())
-
-    @property
-    def validation_rms_mm(self) -> float | None:
-        return self._rms(self.validation_residuals)
-
-    @property
-    def validation_median_mm(self) -> float | None:
-        r = self.validation_residuals
-        return None if r is None else 1e3 * float(np.median(np.linalg.norm(r, axis=1)))
-
-
-@dataclass
-class LabReport:
-    """Everything the HTML shows; :meth:`to_html` renders it, :meth:`write` writes it atomically."""
-
-    data: MeasurementSet
-    validation: MeasurementSet | None
-    robot: RobotDescription
-    noise_mm: float | None
-    runs: list[ModelRun]
-    sensitivity: Sensitivity
-    title: str = "Calibration report"
-    command: str | None = None
-    figures: dict[str, bytes] = field(default_factory=dict, repr=False)
-    # the rows of the file every model leaves out (lab.screening), and the rule applied
-    outliers: list[Outlier] = field(default_factory=list)
-    duplicates: list[Duplicate] = field(default_factory=list)
-    outlier_rule: str | None = None
-    n_rows: int | None = None
-
-    @property
-    def final(self) -> ModelRun:
-        return self.runs[-1]
-
-    @property
-    def noise_floor_mm(self) -> float | None:
-        return None if self.noise_mm is None else self.noise_mm * math.sqrt(3.0)
-
-    def to_html(self) -> str:
-        return _render(self)
-
-    def write(self, path: str | Path) -> None:
-        atomic_write_text(Path(path), self.to_html())
 
 
 # -- HTML ----------------------------------------------------------------------------------------------
@@ -497,16 +378,52 @@ def _left_out_html(r: LabReport) -> str:
     return "".join(out)
 
 
-def _render(r: LabReport) -> str:
+def write(report: LabReport, path: str | Path) -> None:
+    """Write the report's page (:func:`render`) to ``path``, atomically."""
+    atomic_write_text(Path(path), render(report))
+
+
+def render(r: LabReport) -> str:
+    """The report's page: one self-contained HTML document, its sections in the order of the
+    module docstring."""
     from importlib.metadata import PackageNotFoundError, version
 
     try:
         ver = version("sixaxis-track")
     except PackageNotFoundError:  # pragma: no cover
         ver = "dev"
+    cards = _cards(r)
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        f"<title>{_e(r.title)}</title><style>{_CSS}</style></head><body><main>",
+        f"<header><h1>{_e(r.title)}</h1><p>{len(r.data)} poses from <code>{_e(r.data.source)}</code>"
+        + (
+            f", validated on {len(r.validation)} held-out poses from <code>{_e(r.validation.source)}</code>"
+            if r.validation is not None
+            else ""
+        )
+        + f"; nominal arm <code>{_e(r.robot.name)}</code>.</p>{_beyond_points_html(r)}"
+        + f"{_left_out_html(r)}</header>",
+        f'<div class="cards">{"".join(cards)}</div>',
+        *_errors_section(r),
+        *_diagnosis_section(r),
+        *_parameters_section(r),
+        *_identifiability_section(r),
+        *_sensitivity_section(r),
+        *_data_section(r),
+        f"<footer>sixaxis-track {ver}"
+        + (f" · <code>{_e(r.command)}</code>" if r.command else "")
+        + "</footer>",
+        "</main></body></html>",
+    ]
+    return "\n".join(p for p in parts if p)
+
+
+def _cards(r: LabReport) -> list[str]:
+    """The cards: nominal, calibrated, held-out RMS, noise floor, diagnosis."""
     nominal, final = r.runs[0], r.final
-    fit = final.fitted
-    ident = fit.identifiability
     first_d = r.runs[1].diagnosed
     cards = [
         _card("nominal RMS", f"{nominal.rms_mm:.3f} mm", f"max {nominal.max_mm:.3f} mm"),
@@ -534,6 +451,11 @@ def _render(r: LabReport) -> str:
         )
     )
 
+    return cards
+
+
+def _errors_section(r: LabReport) -> list[str]:
+    """1. The error before and after each model: the table and its figures."""
     model_rows = []
     for run in r.runs:
         model_rows.append(
@@ -549,59 +471,12 @@ def _render(r: LabReport) -> str:
             ]
         )
 
-    s = r.sensitivity
-    srows = []
-    arm = set(arm_parameters(s.names))
-    for k in [k for k in s.ranked("typical_mm") if k in arm][:12]:
-        per, unit = s.per_unit[k], s.units[k]
-        per_s = (
-            f"{per:.3f} mm/mm"
-            if unit == "m"
-            else (
-                f"{per:.3f} mm/mrad"
-                if unit == "rad"
-                else f"{per * 1e3:.4g} mm per {unit or 'unit'}"
-            )
-        )
-        srows.append(
-            [
-                f"<code>{_e(s.names[k])}</code>",
-                per_s,
-                f"{s.typical_mm[k]:.4f}",
-                f"{s.identified_mm[k]:.4f}" if fit.identifiable[k] else ("fixed", "fixed"),
-                ("yes", "yes") if fit.identifiable[k] else ("no", "no"),
-            ]
-        )
-
-    combos = "".join(f"<li><code>{_e(c)}</code></li>" for c in ident.unidentifiable)
-    warn = ""
-    if ident.condition_number > CONDITION_WARNING:
-        warn = (
-            f'<p class="warn">Poor pose set: condition number {ident.condition_number:.3g} &gt; '
-            f"{CONDITION_WARNING:g}. Plan poses with <code>sixaxis lab plan</code> or fit fewer effects.</p>"
-        )
-    cols = (
-        ", ".join(["q1..q6", "x, y, z", *r.data.columns]) if r.data.columns else "q1..q6, x, y, z"
-    )
     floor_txt = (
         f" The dashed line is the noise floor σ·√3 = {r.noise_floor_mm:.4f} mm of a perfect model on held-out poses."
         if r.noise_floor_mm
         else ""
     )
-    parts = [
-        "<!DOCTYPE html>",
-        '<html lang="en"><head><meta charset="utf-8">',
-        '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        f"<title>{_e(r.title)}</title><style>{_CSS}</style></head><body><main>",
-        f"<header><h1>{_e(r.title)}</h1><p>{len(r.data)} poses from <code>{_e(r.data.source)}</code>"
-        + (
-            f", validated on {len(r.validation)} held-out poses from <code>{_e(r.validation.source)}</code>"
-            if r.validation is not None
-            else ""
-        )
-        + f"; nominal arm <code>{_e(r.robot.name)}</code>.</p>{_beyond_points_html(r)}"
-        + f"{_left_out_html(r)}</header>",
-        f'<div class="cards">{"".join(cards)}</div>',
+    return [
         "<h2>1. Error before and after each model</h2>",
         "<p>The nominal arm (its base transform and tool offsets registered to the measurements), "
         "then each fitted model; every model after the first is the one the diagnosis of the model "
@@ -631,6 +506,13 @@ def _render(r: LabReport) -> str:
             "Residual (predicted minus measured) per held-out pose, x, y, z and 3-D, for each model (the seed paper's Fig. 8).",
         ),
         _img(r, "residuals", "Residual per fitted pose, x, y, z and 3-D, for each model."),
+    ]
+
+
+def _diagnosis_section(r: LabReport) -> list[str]:
+    """2. Each diagnosis, with the figure of the hints."""
+    first_d = r.runs[1].diagnosed
+    return [
         "<h2>2. Diagnosis: what does the model miss?</h2>",
         "<p>Each catalogued effect not in the model is tested per joint by a nested-model F-test, "
         f"with one family-wise significance level α = {first_d.alpha:g} over all candidates (Holm), "
@@ -648,9 +530,31 @@ def _render(r: LabReport) -> str:
         if "hints" in r.figures
         else f'<p class="note">No measured variable explains the residual of model {_e(r.runs[1].label)} '
         f"significantly (p &lt; {HINT_PLOT_P:g}): no hint is plotted.</p>",
+    ]
+
+
+def _parameters_section(r: LabReport) -> list[str]:
+    """3. The identified parameters of the final model."""
+    final = r.final
+    fit = final.fitted
+    return [
         f"<h2>3. Identified parameters: {_e(final.label)}</h2>",
         f"<p>Fit: {fit.loss} loss, {fit.iterations} iterations; residual σ = {fit.sigma_mm:.4f} mm per axis.</p>",
         _parameter_tables(fit),
+    ]
+
+
+def _identifiability_section(r: LabReport) -> list[str]:
+    """4. Identifiability: rank, condition number, observability, the parameters fixed."""
+    ident = r.final.fitted.identifiability
+    combos = "".join(f"<li><code>{_e(c)}</code></li>" for c in ident.unidentifiable)
+    warn = ""
+    if ident.condition_number > CONDITION_WARNING:
+        warn = (
+            f'<p class="warn">Poor pose set: condition number {ident.condition_number:.3g} &gt; '
+            f"{CONDITION_WARNING:g}. Plan poses with <code>sixaxis lab plan</code> or fit fewer effects.</p>"
+        )
+    return [
         "<h2>4. Identifiability</h2>",
         f"<p>{ident.rank} of {ident.n_parameters} parameters identifiable from {ident.n_poses} poses; "
         f"condition number of the column-scaled identification Jacobian {ident.condition_number:.3g}; "
@@ -666,6 +570,37 @@ def _render(r: LabReport) -> str:
             "singular_values",
             "Singular values of the column-scaled identification Jacobian (identifiable parameters).",
         ),
+    ]
+
+
+def _sensitivity_section(r: LabReport) -> list[str]:
+    """5. The error-factor sensitivity: the figure and the table of the arm's parameters."""
+    fit = r.final.fitted
+    s = r.sensitivity
+    srows = []
+    arm = set(arm_parameters(s.names))
+    for k in [k for k in s.ranked("typical_mm") if k in arm][:12]:
+        per, unit = s.per_unit[k], s.units[k]
+        per_s = (
+            f"{per:.3f} mm/mm"
+            if unit == "m"
+            else (
+                f"{per:.3f} mm/mrad"
+                if unit == "rad"
+                else f"{per * 1e3:.4g} mm per {unit or 'unit'}"
+            )
+        )
+        srows.append(
+            [
+                f"<code>{_e(s.names[k])}</code>",
+                per_s,
+                f"{s.typical_mm[k]:.4f}",
+                f"{s.identified_mm[k]:.4f}" if fit.identifiable[k] else ("fixed", "fixed"),
+                ("yes", "yes") if fit.identifiable[k] else ("no", "no"),
+            ]
+        )
+
+    return [
         "<h2>5. Error-factor sensitivity</h2>",
         "<p>How far an error of each parameter of the arm moves the tool point, RMS over these poses "
         "(the seed paper's section 3.3 and Fig. 7): per unit error, for an error of the parameter's "
@@ -686,6 +621,15 @@ def _render(r: LabReport) -> str:
             ],
             srows,
         ),
+    ]
+
+
+def _data_section(r: LabReport) -> list[str]:
+    """The data: the file, its columns and targets, the robot, the instrument's noise."""
+    cols = (
+        ", ".join(["q1..q6", "x, y, z", *r.data.columns]) if r.data.columns else "q1..q6, x, y, z"
+    )
+    return [
         "<h2>Data</h2>",
         _table(
             ["", ""],
@@ -698,9 +642,4 @@ def _render(r: LabReport) -> str:
             ],
             left=2,
         ),
-        f"<footer>sixaxis-track {ver}"
-        + (f" · <code>{_e(r.command)}</code>" if r.command else "")
-        + "</footer>",
-        "</main></body></html>",
     ]
-    return "\n".join(p for p in parts if p)

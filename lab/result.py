@@ -41,7 +41,7 @@ from lab.registration import register_stations, tool_columns, tool_indices
 from lab.solver import OUTLIER_RADIUS, robust_sigma
 from lab.text import left_out_lines, parameter_cells
 
-__all__ = ["SCHEMA_VERSION", "Duplicate", "FitResult", "Outlier", "inputs_of", "reference_values"]
+__all__ = ["SCHEMA_VERSION", "Duplicate", "FitResult", "Outlier", "RowsCounted"]
 
 SCHEMA_VERSION = 1
 log = logging.getLogger(__name__)
@@ -97,6 +97,29 @@ class Duplicate:
 
 
 @dataclass(frozen=True)
+class RowsCounted:
+    """What :mod:`lab.screening` decided about the rows of a fit, and the plausibility check of
+    its parameters: the facts a fit of given rows cannot know, kept apart from its numbers and
+    joined to them once, by the screen that decided them.
+
+    ``fitted_rows``: the indices of the poses fitted in the data given (None: all, in order);
+    ``n_rows``: how many rows those data had; ``outlier_list``, ``duplicates``: the poses left out
+    and the rows counted once; ``outliers_mode``: the option they were judged by;
+    ``outlier_rule``: the rule as applied (None: not screened); ``outlier_note``: why nothing was
+    left out when the rule could not be applied or would leave out too much; ``implausible``:
+    parameters beyond the plausible bound of their kind, accepted (``accept_large=True``)."""
+
+    fitted_rows: np.ndarray | None = field(default=None, repr=False)
+    n_rows: int | None = None
+    outlier_list: tuple[Outlier, ...] = ()
+    duplicates: tuple[Duplicate, ...] = ()
+    outliers_mode: str = "keep"
+    outlier_rule: str | None = None
+    outlier_note: str = ""
+    implausible: tuple[Implausible, ...] = ()
+
+
+@dataclass(frozen=True)
 class FitResult:
     """An identified model: parameters with names and standard errors, residuals, metrics.
 
@@ -126,19 +149,8 @@ class FitResult:
     weights: np.ndarray | None = field(default=None, repr=False)
     validation_residuals: np.ndarray | None = field(default=None, repr=False)
     source: str = "<memory>"
-    # what the fit left out of the data given (see lab.screening): ``fitted_rows`` are the
-    # indices of the poses fitted (None: all, in order), ``n_rows`` how many the data had
-    fitted_rows: np.ndarray | None = field(default=None, repr=False)
-    n_rows: int | None = None
-    outlier_list: tuple[Outlier, ...] = ()
-    duplicates: tuple[Duplicate, ...] = ()
-    outliers_mode: str = "keep"
-    # the rule the outliers were judged by (None: not screened), and why nothing was left out
-    # when the rule could not be applied or would leave out too much
-    outlier_rule: str | None = None
-    outlier_note: str = ""
-    # parameters beyond the plausible bound of their kind, accepted (fit(accept_large=True))
-    implausible: tuple[Implausible, ...] = ()
+    # what the fit left out of the data given and its plausibility (lab.screening)
+    counted: RowsCounted = RowsCounted()
     weighted_rows: np.ndarray | None = field(default=None, repr=False)
     observations: Observations | None = field(default=None, repr=False)
     validation_rotation: np.ndarray | None = field(default=None, repr=False)
@@ -155,6 +167,39 @@ class FitResult:
     refit: Callable[[Sequence[str]], np.ndarray] | None = field(
         default=None, repr=False, compare=False
     )
+
+    # -- the rows counted (lab.screening) ---------------------------------------------------------
+    @property
+    def fitted_rows(self) -> np.ndarray | None:
+        return self.counted.fitted_rows
+
+    @property
+    def n_rows(self) -> int | None:
+        return self.counted.n_rows
+
+    @property
+    def outlier_list(self) -> tuple[Outlier, ...]:
+        return self.counted.outlier_list
+
+    @property
+    def duplicates(self) -> tuple[Duplicate, ...]:
+        return self.counted.duplicates
+
+    @property
+    def outliers_mode(self) -> str:
+        return self.counted.outliers_mode
+
+    @property
+    def outlier_rule(self) -> str | None:
+        return self.counted.outlier_rule
+
+    @property
+    def outlier_note(self) -> str:
+        return self.counted.outlier_note
+
+    @property
+    def implausible(self) -> tuple[Implausible, ...]:
+        return self.counted.implausible
 
     # -- metrics ---------------------------------------------------------------------------------
     @property

@@ -29,13 +29,7 @@ from arm import errors
 from lab.errors import NoiseMismatchWarning, ValidationMismatchWarning
 from lab.result import FitResult
 
-__all__ = [
-    "NOISE_FAR",
-    "VALIDATION_FAR",
-    "VALIDATION_FAR_MM",
-    "check_stated_noise",
-    "check_validation",
-]
+__all__ = ["check_stated_noise", "check_validation"]
 
 log = logging.getLogger(__name__)
 

@@ -71,14 +71,16 @@ import math
 import warnings
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, fields, replace
+from functools import cached_property
 from pathlib import Path
+from typing import Unpack
 
 import numpy as np
 from scipy.stats import chi2
 
 from arm.description import RobotDescription, as_robot
 from arm.effect_api import EffectError
-from arm.effects import Effect
+from arm.effects import Effect, parse_effects
 from arm.errormodel import ErrorModel
 from arm.errors import warn
 from arm.measurements import MeasurementSet, as_measurements
@@ -95,26 +97,18 @@ from lab.candidates import (
 from lab.errors import ContaminatedError, FitError, RowsLeftOutWarning
 from lab.estimation import check_plausible, fit_rows
 from lab.observations import Observations, observations_of
-from lab.options import DEFAULTS, LabOptions, Loss, OutlierMode, Solver, call_options
-from lab.result import Duplicate, FitResult, Outlier, inputs_of
+from lab.options import DEFAULTS, LabOptions, OptionFields, resolve
+from lab.result import Duplicate, FitResult, Outlier, RowsCounted, inputs_of
 from lab.solver import HUBER_K, OUTLIER_RADIUS, robust_sigma
 from lab.text import duplicates_text
 
 __all__ = [
-    "LTS_SHARE",
     "MAX_OUTLIER_FRACTION",
-    "MAX_ROUNDS",
     "OUTLIER_ALPHA",
-    "Duplicate",
-    "Outlier",
     "Screen",
-    "annotate",
     "duplicate_rows",
-    "judge",
     "outlier_radius",
-    "robust_sigma",
     "screen",
-    "screened",
 ]
 
 log = logging.getLogger(__name__)
@@ -291,9 +285,17 @@ class _Model:
     start: Mapping[str, float] | None = None
     fixed: tuple[str, ...] = ()
 
+    @cached_property
+    def parsed(self) -> list[Effect]:
+        """The effects as instances: their specification parsed once, for every fit."""
+        try:
+            return parse_effects(self.effects)
+        except EffectError as exc:
+            raise FitError(str(exc)) from None
+
     def fit(self, data: MeasurementSet) -> FitResult:
         return fit_rows(
-            data, self.robot, self.effects, self.options, start=self.start, fixed=self.fixed
+            data, self.robot, self.parsed, self.options, start=self.start, fixed=self.fixed
         )
 
     def observations(self, data: MeasurementSet) -> Observations:
@@ -920,7 +922,7 @@ def _screen(
 
 def _screened_fit(
     data: MeasurementSet,
-    result: FitResult,
+    fit: FitResult,
     model: _Model,
     candidates: Sequence[str] | None,
     tests: bool,
@@ -930,13 +932,11 @@ def _screened_fit(
     rule: str | None = None,
     note: str = "",
 ) -> Screen:
-    """The screen of ``result``, the fit of the rows ``kept`` of ``data`` (None: all): its
-    plausibility checked, what was left out recorded, and with ``tests`` the tests' rows."""
+    """The screen of ``fit``, the fit of the rows ``kept`` of ``data`` (None: all): its
+    plausibility checked, the result built with what was left out (:class:`RowsCounted`, joined
+    to the fit's numbers here and nowhere else), and with ``tests`` the tests' rows."""
     opts = model.options
-    bad = check_plausible(result, opts.accept_large)
-    result = replace(
-        result,
-        implausible=bad,
+    counted = RowsCounted(
         fitted_rows=None if kept is None or len(kept) == len(data) else kept,
         n_rows=len(data),
         outlier_list=found,
@@ -944,8 +944,9 @@ def _screened_fit(
         outliers_mode=opts.outliers,
         outlier_rule=rule,
         outlier_note=note,
-        source=data.source,
+        implausible=check_plausible(fit, opts.accept_large),
     )
+    result = replace(fit, counted=counted)
     cands = None if candidates is None else tuple(candidates)
     s = Screen(data, result, model.robot, model.effects, opts, cands, None, (), rule)
     if not tests:
@@ -976,22 +977,12 @@ def screen(
     robot: RobotDescription | str | Path | None = None,
     effects: Effects | None = None,
     *,
-    noise_mm: float | None = None,
-    loss: Loss = "linear",
-    outliers: OutlierMode = "auto",
-    accept_large: bool = False,
-    solver: Solver = "lm",
-    f_scale_mm: float | None = None,
-    max_evaluations: int = 100,
-    register: bool = True,
-    noise_ppm: float = 0.0,
-    noise_mrad: float | None = None,
-    measured: tuple[str, ...] | None = None,
     options: LabOptions | None = None,
     candidates: Sequence[str] | None = None,
     tests: bool = True,
     start: Mapping[str, float] | None = None,
     fixed: Iterable[str] = (),
+    **keywords: Unpack[OptionFields],
 ) -> Screen:
     """Decide which rows of ``data`` count for ``effects`` (default geometric) of ``robot``
     (default the seed arm), once: repeated rows counted once, gross outliers left out by the rule
@@ -1003,11 +994,17 @@ def screen(
     tests' rows; ``tests``: also judge the rows a diagnosis's tests leave out (it costs every
     candidate's Jacobian: :func:`lab.fit` does without). ``start``: starting values by name;
     ``fixed``: names held at their starting value."""
-    opts = call_options(locals())
-    model = _Model(
-        as_robot(robot), "geometric" if effects is None else effects, opts, start, tuple(fixed)
+    opts = resolve(options, **keywords)
+    return screened(
+        as_measurements(data),
+        robot,
+        effects,
+        opts,
+        candidates=candidates,
+        tests=tests,
+        start=start,
+        fixed=fixed,
     )
-    return _screen(as_measurements(data), model, candidates, tests)
 
 
 def screened(
@@ -1018,13 +1015,17 @@ def screened(
     *,
     candidates: Sequence[str] | None = None,
     tests: bool = True,
+    start: Mapping[str, float] | None = None,
+    fixed: Iterable[str] = (),
 ) -> Screen:
-    """The screen an entry point works on: ``lab.screen(data, ...)`` made once, or ``data``
-    itself when it is a :class:`Screen` (nothing screened again): then its options hold (an
-    option asked otherwise is refused), and ``effects``, when given, are fitted to its rows
-    (:meth:`Screen.refit`)."""
+    """The screen an entry point works on, with its options resolved (:func:`lab.options.resolve`,
+    once per call): ``lab.screen(data, ...)`` made once, or ``data`` itself when it is a
+    :class:`Screen` (nothing screened again): then its options hold (an option asked otherwise is
+    refused), and ``effects``, when given, are fitted to its rows (:meth:`Screen.refit`).
+    ``start``, ``fixed``: starting values and held parameters of a fit of data."""
     if not isinstance(data, Screen):
-        model = _Model(as_robot(robot), "geometric" if effects is None else effects, options)
+        fitted = "geometric" if effects is None else effects
+        model = _Model(as_robot(robot), fitted, options, start, tuple(fixed))
         return _screen(as_measurements(data), model, candidates, tests)
     s = data
     clash = [

@@ -12,7 +12,7 @@ from scipy import stats
 
 from lab.identifiability import orthonormal_basis
 
-__all__ = ["DEPENDENT", "ForwardSelection", "f_test", "hat_blocks", "holm", "press_rms"]
+__all__ = ["ForwardSelection", "f_test", "holm", "press_rms"]
 
 DEPENDENT = 1e-6  # a candidate column this much outside the model's span is dependent on it
 

@@ -32,18 +32,7 @@ from scipy.stats import chi2
 
 from lab.blocks import Blocks
 
-__all__ = [
-    "HUBER_K",
-    "OUTLIER_RADIUS",
-    "ScaledProblem",
-    "Solution",
-    "irls_weights",
-    "levenberg_marquardt",
-    "robust_sigma",
-    "solve",
-    "standard_errors",
-    "weighted_gram",
-]
+__all__ = ["Solution", "levenberg_marquardt", "robust_sigma", "solve"]
 
 log = logging.getLogger(__name__)
 

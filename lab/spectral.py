@@ -59,19 +59,7 @@ from arm.params import parameter_unit
 from lab.blocks import Blocks
 from lab.identifiability import orthonormal_basis
 
-__all__ = [
-    "DEFAULT_ORDER",
-    "CyclicProblem",
-    "CyclicScan",
-    "ExtraColumns",
-    "JointSampling",
-    "Prior",
-    "ScanTerm",
-    "cyclic_scan",
-    "joint_sampling",
-    "problem_of_fit",
-    "resolvable_order",
-]
+__all__ = ["CyclicProblem", "CyclicScan", "cyclic_scan", "joint_sampling", "resolvable_order"]
 
 log = logging.getLogger(__name__)
 

@@ -18,20 +18,7 @@ import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-__all__ = [
-    "display_unit",
-    "duplicates_text",
-    "error_text",
-    "left_out_lines",
-    "mm_text",
-    "nominal_text",
-    "outliers_text",
-    "p_value_text",
-    "parameter_cells",
-    "readable",
-    "signed_text",
-    "std_text",
-]
+__all__ = ["left_out_lines", "mm_text", "p_value_text", "parameter_cells", "signed_text"]
 
 
 def display_unit(unit: str) -> tuple[float, str]:

@@ -45,18 +45,9 @@ from lab.export import (
     exported_difference,
     station_bases,
 )
-from lab.options import EXPORT_FORMATS
 from lab.result import SCHEMA_VERSION, FitResult
 
-__all__ = [
-    "EXPORT_FORMATS",
-    "METROLOGY_SUFFIX",
-    "UrdfExport",
-    "export_urdf",
-    "metrology_path",
-    "read_calibrated_urdf",
-    "require_urdf",
-]
+__all__ = ["UrdfExport", "export_urdf", "metrology_path", "read_calibrated_urdf", "require_urdf"]
 
 log = logging.getLogger(__name__)
 

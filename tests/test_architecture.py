@@ -140,7 +140,7 @@ def test_the_task_contract_loads_no_plant():
 
 # docs/architecture.md, "Inside lab": each row builds only on the rows above it (and its own)
 LAB_ORDER = [
-    {"errors", "options", "text"},
+    {"errors", "options", "text", "terms"},
     {
         "blocks",
         "identifiability",
@@ -157,7 +157,7 @@ LAB_ORDER = [
     {"identification", "transfer"},
     {"diagnosis", "discovery", "planning", "export"},
     {"urdf_export"},
-    {"report", "report_html", "plots"},
+    {"report", "lab_report", "report_html", "plots"},
 ]
 
 
@@ -188,3 +188,17 @@ def test_the_effects_modules_build_only_on_those_above_them():
                     continue
                 assert dep != "arm.effects", f"arm/effects/{name}.py:{line} imports the package"
                 assert row[dep.split(".")[2]] <= k, f"arm/effects/{name}.py:{line} imports {dep}"
+
+
+def test_the_lab_runs_no_code_made_of_text():
+    """Discovery's terms are data (lab.terms): nothing in the lab ``eval``s, ``exec``s or
+    compiles a string of code, so what it runs is what its modules say."""
+    bad = []
+    for mod, path in MODULES.items():
+        if not mod.startswith("lab."):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
+                if node.func.id in {"eval", "exec", "compile"}:
+                    bad.append(f"{path.relative_to(ROOT)}:{node.lineno} calls {node.func.id}")
+    assert not bad, "\n".join(bad)

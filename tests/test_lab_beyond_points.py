@@ -16,6 +16,7 @@ import pytest
 import lab
 from arm.description import seed_robot
 from arm.measurements import MeasurementSet
+from lab import report_html
 from tests._beyond_points import pose_campaign
 
 
@@ -158,7 +159,7 @@ def test_the_report_says_what_was_fitted_beyond_points(campaign, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         report = build_report(data, "seed", "geometric", validate=other, rounds=0)
-    html = report.to_html()
+    html = report_html.render(report)
     assert "tracker stations 1, 2, one base each" in html
     assert "orientations fitted too" in html and "weighted by its stated uncertainty" in html
     assert "validation station(s) 3 not in the fit" in html

@@ -93,6 +93,48 @@ def test_the_written_effect_predicts_what_the_true_form_does(seed, tmp_path, use
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
 
 
+def test_the_effect_the_lab_refits_is_the_module_it_writes(seed, tmp_path, user_effects):
+    """Discovery refits its terms as data (lab.terms), not by running the module it writes: the
+    two must be the same effect, attribute for attribute and bit for bit, for every kind of
+    term of the library (harmonics, q, tau and its powers and sign, temperature and its
+    products, t, payload, dir and dir*tau)."""
+    from lab.discovery import Discovery, Term
+
+    c = hidden.campaign(seed, None, seed=13, n=60, n_validation=10)
+    data = c.data
+    rng = np.random.default_rng(0)
+    cols = dict(data.columns)
+    cols.update(
+        temperature=20 + 3 * rng.standard_normal(len(data)),
+        t=np.arange(len(data), dtype=float),
+        payload=rng.uniform(0, 2, len(data)),
+        **{f"dir{j}": rng.choice([-1.0, 1.0], len(data)) for j in range(1, 7)},
+    )
+    data = type(data)(data.q, data.xyz, cols, "all_columns")
+    res = fit(data, seed, "geometric", noise_mm=NOISE_MM)
+    library = library_terms(data, res.inputs.tau, order=3)
+    keys = {t.key for t in library}
+    assert {"k_sin3q", "k_q", "k_tausq_", "k_sign_tau", "k_temp_cosq", "k_t_q"} <= keys
+    assert {"k_payload_q", "k_dir", "k_dir_tau", "k_temp_tau", "k_temp_q", "k_taucube_"} <= keys
+    chosen = [t for t in library if t.joint in (2, 3)]
+    terms = [
+        Term(t.joint, t.name, t.expression, 1e-4 * (1 + k), None, t.variables, t.reading)
+        for k, t in enumerate(chosen)
+    ]
+    d = Discovery(res, "discovered", terms, NOISE_MM, 0.02, 3, len(library), "found")
+    d.selected = chosen
+    ours = d.effect_class()
+    load_effect_module(d.write_module(tmp_path / "found.py"))
+    written = user_effects["found"]
+    for attr in ("name", "description", "columns", "forms", "terms", "typical", "__name__"):
+        assert getattr(ours, attr) == getattr(written, attr), attr
+    a, b = ours(), written()
+    assert a.parameter_names(seed, (0,)) == b.parameter_names(seed, (0,))
+    model = ErrorModel(seed, ["geometric", a])
+    inputs = model.inputs(data.q, data.columns)
+    np.testing.assert_array_equal(a.regressor(inputs), b.regressor(inputs))
+
+
 def test_quiet_on_clean_data(seed):
     for s in range(5):
         c = hidden.campaign(seed, None, seed=40 + s, n_validation=100)

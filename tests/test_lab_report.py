@@ -17,6 +17,7 @@ import pytest
 from arm.kinematics import Chain, gravity_torques, tool_points
 from arm.measurements import read_measurements
 from arm.so3 import rotation_matrix
+from lab import report_html
 from lab.report import build_report
 from lab.report_html import arm_parameters
 from tests._lab_data import REAL, campaign, real_arm, requires_real_data
@@ -35,9 +36,9 @@ def report(seed):
 @pytest.fixture(scope="module")
 def page(report, tmp_path_factory):
     path = tmp_path_factory.mktemp("report") / "report.html"
-    report.write(path)
+    report_html.write(report, path)
     text = path.read_text(encoding="utf-8")
-    assert text == report.to_html()
+    assert text == report_html.render(report)
     return text
 
 
@@ -140,7 +141,7 @@ def test_report_on_real_laser_tracker_data():
     """30 real poses, a tracker 4.9 m away, no validation file: the leave-one-out RMS is the
     held-out figure, nothing is hinted where nothing is significant, the weak pose set is flagged."""
     rep = build_report(read_measurements(REAL / "measurements.csv"), real_arm())
-    page = rep.to_html()
+    page = report_html.render(rep)
     nominal, geometric = rep.runs
     assert nominal.rms_mm > 1.0 and geometric.rms_mm < 0.1
     assert "leave-one-out RMS (mm)" in page and f"{geometric.diagnosis.cv_rms_mm:.4f}" in page

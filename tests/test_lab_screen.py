@@ -112,16 +112,23 @@ def test_a_screen_carries_its_options(seed, dirty):
 
 
 # -- one vocabulary ---------------------------------------------------------------------------------
-def test_every_entry_point_takes_the_same_options_in_the_same_order():
-    names = [f.name for f in fields(LabOptions)] + ["options"]
+def test_every_entry_point_takes_the_same_options():
+    # data, robot, effects, then options= or the fields of LabOptions as keywords, typed once
+    # (OptionFields), which must not drift from the options themselves: the same names, in the
+    # same order, with the same types
+    from lab.options import OptionFields
+
+    declared = {f.name: f.type for f in fields(LabOptions)}
+    assert list(OptionFields.__annotations__) == list(declared)
+    for name, kind in OptionFields.__annotations__.items():
+        assert getattr(kind, "__forward_arg__", kind) == declared[name], name
     for label, f in ENTRY_POINTS.items():
-        params = list(inspect.signature(f).parameters.values())
-        assert [p.name for p in params[:3]] == ["data", "robot", "effects"], label
-        assert [p.default for p in params[1:3]] == [None, None], label
-        keywords = [p for p in params if p.kind is p.KEYWORD_ONLY]
-        assert [p.name for p in keywords[: len(names)]] == names, label
-        for p in keywords[: len(names) - 1]:
-            assert p.default == getattr(LabOptions(), p.name), (label, p.name)
+        params = inspect.signature(f).parameters
+        assert list(params)[:3] == ["data", "robot", "effects"], label
+        assert [p.default for p in list(params.values())[1:3]] == [None, None], label
+        assert params["options"].kind is inspect.Parameter.KEYWORD_ONLY, label
+        assert params["keywords"].kind is inspect.Parameter.VAR_KEYWORD, label
+        assert not declared.keys() & params.keys(), label  # spelled out nowhere else
 
 
 @pytest.mark.parametrize("bad", [-1, 0, math.nan, math.inf])
@@ -158,6 +165,44 @@ def test_options_are_given_once(seed):
         lab.fit(data, seed, options=opts, noise_mm=0.02)
     by_object = lab.fit(data, seed, options=opts).to_dict()
     assert by_object == lab.fit(data, seed, noise_mm=NOISE_MM).to_dict()
+
+
+def test_one_fit_resolves_its_options_and_parses_its_effects_once(seed, dirty, monkeypatch):
+    # the outlier rule fits the model several times (dirty has three gross outliers): the
+    # options are resolved by the entry point, the effects parsed once for all those fits
+    import arm.effects.specs as specs
+    import lab.identification
+    import lab.options
+
+    resolved, parsed = [], []
+    resolve, make = lab.options.resolve, specs.make_effect
+
+    def counted_resolve(*args, **kw):
+        resolved.append(1)
+        return resolve(*args, **kw)
+
+    def counted_make(spec):
+        if isinstance(spec, str):
+            parsed.append(spec)
+        return make(spec)
+
+    for module in (lab.identification, screening):
+        monkeypatch.setattr(module, "resolve", counted_resolve, raising=False)
+    monkeypatch.setattr(specs, "make_effect", counted_make)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = lab.fit(dirty, seed, "geometric,compliance[2,3]", noise_mm=NOISE_MM)
+    assert len(result.outlier_list) == 3  # the rule refitted
+    assert len(resolved) == 1
+    assert parsed == ["geometric", "compliance[2,3]"]
+
+
+def test_an_unknown_option_is_refused(seed):
+    data = campaign(seed, "geometric", seed=3).measure(40)
+    with pytest.raises(TypeError, match="noise_nm"):
+        lab.fit(data, seed, noise_nm=0.015)
+    with pytest.raises(TypeError, match="noise_nm"):
+        lab.fit(data, seed, options=LabOptions(), noise_nm=0.015)
 
 
 # -- cautions ---------------------------------------------------------------------------------------
