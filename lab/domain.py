@@ -21,6 +21,12 @@ joint-angle effect's basis is evaluated with each variable moved, :func:`term_de
   and ``cyclic``) holds at every reading whose phase the fit has seen: everywhere where the fit
   covered a whole period of it, and a whole number of periods from a fitted reading otherwise
   (a joint that turned once more, :func:`unseen_phase`);
+* except a first harmonic alone (``sin q_j``, ``cos q_j``: once per turn, the eccentricity of
+  a gear or an encoder on the joint's output, the catalogue's ``transmission``): a circle off
+  its centre errs by that sinusoid over the whole turn, so where the fit covered at least half
+  a turn of the joint (:data:`ECCENTRICITY_ARC`, over which its sine and cosine are told apart
+  from the joint's zero) it holds everywhere (the UR10's A and B, q1 over 3.6 rad, predicted
+  D's q1 beyond it: 0.291 -> 0.239 mm with the diagnosis's choice);
 * any other dependence (a line in temperature fitted over 0.4 degC, a polynomial in a joint
   angle or a gravity torque, a gear-ratio error ``g q`` fitted over part of the joint's range,
   a term in time or payload) holds only over the fitted range;
@@ -73,6 +79,9 @@ _UNITS = {"q": "rad", "tau": "N·m", "temperature": "degC", "payload": "kg", "t"
 MARGIN = 0.1
 #: poses on which a term's dependence is probed
 PROBE_POSES = 16
+#: the arc of its joint (rad) over which a once-per-turn term must have been fitted to hold over
+#: the whole turn: half a turn, where its sine and cosine are told apart from the joint's zero
+ECCENTRICITY_ARC = math.pi
 
 
 class OutOfDomainWarning(LabWarning):
@@ -209,6 +218,9 @@ class Terms:
     periodic in a joint angle, else None."""
 
     by_parameter: Mapping[str, tuple[tuple[str, float | None], ...]]
+    #: the parameters whose term is a first harmonic of its joint alone (``sin q``, ``cos q``:
+    #: once per turn, an eccentricity), whatever effect carries it
+    once_per_turn: frozenset[str] = frozenset()
 
 
 def _moved(inputs: ModelInputs, **kw) -> ModelInputs:
@@ -228,10 +240,11 @@ def _regressor(effect: JointAngleEffect, inputs: ModelInputs) -> np.ndarray:
 TURN_SAMPLES = 2048
 
 
-def _periods(effect: JointAngleEffect, probe: ModelInputs, k: int) -> np.ndarray:
+def _periods(effect: JointAngleEffect, probe: ModelInputs, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Each parameter's fundamental period (rad) in joint angle ``k`` (0-based), NaN where its
     term does not repeat every turn: the term sampled over one turn (the other variables those of
-    one pose), its harmonics by FFT, the period 2 pi / (their greatest common divisor)."""
+    one pose), its harmonics by FFT, the period 2 pi / (their greatest common divisor); and
+    whether its only harmonic is the first (once per turn)."""
     n = TURN_SAMPLES
     one = probe.subset(np.zeros(n, dtype=int))
     q = one.q.copy()
@@ -242,6 +255,7 @@ def _periods(effect: JointAngleEffect, probe: ModelInputs, k: int) -> np.ndarray
     again = _regressor(effect, _moved(one, q=q2))
     spectrum = np.abs(np.fft.rfft(turn - turn.mean(axis=0), axis=0))[1:]
     out = np.full(turn.shape[1], np.nan)
+    once = np.zeros(turn.shape[1], dtype=bool)
     for c in range(turn.shape[1]):
         if not _same(again[:, c], turn[:, c]):
             continue  # not periodic over a turn
@@ -249,7 +263,8 @@ def _periods(effect: JointAngleEffect, probe: ModelInputs, k: int) -> np.ndarray
         orders = np.flatnonzero(spectrum[:, c] > 1e-8 * top) + 1
         if top > 0 and orders.size and orders.max() < n // 2:
             out[c] = 2 * math.pi / int(np.gcd.reduce(orders))
-    return out
+            once[c] = orders.tolist() == [1]
+    return out, once
 
 
 def term_dependence(model: ErrorModel, inputs: ModelInputs) -> Terms:
@@ -261,6 +276,7 @@ def term_dependence(model: ErrorModel, inputs: ModelInputs) -> Terms:
     idx = np.linspace(0, inputs.n - 1, min(PROBE_POSES, inputs.n)).astype(int)
     probe = inputs.subset(idx)
     out: dict[str, tuple[tuple[str, float | None], ...]] = {}
+    once_per_turn: set[str] = set()
     lay = model.layout
     for e in model.effects:
         if getattr(e, "extrapolates", False) or e.name == "geometric":
@@ -291,17 +307,19 @@ def term_dependence(model: ErrorModel, inputs: ModelInputs) -> Terms:
             q[:, k] += 0.1
             on_q = np.flatnonzero(moved(_moved(probe, q=q)))
             if on_q.size:
-                periods = _periods(e, probe, k)
+                periods, once = _periods(e, probe, k)
                 for i in on_q:
                     p = periods[i]
                     deps[i].append((f"q{k + 1}", None if np.isnan(p) else float(p)))
+                    if once[i]:
+                        once_per_turn.add(names[i])
             tau = probe.tau.copy()
             tau[:, k] += 1.0
             for i in np.flatnonzero(moved(_moved(probe, tau=tau))):
                 deps[i].append((f"tau{k + 1}", None))
         for n, d in zip(names, deps, strict=True):
             out[n] = tuple(d)
-    return Terms(out)
+    return Terms(out, frozenset(once_per_turn))
 
 
 def unseen_phase(v: np.ndarray, lo: float, hi: float, period: float) -> np.ndarray:
@@ -334,7 +352,8 @@ def out_of_domain(
     candidates = [n for k, n in enumerate(lay.names) if identifiable[k] and params[k] != 0.0]
     if not candidates:
         return exc, {}
-    terms = term_dependence(model, fitted).by_parameter
+    dependence = term_dependence(model, fitted)
+    terms = dependence.by_parameter
     values = _variables(inputs)
     drop: dict[str, np.ndarray] = {}
     for n in candidates:
@@ -344,6 +363,8 @@ def out_of_domain(
             if e is None:
                 continue
             if period is not None:
+                if n in dependence.once_per_turn and e.hi - e.lo >= ECCENTRICITY_ARC:
+                    continue  # an eccentricity, identified over half a turn: the whole turn
                 rows |= e.rows & unseen_phase(values[var], e.lo, e.hi, period)
                 continue
             rows |= e.rows
