@@ -68,9 +68,9 @@ class LearningRateAt(BaseCallback):
         self.rate = rate
 
     def _set(self) -> None:
-        from stable_baselines3.common.utils import get_schedule_fn
+        from stable_baselines3.common.utils import FloatSchedule
 
-        self.model.lr_schedule = get_schedule_fn(self.rate(self.num_timesteps))
+        self.model.lr_schedule = FloatSchedule(self.rate(self.num_timesteps))
 
     def _on_rollout_start(self) -> None:
         self._set()
