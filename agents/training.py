@@ -760,7 +760,7 @@ def train(
         )
         wall = time.perf_counter() - t_start
         before = _wall_before(out / "summary.json") if done_before else 0.0
-        summary = {
+        summary: dict[str, Any] = {
             "timesteps": int(model.num_timesteps),
             "wall_s": before + wall,  # the whole run's, over its sessions
             "steps_per_s": (int(model.num_timesteps) - done_before) / wall,
