@@ -593,8 +593,11 @@ def train(
     """Train as configured (see the module docstring for what is written); ``progress(done,
     total)`` is called as steps are taken; ``resume`` continues from ``output``'s checkpoint
     (SB3's own save of this run, which unpickles: resume only runs you made); ``stop_at`` stops
-    the run there (its checkpoint, ``final`` and summary written) to be resumed later with its
-    config unchanged (a resumed run starts new episodes, and its random streams afresh). Returns the output directory."""
+    the run there (its checkpoint, ``final`` and summary written) to be resumed later with a
+    config that trains the steps taken the same (:func:`resume_differences`: more steps, other
+    evaluations, a learning rate that changes only from the checkpoint on; the summary records
+    what changed). A resumed run starts new episodes, and its random streams afresh. Returns
+    the output directory."""
     import torch
 
     torch.set_num_threads(1)
