@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-__all__ = ["CriticBurnIn", "EveryCrossing", "Progress"]
+__all__ = ["CriticBurnIn", "EveryCrossing", "LearningRateAt", "Progress"]
 
 
 class CriticBurnIn(BaseCallback):
@@ -55,4 +55,25 @@ class Progress(BaseCallback):
 
     def _on_step(self) -> bool:
         self.report(self.num_timesteps, self.total)
+        return True
+
+
+class LearningRateAt(BaseCallback):
+    """PPO's update of a rollout that starts at the run's absolute step count ``s`` runs at the
+    learning rate ``rate(s)``: a schedule of the whole run, where SB3's own is of
+    ``progress_remaining``, relative to each ``learn`` call, which a resumed run restarts."""
+
+    def __init__(self, rate: Callable[[int], float]) -> None:
+        super().__init__()
+        self.rate = rate
+
+    def _set(self) -> None:
+        from stable_baselines3.common.utils import FloatSchedule
+
+        self.model.lr_schedule = FloatSchedule(self.rate(self.num_timesteps))
+
+    def _on_rollout_start(self) -> None:
+        self._set()
+
+    def _on_step(self) -> bool:
         return True

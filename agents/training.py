@@ -36,6 +36,7 @@ import csv
 import dataclasses
 import inspect
 import io
+import itertools
 import json
 import logging
 import math
@@ -167,6 +168,7 @@ class TrainConfig:
     )
     eval_episodes: int = declare(1, AT_LEAST_1)
     checkpoint_every: int = declare(50_000, AT_LEAST_1)
+    learning_rate_schedule: list[list[float]] = field(default_factory=list)
     output: str = ""
     hyperparameters: dict[str, Any] = field(default_factory=dict)
 
@@ -229,6 +231,7 @@ class TrainConfig:
             out.append(
                 f"eval_seed_base {self.eval_seed_base}: evaluation seeds overlap training seeds"
             )
+        out += self._schedule_rules()
         if "action_noise" in self.hyperparameters:
             out.append("hyperparameters: action_noise is set by the trainer (action_noise_std)")
         if self.reward == "improvement" and self.variant != "residual":
@@ -261,6 +264,40 @@ class TrainConfig:
             except (TypeError, ValueError) as exc:
                 out.append(f"env: {exc}")
         return out
+
+    def _schedule_rules(self) -> list[str]:
+        sched = self.learning_rate_schedule
+        if not sched:
+            return []
+        key = "learning_rate_schedule"
+        if not all(isinstance(p, list | tuple) and len(p) == 2 for p in sched):
+            return [f"{key}: a list of [step, learning rate] pairs, e.g. [[0, 3e-4], [1e6, 0]]"]
+        out = []
+        for i, (step, lr) in enumerate(sched):
+            if not (isinstance(step, int | float) and math.isfinite(step) and step >= 0):
+                out.append(f"{key}[{i}]: the step {step!r} is not a count of steps >= 0")
+            if not (isinstance(lr, int | float) and math.isfinite(lr) and lr >= 0):
+                out.append(f"{key}[{i}]: the learning rate {lr!r} is not a number >= 0")
+        steps = [p[0] for p in sched]
+        if not out and any(b <= a for a, b in itertools.pairwise(steps)):
+            out.append(f"{key}: the steps {steps} do not increase")
+        if "learning_rate" in self.hyperparameters:
+            out.append(f"hyperparameters.learning_rate: {key} sets it; give one of the two")
+        if self.algo != "ppo":
+            out.append(f"{key} is for ppo (its updates after each rollout)")
+        return out
+
+    def learning_rate_at(self, step: float) -> float:
+        """The learning rate at an absolute step count of the run: ``learning_rate_schedule``
+        interpolated linearly between its points (constant before the first and after the
+        last), else ``hyperparameters.learning_rate`` (SB3's default, 3e-4, if not given).
+        Absolute, not SB3's progress_remaining (relative to each ``learn`` call): a run
+        resumed at step N, or stopped there, has had the same rates up to N as any longer
+        run of the same config."""
+        if self.learning_rate_schedule:
+            steps, rates = zip(*self.learning_rate_schedule, strict=True)
+            return float(np.interp(step, steps, rates))
+        return float(self.hyperparameters.get("learning_rate", 3e-4))
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -556,8 +593,11 @@ def train(
     """Train as configured (see the module docstring for what is written); ``progress(done,
     total)`` is called as steps are taken; ``resume`` continues from ``output``'s checkpoint
     (SB3's own save of this run, which unpickles: resume only runs you made); ``stop_at`` stops
-    the run there (its checkpoint, ``final`` and summary written) to be resumed later with its
-    config unchanged (a resumed run starts new episodes, and its random streams afresh). Returns the output directory."""
+    the run there (its checkpoint, ``final`` and summary written) to be resumed later with a
+    config that trains the steps taken the same (:func:`resume_differences`: more steps, other
+    evaluations, a learning rate that changes only from the checkpoint on; the summary records
+    what changed). A resumed run starts new episodes, and its random streams afresh. Returns
+    the output directory."""
     import torch
 
     torch.set_num_threads(1)
@@ -566,7 +606,7 @@ def train(
     from stable_baselines3.common.noise import NormalActionNoise
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    from agents.callbacks import CriticBurnIn, EveryCrossing, Progress
+    from agents.callbacks import CriticBurnIn, EveryCrossing, LearningRateAt, Progress
 
     cfg.check()
     out = Path(cfg.output)
@@ -576,8 +616,9 @@ def train(
     if why:  # a name too long, a file in the way, a read-only place: before any training
         raise TrainConfigError(f"output {shown(out)}: cannot write the run there: {why}")
     out.mkdir(parents=True, exist_ok=True)
-
-    atomic_write_text(out / "config.json", json.dumps(cfg.to_dict(), indent=2) + "\n")
+    resuming = resume and (out / "checkpoint.zip").exists()
+    # refused before anything is built, loaded or written
+    differences = _resume_check(out, cfg) if resuming else {}
     seeds = cfg.training_seeds()
     sequence = EpisodeSeeds(seeds.start, seeds.stop)
 
@@ -603,13 +644,15 @@ def train(
     act_size = int(probe.action_space.shape[0])
     meta = _meta(cfg, obs_size, act_size)
     hp = dict(cfg.hyperparameters)
+    # a schedule: its step-0 rate, then set before each update (callbacks.LearningRateAt)
+    hp |= {"learning_rate": cfg.learning_rate_at(0)} if cfg.learning_rate_schedule else {}
     hp["policy_kwargs"] = policy_kwargs_for_sb3(hp.get("policy_kwargs", {}))
     if cfg.algo == "td3":  # TD3 explores with Gaussian noise on its deterministic action
         sigma = cfg.action_noise_std * np.ones(act_size)
         hp["action_noise"] = NormalActionNoise(np.zeros(act_size), sigma)
     cls = _algorithm(cfg.algo)
     done_before = 0
-    if resume and (out / "checkpoint.zip").exists():
+    if resuming:
         model = cls.load(out / "checkpoint.zip", env=venv, device="cpu")
         state = np.load(out / "checkpoint.npz", allow_pickle=False)
         obs_rms: Any = venv.obs_rms  # one RunningMeanStd: the observation is a flat Box
@@ -620,10 +663,12 @@ def train(
         ret_rms.count = float(state["ret_count"])
         sequence.next = int(state["next_seed"])
         done_before = int(model.num_timesteps)
-        log.info("resuming %s at %d steps", out, done_before)
+        log.info("resuming %s at %d steps (%s)", out, done_before, differences or "same config")
     else:
         model = cls("MlpPolicy", venv, seed=cfg.seed, device="cpu", verbose=0, **hp)
         _shrink_output(model, cfg.algo, cfg.init_output_scale)
+    # after the resume's check: a refused resume leaves the run's records as they were
+    atomic_write_text(out / "config.json", json.dumps(cfg.to_dict(), indent=2) + "\n")
 
     curve_path = out / "curve.csv"
     columns = [
@@ -641,26 +686,16 @@ def train(
         atomic_write_text(curve_path, header.getvalue())  # then appended to, row by row
     t_start = time.perf_counter()
     best = [math.inf]
-    eval_seeds = tuple(cfg.evaluation_seeds())
 
     def network_now() -> PolicyNetwork:
         return PolicyNetwork(cfg.algo, model.policy, _normalisation(venv))
 
     def evaluate_now(steps: int) -> None:
         model.policy.set_training_mode(False)
-        res = evaluate_network(
-            network_now(),
-            meta,
-            cfg.scenarios_unique(),
-            eval_seeds,
-            cfg.env,
-            cfg.reward_scale_mm,
-            episode_seconds=cfg.episode_steps * 0.02,
-            settle_seconds=min(SETTLE_SECONDS, cfg.episode_steps * 0.02 / 2),
-        )
+        res = _evaluate_in_training(cfg, network_now(), meta)
         model.policy.set_training_mode(True)
         settled = {sc: float(np.mean(v["rms_settled_mm"])) for sc, v in res.items()}
-        score = float(np.mean(np.log(list(settled.values()))))
+        score = _score(res)
         wall = time.perf_counter() - t_start
         row = [
             steps,
@@ -707,6 +742,9 @@ def train(
 
     if done_before == 0:
         evaluate_now(0)
+    else:  # best.npz stays the best of the whole run
+        best[0] = _best_so_far(out / "best.npz", cfg, meta)
+    callbacks += [LearningRateAt(cfg.learning_rate_at)] if cfg.learning_rate_schedule else []
     try:
         model.learn(
             total_timesteps=min(cfg.total_timesteps, stop_at or cfg.total_timesteps) - done_before,
@@ -725,17 +763,138 @@ def train(
         )
         wall = time.perf_counter() - t_start
         before = _wall_before(out / "summary.json") if done_before else 0.0
-        summary = {
+        summary: dict[str, Any] = {
             "timesteps": int(model.num_timesteps),
             "wall_s": before + wall,  # the whole run's, over its sessions
             "steps_per_s": (int(model.num_timesteps) - done_before) / wall,
             "resumed_at": done_before,
             "wall_s_this_session": wall,
         }
+        # what the config changed at the resume (nothing that trains the steps before it)
+        summary |= {"resumed_with": differences} if done_before else {}
         atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
         log.info("trained %d steps in %.0f s", model.num_timesteps, wall)
     finally:
         venv.close()
+    return out
+
+
+def _evaluate_in_training(
+    cfg: TrainConfig, network: PolicyNetwork, meta: Mapping[str, Any]
+) -> dict[str, dict[str, list[float]]]:
+    """The run's evaluation episodes of ``network`` (:func:`evaluate_network`)."""
+    return evaluate_network(
+        network,
+        meta,
+        cfg.scenarios_unique(),
+        tuple(cfg.evaluation_seeds()),
+        cfg.env,
+        cfg.reward_scale_mm,
+        episode_seconds=cfg.episode_steps * 0.02,
+        settle_seconds=min(SETTLE_SECONDS, cfg.episode_steps * 0.02 / 2),
+    )
+
+
+def _score(res: Mapping[str, Mapping[str, list[float]]]) -> float:
+    """An evaluation's score, lower is better: the mean over scenarios of log settled RMS."""
+    return float(np.mean([np.log(np.mean(v["rms_settled_mm"])) for v in res.values()]))
+
+
+def _best_so_far(path: Path, cfg: TrainConfig, meta: Mapping[str, Any]) -> float:
+    """The score of a resumed run's ``best.npz`` on this session's evaluation episodes (the
+    config may have changed them), the bar a later policy must pass; inf if there is none."""
+    if not path.exists():
+        return math.inf
+    from agents.policy import load_policy_file
+
+    network, _ = load_policy_file(path)
+    score = _score(_evaluate_in_training(cfg, network, meta))
+    log.info("the best policy so far (%s) scores %.4f", path, score)
+    return score
+
+
+def _resume_check(out: Path, cfg: TrainConfig) -> dict[str, list[Any]]:
+    """:func:`resume_differences` of the run in ``out`` (its checkpoint's step, its config)."""
+    at = _checkpoint_steps(out / "checkpoint.zip")
+    return resume_differences(_read_json(out / "config.json"), cfg, at, out)
+
+
+def _checkpoint_steps(path: Path) -> int:
+    """The step count of SB3's saved model ``path`` (its ``data`` member, JSON), unloaded."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            return int(json.loads(z.read("data"))["num_timesteps"])
+    except (OSError, KeyError, ValueError, TypeError, zipfile.BadZipFile) as exc:
+        raise TrainConfigError(f"{path}: not a checkpoint this trainer wrote: {exc}") from exc
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    try:
+        out = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return out if isinstance(out, dict) else None
+
+
+#: keys of a run's config that do not change what its first N steps train: how long it runs,
+#: how it is evaluated and checkpointed, where it writes (the learning rate is compared step by
+#: step, see :func:`resume_differences`)
+_NOT_THE_RECIPE = {
+    "total_timesteps",
+    "eval_every",
+    "eval_episodes",
+    "eval_seed_base",
+    "checkpoint_every",
+    "output",
+    "learning_rate_schedule",
+}
+
+
+def resume_differences(
+    before: Mapping[str, Any] | None, cfg: TrainConfig, at: int, where: Path | str = "run"
+) -> dict[str, list[Any]]:
+    """What a resumed run's config changes from the config the run was trained with up to its
+    checkpoint's step ``at`` (``before``: that run's ``config.json``): ``{key: [before, now]}``
+    of the keys that do not change the training so far (its length, its evaluations, and the
+    learning rate after ``at``). Refuses, naming the keys, a config whose recipe up to ``at``
+    differs: those steps would not be the first ``at`` steps of a run of this config."""
+    if before is None:
+        raise TrainConfigError(f"{where}: resuming needs the run's config.json, which is missing")
+    try:
+        then = TrainConfig(**before)
+    except TypeError as exc:
+        raise TrainConfigError(f"{where}/config.json: not a training config: {exc}") from exc
+    a, b = then.to_dict(), cfg.to_dict()
+    ha, hb = dict(a.pop("hyperparameters")), dict(b.pop("hyperparameters"))
+    ha.pop("learning_rate", None), hb.pop("learning_rate", None)
+    changed = sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))
+    wrong = [k for k in changed if k not in _NOT_THE_RECIPE]
+    wrong += [
+        f"hyperparameters.{k}" for k in sorted(ha.keys() | hb.keys()) if ha.get(k) != hb.get(k)
+    ]
+    # PPO's update after the rollout that starts at step s runs at the rate at s
+    # (callbacks.LearningRateAt): the steps taken were trained at the rates of [0, last start]
+    last = max(0, at - cfg.n_envs * int(cfg.hyperparameters.get("n_steps", 2048)))
+    points = {0.0, float(last)} | {
+        float(p[0]) for c in (then, cfg) for p in c.learning_rate_schedule if p[0] <= last
+    }
+    if any(
+        not math.isclose(then.learning_rate_at(s), cfg.learning_rate_at(s), rel_tol=1e-12)
+        for s in points
+    ):
+        wrong.append(f"the learning rate of the updates up to step {at}")
+    if wrong:
+        raise TrainConfigError(
+            f"{where}: cannot resume at step {at} with this config: it trains the steps already "
+            f"taken differently ({', '.join(wrong)}); start a new run (another output)"
+        )
+    out: dict[str, list[Any]] = {k: [a.get(k), b.get(k)] for k in changed}
+    out.pop("learning_rate_schedule", None)
+    rates = [c.learning_rate_schedule or c.learning_rate_at(at) for c in (then, cfg)]
+    if rates[0] != rates[1]:  # the same up to ``at``: a schedule (or rate) from there on
+        out["learning_rate"] = rates
     return out
 
 

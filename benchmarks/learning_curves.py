@@ -86,6 +86,42 @@ def aggregate(name: str, runs: list[dict]) -> list[dict]:
     return rows
 
 
+def resume_lines(runs: list[dict]) -> list[str]:
+    """What each resumed run's config changed at its last resume (its ``summary.json``'s
+    ``resumed_with``: nothing that trains the steps before it, the trainer checks that), and its
+    evaluations from there on."""
+    out = []
+    for r in runs:
+        s = r["summary"]
+        if not s.get("resumed_at") or "resumed_with" not in s:
+            continue
+        at = int(s["resumed_at"])
+        changed = "; ".join(
+            f"`{k}` {json.dumps(v[0])} -> {json.dumps(v[1])}" for k, v in s["resumed_with"].items()
+        )
+        c = r["curve"]
+        after = [
+            f"{int(st):,}: {v:.3g}"
+            for st, v in zip(c["steps"], c["rms_settled_mm/mean"], strict=True)
+            if st >= at
+        ]
+        out.append(
+            f"- {r['run']} resumed at {at:,} steps with {changed or 'the same config'}; settled "
+            f"RMS (mean over scenarios, mm) from there: {', '.join(after)}"
+        )
+    if not out:
+        return []
+    return [
+        "",
+        "## Resumed runs",
+        "",
+        "A run resumes only with a config that trains the steps already taken exactly as "
+        "before (`agents.training.resume_differences`); what it changed from there on:",
+        "",
+        *out,
+    ]
+
+
 def pilot_sections(folder: Path) -> list[str]:
     """The README's sections on the pilots in ``folder``: the plain PPO's horizon, the
     off-policy residuals' algorithm."""
@@ -308,6 +344,7 @@ def main() -> None:
         )
     total = sum(r["wall_s"] for r in table)
     lines += ["", f"Training wall time in all: {total / 3600:.2f} h (2 shared CPU cores)."]
+    lines += resume_lines([r for name in args.names for r in gather(args.runs, name)])
     lines += pilot_sections(args.out / "pilots")
     atomic_write_text(args.out / "README.md", "\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -5,13 +5,16 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from agents.policy import POLICY_DIR, load_policy_file
 from agents.registry import POLICIES
-from agents.training import TrainConfig, load_train_config, train
+from agents.training import TrainConfig, TrainConfigError, load_train_config, train
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _tiny(tmp_path, algo="ppo", name="run", **kw):
@@ -186,3 +189,84 @@ def test_early_termination_ends_a_lost_episode_and_pays_while_tracking():
     assert rewards[-1] < 0  # beyond the threshold the step itself costs
     with pytest.raises(ValueError, match="log reward"):
         PolicyEnv(gym.make("SixAxisTrack-v0"), "tool", reward="env", terminate_mm=2.0)
+
+
+@pytest.mark.slow
+def test_a_learning_rate_schedule_follows_the_absolute_step_count_across_a_resume(tmp_path):
+    """The update of the rollout that starts at step s runs at the schedule's rate at s, whether
+    the run was stopped and resumed or not (SB3's own schedules restart with each learn call)."""
+    from stable_baselines3 import PPO
+
+    sched = [[0, 1e-3], [512, 0.0]]
+    cfg = _tiny(tmp_path, name="s", learning_rate_schedule=sched)
+    cfg.total_timesteps = 512
+    train(cfg, stop_at=256)
+
+    def lr(out):  # the optimiser's rate at the last update (saved with the model)
+        return PPO.load(out / "checkpoint.zip", device="cpu").policy.optimizer.param_groups[0]["lr"]
+
+    # rollouts of 2 envs x 64 steps: the last update before 256 is the rollout from 128
+    assert lr(tmp_path / "s") == pytest.approx(1e-3 * (1 - 128 / 512))
+    out = train(cfg, resume=True)
+    assert lr(out) == pytest.approx(1e-3 * (1 - 384 / 512))
+    assert json.loads((out / "summary.json").read_text())["resumed_with"] == {}
+
+
+@pytest.mark.slow
+def test_a_resume_takes_a_longer_recipe_and_refuses_another_one(tmp_path):
+    """A run resumes with a config whose recipe up to the checkpoint is the same (more steps, a
+    learning rate that anneals from there on: recorded in its summary) and refuses one that
+    trained the steps taken differently, naming what, with the run's records untouched."""
+    from agents.training import TrainConfigError
+
+    cfg = _tiny(tmp_path, name="r")
+    train(cfg)  # 256 steps at SB3's constant 3e-4
+    before = (tmp_path / "r" / "config.json").read_text()
+    other = _tiny(tmp_path, name="r")
+    other.hyperparameters = other.hyperparameters | {"gamma": 0.9}
+    with pytest.raises(TrainConfigError, match=r"hyperparameters\.gamma"):
+        train(other, resume=True)
+    early = _tiny(tmp_path, name="r", learning_rate_schedule=[[0, 3e-4], [100, 0.0]])
+    early.total_timesteps = 512
+    with pytest.raises(TrainConfigError, match="learning rate of the updates up to step 256"):
+        train(early, resume=True)
+    assert (tmp_path / "r" / "config.json").read_text() == before
+    longer = _tiny(tmp_path, name="r", learning_rate_schedule=[[256, 3e-4], [512, 0.0]])
+    longer.total_timesteps = 512
+    out = train(longer, resume=True)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["timesteps"] == 512
+    assert summary["resumed_with"] == {
+        "total_timesteps": [256, 512],
+        "learning_rate": [3e-4, [[256, 3e-4], [512, 0.0]]],
+    }
+
+
+def test_a_learning_rate_schedule_is_checked_where_it_is_written(tmp_path):
+    base = (ROOT / "experiments" / "configs" / "ppo-plain.toml").read_text()
+    cases = {
+        "[[600, 3e-4], [300, 0.0]]": "do not increase",
+        "[[600, 3e-4, 1]]": r"\[step, learning rate\] pairs",
+        "[[600, -1.0]]": r"learning_rate_schedule\[0\]: the learning rate -1.0",
+    }
+    for value, message in cases.items():
+        path = tmp_path / "c.toml"
+        path.write_text(
+            base.replace("learning_rate_schedule = [[600_000, 3e-4], [1_200_000, 0.0]]", "")
+            .replace("[train.hyperparameters]", "[train.hyperparameters]\n")
+            .replace("n_envs = 8", f"n_envs = 8\nlearning_rate_schedule = {value}")
+        )
+        with pytest.raises(TrainConfigError, match=message) as info:
+            load_train_config(path)
+        assert "c.toml" in str(info.value)
+    path.write_text(base.replace("n_steps = 256", "learning_rate = 3e-4\nn_steps = 256"))
+    with pytest.raises(TrainConfigError, match="give one of the two"):
+        load_train_config(path)
+    cfg = load_train_config(ROOT / "experiments" / "configs" / "ppo-plain.toml")
+    assert [cfg.learning_rate_at(s) for s in (0, 600_000, 900_000, 1_200_000, 2_000_000)] == [
+        3e-4,
+        3e-4,
+        pytest.approx(1.5e-4),
+        0.0,
+        0.0,
+    ]
