@@ -601,26 +601,47 @@ def train(
     import torch
 
     torch.set_num_threads(1)
-    from stable_baselines3.common.callbacks import BaseCallback, CallbackList
-    from stable_baselines3.common.monitor import Monitor
-    from stable_baselines3.common.noise import NormalActionNoise
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
-
-    from agents.callbacks import CriticBurnIn, EveryCrossing, LearningRateAt, Progress
-
     cfg.check()
-    out = Path(cfg.output)
-    from arm.files import atomic_write_text, folder_problem, shown
-
-    why = folder_problem(out) or (f"{out} is not a directory" if out.is_file() else None)
-    if why:  # a name too long, a file in the way, a read-only place: before any training
-        raise TrainConfigError(f"output {shown(out)}: cannot write the run there: {why}")
-    out.mkdir(parents=True, exist_ok=True)
+    out = _output_folder(cfg)
     resuming = resume and (out / "checkpoint.zip").exists()
     # refused before anything is built, loaded or written
     differences = _resume_check(out, cfg) if resuming else {}
     seeds = cfg.training_seeds()
     sequence = EpisodeSeeds(seeds.start, seeds.stop)
+    venv, obs_size, act_size = _training_envs(cfg, sequence)
+    run = _Run(cfg, out, venv, sequence, _meta(cfg, obs_size, act_size))
+    run.start(act_size, resuming, differences)
+    # after the resume's check: a refused resume leaves the run's records as they were
+    from arm.files import atomic_write_text
+
+    atomic_write_text(out / "config.json", json.dumps(cfg.to_dict(), indent=2) + "\n")
+    run.start_curve(resume)
+    try:
+        run.learn(progress, stop_at)
+        run.finish(differences)
+    finally:
+        venv.close()
+    return out
+
+
+def _output_folder(cfg: TrainConfig) -> Path:
+    """The run's folder, made; refused (a name too long, a file in the way, a read-only place)
+    before any training."""
+    from arm.files import folder_problem, shown
+
+    out = Path(cfg.output)
+    why = folder_problem(out) or (f"{out} is not a directory" if out.is_file() else None)
+    if why:
+        raise TrainConfigError(f"output {shown(out)}: cannot write the run there: {why}")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _training_envs(cfg: TrainConfig, sequence: EpisodeSeeds) -> tuple[Any, int, int]:
+    """The vectorised training envs (round-robin over the scenarios, normalised; with fixed
+    scales, the interface's own, never updated), and the observation's and action's sizes."""
+    from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     def env_fn(scenario: str) -> Callable[[], gym.Env]:
         return lambda: Monitor(make_policy_env(cfg, scenario, sequence))
@@ -640,20 +661,53 @@ def train(
 
         scale = ToolDisplacement(probe.unwrapped.task, cfg.tool_step_mm).feature_scale
         venv.obs_rms = fixed_mean_std(np.zeros_like(scale), scale**2)
-    obs_size = int(probe.observation_space.shape[0])
-    act_size = int(probe.action_space.shape[0])
-    meta = _meta(cfg, obs_size, act_size)
+    return venv, int(probe.observation_space.shape[0]), int(probe.action_space.shape[0])
+
+
+def _hyperparameters(cfg: TrainConfig, act_size: int) -> dict[str, Any]:
+    """SB3's keywords: the config's, with a schedule's step-0 rate (then set before each update,
+    callbacks.LearningRateAt), the policy's keywords as SB3 takes them, and TD3's noise."""
+    from stable_baselines3.common.noise import NormalActionNoise
+
     hp = dict(cfg.hyperparameters)
-    # a schedule: its step-0 rate, then set before each update (callbacks.LearningRateAt)
     hp |= {"learning_rate": cfg.learning_rate_at(0)} if cfg.learning_rate_schedule else {}
     hp["policy_kwargs"] = policy_kwargs_for_sb3(hp.get("policy_kwargs", {}))
     if cfg.algo == "td3":  # TD3 explores with Gaussian noise on its deterministic action
         sigma = cfg.action_noise_std * np.ones(act_size)
         hp["action_noise"] = NormalActionNoise(np.zeros(act_size), sigma)
-    cls = _algorithm(cfg.algo)
-    done_before = 0
-    if resuming:
-        model = cls.load(out / "checkpoint.zip", env=venv, device="cpu")
+    return hp
+
+
+class _Run:
+    """One training session of a run: its model, envs and records (curve, best, checkpoint,
+    final, summary), as the steps of :func:`train`."""
+
+    def __init__(
+        self,
+        cfg: TrainConfig,
+        out: Path,
+        venv: Any,
+        sequence: EpisodeSeeds,
+        meta: dict[str, Any],
+    ) -> None:
+        self.cfg, self.out, self.venv, self.sequence, self.meta = cfg, out, venv, sequence, meta
+        self.model: Any = None
+        self.done_before = 0
+        self.best = math.inf
+        self.curve_path = out / "curve.csv"
+        self.t_start = 0.0
+
+    def start(self, act_size: int, resuming: bool, differences: Mapping[str, Any]) -> None:
+        """The model: loaded from the checkpoint with its normalisation and episode seeds, or
+        built anew with its output layer shrunk."""
+        cfg, out, venv = self.cfg, self.out, self.venv
+        hp = _hyperparameters(cfg, act_size)
+        cls = _algorithm(cfg.algo)
+        if not resuming:
+            self.model = cls("MlpPolicy", venv, seed=cfg.seed, device="cpu", verbose=0, **hp)
+            _shrink_output(self.model, cfg.algo, cfg.init_output_scale)
+            return
+        self.model = cls.load(out / "checkpoint.zip", env=venv, device="cpu")
         state = np.load(out / "checkpoint.npz", allow_pickle=False)
         obs_rms: Any = venv.obs_rms  # one RunningMeanStd: the observation is a flat Box
         ret_rms: Any = venv.ret_rms
@@ -661,108 +715,125 @@ def train(
         obs_rms.count = float(state["obs_count"])
         ret_rms.mean, ret_rms.var = float(state["ret_mean"]), float(state["ret_var"])
         ret_rms.count = float(state["ret_count"])
-        sequence.next = int(state["next_seed"])
-        done_before = int(model.num_timesteps)
-        log.info("resuming %s at %d steps (%s)", out, done_before, differences or "same config")
-    else:
-        model = cls("MlpPolicy", venv, seed=cfg.seed, device="cpu", verbose=0, **hp)
-        _shrink_output(model, cfg.algo, cfg.init_output_scale)
-    # after the resume's check: a refused resume leaves the run's records as they were
-    atomic_write_text(out / "config.json", json.dumps(cfg.to_dict(), indent=2) + "\n")
+        self.sequence.next = int(state["next_seed"])
+        self.done_before = int(self.model.num_timesteps)
+        log.info(
+            "resuming %s at %d steps (%s)", out, self.done_before, differences or "same config"
+        )
 
-    curve_path = out / "curve.csv"
-    columns = [
-        "steps",
-        "wall_s",
-        "steps_per_s",
-        *[f"rms_settled_mm/{sc}" for sc in cfg.scenarios_unique()],
-        "rms_settled_mm/mean",
-        "rms_mm/mean",
-        "return/mean",
-    ]
-    if not resume or not curve_path.exists():
-        header = io.StringIO()
-        csv.writer(header).writerow(columns)
-        atomic_write_text(curve_path, header.getvalue())  # then appended to, row by row
-    t_start = time.perf_counter()
-    best = [math.inf]
+    def start_curve(self, resume: bool) -> None:
+        """``curve.csv``'s header, unless a resumed run's curve goes on."""
+        from arm.files import atomic_write_text
 
-    def network_now() -> PolicyNetwork:
-        return PolicyNetwork(cfg.algo, model.policy, _normalisation(venv))
+        columns = [
+            "steps",
+            "wall_s",
+            "steps_per_s",
+            *[f"rms_settled_mm/{sc}" for sc in self.cfg.scenarios_unique()],
+            "rms_settled_mm/mean",
+            "rms_mm/mean",
+            "return/mean",
+        ]
+        if not resume or not self.curve_path.exists():
+            header = io.StringIO()
+            csv.writer(header).writerow(columns)
+            atomic_write_text(self.curve_path, header.getvalue())  # then appended to, row by row
+        self.t_start = time.perf_counter()
 
-    def evaluate_now(steps: int) -> None:
+    def network(self) -> PolicyNetwork:
+        return PolicyNetwork(self.cfg.algo, self.model.policy, _normalisation(self.venv))
+
+    def evaluate(self, steps: int) -> None:
+        """The evaluation episodes at ``steps``: a row of the curve, and ``best.npz`` if best."""
+        cfg, model = self.cfg, self.model
         model.policy.set_training_mode(False)
-        res = _evaluate_in_training(cfg, network_now(), meta)
+        res = _evaluate_in_training(cfg, self.network(), self.meta)
         model.policy.set_training_mode(True)
         settled = {sc: float(np.mean(v["rms_settled_mm"])) for sc, v in res.items()}
         score = _score(res)
-        wall = time.perf_counter() - t_start
+        wall = time.perf_counter() - self.t_start
         row = [
             steps,
             f"{wall:.1f}",
-            f"{(steps - done_before) / max(wall, 1e-9):.1f}",
+            f"{(steps - self.done_before) / max(wall, 1e-9):.1f}",
             *[f"{settled[sc]:.6g}" for sc in cfg.scenarios_unique()],
             f"{np.mean(list(settled.values())):.6g}",
             f"{np.mean([np.mean(v['rms_mm']) for v in res.values()]):.6g}",
             f"{np.mean([np.mean(v['return']) for v in res.values()]):.6g}",
         ]
-        with open(curve_path, "a", newline="") as fh:
+        with open(self.curve_path, "a", newline="") as fh:
             csv.writer(fh).writerow(row)
         log.info("%d steps: settled RMS %s", steps, settled)
-        if score < best[0]:
-            best[0] = score
+        if score < self.best:
+            self.best = score
             save_policy_file(
-                out / "best.npz",
+                self.out / "best.npz",
                 cfg.algo,
                 model.policy,
-                _normalisation(venv),
-                meta | {"timesteps": steps, "selected_by": "lowest mean log settled RMS"},
+                _normalisation(self.venv),
+                self.meta | {"timesteps": steps, "selected_by": "lowest mean log settled RMS"},
             )
 
-    def checkpoint() -> None:
-        buf = io.BytesIO()
-        model.save(buf)
+    def checkpoint(self) -> None:
+        """SB3's own save and the normalisation with the next episode seed, for ``--resume``."""
         from arm.files import atomic_path
 
-        with atomic_path(out / "checkpoint.zip") as tmp:
+        buf = io.BytesIO()
+        self.model.save(buf)
+        with atomic_path(self.out / "checkpoint.zip") as tmp:
             tmp.write_bytes(buf.getvalue())
-        state: dict[str, Any] = _normalisation(venv) | {"next_seed": np.array(sequence.next)}
-        with atomic_path(out / "checkpoint.npz") as tmp, open(tmp, "wb") as fh:
+        state: dict[str, Any] = _normalisation(self.venv) | {
+            "next_seed": np.array(self.sequence.next)
+        }
+        with atomic_path(self.out / "checkpoint.npz") as tmp, open(tmp, "wb") as fh:
             np.savez(fh, **state)
 
-    callbacks: list[BaseCallback] = []
-    if cfg.algo != "ppo":  # the critic's burn-in: the actor learns once it is over
-        callbacks.append(CriticBurnIn(cfg.critic_burn_in))
-    callbacks += [
-        EveryCrossing(cfg.eval_every, cfg.n_envs, evaluate_now),
-        EveryCrossing(cfg.checkpoint_every, cfg.n_envs, lambda n: checkpoint()),
-    ]
-    if progress is not None:
-        callbacks.append(Progress(progress, cfg.total_timesteps))
+    def learn(self, progress: Callable[[int, int], None] | None, stop_at: int | None) -> None:
+        """The steps of this session (to ``stop_at`` or the budget), evaluated and checkpointed
+        as configured, then evaluated at its end."""
+        from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
-    if done_before == 0:
-        evaluate_now(0)
-    else:  # best.npz stays the best of the whole run
-        best[0] = _best_so_far(out / "best.npz", cfg, meta)
-    callbacks += [LearningRateAt(cfg.learning_rate_at)] if cfg.learning_rate_schedule else []
-    try:
-        model.learn(
-            total_timesteps=min(cfg.total_timesteps, stop_at or cfg.total_timesteps) - done_before,
+        from agents.callbacks import CriticBurnIn, EveryCrossing, LearningRateAt, Progress
+
+        cfg = self.cfg
+        callbacks: list[BaseCallback] = []
+        if cfg.algo != "ppo":  # the critic's burn-in: the actor learns once it is over
+            callbacks.append(CriticBurnIn(cfg.critic_burn_in))
+        callbacks += [
+            EveryCrossing(cfg.eval_every, cfg.n_envs, self.evaluate),
+            EveryCrossing(cfg.checkpoint_every, cfg.n_envs, lambda n: self.checkpoint()),
+        ]
+        if progress is not None:
+            callbacks.append(Progress(progress, cfg.total_timesteps))
+        if self.done_before == 0:
+            self.evaluate(0)
+        else:  # best.npz stays the best of the whole run
+            self.best = _best_so_far(self.out / "best.npz", cfg, self.meta)
+        callbacks += [LearningRateAt(cfg.learning_rate_at)] if cfg.learning_rate_schedule else []
+        self.model.learn(
+            total_timesteps=min(cfg.total_timesteps, stop_at or cfg.total_timesteps)
+            - self.done_before,
             callback=CallbackList(callbacks),
-            reset_num_timesteps=done_before == 0,
+            reset_num_timesteps=self.done_before == 0,
         )
-        if model.num_timesteps % cfg.eval_every:
-            evaluate_now(int(model.num_timesteps))
-        checkpoint()
+        if self.model.num_timesteps % cfg.eval_every:
+            self.evaluate(int(self.model.num_timesteps))
+
+    def finish(self, differences: Mapping[str, Any]) -> None:
+        """The checkpoint, ``final.npz`` and the summary (the whole run's wall time)."""
+        from arm.files import atomic_write_text
+
+        model, done_before = self.model, self.done_before
+        self.checkpoint()
         save_policy_file(
-            out / "final.npz",
-            cfg.algo,
+            self.out / "final.npz",
+            self.cfg.algo,
             model.policy,
-            _normalisation(venv),
-            meta | {"timesteps": int(model.num_timesteps)},
+            _normalisation(self.venv),
+            self.meta | {"timesteps": int(model.num_timesteps)},
         )
-        wall = time.perf_counter() - t_start
-        before = _wall_before(out / "summary.json") if done_before else 0.0
+        wall = time.perf_counter() - self.t_start
+        before = _wall_before(self.out / "summary.json") if done_before else 0.0
         summary: dict[str, Any] = {
             "timesteps": int(model.num_timesteps),
             "wall_s": before + wall,  # the whole run's, over its sessions
@@ -771,12 +842,9 @@ def train(
             "wall_s_this_session": wall,
         }
         # what the config changed at the resume (nothing that trains the steps before it)
-        summary |= {"resumed_with": differences} if done_before else {}
-        atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+        summary |= {"resumed_with": dict(differences)} if done_before else {}
+        atomic_write_text(self.out / "summary.json", json.dumps(summary, indent=2) + "\n")
         log.info("trained %d steps in %.0f s", model.num_timesteps, wall)
-    finally:
-        venv.close()
-    return out
 
 
 def _evaluate_in_training(
