@@ -110,6 +110,7 @@ def sweep(
     if dry_run:
         _print_plan(cfg, out_dir, pending, finished)
         return
+    _warn_local_changes()
 
     columns = (
         TextColumn("[bold]{task.description}"),
@@ -173,6 +174,24 @@ def sweep(
     _print_summary(summary)
     if summary.failed:
         raise typer.Exit(1)
+
+
+def _warn_local_changes() -> None:
+    """Say before the first run that the records will come from a tree with local changes,
+    which no commit reproduces (the leaderboard refuses them unless --allow-dirty)."""
+    from experiments.records import local_changes, source_root
+
+    changed = local_changes()
+    if not changed:
+        return
+    shown = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
+    err_console.print(
+        f"[yellow]warning[/yellow]: the checkout {escape(str(source_root()))} has local changes "
+        f"({escape(shown)}): these runs' records will say so, no commit reproduces them, and "
+        "`sixaxis leaderboard` refuses them unless --allow-dirty; commit or stash first "
+        "(git stash) to publish them",
+        highlight=False,
+    )
 
 
 def _print_plan(cfg: Any, out_dir: Path, pending: Sequence[Any], finished: Sequence[Any]) -> None:

@@ -365,6 +365,26 @@ def repo_path(path: str | Path | None) -> str | None:
         return str(resolved)
 
 
+def local_changes(root: str | Path | None = None) -> list[str] | None:
+    """The tracked files with local changes in the source tree this package runs from (``git
+    status``'s paths), [] for a clean tree, None outside a git checkout."""
+    root = Path(root) if root is not None else source_root()
+    try:
+        out = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=30,
+            check=False,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    if out.returncode != 0:
+        return None
+    return [line[3:] for line in out.stdout.splitlines() if line.strip()]
+
+
 def git_state(root: str | Path | None = None) -> dict[str, Any]:
     """The commit of the source tree this package runs from, and whether it has local changes."""
     root = Path(root) if root is not None else source_root()

@@ -519,3 +519,42 @@ def test_leaderboard_refuses_an_unwritable_out_before_reading_the_records(tmp_pa
         res = CliRunner().invoke(app, ["leaderboard", str(runs), "--out", str(out)])
         assert res.exit_code == 2 and isinstance(res.exception, SystemExit), res.output
         assert f"{out}: cannot write the leaderboard there" in " ".join(res.output.split())
+
+
+def test_local_changes_are_git_status_of_the_tracked_files(tmp_path):
+    import subprocess
+
+    from experiments.records import local_changes
+
+    assert local_changes(tmp_path) is None  # not a checkout
+    run = dict(cwd=tmp_path, check=True, capture_output=True)
+    subprocess.run(["git", "init", "-q"], **run)
+    (tmp_path / "a.py").write_text("x = 1\n")
+    subprocess.run(["git", "add", "a.py"], **run)
+    subprocess.run(
+        ["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "a"], **run
+    )
+    (tmp_path / "untracked.txt").write_text("not a change of the tree\n")
+    assert local_changes(tmp_path) == []
+    (tmp_path / "a.py").write_text("x = 2\n")
+    assert local_changes(tmp_path) == ["a.py"]
+
+
+def test_a_sweep_from_a_changed_checkout_says_so_before_the_first_run(tmp_path, monkeypatch):
+    """A user's records from a tree with local changes are refused by the leaderboard: the sweep
+    says so first, naming the files, instead of only ending with `next: sixaxis leaderboard`."""
+    from typer.testing import CliRunner
+
+    from experiments.cli import app
+
+    config_path = tmp_path / "tiny.toml"
+    config_path.write_text(TINY)
+    monkeypatch.setattr("experiments.records.local_changes", lambda root=None: ["results/x.json"])
+    res = CliRunner().invoke(app, ["sweep", str(config_path), "--out", str(tmp_path / "runs")])
+    text = " ".join(res.output.split())
+    assert "has local changes (results/x.json)" in text, res.output
+    assert "--allow-dirty" in text
+    monkeypatch.setattr("experiments.records.local_changes", lambda root=None: [])
+    res = CliRunner().invoke(app, ["sweep", str(config_path), "--out", str(tmp_path / "runs2")])
+    assert res.exit_code == 0 and "next: sixaxis leaderboard" in res.output, res.output
+    assert "local changes" not in res.output
