@@ -858,6 +858,13 @@ def _check_limits(data: MeasurementSet, robot: RobotDescription) -> None:
         if rows.size <= max(1, MAX_OUTLIER_FRACTION * len(data))
         else "another arm's data, or the wrong --robot?"
     )
+    as_degrees = np.radians(data.q)
+    turn = np.abs(data.q).max() > 2 * math.pi + LIMIT_MARGIN  # beyond a turn: not radians
+    if turn and rows.size > 1 and not ((as_degrees < lo) | (as_degrees > hi)).any():
+        cause = (
+            "degrees read as radians? every reading is within the limits in degrees: "
+            "say --angle-unit deg"
+        )
     raise FitError(
         f"{data.source}, {where}, column 'q{j + 1}': {data.q[i, j]:g} rad is beyond joint "
         f"{j + 1}'s limits [{arm.lower[j]:g}, {arm.upper[j]:g}] rad of robot {arm.name!r}"

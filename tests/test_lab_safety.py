@@ -343,6 +343,33 @@ def test_data_in_metres_read_as_millimetres_is_refused(d, tmp_path):
     assert not out.exists()  # nothing a compensation could use
 
 
+def test_joint_angles_in_degrees_below_100_are_named_as_degrees(d, tmp_path):
+    """Degrees under 100 pass the read's physical range but not the arm's limits: the refusal
+    says degrees read as radians when every reading would be within the limits in degrees."""
+    import numpy as np
+
+    rows = list(csv.reader(io.StringIO((d / "data.csv").read_text())))
+    cols = [rows[0].index(f"q{j}") for j in range(1, 7)]
+    small = [r for r in rows[1:] if all(abs(np.degrees(float(r[c]))) < 100 for c in cols)]
+    for r in small:
+        for c in cols:
+            r[c] = repr(float(np.degrees(float(r[c]))))
+    assert len(small) >= 2  # the read's range (100 rad) passes them all
+    path = tmp_path / "deg_small.csv"
+    path.write_text("\n".join(",".join(r) for r in [rows[0], *small]) + "\n")
+    one_error_line(
+        lab("fit", path),
+        "deg_small.csv",
+        "beyond joint",
+        "degrees read as radians",
+        "--angle-unit deg",
+    )
+    radians = _with_cell(d, "one_far.csv", "q2", "3.5", line=4)  # one typo, not a unit
+    assert "degrees" not in one_error_line(
+        lab("fit", radians), "one_far.csv", "a typo in the file?"
+    )
+
+
 def test_another_robots_standard_dh_file_is_refused(d, tmp_path):
     arm = tmp_path / "puma560.toml"
     arm.write_text(PUMA560)
