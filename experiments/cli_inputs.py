@@ -310,7 +310,9 @@ class LabArgs:
         arm = read_arm(self.robot)
         units = (self.length_unit, self.angle_unit, self.orientation_unit, self.measured)
         meas = read_data(data, *units)
-        val = None if self.validate is None else read_data(self.validate, *units)
+        val = (
+            None if self.validate is None else read_data(self.validate, *units, option="--validate")
+        )
         return arm, meas, val, opts
 
     def next_step(self) -> dict[str, Any]:
@@ -466,15 +468,18 @@ def read_data(
     angle_unit: str,
     orientation_unit: str | None = None,
     measured: str | None = None,
+    option: str = "",
 ) -> Any:
     """The measurement set of ``path``; the columns the format does not know are said (a
-    ``MeasurementWarning``), not dropped."""
+    ``MeasurementWarning``), not dropped. ``option`` (e.g. ``--validate``) is named in an error
+    about a file given by an option."""
     import warnings
 
     from arm.measurements import MeasurementWarning, read_measurements
 
     parts = None if measured is None else tuple(m.strip() for m in measured.split(","))
-    with user_errors(), warnings.catch_warnings(record=True) as caught:
+    prefix = f"{option} " if option else ""
+    with user_errors(prefix=prefix), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", MeasurementWarning)
         data = read_measurements(
             path,

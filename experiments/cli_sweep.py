@@ -335,7 +335,8 @@ def reproduce(
     run: Annotated[
         list[str] | None,
         typer.Option(
-            "--run", help="A summary's row by run key (agent__scenario__seedN); repeatable."
+            "--run",
+            help="A summary's row by run key (agent__scenario__epK for drawn seeds, agent__scenario__seedN for listed ones); repeatable.",
         ),
     ] = None,
     line: Annotated[

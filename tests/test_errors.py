@@ -6,11 +6,13 @@ from __future__ import annotations
 import importlib
 import inspect
 import pkgutil
+import re
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
+from arm.effect_api import EffectError
 from arm.errors import SixAxisError
 from experiments.cli import app
 
@@ -72,3 +74,23 @@ def test_the_cli_reports_any_project_error_as_one_line(tmp_path):
     assert res.exit_code == 2, res.output
     assert "error: unknown backend 'nope'" in res.output
     assert "Traceback" not in res.output
+
+
+@pytest.mark.parametrize(
+    ("spec", "said"),
+    [
+        ("geometric,compliance[2,3", "an unclosed '['"),
+        ("geometric,compliance]2,3[", "a ']' without its '['"),
+        ("cyclic[[2:17]]", "a '[' inside another"),
+    ],
+)
+def test_an_effect_specification_with_unbalanced_brackets_says_so(spec, said):
+    """Not 'bad effect specification '2'' (the fragment a split left), but what is wrong."""
+    from arm.effects import parse_effects
+
+    with pytest.raises(EffectError, match=re.escape(f"bad effect specification {spec!r}: {said}")):
+        parse_effects(spec)
+    assert [e.name for e in parse_effects("geometric,compliance[2,3]")] == [
+        "geometric",
+        "compliance",
+    ]

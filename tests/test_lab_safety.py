@@ -479,3 +479,10 @@ def test_memory_grows_by_at_most_a_few_kb_per_pose_at_the_cli(tmp_path):
         slope = (large - small) / 24_000
         assert slope <= per_pose, (command, slope)
         assert np.isfinite(slope)
+
+
+def test_a_missing_validation_file_names_the_option(d, tmp_path):
+    missing = tmp_path / "nosuch.csv"
+    one_error_line(lab("fit", d / "data.csv", "--validate", missing), f"--validate {missing}")
+    bad = _with_cell(d, "bad_val.csv", "x", "1e308", line=5)
+    one_error_line(lab("fit", d / "data.csv", "--validate", bad), "--validate", "line 5", "'x'")

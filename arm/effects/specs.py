@@ -44,6 +44,16 @@ def candidate_effects() -> list[str]:
 def parse_effects(spec: str | Sequence[str | Effect]) -> list[Effect]:
     """``"geometric,compliance[2,3]"`` or a list of names/effects -> effect instances."""
     if isinstance(spec, str):
+        depth = 0
+        for ch in spec:
+            depth += {"[": 1, "]": -1}.get(ch, 0)
+            if depth not in (0, 1):
+                break
+        if depth:
+            what = {1: "an unclosed '['", 2: "a '[' inside another"}.get(
+                depth, "a ']' without its '['"
+            )
+            raise EffectError(f"bad effect specification {spec!r}: {what}")
         parts = re.findall(r"[^,\[]+(?:\[[^\]]*\])?", spec)
         spec = [p.strip() for p in parts if p.strip()]
     effects = [make_effect(s) for s in spec]
