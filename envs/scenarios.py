@@ -493,10 +493,16 @@ def _draw_effects(
         raise ScenarioError(f"payload declare_delay must be >= 0 s, got {d['declare_delay']}")
     d["cyclic"] = _draw_cyclic(rng, overrides.get("cyclic", {})) if "cyclic" in on else ()
     if "compliance" in on and np.any(d["c"] <= 0):
-        raise ScenarioError(f"compliance c must be > 0 rad/(N*m), got {d['c']}")
-    if np.any(d["gap"] < 0) or np.any(d["bf"] < 0):
-        raise ScenarioError("backlash gaps and bearing friction must be >= 0")
+        raise ScenarioError(f"compliance {_named(d['c'] <= 0, 'c', d['c'])} must be > 0 rad/(N*m)")
+    for family, text in (("gap", "bl"), ("bf", "bf")):
+        if np.any(d[family] < 0):
+            raise ScenarioError(f"backlash {_named(d[family] < 0, text, d[family])} must be >= 0")
     return d
+
+
+def _named(bad: np.ndarray, family: str, values: np.ndarray) -> str:
+    """The per-joint parameters that are out of range, by name: ``c2 = -1``."""
+    return ", ".join(f"{family}{k + 1} = {values[k]:g}" for k in np.flatnonzero(bad))
 
 
 def _hidden_effects(d: Mapping[str, Any], on: set[str]) -> HiddenEffects:

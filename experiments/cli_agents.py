@@ -343,7 +343,14 @@ def render(
     ),
     scenario: Annotated[str, typer.Option(help="The scenario.")] = "geometric",
     seed: Annotated[int, typer.Option(help="The episode's seed.")] = 0,
-    seconds: Annotated[float, typer.Option(help="Episode length, s.")] = 10.0,
+    seconds: Annotated[
+        float,
+        typer.Option(
+            "--episode-seconds",
+            "--seconds",
+            help="The episode's length, s (the name evaluate and sweep configs use).",
+        ),
+    ] = 10.0,
     every: Annotated[
         int, typer.Option(help="One frame every N control steps (50 / N frames per second).")
     ] = 1,

@@ -4,6 +4,7 @@ overrides, and that adding it moved no other scenario's arm."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -84,3 +85,17 @@ def test_cyclic_overrides_set_amplitudes_orders_or_every_term():
 def test_bad_cyclic_overrides_are_refused(over, message):
     with pytest.raises(ScenarioError, match=message.replace("(", r"\(").replace(")", r"\)")):
         draw_truth("cyclic", ROBOT, np.random.default_rng(0), overrides={"cyclic": over})
+
+
+@pytest.mark.parametrize(
+    ("scenario", "overrides", "said"),
+    [
+        ("compliance", {"compliance": {"c2": -1.0}}, "compliance c2 = -1 must be > 0"),
+        ("backlash", {"backlash": {"bl3": -0.001}}, "backlash bl3 = -0.001 must be >= 0"),
+        ("backlash", {"backlash": {"bf5": -2.0}}, "backlash bf5 = -2 must be >= 0"),
+    ],
+)
+def test_an_override_out_of_range_is_named_by_its_parameter(scenario, overrides, said):
+    """The parameter a user wrote (c2), not the whole drawn array."""
+    with pytest.raises(ScenarioError, match=re.escape(said)):
+        draw_truth(scenario, ROBOT, np.random.default_rng(1), overrides=overrides)

@@ -39,7 +39,16 @@ def test_record_video_writes_a_playable_episode(tmp_path):
 
 def test_sixaxis_render_writes_a_video_of_the_episode(tmp_path):
     out = tmp_path / "run.mp4"
-    args = ["render", "nominal", "--scenario", "geometric", "--seed", "1", "--seconds", "0.6"]
+    args = [
+        "render",
+        "nominal",
+        "--scenario",
+        "geometric",
+        "--seed",
+        "1",
+        "--episode-seconds",
+        "0.6",
+    ]
     args += ["--width", "160", "--height", "120", "-o", str(out)]
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 0, res.output
