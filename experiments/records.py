@@ -365,41 +365,35 @@ def repo_path(path: str | Path | None) -> str | None:
         return str(resolved)
 
 
-def local_changes(root: str | Path | None = None) -> list[str] | None:
-    """The tracked files with local changes in the source tree this package runs from (``git
-    status``'s paths), [] for a clean tree, None outside a git checkout."""
-    root = Path(root) if root is not None else source_root()
+#: the tracked files with local changes, one a line (``XY path``)
+_STATUS = ("status", "--porcelain", "--untracked-files=no")
+
+
+def _git(root: Path, *args: str) -> str | None:
+    """``git ARGS``' output in ``root``, None where git fails or is not there."""
     try:
         out = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            timeout=30,
-            check=False,
+            ["git", *args], cwd=root, capture_output=True, text=True, timeout=30, check=False
         )
     except (OSError, subprocess.SubprocessError):
         return None
-    if out.returncode != 0:
+    return out.stdout if out.returncode == 0 else None
+
+
+def local_changes(root: str | Path | None = None) -> list[str] | None:
+    """The tracked files with local changes in the source tree this package runs from (``git
+    status``'s paths), [] for a clean tree, None outside a git checkout."""
+    status = _git(Path(root) if root is not None else source_root(), *_STATUS)
+    if status is None:
         return None
-    return [line[3:] for line in out.stdout.splitlines() if line.strip()]
+    return [line[3:] for line in status.splitlines() if line.strip()]
 
 
 def git_state(root: str | Path | None = None) -> dict[str, Any]:
     """The commit of the source tree this package runs from, and whether it has local changes."""
     root = Path(root) if root is not None else source_root()
-
-    def git(*args: str) -> str | None:
-        try:
-            out = subprocess.run(
-                ["git", *args], cwd=root, capture_output=True, text=True, timeout=30, check=False
-            )
-        except (OSError, subprocess.SubprocessError):
-            return None
-        return out.stdout.strip() if out.returncode == 0 else None
-
-    commit = git("rev-parse", "HEAD")
+    commit = _git(root, "rev-parse", "HEAD")
     if commit is None:
         return {"commit": None, "dirty": None}
-    status = git("status", "--porcelain", "--untracked-files=no")
-    return {"commit": commit, "dirty": bool(status) if status is not None else None}
+    status = _git(root, *_STATUS)
+    return {"commit": commit.strip(), "dirty": bool(status.strip()) if status is not None else None}
