@@ -16,6 +16,7 @@ by comparing a snapshot made before a refactor with one made after it, each from
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import json
 import os
@@ -242,11 +243,12 @@ def _volatile(name: str) -> bool:
     return any(v in name for v in VOLATILE)
 
 
+@functools.cache
 def _head() -> str:
-    proc = subprocess.run(
-        ["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=False
-    )
-    return proc.stdout.strip()
+    """The checkout's commit (asked once: every output is normalised with it)."""
+    from experiments.records import git_state
+
+    return git_state(ROOT)["commit"] or ""
 
 
 def _strip_json(obj: object) -> object:
