@@ -616,17 +616,26 @@ def _ur10_paths(train: MeasurementSet, work: Path, tag: str) -> list[dict]:
     return rows
 
 
-def ur10(fit_poses: int = UR10_FIT_POSES) -> dict:
-    """The UR10's three sessions: leave one series out (fit two, with one base per station;
-    validate on the third, its station unseen: its base registered), beside a random split
-    within each series, and each series' own calibration used on the other two."""
+def series_for_fitting(
+    rng: np.random.Generator, fit_poses: int = UR10_FIT_POSES
+) -> tuple[dict[str, MeasurementSet], dict[str, MeasurementSet]]:
+    """(every UR10 series whole, the series fitted: those longer than ``fit_poses`` subsampled
+    at random by ``rng``, which goes on to draw the within-session splits)."""
     series = {k: _read(UR10 / f"series_{k}.csv", f"data/ur10/series_{k}.csv") for k in UR10_SERIES}
-    rng = np.random.default_rng(UR10_SEED)
     fitting = {}
     for k, d in series.items():
         if len(d) > fit_poses:
             d = d.subset(np.sort(rng.choice(len(d), fit_poses, replace=False)))
         fitting[k] = d
+    return series, fitting
+
+
+def ur10(fit_poses: int = UR10_FIT_POSES) -> dict:
+    """The UR10's three sessions: leave one series out (fit two, with one base per station;
+    validate on the third, its station unseen: its base registered), beside a random split
+    within each series, and each series' own calibration used on the other two."""
+    rng = np.random.default_rng(UR10_SEED)
+    series, fitting = series_for_fitting(rng, fit_poses)
     models = ("geometric", "diagnosis's choice", "discovery's")
     cross: dict[str, dict] = {m: {"model": m, "folds": {}} for m in models}
     within: dict[str, dict] = {m: {"model": m, "series": {}} for m in models}

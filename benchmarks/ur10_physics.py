@@ -49,14 +49,7 @@ from scipy.spatial.transform import Rotation
 from arm.files import atomic_write_text
 from arm.measurements import MeasurementSet, concatenate
 from benchmarks._report import machine
-from benchmarks.real_data import (
-    UR10,
-    UR10_FIT_POSES,
-    UR10_NOISE,
-    UR10_SEED,
-    UR10_SERIES,
-    _read,
-)
+from benchmarks.real_data import UR10_NOISE, UR10_SEED, UR10_SERIES, series_for_fitting
 from lab import fit
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -85,18 +78,6 @@ MOVED_GROUPS = {
 #: DH parameters of A alone against B alone shown (the largest differences)
 SHOWN_DIFFERENCES = 4
 log = logging.getLogger("ur10_physics")
-
-
-def series_for_fitting() -> tuple[dict[str, MeasurementSet], dict[str, MeasurementSet]]:
-    """(every series whole, the series fitted: A subsampled as benchmarks/real_data.py does)."""
-    series = {k: _read(UR10 / f"series_{k}.csv", f"data/ur10/series_{k}.csv") for k in UR10_SERIES}
-    rng = np.random.default_rng(UR10_SEED)
-    fitting = {}
-    for k, d in series.items():
-        if len(d) > UR10_FIT_POSES:
-            d = d.subset(np.sort(rng.choice(len(d), UR10_FIT_POSES, replace=False)))
-        fitting[k] = d
-    return series, fitting
 
 
 def _fit(data: MeasurementSet, effects: str):
@@ -362,7 +343,7 @@ def main(argv: list[str] | None = None) -> int:
 
     state = git_state(ROOT)
     t0 = time.perf_counter()
-    series, fitting = series_for_fitting()
+    series, fitting = series_for_fitting(np.random.default_rng(UR10_SEED))  # as real_data's
     report = {
         "commit": state["commit"],
         "clean": state["dirty"] is False,
