@@ -308,7 +308,7 @@ def read_targets(path: str | Path, length_unit: str = "m", angle_unit: str = "ra
     if angle_unit not in ANGLE_UNITS:
         raise CompensationError(f"angle unit must be one of rad, deg, got {angle_unit!r}")
     text = read_text(path, CompensationError)
-    table = parse_numeric_csv(text, str(path), POSITION, comments=True, error=CompensationError)
+    table = parse_numeric_csv(text, str(path), POSITION, blank_lines=True, error=CompensationError)
     header = table.header
     qcols = [c for c in JOINTS if c in header]
     if qcols and len(qcols) != 6:
