@@ -11,6 +11,7 @@ import csv
 import io
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -412,6 +413,29 @@ def test_collect_measures_the_simulated_arm(files):
     assert np.allclose(read_measurements(out2).q, read_poses(poses), atol=1e-4)
     res = lab("collect", "-o", out2, "--scenario", "bogus")
     assert res.exit_code == 2 and "unknown scenario 'bogus'" in res.stderr
+
+
+def test_an_output_in_a_missing_folder_is_written_and_the_folder_named(tmp_path):
+    """collect, as every writer, makes the folders its output needs, and says so in one line on
+    stderr (without --verbose), once: a mistyped folder is seen at once."""
+
+    def collect(out: Path) -> subprocess.CompletedProcess:
+        command = ["lab", "collect", "-o", str(out), "--n", "2", "--scenario", "geometric"]
+        return subprocess.run(
+            [sys.executable, "-m", "experiments.cli", *command],
+            capture_output=True,
+            text=True,
+            cwd=tmp_path,
+            env=os.environ | {"COLUMNS": "300"},
+        )
+
+    res = collect(Path("some", "new", "folder", "data.csv"))
+    assert res.returncode == 0, res.stderr
+    assert len(read_measurements(tmp_path / "some/new/folder/data.csv")) == 2
+    said = [line for line in res.stderr.splitlines() if "created the folder" in line]
+    assert len(said) == 1 and "created the folder some/new/folder (it did not exist)" in said[0]
+    res = collect(Path("some", "new", "folder", "again.csv"))
+    assert res.returncode == 0 and "created the folder" not in res.stderr, res.stderr
 
 
 def test_the_lab_commands_but_collect_do_not_load_mujoco(files):

@@ -211,10 +211,18 @@ def test_atomic_write_leaves_old_content_on_failure(tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]
 
 
-def test_atomic_write_creates_directories(tmp_path):
+def test_atomic_write_creates_directories_and_says_so(tmp_path, caplog):
     target = tmp_path / "a" / "b" / "c.txt"
-    atomic_write_text(target, "hello\n")
+    with caplog.at_level("INFO", logger="arm.files"):
+        atomic_write_text(target, "hello\n")
     assert target.read_text() == "hello\n"
+    assert [r.getMessage() for r in caplog.records] == [
+        f"created the folder {tmp_path / 'a' / 'b'} (it did not exist)"
+    ]
+    caplog.clear()
+    with caplog.at_level("INFO", logger="arm.files"):
+        atomic_write_text(target.with_name("d.txt"), "again\n")  # the folder stands: no word
+    assert not caplog.records
 
 
 def test_atomic_write_gives_the_umasks_permissions(tmp_path):
