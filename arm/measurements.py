@@ -61,6 +61,7 @@ __all__ = [
     "check_ranges",
     "concatenate",
     "folder_problem",
+    "orientation_form",
     "parse_numeric_csv",
     "poses_csv",
     "read_measurements",
@@ -722,7 +723,7 @@ def parse_measurements(  # noqa: C901  (one reader: each branch a column family 
     orientation_unit = orientation_unit or angle_unit
     A, L = ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit]
     O = ANGLE_UNITS[orientation_unit]
-    form = _orientation_form(header, source, table.header_line)
+    form = orientation_form(header, source, table.header_line)
     ocols = ORIENTATION_FORMS[form] if form else ()
     check_ranges(
         table,
@@ -794,12 +795,16 @@ def parse_measurements(  # noqa: C901  (one reader: each branch a column family 
     )
 
 
-def _orientation_form(header: Sequence[str], source: str, line: int) -> str | None:
-    """Which orientation form the header gives (all three columns of one form), or None."""
+def orientation_form(
+    header: Sequence[str], source: str, line: int, error: type[Exception] = MeasurementError
+) -> str | None:
+    """Which orientation form the header gives (all three columns of one form), or None; the
+    measurement and target readers' one check of it: ``error`` names the file and the header's
+    line where the columns mix two forms or leave one out."""
     present = {form: [c for c in cols if c in header] for form, cols in ORIENTATION_FORMS.items()}
     given = [f for f, cols in present.items() if cols]
     if len(given) > 1:
-        raise MeasurementError(
+        raise error(
             f"{source}, line {line}: columns {', '.join(present['rotvec'] + present['rpy'])}: "
             "give the orientation in one form, rvx, rvy, rvz or roll, pitch, yaw"
         )
@@ -808,7 +813,7 @@ def _orientation_form(header: Sequence[str], source: str, line: int) -> str | No
     form = given[0]
     missing = [c for c in ORIENTATION_FORMS[form] if c not in header]
     if missing:
-        raise MeasurementError(
+        raise error(
             f"{source}, line {line}: missing column(s) {', '.join(missing)} (an orientation "
             f"takes all of {', '.join(ORIENTATION_FORMS[form])})"
         )
