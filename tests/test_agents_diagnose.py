@@ -156,20 +156,21 @@ def test_the_labs_warnings_from_the_worker_thread_point_at_the_caller_not_thread
     """The lab's cautions in a worker (a short buffer is a poor pose set) are kept with the job
     and issued when it is adopted, attributed to the code that runs the episode (here: this
     file), saying which job gave them; never to threading.py, where the worker's stack begins."""
+    import types
     import warnings
 
-    from agents.self_diagnosis import WORKER, Deferred, DiagnosisRecord, _Outcome
+    from agents.self_diagnosis import WORKER, Deferred
     from arm.errors import warn
     from lab import PoorPoseSetWarning
 
-    def work(job: _Outcome, text: str) -> None:
+    def work(job, text: str) -> None:
         warn(text, PoorPoseSetWarning)  # as lab.identifiability does, from the worker thread
         job.cost_s = 1e-3
 
     jobs = Deferred(lag=3, label="")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        jobs.start(40, _Outcome(DiagnosisRecord(40, 0.8, 15, ["geometric"])), work, "poor set")
+        jobs.start(40, types.SimpleNamespace(cost_s=0.0), work, "poor set")  # a job
         jobs.join()
         assert not caught, "issued in the worker, before the job was adopted"
         job, _ = jobs.finish(dt=0.02)
