@@ -24,7 +24,7 @@ from arm.effects import load_effect_module
 from arm.measurements import MeasurementError, read_measurements, read_poses, write_measurements
 from experiments.cli import app
 from lab import diagnose, fit
-from tests._cli import lab, runner
+from tests._cli import lab, one_error_line, runner
 from tests._lab_data import (
     DIAGNOSE_KEYS,
     FIT_KEYS,
@@ -393,6 +393,41 @@ def test_export_then_compensate_reaches_the_true_arm(files):
     assert res.exit_code == 2 and "bad_targets.csv, line 3, column 'y'" in res.stderr
     res = lab("compensate", targets, "--robot", d / "none.toml")
     assert res.exit_code == 2 and "none.toml" in res.stderr
+
+
+def test_the_effects_are_parsed_once_and_a_bad_spec_refused_before_the_data_are_read(
+    files, monkeypatch
+):
+    """The command parses --effects once, refusing a bad specification before it reads any data,
+    and hands the parsed effects to the lab, which does not parse the text again."""
+    import arm.effects
+    from lab import screening
+
+    texts: list[str] = []
+    original = arm.effects.parse_effects
+
+    def counted(spec):
+        if isinstance(spec, str):
+            texts.append(spec)
+        return original(spec)
+
+    monkeypatch.setattr(arm.effects, "parse_effects", counted)
+    monkeypatch.setattr(screening, "parse_effects", counted)
+    spec = "geometric,compliance[2,3]"
+    got = lab_json("fit", files["comp"], "--effects", spec, "--validate", files["comp_val"])
+    assert texts == [spec]
+    ref = fit(read_measurements(files["comp"]), "seed", spec)
+    assert got["effects"] == ["geometric", "compliance[2,3]"] and got["rms_mm"] == ref.rms_mm
+    texts.clear()
+    res = lab(
+        "plan", "--n", 25, "--effects", spec, "--candidates", 200, "-o", files["dir"] / "p.csv"
+    )
+    assert res.exit_code == 0, res.output
+    assert texts == [spec]
+    # refused at once: the data file, which does not exist, is not reached
+    res = lab("fit", files["dir"] / "absent.csv", "--effects", "geometric,complience")
+    one_error_line(res, "--effects", "unknown effect 'complience'")
+    assert "absent.csv" not in res.stderr
 
 
 # -- collect (MuJoCo) -------------------------------------------------------------------------------
