@@ -97,6 +97,7 @@ from agents.online_calibration import MeasurementBuffer, RecursiveLeastSquares, 
 from arm.constraints import Interval, declare, problems, refuse
 from arm.effects import make_effect
 from arm.errormodel import ErrorModel
+from arm.errors import SixAxisWarning, collected_warnings, warn
 from arm.measurements import MeasurementSet
 from envs.task import TaskInfo, Truth
 
@@ -183,6 +184,7 @@ class _Outcome:
     selection: SequentialSelection | None = None  # the selection to continue with
     fed: int = 0  # buffer points (by number) the selection has taken
     live_from: int = 0  # buffer points numbered below this were a replay (no decisions)
+    warnings: list[tuple[str, type[SixAxisWarning]]] = field(default_factory=list)  # the lab's
 
 
 class Deferred:
@@ -208,10 +210,17 @@ class Deferred:
         return self.thread is not None and step >= self.started + self.lag
 
     def start(self, step: int, job: _Outcome, work: Callable[..., None], *args: Any) -> None:
-        """Run ``work(job, *args)`` in a worker thread from control step ``step``."""
+        """Run ``work(job, *args)`` in a worker thread from control step ``step``; the lab's
+        warnings it gives are kept with the job (:meth:`finish` issues them)."""
         self.job, self.started = job, step
+
+        def run() -> None:
+            with collected_warnings() as caught:
+                job.warnings = caught
+                work(job, *args)
+
         self.thread = threading.Thread(
-            target=work, args=(job, *args), name=f"{WORKER} {self.label}step {step}", daemon=True
+            target=run, name=f"{WORKER} {self.label}step {step}", daemon=True
         )
         self.thread.start()
 
@@ -229,6 +238,10 @@ class Deferred:
         waited = self.join()
         job, self.thread, self.job = self.job, None, None
         assert job is not None
+        # issued here, in the thread that adopts the job: a worker's stack holds no caller to
+        # point a warning at but threading.py; here it points at the code that ran the episode
+        for message, category in job.warnings:
+            warn(f"{WORKER} {self.label}at step {self.started}: {message}", category)
         self.costs.append(job.cost_s)
         if job.cost_s > self.lag * dt:
             self.late += 1

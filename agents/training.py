@@ -627,13 +627,13 @@ def train(
 def _output_folder(cfg: TrainConfig) -> Path:
     """The run's folder, made; refused (a name too long, a file in the way, a read-only place)
     before any training."""
-    from arm.files import folder_problem, shown
+    from arm.files import folder_problem, make_folders, shown
 
     out = Path(cfg.output)
     why = folder_problem(out) or (f"{out} is not a directory" if out.is_file() else None)
     if why:
         raise TrainConfigError(f"output {shown(out)}: cannot write the run there: {why}")
-    out.mkdir(parents=True, exist_ok=True)
+    make_folders(out)
     return out
 
 

@@ -13,11 +13,14 @@ error, or assert it in a test (``pytest.warns``).
 
 from __future__ import annotations
 
+import contextlib
 import sys
+import threading
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["SixAxisError", "SixAxisWarning", "warn"]
+__all__ = ["SixAxisError", "SixAxisWarning", "collected_warnings", "warn"]
 
 
 class SixAxisError(Exception):
@@ -35,9 +38,34 @@ _PACKAGES = tuple(
 )
 
 
+# per thread: where warn() puts its warnings inside collected_warnings(), else None
+_collecting = threading.local()
+
+
+@contextlib.contextmanager
+def collected_warnings() -> Iterator[list[tuple[str, type[SixAxisWarning]]]]:
+    """Within the block, in this thread only, :func:`warn` appends ``(message, category)`` to the
+    list it yields instead of issuing the warning. For work run in a worker thread: its stack
+    holds no caller of the user's (a warning would point at ``threading.py``), so the thread
+    that adopts the work's result issues them with :func:`warn`, at its own caller.
+    (``warnings.catch_warnings`` would not do: it changes every thread's filters.)"""
+    previous = getattr(_collecting, "sink", None)
+    sink: list[tuple[str, type[SixAxisWarning]]] = []
+    _collecting.sink = sink
+    try:
+        yield sink
+    finally:
+        _collecting.sink = previous
+
+
 def warn(message: str, category: type[SixAxisWarning] = SixAxisWarning) -> None:
     """Issue ``message`` as a warning of ``category``, attributed to the caller's code (the first
-    frame outside the project's library packages), as ``skip_file_prefixes`` does in 3.12."""
+    frame outside the project's library packages), as ``skip_file_prefixes`` does in 3.12.
+    Inside :func:`collected_warnings` (in its thread), the warning is collected instead."""
+    sink = getattr(_collecting, "sink", None)
+    if sink is not None:
+        sink.append((message, category))
+        return
     level, frame = 2, sys._getframe(1)
     while frame is not None and frame.f_code.co_filename.startswith(_PACKAGES):
         level, frame = level + 1, frame.f_back  # type: ignore[assignment]

@@ -18,7 +18,8 @@ a link to one of them                  and ``/dev/stdout``; say ``-`` for standa
 
 :func:`check_output` says the same before any work, and also refuses a file name or a path longer
 than the file system allows, an output that is one of the inputs, and a folder where no file can
-be made.
+be made. Missing folders of an output's path are made (:func:`make_folders`, which says so in
+the log), by every writer alike.
 
 **Inputs.** :func:`read_input_text` and :func:`read_input_bytes` read only a regular file (a FIFO
 would block for ever, ``/dev/zero`` never ends), opened without blocking and checked on the open
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import logging
 import os
 import stat
 import sys
@@ -53,6 +55,7 @@ __all__ = [
     "folder_problem",
     "input_problem",
     "is_stdout",
+    "make_folders",
     "output_problem",
     "read_input_bytes",
     "read_input_text",
@@ -61,6 +64,8 @@ __all__ = [
 ]
 
 STDOUT = "-"  # an output path that means standard output
+
+log = logging.getLogger(__name__)
 
 #: The largest input of each kind that is read, bytes (docs/format.md, limits): a measurement CSV
 #: of 1 GiB holds about three million rows (the 480,000 rows of one large campaign take 150 MB).
@@ -289,6 +294,18 @@ def remove_stale_temporaries(path: str | Path) -> list[Path]:
     return removed
 
 
+def make_folders(folder: str | Path) -> None:
+    """Make ``folder`` and every missing folder above it, saying so: one INFO record of this
+    module's logger naming the folder (the ``sixaxis`` commands print it), none where it exists.
+    Every writer makes the folders its output needs this way (an output's missing folders are
+    made, never refused), so that a mistyped folder is seen at once, not found later empty."""
+    folder = Path(folder)
+    if folder.is_dir():
+        return
+    folder.mkdir(parents=True, exist_ok=True)
+    log.info("created the folder %s (it did not exist)", shown(folder))
+
+
 def _cannot(path: Path, exc: OSError) -> OutputError:
     return OutputError(f"{path}: cannot write ({exc.strerror or exc})")
 
@@ -313,7 +330,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         raise OutputError(f"{shown(given)}: {why}")
     target = _target(given)
     try:
-        target.parent.mkdir(parents=True, exist_ok=True)
+        make_folders(target.parent)
         remove_stale_temporaries(target)
         fd, tmp = tempfile.mkstemp(
             dir=target.parent, prefix=f"{_temp_prefix(target.name)}{os.getpid()}.", suffix=".tmp"

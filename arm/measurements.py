@@ -1,5 +1,6 @@
 """Measurement files (docs/format.md, the measurement CSV): one header row, comma separated, one
-measurement per row.
+measurement per row; ``#`` comment lines may precede the header (a poses file's, kept when the
+measured x, y, z were added to it), none may follow it.
 
 Required columns ``q1..q6`` (rad) and ``x, y, z`` (m); optional ``t`` (s), ``temperature`` (degC),
 ``payload`` (kg), ``dir1..dir6`` (+-1), ``target`` (integer), ``station`` (integer: the tracker
@@ -60,6 +61,7 @@ __all__ = [
     "check_ranges",
     "concatenate",
     "folder_problem",
+    "orientation_form",
     "parse_numeric_csv",
     "poses_csv",
     "read_measurements",
@@ -489,15 +491,19 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
     source: str,
     required: Sequence[str],
     *,
-    comments: bool = False,
+    blank_lines: bool = False,
     columns: Sequence[str] | None = None,
     error: type[Exception] = MeasurementError,
     may_be_blank: Sequence[str] = (),
 ) -> NumericTable:
     """Parse a CSV of numbers whose header names the ``required`` columns (and any others).
 
-    ``comments``: blank lines and lines starting with ``#`` anywhere are skipped (else only
-    trailing blank lines). ``columns``: read only these (others may hold anything), else every
+    Lines starting with ``#`` and blank lines before the header row are skipped (the lab's poses
+    and joints files begin with a ``#`` line); a ``#`` line after the header is refused, naming
+    its line (a note of another session or a row commented out, which a reader that skipped it
+    would pass over in silence). Every reader of these CSVs (measurements, poses, targets)
+    follows this one rule. ``blank_lines``: blank lines among the rows are skipped too (else
+    only trailing ones). ``columns``: read only these (others may hold anything), else every
     column. The columns read must have distinct, non-empty names and finite numbers in every row,
     except that a cell of a ``may_be_blank`` column may be empty (read as NaN: not measured);
     ``error`` names the source, the line and the column of the first problem."""
@@ -508,16 +514,17 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
     def blank(row: list[str]) -> bool:
         return not any(c.strip() for c in row)
 
-    def skip(row: list[str]) -> bool:
-        return comments and (blank(row) or row[0].lstrip().startswith("#"))
-
-    first = next(((k, r) for k, r in rows_in if not skip(r)), None)
-    if first is not None and not comments and blank(first[1]):
-        # only blank lines, or a blank line before the header: an empty file or a bad header
-        rest = next(((k, r) for k, r in rows_in if not blank(r)), None)
-        first = None if rest is None else first
+    comments = 0  # '#' lines before the header
+    first = None
+    for number, cells in rows_in:
+        if _is_comment(cells):
+            comments += 1
+        elif not blank(cells):
+            first = (number, cells)
+            break
     if first is None:
-        raise error(f"{source}: empty file, expected a header row with {', '.join(required)}")
+        what = "only comment lines" if comments else "empty file"
+        raise error(f"{source}: {what}, expected a header row with {', '.join(required)}")
     hline, header = first[0], [h.strip() for h in first[1]]
     read = (
         list(range(len(header)))
@@ -536,27 +543,27 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
     if missing:
         raise error(
             f"{source}, line {hline}: missing required column(s) {', '.join(missing)} "
-            f"(found: {', '.join(header)}){_header_cause(header, required, comments)}"
+            f"(found: {', '.join(header)}){_header_cause(header, required)}"
         )
     values = np.empty((1024, len(read)))
     line_of = np.empty(1024, dtype=int)
     n = 0
-    pending: list[tuple[int, int]] = []  # blank lines, allowed only at the end (no comments)
+    pending: list[tuple[int, int]] = []  # blank lines, allowed only at the end (no blank_lines)
     for r, row in rows_in:
-        if skip(row):
-            continue
-        if not comments and blank(row):
-            pending.append((r, len(row)))
+        if _is_comment(row):
+            raise error(
+                f"{source}, line {r}: a comment line ('#') among the rows; comments go before "
+                "the header row only: remove it, or move it above the header"
+            )
+        if blank(row):
+            if not blank_lines:
+                pending.append((r, len(row)))
             continue
         if pending:
             br, bn = pending[0]
             raise error(f"{source}, line {br}: {bn} fields, but the header has {len(header)}")
         if len(row) != len(header):
-            comment = row[0].lstrip().startswith("#")
-            raise error(
-                f"{source}, line {r}: {len(row)} fields, but the header has {len(header)}"
-                + (" (a comment line: this file takes none; remove it)" if comment else "")
-            )
+            raise error(f"{source}, line {r}: {len(row)} fields, but the header has {len(header)}")
         if n == len(values):
             values = np.resize(values, (2 * n, len(read)))
             line_of = np.resize(line_of, 2 * n)
@@ -573,8 +580,6 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
                     if header[k] in KNOWN
                     else " (extra columns are kept for custom effects and must be numeric)"
                 )
-                if row[0].lstrip().startswith("#"):
-                    extra = " (a comment line: this file takes none; remove it)"
                 raise error(
                     f"{source}, line {r}, column {header[k]!r}: {cell.strip()!r} is not a number{extra}"
                 ) from None
@@ -594,15 +599,15 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
 _OTHER_SEPARATORS = {";": "semicolons", "\t": "tabs", "|": "bars"}
 
 
-def _header_cause(header: Sequence[str], required: Sequence[str], comments: bool) -> str:
-    """Why a header lacks the required columns, where the file says it: a comment line where the
-    header should be, or another separator than the comma."""
+def _is_comment(row: list[str]) -> bool:
+    """Whether a CSV row is a comment line (its first cell starts with ``#``)."""
+    return bool(row) and row[0].lstrip().startswith("#")
+
+
+def _header_cause(header: Sequence[str], required: Sequence[str]) -> str:
+    """Why a header lacks the required columns, where the file says it: another separator than
+    the comma."""
     line = ",".join(header)
-    if not comments and line.lstrip().startswith("#"):
-        return (
-            "; the first line is a comment ('#'), which this file does not take: its first line "
-            "must be the header; remove the comment lines"
-        )
     for sep, name in _OTHER_SEPARATORS.items():
         cells = {c.strip() for part in header for c in part.split(sep)}
         if sep in line and any(c in cells for c in required):
@@ -630,8 +635,10 @@ def read_measurements(
     their stds; ``angle_unit`` (rad|deg) to q1..q6; ``orientation_unit`` (default
     ``angle_unit``) to the orientation columns and their stds. ``measured``: the components
     (of ``x y z rx ry rz``) the instrument measures, default every one the file has columns
-    for. Raises :class:`MeasurementError` naming file, line and column; warns
-    (:class:`MeasurementWarning`) of columns the format does not know."""
+    for. ``#`` lines before the header are skipped; where one declares the angle unit (``q1..q6
+    in deg``, a poses file's), ``angle_unit`` must be that unit. Raises
+    :class:`MeasurementError` naming file, line and column; warns (:class:`MeasurementWarning`)
+    of columns the format does not know."""
     path = Path(path)
     _length_factor(length_unit)
     _angle_factor(angle_unit)
@@ -691,6 +698,7 @@ def parse_measurements(  # noqa: C901  (one reader: each branch a column family 
 ) -> MeasurementSet:
     blanks = (*ORIENTATION_FORMS["rotvec"], *ORIENTATION_FORMS["rpy"], *STD_COLUMNS[3:])
     table = parse_numeric_csv(text, source, (*JOINTS, *POSITION), may_be_blank=blanks)
+    _declared_unit(text, source, angle_unit)  # a poses file's line, kept when x, y, z were added
     header, values = table.header, table.values
     n = values.shape[0]
     if n < min_rows:
@@ -715,7 +723,7 @@ def parse_measurements(  # noqa: C901  (one reader: each branch a column family 
     orientation_unit = orientation_unit or angle_unit
     A, L = ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit]
     O = ANGLE_UNITS[orientation_unit]
-    form = _orientation_form(header, source, table.header_line)
+    form = orientation_form(header, source, table.header_line)
     ocols = ORIENTATION_FORMS[form] if form else ()
     check_ranges(
         table,
@@ -787,12 +795,16 @@ def parse_measurements(  # noqa: C901  (one reader: each branch a column family 
     )
 
 
-def _orientation_form(header: Sequence[str], source: str, line: int) -> str | None:
-    """Which orientation form the header gives (all three columns of one form), or None."""
+def orientation_form(
+    header: Sequence[str], source: str, line: int, error: type[Exception] = MeasurementError
+) -> str | None:
+    """Which orientation form the header gives (all three columns of one form), or None; the
+    measurement and target readers' one check of it: ``error`` names the file and the header's
+    line where the columns mix two forms or leave one out."""
     present = {form: [c for c in cols if c in header] for form, cols in ORIENTATION_FORMS.items()}
     given = [f for f, cols in present.items() if cols]
     if len(given) > 1:
-        raise MeasurementError(
+        raise error(
             f"{source}, line {line}: columns {', '.join(present['rotvec'] + present['rpy'])}: "
             "give the orientation in one form, rvx, rvy, rvz or roll, pitch, yaw"
         )
@@ -801,7 +813,7 @@ def _orientation_form(header: Sequence[str], source: str, line: int) -> str | No
     form = given[0]
     missing = [c for c in ORIENTATION_FORMS[form] if c not in header]
     if missing:
-        raise MeasurementError(
+        raise error(
             f"{source}, line {line}: missing column(s) {', '.join(missing)} (an orientation "
             f"takes all of {', '.join(ORIENTATION_FORMS[form])})"
         )
@@ -899,6 +911,8 @@ def declared_angle_unit(text: str, source: str) -> tuple[str, int] | None:
     """The angle unit a poses file's ``#`` line declares (``q1..q6 in deg``), with its line
     number, or None where no such line precedes the header."""
     for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
         if not line.lstrip().startswith("#"):
             return None
         m = _DECLARED_UNIT.match(line)
@@ -912,22 +926,30 @@ def declared_angle_unit(text: str, source: str) -> tuple[str, int] | None:
     return None
 
 
+def _declared_unit(text: str, source: str, angle_unit: str | None, or_else: str = "") -> str | None:
+    """The angle unit the file's ``#`` line declares, or None; refused (naming that line) where
+    it contradicts ``angle_unit``: read in the wrong unit, every pose would be another pose."""
+    declared = declared_angle_unit(text, source)
+    if declared is not None and angle_unit is not None and declared[0] != angle_unit:
+        raise MeasurementError(
+            f"{source}, line {declared[1]}: the file declares q1..q6 in {declared[0]}, but they "
+            f"were to be read in {angle_unit}; say --angle-unit {declared[0]}{or_else}"
+        )
+    return None if declared is None else declared[0]
+
+
 def read_poses(path: str | Path, angle_unit: str | None = None) -> np.ndarray:
-    """Joint angles (N, 6) in rad from a CSV with columns q1..q6 (other columns, and lines
-    starting with ``#``, are ignored: a measurement file is a poses file too).
+    """Joint angles (N, 6) in rad from a CSV with columns q1..q6 (other columns are ignored: a
+    measurement file is a poses file too). ``#`` lines before the header are skipped, one among
+    the rows is refused (:func:`parse_numeric_csv`); blank lines are skipped.
 
     The unit is the one the file's ``#`` line declares (``sixaxis lab plan`` writes it), else
     ``angle_unit``, else rad. An ``angle_unit`` that contradicts the declaration is refused, naming
     the line: read in the wrong unit, every pose would be another pose."""
     text = read_text(path)
-    declared = declared_angle_unit(text, str(path))
-    if declared is not None and angle_unit is not None and declared[0] != angle_unit:
-        raise MeasurementError(
-            f"{path}, line {declared[1]}: the file declares q1..q6 in {declared[0]}, but they "
-            f"were to be read in {angle_unit}; say --angle-unit {declared[0]} (or leave it out)"
-        )
-    unit = declared[0] if declared is not None else (angle_unit or "rad")
-    table = parse_numeric_csv(text, str(path), JOINTS, comments=True, columns=JOINTS)
+    declared = _declared_unit(text, str(path), angle_unit, " (or leave it out)")
+    unit = declared or angle_unit or "rad"
+    table = parse_numeric_csv(text, str(path), JOINTS, blank_lines=True, columns=JOINTS)
     if not len(table.values):
         raise MeasurementError(f"{path}: no pose rows")
     angle_unit = unit

@@ -74,6 +74,8 @@ def _main(
             RichHandler(console=Console(stderr=True), show_path=False, rich_tracebacks=False)
         ],
     )
+    # a folder an output needed, made (arm.files.make_folders): one line, without --verbose too
+    logging.getLogger("arm.files").setLevel(logging.INFO)
 
 
 def main() -> None:

@@ -63,9 +63,10 @@ def lab_story(
     train = _collect(n, scenario, seed, truth, "measuring the calibration poses")
     held_out = _collect(n // 2, scenario, seed + 1000, truth, "measuring held-out poses")
     if out is not None:
+        from arm.files import make_folders
         from arm.measurements import write_measurements
 
-        out.mkdir(parents=True, exist_ok=True)
+        make_folders(out)
         write_measurements(train, out / "calibration.csv")
         write_measurements(held_out, out / "validation.csv")
         console.print(f"data written to {out}/calibration.csv and {out}/validation.csv")

@@ -18,7 +18,7 @@ import typing
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.markup import escape
@@ -28,6 +28,9 @@ from arm.constraints import Constraint, Interval, OneOf, constraints_of
 from arm.errors import SixAxisError
 from arm.measurements import ANGLE_UNITS, LENGTH_UNITS
 from experiments.cli_output import console, err_console, fail, user_errors
+
+if TYPE_CHECKING:
+    from arm.effects import Effect
 from lab.options import LabOptions
 
 __all__ = [
@@ -298,22 +301,24 @@ class LabArgs:
         data: Path,
         outputs: Sequence[tuple[Path | None, str]] = (),
         as_json: bool = False,
-    ) -> tuple[Any, Any, Any, LabOptions]:
+    ) -> tuple[Any, Any, Any, LabOptions, list[Effect]]:
         """The options checked, the output places checked, the effect modules registered, the
-        robot and the data read: (arm, data, held-out data or None, options)."""
+        effects parsed (a bad ``--effects`` refused before the data are read), the robot and the
+        data read: (arm, data, held-out data or None, options, effects). The command hands the
+        parsed effects to the lab, which takes them as they are (parsed once)."""
         opts = self.options()
         check_outputs(
             outputs, [data, self.validate, self.robot, *(self.effect_module or ())], as_json
         )
         load_modules(self.effect_module)
-        parse_effects(self.effects)
+        effects = parse_effects(self.effects)
         arm = read_arm(self.robot)
         units = (self.length_unit, self.angle_unit, self.orientation_unit, self.measured)
         meas = read_data(data, *units)
         val = (
             None if self.validate is None else read_data(self.validate, *units, option="--validate")
         )
-        return arm, meas, val, opts
+        return arm, meas, val, opts, effects
 
     def next_step(self) -> dict[str, Any]:
         """The options that a printed next step must repeat to work on the same data (the arm,
@@ -425,12 +430,16 @@ def load_modules(modules: Sequence[Path] | None) -> list[str]:
     return names
 
 
-def parse_effects(effects: str) -> None:
+def parse_effects(effects: str) -> list[Effect]:
+    """``--effects`` as effect instances, to hand on to the lab (which takes them as they are);
+    a bad specification, or none, is one error line."""
     from arm.effects import parse_effects
 
     with user_errors(prefix="--effects: "):
-        if not parse_effects(effects):
-            fail("--effects: no effect given")
+        parsed = parse_effects(effects)
+    if not parsed:
+        fail("--effects: no effect given")
+    return parsed
 
 
 def read_arm(robot: str, flag: str = "--robot") -> Any:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import typer
 
@@ -65,6 +65,9 @@ from experiments.cli_output import (
 )
 from lab.options import ALPHA, CRITERIA, EXPORT_FORMATS, ORDER, ROUNDS, LabOptions
 
+if TYPE_CHECKING:
+    from arm.effects import Effect
+
 app = typer.Typer(
     help="The model lab: compare the model with measurements, find what it misses.",
     no_args_is_help=True,
@@ -107,7 +110,7 @@ ExtrapolateOpt = Annotated[
 ]
 
 
-def _fitted(meas, arm, effects: str, opts: LabOptions, val, extrapolate: bool = False):
+def _fitted(meas, arm, effects: list[Effect], opts: LabOptions, val, extrapolate: bool = False):
     """The lab's fit of a command's data (``lab fit``, ``lab export``)."""
     from lab import fit
 
@@ -129,8 +132,8 @@ def fit_cmd(
     Prints the identified parameters with standard errors, the RMS before and after, and which
     parameters the poses cannot identify; --json prints the JSON object of docs/format.md, the
     lab's JSON output (SI units)."""
-    arm, meas, val, opts = lab.read(data, [(out, "--out")], as_json)
-    result = _fitted(meas, arm, lab.effects, opts, val, extrapolate)
+    arm, meas, val, opts, effects = lab.read(data, [(out, "--out")], as_json)
+    result = _fitted(meas, arm, effects, opts, val, extrapolate)
     if not as_json:
         print_fit(result)
     emit_json(result.to_dict(), as_json, out)
@@ -154,9 +157,9 @@ def diagnose_cmd(
     the residual still depends on."""
     from lab import diagnose
 
-    arm, meas, _, opts = lab.read(data, [(out, "--out")], as_json)
+    arm, meas, _, opts, effects = lab.read(data, [(out, "--out")], as_json)
     with user_errors(), console.status("fitting and testing the candidate effects..."):
-        d = diagnose(meas, arm, lab.effects, options=opts, alpha=alpha)
+        d = diagnose(meas, arm, effects, options=opts, alpha=alpha)
     if not as_json:
         print_diagnosis(d, data, lab.next_step())
     emit_json(d.to_dict(), as_json, out)
@@ -219,10 +222,10 @@ def discover_cmd(
     if output is not None:
         with user_errors():
             check_module_path(output)
-    arm, meas, val, opts = lab.read(data, [(output, "--output"), (out, "--out")], as_json)
+    arm, meas, val, opts, effects = lab.read(data, [(output, "--output"), (out, "--out")], as_json)
     with user_errors(), console.status("fitting the model and searching the library..."):
         d = discover(
-            meas, arm, lab.effects, options=opts, validate=val, alpha=alpha, order=order, name=name
+            meas, arm, effects, options=opts, validate=val, alpha=alpha, order=order, name=name
         )
     written = None
     if output is not None and d.terms:
@@ -253,7 +256,7 @@ def report_cmd(
     from lab.report import build_report
     from lab.report_html import write as write_html
 
-    arm, meas, val, opts = lab.read(data, [(output, "--output")])
+    arm, meas, val, opts, effects = lab.read(data, [(output, "--output")])
     flags = lab.flags()
     screening = {k: flags.pop(k) for k in ("--outliers", "--accept-large")}
     command = command_line(
@@ -268,7 +271,7 @@ def report_cmd(
             rep = build_report(
                 meas,
                 arm,
-                lab.effects,
+                effects,
                 options=opts,
                 validate=val,
                 rounds=rounds,
@@ -337,13 +340,13 @@ def plan_cmd(
 
     check_outputs([(output, "--output")], [robot, *(effect_module or ())], as_json)
     load_modules(effect_module)
-    parse_effects(effects)
+    parsed = parse_effects(effects)
     arm = read_arm(robot)
     with user_errors(), console.status(f"choosing {n} of {candidates} poses by {criterion}..."):
         p = plan(
             n,
             arm,
-            effects,
+            parsed,
             criterion=criterion,
             candidates=candidates,
             noise_mm=noise_mm,
@@ -570,11 +573,11 @@ def export_cmd(
     outputs = [(output, "--output")]
     if export_format == "urdf":
         outputs.append((metrology_path(output), "--output's metrology file"))
-    arm, meas, val, opts = lab.read(data, outputs)
+    arm, meas, val, opts, effects = lab.read(data, outputs)
     if export_format == "urdf":
         with user_errors():  # before the fit: a TOML arm has no URDF to correct
             require_urdf(arm)
-    result = _fitted(meas, arm, lab.effects, opts, val)
+    result = _fitted(meas, arm, effects, opts, val)
     say(result.summary())
     if export_format == "urdf":
         with user_errors(), writing(output):

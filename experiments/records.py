@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from arm.errors import SixAxisError
-from arm.files import OutputError, atomic_write_text, folder_problem, shown
+from arm.files import OutputError, atomic_write_text, folder_problem, make_folders, shown
 
 __all__ = [
     "RECORD_SCHEMA",
@@ -256,7 +256,7 @@ class RunStore:
         except ImportError:  # pragma: no cover - not POSIX
             yield
             return
-        self.root.mkdir(parents=True, exist_ok=True)
+        make_folders(self.root)
         fd = os.open(self.root / LOCK, os.O_RDWR | os.O_CREAT, 0o666)  # not inherited
         try:
             try:

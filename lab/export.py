@@ -63,6 +63,7 @@ from arm.measurements import (
     ORIENTATION_FORMS,
     POSITION,
     check_ranges,
+    orientation_form,
     orientation_rotvec,
     parse_numeric_csv,
     read_text,
@@ -279,25 +280,6 @@ def target_id_list(text: str | None) -> list[int] | None:
         ) from None
 
 
-def _orientation_form(header: Sequence[str], source: str, line: int) -> str | None:
-    present = {f: [c for c in cols if c in header] for f, cols in ORIENTATION_FORMS.items()}
-    given = [f for f, cols in present.items() if cols]
-    if len(given) > 1:
-        raise CompensationError(
-            f"{source}, line {line}: give the orientation in one form, rvx, rvy, rvz or roll, "
-            "pitch, yaw, not both"
-        )
-    if not given:
-        return None
-    missing = [c for c in ORIENTATION_FORMS[given[0]] if c not in header]
-    if missing:
-        raise CompensationError(
-            f"{source}, line {line}: missing column(s) {', '.join(missing)} (an orientation "
-            f"takes all of {', '.join(ORIENTATION_FORMS[given[0]])})"
-        )
-    return given[0]
-
-
 def read_targets(path: str | Path, length_unit: str = "m", angle_unit: str = "rad") -> TargetSet:
     """A CSV of desired tool poses: columns x, y, z (required), q1..q6 (the program's joint
     angles), rvx, rvy, rvz or roll, pitch, yaw (the tool frame's orientation, in ``angle_unit``),
@@ -308,7 +290,7 @@ def read_targets(path: str | Path, length_unit: str = "m", angle_unit: str = "ra
     if angle_unit not in ANGLE_UNITS:
         raise CompensationError(f"angle unit must be one of rad, deg, got {angle_unit!r}")
     text = read_text(path, CompensationError)
-    table = parse_numeric_csv(text, str(path), POSITION, comments=True, error=CompensationError)
+    table = parse_numeric_csv(text, str(path), POSITION, blank_lines=True, error=CompensationError)
     header = table.header
     qcols = [c for c in JOINTS if c in header]
     if qcols and len(qcols) != 6:
@@ -316,7 +298,7 @@ def read_targets(path: str | Path, length_unit: str = "m", angle_unit: str = "ra
             f"{path}, line {table.header_line}: start joint angles need all of q1..q6, found "
             f"only {', '.join(qcols)}"
         )
-    form = _orientation_form(header, str(path), table.header_line)
+    form = orientation_form(header, str(path), table.header_line, CompensationError)
     if not len(table.values):
         raise CompensationError(f"{path}: no target rows")
     col = {h: table.values[:, k] for k, h in enumerate(header)}

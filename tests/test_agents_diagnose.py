@@ -150,3 +150,32 @@ def test_on_cyclic_errors_the_labs_scan_finds_an_order_and_tracking_improves(see
     rms = np.sqrt(np.mean(r.true_error_mm[settled] ** 2))
     rms0 = np.sqrt(np.mean(r0.true_error_mm[settled] ** 2))
     assert rms < rms0
+
+
+def test_the_labs_warnings_from_the_worker_thread_point_at_the_caller_not_threading():
+    """The lab's cautions in a worker (a short buffer is a poor pose set) are kept with the job
+    and issued when it is adopted, attributed to the code that runs the episode (here: this
+    file), saying which job gave them; never to threading.py, where the worker's stack begins."""
+    import types
+    import warnings
+
+    from agents.self_diagnosis import WORKER, Deferred
+    from arm.errors import warn
+    from lab import PoorPoseSetWarning
+
+    def work(job, text: str) -> None:
+        warn(text, PoorPoseSetWarning)  # as lab.identifiability does, from the worker thread
+        job.cost_s = 1e-3
+
+    jobs = Deferred(lag=3, label="")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        jobs.start(40, types.SimpleNamespace(cost_s=0.0), work, "poor set")  # a job
+        jobs.join()
+        assert not caught, "issued in the worker, before the job was adopted"
+        job, _ = jobs.finish(dt=0.02)
+    assert job.warnings == [("poor set", PoorPoseSetWarning)]
+    assert [(w.category, str(w.message)) for w in caught] == [
+        (PoorPoseSetWarning, f"{WORKER} at step 40: poor set")
+    ]
+    assert caught[0].filename == __file__

@@ -94,3 +94,22 @@ def test_an_effect_specification_with_unbalanced_brackets_says_so(spec, said):
         "geometric",
         "compliance",
     ]
+
+
+def test_collected_warnings_take_this_threads_warnings_alone():
+    import threading
+    import warnings
+
+    from arm.errors import SixAxisWarning, collected_warnings, warn
+
+    with warnings.catch_warnings(record=True) as issued:
+        warnings.simplefilter("always")
+        with collected_warnings() as mine:
+            warn("kept")
+            other = threading.Thread(target=warn, args=("from another thread",))
+            other.start()
+            other.join()
+        warn("issued again")
+    assert mine == [("kept", SixAxisWarning)]
+    assert [str(w.message) for w in issued] == ["from another thread", "issued again"]
+    assert issued[1].filename == __file__

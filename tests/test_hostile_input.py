@@ -537,7 +537,7 @@ def test_the_csv_readers_read_or_refuse_any_text(text):
         assert isinstance(data, MeasurementSet) and len(data) >= 1
         assert np.isfinite(data.q).all() and np.isfinite(data.xyz).all()
     try:
-        parse_numeric_csv(text, "poses.csv", ("q1",), comments=True, columns=("q1",))
+        parse_numeric_csv(text, "poses.csv", ("q1",), blank_lines=True, columns=("q1",))
     except MeasurementError as exc:
         assert str(exc).startswith("poses.csv"), exc
 

@@ -11,6 +11,7 @@ import csv
 import io
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -23,7 +24,7 @@ from arm.effects import load_effect_module
 from arm.measurements import MeasurementError, read_measurements, read_poses, write_measurements
 from experiments.cli import app
 from lab import diagnose, fit
-from tests._cli import lab, runner
+from tests._cli import lab, one_error_line, runner
 from tests._lab_data import (
     DIAGNOSE_KEYS,
     FIT_KEYS,
@@ -394,6 +395,41 @@ def test_export_then_compensate_reaches_the_true_arm(files):
     assert res.exit_code == 2 and "none.toml" in res.stderr
 
 
+def test_the_effects_are_parsed_once_and_a_bad_spec_refused_before_the_data_are_read(
+    files, monkeypatch
+):
+    """The command parses --effects once, refusing a bad specification before it reads any data,
+    and hands the parsed effects to the lab, which does not parse the text again."""
+    import arm.effects
+    from lab import screening
+
+    texts: list[str] = []
+    original = arm.effects.parse_effects
+
+    def counted(spec):
+        if isinstance(spec, str):
+            texts.append(spec)
+        return original(spec)
+
+    monkeypatch.setattr(arm.effects, "parse_effects", counted)
+    monkeypatch.setattr(screening, "parse_effects", counted)
+    spec = "geometric,compliance[2,3]"
+    got = lab_json("fit", files["comp"], "--effects", spec, "--validate", files["comp_val"])
+    assert texts == [spec]
+    ref = fit(read_measurements(files["comp"]), "seed", spec)
+    assert got["effects"] == ["geometric", "compliance[2,3]"] and got["rms_mm"] == ref.rms_mm
+    texts.clear()
+    res = lab(
+        "plan", "--n", 25, "--effects", spec, "--candidates", 200, "-o", files["dir"] / "p.csv"
+    )
+    assert res.exit_code == 0, res.output
+    assert texts == [spec]
+    # refused at once: the data file, which does not exist, is not reached
+    res = lab("fit", files["dir"] / "absent.csv", "--effects", "geometric,complience")
+    one_error_line(res, "--effects", "unknown effect 'complience'")
+    assert "absent.csv" not in res.stderr
+
+
 # -- collect (MuJoCo) -------------------------------------------------------------------------------
 def test_collect_measures_the_simulated_arm(files):
     d = files["dir"]
@@ -412,6 +448,29 @@ def test_collect_measures_the_simulated_arm(files):
     assert np.allclose(read_measurements(out2).q, read_poses(poses), atol=1e-4)
     res = lab("collect", "-o", out2, "--scenario", "bogus")
     assert res.exit_code == 2 and "unknown scenario 'bogus'" in res.stderr
+
+
+def test_an_output_in_a_missing_folder_is_written_and_the_folder_named(tmp_path):
+    """collect, as every writer, makes the folders its output needs, and says so in one line on
+    stderr (without --verbose), once: a mistyped folder is seen at once."""
+
+    def collect(out: Path) -> subprocess.CompletedProcess:
+        command = ["lab", "collect", "-o", str(out), "--n", "2", "--scenario", "geometric"]
+        return subprocess.run(
+            [sys.executable, "-m", "experiments.cli", *command],
+            capture_output=True,
+            text=True,
+            cwd=tmp_path,
+            env=os.environ | {"COLUMNS": "300"},
+        )
+
+    res = collect(Path("some", "new", "folder", "data.csv"))
+    assert res.returncode == 0, res.stderr
+    assert len(read_measurements(tmp_path / "some/new/folder/data.csv")) == 2
+    said = [line for line in res.stderr.splitlines() if "created the folder" in line]
+    assert len(said) == 1 and "created the folder some/new/folder (it did not exist)" in said[0]
+    res = collect(Path("some", "new", "folder", "again.csv"))
+    assert res.returncode == 0 and "created the folder" not in res.stderr, res.stderr
 
 
 def test_the_lab_commands_but_collect_do_not_load_mujoco(files):

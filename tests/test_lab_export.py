@@ -296,8 +296,27 @@ def test_bad_targets_are_named(tmp_path, true_arm):
     with pytest.raises(CompensationError, match=r"t.csv, line 1: missing column\(s\) rvz"):
         read_targets(f)
     f.write_text("x,y,z,rvx,rvy,rvz,roll,pitch,yaw\n0.5,0.1,0.6,0,0,0,0,0,0\n")
-    with pytest.raises(CompensationError, match=r"t.csv, line 1: give the orientation in one"):
+    with pytest.raises(CompensationError, match=r"t.csv, line 1: columns rvx, .*: give the orien"):
         read_targets(f)
+
+
+@pytest.mark.parametrize(
+    "header", ["x,y,z,rvx,rvy,rvz,roll,pitch,yaw", "x,y,z,rvx,rvy", "x,y,z,roll,yaw"]
+)
+def test_the_targets_and_the_measurements_check_the_orientation_columns_alike(tmp_path, header):
+    """One check of the orientation's columns (arm.measurements.orientation_form) for both
+    readers: the same words for the same header, each reader's own error class."""
+    from arm.measurements import MeasurementError, read_measurements
+
+    n = header.count(",") - 2
+    f = tmp_path / "t.csv"
+    f.write_text(f"q1,q2,q3,q4,q5,q6,{header}\n0,-1,0.5,0,0.5,0,0.5,0.1,0.6{',0' * n}\n")
+    with pytest.raises(CompensationError) as target:
+        read_targets(f)
+    with pytest.raises(MeasurementError) as measured:
+        read_measurements(f)
+    assert str(target.value) == str(measured.value)
+    assert str(target.value).startswith(f"{f}, line 1: ")
 
 
 def test_per_station_targets_are_mapped_through_the_calibrations_registration(seed, tmp_path):

@@ -211,10 +211,18 @@ def test_atomic_write_leaves_old_content_on_failure(tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]
 
 
-def test_atomic_write_creates_directories(tmp_path):
+def test_atomic_write_creates_directories_and_says_so(tmp_path, caplog):
     target = tmp_path / "a" / "b" / "c.txt"
-    atomic_write_text(target, "hello\n")
+    with caplog.at_level("INFO", logger="arm.files"):
+        atomic_write_text(target, "hello\n")
     assert target.read_text() == "hello\n"
+    assert [r.getMessage() for r in caplog.records] == [
+        f"created the folder {tmp_path / 'a' / 'b'} (it did not exist)"
+    ]
+    caplog.clear()
+    with caplog.at_level("INFO", logger="arm.files"):
+        atomic_write_text(target.with_name("d.txt"), "again\n")  # the folder stands: no word
+    assert not caplog.records
 
 
 def test_atomic_write_gives_the_umasks_permissions(tmp_path):
@@ -226,3 +234,75 @@ def test_atomic_write_gives_the_umasks_permissions(tmp_path):
     finally:
         os.umask(old)
     assert target.stat().st_mode & 0o777 == 0o644
+
+
+# -- '#' comment lines: before the header only, alike in every reader ------------------------------
+def _readers():
+    """Every reader of measurement-like CSVs, each as (name, read(path) -> joint angles)."""
+    from arm.measurements import read_poses
+    from lab.export import read_targets
+
+    return [
+        ("measurements", lambda p: read_measurements(p).q),
+        ("measurements in deg", lambda p: read_measurements(p, angle_unit="deg").q),
+        ("poses", read_poses),
+        ("targets", lambda p: read_targets(p).q),
+    ]
+
+
+def test_a_poses_file_with_the_measured_points_added_is_read_by_every_reader(tmp_path):
+    from arm.measurements import poses_csv
+
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-1.0, 1.0, (5, 6))
+    xyz = rng.uniform(0.2, 0.8, (5, 3))
+    # the lab's own poses file (sixaxis lab plan writes it), then x, y, z added by the user
+    lines = poses_csv(q).splitlines()
+    assert lines[0].startswith("# sixaxis-track poses")
+    added = [lines[0], "# measured on Tuesday, tracker AT960", "", lines[1] + ",x,y,z"]
+    added += [
+        f"{row},{','.join(repr(float(v)) for v in p)}"
+        for row, p in zip(lines[2:], xyz, strict=True)
+    ]
+    path = _file(tmp_path, "\n".join(added) + "\n")
+    data = read_measurements(path)
+    assert np.allclose(data.q, q, atol=1e-12) and np.allclose(data.xyz, xyz, atol=1e-12)
+    assert list(data.lines) == [5, 6, 7, 8, 9]  # the editor's line numbers, past the comments
+    for name, read in _readers():
+        if name != "measurements in deg":
+            assert np.allclose(read(path), q, atol=1e-12), name
+    # the declared unit holds for the measurement reader as for the poses reader
+    with pytest.raises(MeasurementError, match=r"line 1: the file declares q1\.\.q6 in rad, but"):
+        read_measurements(path, angle_unit="deg")
+    first, header, *rows = poses_csv(q, "deg").splitlines()
+    rows = [f"{r},{','.join(repr(float(v)) for v in p)}" for r, p in zip(rows, xyz, strict=True)]
+    deg = _file(tmp_path, "\n".join([first, header + ",x,y,z", *rows]) + "\n", "deg.csv")
+    with pytest.raises(
+        MeasurementError, match=r"deg.csv, line 1: the file declares q1\.\.q6 in deg"
+    ):
+        read_measurements(deg)
+    assert np.allclose(read_measurements(deg, angle_unit="deg").q, q, atol=1e-12)
+
+
+@pytest.mark.parametrize("where", ["between rows", "after the last row"])
+def test_a_comment_line_among_the_rows_is_refused_by_every_reader_naming_its_line(tmp_path, where):
+    from lab.export import CompensationError
+
+    rows = [ROW, ROW.replace("0.1", "0.2", 1), ROW.replace("0.1", "0.3", 1)]
+    at = 1 if where == "between rows" else 3
+    body = [*rows[:at], "# second session, 2 degC warmer", *rows[at:]]
+    path = _file(tmp_path, "\n".join(["# campaign 4", HEADER, *body]) + "\n")
+    line = at + 3
+    for name, read in _readers():
+        with pytest.raises((MeasurementError, CompensationError)) as exc:
+            read(path)
+        msg = str(exc.value)
+        assert msg.startswith(f"{path}, line {line}: a comment line"), (name, msg)
+        assert "before the header" in msg and "\n" not in msg, (name, msg)
+
+
+def test_a_file_of_comments_alone_is_refused():
+    from arm.measurements import parse_measurements
+
+    with pytest.raises(MeasurementError, match=r"^c.csv: only comment lines, expected a header"):
+        parse_measurements("# a\n# b\n", "c.csv")
