@@ -123,8 +123,19 @@ class _QuietWorkers(logging.Filter):
         )
 
 
-for _name in ("lab.identifiability", "lab.identification", "lab.diagnosis"):
-    logging.getLogger(_name).addFilter(_QuietWorkers())
+def _quiet_the_lab_in_workers() -> None:
+    """The filter on every module of the lab (a logger's filter sees only its own records, not
+    its children's): the fit's plausibility and outliers, the domain's excursions... of a short
+    buffer as well as the diagnosis's."""
+    import pkgutil
+
+    import lab
+
+    for info in pkgutil.iter_modules(lab.__path__):
+        logging.getLogger(f"lab.{info.name}").addFilter(_QuietWorkers())
+
+
+_quiet_the_lab_in_workers()
 
 
 @dataclass

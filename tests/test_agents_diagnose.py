@@ -179,3 +179,29 @@ def test_the_labs_warnings_from_the_worker_thread_point_at_the_caller_not_thread
         (PoorPoseSetWarning, f"{WORKER} at step 40: poor set")
     ]
     assert caught[0].filename == __file__
+
+
+def test_the_labs_log_records_from_a_worker_thread_stay_the_agents(caplog):
+    """Every module of the lab is quiet in the agent's worker threads (a short buffer's
+    plausibility, outliers and domain lines are the agent's business), and speaks elsewhere."""
+    import logging
+    import threading
+
+    from agents.self_diagnosis import WORKER
+
+    def log_from_every_module():
+        for name in ("lab.estimation", "lab.screening", "lab.domain", "lab.diagnosis"):
+            logging.getLogger(name).warning("from %s", name)
+
+    with caplog.at_level(logging.WARNING):
+        t = threading.Thread(target=log_from_every_module, name=f"{WORKER} step 7")
+        t.start()
+        t.join()
+        assert [r.getMessage() for r in caplog.records] == []
+        log_from_every_module()  # the main thread: said
+    assert [r.getMessage() for r in caplog.records] == [
+        "from lab.estimation",
+        "from lab.screening",
+        "from lab.domain",
+        "from lab.diagnosis",
+    ]
