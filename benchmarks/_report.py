@@ -24,6 +24,20 @@ HEADER = (
 )
 
 
+def _head() -> str:
+    try:
+        return subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=False
+        ).stdout.strip()
+    except OSError:
+        return "?"
+
+
+#: the commit checked out when the benchmark started (imported this module): a commit made while
+#: it ran is not the code it ran
+_STARTED_AT = _head()
+
+
 def machine() -> str:
     cpu = platform.processor() or platform.machine()
     try:
@@ -33,12 +47,7 @@ def machine() -> str:
                 break
     except OSError:
         pass
-    try:
-        rev = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=False
-        ).stdout.strip()
-    except OSError:
-        rev = "?"
+    rev = _STARTED_AT
     return (
         f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, "
         f"commit {rev or '?'}, {time.strftime('%Y-%m-%d')}"
