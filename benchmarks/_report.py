@@ -38,6 +38,18 @@ def _head() -> str:
 _STARTED_AT = _head()
 
 
+def code_state(root: Path) -> dict:
+    """``{"commit", "clean"}`` of the checkout at ``root``: clean when no tracked file outside
+    ``results/`` has local changes. Another benchmark's results written before this one starts
+    (``make real-data`` runs two in turn) do not change the code it runs."""
+    from experiments.records import git_state, local_changes
+
+    state = git_state(root)
+    changed = local_changes(root)
+    clean = changed is not None and not [c for c in changed if not c.startswith("results/")]
+    return {"commit": state["commit"], "clean": clean}
+
+
 def machine() -> str:
     cpu = platform.processor() or platform.machine()
     try:

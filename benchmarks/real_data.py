@@ -68,7 +68,7 @@ from arm.effects import EFFECTS, load_effect_module
 from arm.files import atomic_write_text
 from arm.measurements import MeasurementSet, concatenate, read_measurements
 from arm.params import parse_parameter_name
-from benchmarks._report import machine
+from benchmarks._report import code_state, machine
 from benchmarks.pose_rows import pose_rows, summary_lines
 from lab import FitError, diagnose, discover, fit, screen
 
@@ -1071,9 +1071,7 @@ def main(argv: list[str] | None = None) -> int:
     log.setLevel(logging.INFO)
     for name in ("lab", "arm"):
         logging.getLogger(name).setLevel(logging.ERROR)
-    from experiments.records import git_state
-
-    state = git_state(ROOT)  # before this script writes its own results
+    state = code_state(ROOT)  # before this script writes its own results
     t0 = time.perf_counter()
     datasets = [
         ur10(draws=args.ur10_draws)
@@ -1084,7 +1082,7 @@ def main(argv: list[str] | None = None) -> int:
     ]
     report = {
         "commit": state["commit"],
-        "clean": state["dirty"] is False,
+        "clean": state["clean"],
         "machine": machine(),
         "wall_s": time.perf_counter() - t0,
         "repeat": args.repeat,

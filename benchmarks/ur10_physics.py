@@ -48,7 +48,7 @@ from scipy.spatial.transform import Rotation
 
 from arm.files import atomic_write_text
 from arm.measurements import MeasurementSet, concatenate
-from benchmarks._report import machine
+from benchmarks._report import code_state, machine
 from benchmarks.real_data import UR10_NOISE, UR10_SEED, UR10_SERIES, series_for_fitting
 from lab import fit
 
@@ -339,14 +339,12 @@ def main(argv: list[str] | None = None) -> int:
     log.setLevel(logging.INFO)
     for name in ("lab", "arm"):
         logging.getLogger(name).setLevel(logging.ERROR)
-    from experiments.records import git_state
-
-    state = git_state(ROOT)
+    state = code_state(ROOT)  # before this script writes its own results
     t0 = time.perf_counter()
     series, fitting = series_for_fitting(np.random.default_rng(UR10_SEED))  # as real_data's
     report = {
         "commit": state["commit"],
-        "clean": state["dirty"] is False,
+        "clean": state["clean"],
         "machine": machine(),
         "fit_poses": {k: len(d) for k, d in fitting.items()},
         "noise": UR10_NOISE,
