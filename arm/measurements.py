@@ -560,8 +560,11 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
                 pending.append((r, len(row)))
             continue
         if pending:
-            br, bn = pending[0]
-            raise error(f"{source}, line {br}: {bn} fields, but the header has {len(header)}")
+            br, _ = pending[0]
+            raise error(
+                f"{source}, line {br}: a blank line among the rows (another table, or rows "
+                "lost?): remove it"
+            )
         if len(row) != len(header):
             raise error(f"{source}, line {r}: {len(row)} fields, but the header has {len(header)}")
         if n == len(values):

@@ -79,6 +79,17 @@ MALFORMED = {
     ),
     "empty file": ("", 1, ["empty file"]),
     "blank lines only": ("\n\n  \n", 1, ["empty file"]),
+    "a blank line among the rows": (
+        f"{HEADER}\n{ROW}\n\n{ROW}\n",
+        1,
+        ["line 3", "a blank line among the rows"],
+    ),
+    "a line of empty cells among the rows": (
+        f"{HEADER}\n{ROW}\n,,,,,,,,\n{ROW}\n",
+        1,
+        ["line 3", "a blank line among the rows"],
+    ),
+    "blank lines at the end": (f"{HEADER}\n{ROW}\n\n\n", 30, ["1 measurement rows, at least 30"]),
     "header only": (f"{HEADER}\n", 1, ["0 measurement rows, at least 1 needed"]),
     "too few rows": (f"{HEADER}\n{ROW}\n{ROW}\n", 30, ["2 measurement rows, at least 30 needed"]),
     "duplicate column": (f"{HEADER},x\n{ROW},1\n", 1, ["line 1", "column 'x' appears twice"]),
