@@ -823,6 +823,18 @@ def _fmt(v, spec=".4f") -> str:
     return "" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
 
 
+def _table(title: str, columns: list[str], rows: list[tuple[str, list[str]]]) -> list[str]:
+    """A titled markdown table of one row per model: ``rows`` (model, its cells)."""
+    return [
+        "",
+        title,
+        "",
+        "| model | " + " | ".join(columns) + " |",
+        "|---|" + "---|" * len(columns),
+        *(f"| {model} | " + " | ".join(cells) + " |" for model, cells in rows),
+    ]
+
+
 def _ur10_markdown(ds: dict) -> list[str]:
     """The UR10's tables: across sessions first (the headline), then within one, then one
     session's calibration used on another."""
@@ -842,55 +854,54 @@ def _ur10_markdown(ds: dict) -> list[str]:
         "tool offset the fit could not identify (D's `tz`: its ISO cubes never turn the flange) "
         "is placed with the base, as a user must place it before the calibration is of use "
         "there.",
-        "",
+    ]
+    folds = [f"{k} left out" for k in series]
+    lines += _table(
         "**Cross-session: leave one series out** (the other two fitted whole; held-out 3-D "
         "RMS, mm, on the whole left-out series)",
-        "",
-        "| model | " + " | ".join(f"{k} left out" for k in series) + " | worst | effects |",
-        "|---|" + "---|" * (len(series) + 2),
-    ]
-    for row in ds["cross_session"]:
-        f = row["folds"]
-        worst = max(f[k]["rms_mm"] for k in series)
-        eff = "; ".join(f"{k}: `{_short_effects(f[k]['effects'])}`" for k in series)
-        lines.append(
-            f"| {row['model']} | "
-            + " | ".join(_fmt(f[k]["rms_mm"]) for k in series)
-            + f" | {_fmt(worst)} | {_cell(eff)} |"
-        )
+        [*folds, "worst", "effects"],
+        [
+            (
+                row["model"],
+                [
+                    *(_fmt(row["folds"][k]["rms_mm"]) for k in series),
+                    _fmt(max(row["folds"][k]["rms_mm"] for k in series)),
+                    _cell(
+                        "; ".join(
+                            f"{k}: `{_short_effects(row['folds'][k]['effects'])}`" for k in series
+                        )
+                    ),
+                ],
+            )
+            for row in ds["cross_session"]
+        ],
+    )
     dr = ds["cross_session_draws"]
-    lines += [
-        "",
+    lines += _table(
         f"**The same, on {dr['draws']} draws of {dr['fit_poses']} poses per series** (each "
         "longer series subsampled at random, the left-out series validated whole; held-out 3-D "
         "RMS, mm: median [lowest, highest] over the draws)",
-        "",
-        "| model | " + " | ".join(f"{k} left out" for k in series) + " |",
-        "|---|" + "---|" * len(series),
-    ]
-    for row in dr["models"]:
-        f = row["folds"]
-        lines.append(
-            f"| {row['model']} | "
-            + " | ".join(
-                f"{_fmt(f[k]['median_mm'])} [{_fmt(f[k]['min_mm'], '.3f')}, "
-                f"{_fmt(f[k]['max_mm'], '.3f')}]"
-                for k in series
+        folds,
+        [
+            (
+                row["model"],
+                [
+                    f"{_fmt(f['median_mm'])} [{_fmt(f['min_mm'], '.3f')}, "
+                    f"{_fmt(f['max_mm'], '.3f')}]"
+                    for f in (row["folds"][k] for k in series)
+                ],
             )
-            + " |"
-        )
-    lines += [
-        "",
+            for row in dr["models"]
+        ],
+    )
+    lines += _table(
         "**Within one session: a random 80 / 20 split of each series** (held-out 3-D RMS, mm)",
-        "",
-        "| model | " + " | ".join(f"series {k}" for k in series) + " |",
-        "|---|" + "---|" * len(series),
-    ]
-    for row in ds["within_session"]:
-        f = row["series"]
-        lines.append(
-            f"| {row['model']} | " + " | ".join(_fmt(f[k]["rms_mm"]) for k in series) + " |"
-        )
+        [f"series {k}" for k in series],
+        [
+            (row["model"], [_fmt(row["series"][k]["rms_mm"]) for k in series])
+            for row in ds["within_session"]
+        ],
+    )
     pairs = list(ds["transfer"][0]["pairs"])
     geo = ds["transfer"][0]["pairs"]
     lines += [
