@@ -5,14 +5,18 @@ nothing. How often the rule trips, over drawn campaigns: benchmarks/noise_refute
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy import stats
 
-from arm.measurements import write_measurements
-from lab import NoiseRefutedError, diagnose, discover, fit, screen
+from arm.description import seed_robot
+from arm.measurements import MeasurementSet, write_measurements
+from lab import LabWarning, NoiseRefutedError, diagnose, discover, fit, screen
 from lab.repeatability import NOISE_MARGIN, NOISE_REFUTED_P, stated_noise_of
 from lab.report import build_report
+from tests._beyond_points import pose_campaign
 from tests._cli import lab, one_error_line
 from tests._lab_data import SIGMA, campaign, with_gross_outliers
 
@@ -155,3 +159,19 @@ def test_a_slip_hidden_by_gross_outliers_is_refuted_once_they_are_left_out(seed)
     assert "--noise-mm 0.15" in str(exc.value)
     res = fit(data, seed, noise_mm=3 * NOISE_MM)  # conservative: stands, outliers left out
     assert sorted(o.index for o in res.outlier_list) == sorted(moved.tolist())
+
+
+def test_a_slip_in_the_orientations_noise_is_judged_on_their_rows_alone():
+    """Six-DoF rows: after weighting every row has the positions' noise, so a pooled test would
+    see half of them right; the orientations' rows judge --noise-mrad alone."""
+    data, _ = pose_campaign(seed_robot(), seed=1).measure(60)
+    bare = MeasurementSet(
+        data.q, data.xyz, data.columns, "6dof", orientation=data.orientation, mask=data.mask
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LabWarning)
+        ok = fit(bare, "seed", noise_mm=0.03, noise_mrad=0.05)
+        assert [s.rows for s in ok.stated_noise] == ["positions", "orientations"]
+        assert not any(s.refuted for s in ok.stated_noise)
+        with pytest.raises(NoiseRefutedError, match=r"of the orientations \(--noise-mrad 50\)"):
+            fit(bare, "seed", noise_mm=0.03, noise_mrad=50.0)
