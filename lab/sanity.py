@@ -37,9 +37,11 @@ slip (another arm's or another frame's held-out data, a noise in the wrong unit)
   times the true one (a conservative instrument specification) is therefore refuted with
   probability under 2e-6, whatever the number of poses. A 10x slip is refuted by the chi-square
   nine times in ten at 20 degrees of freedom and but for one in 10,000 from 30 on (the seed
-  arm's 25 geometric parameters need ten more poses than that), and by the sign test from 20
-  poses on whatever gross outliers less than half of them are; a 1000x one (micrometres typed as
-  millimetres) from 3 degrees of freedom on. In ratios, the chi-square refutes a stated noise
+  arm's 25 geometric parameters need ten more poses than that); where gross outliers inflate
+  the sum of squares, the sign test refutes it among a few hundred poses (among a few dozen,
+  least squares spreads them over every pose: the fit without those the screen leaves out
+  judges again). A 1000x one (micrometres typed as millimetres) is refuted from 3 degrees of
+  freedom on. In ratios, the chi-square refutes a stated noise
   more than 6.6 times the residual's at 30 degrees of freedom, 5.0 at 60, 3.7 at 300, 3.2 at
   3,000. ``benchmarks/noise_refuted.py`` measures both rates over drawn campaigns
   (``results/noise_refuted.md``). Positions and orientations (six-DoF rows) are judged apart:
