@@ -175,3 +175,21 @@ def test_a_slip_in_the_orientations_noise_is_judged_on_their_rows_alone():
         assert not any(s.refuted for s in ok.stated_noise)
         with pytest.raises(NoiseRefutedError, match=r"of the orientations \(--noise-mrad 50\)"):
             fit(bare, "seed", noise_mm=0.03, noise_mrad=50.0)
+
+
+def test_the_benchmark_records_what_the_report_counts():
+    """benchmarks/noise_refuted.py on one drawn campaign (33 poses, cyclic[1:34] and
+    compliance[2] planted): 1x and 3x stand on both models; 10x stands on the geometric model
+    (the missing effects leave more than a third of it) and is refused on the planted one."""
+    from benchmarks import noise_refuted as bench
+
+    rec = bench.run_campaign(21)
+    assert rec is not None and rec["n"] == 33 and not rec["n_outliers"]
+    assert rec["refused"] == {
+        "geometric": {"1": False, "3": False, "10": False, "1000": True},
+        "planted": {"1": False, "3": False, "10": True, "1000": True},
+    }
+    summary = bench.summarise([rec])
+    assert summary["false_refusals"]["count"] == 0 and summary["false_refusals"]["of"] == 4
+    assert summary["slips_refused_planted_clean"]["count"] == 2
+    assert [m["reason"] for m in bench.misses([rec])] == ["geometric: 10x stood"]
