@@ -136,7 +136,8 @@ def _option(key: str) -> Constraint:
 
 _NOISE_HELP = (
     "The instrument's per-axis standard uncertainty (mm); the noise floor of a 3-D RMS is this "
-    "times sqrt(3). Default: estimated from the residual."
+    "times sqrt(3). Refused where the fit's residual refutes it (more than 3x the noise it "
+    "shows, beyond chance: a unit slip). Default: estimated from the residual."
 )
 NoiseOpt = Annotated[float | None, declared(_option("noise_mm"), "noise_mm", _NOISE_HELP)]
 LossOpt = Annotated[

@@ -112,7 +112,6 @@ from lab.repeatability import (
     noise_p_value,
 )
 from lab.result import SCHEMA_VERSION, FitResult, Outlier
-from lab.sanity import check_stated_noise
 from lab.screening import Screen, annotate, screened
 from lab.selection import DEPENDENT, ForwardSelection, f_test, hat_blocks, holm, press_rms
 from lab.spectral import CyclicProblem, CyclicScan, CyclicScanner
@@ -362,7 +361,6 @@ def diagnose(
     # the noise the tests use: the stated one, else the scatter of repeated poses
     floor = noise_floor(s.options.noise_mm, s.kept)
     res, data = s.fit, s.kept
-    check_stated_noise(res, s.options.noise_mm)
     assert s.untested_rows is not None  # screened(tests=True) judged them
     if res.weighted and res.noise_ref is not None:  # stated by the rows' uncertainties
         floor = NoiseFloor(1e3 * res.noise_ref, "stated", floor.repeatability)

@@ -20,7 +20,7 @@ __all__ = [
     "FitError",
     "ImplausibleAcceptedWarning",
     "LabWarning",
-    "NoiseMismatchWarning",
+    "NoiseRefutedError",
     "OrientationNotFittedWarning",
     "PoorPoseSetWarning",
     "RowsLeftOutWarning",
@@ -36,6 +36,12 @@ class ContaminatedError(FitError):
     """More of the poses are gross outliers than a calibration allows (the screen's stated
     fraction, :data:`lab.screening.MAX_OUTLIER_FRACTION`): the fit is refused rather than called
     a calibration. ``outliers="keep"`` fits every pose (with a robust loss, they weigh less)."""
+
+
+class NoiseRefutedError(FitError):
+    """The stated noise is far above what the fit's residual allows
+    (:func:`lab.sanity.check_stated_noise`): a unit slip, most likely. Nothing is decided on
+    it: the noise decides which parameters are fitted, the verdict and when discovery stops."""
 
 
 class LabWarning(SixAxisWarning):
@@ -62,8 +68,3 @@ class OrientationNotFittedWarning(LabWarning):
 class ValidationMismatchWarning(LabWarning):
     """Held-out data fit far worse than the fitted data (:func:`lab.sanity.check_validation`):
     another arm, another frame or other units, most likely."""
-
-
-class NoiseMismatchWarning(LabWarning):
-    """The stated noise is far above what the residual allows
-    (:func:`lab.sanity.check_stated_noise`): a unit slip, most likely."""

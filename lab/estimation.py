@@ -59,7 +59,9 @@ from lab.observations import Observations, observations_of, uses_orientation
 from lab.options import LabOptions
 from lab.plausibility import Implausible, implausible, likely_cause
 from lab.registration import register_base, register_tool_rotation, tool_indices
+from lab.repeatability import stated_noise_of
 from lab.result import FitResult, inputs_of, rms
+from lab.sanity import check_stated_noise
 from lab.solver import (
     HUBER_K,
     irls_weights,
@@ -231,10 +233,14 @@ def fit_rows(
     *,
     start: Mapping[str, float] | None = None,
     fixed: Iterable[str] = (),
+    judge_noise: bool = False,
 ) -> FitResult:
     """The fit of every pose of ``data``: registration, identifiability, Levenberg-Marquardt,
     identifiability again with the noise known, standard errors (the module docstring). Nothing
-    is left out here: :mod:`lab.screening` decides which rows count."""
+    is left out here: :mod:`lab.screening` decides which rows count. ``judge_noise``: refuse a
+    stated noise that the residual refutes before it is used (:func:`lab.sanity.
+    check_stated_noise`; the screen's first fit, of every distinct row, judges it: a fit of
+    fewer rows, a trimmed start, would not be a fair judge)."""
     loss, noise_mm, f_scale_mm = options.loss, options.noise_mm, options.f_scale_mm
     model, inputs = build_model(data, robot, effects, options.measured, options.instrument)
     obs = observations_of(data, options.instrument, options.measured)
@@ -285,6 +291,10 @@ def fit_rows(
     else:
         sigma = robust_sigma(sol.residuals[obs.measured])
     _check_follows(points(sol), data.source, lay.effects)
+    # the residual no noise has touched yet: what judges a stated one (lab.sanity)
+    stated = stated_noise_of(sol.residuals, obs.measured, obs.sigma_ref, int(free.sum()))
+    if judge_noise:
+        check_stated_noise(stated, options, data)
     noise = _noise_of(noise_mm, obs, sol.residuals, sigma)
     # Repeated poses average the instrument's noise but not the model's own error: what the poses
     # determine is judged per distinct pose, as if each were measured once. (480,000 rows of 60
@@ -331,6 +341,7 @@ def fit_rows(
         inputs=inputs,
         weights=w,
         source=data.source,
+        stated_noise=stated,
         refit=partial(
             _refit_without,
             data,

@@ -32,7 +32,7 @@ from arm.measurements import MeasurementSet, as_measurements
 from lab.errors import FitError
 from lab.options import LabOptions, OptionFields, resolve
 from lab.result import FitResult
-from lab.sanity import check_stated_noise, check_validation
+from lab.sanity import check_validation
 from lab.screening import Screen, screened
 
 __all__ = ["fit"]
@@ -78,7 +78,6 @@ def fit(
             raise FitError("start and fixed apply to a fit of data, not of a screen made before")
     s = screened(data, robot, effects, opts, tests=False, start=start, fixed=fixed)
     result = s.fit
-    check_stated_noise(result, s.options.noise_mm)
     if validate is not None:
         held_out = as_measurements(validate)
         result = result.validate(held_out, extrapolate=extrapolate)

@@ -12,20 +12,36 @@ so they are the floor that a perfect model reaches. Pooled over every repeated p
 
     rep = repeatability(data)
     rep.sigma_mm, rep.groups, rep.dof   # None when no pose is repeated
+
+A stated noise is judged against a fit's residual too (:class:`StatedNoise`): refuted where
+even a :data:`NOISE_MARGIN`-th of it would leave a residual as small with probability under
+:data:`NOISE_REFUTED_P`, by the sum of squares or by the count of poses above their median
+(:mod:`lab.sanity` refuses it; its docstring says why).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
 
 from arm.measurements import MeasurementSet
 
-__all__ = ["NoiseFloor", "Repeatability", "noise_floor", "repeatability"]
+__all__ = [
+    "NoiseFloor",
+    "Repeatability",
+    "StatedNoise",
+    "noise_floor",
+    "repeatability",
+    "stated_noise_of",
+]
 
+#: a stated noise up to this many times the true one is a conservative statement, not a slip
+NOISE_MARGIN = 3.0
+#: ... and it is refuted where even a NOISE_MARGIN-th of it leaves a residual this improbable
+NOISE_REFUTED_P = 1e-6
 TOLERANCE = 1e-4  # rad: joint angles this close are one pose (0.006 deg)
 MIN_DOF = 6  # fewer degrees of freedom than this measure no repeatability
 
@@ -162,3 +178,121 @@ def implied_noise_text(implied_mm: float, stated_mm: float, source: str | None) 
         f"no structure is left: the residual is noise of {implied_mm:.4g} mm per axis, "
         f"{pct:.0f} % above {what} {stated_mm:.4g} mm"
     )
+
+
+@dataclass(frozen=True)
+class StatedNoise:
+    """What a fit's residual says of a stated noise, for one kind of row (``rows``:
+    ``positions`` or ``orientations``): ``sigma``, the stated per-row noise after weighting (m:
+    the rows' common noise, :mod:`lab.observations`); ``rss`` (m^2) and ``dof``, the residual
+    sum of squares of those rows and its degrees of freedom in the fit of every parameter the
+    poses identify by their structure, before the noise decided which to keep (the parameters'
+    share of the rows: ``rows - parameters x rows / all rows``); ``pose_ss`` and ``pose_rows``,
+    each pose's sum of squares and rows of that kind.
+
+    Two tests of "the noise is at least a :data:`NOISE_MARGIN`-th of the stated one", each at
+    :data:`NOISE_REFUTED_P`: the **chi-square** of the sum of squares, and a **sign test** of
+    how many poses lie above the median that noise would give them (chi-square of their rows,
+    shrunk by the parameters' share); it would give half of them, and gross outliers, which
+    inflate the sum of squares, count only once each there."""
+
+    rows: str
+    sigma: float
+    rss: float
+    dof: float
+    pose_ss: np.ndarray = field(repr=False, compare=False)
+    pose_rows: np.ndarray = field(repr=False, compare=False)
+
+    @property
+    def residual_sigma(self) -> float:
+        """The per-row noise the residual shows (m): at most the true noise's, up to chance,
+        where the model misses nothing; more where it does."""
+        return math.sqrt(self.rss / self.dof) if self.dof > 0 else math.nan
+
+    @property
+    def ratio(self) -> float:
+        """The stated noise over the residual's."""
+        r = self.residual_sigma
+        return self.sigma / r if r > 0 else math.inf
+
+    @property
+    def chi2_p_value(self) -> float:
+        """The probability that a noise of a :data:`NOISE_MARGIN`-th of the stated one leaves
+        a residual sum of squares as small as this one (chi-square, ``dof``)."""
+        if not self.dof > 0 or not self.sigma > 0:
+            return 1.0
+        return float(stats.chi2.cdf(self.rss / (self.sigma / NOISE_MARGIN) ** 2, self.dof))
+
+    @property
+    def poses_above(self) -> int:
+        """The poses above the median residual that a :data:`NOISE_MARGIN`-th of the stated
+        noise gives them."""
+        n = len(self.pose_ss)
+        if not n:
+            return 0
+        share = max(self.dof, 0.0) / max(float(np.sum(self.pose_rows)), 1.0)
+        median = (self.sigma / NOISE_MARGIN) ** 2 * share * stats.chi2.median(self.pose_rows)
+        return int(np.count_nonzero(self.pose_ss > median))
+
+    @property
+    def sign_p_value(self) -> float:
+        """The probability of so few poses above that median (binomial, one half)."""
+        n = len(self.pose_ss)
+        if not n or not self.dof > 0 or not self.sigma > 0:
+            return 1.0
+        return float(stats.binom.cdf(self.poses_above, n, 0.5))
+
+    @property
+    def p_value(self) -> float:
+        """The smaller of the two tests' p-values."""
+        return min(self.chi2_p_value, self.sign_p_value)
+
+    @property
+    def refuted(self) -> bool:
+        """Whether the residual refutes the stated noise: either test below
+        :data:`NOISE_REFUTED_P` (so a noise stated up to :data:`NOISE_MARGIN` times the true one
+        is refuted with probability under twice that)."""
+        return self.p_value < NOISE_REFUTED_P
+
+    def to_dict(self) -> dict:
+        return {
+            "rows": self.rows,
+            "stated_sigma": self.sigma,
+            "residual_sigma": self.residual_sigma,
+            "dof": self.dof,
+            "poses": len(self.pose_ss),
+            "poses_above": self.poses_above,
+            "p_value": self.p_value,
+            "refuted": self.refuted,
+        }
+
+
+def stated_noise_of(
+    residuals: np.ndarray, measured: np.ndarray, sigma: float | None, n_free: int
+) -> tuple[StatedNoise, ...]:
+    """The evidence on a stated noise ``sigma`` (m, every row's after weighting; None: none
+    stated) from a fit's weighted residual rows ``residuals`` (N, k; ``measured`` (N, k) marks
+    the rows measured) with ``n_free`` parameters fitted: one :class:`StatedNoise` per kind of
+    row measured (positions; orientations too in six-DoF rows); none where no noise is stated."""
+    if sigma is None:
+        return ()
+    measured = np.asarray(measured, dtype=bool).reshape(len(measured), -1)
+    r = np.asarray(residuals, dtype=float).reshape(measured.shape)
+    total = int(measured.sum())
+    if total == 0:
+        return ()
+    out = []
+    kinds = [("positions", slice(0, 3))]
+    if measured.shape[1] == 6:
+        kinds.append(("orientations", slice(3, 6)))
+    for name, cols in kinds:
+        m = measured[:, cols]
+        rows = int(m.sum())
+        if not rows:
+            continue
+        per_pose = m.sum(axis=1)
+        seen = per_pose > 0
+        ss = np.sum(np.where(m, r[:, cols], 0.0) ** 2, axis=1)
+        dof = rows - n_free * rows / total
+        out.append(StatedNoise(name, float(sigma), float(ss.sum()), dof, ss[seen], per_pose[seen]))
+    return tuple(out)

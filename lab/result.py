@@ -38,6 +38,7 @@ from lab.identifiability import Identifiability
 from lab.observations import Observations
 from lab.plausibility import Implausible
 from lab.registration import register_stations, tool_columns, tool_indices
+from lab.repeatability import StatedNoise
 from lab.solver import OUTLIER_RADIUS, robust_sigma
 from lab.text import left_out_lines, parameter_cells
 
@@ -162,6 +163,9 @@ class FitResult:
     # terms were left out of the rows they do not hold on (none with extrapolate=True)
     validation_excursions: tuple[Excursion, ...] = ()
     validation_dropped: tuple[str, ...] = ()
+    # what the residual says of the stated noise, before the noise was used (lab.sanity): one
+    # per kind of row whose noise was stated (positions, orientations); () where none was
+    stated_noise: tuple[StatedNoise, ...] = ()
     # the fit again with some parameters held at zero, on the same rows: the model without
     # those terms (lab.estimation sets it; None: the terms' parameters are zeroed instead)
     refit: Callable[[Sequence[str]], np.ndarray] | None = field(

@@ -94,11 +94,12 @@ from lab.candidates import (
     explained,
     explained_residual,
 )
-from lab.errors import ContaminatedError, FitError, RowsLeftOutWarning
+from lab.errors import ContaminatedError, FitError, NoiseRefutedError, RowsLeftOutWarning
 from lab.estimation import check_plausible, fit_rows
 from lab.observations import Observations, observations_of
 from lab.options import DEFAULTS, LabOptions, OptionFields, resolve
 from lab.result import Duplicate, FitResult, Outlier, RowsCounted, inputs_of
+from lab.sanity import check_stated_noise
 from lab.solver import HUBER_K, OUTLIER_RADIUS, robust_sigma
 from lab.text import duplicates_text
 
@@ -293,9 +294,15 @@ class _Model:
         except EffectError as exc:
             raise FitError(str(exc)) from None
 
-    def fit(self, data: MeasurementSet) -> FitResult:
+    def fit(self, data: MeasurementSet, judge_noise: bool = False) -> FitResult:
         return fit_rows(
-            data, self.robot, self.parsed, self.options, start=self.start, fixed=self.fixed
+            data,
+            self.robot,
+            self.parsed,
+            self.options,
+            start=self.start,
+            fixed=self.fixed,
+            judge_noise=judge_noise,
         )
 
     def observations(self, data: MeasurementSet) -> Observations:
@@ -898,7 +905,13 @@ def _screen(
     else:
         unique = data
     try:
-        result = model.fit(unique)
+        # the first fit, of every distinct row, judges the stated noise before anything is
+        # decided on it (lab.sanity); a fit of fewer rows (a trimmed start) would not be fair,
+        # but the fit without the gross outliers the screen finds judges it again (below)
+        result = model.fit(unique, judge_noise=True)
+    except NoiseRefutedError:
+        _implausible_first(unique, model)
+        raise
     except FitError as exc:
         if dups:
             raise FitError(f"{exc} ({len(dups)} duplicate row(s) counted once)") from None
@@ -912,7 +925,8 @@ def _screen(
         kept = distinct[judged.keep]
         found = [replace(o, index=int(distinct[o.index])) for o in judged.outliers]
         found = annotate(found, result.model, data)
-        if found:
+        if found:  # judged again without them: gross outliers inflate the residual
+            check_stated_noise(result.stated_noise, opts, data, left_out=len(found))
             where = ", ".join(o.where for o in found[:5])
             log.warning(
                 "%s: %d outlier(s) left out of the fit (%s)", data.source, len(found), where
@@ -925,6 +939,18 @@ def _screen(
     return _screened_fit(
         data, result, model, candidates, tests, kept, tuple(found), tuple(dups), rule, note
     )
+
+
+def _implausible_first(data: MeasurementSet, model: _Model) -> None:
+    """Where a stated noise was refuted, refuse instead a fit that is no arm, made without the
+    noise (data in metres read as millimetres make every residual 1000 times smaller, and the
+    noise looks refuted): the slip to name is the data's unit (:func:`check_plausible`)."""
+    options = model.options.replace(noise_mm=None, noise_ppm=0.0, noise_mrad=None)
+    try:
+        probe = replace(model, options=options).fit(data)
+    except FitError:
+        return
+    check_plausible(probe, model.options.accept_large)
 
 
 def _screened_fit(

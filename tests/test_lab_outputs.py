@@ -1,7 +1,7 @@
 """What the lab's commands write and say where the user typed something unexpected: the export's
 format follows the output's suffix, --json is the JSON object alone on stdout, and a slip (another
-arm's held-out data, a noise in the wrong unit, a CSV with another separator or a comment line
-among its rows) is named in one line with the file and the likely cause."""
+arm's held-out data, a CSV with another separator or a comment line among its rows) is named in
+one line with the file and the likely cause (a noise in the wrong unit: tests/test_lab_noise.py)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ import pytest
 
 from arm.description import load_robot
 from arm.measurements import MeasurementError, read_measurements, write_measurements
-from lab import NoiseMismatchWarning, ValidationMismatchWarning, diagnose, fit
+from lab import ValidationMismatchWarning, fit
 from tests._cli import lab, one_error_line
 from tests._lab_data import campaign
 
@@ -118,17 +118,6 @@ def test_validation_far_beyond_the_fit_is_named(small, tmp_path):
     assert res.returncode == 0, res.stderr
     assert json.loads(res.stdout)["validation_rms_mm"] > 100
     assert "test.csv: validation RMS" in res.stderr and "another arm" in res.stderr
-
-
-def test_a_stated_noise_far_above_the_residual_is_named(seed):
-    data = campaign(seed, "geometric", seed=5).measure(120)  # 15 um per axis
-    with pytest.warns(NoiseMismatchWarning, match=r"stated noise 15 mm .* unit slip"):
-        diagnose(data, seed, noise_mm=15.0)
-    with pytest.warns(NoiseMismatchWarning):
-        fit(data, seed, noise_mm=15.0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", NoiseMismatchWarning)
-        diagnose(data, seed, noise_mm=0.015)  # the instrument's own: no word
 
 
 @pytest.mark.parametrize(
