@@ -23,7 +23,7 @@ import numpy as np
 
 from arm.description import RobotDescription
 from arm.measurements import MeasurementSet
-from lab import FitResult, fit
+from lab import FitResult, NoiseRefutedError, fit
 
 __all__ = ["pose_rows", "variance_components"]
 
@@ -51,7 +51,13 @@ def variance_components(
     s_mm, s_mrad = START_MM, START_MRAD
     res = None
     for _ in range(iterations):
-        res = _quiet(fit, data, robot, effects, outliers="keep", noise_mm=s_mm, noise_mrad=s_mrad)
+        try:
+            res = _quiet(
+                fit, data, robot, effects, outliers="keep", noise_mm=s_mm, noise_mrad=s_mrad
+            )
+        except NoiseRefutedError:  # a start far above the data's noise: the lab refuses it
+            s_mm, s_mrad = s_mm / 10, s_mrad / 10  # (too small a start it never refutes)
+            continue
         obs = res.observations
         assert obs is not None and obs.scale is not None and obs.rotation is not None
         J = res.jacobian[:, :, res.identifiable]  # the weighted rows' (N, 6, k)
