@@ -236,6 +236,73 @@ def discover_cmd(
     emit_json(d.to_dict(), as_json, out)
 
 
+# -- bag --------------------------------------------------------------------------------------------
+@lab_command(app, "bag", omit=("effects",))
+def bag_cmd(
+    data: DataArg,
+    output: Annotated[
+        Path | None,
+        typer.Option(
+            "--output",
+            "-o",
+            help="The effect module (Python) of every draw's discovered terms, when there are "
+            "any; the averaged values are in --json.",
+            metavar="MODULE.py",
+        ),
+    ] = None,
+    *,
+    lab: LabArgs,
+    bags: Annotated[int, typer.Option(min=1, help="Draws of the poses.")] = 10,
+    poses: Annotated[
+        int,
+        typer.Option(
+            min=12,
+            help="Poses each draw takes of a session (the session column, else station) at most.",
+        ),
+    ] = 1000,
+    seed: Annotated[int, typer.Option(help="Draws the poses.")] = 0,
+    name: Annotated[
+        str, typer.Option(help="The discovered effect's name (lower case, digits, _).")
+    ] = "bagged",
+    extrapolate: ExtrapolateOpt = False,
+    as_json: JsonOpt = False,
+    out: JsonOutOpt = None,
+) -> None:
+    """Run the lab's path (screen, diagnose, discover, fit) on draws of the poses and average
+    the models into one calibration.
+
+    Each draw takes at most --poses poses of each session (or station), so that no session
+    outweighs another by its number of poses; the models are averaged by parameter name over the
+    union of the effects the draws chose, and only the stations' bases are fitted again. Which
+    terms a path keeps depends on the poses measured; their average holds across sessions
+    (docs/lab.md, the UR10)."""
+    from lab.bagging import bag
+    from lab.discovery import check_module_path
+
+    if output is not None:
+        with user_errors():
+            check_module_path(output)
+    arm, meas, val, opts, _ = lab.read(data, [(output, "--output"), (out, "--out")], as_json)
+    with user_errors(), console.status(f"the lab's path on {bags} draws of the poses..."):
+        b = bag(meas, arm, bags=bags, poses=poses, seed=seed, name=name, options=opts)
+        result = b.result if val is None else b.result.validate(val, extrapolate=extrapolate)
+    written = None
+    if output is not None and b.discovered is not None:
+        with user_errors(), writing(output):
+            written = b.write_module(output)
+    if not as_json:
+        print_fit(result)
+        say(f"bag: {bags} draws of at most {poses} poses per session; effects: {b.suggestion}")
+        if written is not None:
+            say(f"wrote {written} (the discovered terms of every draw: --effect-module)")
+    emit_json(
+        result.to_dict()
+        | {"bag": {"bags": bags, "poses": poses, "seed": seed, "effects": b.suggestion}},
+        as_json,
+        out,
+    )
+
+
 # -- report -----------------------------------------------------------------------------------------
 @lab_command(app, "report")
 def report_cmd(

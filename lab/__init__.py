@@ -24,6 +24,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from lab.bagging import Bag, bag
     from lab.diagnosis import Candidate, Diagnosis, Hint, diagnose
     from lab.discovery import Discovery, discover
     from lab.errors import (
@@ -48,6 +49,8 @@ if TYPE_CHECKING:
 # each public name and the module that defines it: importing ``lab`` (or ``lab.text``) loads
 # nothing else until a name is used, so the command line's ``--help`` stays fast
 _HOME = {
+    "Bag": "lab.bagging",
+    "bag": "lab.bagging",
     "Candidate": "lab.diagnosis",
     "Diagnosis": "lab.diagnosis",
     "Hint": "lab.diagnosis",
@@ -86,6 +89,7 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "Bag",
     "Candidate",
     "ContaminatedError",
     "Diagnosis",
@@ -105,6 +109,7 @@ __all__ = [
     "Screen",
     "ValidationMismatchWarning",
     "analyse",
+    "bag",
     "diagnose",
     "discover",
     "fit",

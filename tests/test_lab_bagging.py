@@ -1,0 +1,108 @@
+"""One calibration from many draws of the poses (lab.bagging): the lab's path on each draw of at
+most ``poses`` poses per session, and the models averaged by parameter name into one model of
+the union of their effects, only the stations' bases fitted again."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from arm.description import load_robot
+from arm.errormodel import ErrorModel
+from arm.measurements import MeasurementSet, concatenate
+from lab import FitError, FitResult, bag
+from lab.bagging import union_effects
+from lab.result import inputs_of
+
+SIGMA = 15e-6
+TRUE = {"c2": 6e-6, "c3": 4e-6, "da2": 2e-4, "dtheta3": 8e-4, "ts1": 3e-4, "tc1": -2e-4}
+
+
+def _session(n: int, session: int, seed: int) -> MeasurementSet:
+    rng = np.random.default_rng(seed)
+    lo = np.array([-2.5, -2.2, -1.2, -2.5, -1.8, -3.0])
+    hi = np.array([2.5, -0.3, 1.2, 2.5, 1.8, 3.0])
+    q = rng.uniform(lo, hi, size=(n, 6))
+    model = ErrorModel(load_robot("seed"), "geometric,compliance,transmission")
+    p = model.layout.vector(TRUE, default=model.nominal())
+    cols = {"session": np.full(n, float(session))}
+    xyz = model.predict(inputs_of(model, MeasurementSet(q, np.zeros((n, 3)), cols)), p)
+    xyz = xyz + SIGMA * rng.standard_normal(xyz.shape)
+    return MeasurementSet(q, xyz, cols, source=f"session{session}.csv")
+
+
+def test_the_union_of_effects_strings_joins_joints_and_orders():
+    assert (
+        union_effects(["geometric,compliance[2],cyclic[1:4,8;3:2-3]", "compliance[3],cyclic[1:5]"])
+        == "geometric,compliance[2,3],cyclic[1:4,5,8;3:2,3]"
+    )
+    assert union_effects(["geometric", "geometric,thermal"]) == "geometric,thermal"
+
+
+@pytest.fixture(scope="module")
+def sessions() -> MeasurementSet:
+    return concatenate([_session(260, 1, 11), _session(90, 2, 12)], source="two.csv")
+
+
+@pytest.fixture(scope="module")
+def bagged(sessions):
+    return bag(sessions, "seed", bags=3, poses=120, seed=0, noise_mm=0.015)
+
+
+def test_each_draw_takes_at_most_poses_per_session_and_the_draws_differ(sessions, bagged):
+    s = sessions.columns["session"]
+    for d in bagged.draws:
+        assert np.sum(s[d.rows] == 1) == 120 and np.sum(s[d.rows] == 2) == 90
+        assert len(np.unique(d.rows)) == len(d.rows)
+    assert not np.array_equal(bagged.draws[0].rows, bagged.draws[1].rows)
+
+
+def test_the_model_is_the_mean_of_the_draws_by_name_bases_fitted_again(bagged):
+    res = bagged.result
+    assert isinstance(res, FitResult)
+    names = list(res.model.layout.names)
+    for n in ("da2", "dtheta3", "c2", "c3"):
+        draws = [d.result[n] if n in d.result.model.layout.names else 0.0 for d in bagged.draws]
+        assert res[n] == pytest.approx(float(np.mean(draws)), rel=1e-12, abs=1e-15)
+    # what the draws share is the truth, within what 120 + 90 poses tell
+    assert res["c2"] == pytest.approx(TRUE["c2"], rel=0.2)
+    assert res["dtheta3"] == pytest.approx(TRUE["dtheta3"], abs=1e-4)
+    # only the bases were fitted on the whole: a station's base, not the draws' mean
+    assert any(n.startswith("bx") for n in names)
+    assert res.rms_mm < 3 * SIGMA * np.sqrt(3) * 1e3
+    # every effect a draw chose is in the union, and the suggestion names them
+    union = {t.split("[")[0] for t in bagged.effects.split(",")}
+    assert "compliance" in union  # the draws found the planted compliance
+    for d in bagged.draws:
+        assert {t.split("[")[0] for t in d.choice.split(",")} <= union
+    assert bagged.suggestion.startswith(bagged.effects)
+
+
+def test_one_draw_of_every_pose_is_the_lab_path_itself(sessions):
+    one = bag(sessions, "seed", bags=1, poses=10_000, noise_mm=0.015)
+    (d,) = one.draws
+    assert len(d.rows) == len(sessions)
+    for n in d.result.model.layout.names:
+        if not n.startswith(("bx", "by", "bz", "brx", "bry", "brz")):
+            assert one.result[n] == pytest.approx(d.result[n], rel=1e-12, abs=1e-15)
+    held = _session(80, 3, 13)
+    v = one.result.validate(held)
+    assert v.validation_rms_mm == pytest.approx(d.result.validate(held).validation_rms_mm, rel=1e-3)
+
+
+def test_bad_settings_are_refused(sessions):
+    with pytest.raises(FitError, match="bags must be an integer >= 1"):
+        bag(sessions, "seed", bags=0)
+    with pytest.raises(FitError, match="poses"):
+        bag(sessions, "seed", poses=3)
+
+
+def test_a_draw_that_cannot_be_fitted_is_named(sessions, monkeypatch):
+    import lab.bagging
+
+    def refuse(data, robot, opts, name):
+        raise FitError(f"{data.source}: not a plausible model")
+
+    monkeypatch.setattr(lab.bagging, "_path", refuse)
+    with pytest.raises(FitError, match=r"draw 1 of 2 \(210 poses\): .*not a plausible.*poses="):
+        bag(sessions, "seed", bags=2, poses=120, noise_mm=0.015)
