@@ -43,6 +43,7 @@ log = logging.getLogger(__name__)
 RANK_TOL = 1e-8
 ZERO_COLUMN_M = 1e-12  # m RMS per pose: far below any instrument, far above FK round-off (1e-16 m)
 CONDITION_WARNING = 100.0
+HELD_SHOWN = 12  # the parameters held at given values that a summary names (a bag holds hundreds)
 _COEF_TOL = 1e-6  # scaled null-space coefficients below this are round-off, not dependencies
 _LABEL_TOL = 1e-2  # and below this too small to name in a label
 
@@ -136,7 +137,12 @@ class Identifiability:
         if self.fixed_names:
             lines.append("fixed at nominal: " + "; ".join(self.unidentifiable))
         if self.held:
-            lines.append("held at the values given: " + ", ".join(self.held))
+            shown = ", ".join(self.held[:HELD_SHOWN])
+            more = len(self.held) - HELD_SHOWN
+            lines.append(
+                f"held at the values given ({len(self.held)}): {shown}"
+                + (f", and {more} more" if more > 0 else "")
+            )
         return "\n".join(lines)
 
 

@@ -156,7 +156,7 @@ LAB_ORDER = [
     {"screening"},
     {"identification", "transfer"},
     {"diagnosis", "discovery", "planning", "export"},
-    {"urdf_export"},
+    {"urdf_export", "bagging"},
     {"report", "lab_report", "report_html", "plots"},
 ]
 

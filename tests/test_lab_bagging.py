@@ -76,6 +76,10 @@ def test_the_model_is_the_mean_of_the_draws_by_name_bases_fitted_again(bagged):
     for d in bagged.draws:
         assert {t.split("[")[0] for t in d.choice.split(",")} <= union
     assert bagged.suggestion.startswith(bagged.effects)
+    # the summary names a dozen of the parameters held, then counts the rest
+    held = len(res.identifiability.held)
+    assert held > 12 and f"held at the values given ({held}): " in res.summary()
+    assert f", and {held - 12} more" in res.summary()
 
 
 def test_one_draw_of_every_pose_is_the_lab_path_itself(sessions):
