@@ -727,6 +727,10 @@ def _bagged(series: dict[str, MeasurementSet], fit_poses: int, bags: int) -> dic
             train_rms_mm=float(b.result.rms_mm),
             seconds=float(t),
         )
+        if b.refused:
+            row["note"] = f"{len(b.refused)} of {bags} draws refused, left out: " + "; ".join(
+                r.split(":")[0] for r in b.refused
+            )
         folds[out] = row | _held_out(b.result, series[out])
     return folds
 

@@ -264,6 +264,15 @@ def bag_cmd(
     name: Annotated[
         str, typer.Option(help="The discovered effect's name (lower case, digits, _).")
     ] = "bagged",
+    export: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also write the averaged calibration as a robot TOML (as `lab export` does); "
+            "with discovered terms, use it with their module (-o, default FILE.py beside it): "
+            "--robot FILE.toml --effect-module FILE.py.",
+            metavar="FILE.toml",
+        ),
+    ] = None,
     extrapolate: ExtrapolateOpt = False,
     as_json: JsonOpt = False,
     out: JsonOutOpt = None,
@@ -279,10 +288,13 @@ def bag_cmd(
     from lab.bagging import bag
     from lab.discovery import check_module_path
 
+    if output is None and export is not None:  # the discovered terms go beside the arm
+        output = export.with_suffix(".py")
     if output is not None:
         with user_errors():
             check_module_path(output)
-    arm, meas, val, opts, _ = lab.read(data, [(output, "--output"), (out, "--out")], as_json)
+    places = [(output, "--output"), (out, "--out"), (export, "--export")]
+    arm, meas, val, opts, _ = lab.read(data, places, as_json)
     with user_errors(), console.status(f"the lab's path on {bags} draws of the poses..."):
         b = bag(meas, arm, bags=bags, poses=poses, seed=seed, name=name, options=opts)
         result = b.result if val is None else b.result.validate(val, extrapolate=extrapolate)
@@ -290,14 +302,34 @@ def bag_cmd(
     if output is not None and b.discovered is not None:
         with user_errors(), writing(output):
             written = b.write_module(output)
+    if export is not None:
+        from arm.effects import load_effect_module
+        from lab.export import export_robot
+
+        with user_errors(), writing(export):
+            if written is not None:
+                load_effect_module(written)  # the arm names the effect: it must be registered
+            export_robot(b.result, export)
     if not as_json:
         print_fit(result)
         say(f"bag: {bags} draws of at most {poses} poses per session; effects: {b.suggestion}")
+        for why in b.refused:
+            say(f"left out of the average: {why}")
         if written is not None:
             say(f"wrote {written} (the discovered terms of every draw: --effect-module)")
+        if export is not None:
+            say(f"wrote the averaged calibration to {export}; use it with --robot {export}")
     emit_json(
         result.to_dict()
-        | {"bag": {"bags": bags, "poses": poses, "seed": seed, "effects": b.suggestion}},
+        | {
+            "bag": {
+                "bags": bags,
+                "poses": poses,
+                "seed": seed,
+                "effects": b.suggestion,
+                "refused": b.refused,
+            }
+        },
         as_json,
         out,
     )

@@ -133,12 +133,15 @@ class Draw:
 class Bag:
     """What :func:`bag` made: ``result``, the averaged model; ``effects``, its catalogue effects
     (a string) and ``discovered``, the discovered terms of every draw as one effect (None when
-    no draw found any); ``draws``, each draw's path."""
+    no draw found any); ``draws``, each draw's path; ``refused``, the draws whose path the lab
+    refused (a fit beyond the plausible bounds on those poses), left out of the mean."""
 
     result: FitResult
     effects: str
     discovered: Discovery | None
     draws: list[Draw] = field(repr=False)
+    # the draws whose path the lab refused (at most half), each with why: left out of the mean
+    refused: list[str] = field(default_factory=list)
 
     @property
     def suggestion(self) -> str:
@@ -215,19 +218,24 @@ def bag(
     data, robot = as_measurements(data), as_robot(robot)
     rng = np.random.default_rng(seed)
     draws: list[Draw] = []
+    refused: list[str] = []
     for k in range(bags):
         rows = _draw_rows(data, poses, rng)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LabWarning)  # each draw's cautions: the whole's below
             try:
                 choice, disc, res = _path(data.subset(rows), robot, opts, f"{name}_{k}")
-            except FitError as exc:
-                raise FitError(
-                    f"draw {k + 1} of {bags} ({len(rows)} poses): {exc}; a draw of more poses "
-                    "per session (poses=, --poses) identifies more"
-                ) from None
+            except FitError as exc:  # this draw's path refused: the others average without it
+                refused.append(f"draw {k + 1} of {bags} ({len(rows)} poses): {exc}")
+                log.warning("%s; left out of the average", refused[-1])
+                continue
         draws.append(Draw(rows, choice, disc, res))
         log.info("draw %d of %d: %s", k + 1, bags, res.effects)
+    if len(refused) * 2 > bags:
+        raise FitError(
+            f"{len(refused)} of {bags} draws refused, the first: {refused[0]}; a draw of more "
+            "poses per session (poses=, --poses) identifies more"
+        )
     effects = union_effects([d.choice for d in draws])
     found = [d.discovery for d in draws if d.discovery is not None]
     discovered = None
@@ -272,4 +280,6 @@ def bag(
         if i
     }
     identified = result.identifiable | np.array([n in seen for n in names])
-    return Bag(replace(result, refit=refit, identifiable=identified), effects, discovered, draws)
+    return Bag(
+        replace(result, refit=refit, identifiable=identified), effects, discovered, draws, refused
+    )

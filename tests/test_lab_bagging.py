@@ -101,12 +101,68 @@ def test_bad_settings_are_refused(sessions):
         bag(sessions, "seed", poses=3)
 
 
-def test_a_draw_that_cannot_be_fitted_is_named(sessions, monkeypatch):
+def test_a_draw_the_lab_refuses_is_left_out_and_named_more_than_half_refuse(sessions, monkeypatch):
     import lab.bagging
+
+    path = lab.bagging._path
+    calls = []
+
+    def refuse_the_second(data, robot, opts, name):
+        calls.append(name)
+        if len(calls) == 2:
+            raise FitError(f"{data.source}: not a plausible model")
+        return path(data, robot, opts, name)
+
+    monkeypatch.setattr(lab.bagging, "_path", refuse_the_second)
+    b = bag(sessions, "seed", bags=3, poses=120, noise_mm=0.015)
+    assert len(b.draws) == 2 and len(b.refused) == 1
+    assert b.refused[0].startswith("draw 2 of 3 (210 poses): ") and "plausible" in b.refused[0]
 
     def refuse(data, robot, opts, name):
         raise FitError(f"{data.source}: not a plausible model")
 
     monkeypatch.setattr(lab.bagging, "_path", refuse)
-    with pytest.raises(FitError, match=r"draw 1 of 2 \(210 poses\): .*not a plausible.*poses="):
+    with pytest.raises(
+        FitError, match=r"2 of 2 draws refused, the first: draw 1 of 2 \(210 poses\)"
+    ):
         bag(sessions, "seed", bags=2, poses=120, noise_mm=0.015)
+
+
+def test_the_command_line_bags_exports_and_says_it(sessions, bagged, tmp_path):
+    """`sixaxis lab bag`: the averaged model's fit as the library makes it, --json with `bag`,
+    --export the calibration as a robot TOML loadable with its module."""
+    import json
+
+    from arm.description import load_robot
+    from arm.effects import load_effect_module
+    from arm.measurements import write_measurements
+    from tests._cli import lab
+
+    data = tmp_path / "two.csv"
+    write_measurements(sessions, data)
+    out, arm = tmp_path / "bag.json", tmp_path / "cal.toml"
+    args = ["--bags", 3, "--poses", 120, "--noise-mm", 0.015]
+    res = lab("bag", data, *args, "--json", "--out", out, "--export", arm)
+    assert res.exit_code == 0, res.output
+    got = json.loads(res.stdout)
+    assert json.loads(out.read_text()) == got
+    assert got["bag"] | {"refused": []} == {
+        "bags": 3,
+        "poses": 120,
+        "seed": 0,
+        "effects": bagged.suggestion,
+        "refused": [],
+    }
+    assert got["rms_mm"] == pytest.approx(bagged.result.rms_mm, rel=1e-9)
+    from arm.effects import EFFECTS
+
+    before = set(EFFECTS)
+    try:
+        if bagged.discovered is not None:
+            load_effect_module(arm.with_suffix(".py"))
+        robot = load_robot(arm)
+    finally:
+        for extra in set(EFFECTS) - before:
+            del EFFECTS[extra]
+    assert "compliance" in robot.effects
+    assert robot.effects["compliance"]["c2"] == pytest.approx(bagged.result["c2"], rel=1e-9)
