@@ -151,3 +151,21 @@ def with_gross_outliers(
     xyz = d.xyz.copy()
     xyz[idx] += u * rng.uniform(*size_m, (k, 1))
     return MeasurementSet(d.q, xyz, d.columns, d.source), idx
+
+
+def session(values: dict, n: int, session: int, seed: int) -> MeasurementSet:
+    """``n`` poses of one session (a ``session`` column of that id) of the seed arm with
+    ``values`` of its geometric, compliance and transmission parameters (the rest nominal), 15 um
+    of noise per axis: the blocks of the lab's cross-session tests (transfer, bagging)."""
+    from lab.result import inputs_of
+
+    rng = np.random.default_rng(seed)
+    lo = np.array([-2.5, -2.2, -1.2, -2.5, -1.8, -3.0])
+    hi = np.array([2.5, -0.3, 1.2, 2.5, 1.8, 3.0])
+    q = rng.uniform(lo, hi, size=(n, 6))
+    model = ErrorModel(load_robot("seed"), "geometric,compliance,transmission")
+    p = model.layout.vector(values, default=model.nominal())
+    cols = {"session": np.full(n, float(session))}
+    xyz = model.predict(inputs_of(model, MeasurementSet(q, np.zeros((n, 3)), cols)), p)
+    xyz = xyz + SIGMA * rng.standard_normal(xyz.shape)
+    return MeasurementSet(q, xyz, cols, source=f"session{session}.csv")

@@ -8,27 +8,13 @@ import numpy as np
 import pytest
 
 from arm.description import load_robot
-from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet, concatenate
 from lab import FitError, FitResult, bag
 from lab.bagging import union_effects
-from lab.result import inputs_of
+from tests._lab_data import session
 
 SIGMA = 15e-6
 TRUE = {"c2": 6e-6, "c3": 4e-6, "da2": 2e-4, "dtheta3": 8e-4, "ts1": 3e-4, "tc1": -2e-4}
-
-
-def _session(n: int, session: int, seed: int) -> MeasurementSet:
-    rng = np.random.default_rng(seed)
-    lo = np.array([-2.5, -2.2, -1.2, -2.5, -1.8, -3.0])
-    hi = np.array([2.5, -0.3, 1.2, 2.5, 1.8, 3.0])
-    q = rng.uniform(lo, hi, size=(n, 6))
-    model = ErrorModel(load_robot("seed"), "geometric,compliance,transmission")
-    p = model.layout.vector(TRUE, default=model.nominal())
-    cols = {"session": np.full(n, float(session))}
-    xyz = model.predict(inputs_of(model, MeasurementSet(q, np.zeros((n, 3)), cols)), p)
-    xyz = xyz + SIGMA * rng.standard_normal(xyz.shape)
-    return MeasurementSet(q, xyz, cols, source=f"session{session}.csv")
 
 
 def test_the_union_of_effects_strings_joins_joints_and_orders():
@@ -41,7 +27,7 @@ def test_the_union_of_effects_strings_joins_joints_and_orders():
 
 @pytest.fixture(scope="module")
 def sessions() -> MeasurementSet:
-    return concatenate([_session(260, 1, 11), _session(90, 2, 12)], source="two.csv")
+    return concatenate([session(TRUE, 260, 1, 11), session(TRUE, 90, 2, 12)], source="two.csv")
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +75,7 @@ def test_one_draw_of_every_pose_is_the_lab_path_itself(sessions):
     for n in d.result.model.layout.names:
         if not n.startswith(("bx", "by", "bz", "brx", "bry", "brz")):
             assert one.result[n] == pytest.approx(d.result[n], rel=1e-12, abs=1e-15)
-    held = _session(80, 3, 13)
+    held = session(TRUE, 80, 3, 13)
     v = one.result.validate(held)
     assert v.validation_rms_mm == pytest.approx(d.result.validate(held).validation_rms_mm, rel=1e-3)
 
@@ -133,7 +119,6 @@ def test_the_command_line_bags_exports_and_says_it(sessions, bagged, tmp_path):
     --export the calibration as a robot TOML loadable with its module."""
     import json
 
-    from arm.description import load_robot
     from arm.effects import load_effect_module
     from arm.measurements import write_measurements
     from tests._cli import lab

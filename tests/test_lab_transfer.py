@@ -9,34 +9,20 @@ import numpy as np
 import pytest
 
 from arm.description import load_robot
-from arm.errormodel import ErrorModel
-from arm.measurements import MeasurementSet, concatenate
+from arm.measurements import concatenate
 from lab import diagnose, discover
 from lab.options import LabOptions
-from lab.result import inputs_of
 from lab.transfer import block_column, blocked_rms
+from tests._lab_data import session
 
 SIGMA = 15e-6
 SHARED = {"c2": 6e-6, "c3": 4e-6, "da2": 2e-4, "dtheta3": 8e-4}
 
 
-def _session(values: dict, n: int, session: int, seed: int) -> MeasurementSet:
-    rng = np.random.default_rng(seed)
-    lo = np.array([-2.5, -2.2, -1.2, -2.5, -1.8, -3.0])
-    hi = np.array([2.5, -0.3, 1.2, 2.5, 1.8, 3.0])
-    q = rng.uniform(lo, hi, size=(n, 6))
-    model = ErrorModel(load_robot("seed"), "geometric,compliance,transmission")
-    p = model.layout.vector(values, default=model.nominal())
-    cols = {"session": np.full(n, float(session))}
-    xyz = model.predict(inputs_of(model, MeasurementSet(q, np.zeros((n, 3)), cols)), p)
-    xyz = xyz + SIGMA * rng.standard_normal(xyz.shape)
-    return MeasurementSet(q, xyz, cols, source=f"session{session}.csv")
-
-
 def test_an_effect_of_one_session_only_is_not_kept():
-    one = _session(SHARED, 120, 1, 1)
-    two = _session(SHARED | {"ts4": 6e-4, "tc4": -3e-4}, 120, 2, 2)
-    three = _session(SHARED, 120, 3, 5)
+    one = session(SHARED, 120, 1, 1)
+    two = session(SHARED | {"ts4": 6e-4, "tc4": -3e-4}, 120, 2, 2)
+    three = session(SHARED, 120, 3, 5)
     data = concatenate([one, two, three], source="three-sessions.csv")
     assert block_column(data) == "session" and block_column(one) is None
     # two sessions: confirmed only when asked (each fold would fit one session alone)
@@ -55,8 +41,8 @@ def test_an_effect_of_one_session_only_is_not_kept():
 
 
 def test_the_blocked_rms_predicts_each_session_from_the_other():
-    one = _session(SHARED, 120, 1, 3)
-    two = _session(SHARED, 120, 2, 4)
+    one = session(SHARED, 120, 1, 3)
+    two = session(SHARED, 120, 2, 4)
     data = concatenate([one, two])
     opts = LabOptions(noise_mm=0.015)
     rms = blocked_rms(data, load_robot("seed"), "geometric,compliance", opts)
@@ -70,9 +56,9 @@ def test_the_blocked_rms_predicts_each_session_from_the_other():
 
 
 def test_a_term_discovered_in_one_session_only_is_not_kept():
-    one = _session(SHARED, 120, 1, 1)
-    two = _session(SHARED | {"ts4": 6e-4, "tc4": -3e-4}, 120, 2, 2)
-    three = _session(SHARED, 120, 3, 5)
+    one = session(SHARED, 120, 1, 1)
+    two = session(SHARED | {"ts4": 6e-4, "tc4": -3e-4}, 120, 2, 2)
+    three = session(SHARED, 120, 3, 5)
     data = concatenate([one, two, three], source="three-sessions.csv")
     pooled = discover(data, "seed", "geometric,compliance", noise_mm=0.015, across_blocks=False)
     assert pooled.terms and pooled.blocked_cv is None  # the pooled search finds joint 4's error
