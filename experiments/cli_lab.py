@@ -288,6 +288,11 @@ def bag_cmd(
     from lab.bagging import bag
     from lab.discovery import check_module_path
 
+    if export is not None and export_format_of(export, None) == "urdf":
+        fail(
+            f"--export {export}: the averaged calibration is written as a robot TOML; give "
+            "FILE.toml (a calibrated URDF: sixaxis lab export --format urdf)"
+        )
     if output is None and export is not None:  # the discovered terms go beside the arm
         output = export.with_suffix(".py")
     if output is not None:

@@ -151,3 +151,15 @@ def test_the_command_line_bags_exports_and_says_it(sessions, bagged, tmp_path):
             del EFFECTS[extra]
     assert "compliance" in robot.effects
     assert robot.effects["compliance"]["c2"] == pytest.approx(bagged.result["c2"], rel=1e-9)
+
+
+def test_export_to_a_urdf_name_is_refused_before_any_work(sessions, tmp_path):
+    """`--export cal.urdf` wrote a robot TOML under a .urdf name, which fails where it is read."""
+    from arm.measurements import write_measurements
+    from tests._cli import lab, one_error_line
+
+    data = tmp_path / "two.csv"
+    write_measurements(sessions, data)
+    res = lab("bag", data, "--bags", 1, "--export", tmp_path / "cal.urdf")
+    one_error_line(res, "--export", "cal.urdf", ".toml")
+    assert not (tmp_path / "cal.urdf").exists()
