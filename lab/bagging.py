@@ -26,10 +26,11 @@ hold are left out as for any fit, by the mean of the draws' fits without them.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import re
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Unpack
@@ -196,6 +197,22 @@ def _mean(values: list[dict[str, float]], names: Sequence[str]) -> dict[str, flo
     return {n: float(np.mean([v.get(n, 0.0) for v in values])) for n in names}
 
 
+@contextlib.contextmanager
+def _quiet_draws() -> Iterator[None]:
+    """The lab's log records below errors silenced, but this module's: a draw's cautions (a poor
+    pose set, that draw's outliers) are not the calibration's; its fit on the whole gives
+    those once."""
+    lab_log = logging.getLogger("lab")
+    level, own = lab_log.level, log.level
+    log.setLevel(log.getEffectiveLevel())
+    lab_log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        lab_log.setLevel(level)
+        log.setLevel(own)
+
+
 def bag(
     data: MeasurementSet | str | Path,
     robot: RobotDescription | str | Path | None = None,
@@ -221,7 +238,7 @@ def bag(
     refused: list[str] = []
     for k in range(bags):
         rows = _draw_rows(data, poses, rng)
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), _quiet_draws():
             warnings.simplefilter("ignore", LabWarning)  # each draw's cautions: the whole's below
             try:
                 choice, disc, res = _path(data.subset(rows), robot, opts, f"{name}_{k}")

@@ -4,6 +4,8 @@ the union of their effects, only the stations' bases fitted again."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -163,3 +165,25 @@ def test_export_to_a_urdf_name_is_refused_before_any_work(sessions, tmp_path):
     res = lab("bag", data, "--bags", 1, "--export", tmp_path / "cal.urdf")
     one_error_line(res, "--export", "cal.urdf", ".toml")
     assert not (tmp_path / "cal.urdf").exists()
+
+
+def test_the_draws_cautions_are_not_logged_the_wholes_once(sessions, caplog):
+    """Each draw's path logged its own cautions (an outlier of that draw, named by its row in
+    the draw): on the UR10 149 warnings of 10 draws buried the one calibration's. The whole's
+    fit gives them once, with the rows of the data."""
+    import logging
+    import warnings
+
+    from lab import RowsLeftOutWarning
+
+    xyz = sessions.xyz.copy()
+    xyz[[5, 100]] += 0.003  # two gross errors, rows 5 and 100
+    data = replace(sessions, xyz=xyz)
+    with caplog.at_level(logging.INFO), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        bag(data, "seed", bags=3, poses=40, seed=0, noise_mm=0.015)
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(said) == 1 and "2 outlier(s) left out" in said[0], said
+    assert sum(w.category is RowsLeftOutWarning for w in caught) == 1
+    # the draws still say what they chose, at INFO
+    assert sum("draw " in r.getMessage() for r in caplog.records) == 3
