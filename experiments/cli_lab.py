@@ -317,7 +317,7 @@ def bag_cmd(
             export_robot(b.result, export)
     if not as_json:
         print_fit(result)
-        say(f"bag: {bags} draws of at most {poses} poses per session; effects: {b.suggestion}")
+        say(f"bag: {b.bags} draws of at most {poses} poses per session; effects: {b.suggestion}")
         for why in b.refused:
             say(f"left out of the average: {why}")
         if written is not None:
@@ -328,7 +328,7 @@ def bag_cmd(
         result.to_dict()
         | {
             "bag": {
-                "bags": bags,
+                "bags": b.bags,
                 "poses": poses,
                 "seed": seed,
                 "effects": b.suggestion,

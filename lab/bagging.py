@@ -39,6 +39,7 @@ import numpy as np
 
 from arm.description import RobotDescription, as_robot
 from arm.effects import Effect
+from arm.errors import warn
 from arm.measurements import MeasurementSet, as_measurements
 from arm.params import parse_parameter_name
 from lab.diagnosis import diagnose
@@ -151,6 +152,11 @@ class Bag:
             return self.effects
         return f"{self.effects},{self.discovered.effect_name}"
 
+    @property
+    def bags(self) -> int:
+        """The draws made (the mean's and the refused)."""
+        return len(self.draws) + len(self.refused)
+
     def write_module(self, path: str | Path) -> Path:
         """The discovered effect's module, as :meth:`lab.Discovery.write_module` writes it."""
         if self.discovered is None:
@@ -233,6 +239,18 @@ def bag(
         raise FitError(f"poses (per session) must be an integer >= 12, got {poses!r}")
     opts = resolve(options, **keywords)
     data, robot = as_measurements(data), as_robot(robot)
+    col = block_column(data)
+    largest = np.unique(data.columns[col], return_counts=True)[1].max() if col else len(data)
+    if bags > 1 and largest <= poses:  # each draw takes every pose: one path, the same
+        where = f"every {col}" if col else "the data (one session)"
+        text = (
+            f"{data.source}: {where} has at most {poses} poses: every draw would take all of "
+            f"them, the same path; one path, not {bags} draws (fewer poses per draw, "
+            "poses= or --poses, make the draws differ)"
+        )
+        log.warning("%s", text)
+        warn(text, LabWarning)
+        bags = 1
     rng = np.random.default_rng(seed)
     draws: list[Draw] = []
     refused: list[str] = []

@@ -187,3 +187,30 @@ def test_the_draws_cautions_are_not_logged_the_wholes_once(sessions, caplog):
     assert sum(w.category is RowsLeftOutWarning for w in caught) == 1
     # the draws still say what they chose, at INFO
     assert sum("draw " in r.getMessage() for r in caplog.records) == 3
+
+
+def test_when_every_draw_would_take_every_pose_it_says_so_and_runs_one_path(caplog, tmp_path):
+    """One session of fewer poses than --poses: every draw is the whole, the same path ten
+    times over, in ten times the time, and the output said "10 draws"."""
+    import json
+    import logging
+
+    from arm.measurements import write_measurements
+    from lab import LabWarning
+    from tests._cli import lab
+
+    one = session(TRUE, 80, 1, 11)
+    with caplog.at_level(logging.WARNING), pytest.warns(LabWarning, match="the same"):
+        b = bag(one, "seed", bags=3, poses=120, noise_mm=0.015)
+    assert len(b.draws) == 1 and b.bags == 1
+    assert "at most 120 poses" in caplog.text and "one path, not 3 draws" in caplog.text
+    # a draw of each pose: the lab's path itself
+    assert len(b.draws[0].rows) == 80
+    data = tmp_path / "one.csv"
+    write_measurements(one, data)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        res = lab("bag", data, "--bags", 3, "--poses", 120, "--noise-mm", 0.015, "--json")
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["bag"]["bags"] == 1
+    assert "one path, not 3 draws" in caplog.text  # the command's log, on stderr
