@@ -39,6 +39,7 @@ import numpy as np
 
 from arm.description import RobotDescription, as_robot
 from arm.effects import Effect
+from arm.effects.joint_angle import _orders_text
 from arm.errors import warn
 from arm.measurements import MeasurementSet, as_measurements
 from arm.params import parse_parameter_name
@@ -88,7 +89,8 @@ def _numbers(text: str) -> set[int]:
 
 def union_effects(specs: Sequence[str]) -> str:
     """The union of catalogue effects strings, in the order first met: ``compliance[2]`` and
-    ``compliance[3]`` give ``compliance[2,3]``, the orders of ``cyclic`` are joined per joint."""
+    ``compliance[3]`` give ``compliance[2,3]``, the orders of ``cyclic`` are joined per joint
+    (runs of three or more as ranges, as its label writes them)."""
     merged: dict[str, set[int] | dict[int, set[int]] | None] = {}
     for spec in specs:
         for tok in _tokens(spec):
@@ -113,7 +115,7 @@ def union_effects(specs: Sequence[str]) -> str:
         if v is None:
             out.append(name)
         elif isinstance(v, dict):
-            body = ";".join(f"{j}:{','.join(map(str, sorted(v[j])))}" for j in sorted(v))
+            body = ";".join(f"{j}:{_orders_text(sorted(v[j]))}" for j in sorted(v))
             out.append(f"{name}[{body}]")
         else:
             out.append(f"{name}[{','.join(map(str, sorted(v)))}]")

@@ -25,6 +25,9 @@ def test_the_union_of_effects_strings_joins_joints_and_orders():
         == "geometric,compliance[2,3],cyclic[1:4,5,8;3:2,3]"
     )
     assert union_effects(["geometric", "geometric,thermal"]) == "geometric,thermal"
+    # runs of three or more orders as ranges, as the fit's label writes them: on the UR10 the
+    # suggestion ran to 300 characters where the fitted effects read 200
+    assert union_effects(["cyclic[2:8-10,13]", "cyclic[2:11;3:5,6]"]) == "cyclic[2:8-11,13;3:5,6]"
 
 
 @pytest.fixture(scope="module")
