@@ -287,6 +287,7 @@ def bag_cmd(
     (docs/lab.md, the UR10)."""
     from lab.bagging import bag
     from lab.discovery import check_module_path
+    from lab.sanity import check_validation
 
     if export is not None and export_format_of(export, None) == "urdf":
         fail(
@@ -303,6 +304,8 @@ def bag_cmd(
     with user_errors(), console.status(f"the lab's path on {bags} draws of the poses..."):
         b = bag(meas, arm, bags=bags, poses=poses, seed=seed, name=name, options=opts)
         result = b.result if val is None else b.result.validate(val, extrapolate=extrapolate)
+        if val is not None:  # foreign held-out data: warned about as `lab fit` does
+            check_validation(result, val.source)
     written = None
     if output is not None and b.discovered is not None:
         with user_errors(), writing(output):

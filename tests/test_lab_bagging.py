@@ -217,3 +217,21 @@ def test_when_every_draw_would_take_every_pose_it_says_so_and_runs_one_path(capl
     assert res.exit_code == 0, res.output
     assert json.loads(res.stdout)["bag"]["bags"] == 1
     assert "one path, not 3 draws" in caplog.text  # the command's log, on stderr
+
+
+def test_held_out_data_of_another_arm_is_warned_about_as_fit_does(sessions, caplog, tmp_path):
+    """`lab bag --validate` of foreign data gave a held-out RMS of metres without the warning
+    `lab fit` gives (lab.sanity.check_validation)."""
+    import logging
+
+    from arm.measurements import write_measurements
+    from tests._cli import lab
+
+    data, held = tmp_path / "two.csv", tmp_path / "other.csv"
+    write_measurements(sessions, data)
+    other = session(TRUE, 30, 1, 13)
+    write_measurements(replace(other, xyz=other.xyz * 1.5), held)  # another arm, or units
+    with caplog.at_level(logging.WARNING):
+        res = lab("bag", data, "--bags", 1, "--noise-mm", 0.015, "--validate", held)
+    assert res.exit_code == 0, res.output
+    assert "other.csv: validation RMS" in caplog.text and "another arm" in caplog.text
