@@ -302,10 +302,12 @@ def bag(
         """The mean of the draws' fits without ``left_out`` (each its own), in the union's
         layout."""
         without = []
-        for d, v in zip(draws, values, strict=True):
-            own = [n for n in left_out if n in v]
-            p = d.result.refit(own) if own and d.result.refit is not None else None
-            without.append(v if p is None else _values(d.result, p))
+        with warnings.catch_warnings(), _quiet_draws():  # the draws' cautions, as above
+            warnings.simplefilter("ignore", LabWarning)
+            for d, v in zip(draws, values, strict=True):
+                own = [n for n in left_out if n in v]
+                p = d.result.refit(own) if own and d.result.refit is not None else None
+                without.append(v if p is None else _values(d.result, p))
         m = _mean(without, names) | {n: 0.0 for n in left_out}
         return result.model.layout.vector(m)
 

@@ -235,3 +235,34 @@ def test_held_out_data_of_another_arm_is_warned_about_as_fit_does(sessions, capl
         res = lab("bag", data, "--bags", 1, "--noise-mm", 0.015, "--validate", held)
     assert res.exit_code == 0, res.output
     assert "other.csv: validation RMS" in caplog.text and "another arm" in caplog.text
+
+
+def test_the_draws_refits_outside_the_domain_are_not_logged_either(sessions, caplog):
+    """Validated outside the fitted domain, the mean without the terms that do not hold refits
+    every draw: on the UR10 each refit logged its draw's poor pose set, 12 warnings."""
+    import logging
+    import warnings
+
+    from lab import PoorPoseSetWarning
+    from lab.errors import LabWarning
+
+    b = bag(sessions, "seed", bags=2, poses=120, noise_mm=0.015)
+
+    def noisy(refit):
+        def run(names):
+            logging.getLogger("lab.identifiability").warning("poor pose set: a draw's")
+            warnings.warn("poor pose set: a draw's", PoorPoseSetWarning, stacklevel=2)
+            return refit(names)
+
+        return run
+
+    for d in b.draws:
+        d.result = replace(d.result, refit=noisy(d.result.refit))
+    name = next(n for n in b.result.model.layout.names if n.startswith("c"))
+    assert b.result.refit is not None
+    with caplog.at_level(logging.INFO), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        p = b.result.refit([name])
+    assert p[b.result.model.layout.names.index(name)] == 0.0
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+    assert not [w for w in caught if issubclass(w.category, LabWarning)]
