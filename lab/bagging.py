@@ -39,7 +39,7 @@ import numpy as np
 
 from arm.description import RobotDescription, as_robot
 from arm.effects import Effect
-from arm.effects.joint_angle import _orders_text
+from arm.effects.joint_angle import orders_text
 from arm.errors import warn
 from arm.measurements import MeasurementSet, as_measurements
 from arm.params import parse_parameter_name
@@ -115,7 +115,7 @@ def union_effects(specs: Sequence[str]) -> str:
         if v is None:
             out.append(name)
         elif isinstance(v, dict):
-            body = ";".join(f"{j}:{_orders_text(sorted(v[j]))}" for j in sorted(v))
+            body = ";".join(f"{j}:{orders_text(sorted(v[j]))}" for j in sorted(v))
             out.append(f"{name}[{body}]")
         else:
             out.append(f"{name}[{','.join(map(str, sorted(v)))}]")
