@@ -320,7 +320,8 @@ def bag_cmd(
             export_robot(b.result, export)
     if not as_json:
         print_fit(result)
-        say(f"bag: {b.bags} draws of at most {poses} poses per session; effects: {b.suggestion}")
+        draws = "1 draw" if b.bags == 1 else f"{b.bags} draws"
+        say(f"bag: {draws} of at most {poses} poses per session; effects: {b.suggestion}")
         for why in b.refused:
             say(f"left out of the average: {why}")
         if written is not None:
