@@ -287,7 +287,13 @@ def bag_cmd(
     (docs/lab.md, the UR10)."""
     from lab.bagging import bag
     from lab.discovery import check_module_path
+    from lab.sanity import check_validation
 
+    if export is not None and export_format_of(export, None) == "urdf":
+        fail(
+            f"--export {export}: the averaged calibration is written as a robot TOML; give "
+            "FILE.toml (a calibrated URDF: sixaxis lab export --format urdf)"
+        )
     if output is None and export is not None:  # the discovered terms go beside the arm
         output = export.with_suffix(".py")
     if output is not None:
@@ -298,6 +304,8 @@ def bag_cmd(
     with user_errors(), console.status(f"the lab's path on {bags} draws of the poses..."):
         b = bag(meas, arm, bags=bags, poses=poses, seed=seed, name=name, options=opts)
         result = b.result if val is None else b.result.validate(val, extrapolate=extrapolate)
+        if val is not None:  # foreign held-out data: warned about as `lab fit` does
+            check_validation(result, val.source)
     written = None
     if output is not None and b.discovered is not None:
         with user_errors(), writing(output):
@@ -312,7 +320,8 @@ def bag_cmd(
             export_robot(b.result, export)
     if not as_json:
         print_fit(result)
-        say(f"bag: {bags} draws of at most {poses} poses per session; effects: {b.suggestion}")
+        draws = "1 draw" if b.bags == 1 else f"{b.bags} draws"
+        say(f"bag: {draws} of at most {poses} poses per session; effects: {b.suggestion}")
         for why in b.refused:
             say(f"left out of the average: {why}")
         if written is not None:
@@ -323,7 +332,7 @@ def bag_cmd(
         result.to_dict()
         | {
             "bag": {
-                "bags": bags,
+                "bags": b.bags,
                 "poses": poses,
                 "seed": seed,
                 "effects": b.suggestion,

@@ -26,10 +26,11 @@ hold are left out as for any fit, by the mean of the draws' fits without them.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import re
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Unpack
@@ -38,6 +39,8 @@ import numpy as np
 
 from arm.description import RobotDescription, as_robot
 from arm.effects import Effect
+from arm.effects.joint_angle import orders_text
+from arm.errors import warn
 from arm.measurements import MeasurementSet, as_measurements
 from arm.params import parse_parameter_name
 from lab.diagnosis import diagnose
@@ -86,7 +89,8 @@ def _numbers(text: str) -> set[int]:
 
 def union_effects(specs: Sequence[str]) -> str:
     """The union of catalogue effects strings, in the order first met: ``compliance[2]`` and
-    ``compliance[3]`` give ``compliance[2,3]``, the orders of ``cyclic`` are joined per joint."""
+    ``compliance[3]`` give ``compliance[2,3]``, the orders of ``cyclic`` are joined per joint
+    (runs of three or more as ranges, as its label writes them)."""
     merged: dict[str, set[int] | dict[int, set[int]] | None] = {}
     for spec in specs:
         for tok in _tokens(spec):
@@ -111,7 +115,7 @@ def union_effects(specs: Sequence[str]) -> str:
         if v is None:
             out.append(name)
         elif isinstance(v, dict):
-            body = ";".join(f"{j}:{','.join(map(str, sorted(v[j])))}" for j in sorted(v))
+            body = ";".join(f"{j}:{orders_text(sorted(v[j]))}" for j in sorted(v))
             out.append(f"{name}[{body}]")
         else:
             out.append(f"{name}[{','.join(map(str, sorted(v)))}]")
@@ -149,6 +153,11 @@ class Bag:
         if self.discovered is None:
             return self.effects
         return f"{self.effects},{self.discovered.effect_name}"
+
+    @property
+    def bags(self) -> int:
+        """The draws made (the mean's and the refused)."""
+        return len(self.draws) + len(self.refused)
 
     def write_module(self, path: str | Path) -> Path:
         """The discovered effect's module, as :meth:`lab.Discovery.write_module` writes it."""
@@ -196,6 +205,22 @@ def _mean(values: list[dict[str, float]], names: Sequence[str]) -> dict[str, flo
     return {n: float(np.mean([v.get(n, 0.0) for v in values])) for n in names}
 
 
+@contextlib.contextmanager
+def _quiet_draws() -> Iterator[None]:
+    """The lab's log records below errors silenced, but this module's: a draw's cautions (a poor
+    pose set, that draw's outliers) are not the calibration's; its fit on the whole gives
+    those once."""
+    lab_log = logging.getLogger("lab")
+    level, own = lab_log.level, log.level
+    log.setLevel(log.getEffectiveLevel())
+    lab_log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        lab_log.setLevel(level)
+        log.setLevel(own)
+
+
 def bag(
     data: MeasurementSet | str | Path,
     robot: RobotDescription | str | Path | None = None,
@@ -216,12 +241,24 @@ def bag(
         raise FitError(f"poses (per session) must be an integer >= 12, got {poses!r}")
     opts = resolve(options, **keywords)
     data, robot = as_measurements(data), as_robot(robot)
+    col = block_column(data)
+    largest = np.unique(data.columns[col], return_counts=True)[1].max() if col else len(data)
+    if bags > 1 and largest <= poses:  # each draw takes every pose: one path, the same
+        where = f"every {col}" if col else "the data (one session)"
+        text = (
+            f"{data.source}: {where} has at most {poses} poses: every draw would take all of "
+            f"them, the same path; one path, not {bags} draws (fewer poses per draw, "
+            "poses= or --poses, make the draws differ)"
+        )
+        log.warning("%s", text)
+        warn(text, LabWarning)
+        bags = 1
     rng = np.random.default_rng(seed)
     draws: list[Draw] = []
     refused: list[str] = []
     for k in range(bags):
         rows = _draw_rows(data, poses, rng)
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), _quiet_draws():
             warnings.simplefilter("ignore", LabWarning)  # each draw's cautions: the whole's below
             try:
                 choice, disc, res = _path(data.subset(rows), robot, opts, f"{name}_{k}")
@@ -265,10 +302,12 @@ def bag(
         """The mean of the draws' fits without ``left_out`` (each its own), in the union's
         layout."""
         without = []
-        for d, v in zip(draws, values, strict=True):
-            own = [n for n in left_out if n in v]
-            p = d.result.refit(own) if own and d.result.refit is not None else None
-            without.append(v if p is None else _values(d.result, p))
+        with warnings.catch_warnings(), _quiet_draws():  # the draws' cautions, as above
+            warnings.simplefilter("ignore", LabWarning)
+            for d, v in zip(draws, values, strict=True):
+                own = [n for n in left_out if n in v]
+                p = d.result.refit(own) if own and d.result.refit is not None else None
+                without.append(v if p is None else _values(d.result, p))
         m = _mean(without, names) | {n: 0.0 for n in left_out}
         return result.model.layout.vector(m)
 
