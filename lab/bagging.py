@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import re
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
@@ -38,8 +37,7 @@ from typing import Unpack
 import numpy as np
 
 from arm.description import RobotDescription, as_robot
-from arm.effects import Effect
-from arm.effects.joint_angle import orders_text
+from arm.effects import Cyclic, Effect, parse_effects
 from arm.errors import warn
 from arm.measurements import MeasurementSet, as_measurements
 from arm.params import parse_parameter_name
@@ -61,65 +59,27 @@ log = logging.getLogger(__name__)
 BAGS = 10
 POSES = 1000
 
-_TOKEN = re.compile(r"^(?P<name>[a-z_][a-z0-9_]*)(?:\[(?P<args>[^\]]*)\])?$")
 
-
-def _tokens(effects: str) -> list[str]:
-    """An effects string's effects, split at the commas outside brackets."""
-    out, depth, cur = [], 0, ""
-    for ch in effects:
-        depth += (ch == "[") - (ch == "]")
-        if ch == "," and depth == 0:
-            out.append(cur.strip())
-            cur = ""
-        else:
-            cur += ch
-    if cur.strip():
-        out.append(cur.strip())
-    return out
-
-
-def _numbers(text: str) -> set[int]:
-    out: set[int] = set()
-    for part in filter(None, (p.strip() for p in text.split(","))):
-        lo, _, hi = part.partition("-")
-        out.update(range(int(lo), int(hi or lo) + 1))
-    return out
+def _joined(a: Effect, b: Effect) -> Effect:
+    """One effect of ``a``'s kind over what either covers: the joints of both (all where either
+    takes all), a cyclic effect's orders per joint."""
+    if isinstance(a, Cyclic) and isinstance(b, Cyclic):
+        js = {*a.orders, *b.orders}
+        return Cyclic({j: [*a.orders.get(j, ()), *b.orders.get(j, ())] for j in js})
+    if a.joints is None or b.joints is None:
+        return type(a)()
+    return type(a)(joints=[*a.joints, *b.joints])
 
 
 def union_effects(specs: Sequence[str]) -> str:
-    """The union of catalogue effects strings, in the order first met: ``compliance[2]`` and
-    ``compliance[3]`` give ``compliance[2,3]``, the orders of ``cyclic`` are joined per joint
-    (runs of three or more as ranges, as its label writes them)."""
-    merged: dict[str, set[int] | dict[int, set[int]] | None] = {}
+    """The union of effects strings, in the order first met, each effect as its label writes it:
+    ``compliance[2]`` and ``compliance[3]`` give ``compliance[2,3]``, the orders of ``cyclic``
+    are joined per joint (runs of three or more as ranges)."""
+    merged: dict[str, Effect] = {}
     for spec in specs:
-        for tok in _tokens(spec):
-            m = _TOKEN.match(tok)
-            if m is None:
-                raise FitError(f"cannot join the effect {tok!r} with the others")
-            name, args = m["name"], m["args"]
-            if args is None:
-                merged.setdefault(name, None)
-            elif ":" in args:
-                per = merged.setdefault(name, {})
-                assert isinstance(per, dict)
-                for part in filter(None, args.split(";")):
-                    j, _, orders = part.partition(":")
-                    per.setdefault(int(j), set()).update(_numbers(orders))
-            else:
-                joints = merged.setdefault(name, set())
-                assert isinstance(joints, set)
-                joints.update(_numbers(args))
-    out = []
-    for name, v in merged.items():
-        if v is None:
-            out.append(name)
-        elif isinstance(v, dict):
-            body = ";".join(f"{j}:{orders_text(sorted(v[j]))}" for j in sorted(v))
-            out.append(f"{name}[{body}]")
-        else:
-            out.append(f"{name}[{','.join(map(str, sorted(v)))}]")
-    return ",".join(out)
+        for e in parse_effects(spec):
+            merged[e.name] = e if e.name not in merged else _joined(merged[e.name], e)
+    return ",".join(e.label for e in merged.values())
 
 
 @dataclass
@@ -189,7 +149,7 @@ def _path(
         choice = "geometric"
         disc = discover(s, name=name)
     if disc.terms and disc.suggestion:
-        effects: list[str | Effect] = [*_tokens(choice), disc.effect_class()()]
+        effects = [*parse_effects(choice), disc.effect_class()()]
         return choice, disc, fit(data, robot, effects, options=opts)
     return choice, None, fit(data, robot, choice, options=opts)
 
@@ -286,7 +246,7 @@ def bag(
             effect_name=name,
             effect_module=None,
         )
-    model: list[str | Effect] = [*_tokens(effects)]
+    model = parse_effects(effects)
     if discovered is not None:
         model.append(discovered.effect_class()())
     union, _ = model_of(data, robot, model, opts.measured, opts.instrument)

@@ -27,7 +27,6 @@ __all__ = [
     "Transmission",
     "cyclic_readings",
     "order_reading",
-    "orders_text",
 ]
 
 
@@ -208,7 +207,9 @@ class Cyclic(JointAngleEffect):
 
     @property
     def label(self) -> str:
-        return "cyclic[" + ";".join(f"{j}:{orders_text(ks)}" for j, ks in self.orders.items()) + "]"
+        return (
+            "cyclic[" + ";".join(f"{j}:{_orders_text(ks)}" for j, ks in self.orders.items()) + "]"
+        )
 
     def parameter_terms(self) -> list[tuple[int, str]]:
         return [(j, f"{t}{k}") for j, ks in self.orders.items() for k in ks for t in "sc"]
@@ -221,7 +222,7 @@ class Cyclic(JointAngleEffect):
         return np.sin(angle) if term[0] == "s" else np.cos(angle)
 
 
-def orders_text(ks: Sequence[int]) -> str:
+def _orders_text(ks: Sequence[int]) -> str:
     """``1-4,17,29``: runs of three or more consecutive orders as ranges."""
     out: list[str] = []
     i = 0
