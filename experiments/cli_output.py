@@ -566,10 +566,18 @@ def print_compensation(comp: Any, summary: dict[str, Any], output: Path) -> None
             highlight=False,
             soft_wrap=True,
         )
-    if summary["not_converged"]:
+    for kind, rows in summary["singular"].items():
+        console.print(
+            f"[yellow]singular poses ({kind}: the point solved alone, the start's split of "
+            "the joints kept, the orientation held as near as that allows):[/yellow] rows "
+            f"{', '.join(str(i + 1) for i in rows[:20])}",
+            highlight=False,
+            soft_wrap=True,
+        )
+    if summary["unreachable"]:
         console.print(
             f"[yellow]not reached (out of reach, or only beyond the joint limits):[/yellow] rows "
-            f"{', '.join(str(i + 1) for i in summary['not_converged'][:20])}",
+            f"{', '.join(str(i + 1) for i in summary['unreachable'][:20])}",
             highlight=False,
             soft_wrap=True,
         )
