@@ -49,6 +49,7 @@ from __future__ import annotations
 import itertools
 import json
 import logging
+import os
 import time
 import typing
 import zipfile
@@ -426,7 +427,7 @@ def load_policy_file(path: str | Path) -> tuple[PolicyNetwork, dict[str, Any]]:
         )
     meta_path = path.with_suffix(".json")
     check_input_file(path, "policy file", "weights", PolicyFileError)  # a FIFO would hang
-    if not meta_path.exists():
+    if not os.path.exists(meta_path):
         raise PolicyFileError(f"{path}: its description {meta_path.name} is missing")
     text = read_input_text(meta_path, "policy description", "json", PolicyFileError)
     try:
@@ -669,7 +670,7 @@ class PolicyAgent(Agent):
                 f"path {str(self.path)!r}: refusing to load a policy that is not a .npz weight "
                 "file (a stable-baselines3 .zip or a pickle would run code when loaded)"
             )
-        if not self.path.exists():
+        if not os.path.exists(self.path):
             raise PolicyFileError(
                 f"no trained policy at {self.path}; train one with `sixaxis train ppo --config "
                 "experiments/configs/ppo-residual.toml --ship`"

@@ -66,7 +66,7 @@ from typing import Any, Literal
 import numpy as np
 
 from arm.errors import SixAxisError
-from arm.files import atomic_write_text, read_input_text
+from arm.files import atomic_write_text, is_file, read_input_text, shown
 from arm.ranges import payload_problem
 from arm.so3 import rotation_matrix, rotation_vector
 from arm.urdf import UrdfArm, UrdfError, UrdfSource, read_urdf
@@ -671,10 +671,10 @@ def load_robot(
         name_or_path, tip, base = _chain_spec(name_or_path, tip, base)
     p = Path(name_or_path)
     shipped = resources.files("arm") / "robots"
-    if p.suffix.lower() != ".urdf" and not os.path.lexists(p) and (shipped / f"{p}.urdf").is_file():
+    if p.suffix.lower() != ".urdf" and not os.path.lexists(p) and is_file(shipped / f"{p}.urdf"):
         p = Path(f"{p}.urdf")  # a shipped URDF by name: "ur5_robot", "z1"
     if p.suffix.lower() == ".urdf":
-        if not os.path.lexists(p) and p.name == str(p) and (shipped / p.name).is_file():
+        if not os.path.lexists(p) and p.name == str(p) and is_file(shipped / p.name):
             text, where = (shipped / p.name).read_text(encoding="utf-8"), f"robots/{p.name}"
         else:
             text, where = read_input_text(p, "URDF file", "urdf", DescriptionError), str(p)
@@ -690,10 +690,10 @@ def load_robot(
         text = read_input_text(p, "robot description", "toml", DescriptionError)
         return RobotDescription.from_toml(text, source=str(p))
     toml = shipped / f"{name_or_path}.toml"
-    if not toml.is_file():
+    if not is_file(toml):
         names = sorted(f.name.rsplit(".", 1)[0] for f in shipped.iterdir() if "." in f.name[1:])
         raise DescriptionError(
-            f"unknown robot {str(name_or_path)!r}: not a file nor a shipped name "
+            f"unknown robot {shown(str(name_or_path))!r}: not a file nor a shipped name "
             f"({', '.join(n for n in names if not n.startswith('LICENSE') and n != 'README')})"
         )
     return RobotDescription.from_toml(toml.read_text(), source=f"robots/{name_or_path}.toml")

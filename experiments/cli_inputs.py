@@ -26,6 +26,7 @@ from typer.core import TyperGroup
 
 from arm.constraints import Constraint, Interval, OneOf, constraints_of
 from arm.errors import SixAxisError
+from arm.files import is_file
 from arm.measurements import ANGLE_UNITS, LENGTH_UNITS
 from experiments.cli_output import console, err_console, fail, user_errors
 
@@ -458,12 +459,12 @@ def _calibrated_urdf(robot: str, flag: str) -> Any:
     file lies beside it: the corrected chain with the tracker frame, the tool points and the
     effects' values, as ``--robot calibrated.toml`` gives them (None for any other robot)."""
     p = Path(robot)
-    if "#" in robot or p.suffix.lower() != ".urdf" or not p.is_file():
+    if "#" in robot or p.suffix.lower() != ".urdf" or not is_file(p):
         return None
     from lab.urdf_export import metrology_path, read_calibrated_urdf
 
     side = metrology_path(p)
-    if not side.is_file():
+    if not is_file(side):
         return None
     err_console.print(
         f"note: {flag} {escape(robot)}: read with {escape(str(side))} beside it (the tracker "
@@ -514,7 +515,7 @@ def check_outputs(
     prints goes to stderr."""
     from arm.files import check_output, is_stdout
 
-    files = [Path(str(i)) for i in inputs if i is not None and Path(str(i)).is_file()]
+    files = [Path(str(i)) for i in inputs if i is not None and is_file(str(i))]
     seen: dict[Path, str] = {}
     for path, option in outputs:
         if path is None:
