@@ -122,7 +122,9 @@ class MeasurementSet:
     about the measurement frame's axes), None for positions alone; ``std`` (N, 6), each row's
     standard uncertainty of those components (m, rad; NaN where the file states none), or None;
     ``orientation_form``, the form the file gave it in (``rotvec`` or ``rpy``), for writing it
-    back; ``notes``, the warnings given when the file was read."""
+    back; ``notes``, the warnings given when the file was read; ``labels``, the columns of text
+    (a ``set`` column of ``stationing`` rows), each row's cell as a string, which no fit or
+    effect reads."""
 
     q: np.ndarray
     xyz: np.ndarray
@@ -134,6 +136,7 @@ class MeasurementSet:
     std: np.ndarray | None = None
     orientation_form: str = "rotvec"
     notes: list[str] = field(default_factory=list)
+    labels: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.q = np.asarray(self.q, dtype=float).reshape(-1, 6)
@@ -276,6 +279,7 @@ class MeasurementSet:
             rows(self.std),
             self.orientation_form,
             list(self.notes),
+            {k: v[idx] for k, v in self.labels.items()},
         )
 
     def split(
@@ -334,7 +338,7 @@ class MeasurementSet:
                 "written (values must be finite, dir +-1, target and station integers)"
             )
         buf = io.StringIO()
-        buf.write(",".join(names) + "\n")
+        buf.write(",".join([*names, *self.labels]) + "\n")
         ints = {i for i, c in enumerate(names) if c in (*DIRS, *INTEGER_COLUMNS)}
 
         def cell(i: int, v: float) -> str:
@@ -342,8 +346,13 @@ class MeasurementSet:
                 return str(int(v))
             return "" if math.isnan(v) else repr(float(v))
 
-        for row in table:
-            buf.write(",".join(cell(i, v) for i, v in enumerate(row)) + "\n")
+        def text(t: str) -> str:
+            return f'"{t.replace(chr(34), chr(34) * 2)}"' if any(c in t for c in ',"') else t
+
+        labels = list(self.labels.values())
+        for r, row in enumerate(table):
+            cells = [cell(i, v) for i, v in enumerate(row)] + [text(str(x[r])) for x in labels]
+            buf.write(",".join(cells) + "\n")
         return buf.getvalue()
 
 
@@ -407,12 +416,14 @@ def concatenate(sets: Sequence[MeasurementSet], source: str | None = None) -> Me
     std = None
     if any(s.std is not None for s in sets):
         std = np.vstack([np.full((len(s), 6), np.nan) if s.std is None else s.std for s in sets])
+    shared = [c for c in sets[0].labels if all(c in s.labels for s in sets)]
     return MeasurementSet(
         np.vstack([s.q for s in sets]),
         np.vstack([s.xyz for s in sets]),
         {c: np.concatenate([s.columns[c] for s in sets]) for c in sets[0].columns},
         source or " + ".join(s.source for s in sets),
         std=std,
+        labels={c: np.concatenate([s.labels[c] for s in sets]) for c in shared},
     )
 
 
@@ -442,6 +453,9 @@ class NumericTable:
     values: np.ndarray
     lines: np.ndarray
     header_line: int = 1
+    # text columns (``text_columns``): each one's cells, and the line of its first text cell
+    labels: dict[str, np.ndarray] = field(default_factory=dict)
+    label_lines: dict[str, int] = field(default_factory=dict)
 
 
 def _lines(text: str) -> Iterator[str]:
@@ -495,6 +509,7 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
     columns: Sequence[str] | None = None,
     error: type[Exception] = MeasurementError,
     may_be_blank: Sequence[str] = (),
+    text_columns: bool = False,
 ) -> NumericTable:
     """Parse a CSV of numbers whose header names the ``required`` columns (and any others).
 
@@ -506,7 +521,9 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
     only trailing ones). ``columns``: read only these (others may hold anything), else every
     column. The columns read must have distinct, non-empty names and finite numbers in every row,
     except that a cell of a ``may_be_blank`` column may be empty (read as NaN: not measured);
-    ``error`` names the source, the line and the column of the first problem."""
+    ``error`` names the source, the line and the column of the first problem. ``text_columns``:
+    a column the format does not know (:data:`KNOWN`) that holds text (a cell neither a number
+    nor blank) is kept as labels (``labels``, the cells as strings), not refused."""
     # one row at a time into a growing array: a list of every row's cells would take 1.5 KB per
     # row of 200,000 (the text itself is a third of that)
     rows_in = _csv_rows(text, source, error)
@@ -548,6 +565,13 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
     values = np.empty((1024, len(read)))
     line_of = np.empty(1024, dtype=int)
     n = 0
+    # the columns that may hold text: their cells as written, and the first cell of each that
+    # is no number (text: the column is labels; blank: refused unless some other cell is text)
+    raw: dict[int, list[str]] = (
+        {j: [] for j, k in enumerate(read) if header[k] not in KNOWN} if text_columns else {}
+    )
+    not_number: dict[int, tuple[int, str]] = {}
+    textual: set[int] = set()
     pending: list[tuple[int, int]] = []  # blank lines, allowed only at the end (no blank_lines)
     for r, row in rows_in:
         if _is_comment(row):
@@ -575,9 +599,17 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
             if may_be_blank and not cell.strip() and header[k] in may_be_blank:
                 values[n, j] = math.nan
                 continue
+            if j in raw:
+                raw[j].append(cell.strip())
             try:
                 v = float(cell)
             except ValueError:
+                if j in raw:  # text, or a blank judged once the column is read
+                    not_number.setdefault(j, (r, cell))
+                    if cell.strip():
+                        textual.add(j)
+                    values[n, j] = math.nan
+                    continue
                 extra = (
                     ""
                     if header[k] in KNOWN
@@ -595,7 +627,22 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
         n += 1
     values = values[:n].copy()
     rows = line_of[:n].copy()
-    return NumericTable([header[k] for k in read], values, rows, hline)
+    for j, (r, cell) in not_number.items():
+        if j not in textual:  # a blank cell in a column of numbers
+            raise error(
+                f"{source}, line {r}, column {header[read[j]]!r}: {cell.strip()!r} is not a "
+                "number (extra columns are kept for custom effects as numbers, or as labels "
+                "where they hold text)"
+            )
+    keep = [j for j in range(len(read)) if j not in textual]
+    return NumericTable(
+        [header[read[j]] for j in keep],
+        values[:, keep],
+        rows,
+        hline,
+        {header[read[j]]: np.array(raw[j], dtype=str) for j in sorted(textual)},
+        {header[read[j]]: not_number[j][0] for j in sorted(textual)},
+    )
 
 
 #: separators that a CSV written elsewhere may use instead of the comma
@@ -700,13 +747,15 @@ def parse_measurements(  # noqa: C901  (one reader: each branch a column family 
     measured: Sequence[str] | None = None,
 ) -> MeasurementSet:
     blanks = (*ORIENTATION_FORMS["rotvec"], *ORIENTATION_FORMS["rpy"], *STD_COLUMNS[3:])
-    table = parse_numeric_csv(text, source, (*JOINTS, *POSITION), may_be_blank=blanks)
+    table = parse_numeric_csv(
+        text, source, (*JOINTS, *POSITION), may_be_blank=blanks, text_columns=True
+    )
     _declared_unit(text, source, angle_unit)  # a poses file's line, kept when x, y, z were added
     header, values = table.header, table.values
     n = values.shape[0]
     if n < min_rows:
         raise MeasurementError(f"{source}: {n} measurement rows, at least {min_rows} needed")
-    notes = _unknown_columns(header, source, table.header_line)
+    notes = _unknown_columns(header, source, table.header_line) + _label_notes(table, source)
     col = {h: values[:, k] for k, h in enumerate(header)}
 
     def check(name: str, ok: np.ndarray, what: str) -> None:
@@ -794,8 +843,32 @@ def parse_measurements(  # noqa: C901  (one reader: each branch a column family 
     for note in notes:
         warn(note, MeasurementWarning)
     return MeasurementSet(
-        q, xyz, other, source, table.lines, orientation, mask, std, form or "rotvec", notes
+        q,
+        xyz,
+        other,
+        source,
+        table.lines,
+        orientation,
+        mask,
+        std,
+        form or "rotvec",
+        notes,
+        table.labels,
     )
+
+
+def _label_notes(table: NumericTable, source: str) -> list[str]:
+    """One note naming the text columns (kept as labels, ignored by the fits)."""
+    if not table.labels:
+        return []
+    named = ", ".join(
+        f"{h!r} ({str(table.labels[h][table.lines.tolist().index(r)])!r} on line {r})"
+        for h, r in table.label_lines.items()
+    )
+    return [
+        f"{source}: column(s) {named} hold text: kept as labels (MeasurementSet.labels), "
+        "ignored by the fits and offered to no effect"
+    ]
 
 
 def orientation_form(
