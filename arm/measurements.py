@@ -27,7 +27,7 @@ import difflib
 import io
 import math
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -675,28 +675,40 @@ def as_measurements(data: MeasurementSet | str | Path) -> MeasurementSet:
 
 def read_measurements(
     path: str | Path,
-    length_unit: str = "m",
-    angle_unit: str = "rad",
+    length_unit: str | None = None,
+    angle_unit: str | None = None,
     min_rows: int = 1,
     orientation_unit: str | None = None,
     measured: Sequence[str] | None = None,
+    *,
+    fallback: tuple[str, str] = ("m", "rad"),
 ) -> MeasurementSet:
     """Read a measurement CSV (docs/format.md). ``length_unit`` (m|mm) applies to x, y, z and
     their stds; ``angle_unit`` (rad|deg) to q1..q6; ``orientation_unit`` (default
     ``angle_unit``) to the orientation columns and their stds. ``measured``: the components
     (of ``x y z rx ry rz``) the instrument measures, default every one the file has columns
-    for. ``#`` lines before the header are skipped; where one declares the angle unit (``q1..q6
-    in deg``, a poses file's), ``angle_unit`` must be that unit. Raises
+    for. ``#`` lines before the header are skipped; where one declares the units (``x, y, z in
+    mm``, ``q1..q6 in deg``: :func:`file_units`), a unit not given is that one, and one given
+    must be it; a unit neither given nor declared is ``fallback``'s (m, rad). Raises
     :class:`MeasurementError` naming file, line and column; warns (:class:`MeasurementWarning`)
     of columns the format does not know."""
     path = Path(path)
-    _length_factor(length_unit)
-    _angle_factor(angle_unit)
+    if length_unit is not None:
+        _length_factor(length_unit)
+    if angle_unit is not None:
+        _angle_factor(angle_unit)
     if orientation_unit is not None:
         _angle_factor(orientation_unit)
     text = read_text(path)
     return parse_measurements(
-        text, str(path), length_unit, angle_unit, min_rows, orientation_unit, measured
+        text,
+        str(path),
+        length_unit,
+        angle_unit,
+        min_rows,
+        orientation_unit,
+        measured,
+        fallback=fallback,
     )
 
 
@@ -740,17 +752,19 @@ def _unknown_columns(header: Sequence[str], source: str, line: int) -> list[str]
 def parse_measurements(  # noqa: C901  (one reader: each branch a column family of docs/format.md)
     text: str,
     source: str,
-    length_unit: str = "m",
-    angle_unit: str = "rad",
+    length_unit: str | None = None,
+    angle_unit: str | None = None,
     min_rows: int = 1,
     orientation_unit: str | None = None,
     measured: Sequence[str] | None = None,
+    *,
+    fallback: tuple[str, str] = ("m", "rad"),
 ) -> MeasurementSet:
+    length_unit, angle_unit = file_units(text, source, length_unit, angle_unit, fallback)
     blanks = (*ORIENTATION_FORMS["rotvec"], *ORIENTATION_FORMS["rpy"], *STD_COLUMNS[3:])
     table = parse_numeric_csv(
         text, source, (*JOINTS, *POSITION), may_be_blank=blanks, text_columns=True
     )
-    _declared_unit(text, source, angle_unit)  # a poses file's line, kept when x, y, z were added
     header, values = table.header, table.values
     n = values.shape[0]
     if n < min_rows:
@@ -981,25 +995,65 @@ def write_poses(q: np.ndarray, path: str | Path, angle_unit: str = "rad") -> Non
 
 
 _DECLARED_UNIT = re.compile(r"^\s*#.*\bq1\.\.q6 in (\w+)")
+_DECLARED_LENGTH = re.compile(r"^\s*#.*\bx, ?y, ?z in (\w+)")
+
+
+def _declared(
+    text: str, source: str, pattern: re.Pattern[str], what: str, units: Mapping[str, float]
+) -> tuple[str, int] | None:
+    """The unit a ``#`` line before the header declares for ``what`` (``pattern``), with its
+    line number, or None; an unknown unit is refused, naming the line."""
+    for number, line in enumerate(_lines(text), start=1):
+        if not line.strip():
+            continue
+        if not line.lstrip().startswith("#"):
+            return None
+        m = pattern.match(line)
+        if m:
+            if m.group(1) not in units:
+                raise MeasurementError(
+                    f"{source}, line {number}: declares {what} in {m.group(1)!r}; "
+                    f"known units: {', '.join(sorted(units))}"
+                )
+            return m.group(1), number
+    return None
 
 
 def declared_angle_unit(text: str, source: str) -> tuple[str, int] | None:
     """The angle unit a poses file's ``#`` line declares (``q1..q6 in deg``), with its line
     number, or None where no such line precedes the header."""
-    for number, line in enumerate(text.splitlines(), start=1):
-        if not line.strip():
-            continue
-        if not line.lstrip().startswith("#"):
-            return None
-        m = _DECLARED_UNIT.match(line)
-        if m:
-            if m.group(1) not in ANGLE_UNITS:
-                raise MeasurementError(
-                    f"{source}, line {number}: declares q1..q6 in {m.group(1)!r}; "
-                    f"known angle units: {', '.join(sorted(ANGLE_UNITS))}"
-                )
-            return m.group(1), number
-    return None
+    return _declared(text, source, _DECLARED_UNIT, "q1..q6", ANGLE_UNITS)
+
+
+def declared_length_unit(text: str, source: str) -> tuple[str, int] | None:
+    """The length unit a measurement file's ``#`` line declares (``x, y, z in mm``), with its
+    line number, or None where no such line precedes the header."""
+    return _declared(text, source, _DECLARED_LENGTH, "x, y, z", LENGTH_UNITS)
+
+
+def file_units(
+    text: str,
+    source: str,
+    length_unit: str | None,
+    angle_unit: str | None,
+    fallback: tuple[str, str] = ("m", "rad"),
+) -> tuple[str, str]:
+    """The units to read a measurement file in: those given, else those its ``#`` lines declare
+    (``x, y, z in mm``, ``q1..q6 in deg``), else ``fallback``. A given unit that contradicts
+    the declared one is refused, naming the line: read in the wrong unit, every row would be
+    another."""
+    out = []
+    for given, found, what, option, default in (
+        (length_unit, declared_length_unit(text, source), "x, y, z", "--length-unit", fallback[0]),
+        (angle_unit, declared_angle_unit(text, source), "q1..q6", "--angle-unit", fallback[1]),
+    ):
+        if found is not None and given is not None and found[0] != given:
+            raise MeasurementError(
+                f"{source}, line {found[1]}: the file declares {what} in {found[0]}, but they "
+                f"were to be read in {given}; say {option} {found[0]}"
+            )
+        out.append(given or (found[0] if found else default))
+    return out[0], out[1]
 
 
 def _declared_unit(text: str, source: str, angle_unit: str | None, or_else: str = "") -> str | None:

@@ -36,6 +36,7 @@ if TYPE_CHECKING:
         OrientationNotFittedWarning,
         PoorPoseSetWarning,
         RowsLeftOutWarning,
+        ValidationMismatchError,
         ValidationMismatchWarning,
     )
     from lab.estimation import identifiability_of
@@ -62,6 +63,7 @@ _HOME = {
     "ImplausibleAcceptedWarning": "lab.errors",
     "LabWarning": "lab.errors",
     "NoiseRefutedError": "lab.errors",
+    "ValidationMismatchError": "lab.errors",
     "ValidationMismatchWarning": "lab.errors",
     "OrientationNotFittedWarning": "lab.errors",
     "PoorPoseSetWarning": "lab.errors",
@@ -107,6 +109,7 @@ __all__ = [
     "PoorPoseSetWarning",
     "RowsLeftOutWarning",
     "Screen",
+    "ValidationMismatchError",
     "ValidationMismatchWarning",
     "analyse",
     "bag",

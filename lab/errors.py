@@ -24,6 +24,7 @@ __all__ = [
     "OrientationNotFittedWarning",
     "PoorPoseSetWarning",
     "RowsLeftOutWarning",
+    "ValidationMismatchError",
     "ValidationMismatchWarning",
 ]
 
@@ -42,6 +43,12 @@ class NoiseRefutedError(FitError):
     """The stated noise is far above what the fit's residual allows
     (:func:`lab.sanity.check_stated_noise`): a unit slip, most likely. Nothing is decided on
     it: the noise decides which parameters are fitted, the verdict and when discovery stops."""
+
+
+class ValidationMismatchError(FitError):
+    """Held-out data fit more than :data:`lab.sanity.VALIDATION_FOREIGN` times worse than the
+    fitted data (:func:`lab.sanity.check_validation`): another frame or other units, so that the
+    validation figures would mean nothing; refused unless ``accept_other_frame``."""
 
 
 class LabWarning(SixAxisWarning):

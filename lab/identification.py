@@ -50,6 +50,7 @@ def fit(
     start: Mapping[str, float] | None = None,
     fixed: Iterable[str] = (),
     extrapolate: bool = False,
+    accept_other_frame: bool = False,
     **keywords: Unpack[OptionFields],
 ) -> FitResult:
     """Identify ``effects`` (default geometric) of ``robot`` (default the seed arm) from
@@ -69,7 +70,9 @@ def fit(
 
     ``validate``: held-out measurements for validation RMS and median; where they lie outside
     the fitted domain a warning says so, and terms whose form does not repeat over what was
-    fitted are left out of those rows unless ``extrapolate`` (:mod:`lab.domain`). ``start``:
+    fitted are left out of those rows unless ``extrapolate`` (:mod:`lab.domain`); held-out data
+    more than 100 times worse than the fit's are refused as another frame's or other units'
+    (:func:`lab.sanity.check_validation`) unless ``accept_other_frame``. ``start``:
     starting values by name; ``fixed``: names to hold at their starting value.
     """
     opts = resolve(options, **keywords)
@@ -81,6 +84,6 @@ def fit(
     if validate is not None:
         held_out = as_measurements(validate)
         result = result.validate(held_out, extrapolate=extrapolate)
-        check_validation(result, held_out.source)
+        check_validation(result, held_out.source, accept_other_frame)
     log.info("%s", result.summary())
     return result

@@ -18,7 +18,7 @@ import pytest
 
 from arm.description import load_robot
 from arm.measurements import MeasurementError, read_measurements, write_measurements
-from lab import ValidationMismatchWarning, fit
+from lab import ValidationMismatchError, ValidationMismatchWarning, fit
 from tests._cli import lab, one_error_line
 from tests._lab_data import campaign
 
@@ -98,8 +98,15 @@ def test_validation_far_beyond_the_fit_is_named(small, tmp_path):
     """Held-out data in another frame (the tracker moved by 0.5 m) or of another arm."""
     moved = read_measurements(DATA / "test.csv")
     moved = type(moved)(moved.q, moved.xyz + np.array([0.5, 0.0, 0.0]), moved.columns, "moved.csv")
-    with pytest.warns(ValidationMismatchWarning, match=r"moved.csv: validation RMS .* another arm"):
+    # 0.5 m is thousands of times the fit's RMS: no region explains it, refused
+    with pytest.raises(ValidationMismatchError, match=r"moved.csv: validation RMS .* another arm"):
         fit(small, "ur5_robot", validate=moved)
+    with pytest.warns(ValidationMismatchWarning, match=r"moved.csv: validation RMS .* another arm"):
+        fit(small, "ur5_robot", validate=moved, accept_other_frame=True)
+    # 2 mm is tens of times the fit's: a warning (poses far outside those fitted?)
+    near = type(moved)(moved.q, moved.xyz - np.array([0.498, 0.0, 0.0]), moved.columns, "near.csv")
+    with pytest.warns(ValidationMismatchWarning, match=r"near.csv: .* or poses far outside"):
+        fit(small, "ur5_robot", validate=near)
     with warnings.catch_warnings():
         warnings.simplefilter("error", ValidationMismatchWarning)
         res = fit(small, "ur5_robot", validate=DATA / "test.csv")  # the same arm: no word
@@ -115,9 +122,9 @@ def test_validation_far_beyond_the_fit_is_named(small, tmp_path):
         text=True,
         env=os.environ | {"COLUMNS": "300"},
     )
-    assert res.returncode == 0, res.stderr
-    assert json.loads(res.stdout)["validation_rms_mm"] > 100
-    assert "test.csv: validation RMS" in res.stderr and "another arm" in res.stderr
+    assert res.returncode == 2 and res.stdout == "", res.stderr
+    assert "error: " in res.stderr and "test.csv: validation RMS" in res.stderr
+    assert "another arm" in res.stderr and "--accept-other-frame" in res.stderr
 
 
 @pytest.mark.parametrize(

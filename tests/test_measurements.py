@@ -296,10 +296,35 @@ def test_a_poses_file_with_the_measured_points_added_is_read_by_every_reader(tmp
     rows = [f"{r},{','.join(repr(float(v)) for v in p)}" for r, p in zip(rows, xyz, strict=True)]
     deg = _file(tmp_path, "\n".join([first, header + ",x,y,z", *rows]) + "\n", "deg.csv")
     with pytest.raises(
-        MeasurementError, match=r"deg.csv, line 1: the file declares q1\.\.q6 in deg"
+        MeasurementError,
+        match=r"deg.csv, line 1: the file declares q1\.\.q6 in deg.*--angle-unit deg",
     ):
-        read_measurements(deg)
+        read_measurements(deg, angle_unit="rad")
     assert np.allclose(read_measurements(deg, angle_unit="deg").q, q, atol=1e-12)
+    assert np.allclose(read_measurements(deg).q, q, atol=1e-12)  # a unit not given: the declared
+
+
+def test_a_declared_length_unit_is_read_and_a_contradicting_one_refused(tmp_path):
+    """``# x, y, z in mm`` above the header: the reader takes mm where no unit is given (over
+    the fallback, the data's unit for a held-out file), refuses another unit given, naming the
+    line, and an unknown unit."""
+    path = _file(tmp_path, f"# tracker export, x, y, z in mm\n{HEADER}\n{ROW}\n")
+    metres = read_measurements(_file(tmp_path, f"{HEADER}\n{ROW}\n", "m.csv"))
+    mm = read_measurements(path)
+    np.testing.assert_allclose(mm.xyz, metres.xyz * 1e-3)
+    np.testing.assert_allclose(read_measurements(path, fallback=("m", "deg")).xyz, mm.xyz)
+    np.testing.assert_allclose(read_measurements(path, length_unit="mm").xyz, mm.xyz)
+    with pytest.raises(
+        MeasurementError, match=r"line 1: the file declares x, y, z in mm.*--length-unit mm"
+    ):
+        read_measurements(path, length_unit="m")
+    bad = _file(tmp_path, f"# x, y, z in inch\n{HEADER}\n{ROW}\n", "inch.csv")
+    with pytest.raises(MeasurementError, match=r"line 1: declares x, y, z in 'inch'"):
+        read_measurements(bad)
+    # no declaration: the fallback's unit (a held-out file read in the data's)
+    np.testing.assert_allclose(
+        read_measurements(tmp_path / "m.csv", fallback=("mm", "rad")).xyz, mm.xyz
+    )
 
 
 @pytest.mark.parametrize("where", ["between rows", "after the last row"])
