@@ -643,8 +643,10 @@ def discover(
     (:mod:`lab.transfer`; None: where the data have at least :data:`lab.transfer.MIN_BLOCKS`)."""
     check_alpha(alpha)
     opts = resolve(options, **keywords)
-    if not ORDER.holds(order):
-        raise FitError(f"order (the highest harmonic) must {ORDER.predicate}, got {order!r}")
+    if not ORDER.constraint.holds(order):
+        raise FitError(
+            f"order (the highest harmonic) must {ORDER.constraint.predicate}, got {order!r}"
+        )
     if not _NAME.fullmatch(name) or keyword.iskeyword(name):
         raise FitError(f"effect name {name!r} must be lower-case letters, digits and _")
     s = screened(data, robot, effects, opts, tests=False)
