@@ -19,6 +19,13 @@ modes, ``bool`` is true or false, ``| None`` lets None through, and :func:`decla
 The same constraints feed the command line's choices and ranges (:func:`choices`,
 :func:`Interval.bounds`) and the checks of a mapping (a TOML table, an agent's settings) with
 :func:`check`. Plain data and the standard library only: every layer can use it.
+
+A declaration also says what a value is (``help=``, ``unit=``), so that a command line's option
+is made from it (``experiments.cli_inputs.option_of``) and nothing about an option is written
+twice; a quantity taken in several places (the instrument's noise, :mod:`arm.noise`) is one
+:class:`Quantity`, its rule, unit and text, that each place declares its field with:
+
+    noise_mm: float | None = declare(None, NOISE_MM, help="Default: estimated.")
 """
 
 from __future__ import annotations
