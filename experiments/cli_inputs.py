@@ -42,7 +42,7 @@ from arm.errors import SixAxisError
 from arm.files import is_file
 from arm.measurements import ANGLE_UNITS, LENGTH_UNITS
 from arm.noise import noise_law_problems
-from experiments.cli_output import console, err_console, fail, user_errors
+from experiments.cli_output import console, err_console, fail, record_cautions, user_errors
 from lab.options import LabOptions
 
 if TYPE_CHECKING:
@@ -236,7 +236,27 @@ class LabInputs:
         flags=("--effects", "-e"),
     )
     validate: Path | None = declare(
-        None, help="Held-out measurements (same units) for validation RMS and median."
+        None,
+        help="Held-out measurements for validation RMS and median, in the units its '#' lines "
+        "declare ('# x, y, z in mm', '# q1..q6 in deg'), else --validate-length-unit and "
+        "--validate-angle-unit, else the data's.",
+    )
+    validate_length_unit: str | None = declare(
+        None,
+        OneOf(tuple(LENGTH_UNITS)),
+        help="Unit of x, y, z in the --validate file. Default: the one its '#' line declares, "
+        "else --length-unit.",
+    )
+    validate_angle_unit: str | None = declare(
+        None,
+        OneOf(tuple(ANGLE_UNITS)),
+        help="Unit of q1..q6 in the --validate file. Default: the one its '#' line declares, "
+        "else --angle-unit.",
+    )
+    accept_other_frame: bool = declare(
+        False,
+        help="Validate on held-out data that fit more than 100 times worse than the fitted "
+        "data (another frame or other units: refused without it, with a warning with it).",
     )
     orientation_unit: str | None = declare(
         None,
@@ -372,9 +392,16 @@ class LabArgs(LabInputs):
         arm = read_arm(self.robot)
         units = (self.length_unit, self.angle_unit, self.orientation_unit, self.measured)
         meas = read_data(data, *units)
-        val = (
-            None if self.validate is None else read_data(self.validate, *units, option="--validate")
-        )
+        val = None
+        if self.validate is not None:  # its own units: given, else declared, else the data's
+            val = read_data(
+                self.validate,
+                self.validate_length_unit,
+                self.validate_angle_unit,
+                *units[2:],
+                option="--validate",
+                fallback=(self.length_unit, self.angle_unit),
+            )
         return Read(arm, meas, val, opts, effects)
 
     def next_step(self, command: str, replaced: Sequence[str] = ("effects",)) -> dict[str, Any]:
@@ -562,15 +589,17 @@ def _calibrated_urdf(robot: str, flag: str) -> RobotDescription | None:
 
 def read_data(
     path: Path,
-    length_unit: str,
-    angle_unit: str,
+    length_unit: str | None,
+    angle_unit: str | None,
     orientation_unit: str | None = None,
     measured: str | None = None,
     option: str = "",
+    fallback: tuple[str, str] = ("m", "rad"),
 ) -> MeasurementSet:
     """The measurement set of ``path``; the columns the format does not know are said (a
     ``MeasurementWarning``), not dropped. ``option`` (e.g. ``--validate``) is named in an error
-    about a file given by an option."""
+    about a file given by an option. A unit None is the one the file declares, else
+    ``fallback``'s (:func:`arm.measurements.file_units`)."""
     import warnings
 
     from arm.measurements import MeasurementWarning, read_measurements
@@ -585,9 +614,11 @@ def read_data(
             angle_unit=angle_unit,
             orientation_unit=orientation_unit,
             measured=parts,
+            fallback=fallback,
         )
     for w in caught:  # on stderr: stdout carries the command's output (with --json, only it)
         err_console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
+    record_cautions(caught)
     return data
 
 

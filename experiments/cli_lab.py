@@ -52,6 +52,7 @@ from experiments.cli_inputs import (
     writing,
 )
 from experiments.cli_output import (
+    cautions_recorded,
     command_line,
     console,
     counted,
@@ -68,6 +69,7 @@ from experiments.cli_output import (
     say,
     steps,
     user_errors,
+    with_cautions,
 )
 from lab.options import ALPHA, CRITERIA, EXPORT_FORMATS, ORDER, ROUNDS, LabOptions
 
@@ -103,6 +105,7 @@ def _lab(ctx: typer.Context) -> None:
         previous = signal.signal(signal.SIGTERM, _terminated)
         ctx.call_on_close(lambda: signal.signal(signal.SIGTERM, previous))
     ctx.call_on_close(lambda: setattr(console, "stderr", False))  # after an output on stdout
+    ctx.with_resource(cautions_recorded())  # each caution said once, and kept for the JSON
 
 
 ExtrapolateOpt = Annotated[
@@ -116,12 +119,32 @@ ExtrapolateOpt = Annotated[
 ]
 
 
-def _fitted(meas, arm, effects: list[Effect], opts: LabOptions, val, extrapolate: bool = False):
+def _fitted(
+    meas,
+    arm,
+    effects: list[Effect],
+    opts: LabOptions,
+    val,
+    extrapolate: bool = False,
+    accept_other_frame: bool = False,
+):
     """The lab's fit of a command's data (``lab fit``, ``lab export``)."""
     from lab import fit
 
     with user_errors():
-        return fit(meas, arm, effects, options=opts, validate=val, extrapolate=extrapolate)
+        return fit(
+            meas,
+            arm,
+            effects,
+            options=opts,
+            validate=val,
+            extrapolate=extrapolate,
+            accept_other_frame=accept_other_frame,
+        )
+
+
+#: the options of held-out data, which a command without --validate takes none of
+VALIDATION = ("validate", "validate_length_unit", "validate_angle_unit", "accept_other_frame")
 
 
 # -- fit --------------------------------------------------------------------------------------------
@@ -139,7 +162,7 @@ def fit_cmd(
     parameters the poses cannot identify; --json prints the JSON object of docs/format.md, the
     lab's JSON output (SI units)."""
     arm, meas, val, opts, effects = lab.read(data, [(out, "--out")], as_json)
-    result = _fitted(meas, arm, effects, opts, val, extrapolate)
+    result = _fitted(meas, arm, effects, opts, val, extrapolate, lab.accept_other_frame)
     if not as_json:
         print_fit(result)
     emit_json(result.to_dict(), as_json, out)
@@ -149,7 +172,7 @@ AlphaOpt = Annotated[float, declared(ALPHA, "alpha")]
 
 
 # -- diagnose ---------------------------------------------------------------------------------------
-@lab_command(app, "diagnose", omit=("validate",))
+@lab_command(app, "diagnose", omit=VALIDATION)
 def diagnose_cmd(
     data: DataArg,
     lab: LabArgs,
@@ -187,7 +210,7 @@ DiscoverEffectsOpt = Annotated[
 @lab_command(
     app,
     "discover",
-    omit=("loss", "outliers", "accept_large", "f_scale_mm"),
+    omit=("loss", "outliers", "accept_large", "f_scale_mm", "accept_other_frame"),
     effects=DiscoverEffectsOpt,
 )
 def discover_cmd(
@@ -296,7 +319,7 @@ def bag_cmd(
         b = bag(meas, arm, bags=bags, poses=poses, seed=seed, name=name, options=opts)
         result = b.result if val is None else b.result.validate(val, extrapolate=extrapolate)
         if val is not None:  # foreign held-out data: warned about as `lab fit` does
-            check_validation(result, val.source)
+            check_validation(result, val.source, lab.accept_other_frame)
     written = None
     if output is not None and b.discovered is not None:
         with user_errors(), writing(output):
@@ -336,7 +359,7 @@ def bag_cmd(
 
 
 # -- report -----------------------------------------------------------------------------------------
-@lab_command(app, "report")
+@lab_command(app, "report", omit=("accept_other_frame",))
 def report_cmd(
     data: DataArg,
     output: Annotated[Path, typer.Option("--output", "-o", help="The HTML file to write.")] = Path(
@@ -446,7 +469,11 @@ def plan_cmd(
     with writing(output):
         write_poses(p.q, output, angle_unit)
     if as_json:
-        print(json_text(p.to_dict() | {"output": str(output), "angle_unit": angle_unit}))
+        print(
+            json_text(
+                with_cautions(p.to_dict() | {"output": str(output), "angle_unit": angle_unit})
+            )
+        )
     else:
         print_plan(p, criterion, output, angle_unit, poses=bool(noise_mrad))
 
@@ -657,7 +684,7 @@ def export_cmd(
     if export_format == "urdf":
         with user_errors():  # before the fit: a TOML arm has no URDF to correct
             require_urdf(arm)
-    result = _fitted(meas, arm, effects, opts, val)
+    result = _fitted(meas, arm, effects, opts, val, accept_other_frame=lab.accept_other_frame)
     say(result.summary())
     if export_format == "urdf":
         with user_errors(), writing(output):
@@ -773,6 +800,6 @@ def compensate_cmd(
         write_joints(comp, output)
     summary = comp.to_dict() | {"output": str(output)}
     if as_json:
-        print(json_text(summary))
+        print(json_text(with_cautions(summary)))
     else:
         print_compensation(comp, summary, output)
