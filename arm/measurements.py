@@ -548,20 +548,7 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
         if columns is None
         else [k for k, h in enumerate(header) if h in columns]
     )
-    seen: set[str] = set()
-    for k in read:
-        h = header[k]
-        if not h:
-            raise error(f"{source}, line {hline}: column {k + 1} has an empty name")
-        if h in seen:
-            raise error(f"{source}, line {hline}: column {h!r} appears twice")
-        seen.add(h)
-    missing = [c for c in required if c not in seen]
-    if missing:
-        raise error(
-            f"{source}, line {hline}: missing required column(s) {', '.join(missing)} "
-            f"(found: {', '.join(header)}){_header_cause(header, required)}"
-        )
+    _check_header(header, read, required, f"{source}, line {hline}", error)
     values = np.empty((1024, len(read)))
     line_of = np.empty(1024, dtype=int)
     n = 0
@@ -625,23 +612,60 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
             values[n, j] = v
         line_of[n] = r
         n += 1
-    values = values[:n].copy()
-    rows = line_of[:n].copy()
+    names = [header[k] for k in read]
+    table = NumericTable(names, values[:n].copy(), line_of[:n].copy(), hline)
+    return _with_labels(table, raw, not_number, textual, source, error)
+
+
+def _check_header(
+    header: list[str],
+    read: list[int],
+    required: Sequence[str],
+    where: str,
+    error: type[Exception],
+) -> None:
+    """The columns read have distinct, non-empty names and the required ones are there."""
+    seen: set[str] = set()
+    for k in read:
+        h = header[k]
+        if not h:
+            raise error(f"{where}: column {k + 1} has an empty name")
+        if h in seen:
+            raise error(f"{where}: column {h!r} appears twice")
+        seen.add(h)
+    missing = [c for c in required if c not in seen]
+    if missing:
+        raise error(
+            f"{where}: missing required column(s) {', '.join(missing)} "
+            f"(found: {', '.join(header)}){_header_cause(header, required)}"
+        )
+
+
+def _with_labels(
+    table: NumericTable,
+    raw: Mapping[int, list[str]],
+    not_number: Mapping[int, tuple[int, str]],
+    textual: set[int],
+    source: str,
+    error: type[Exception],
+) -> NumericTable:
+    """``table`` with its text columns (``textual``, by position among those read) moved to
+    ``labels``; a column of numbers with a cell that is none (a blank) refused, naming it."""
     for j, (r, cell) in not_number.items():
         if j not in textual:  # a blank cell in a column of numbers
             raise error(
-                f"{source}, line {r}, column {header[read[j]]!r}: {cell.strip()!r} is not a "
+                f"{source}, line {r}, column {table.header[j]!r}: {cell.strip()!r} is not a "
                 "number (extra columns are kept for custom effects as numbers, or as labels "
                 "where they hold text)"
             )
-    keep = [j for j in range(len(read)) if j not in textual]
+    keep = [j for j in range(len(table.header)) if j not in textual]
     return NumericTable(
-        [header[read[j]] for j in keep],
-        values[:, keep],
-        rows,
-        hline,
-        {header[read[j]]: np.array(raw[j], dtype=str) for j in sorted(textual)},
-        {header[read[j]]: not_number[j][0] for j in sorted(textual)},
+        [table.header[j] for j in keep],
+        table.values[:, keep],
+        table.lines,
+        table.header_line,
+        {table.header[j]: np.array(raw[j], dtype=str) for j in sorted(textual)},
+        {table.header[j]: not_number[j][0] for j in sorted(textual)},
     )
 
 
