@@ -71,15 +71,21 @@ def _outside_observation(overrides: Any) -> str | None:
     return None
 
 
-def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any) -> gym.Env:
+def make_env(
+    interface: str = "joint",
+    tool_step_mm: float = 5.0,
+    observe: Sequence[str] = (),
+    **kwargs: Any,
+) -> gym.Env:
     """``SixAxisTrack-v0`` as ``gym.make`` builds it: the env in a ``TimeLimit`` of its own
     ``episode_seconds`` (500 steps by default), so that the episode and the limit agree.
     ``interface="tool"`` puts the operational-space interface around it
     (:class:`envs.wrappers.ToolDisplacementAction`: a tool displacement of up to ``tool_step_mm``
-    mm per step and axis, relative observations in mm); ``"joint"`` (the default) is the env's
-    own, normalised joint velocities. ``make_env.env_class`` is the env's class (its options,
-    ``check_options``)."""
-    from envs.wrappers import INTERFACES, ToolDisplacementAction
+    mm per step and axis, relative observations in mm, followed by the env's own readings that
+    ``observe`` names: ``"joints"``, ``"payload"``, ``"temperature"``); ``"joint"`` (the default)
+    is the env's own, normalised joint velocities. ``make_env.env_class`` is the env's class (its
+    options, ``check_options``)."""
+    from envs.wrappers import INTERFACES, OBSERVABLE, ToolDisplacementAction
 
     problems = {}
     for key, value, constraint in (
@@ -88,6 +94,11 @@ def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any)
     ):
         if not constraint.holds(value):
             problems[key] = f"expected {description(constraint)}, got {value!r}"
+    names = list(observe) if isinstance(observe, list | tuple) else None
+    if names is None or any(n not in OBSERVABLE for n in names) or len(set(names)) < len(names):
+        problems["observe"] = f"expected distinct names of {', '.join(OBSERVABLE)}, got {observe!r}"
+    elif names and interface != "tool":
+        problems["observe"] = "is an option of the tool interface (interface='tool')"
     if problems:
         raise EnvOptionError(
             "SixAxisTrack-v0: " + "; ".join(f"{k}: {m}" for k, m in problems.items())
@@ -95,7 +106,7 @@ def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any)
     env = SixAxisTrackEnv(**kwargs)
     limited = TimeLimit(env, env.episode_steps)
     if interface == "tool":
-        return ToolDisplacementAction(limited, float(tool_step_mm))
+        return ToolDisplacementAction(limited, float(tool_step_mm), observe=tuple(observe))
     return limited
 
 

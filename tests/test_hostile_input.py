@@ -794,7 +794,7 @@ def test_a_fifo_as_a_policy_file_is_refused_without_waiting(policy, tmp_path):
     os.mkfifo(fifo)
     (tmp_path / "fifo.json").write_bytes(policy.with_suffix(".json").read_bytes())
     with pytest.raises(PolicyFileError, match="FIFO"):
-        PolicyAgent("mine", path=str(fifo))
+        PolicyAgent(path=str(fifo), name="mine")
     with pytest.raises(PolicyFileError, match="FIFO"):
         load_policy_file(fifo)
     policy.with_suffix(".json").unlink()
