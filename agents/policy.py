@@ -708,8 +708,9 @@ def _policy_path(policy: str | None, path: str | None) -> Path:
         )
     if "/" in policy or "\\" in policy or policy.endswith(".npz"):
         raise PolicyFileError(
-            f"policy {policy!r} names a file: give it as path (policy is a shipped policy's name: "
-            f"{', '.join(shipped_policies()) or 'none shipped'})"
+            f"policy {policy!r} names a file: give it as path, to the agent 'policy' "
+            f'(`sixaxis evaluate policy --settings \'{{"path": "{policy}"}}\'`); policy is a '
+            f"shipped policy's name: {', '.join(shipped_policies()) or 'none shipped'}"
         )
     found = POLICY_DIR / f"{policy}.npz"
     if not found.exists():

@@ -801,7 +801,7 @@ def test_a_fifo_as_a_policy_file_is_refused_without_waiting(policy, tmp_path):
     os.mkfifo(policy.with_suffix(".json"))  # the description a FIFO
     with pytest.raises(PolicyFileError, match=r"p\.json: is a FIFO"):
         load_policy_file(policy)
-    res = sixaxis("evaluate", "ppo-residual", "--settings", f'{{"path": "{fifo}"}}')
+    res = sixaxis("evaluate", "policy", "--settings", f'{{"path": "{fifo}"}}')
     one_error_line(res, "fifo.npz", "FIFO")
 
 
