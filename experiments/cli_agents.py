@@ -28,6 +28,7 @@ def _train(
     ship: bool,
     resume: bool,
     stop_at: int | None = None,
+    diagnostics: Path | None = None,
 ) -> None:
     from agents.training import load_train_config, ship_policy, train
 
@@ -60,8 +61,13 @@ def _train(
         def update(n: int, total: int) -> None:
             bar.update(job, completed=n)
 
-        out = train(cfg, progress=update, resume=resume, stop_at=stop_at)
+        with user_errors():
+            out = train(
+                cfg, progress=update, resume=resume, stop_at=stop_at, diagnostics=diagnostics
+            )
     console.print(f"done in {time.perf_counter() - t0:.0f} s: {out}")
+    if diagnostics is not None:
+        console.print(f"SB3's diagnostics: {diagnostics / 'progress.csv'}")
     if ship:
         with console.status("evaluating the policy on the leaderboard's episodes..."):
             dst = ship_policy(out)
@@ -70,6 +76,11 @@ def _train(
 
 _CONFIG_HELP = (
     "A TOML file with a [train] table (default: experiments/configs/<algo>-residual.toml)."
+)
+_DIAGNOSTICS_HELP = (
+    "A folder for stable-baselines3's own logger: progress.csv of its standard scalars (PPO's "
+    "KL, clip fraction, entropy, explained variance, losses; SAC's and TD3's losses), and "
+    "TensorBoard event files where the tensorboard package is installed."
 )
 _RESUME_HELP = (
     "Continue the run in the output directory from its last checkpoint (SB3's own save, which "
@@ -102,8 +113,11 @@ def _make_train_command(algo: str) -> None:
                 "config's total_timesteps unchanged.",
             ),
         ] = None,
+        diagnostics: Annotated[
+            Path | None, typer.Option(help=_DIAGNOSTICS_HELP, metavar="DIR")
+        ] = None,
     ) -> None:
-        _train(algo, config, seed, timesteps, output, ship, resume, stop_at)
+        _train(algo, config, seed, timesteps, output, ship, resume, stop_at, diagnostics)
 
     command.__doc__ = (
         f"Train {algo.upper()} (stable-baselines3) on SixAxisTrack-v0: evaluations (curve.csv), "

@@ -380,3 +380,36 @@ def test_a_tool_policy_with_the_observe_option_trains_at_its_declared_scales(tmp
         PolicyAgent(path=str(out / "final")), {"scenario": "thermal"}, seed=0, episode_seconds=0.5
     )
     assert np.isfinite(r.true_error_mm).all()
+
+
+TINY_TOML = """[train]
+algo = "ppo"
+scenarios = ["geometric"]
+n_envs = 2
+total_timesteps = 256
+eval_every = 128
+checkpoint_every = 128
+[train.env]
+episode_seconds = 1.0
+[train.hyperparameters]
+n_steps = 64
+batch_size = 64
+n_epochs = 1
+policy_kwargs = { net_arch = [16, 16] }
+"""
+
+
+@pytest.mark.slow
+def test_sixaxis_train_writes_diagnostics_where_asked(tmp_path):
+    from typer.testing import CliRunner
+
+    from experiments.cli import app
+
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY_TOML)
+    logs = tmp_path / "logs"
+    args = ["train", "ppo", "--config", str(config), "--output", str(tmp_path / "run")]
+    res = CliRunner().invoke(app, [*args, "--diagnostics", str(logs)])
+    assert res.exit_code == 0, res.output
+    header = (logs / "progress.csv").read_text().splitlines()[0].split(",")
+    assert {"train/approx_kl", "train/clip_fraction", "train/explained_variance"} <= set(header)
