@@ -301,6 +301,31 @@ class SixAxisTrackEnv(gym.Env):
     "declare_error": 0}}`` declares it at once and right), so a controller must notice the change
     in its measurements.
 
+    ## The tool interface
+    ``gym.make("SixAxisTrack-v0", interface="tool", tool_step_mm=5.0, observe=[...])``
+    (:class:`envs.wrappers.ToolDisplacementAction`): the action ``Box(-1, 1, (3,))`` is a tool
+    displacement of up to ``tool_step_mm`` mm per step and axis; the observation is relative and
+    not normalised. Each index has a declared fixed scale (the wrapper's ``feature_offset`` and
+    ``feature_scale``): ``(obs - offset) / scale`` is of order 1, and is what the trainer feeds
+    its networks (``obs_normalization = "fixed"``) and saves with the policy.
+
+    | Num   | Observation                                            | Min        | Max        | Name (obs_slices) | Unit  | Offset | Scale   |
+    |-------|--------------------------------------------------------|------------|------------|-------------------|-------|--------|---------|
+    | 0-2   | reference minus the tool point as the nominal model,   | -1e4       | 1e4        | tracking_error    | mm    | 0      | 1       |
+    |       | corrected by the last measured model error, places it |            |            |                   |       |        |         |
+    | 3-32  | the next 10 references minus the reference now         | -1e4       | 1e4        | preview           | mm    | 0      | step_mm |
+    | 33-35 | model error at the last measurement (0 before one)     | -1e4       | 1e4        | model_error       | mm    | 0      | 1       |
+    | 36    | its age, capped at 1 (1 before the first)              | 0          | 1          | model_error_age   | s     | 0      | 0.1     |
+    | 37-39 | the last action                                        | -1         | 1          | previous_action   | 1     | 0      | 1       |
+    | 40-45 | ``"joints"``: encoder angles of axes 1-6               | lower - pi | upper + pi | q                 | rad   | 0      | 1       |
+    | 46-51 | ``"joints"``: encoder velocities of axes 1-6           | -100       | 100        | qd                | rad/s | 0      | 1       |
+    | 52    | ``"payload"``: payload, as the operator declared it    | 0          | 100        | payload           | kg    | 0      | 1       |
+    | 53    | ``"temperature"``: arm temperature, as its sensor reads | -50       | 200        | temperature       | degC  | 20     | 5       |
+
+    (indices for ``preview_steps=10`` and ``observe=["joints", "payload", "temperature"]``; the
+    parts of ``observe`` come in this order, whatever the order given, and one left out shifts
+    those after it.)
+
     ## Rewards
     ``reward = reward_tracking + reward_jerk`` with ``reward_tracking = -|p_true - p_ref|`` in mm
     (the plant's true tool point, not the measured one) and ``reward_jerk = -jerk_weight *

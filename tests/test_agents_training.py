@@ -413,3 +413,25 @@ def test_sixaxis_train_writes_diagnostics_where_asked(tmp_path):
     assert res.exit_code == 0, res.output
     header = (logs / "progress.csv").read_text().splitlines()[0].split(",")
     assert {"train/approx_kl", "train/clip_fraction", "train/explained_variance"} <= set(header)
+
+
+def test_the_tuning_grid_trains_each_point_at_its_gamma_and_rate_for_equal_budgets(tmp_path):
+    """benchmarks/ppo_tuning.py: each point is ppo-observe.toml with its gamma and a constant
+    learning rate, the same budget and no patience (equal cost), in a folder of its own."""
+    import argparse
+
+    from benchmarks.ppo_tuning import CONFIG, point_config
+
+    args = argparse.Namespace(
+        config=CONFIG, seed=1, runs=tmp_path, budget=200_000, eval_every=50_000, eval_episodes=2
+    )
+    a, b = point_config(args, 0.95, 1e-3), point_config(args, 0.98, 1e-4)
+    assert (a.hyperparameters["gamma"], a.learning_rate_at(0), a.learning_rate_at(1e6)) == (
+        0.95,
+        1e-3,
+        1e-3,
+    )
+    assert b.hyperparameters["gamma"] == 0.98 and b.learning_rate_at(5e5) == 1e-4
+    assert a.patience == b.patience == 0 and a.total_timesteps == b.total_timesteps == 200_000
+    assert a.observe == ("joints", "payload", "temperature") and a.output != b.output
+    assert load_train_config(CONFIG).patience == 5
