@@ -747,6 +747,9 @@ def _edit_arrays(path: Path, edit) -> None:
         (lambda m: m.update(variant="bogus"), ["variant 'bogus'", "residual, plain"]),
         (lambda m: m["policy_kwargs"].update(activation_fn="os.system"), ["activation_fn"]),
         (lambda m: m.update(act_size=6), ["act_size of a residual policy is 3"]),
+        (lambda m: m.update(observe=["torque"]), ["observe: unknown part 'torque'"]),
+        (lambda m: m.update(observe="joints"), ["observe must be a list of names"]),
+        (lambda m: m.update(observe=["joints"]), ["observe is for the tool variant"]),
     ],
 )
 def test_a_policy_description_is_checked_before_its_network_is_built(
