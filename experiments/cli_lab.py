@@ -27,25 +27,30 @@ import typer
 
 from arm.constraints import Interval, OneOf
 from arm.measurements import ANGLE_UNITS
+from arm.noise import NOISE_MM, NOISE_MRAD, NOISE_PPM
 from experiments.cli_inputs import (
+    INPUTS,
     AngleOpt,
     DataArg,
     EffectsOpt,
     JsonOpt,
     JsonOutOpt,
     LabArgs,
+    LabInputs,
     LengthOpt,
     ModuleOpt,
     RobotOpt,
-    ValidateOpt,
     check_outputs,
     declared,
     lab_command,
     load_modules,
+    module_output,
+    option_of,
     parse_effects,
     read_arm,
     read_data,
     read_sessions,
+    refuse_noise,
     sessions_json,
     writing,
 )
@@ -68,10 +73,12 @@ from experiments.cli_output import (
     steps,
     user_errors,
 )
-from lab.options import ALPHA, CRITERIA, EXPORT_FORMATS, ORDER, ROUNDS, LabOptions
+from lab.options import ALPHA, CRITERIA, EXPORT_FORMATS, ORDER, ROUNDS, LabOptions, UpdateOptions
 
 if TYPE_CHECKING:
     from arm.effects import Effect
+
+UPDATE = UpdateOptions()
 
 app = typer.Typer(
     help="The model lab: compare the model with measurements, find what it misses.",
@@ -145,14 +152,15 @@ def fit_cmd(
     emit_json(result.to_dict() | sessions_json(meas), as_json, out)
 
 
+AlphaOpt = Annotated[float, declared(ALPHA, "alpha")]
+
+
 # -- diagnose ---------------------------------------------------------------------------------------
 @lab_command(app, "diagnose", omit=("validate",))
 def diagnose_cmd(
     data: DataArg,
     lab: LabArgs,
-    alpha: Annotated[
-        float, declared(ALPHA, "alpha", "Family-wise false-alarm rate of the tests.")
-    ] = 0.02,
+    alpha: AlphaOpt = 0.02,
     as_json: JsonOpt = False,
     out: JsonOutOpt = None,
 ) -> None:
@@ -168,7 +176,7 @@ def diagnose_cmd(
         d = diagnose(meas, arm, effects, options=opts, alpha=alpha)
     if not as_json:
         print_sessions(meas)
-        print_diagnosis(d, data, lab.next_step())
+        print_diagnosis(d, data, {c: lab.next_step(c) for c in ("fit", "discover")})
     emit_json(d.to_dict() | sessions_json(meas), as_json, out)
 
 
@@ -184,34 +192,21 @@ DiscoverEffectsOpt = Annotated[
 ]
 
 
-@lab_command(app, "discover", omit=("loss", "outliers", "accept_large"), effects=DiscoverEffectsOpt)
+@lab_command(
+    app,
+    "discover",
+    omit=("loss", "outliers", "accept_large", "f_scale_mm"),
+    effects=DiscoverEffectsOpt,
+)
 def discover_cmd(
     data: DataArg,
     output: Annotated[
-        Path | None,
-        typer.Option(
-            "--output",
-            "-o",
-            help="The effect module (Python) to write when terms are found; load it with "
-            "--effect-module. Nothing is written when nothing is found.",
-            metavar="MODULE.py",
-        ),
+        Path | None, module_output("when terms are found (nothing when nothing is found)")
     ] = None,
     *,
     lab: LabArgs,
-    alpha: Annotated[
-        float,
-        declared(ALPHA, "alpha", "Family-wise false-discovery rate (as diagnose's --alpha)."),
-    ] = 0.02,
-    order: Annotated[
-        int,
-        declared(
-            ORDER,
-            "order",
-            "The highest harmonic sin/cos(m*q) per turn scanned on every joint (fewer on a "
-            "joint whose sampling resolves fewer: a grid aliases high orders).",
-        ),
-    ] = 64,
+    alpha: AlphaOpt = 0.02,
+    order: Annotated[int, declared(ORDER, "order")] = 64,
     name: Annotated[
         str, typer.Option(help="The discovered effect's name (lower case, digits, _).")
     ] = "discovered",
@@ -240,7 +235,7 @@ def discover_cmd(
             written = d.write_module(output)
     if not as_json:
         print_sessions(meas)
-        print_discovery(d, written, data, lab.next_step())
+        print_discovery(d, written, data, lab.next_step("fit"))
     emit_json(d.to_dict() | sessions_json(meas), as_json, out)
 
 
@@ -250,12 +245,9 @@ def bag_cmd(
     data: DataArg,
     output: Annotated[
         Path | None,
-        typer.Option(
-            "--output",
-            "-o",
-            help="The effect module (Python) of every draw's discovered terms, when there are "
-            "any; the averaged values are in --json.",
-            metavar="MODULE.py",
+        module_output(
+            "of every draw's discovered terms, when there are any (the averaged values are in "
+            "--json)"
         ),
     ] = None,
     *,
@@ -363,9 +355,7 @@ def report_cmd(
     ),
     *,
     lab: LabArgs,
-    rounds: Annotated[
-        int, declared(ROUNDS, "rounds", "At most this many rounds of diagnose-and-refit.")
-    ] = 3,
+    rounds: Annotated[int, declared(ROUNDS, "rounds")] = 3,
 ) -> None:
     """Fit, diagnose, refit what the diagnosis suggests; write an HTML report.
 
@@ -375,14 +365,7 @@ def report_cmd(
     from lab.report_html import write as write_html
 
     arm, meas, val, opts, effects = lab.read(data, [(output, "--output")])
-    flags = lab.flags()
-    screening = {k: flags.pop(k) for k in ("--outliers", "--accept-large")}
-    command = command_line(
-        "lab",
-        "report",
-        data,
-        **{"-o": output, **flags, "--rounds": None if rounds == 3 else rounds, **screening},
-    )
+    command = command_line("lab", "report", data, **lab.flags())
     t0 = time.perf_counter()
     with steps() as step:
         with user_errors():
@@ -411,7 +394,8 @@ def update_cmd(
         typer.Argument(
             help="The calibration to update: a robot TOML that sixaxis lab export (or lab bag "
             "--export, lab update -o) wrote, or its calibrated URDF with the metrology file "
-            "beside it; it carries the parameters' covariance and spread ([uncertainty]).",
+            "beside it; it carries the parameters' covariance and spread (its uncertainty "
+            "table).",
             metavar="CAL.toml",
         ),
     ],
@@ -426,37 +410,21 @@ def update_cmd(
             metavar="FILE.toml",
         ),
     ] = None,
-    remount: Annotated[
-        bool,
-        typer.Option(
-            "--remount",
-            help="The tool was re-mounted: its offset is fitted on the new poses alone, as the "
-            "base is (without it the calibration's tool is the prior).",
-        ),
-    ] = False,
-    noise_mm: Annotated[
-        float | None,
-        declared(
-            Interval(float, 0.0, None, closed="neither"),
-            "noise_mm",
-            "The per-axis noise the new poses are weighted by against the prior (mm). Default: "
-            "the residual of one session fitted alone, as the calibration states it.",
-        ),
-    ] = None,
+    remount: Annotated[bool, option_of(UpdateOptions, "remount")] = UPDATE.remount,
+    noise_mm: Annotated[float | None, option_of(UpdateOptions, "noise_mm")] = UPDATE.noise_mm,
     robot: Annotated[
         str | None,
-        typer.Option(
-            "--robot",
-            "-r",
-            help="The arm the new poses were measured on: refused unless it is the one the "
-            "calibration calibrated (by name).",
-            metavar="FILE|NAME",
+        option_of(
+            LabInputs,
+            "robot",
+            lead="The arm the new poses were measured on, refused unless it is the one the "
+            "calibration calibrated (by name); default: not checked.",
         ),
     ] = None,
-    validate: ValidateOpt = None,
+    validate: Annotated[Path | None, option_of(LabInputs, "validate")] = None,
     effect_module: ModuleOpt = None,
-    length_unit: LengthOpt = "m",
-    angle_unit: AngleOpt = "rad",
+    length_unit: LengthOpt = INPUTS.length_unit,
+    angle_unit: AngleOpt = INPUTS.angle_unit,
     extrapolate: ExtrapolateOpt = False,
     as_json: JsonOpt = False,
     out: JsonOutOpt = None,
@@ -470,6 +438,7 @@ def update_cmd(
     from dataclasses import replace
 
     from lab.export import export_robot
+    from lab.uncertainty import predicted_rms
     from lab.update import prior_of, update
 
     if output is not None and export_format_of(output, None) == "urdf":
@@ -491,9 +460,13 @@ def update_cmd(
         prior = replace(prior_of(cal), source=calibration)
         u = update(prior, meas, remount=remount, noise_mm=noise_mm, robot=arm)
         result = u.result if val is None else u.result.validate(val, extrapolate=extrapolate)
-        alone = None
+        alone = predicted = None
         if val is not None and u.prior_result is not None:
             alone = u.prior_result.validate(val, extrapolate=extrapolate)
+            predicted = (
+                predicted_rms(u.result, val, unseen=False),
+                predicted_rms(u.prior_result, val, unseen=True, u=u.prior.uncertainty),
+            )
     if output is not None:
         with user_errors(), writing(output):
             export_robot(result, output)
@@ -506,11 +479,17 @@ def update_cmd(
                 f"{result.validation_rms_mm:.4f} mm updated, {alone.validation_rms_mm:.4f} mm "
                 "the calibration alone (its base placed on the new poses)"
             )
+        if predicted is not None:
+            say(f"updated: {predicted[0].text()}")
+            say(f"the calibration alone: {predicted[1].text()}")
         if output is not None:
             say(f"wrote the updated calibration to {output}; use it with --robot {output}")
     summary = result.to_dict() | sessions_json(meas) | {"update": u.to_dict()}
     if alone is not None:
         summary["update"]["prior_validation_rms_mm"] = alone.validation_rms_mm
+    if predicted is not None:
+        summary["update"]["predicted"] = predicted[0].to_dict()
+        summary["update"]["prior_predicted"] = predicted[1].to_dict()
     emit_json(summary, as_json, out)
 
 
@@ -523,8 +502,8 @@ def plan_cmd(
     output: Annotated[
         Path, typer.Option("--output", "-o", help="The poses CSV to write (q1..q6).")
     ] = Path("poses.csv"),
-    robot: RobotOpt = "seed",
-    effects: EffectsOpt = "geometric",
+    robot: RobotOpt = INPUTS.robot,
+    effects: EffectsOpt = INPUTS.effects,
     effect_module: ModuleOpt = None,
     candidates: Annotated[
         int, typer.Option(help="Random candidate poses (within the limits) to choose from.")
@@ -541,21 +520,20 @@ def plan_cmd(
     noise_mm: Annotated[
         float,
         declared(
-            Interval(float, 0.0, None, closed="neither"),
+            NOISE_MM,
             "noise_mm",
-            "The instrument's per-axis noise (mm): parameters that N poses cannot determine "
-            "above it are not planned for.",
+            "Parameters that N poses cannot determine above it are not planned for.",
         ),
     ] = 0.015,
     seed: Annotated[int, typer.Option(help="Seed of the random candidates.")] = 0,
-    angle_unit: AngleOpt = "rad",
+    angle_unit: AngleOpt = INPUTS.angle_unit,
     noise_mrad: Annotated[
         float | None,
         declared(
-            Interval(float, 0.0, None, closed="neither"),
+            NOISE_MRAD,
             "noise_mrad",
-            "Plan for an instrument that measures the tool frame's orientation too, with this "
-            "per-axis noise (mrad): six rows a pose, weighted against the position's.",
+            "Plan for an instrument that measures the tool frame's orientation too: six rows a "
+            "pose, weighted against the position's.",
         ),
     ] = None,
     as_json: JsonOpt = False,
@@ -567,6 +545,7 @@ def plan_cmd(
     from arm.measurements import write_poses
     from lab import plan
 
+    refuse_noise(noise_mm, 0.0, noise_mrad)
     check_outputs([(output, "--output")], [robot, *(effect_module or ())], as_json)
     load_modules(effect_module)
     parsed = parse_effects(effects)
@@ -603,8 +582,7 @@ CollectNOpt = Annotated[
     int, declared(Interval(int, 1, None), "n", "Random poses to measure.", "--n", "-n")
 ]
 CollectNoiseMmOpt = Annotated[
-    float,
-    declared(Interval(float, 0.0, None), "noise_mm", "The tracker's per-axis noise (mm)."),
+    float, declared(NOISE_MM, "noise_mm", "The simulated tracker's; 0: none drawn.")
 ]
 CollectSeedOpt = Annotated[int, typer.Option(help="Seed of the poses, the motions and the noise.")]
 CollectArmSeedOpt = Annotated[
@@ -627,15 +605,7 @@ CollectAngleUnitOpt = Annotated[
         "sixaxis lab plan writes it; else rad).",
     ),
 ]
-CollectNoisePpmOpt = Annotated[
-    float,
-    declared(
-        Interval(float, 0.0, None),
-        "noise_ppm",
-        "The noise grows with the distance from the tracker: sigma = --noise-mm + "
-        "--noise-ppm um per m of distance, per axis.",
-    ),
-]
+CollectNoisePpmOpt = Annotated[float, declared(NOISE_PPM, "noise_ppm")]
 CollectStationsOpt = Annotated[
     int,
     declared(
@@ -663,8 +633,7 @@ CollectOrientationOpt = Annotated[
     ),
 ]
 CollectNoiseMradOpt = Annotated[
-    float,
-    declared(Interval(float, 0.0, None), "noise_mrad", "The orientation's per-axis noise (mrad)."),
+    float, declared(NOISE_MRAD, "noise_mrad", "The simulated probe's, with --orientation.")
 ]
 CollectOrientationFractionOpt = Annotated[
     float,
@@ -691,7 +660,7 @@ def collect_cmd(
     arm_seed: CollectArmSeedOpt = None,
     poses: CollectPosesOpt = None,
     angle_unit: CollectAngleUnitOpt = None,
-    robot: RobotOpt = "seed",
+    robot: RobotOpt = INPUTS.robot,
     noise_ppm: CollectNoisePpmOpt = 0.0,
     stations: CollectStationsOpt = 0,
     first_station: CollectFirstStationOpt = 1,
@@ -850,8 +819,7 @@ def compensate_cmd(
         ),
     ],
     robot: Annotated[
-        str,
-        typer.Option("--robot", "-r", help="The calibrated arm (a TOML from sixaxis lab export)."),
+        str, option_of(LabInputs, "robot", lead="The calibrated arm (from sixaxis lab export).")
     ],
     output: Annotated[
         Path, typer.Option("--output", "-o", help="The joint-angle CSV to write.")
@@ -879,8 +847,8 @@ def compensate_cmd(
         ),
     ] = None,
     effect_module: ModuleOpt = None,
-    length_unit: LengthOpt = "m",
-    angle_unit: AngleOpt = "rad",
+    length_unit: LengthOpt = INPUTS.length_unit,
+    angle_unit: AngleOpt = INPUTS.angle_unit,
     keep_unreached: Annotated[
         bool,
         typer.Option(

@@ -43,7 +43,15 @@ from lab.identifiability import typical_magnitudes
 from lab.options import LabOptions
 from lab.result import FitResult
 
-__all__ = ["Uncertainty", "UncertaintyError", "covariance_of", "session_spread", "uncertainty_of"]
+__all__ = [
+    "Prediction",
+    "Uncertainty",
+    "UncertaintyError",
+    "covariance_of",
+    "predicted_rms",
+    "session_spread",
+    "uncertainty_of",
+]
 
 log = logging.getLogger(__name__)
 
@@ -284,3 +292,68 @@ def uncertainty_of(result: FitResult, data: MeasurementSet | None = None) -> Unc
 def with_uncertainty(result: FitResult, u: Uncertainty) -> FitResult:
     """``result`` stating ``u`` as its own (what an export writes)."""
     return replace(result, uncertainty=u.to_dict())
+
+
+# -- the accuracy it predicts ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Prediction:
+    """The RMS (mm, 3-D) a calibration expects on some poses, before they are measured: from its
+    parameters' covariance (``parameters_mm``: the RMS of J C J^T over the poses) and the
+    discrepancy a session fitted alone leaves (``discrepancy_mm``, sqrt(3) sigma), added in
+    quadrature (``rms_mm``); ``unseen``: whether the poses are of a session the parameters were
+    not fitted on (then the covariance is widened by the spread between sessions)."""
+
+    rms_mm: float
+    parameters_mm: float
+    discrepancy_mm: float
+    unseen: bool
+    poses: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "rms_mm": self.rms_mm,
+            "parameters_mm": self.parameters_mm,
+            "discrepancy_mm": self.discrepancy_mm,
+            "unseen": self.unseen,
+            "poses": self.poses,
+        }
+
+    def text(self) -> str:
+        where = "a session it has not seen" if self.unseen else "the session it was fitted on"
+        return (
+            f"predicted RMS {self.rms_mm:.4f} mm on {self.poses} poses of {where} (parameters "
+            f"{self.parameters_mm:.4f} mm, the model's discrepancy {self.discrepancy_mm:.4f} mm)"
+        )
+
+
+def predicted_rms(
+    result: FitResult, data: MeasurementSet, *, unseen: bool, u: Uncertainty | None = None
+) -> Prediction:
+    """The 3-D RMS ``result`` expects on the poses of ``data`` (:class:`Prediction`): the
+    covariance of its parameters (``u``, default its own, :func:`uncertainty_of`), widened by the
+    spread where the poses are ``unseen``, through the Jacobian at those poses, and the
+    discrepancy of one session fitted alone. The base is placed on the poses themselves (what a
+    change of the parameters moves as a base does, it takes up), and nothing is added for poses
+    outside the fitted domain."""
+    from lab.result import inputs_of
+
+    u = uncertainty_of(result) if u is None else u
+    model = result.model
+    cols = {k: v for k, v in data.columns.items() if k != "station"}
+    if "station" in result.inputs.columns:  # each station's base is placed: the first one's
+        cols["station"] = np.full(len(data), float(model.stations[0]))
+    inputs = inputs_of(model, MeasurementSet(data.q, data.xyz, cols, data.source))
+    names = [n for n in u.names if n in model.layout]
+    keep = [u.names.index(n) for n in names]
+    cov = (u.prior_covariance() if unseen else u.covariance)[np.ix_(keep, keep)]
+    _, J = model.predict(inputs, result.params, jacobian=True)
+    A = J[:, :, model.layout.indices(names)].reshape(-1, len(names))
+    base = [n for n in model.layout.names if is_base(n)]
+    if base:  # what the base placed on these poses takes up of a change, it does not err by
+        B = J[:, :, model.layout.indices(base)].reshape(-1, len(base))
+        A = A - B @ np.linalg.lstsq(B, A, rcond=None)[0]
+    params = float(np.sqrt(np.einsum("ia,ab,ib->", A, cov, A) / len(data)))
+    discrepancy = math.sqrt(3.0) * u.sigma
+    return Prediction(
+        1e3 * math.hypot(params, discrepancy), 1e3 * params, 1e3 * discrepancy, unseen, len(data)
+    )

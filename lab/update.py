@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from arm.constraints import check, constraints_of
 from arm.description import RobotDescription, as_robot
 from arm.effect_api import EffectError
 from arm.effects import EFFECTS, Effect
@@ -48,6 +49,7 @@ from lab.domain import Domain
 from lab.errors import FitError, LabWarning
 from lab.estimation import model_of
 from lab.identifiability import Identifiability
+from lab.options import UpdateOptions
 from lab.registration import register_base, tool_indices
 from lab.result import FitResult, RowsCounted, rms
 from lab.uncertainty import Uncertainty, UncertaintyError, is_base, uncertainty_of
@@ -352,11 +354,12 @@ def update(
     the tool was re-mounted (its offset is free); ``noise_mm``: the per-axis noise the new
     poses are weighted by (default the calibration's residual); ``robot``: the arm the poses
     were measured on, refused unless it is the one calibrated (by name)."""
+    bad = check({"remount": remount, "noise_mm": noise_mm}, constraints_of(UpdateOptions))
+    if bad:
+        raise FitError("; ".join(bad))
     prior = prior_of(calibration)
     data = as_measurements(data)
     _check_robot(prior, robot, data.source)
-    if noise_mm is not None and not noise_mm > 0:
-        raise FitError(f"noise_mm must be positive, got {noise_mm!r}")
     if data.has_orientation:
         log.info("%s: the update fits the positions alone", data.source)
     plain = MeasurementSet(data.q, data.xyz, dict(data.columns), data.source)

@@ -19,7 +19,13 @@ from arm.params import BASE_NAMES
 from arm.sessions import join_sessions
 from lab.errors import FitError, LabWarning
 from lab.export import export_robot
-from lab.uncertainty import Uncertainty, UncertaintyError, covariance_of, uncertainty_of
+from lab.uncertainty import (
+    Uncertainty,
+    UncertaintyError,
+    covariance_of,
+    predicted_rms,
+    uncertainty_of,
+)
 from lab.update import UpdateWarning, prior_of, update
 from tests._lab_data import drifting_session, session
 
@@ -132,6 +138,17 @@ def test_the_update_beats_the_prior_and_the_poses_alone(campaigns, k):
         assert updated <= 1.05 * same_model
         # mm; the noise floor of a perfect model is 0.026, the prior alone 0.4-0.6
         assert updated < (0.15 if k == 10 else 0.06)
+
+
+@pytest.mark.parametrize("k", [20, 50])
+def test_the_accuracy_predicted_for_the_new_session_is_the_one_measured(campaigns, k):
+    # measured / predicted within [0.67, 1.5] (issue 38's target for the prediction)
+    for new, prior in campaigns:
+        test = new.subset(np.arange(100, 400))
+        u = update(prior, new.subset(np.arange(k)))
+        predicted = predicted_rms(u.result, test, unseen=False)
+        assert 0.67 <= _held_out(u.result, test) / predicted.rms_mm <= 1.5
+        assert predicted.discrepancy_mm == pytest.approx(np.sqrt(3) * 1e3 * prior.uncertainty.sigma)
 
 
 def test_the_update_is_a_calibration_like_any_other(campaigns, tmp_path):
