@@ -195,6 +195,15 @@ class _Problem:
     prior_idx: np.ndarray
     mean: np.ndarray
     covariance: np.ndarray  # the prior's (widened by the spread)
+    roots: dict[tuple[int, ...], np.ndarray] = field(default_factory=dict, repr=False)
+
+    def root(self, prior: np.ndarray) -> np.ndarray:
+        """R with R^T R the inverse of the marginal prior of the parameters ``prior`` (once
+        per set: the Gauss-Newton steps and the effects' choices reuse it)."""
+        key = tuple(int(j) for j in prior)
+        if key not in self.roots:
+            self.roots[key] = _precision_root(self.covariance[np.ix_(prior, prior)])
+        return self.roots[key]
 
 
 @dataclass(frozen=True)
@@ -235,7 +244,7 @@ def _augmented(pb: _Problem, p: np.ndarray, free: np.ndarray, prior: np.ndarray)
     A_data = J.reshape(-1, J.shape[-1])[:, active] / pb.sigma
     # the prior rows: R (p - mean) over the prior parameters kept (their marginal prior)
     if prior.size:
-        R = _precision_root(pb.covariance[np.ix_(prior, prior)])
+        R = pb.root(prior)
         r_prior = R @ (p[pb.prior_idx[prior]] - pb.mean[prior])
         A_prior = np.hstack([np.zeros((len(R), free.size)), R])
     else:
@@ -262,7 +271,7 @@ def _solve(pb: _Problem, p: np.ndarray, free: np.ndarray, prior: np.ndarray) -> 
     As = A / scale
     M = np.linalg.pinv(As.T @ As, hermitian=True)
     Ad = As[: 3 * k].reshape(k, 3, -1)
-    H = np.einsum("kia,ab,kjb->kij", Ad, M, Ad)
+    H = np.einsum("kia,kja->kij", Ad @ M, Ad)  # each pose's 3x3 block of the hat matrix
     rd = r[: 3 * k].reshape(k, 3)
     loo = np.linalg.solve(np.eye(3)[None] - H, rd[..., None])[..., 0] * pb.sigma
     return _Solution(p, active, As, scale, pred - pb.xyz, it, rms(loo))
