@@ -327,9 +327,14 @@ class Prediction:
 
 
 def predicted_rms(
-    result: FitResult, data: MeasurementSet, *, unseen: bool, u: Uncertainty | None = None
+    result: FitResult,
+    data: MeasurementSet | np.ndarray,
+    *,
+    unseen: bool,
+    u: Uncertainty | None = None,
 ) -> Prediction:
-    """The 3-D RMS ``result`` expects on the poses of ``data`` (:class:`Prediction`): the
+    """The 3-D RMS ``result`` expects on the poses of ``data`` (measurements, or a program's
+    joint angles (N, 6): nothing measured is read) (:class:`Prediction`): the
     covariance of its parameters (``u``, default its own, :func:`uncertainty_of`), widened by the
     spread where the poses are ``unseen``, through the Jacobian at those poses, and the
     discrepancy of one session fitted alone. The base is placed on the poses themselves (what a
@@ -337,6 +342,9 @@ def predicted_rms(
     outside the fitted domain."""
     from lab.result import inputs_of
 
+    if not isinstance(data, MeasurementSet):
+        q = np.atleast_2d(np.asarray(data, dtype=float))
+        data = MeasurementSet(q, np.zeros((len(q), 3)), source="program")
     u = uncertainty_of(result) if u is None else u
     model = result.model
     cols = {k: v for k, v in data.columns.items() if k != "station"}

@@ -149,6 +149,9 @@ def test_the_accuracy_predicted_for_the_new_session_is_the_one_measured(campaign
         predicted = predicted_rms(u.result, test, unseen=False)
         assert 0.67 <= _held_out(u.result, test) / predicted.rms_mm <= 1.5
         assert predicted.discrepancy_mm == pytest.approx(np.sqrt(3) * 1e3 * prior.uncertainty.sigma)
+        # a program's joints (nothing measured) get the same prediction as its measured poses
+        again = predicted_rms(u.result, test.q, unseen=False)
+        assert again.rms_mm == pytest.approx(predicted.rms_mm, rel=1e-9)
 
 
 def test_the_update_is_a_calibration_like_any_other(campaigns, tmp_path):
