@@ -170,6 +170,16 @@ class Domain:
     def to_dict(self) -> dict[str, Any]:
         return {"n_poses": self.n_poses, "ranges": {k: list(v) for k, v in self.ranges.items()}}
 
+    def union(self, other: Domain) -> Domain:
+        """Where either was identified: each variable's range over both (a variable that one
+        of them does not record is not judged, so it is left out)."""
+        ranges = {
+            k: (min(lo, other.ranges[k][0]), max(hi, other.ranges[k][1]))
+            for k, (lo, hi) in self.ranges.items()
+            if k in other.ranges
+        }
+        return Domain(ranges, self.n_poses + other.n_poses)
+
     @classmethod
     def of_description(cls, d: Mapping[str, Any]) -> Domain | None:
         """The domain a calibrated arm's ``[domain]`` carries (``RobotDescription.domain``),
