@@ -60,8 +60,8 @@ from typing import Any, Literal
 import numpy as np
 
 from agents.base import Agent, solve_time_stats
+from agents.errors import PolicyFileError
 from agents.reference import FeedforwardAgent
-from arm.errors import SixAxisError
 from arm.files import check_input_file, read_input_text
 from envs.task import Observation, TaskInfo, Truth
 from envs.wrappers import ToolDisplacement
@@ -99,10 +99,6 @@ PATH_JOINT_VELOCITY = (2, 6)
 ERROR_HISTORY = 3
 #: activation functions a policy file may name (no class paths: a file is data, not code)
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu")
-
-
-class PolicyFileError(SixAxisError, ValueError):
-    """A policy file that is missing, unsafe to load, or does not fit its description."""
 
 
 # --------------------------------------------------------------------------------------------------

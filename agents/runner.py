@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from agents.base import Agent
-from arm.errors import SixAxisError
+from agents.errors import AgentFailure, EpisodeError, TimeLimitExceeded
 from envs.task import Truth, controller_info
 
 __all__ = [
@@ -74,22 +74,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 ENV_ID = "SixAxisTrack-v0"
-
-
-class AgentFailure(SixAxisError, RuntimeError):
-    """The agent failed: it raised, returned an action that is not 6 finite numbers, or its
-    process ended; the message names the agent, the call and the step. ``agent_traceback``:
-    the agent's own traceback, when it ran in a process of its own."""
-
-    agent_traceback: str = ""
-
-
-class TimeLimitExceeded(SixAxisError, TimeoutError):
-    """The run was still going at its time limit."""
-
-
-class EpisodeError(SixAxisError, ValueError):
-    """An episode that cannot run as asked (a phase longer than the env's episode)."""
 
 
 def agent_seed(episode_seed: int) -> int:

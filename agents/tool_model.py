@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from agents.errors import UnsupportedEffectError
 from arm.effects import (
     REFERENCE_TEMPERATURE,
     Backlash,
@@ -43,7 +44,6 @@ from arm.effects import (
     Transmission,
 )
 from arm.errormodel import ErrorModel
-from arm.errors import SixAxisError
 from arm.kinematics import Chain
 
 __all__ = [
@@ -55,10 +55,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-
-class UnsupportedEffectError(SixAxisError, ValueError):
-    """An effect that the CasADi tool model cannot express."""
 
 
 @dataclass(frozen=True)

@@ -51,6 +51,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents.base import Agent
+from agents.errors import TrainConfigError
 from agents.policy import (
     POLICY_DIR,
     Algo,
@@ -63,7 +64,6 @@ from agents.policy import (
 )
 from agents.reference import FeedforwardAgent
 from arm.constraints import Interval, check, constraints_of, declare, problems
-from arm.errors import SixAxisError
 from envs.task import TaskInfo, Truth, controller_info
 
 __all__ = [
@@ -127,10 +127,6 @@ ObsNormalization = Literal["running", "fixed"]
 FIXED_SCALE_CLIP = 1000.0
 #: keys of [train.hyperparameters] that the trainer sets itself
 _RESERVED = {"policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model"}
-
-
-class TrainConfigError(SixAxisError, ValueError):
-    """A training config that cannot run, naming the file and the key."""
 
 
 @dataclass

@@ -26,14 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from arm.errors import SixAxisError
+from arm.errors import NoiseError
 from arm.measurements import MeasurementSet
 
 __all__ = ["InstrumentNoise", "NoiseError"]
-
-
-class NoiseError(SixAxisError, ValueError):
-    """A noise setting out of range, or a data set whose uncertainty is not stated."""
 
 
 @dataclass(frozen=True)

@@ -27,10 +27,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from arm.description import RobotDescription, load_robot
-from arm.errors import SixAxisError
 from arm.measurements import MeasurementSet, write_measurements
 from arm.sampling import SamplingError, check_count, rng_from, sample_poses
 from arm.so3 import rotation_matrix, rotation_vector
+from envs.errors import CollectError
 from envs.instrument import TrackerStation, place_stations
 
 if TYPE_CHECKING:
@@ -39,10 +39,6 @@ if TYPE_CHECKING:
 __all__ = ["CollectError", "check_poses", "collect_measurements"]
 
 log = logging.getLogger(__name__)
-
-
-class CollectError(SixAxisError, ValueError):
-    """Poses or payloads that cannot be measured: a wrong shape, NaN, outside the joint limits."""
 
 
 APPROACH = 0.03  # rad: each joint's last move towards the pose

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from arm.errors import SixAxisError
 from arm.so3 import rotation_matrix, rotation_vector
+from envs.errors import InstrumentError
 
 __all__ = [
     "InstrumentError",
@@ -34,10 +34,6 @@ __all__ = [
     "TrackerStation",
     "place_stations",
 ]
-
-
-class InstrumentError(SixAxisError, ValueError):
-    """An instrument setting out of range."""
 
 
 @dataclass(frozen=True)

@@ -51,9 +51,9 @@ import numpy as np
 
 from arm.description import RobotDescription
 from arm.effects import REFERENCE_TEMPERATURE
-from arm.errors import SixAxisError
 from arm.kinematics import gravity_torques
 from arm.so3 import rot_x, rot_y, rot_z, rotation_matrix
+from envs.errors import PlantError
 from envs.simulator import mujoco
 
 __all__ = [
@@ -119,10 +119,6 @@ def _add_scenery(spec: mujoco.MjSpec, r: RobotDescription) -> Any:
         conaffinity=0,
     )
     return base
-
-
-class PlantError(SixAxisError, ValueError):
-    """A plant configuration that cannot be built or applied."""
 
 
 def _vec6(x, name: str) -> np.ndarray:

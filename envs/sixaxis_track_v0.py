@@ -18,12 +18,12 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.error import ResetNeeded
 from gymnasium.wrappers import TimeLimit
 
 from arm.constraints import Constraint, Interval, OneOf, TypeOf, description
 from arm.description import RobotDescription, load_robot
 from arm.errors import SixAxisError
+from envs.errors import EnvOptionError, EnvStateError
 from envs.instrument import InstrumentError, LaserTracker, TemperatureSensor, TrackerConfig
 from envs.plant import MAX_SPEED, PHYSICS_DT, SUBSTEPS, Plant
 from envs.scenarios import SCENARIOS, EpisodeTruth, Scenario, draw_truth, get_scenario
@@ -169,14 +169,6 @@ def _observation_space(nominal: RobotDescription, slices: dict[str, slice], n: i
     ):
         low[slices[name]], high[slices[name]] = lo, hi
     return spaces.Box(low, high, (n,), np.float32)
-
-
-class EnvOptionError(SixAxisError, ValueError):
-    """Keyword arguments the env does not take; the message names every key at fault."""
-
-
-class EnvStateError(SixAxisError, ResetNeeded, RuntimeError):
-    """A call the env cannot answer in its state (``step`` before ``reset``)."""
 
 
 #: the largest rendered frame, pixels per side (4K video is 3840 x 2160; MuJoCo's offscreen buffer
