@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from agents.errors import AgentStateError
 from envs.task import TaskInfo, Truth
 
 __all__ = ["Agent", "measurement_columns", "solve_time_stats"]
@@ -75,7 +76,7 @@ class Agent(abc.ABC):
     def task(self) -> TaskInfo:
         """The task of the current episode, as :meth:`reset` (or :meth:`next_phase`) set it."""
         if self._task is None:
-            raise RuntimeError(f"{self.name}: no task yet; call reset(task) first")
+            raise AgentStateError(f"{self.name}: no task yet; call reset(task) first")
         return self._task
 
     @task.setter

@@ -48,6 +48,7 @@ from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
+from agents.errors import AgentError
 from agents.online_calibration import (
     CHI2_3_GATE,
     cached_identifiable,
@@ -83,9 +84,9 @@ class ShadowEstimator:
         forgetting: float = 1.0,
     ) -> None:
         if sigma <= 0:
-            raise ValueError(f"sigma must be positive, got {sigma}")
+            raise AgentError(f"sigma must be positive, got {sigma}")
         if not 0.0 < forgetting <= 1.0:
-            raise ValueError(f"forgetting must be in (0, 1], got {forgetting}")
+            raise AgentError(f"forgetting must be in (0, 1], got {forgetting}")
         self.model = model
         self.sigma = float(sigma)
         self.free = list(cached_identifiable(model) if free is None else free)
@@ -182,9 +183,9 @@ class SequentialSelection:
         drift: float | None = 0.95,
     ) -> None:
         if not 0.0 < alpha < 1.0:
-            raise ValueError(f"alpha must lie in (0, 1), got {alpha}")
+            raise AgentError(f"alpha must lie in (0, 1), got {alpha}")
         if burn_in < 0:
-            raise ValueError(f"burn_in must be >= 0, got {burn_in}")
+            raise AgentError(f"burn_in must be >= 0, got {burn_in}")
         self.model = model
         self.families = list(families)
         self.alpha = float(alpha)

@@ -47,6 +47,7 @@ import numpy as np
 import scipy.linalg
 
 from agents.base import Agent, measurement_columns, solve_time_stats
+from agents.errors import AgentError
 from agents.online_calibration import (
     MeasurementBuffer,
     RecursiveLeastSquares,
@@ -125,11 +126,11 @@ class KinematicMPC:
         fast: bool = True,
     ) -> None:
         if solver not in (*QP_SOLVERS, "ipopt"):
-            raise ValueError(
+            raise AgentError(
                 f"unknown MPC solver {solver!r}; choose one of {', '.join((*QP_SOLVERS, 'ipopt'))}"
             )
         if horizon < 1:
-            raise ValueError(f"horizon must be at least 1, got {horizon}")
+            raise AgentError(f"horizon must be at least 1, got {horizon}")
         self.tm = tool_model
         self.dt = float(dt)
         self.v_max = np.asarray(v_max, dtype=float) * velocity_margin
@@ -142,7 +143,7 @@ class KinematicMPC:
         self.rho_v = float(rho_v)
         self.rho_q = float(rho_q)
         if not 0.0 <= error_decay < 1.0:
-            raise ValueError(f"error_decay must be in [0, 1), got {error_decay}")
+            raise AgentError(f"error_decay must be in [0, 1), got {error_decay}")
         self.error_decay = float(error_decay)
         N = self.N
         I6 = np.eye(6)
@@ -538,7 +539,7 @@ class MPCAgent(Agent):
         super().__init__()
         self.closed_form = bool(closed_form)
         if int(buffer) < 0:
-            raise ValueError(f"buffer must be >= 0 points, got {buffer}")
+            raise AgentError(f"buffer must be >= 0 points, got {buffer}")
         self.buffer_points = int(buffer)
         self.buffer: MeasurementBuffer | None = None
         self.solver = solver
@@ -569,7 +570,7 @@ class MPCAgent(Agent):
         self.truth = truth
         if self.oracle:
             if truth is None:
-                raise ValueError("mpc-oracle needs the plant's truth (env.unwrapped.truth)")
+                raise AgentError("mpc-oracle needs the plant's truth (env.unwrapped.truth)")
             self.model = truth.model
             self.p = np.array(truth.params, dtype=float)
         else:
@@ -626,7 +627,7 @@ class MPCAgent(Agent):
         set); a controller that must keep its deadlines builds this off the control path (a
         thread) and hands it to :meth:`adopt_widening`."""
         if self.model is None or self.oracle:
-            raise ValueError("widen needs a running, non-oracle MPCAgent (call reset first)")
+            raise AgentError("widen needs a running, non-oracle MPCAgent (call reset first)")
         model = ErrorModel(
             self.model.robot, merge_effects(self.model, effects), targets=self.model.targets
         )

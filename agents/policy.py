@@ -60,7 +60,7 @@ from typing import Any, Literal
 import numpy as np
 
 from agents.base import Agent, solve_time_stats
-from agents.errors import PolicyFileError
+from agents.errors import AgentError, AgentStateError, PolicyFileError
 from agents.reference import FeedforwardAgent
 from arm.files import check_input_file, read_input_text
 from envs.task import Observation, TaskInfo, Truth
@@ -111,11 +111,11 @@ class PolicyIO:
         self, variant: str = "residual", offset_mm: float = 0.5, tool_step_mm: float = 5.0
     ) -> None:
         if variant not in VARIANTS:
-            raise ValueError(f"unknown policy variant {variant!r}; choose {', '.join(VARIANTS)}")
+            raise AgentError(f"unknown policy variant {variant!r}; choose {', '.join(VARIANTS)}")
         if not offset_mm > 0:
-            raise ValueError(f"offset_mm must be > 0, got {offset_mm}")
+            raise AgentError(f"offset_mm must be > 0, got {offset_mm}")
         if not tool_step_mm > 0:
-            raise ValueError(f"tool_step_mm must be > 0, got {tool_step_mm}")
+            raise AgentError(f"tool_step_mm must be > 0, got {tool_step_mm}")
         self.variant = variant
         self.offset_mm = float(offset_mm)
         self.tool_step_mm = float(tool_step_mm)
@@ -174,7 +174,7 @@ class PolicyIO:
     def features(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
         task = self.task
         if task is None:
-            raise RuntimeError("PolicyIO.features before reset(): no task yet")
+            raise AgentStateError("PolicyIO.features before reset(): no task yet")
         if self.tool is not None:  # the operational-space interface: envs.wrappers's numbers
             return self.tool.clipped(self.tool.observe(obs, info))
         o = Observation.parse(task, obs)
@@ -251,7 +251,7 @@ class PolicyIO:
             self.prev_action = np.clip(np.asarray(a, dtype=float).reshape(-1), -1.0, 1.0)
             return self.tool.command(a)
         if self._o is None:
-            raise RuntimeError("PolicyIO.action before features(): no observation yet")
+            raise AgentStateError("PolicyIO.action before features(): no observation yet")
         a = np.clip(np.asarray(a, dtype=float).reshape(-1), -1.0, 1.0)
         self.prev_action = a
         if self.variant == "plain":

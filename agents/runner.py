@@ -204,14 +204,14 @@ def workspace_campaign(
     postures are the seed arm's; another arm needs its own (a posture outside its joint limits is
     refused by the env)."""
     if not postures:
-        raise ValueError("workspace_campaign needs at least one calibration posture")
+        raise EpisodeError("workspace_campaign needs at least one calibration posture")
     if not kinds:
-        raise ValueError("workspace_campaign needs at least one trajectory kind")
+        raise EpisodeError("workspace_campaign needs at least one trajectory kind")
     if isinstance(judge_posture, str):
         try:
             judge_posture = JUDGE_POSTURES[judge_posture]
         except KeyError:
-            raise ValueError(
+            raise EpisodeError(
                 f"unknown judge_posture {judge_posture!r}; known: {', '.join(JUDGE_POSTURES)}, "
                 "or 6 joint angles"
             ) from None
@@ -333,7 +333,7 @@ def run_episode(
     if phases is None:
         phases = [Phase("track", episode_seconds, {}, judged=True)]
     if not phases:
-        raise ValueError("run_episode needs at least one phase")
+        raise EpisodeError("run_episode needs at least one phase")
     cols: dict[str, list] = {
         k: [] for k in ("time", "phase", "judged", "err", "act", "meas", "solve")
     }
@@ -360,7 +360,7 @@ def run_episode(
                 _call(name, "reset", 0, agent.reset, task, seed=agent_seed(seed), truth=given)
             else:
                 if not _same_truth(truth0, truth):
-                    raise ValueError(
+                    raise EpisodeError(
                         f"phase {ph.name!r}: overrides {dict(ph.overrides)} change the sampled "
                         "arm; a phase must keep the truth of the episode"
                     )

@@ -51,7 +51,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents.base import Agent
-from agents.errors import TrainConfigError
+from agents.errors import TrainConfigError, TrainingError
 from agents.policy import (
     POLICY_DIR,
     Algo,
@@ -381,9 +381,11 @@ class PolicyEnv(gym.Wrapper):
     ) -> None:
         super().__init__(env)
         if terminate_mm and reward != "log":
-            raise ValueError("terminate_mm is for the log reward (its alive bonus)")
+            raise TrainConfigError("terminate_mm is for the log reward (its alive bonus)")
         if reward == "improvement" and (variant != "residual" or shadow is None):
-            raise ValueError("the improvement reward needs a residual policy and a shadow env")
+            raise TrainConfigError(
+                "the improvement reward needs a residual policy and a shadow env"
+            )
         self.io = PolicyIO(variant, offset_mm, tool_step_mm)
         self.shadow = shadow if reward == "improvement" else None
         self.shadow_base = FeedforwardAgent()
@@ -485,7 +487,7 @@ class EpisodeSeeds:
 
     def __call__(self) -> int:
         if self.next >= self.stop:
-            raise RuntimeError(f"training ran out of episode seeds at {self.next}")
+            raise TrainingError(f"training ran out of episode seeds at {self.next}")
         s = self.next
         self.next += 1
         return s
@@ -1062,7 +1064,7 @@ def ship_policy(
 
     run_dir = Path(run_dir)
     if which not in ("best", "final"):
-        raise ValueError(f"which must be 'best' or 'final', got {which!r}")
+        raise TrainConfigError(f"which must be 'best' or 'final', got {which!r}")
     src = run_dir / f"{which}.npz"
     _, meta = load_policy_file(src)  # refuses anything unsafe or inconsistent
     name = name or str(meta["name"])

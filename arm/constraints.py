@@ -32,6 +32,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol
 
+from arm.errors import UnknownNameError
+
 __all__ = [
     "AnyOf",
     "Constraint",
@@ -334,7 +336,7 @@ def choices(cls: type, name: str) -> tuple[Any, ...]:
     for c in constraints_of(cls)[name][0]:
         if isinstance(c, OneOf):
             return c.values
-    raise KeyError(f"{cls.__name__}.{name} is not a choice of modes")
+    raise UnknownNameError(f"{cls.__name__}.{name} is not a choice of modes")
 
 
 def check(

@@ -30,7 +30,7 @@ from arm.description import RobotDescription, load_robot
 from arm.measurements import MeasurementSet, write_measurements
 from arm.sampling import SamplingError, check_count, rng_from, sample_poses
 from arm.so3 import rotation_matrix, rotation_vector
-from envs.errors import CollectError
+from envs.errors import CollectError, DivergedError
 from envs.instrument import TrackerStation, place_stations
 
 if TYPE_CHECKING:
@@ -289,7 +289,7 @@ def _measure_poses(
                 break
             ref = ref + miss
         if plant.diverged():
-            raise RuntimeError(f"the simulation diverged at pose {i}: {q}")
+            raise DivergedError(f"the simulation diverged at pose {i}: {q}")
         q_out[i] = plant.q
         world[i] = plant.tool_point()
         frames[i] = plant.tool_frame()

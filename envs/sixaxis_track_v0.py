@@ -23,7 +23,7 @@ from gymnasium.wrappers import TimeLimit
 from arm.constraints import Constraint, Interval, OneOf, TypeOf, description
 from arm.description import RobotDescription, load_robot
 from arm.errors import SixAxisError
-from envs.errors import EnvOptionError, EnvStateError
+from envs.errors import ActionError, EnvOptionError, EnvStateError
 from envs.instrument import InstrumentError, LaserTracker, TemperatureSensor, TrackerConfig
 from envs.plant import MAX_SPEED, PHYSICS_DT, SUBSTEPS, Plant
 from envs.scenarios import SCENARIOS, EpisodeTruth, Scenario, draw_truth, get_scenario
@@ -539,7 +539,7 @@ class SixAxisTrackEnv(gym.Env):
         super().reset(seed=seed)
         kind = (options or {}).get("trajectory", self.trajectory_kind)
         if kind is not None and kind not in KINDS:
-            raise ValueError(
+            raise EnvOptionError(
                 f"options['trajectory'] must be one of {', '.join(KINDS)}, got {kind!r}"
             )
         posture = (options or {}).get("posture", self.posture)
@@ -670,18 +670,18 @@ class SixAxisTrackEnv(gym.Env):
             try:
                 action = np.asarray(action, dtype=float)
             except (TypeError, ValueError) as exc:
-                raise ValueError(f"action must be 6 numbers, got {action!r}") from exc
+                raise ActionError(f"action must be 6 numbers, got {action!r}") from exc
         if action.shape != (6,):
-            raise ValueError(f"action must have shape (6,), got shape {action.shape}")
+            raise ActionError(f"action must have shape (6,), got shape {action.shape}")
         try:
             finite = math.isfinite(action.sum(dtype=float))  # NaN and inf propagate
             a = np.minimum(action, 1.0, dtype=float)
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"action must be 6 numbers, got {action!r}") from exc
+            raise ActionError(f"action must be 6 numbers, got {action!r}") from exc
         if not finite:
             bad = np.flatnonzero(~np.isfinite(np.asarray(action, dtype=float))).tolist()
             if bad:
-                raise ValueError(f"action has NaN or inf at index {bad}: {action}")
+                raise ActionError(f"action has NaN or inf at index {bad}: {action}")
         np.maximum(a, -1.0, out=a)
         return a
 

@@ -97,7 +97,7 @@ from arm.constraints import (
     type_name,
 )
 from arm.files import input_problem
-from experiments.errors import ConfigError
+from experiments.errors import ConfigError, MissingSeedsError
 from experiments.metrics import (
     DEFAULT_CONVERGE_MM,
     DEFAULT_METRICS,
@@ -353,7 +353,7 @@ class ExperimentConfig:
         them)."""
         if self.draw_seeds:
             if episode_seeds is None or len(episode_seeds) < self.draw_seeds:
-                raise ValueError(
+                raise MissingSeedsError(
                     f"config {self.name}: its {self.draw_seeds} episode seeds are drawn when the "
                     "sweep starts; pass them (episode_seeds)"
                 )

@@ -14,8 +14,8 @@ from typer.testing import CliRunner
 
 from arm.effect_api import EffectError
 from arm.errors import SixAxisError
-from lab.errors import LabError
 from experiments.cli import app
+from lab.errors import LabError
 
 PACKAGES = ("arm", "envs", "lab", "agents", "experiments")
 ROOT = Path(__file__).resolve().parent.parent
