@@ -12,6 +12,7 @@ from __future__ import annotations
 import ast
 import builtins
 import importlib
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -228,3 +229,25 @@ def test_the_old_import_paths_still_work():
     assert TimeLimitExceeded is agents.errors.TimeLimitExceeded
     assert ConfigError is experiments.errors.ConfigError
     assert issubclass(ExportError, LabError) and issubclass(ExportError, ValueError)
+
+
+@pytest.mark.parametrize("pkg", PACKAGES)
+def test_docs_architecture_lists_every_class_of_each_errors_module(pkg):
+    """The table of docs/architecture.md, "Errors": each errors module's row names its classes
+    (the lab's cautions as "the cautions under it")."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    row = next(line for line in text.splitlines() if line.startswith(f"| `{pkg}.errors` |"))
+    named = set(re.findall(r"`(\w+)`", row.split("|")[2]))
+    module = importlib.import_module(f"{pkg}.errors")
+    defined = {
+        name
+        for name, obj in vars(module).items()
+        if isinstance(obj, type)
+        and issubclass(obj, BaseException)
+        and obj.__module__ == module.__name__
+    }
+    if pkg == "lab":  # the cautions are named as a group
+        defined = {n for n in defined if not issubclass(getattr(module, n), Warning)} | {
+            "LabWarning"
+        }
+    assert defined <= named, f"docs/architecture.md does not name {sorted(defined - named)}"
