@@ -44,8 +44,10 @@ import numpy as np
 import scipy.linalg
 from scipy.linalg import lapack
 
+from agents.base import refuse_settings
 from agents.errors import AgentError
 from agents.tool_model import BufferedFunction, ToolModel
+from arm.constraints import Constraint, Interval
 from arm.effects import Cyclic, Effect, parse_effects
 from arm.errormodel import ErrorModel
 from arm.kinematics import gravity_torques
@@ -64,6 +66,14 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: what the estimators' settings may be (:mod:`arm.constraints`): the measurement noise (m, per
+#: axis) and the forgetting factor (1: remember everything); the buffer's capacity in points
+ESTIMATOR_SETTINGS: dict[str, Constraint] = {
+    "sigma": Interval(float, 0.0, None, closed="neither"),
+    "forgetting": Interval(float, 0.0, 1.0, closed="right"),
+}
+BUFFER_SETTINGS: dict[str, Constraint] = {"capacity": Interval(int, 1, None)}
 
 _I3 = np.eye(3)
 
@@ -179,8 +189,7 @@ class MeasurementBuffer:
     COLUMNS = ("t", "temperature", "payload", *(f"dir{i}" for i in range(1, 7)))
 
     def __init__(self, capacity: int = 1000) -> None:
-        if capacity < 1:
-            raise AgentError(f"buffer capacity must be >= 1, got {capacity}")
+        refuse_settings(BUFFER_SETTINGS, capacity=capacity)
         self.capacity = int(capacity)
         self._q = np.empty((capacity, 6))
         self._xyz = np.empty((capacity, 3))
@@ -415,10 +424,7 @@ class RecursiveLeastSquares:
         max_rejections: int = 5,
         tool_model: ToolModel | None = None,
     ) -> None:
-        if not 0.0 < forgetting <= 1.0:
-            raise AgentError(f"forgetting must be in (0, 1], got {forgetting}")
-        if sigma <= 0:
-            raise AgentError(f"sigma must be positive, got {sigma}")
+        refuse_settings(ESTIMATOR_SETTINGS, sigma=sigma, forgetting=forgetting)
         self.sigma = float(sigma)
         self.forgetting = float(forgetting)
         self.gate = float(gate)

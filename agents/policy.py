@@ -59,9 +59,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from agents.base import Agent, solve_time_stats
-from agents.errors import AgentError, AgentStateError, PolicyFileError
+from agents.base import Agent, refuse_settings, solve_time_stats
+from agents.errors import AgentStateError, PolicyFileError
 from agents.reference import FeedforwardAgent
+from arm.constraints import Constraint, Interval, OneOf
 from arm.files import check_input_file, read_input_text
 from envs.task import Observation, TaskInfo, Truth
 from envs.wrappers import ToolDisplacement
@@ -90,6 +91,13 @@ Algo = Literal["ppo", "sac", "td3"]
 VARIANTS: tuple[str, ...] = typing.get_args(Variant)
 ALGOS: tuple[str, ...] = typing.get_args(Algo)
 MM = 1e3
+#: what the policy's interface takes (:mod:`arm.constraints`): its variant, the residual's reach
+#: and the tool variant's step, in mm
+POLICY_SETTINGS: dict[str, Constraint] = {
+    "variant": OneOf(VARIANTS),
+    "offset_mm": Interval(float, 0.0, None, closed="neither"),
+    "tool_step_mm": Interval(float, 0.0, None, closed="neither"),
+}
 #: preview steps the residual policy sees (relative to the reference now)
 RESIDUAL_PREVIEW = (0, 1, 2, 4, 9)
 #: preview steps at which the residual policy sees the joint velocities the path asks for
@@ -110,12 +118,9 @@ class PolicyIO:
     def __init__(
         self, variant: str = "residual", offset_mm: float = 0.5, tool_step_mm: float = 5.0
     ) -> None:
-        if variant not in VARIANTS:
-            raise AgentError(f"unknown policy variant {variant!r}; choose {', '.join(VARIANTS)}")
-        if not offset_mm > 0:
-            raise AgentError(f"offset_mm must be > 0, got {offset_mm}")
-        if not tool_step_mm > 0:
-            raise AgentError(f"tool_step_mm must be > 0, got {tool_step_mm}")
+        refuse_settings(
+            POLICY_SETTINGS, variant=variant, offset_mm=offset_mm, tool_step_mm=tool_step_mm
+        )
         self.variant = variant
         self.offset_mm = float(offset_mm)
         self.tool_step_mm = float(tool_step_mm)

@@ -36,6 +36,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from arm.constraints import Interval, check, refuse
 from arm.description import RobotDescription
 from arm.kinematics import Chain
 from envs.errors import ActionError, EnvOptionError, EnvStateError
@@ -55,6 +56,8 @@ INTERFACES = ("joint", "tool")
 #: s, the age of the model error observed before the first measurement (and the cap of any age)
 MAX_ERROR_AGE = 1.0
 MM = 1e3
+#: the tool interface's step (mm): the displacement that an action of 1 commands
+TOOL_STEP_MM = Interval(float, 0.0, None, closed="neither")
 #: mm, the bound of every relative length the tool interface observes (twice the env's workspace)
 _LENGTH_BOUND_MM = 1e4
 
@@ -205,10 +208,10 @@ class ToolDisplacement:
     """
 
     def __init__(self, task: Any, step_mm: float = 5.0, damping: float = 1e-3) -> None:
-        if isinstance(step_mm, bool) or not (
-            isinstance(step_mm, int | float) and math.isfinite(step_mm) and step_mm > 0
-        ):
-            raise EnvOptionError(f"tool_step_mm must be a positive number of mm, got {step_mm!r}")
+        refuse(
+            check({"tool_step_mm": step_mm}, {"tool_step_mm": ([TOOL_STEP_MM], False)}),
+            EnvOptionError,
+        )
         self.task = task
         self.step_mm = float(step_mm)
         self.damping = float(damping)
