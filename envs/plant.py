@@ -49,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from arm.constraints import Interval, check, constraints_of, declare, refuse
 from arm.description import RobotDescription
 from arm.effects import REFERENCE_TEMPERATURE
 from arm.kinematics import gravity_torques
@@ -174,8 +175,8 @@ class HiddenEffects:
     kappa: float = 0.0
     temperature0: float = AMBIENT
     heating: float = 0.0
-    cooling_time: float = 600.0
-    payload0: float = 0.0
+    cooling_time: float = declare(600.0, Interval(float, 0.0, None, closed="neither", why="s"))
+    payload0: float = declare(0.0, Interval(float, 0.0, None, why="kg"))
     payload_schedule: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
@@ -204,10 +205,11 @@ class HiddenEffects:
             raise PlantError(f"stiffness must be > 0 (inf for rigid), got {self.stiffness}")
         if np.any(self.gap < 0) or np.any(self.bearing_friction < 0):
             raise PlantError("backlash gaps and bearing friction must be >= 0")
-        if self.payload0 < 0 or any(m < 0 for _, m in self.payload_schedule):
+        if any(m < 0 for _, m in self.payload_schedule):
             raise PlantError("payload masses must be >= 0 kg")
-        if self.cooling_time <= 0:
-            raise PlantError(f"cooling_time must be > 0 s, got {self.cooling_time}")
+        declared = constraints_of(HiddenEffects)  # the scalars' ranges (the arrays' are above)
+        scalars = {k: getattr(self, k) for k in ("cooling_time", "payload0")}
+        refuse(check(scalars, declared), PlantError)
 
     @property
     def needs_elastic(self) -> bool:

@@ -132,3 +132,19 @@ class _Task:
 def test_the_tool_interface_refuses_a_step_beyond_its_declaration(value):
     with pytest.raises(EnvOptionError, match="tool_step_mm must be positive"):
         ToolDisplacement(_Task(), step_mm=value)
+
+
+def _plant_cases() -> list[tuple[str, Any]]:
+    from arm.constraints import constraints_of
+    from envs.plant import HiddenEffects
+
+    declared = constraints_of(HiddenEffects)
+    return [(k, v) for k in ("cooling_time", "payload0") for v in bad_values(declared[k][0][0])]
+
+
+@pytest.mark.parametrize(("name", "value"), _plant_cases())
+def test_the_plants_scalars_are_refused_beyond_their_declaration(name, value):
+    from envs.plant import HiddenEffects, PlantError
+
+    with pytest.raises(PlantError, match=rf"^{name} must "):
+        HiddenEffects(**{name: value})
