@@ -236,7 +236,7 @@ class SixAxisTrackEnv(gym.Env):
     commanded ``action[i] * v_max[i]`` rad/s (``task.v_max``), rate-limited to ``a_max[i] * dt``
     per step (``task.a_max``); its position loop integrates the command within the joint limits
     and its torque is limited to ``task.torque_max``. Values outside [-1, 1] are clipped; NaN, inf
-    or a wrong shape raise ``ValueError``.
+    or a wrong shape raise :class:`~envs.errors.ActionError` (a ``ValueError``).
 
     | Num | Action                         | Min | Max | Joint  | Unit               |
     |-----|--------------------------------|-----|-----|--------|--------------------|
