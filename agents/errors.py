@@ -22,8 +22,7 @@ __all__ = [
 
 
 class AgentError(SixAxisError, ValueError):
-    """An unknown agent, bad settings, or a request the agent cannot carry out (too few
-    measurements for its model), with the name at fault."""
+    """An unknown agent, bad settings, or a request it cannot carry out, naming what is wrong."""
 
 
 class AgentStateError(SixAxisError, RuntimeError):
@@ -47,8 +46,7 @@ class TimeLimitExceeded(SixAxisError, TimeoutError):
 
 
 class EpisodeError(SixAxisError, ValueError):
-    """An episode that cannot run as asked (no phase, a phase longer than the env's episode, a
-    campaign without postures)."""
+    """An episode that cannot run as asked (no phase, a phase longer than the episode)."""
 
 
 class PolicyFileError(SixAxisError, ValueError):

@@ -70,13 +70,11 @@ class EffectError(SixAxisError, ValueError):
 
 
 class ModelError(SixAxisError, ValueError):
-    """An error model or parameter layout given what it cannot use: the wrong number of
-    parameters, joint angles not (N, 6), a parameter or target named twice."""
+    """An error model given the wrong number of parameters, q not (N, 6), or a name twice."""
 
 
 class UnknownNameError(SixAxisError, KeyError):
-    """A parameter, an effect or a declared choice asked for by a name the model (or the class)
-    does not have; the message lists the names it has."""
+    """A parameter, effect or declared choice asked for by a name the model does not have."""
 
 
 class IKError(SixAxisError, ValueError):

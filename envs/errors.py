@@ -54,13 +54,11 @@ class CollectError(SixAxisError, ValueError):
 
 
 class EnvOptionError(SixAxisError, ValueError):
-    """Keyword arguments, reset options or wrapper settings the env does not take; the message
-    names every key at fault."""
+    """Keyword arguments, reset options or wrapper settings the env does not take."""
 
 
 class ActionError(SixAxisError, ValueError):
-    """An action that is not what the env (or its tool interface) takes: the wrong shape, not
-    numbers, NaN or inf; the message says which."""
+    """An action of the wrong shape, not numbers, NaN or inf (the env's or the tool interface's)."""
 
 
 class EnvStateError(SixAxisError, ResetNeeded, RuntimeError):

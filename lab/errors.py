@@ -59,8 +59,7 @@ class NoiseRefutedError(FitError):
 
 
 class UnknownOptionError(LabError, TypeError):
-    """A lab entry point called with a keyword that is not one of the lab's options (a
-    ``TypeError``, as Python's own for an unexpected keyword argument)."""
+    """A lab entry point called with a keyword that is not one of the lab's options."""
 
 
 class ExportError(LabError, ValueError):
