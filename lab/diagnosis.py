@@ -347,8 +347,8 @@ def diagnose(
     ``data``: a measurement set (or its file), screened once (:func:`lab.screen`: duplicates,
     the fit's outliers, and the poses beyond the model and every candidate, which the tests
     leave out), or a :class:`lab.Screen` made before (nothing screened again). The options
-    (``noise_mm`` ... ``register``, or ``options=``) are :class:`lab.LabOptions`; ``noise_mm``,
-    the instrument's per-axis standard uncertainty (mm), also decides ``none`` against
+    (``noise_mm`` ... ``register``, or ``options=``) are :class:`lab.LabOptions`; ``noise_mm``
+    (:data:`arm.noise.NOISE_MM`) also decides ``none`` against
     ``unexplained``. ``alpha``: the family-wise false-alarm rate. ``candidates``: effect names
     to test (default: every registered effect). ``across_blocks``: confirm the chosen effects by
     leaving each session (or station) out in turn, dropping those that do not help where they

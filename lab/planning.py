@@ -32,10 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
+from arm.constraints import refuse
 from arm.description import RobotDescription, as_robot
 from arm.effect_api import EffectError
 from arm.effects import Effect
 from arm.errormodel import ErrorModel
+from arm.noise import noise_law_problems
 from arm.sampling import SamplingError, check_count, rng_from, sample_poses
 from lab.errors import FitError
 from lab.identifiability import Identifiability, analyse_jacobian
@@ -147,6 +149,7 @@ def plan(
     parameter."""
     if criterion not in CRITERIA:
         raise FitError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+    refuse(noise_law_problems(noise_mm, 0.0, noise_mrad), FitError)
     robot = as_robot(robot)
     try:
         rng = rng_from(seed, "seed")
