@@ -20,26 +20,9 @@ from agents.online_calibration import (
 )
 from agents.policy import POLICY_SETTINGS, PolicyIO
 from agents.reference import REFERENCE_SETTINGS, CalibratedAgent, NominalAgent
-from arm.constraints import Constraint, Interval, OneOf
 from envs.errors import EnvOptionError
 from envs.wrappers import TOOL_STEP_MM, ToolDisplacement
-
-
-def bad_values(c: Constraint) -> list[Any]:
-    """Values that break ``c``: beyond each bound (on it, where it is open), not of its kind."""
-    if isinstance(c, OneOf):
-        return ["no-such-choice"]
-    assert isinstance(c, Interval)
-    out: list[Any] = ["a string", float("nan")]
-    step = 1 if c.kind is int else 0.5
-    if c.low is not None:
-        out.append(c.low if c.closed in ("right", "neither") else c.low - step)
-    if c.high is not None:
-        out.append(c.high if c.closed in ("left", "neither") else c.high + step)
-    if c.kind is int:
-        out.append(2.5)
-    return out
-
+from tests.test_declared_rules import invalid_values
 
 # who takes each declared setting: a call that makes it with that one setting given
 MAKERS = {
@@ -76,7 +59,7 @@ CASES = [
     (who, name, value)
     for who, declared in DECLARED.items()
     for name, c in declared.items()
-    for value in bad_values(c)
+    for value in invalid_values(c)
 ]
 
 
@@ -87,7 +70,7 @@ def test_every_declared_setting_has_a_maker():
 @pytest.mark.parametrize(("who", "name", "value"), CASES, ids=lambda v: repr(v))
 def test_a_value_beyond_its_declaration_is_refused_naming_the_setting(who, name, value):
     if who == "calibrated" and isinstance(value, str):
-        value = "each-phase"  # its one word is 'each_phase'
+        value = "each-phase"  # a string it takes is its one word, 'each_phase'
     with pytest.raises(AgentError) as exc:
         MAKERS[who, name](value)
     message = str(exc.value)
@@ -128,7 +111,7 @@ class _Task:
     robot = None
 
 
-@pytest.mark.parametrize("value", bad_values(TOOL_STEP_MM))
+@pytest.mark.parametrize("value", invalid_values(TOOL_STEP_MM))
 def test_the_tool_interface_refuses_a_step_beyond_its_declaration(value):
     with pytest.raises(EnvOptionError, match="tool_step_mm must be positive"):
         ToolDisplacement(_Task(), step_mm=value)
@@ -139,7 +122,7 @@ def _plant_cases() -> list[tuple[str, Any]]:
     from envs.plant import HiddenEffects
 
     declared = constraints_of(HiddenEffects)
-    return [(k, v) for k in ("cooling_time", "payload0") for v in bad_values(declared[k][0][0])]
+    return [(k, v) for k in ("cooling_time", "payload0") for v in invalid_values(declared[k][0][0])]
 
 
 @pytest.mark.parametrize(("name", "value"), _plant_cases())
