@@ -47,7 +47,7 @@ from scipy.linalg import lapack
 from agents.base import refuse_settings
 from agents.errors import AgentError
 from agents.tool_model import BufferedFunction, ToolModel
-from arm.constraints import Constraint, Interval
+from arm.constraints import POSITIVE, Constraint, Interval
 from arm.effects import Effect, parse_effects, union_of
 from arm.errormodel import ErrorModel
 from arm.kinematics import gravity_torques
@@ -70,7 +70,7 @@ log = logging.getLogger(__name__)
 #: what the estimators' settings may be (:mod:`arm.constraints`): the measurement noise (m, per
 #: axis) and the forgetting factor (1: remember everything); the buffer's capacity in points
 ESTIMATOR_SETTINGS: dict[str, Constraint] = {
-    "sigma": Interval(float, 0.0, None, closed="neither"),
+    "sigma": POSITIVE,
     "forgetting": Interval(float, 0.0, 1.0, closed="right"),
 }
 BUFFER_SETTINGS: dict[str, Constraint] = {"capacity": Interval(int, 1, None)}

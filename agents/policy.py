@@ -62,7 +62,7 @@ import numpy as np
 from agents.base import Agent, refuse_settings, solve_time_stats
 from agents.errors import AgentStateError, PolicyFileError
 from agents.reference import FeedforwardAgent
-from arm.constraints import Constraint, Interval, OneOf
+from arm.constraints import POSITIVE, Constraint, OneOf
 from arm.files import check_input_file, read_input_text
 from envs.task import Observation, TaskInfo, Truth
 from envs.wrappers import ToolDisplacement
@@ -95,8 +95,8 @@ MM = 1e3
 #: and the tool variant's step, in mm
 POLICY_SETTINGS: dict[str, Constraint] = {
     "variant": OneOf(VARIANTS),
-    "offset_mm": Interval(float, 0.0, None, closed="neither"),
-    "tool_step_mm": Interval(float, 0.0, None, closed="neither"),
+    "offset_mm": POSITIVE,
+    "tool_step_mm": POSITIVE,
 }
 #: preview steps the residual policy sees (relative to the reference now)
 RESIDUAL_PREVIEW = (0, 1, 2, 4, 9)

@@ -29,7 +29,7 @@ import numpy as np
 from agents.base import Agent, measurement_columns, refuse_settings, solve_time_stats
 from agents.errors import AgentError
 from agents.tool_model import cached_tool_model
-from arm.constraints import Constraint, Interval
+from arm.constraints import NON_NEGATIVE, Constraint, Interval
 from arm.errormodel import ErrorModel
 from envs.task import Observation, TaskInfo, Truth
 
@@ -47,7 +47,7 @@ log = logging.getLogger(__name__)
 #: error removed per step, and when the calibrated agent fits (s from the episode's start)
 REFERENCE_SETTINGS: dict[str, Constraint] = {
     "gain": Interval(float, 0.0, 1.0, closed="right"),
-    "calibration_seconds": Interval(float, 0.0, None),
+    "calibration_seconds": NON_NEGATIVE,
 }
 
 

@@ -11,14 +11,15 @@ modes, ``bool`` is true or false, ``| None`` lets None through, and :func:`decla
         loss: Literal["linear", "huber"] = "linear"
 
         def __post_init__(self) -> None:
-            refuse(problems(self), ValueError)
+            refuse(problems(self), OptionsError)  # a SixAxisError and a ValueError
 
     Options(noise_mm=-1, loss="l2")
-    # ValueError: noise_mm must be positive, got -1; loss must be one of linear, huber, got 'l2'
+    # OptionsError: noise_mm must be positive, got -1; loss must be one of linear, huber, got 'l2'
 
 The same constraints feed the command line's choices and ranges (:func:`choices`,
 :func:`Interval.bounds`) and the checks of a mapping (a TOML table, an agent's settings) with
-:func:`check`. Plain data and the standard library only: every layer can use it.
+:func:`check`. Plain data, the standard library and :mod:`arm.errors` only: every layer can use
+it.
 
 A declaration also says what a value is (``help=``, ``unit=``), so that a command line's option
 is made from it (``experiments.cli_inputs.option_of``) and nothing about an option is written

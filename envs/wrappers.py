@@ -36,7 +36,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from arm.constraints import Interval, check, refuse
+from arm.constraints import POSITIVE, check, refuse
 from arm.description import RobotDescription
 from arm.kinematics import Chain
 from envs.errors import ActionError, EnvOptionError, EnvStateError
@@ -57,7 +57,7 @@ INTERFACES = ("joint", "tool")
 MAX_ERROR_AGE = 1.0
 MM = 1e3
 #: the tool interface's step (mm): the displacement that an action of 1 commands
-TOOL_STEP_MM = Interval(float, 0.0, None, closed="neither")
+TOOL_STEP_MM = POSITIVE
 #: mm, the bound of every relative length the tool interface observes (twice the env's workspace)
 _LENGTH_BOUND_MM = 1e4
 
