@@ -63,7 +63,15 @@ from agents.policy import (
     save_policy_file,
 )
 from agents.reference import FeedforwardAgent
-from arm.constraints import Interval, check, constraints_of, declare, problems
+from arm.constraints import (
+    NON_NEGATIVE,
+    POSITIVE,
+    Interval,
+    check,
+    constraints_of,
+    declare,
+    problems,
+)
 from envs.task import TaskInfo, Truth, controller_info
 
 __all__ = [
@@ -115,8 +123,6 @@ MIN_EPISODE_SEED = 1000
 Reward = Literal["log", "improvement", "env"]
 REWARDS: tuple[str, ...] = typing.get_args(Reward)
 AT_LEAST_1 = Interval(int, 1, None)
-NON_NEGATIVE = Interval(float, 0.0, None)
-POSITIVE = Interval(float, 0.0, None, closed="neither")
 #: how the policy's features are scaled: SB3's running mean and variance (updated all through
 #: training, from the first flailing steps on), or the fixed scales the interface declares
 #: (``envs.wrappers.ToolDisplacement.feature_scale``; the tool variant only)
