@@ -65,10 +65,12 @@ from typing import Any, Literal
 
 import numpy as np
 
-from agents.base import Agent, solve_time_stats
+from agents.base import Agent, refuse_settings, solve_time_stats
+from agents.errors import AgentStateError, PolicyFileError
 from agents.reference import FeedforwardAgent
-from arm.errors import SixAxisError
+from arm.constraints import POSITIVE, Constraint, OneOf
 from arm.files import check_input_file, read_input_text
+from envs.errors import EnvOptionError
 from envs.task import Observation, TaskInfo, Truth
 from envs.wrappers import ToolDisplacement, observed
 
@@ -97,6 +99,13 @@ Algo = Literal["ppo", "sac", "td3"]
 VARIANTS: tuple[str, ...] = typing.get_args(Variant)
 ALGOS: tuple[str, ...] = typing.get_args(Algo)
 MM = 1e3
+#: what the policy's interface takes (:mod:`arm.constraints`): its variant, the residual's reach
+#: and the tool variant's step, in mm
+POLICY_SETTINGS: dict[str, Constraint] = {
+    "variant": OneOf(VARIANTS),
+    "offset_mm": POSITIVE,
+    "tool_step_mm": POSITIVE,
+}
 #: preview steps the residual policy sees (relative to the reference now)
 RESIDUAL_PREVIEW = (0, 1, 2, 4, 9)
 #: preview steps at which the residual policy sees the joint velocities the path asks for
@@ -106,10 +115,6 @@ PATH_JOINT_VELOCITY = (2, 6)
 ERROR_HISTORY = 3
 #: activation functions a policy file may name (no class paths: a file is data, not code)
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu")
-
-
-class PolicyFileError(SixAxisError, ValueError):
-    """A policy file that is missing, unsafe to load, or does not fit its description."""
 
 
 # --------------------------------------------------------------------------------------------------
@@ -125,14 +130,9 @@ class PolicyIO:
         tool_step_mm: float = 5.0,
         observe: tuple[str, ...] | list[str] = (),
     ) -> None:
-        if variant not in VARIANTS:
-            raise PolicyFileError(
-                f"unknown policy variant {variant!r}; choose {', '.join(VARIANTS)}"
-            )
-        if not offset_mm > 0:
-            raise PolicyFileError(f"offset_mm must be > 0, got {offset_mm}")
-        if not tool_step_mm > 0:
-            raise PolicyFileError(f"tool_step_mm must be > 0, got {tool_step_mm}")
+        refuse_settings(
+            POLICY_SETTINGS, variant=variant, offset_mm=offset_mm, tool_step_mm=tool_step_mm
+        )
         if observe and variant != "tool":
             raise PolicyFileError(f"observe is for the tool variant, not {variant!r}")
         self.variant = variant
@@ -196,7 +196,7 @@ class PolicyIO:
     def features(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
         task = self.task
         if task is None:
-            raise RuntimeError("PolicyIO.features before reset(): no task yet")
+            raise AgentStateError("PolicyIO.features before reset(): no task yet")
         if self.tool is not None:  # the operational-space interface: envs.wrappers's numbers
             return self.tool.clipped(self.tool.observe(obs, info))
         if self.variant == "joint":  # the env's own observation, as an SB3 policy of it sees it
@@ -278,7 +278,7 @@ class PolicyIO:
             self.prev_action = np.clip(np.asarray(a, dtype=float).reshape(-1), -1.0, 1.0)
             return self.prev_action
         if self._o is None:
-            raise RuntimeError("PolicyIO.action before features(): no observation yet")
+            raise AgentStateError("PolicyIO.action before features(): no observation yet")
         a = np.clip(np.asarray(a, dtype=float).reshape(-1), -1.0, 1.0)
         self.prev_action = a
         if self.variant == "plain":
@@ -621,7 +621,7 @@ def _check_sizes(meta: dict, variant: str, where: str) -> None:
     observe = meta.get("observe", [])
     try:
         observed(observe)
-    except SixAxisError as exc:
+    except EnvOptionError as exc:
         raise PolicyFileError(f"{where}: {exc}") from None
     if observe and variant != "tool":
         raise PolicyFileError(f"{where}: observe is for the tool variant, not {variant!r}")

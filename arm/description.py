@@ -69,7 +69,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from arm.errors import SixAxisError
+from arm.errors import DescriptionError
 from arm.files import atomic_write_text, read_input_text
 from arm.ranges import payload_problem
 from arm.so3 import rotation_matrix, rotation_vector
@@ -98,10 +98,6 @@ _ANGLE = {"rad": 1.0, "deg": math.pi / 180.0}
 #: turn up to +-400 deg (a UR's +-360 deg); beyond two turns a limit is a unit slip (degrees
 #: declared as radians) or a typo, and ``plan`` would write poses no arm can reach.
 MAX_JOINT_TRAVEL = 4.0 * math.pi
-
-
-class DescriptionError(SixAxisError, ValueError):
-    """A robot description that cannot be used, with the file and key at fault."""
 
 
 @dataclass(frozen=True)

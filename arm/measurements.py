@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arm.errors import SixAxisError, SixAxisWarning, warn
+from arm.errors import MeasurementError, MeasurementWarning, warn
 from arm.files import (
     OutputError,
     atomic_path,
@@ -98,15 +98,6 @@ POSES_SCHEMA_VERSION = 1
 
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
-
-
-class MeasurementError(SixAxisError, ValueError):
-    """Bad measurement input; the message names the file, the line and the column."""
-
-
-class MeasurementWarning(SixAxisWarning):
-    """A measurement file the lab reads, with something the user should know: a column that no
-    catalogued effect reads (kept for custom effects), a name close to a known one."""
 
 
 @dataclass(frozen=True)

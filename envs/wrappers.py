@@ -36,10 +36,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from arm.constraints import POSITIVE, check, refuse
 from arm.description import RobotDescription
 from arm.effects import REFERENCE_TEMPERATURE
 from arm.kinematics import Chain
-from envs.errors import InterfaceError
+from envs.errors import ActionError, EnvOptionError, EnvStateError
 
 __all__ = [
     "INTERFACES",
@@ -70,6 +71,8 @@ _OBSERVED_PARTS: dict[str, tuple[tuple[str, int, float, float], ...]] = {
 #: s, the age of the model error observed before the first measurement (and the cap of any age)
 MAX_ERROR_AGE = 1.0
 MM = 1e3
+#: the tool interface's step (mm): the displacement that an action of 1 commands
+TOOL_STEP_MM = POSITIVE
 #: mm, the bound of every relative length the tool interface observes (twice the env's workspace)
 _LENGTH_BOUND_MM = 1e4
 
@@ -196,18 +199,18 @@ def nominal_tool_point(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------------------------------
 def observed(observe: Any) -> tuple[str, ...]:
     """``observe`` (names of :data:`OBSERVABLE`, any order) in the interface's order; an unknown
-    or repeated name is an :class:`InterfaceError` naming it."""
+    or repeated name is an :class:`EnvOptionError` naming it."""
     if isinstance(observe, str) or not isinstance(observe, tuple | list):
-        raise InterfaceError(
+        raise EnvOptionError(
             f"observe must be a list of names from {', '.join(OBSERVABLE)}, got {observe!r}"
         )
     for name in observe:
         if name not in OBSERVABLE:
-            raise InterfaceError(
+            raise EnvOptionError(
                 f"observe: unknown part {name!r}; the tool interface observes {', '.join(OBSERVABLE)}"
             )
     if len(set(observe)) != len(observe):
-        raise InterfaceError(f"observe: {list(observe)} names a part twice")
+        raise EnvOptionError(f"observe: {list(observe)} names a part twice")
     return tuple(name for name in OBSERVABLE if name in observe)
 
 
@@ -269,10 +272,10 @@ class ToolDisplacement:
         damping: float = 1e-3,
         observe: tuple[str, ...] | list[str] = (),
     ) -> None:
-        if isinstance(step_mm, bool) or not (
-            isinstance(step_mm, int | float) and math.isfinite(step_mm) and step_mm > 0
-        ):
-            raise InterfaceError(f"tool_step_mm must be a positive number of mm, got {step_mm!r}")
+        refuse(
+            check({"tool_step_mm": step_mm}, {"tool_step_mm": ([TOOL_STEP_MM], False)}),
+            EnvOptionError,
+        )
         self.observe_parts = observed(observe)
         self.task = task
         self.step_mm = float(step_mm)
@@ -384,10 +387,10 @@ class ToolDisplacement:
     def joint_velocity(self, action: np.ndarray) -> np.ndarray:
         """The joint velocity (6,) rad/s the action asks for (limits applied); remembers it."""
         if self._pose is None:
-            raise RuntimeError("ToolDisplacement.command before observe(): no pose yet")
+            raise EnvStateError("ToolDisplacement.command before observe(): no pose yet")
         a = np.array(action, dtype=float).reshape(-1)
         if a.shape != (3,) or not math.isfinite(a.sum()):
-            raise InterfaceError(
+            raise ActionError(
                 f"the tool interface's action must be 3 finite numbers, got {action!r}"
             )
         np.minimum(a, 1.0, out=a)
@@ -528,7 +531,9 @@ class NominalToolObservation(gym.ObservationWrapper, gym.utils.RecordConstructor
         # the reference and its preview are one block of the env's observation: one subtraction
         self._points = slice(self._ref.start, self._preview.stop)
         if self._ref.stop != self._preview.start:
-            raise ValueError("NominalToolObservation needs the preview right after the reference")
+            raise EnvOptionError(
+                "NominalToolObservation needs the preview right after the reference"
+            )
 
     def observation(self, observation: Any) -> np.ndarray:
         obs = np.asarray(observation, dtype=float)

@@ -55,7 +55,7 @@ from arm.effect_api import ModelInputs
 from arm.effects import JointAngleEffect
 from arm.errormodel import ErrorModel
 from arm.errors import warn
-from lab.errors import LabWarning
+from lab.errors import OutOfDomainWarning, ToolPlacedWarning
 
 __all__ = [
     "DOMAIN_COLUMNS",
@@ -82,15 +82,6 @@ PROBE_POSES = 16
 #: the arc of its joint (rad) over which a once-per-turn term must have been fitted to hold over
 #: the whole turn: half a turn, where its sine and cosine are told apart from the joint's zero
 ECCENTRICITY_ARC = math.pi
-
-
-class OutOfDomainWarning(LabWarning):
-    """Data outside the domain a model was identified on (lab.domain)."""
-
-
-class ToolPlacedWarning(OutOfDomainWarning):
-    """A tool offset the fit could not identify, placed on validation data with a new station's
-    base (lab.domain, :meth:`lab.result.FitResult.validate`)."""
 
 
 def _unit(variable: str) -> str:

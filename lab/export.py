@@ -53,7 +53,6 @@ from arm.description import RobotDescription, load_robot, vec3
 from arm.effect_api import EffectError
 from arm.effects import EFFECTS
 from arm.errormodel import ErrorModel
-from arm.errors import SixAxisError
 from arm.files import OutputError, atomic_write_text
 from arm.ik import IKResult, InverseKinematics, solve_model_pose, solve_position
 from arm.measurements import (
@@ -71,6 +70,7 @@ from arm.measurements import (
 from arm.params import TOOL_ROTATION_NAMES
 from arm.so3 import rotation_matrix, rotation_vector
 from lab.domain import Domain, out_of_domain, warn_out_of_domain
+from lab.errors import CompensationError, ExportError
 from lab.result import SCHEMA_VERSION, FitResult
 from lab.uncertainty import Uncertainty, uncertainty_of
 
@@ -94,14 +94,6 @@ EXPORT_TOL = 1e-9
 # rad: a compensated joint angle this far from its start is named (a calibration moves the joints
 # by milliradians; this much only near a wrist singularity, where joints 4 and 6 share a turn)
 FAR_RAD = 0.2
-
-
-class ExportError(SixAxisError, ValueError):
-    """The calibrated arm cannot be exported faithfully; nothing was written."""
-
-
-class CompensationError(SixAxisError, ValueError):
-    """Bad compensation input: the message names the file, line, column or effect."""
 
 
 # --------------------------------------------------------------------------------------------------

@@ -27,7 +27,7 @@ from arm.constraints import POSITIVE, Interval, Quantity, choices, declare, prob
 from arm.effects import MAX_ORDER
 from arm.measurements import COMPONENTS
 from arm.noise import NOISE_MM, NOISE_MRAD, NOISE_PPM, InstrumentNoise, noise_law_problems
-from lab.errors import FitError
+from lab.errors import FitError, UnknownOptionError
 
 __all__ = [
     "ALPHA",
@@ -216,7 +216,7 @@ def resolve(options: LabOptions | None, **given: Any) -> LabOptions:
         raise FitError(f"options must be a LabOptions, got {type(options).__name__}")
     unknown = [k for k in given if k not in OptionFields.__annotations__]
     if unknown:
-        raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
+        raise UnknownOptionError(f"unexpected keyword argument(s): {', '.join(unknown)}")
     twice = [k for k, v in given.items() if not _same(v, getattr(DEFAULTS, k))]
     if twice:
         raise FitError(
