@@ -18,12 +18,12 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.error import ResetNeeded
 from gymnasium.wrappers import TimeLimit
 
 from arm.constraints import Constraint, Interval, OneOf, TypeOf, constraints_of, description
 from arm.description import RobotDescription, load_robot
 from arm.errors import SixAxisError
+from envs.errors import ActionError, EnvOptionError, EnvStateError
 from envs.instrument import InstrumentError, LaserTracker, TemperatureSensor, TrackerConfig
 from envs.plant import MAX_SPEED, PHYSICS_DT, SUBSTEPS, Plant
 from envs.scenarios import SCENARIOS, EpisodeTruth, Scenario, draw_truth, get_scenario
@@ -71,15 +71,21 @@ def _outside_observation(overrides: Any) -> str | None:
     return None
 
 
-def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any) -> gym.Env:
+def make_env(
+    interface: str = "joint",
+    tool_step_mm: float = 5.0,
+    observe: Sequence[str] = (),
+    **kwargs: Any,
+) -> gym.Env:
     """``SixAxisTrack-v0`` as ``gym.make`` builds it: the env in a ``TimeLimit`` of its own
     ``episode_seconds`` (500 steps by default), so that the episode and the limit agree.
     ``interface="tool"`` puts the operational-space interface around it
     (:class:`envs.wrappers.ToolDisplacementAction`: a tool displacement of up to ``tool_step_mm``
-    mm per step and axis, relative observations in mm); ``"joint"`` (the default) is the env's
-    own, normalised joint velocities. ``make_env.env_class`` is the env's class (its options,
-    ``check_options``)."""
-    from envs.wrappers import INTERFACES, ToolDisplacementAction
+    mm per step and axis, relative observations in mm, followed by the env's own readings that
+    ``observe`` names: ``"joints"``, ``"payload"``, ``"temperature"``); ``"joint"`` (the default)
+    is the env's own, normalised joint velocities. ``make_env.env_class`` is the env's class (its
+    options, ``check_options``)."""
+    from envs.wrappers import INTERFACES, OBSERVABLE, ToolDisplacementAction
 
     problems = {}
     for key, value, constraint in (
@@ -88,6 +94,11 @@ def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any)
     ):
         if not constraint.holds(value):
             problems[key] = f"expected {description(constraint)}, got {value!r}"
+    names = list(observe) if isinstance(observe, list | tuple) else None
+    if names is None or any(n not in OBSERVABLE for n in names) or len(set(names)) < len(names):
+        problems["observe"] = f"expected distinct names of {', '.join(OBSERVABLE)}, got {observe!r}"
+    elif names and interface != "tool":
+        problems["observe"] = "is an option of the tool interface (interface='tool')"
     if problems:
         raise EnvOptionError(
             "SixAxisTrack-v0: " + "; ".join(f"{k}: {m}" for k, m in problems.items())
@@ -95,7 +106,7 @@ def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any)
     env = SixAxisTrackEnv(**kwargs)
     limited = TimeLimit(env, env.episode_steps)
     if interface == "tool":
-        return ToolDisplacementAction(limited, float(tool_step_mm))
+        return ToolDisplacementAction(limited, float(tool_step_mm), observe=tuple(observe))
     return limited
 
 
@@ -171,14 +182,6 @@ def _observation_space(nominal: RobotDescription, slices: dict[str, slice], n: i
     return spaces.Box(low, high, (n,), np.float32)
 
 
-class EnvOptionError(SixAxisError, ValueError):
-    """Keyword arguments the env does not take; the message names every key at fault."""
-
-
-class EnvStateError(SixAxisError, ResetNeeded, RuntimeError):
-    """A call the env cannot answer in its state (``step`` before ``reset``)."""
-
-
 #: the largest rendered frame, pixels per side (4K video is 3840 x 2160; MuJoCo's offscreen buffer
 #: and the H.264 encoder refuse frames far beyond)
 MAX_FRAME = 4096
@@ -245,7 +248,7 @@ class SixAxisTrackEnv(gym.Env):
     commanded ``action[i] * v_max[i]`` rad/s (``task.v_max``), rate-limited to ``a_max[i] * dt``
     per step (``task.a_max``); its position loop integrates the command within the joint limits
     and its torque is limited to ``task.torque_max``. Values outside [-1, 1] are clipped; NaN, inf
-    or a wrong shape raise ``ValueError``.
+    or a wrong shape raise :class:`~envs.errors.ActionError` (a ``ValueError``).
 
     | Num | Action                         | Min | Max | Joint  | Unit               |
     |-----|--------------------------------|-----|-----|--------|--------------------|
@@ -290,6 +293,31 @@ class SixAxisTrackEnv(gym.Env):
     and 0-0.5 kg off (drawn per episode; ``overrides={"payload": {"declare_delay": 0,
     "declare_error": 0}}`` declares it at once and right), so a controller must notice the change
     in its measurements.
+
+    ## The tool interface
+    ``gym.make("SixAxisTrack-v0", interface="tool", tool_step_mm=5.0, observe=[...])``
+    (:class:`envs.wrappers.ToolDisplacementAction`): the action ``Box(-1, 1, (3,))`` is a tool
+    displacement of up to ``tool_step_mm`` mm per step and axis; the observation is relative and
+    not normalised. Each index has a declared fixed scale (the wrapper's ``feature_offset`` and
+    ``feature_scale``): ``(obs - offset) / scale`` is of order 1, and is what the trainer feeds
+    its networks (``obs_normalization = "fixed"``) and saves with the policy.
+
+    | Num   | Observation                                            | Min        | Max        | Name (obs_slices) | Unit  | Offset | Scale   |
+    |-------|--------------------------------------------------------|------------|------------|-------------------|-------|--------|---------|
+    | 0-2   | reference minus the tool point as the nominal model,   | -1e4       | 1e4        | tracking_error    | mm    | 0      | 1       |
+    |       | corrected by the last measured model error, places it |            |            |                   |       |        |         |
+    | 3-32  | the next 10 references minus the reference now         | -1e4       | 1e4        | preview           | mm    | 0      | step_mm |
+    | 33-35 | model error at the last measurement (0 before one)     | -1e4       | 1e4        | model_error       | mm    | 0      | 1       |
+    | 36    | its age, capped at 1 (1 before the first)              | 0          | 1          | model_error_age   | s     | 0      | 0.1     |
+    | 37-39 | the last action                                        | -1         | 1          | previous_action   | 1     | 0      | 1       |
+    | 40-45 | ``"joints"``: encoder angles of axes 1-6               | lower - pi | upper + pi | q                 | rad   | 0      | 1       |
+    | 46-51 | ``"joints"``: encoder velocities of axes 1-6           | -100       | 100        | qd                | rad/s | 0      | 1       |
+    | 52    | ``"payload"``: payload, as the operator declared it    | 0          | 100        | payload           | kg    | 0      | 1       |
+    | 53    | ``"temperature"``: arm temperature, as its sensor reads | -50       | 200        | temperature       | degC  | 20     | 5       |
+
+    (indices for ``preview_steps=10`` and ``observe=["joints", "payload", "temperature"]``; the
+    parts of ``observe`` come in this order, whatever the order given, and one left out shifts
+    those after it.)
 
     ## Rewards
     ``reward = reward_tracking + reward_jerk`` with ``reward_tracking = -|p_true - p_ref|`` in mm
@@ -548,7 +576,7 @@ class SixAxisTrackEnv(gym.Env):
         super().reset(seed=seed)
         kind = (options or {}).get("trajectory", self.trajectory_kind)
         if kind is not None and kind not in KINDS:
-            raise ValueError(
+            raise EnvOptionError(
                 f"options['trajectory'] must be one of {', '.join(KINDS)}, got {kind!r}"
             )
         posture = (options or {}).get("posture", self.posture)
@@ -679,18 +707,18 @@ class SixAxisTrackEnv(gym.Env):
             try:
                 action = np.asarray(action, dtype=float)
             except (TypeError, ValueError) as exc:
-                raise ValueError(f"action must be 6 numbers, got {action!r}") from exc
+                raise ActionError(f"action must be 6 numbers, got {action!r}") from exc
         if action.shape != (6,):
-            raise ValueError(f"action must have shape (6,), got shape {action.shape}")
+            raise ActionError(f"action must have shape (6,), got shape {action.shape}")
         try:
             finite = math.isfinite(action.sum(dtype=float))  # NaN and inf propagate
             a = np.minimum(action, 1.0, dtype=float)
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"action must be 6 numbers, got {action!r}") from exc
+            raise ActionError(f"action must be 6 numbers, got {action!r}") from exc
         if not finite:
             bad = np.flatnonzero(~np.isfinite(np.asarray(action, dtype=float))).tolist()
             if bad:
-                raise ValueError(f"action has NaN or inf at index {bad}: {action}")
+                raise ActionError(f"action has NaN or inf at index {bad}: {action}")
         np.maximum(a, -1.0, out=a)
         return a
 
