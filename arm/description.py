@@ -227,6 +227,18 @@ class RobotDescription:
         q = np.asarray(q, dtype=float)
         return np.all((q >= self.lower - tol) & (q <= self.upper + tol), axis=-1)
 
+    @property
+    def reach(self) -> float:
+        """The arm's size, m: the lengths of its links from the shoulder to the flange, every
+        ``|a|`` and ``|d|`` of the modified DH table but the first row's ``d`` (the shoulder's
+        height above the base moves nothing), and the flange's offset. An upper bound of the
+        reach a data sheet states (1.46 m for a UR10 of 1.3 m, 3.11 m for a FANUC R-2000iC of
+        2.66 m), computed the same way for every arm; what the plausible bounds of its lengths
+        scale with (:class:`arm.effect_api.ArmSize`)."""
+        m = self.to_modified()
+        flange = np.linalg.norm(m.flange_matrix[:3, 3])
+        return float(np.abs(m.column("a")).sum() + np.abs(m.column("d")[1:]).sum() + flange)
+
     def parallel_rows(self, tol: float = 1e-6) -> tuple[int, ...]:
         """Rows i (1-based, i >= 2) whose axis z_i is parallel to z_{i-1} (alpha_{i-1} = 0 or pi).
 

@@ -35,6 +35,7 @@ from arm.effects.base import (
     effect_origin,
     is_catalogued,
     missing_inputs,
+    plausible_bound_of,
     user_code,
 )
 from arm.effects.chain import REFERENCE_TEMPERATURE as REFERENCE_TEMPERATURE
@@ -86,6 +87,7 @@ __all__ = [
     "missing_inputs",
     "order_reading",
     "parse_effects",
+    "plausible_bound_of",
     "register_effect",
     "user_code",
     "user_module_failure",
