@@ -42,7 +42,7 @@ import numpy as np
 
 from arm.description import RobotDescription, as_robot
 from arm.effect_api import EffectError, ModelInputs
-from arm.effects import Effect, missing_inputs
+from arm.effects import EFFECTS, Effect, missing_inputs
 from arm.errormodel import ErrorModel
 from arm.errors import warn
 from arm.measurements import COMPONENTS, MeasurementSet, as_measurements
@@ -110,7 +110,13 @@ def model_of(
     for e in model.effects:
         why = missing_inputs(e, model.robot, list(data.columns))
         if why:
-            raise FitError(f"{data.source}: {e.label} cannot be fitted without {why}")
+            twin = [n for n, cls in EFFECTS.items() if cls.stands_in_for == e.name]
+            instead = (
+                f" (or fit {twin[0]}, which needs no mass model)"
+                if twin and e.needs_masses and not model.robot.has_mass_model
+                else ""
+            )
+            raise FitError(f"{data.source}: {e.label} cannot be fitted without {why}{instead}")
     return model, inputs_of(model, data)
 
 

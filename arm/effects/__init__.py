@@ -20,6 +20,7 @@ One module a job; import from the package, ``from arm.effects import JointAngleE
 * :mod:`arm.effects.base`: the base classes, and how a user's effect code is run and named;
 * :mod:`arm.effects.joint_angle`: the catalogue's joint-angle effects (compliance, cyclic...);
 * :mod:`arm.effects.chain`: the catalogue's chain effects (geometric, thermal);
+* :mod:`arm.effects.lumped`: compliance without a mass model (lumped_compliance);
 * :mod:`arm.effects.registry`: the registry, entry points, ``--effect-module`` and the checks a
   user's effect passes;
 * :mod:`arm.effects.specs`: effects from their specifications (``compliance[2,3]``).
@@ -52,6 +53,7 @@ from arm.effects.joint_angle import (
     order_reading,
 )
 from arm.effects.joint_angle import MAX_ORDER as MAX_ORDER
+from arm.effects.lumped import LumpedCompliance, lumped_values
 from arm.effects.registry import CATALOGUE as CATALOGUE
 from arm.effects.registry import (
     EFFECTS,
@@ -75,6 +77,7 @@ __all__ = [
     "JointAngleEffect",
     "JointScale",
     "LoadBacklash",
+    "LumpedCompliance",
     "Thermal",
     "Transmission",
     "candidate_effects",
@@ -83,6 +86,7 @@ __all__ = [
     "effect_origin",
     "is_catalogued",
     "load_effect_module",
+    "lumped_values",
     "make_effect",
     "missing_inputs",
     "order_reading",

@@ -104,6 +104,9 @@ class Effect:
     # arm's size (ArmSize.length_factor: 1 up to a UR10's, in proportion beyond), as a DH
     # length's does; the others keep theirs at any size.
     lengths: ClassVar[tuple[str, ...]] = ()
+    # The catalogue effect this one stands in for where that one cannot be fitted (the mass-free
+    # lumped_compliance for compliance): the diagnosis tests it only where the other is not.
+    stands_in_for: ClassVar[str] = ""
     # An effect whose terms a scan finds (its joints and orders), rather than one the diagnosis
     # tests whole: it has no meaning without its brackets, and the catalogue's tests skip it.
     scan_only: ClassVar[bool] = False
@@ -228,6 +231,10 @@ class JointAngleEffect(Effect):
 
     def parameter_names(self, robot: RobotDescription, targets: Sequence[int]) -> list[str]:
         return [f"{t}{j}" for j, t in self.parameter_terms()]
+
+    def parameter_joints(self, robot: RobotDescription) -> list[int]:
+        """The joint of each parameter, in the order of :meth:`parameter_names`."""
+        return [j for j, _ in self.parameter_terms()]
 
     def basis(self, inputs: ModelInputs, joint: int, term: str) -> np.ndarray:
         """(N,) regressor of parameter ``{term}{joint}`` on theta_joint (``joint`` is 1-based)."""
