@@ -62,7 +62,7 @@ from arm.effects.registry import (
     register_effect,
     user_module_failure,
 )
-from arm.effects.specs import candidate_effects, make_effect, parse_effects
+from arm.effects.specs import candidate_effects, make_effect, parse_effects, union_of
 
 __all__ = [
     "EFFECTS",
@@ -93,6 +93,7 @@ __all__ = [
     "parse_effects",
     "plausible_bound_of",
     "register_effect",
+    "union_of",
     "user_code",
     "user_module_failure",
 ]
