@@ -47,6 +47,11 @@ SI units inside (m, rad, kg). The TOML file states its own units::
     translation = [2.0, -1.2, -0.6]
     rotation_vector = [0.0, 0.0, 126.0]
 
+    [[couplings]]                # optional: a joint's DH angle moves with another's; the
+    joint = 3                    # data's rows are the controller's angles: theta_3 = q_3 +
+    on = 2                       # factor * q_2 (FANUC's J3, measured from the horizon)
+    factor = -1.0
+
     [nominal]                    # optional, written by `lab export`: the nominal arm that was
     name = "seed"                # calibrated, a whole description in the same form (its own
     ...                          # units; no [nominal] of its own)
@@ -141,6 +146,10 @@ class RobotDescription:
     # a calibration from several tracker stations: (id, translation, rotation vector) of each
     # station's frame <- robot base; the base above is the first station's
     stations: tuple[tuple[int, Vec3, Vec3], ...] = ()
+    # linear couplings of the joints: (joint, on, factor), theta_joint = q_joint + factor *
+    # q_on in the DH table, q the controller's angles (FANUC's J3, measured from the horizon:
+    # (3, 2, -1.0)); the rows of a data file are the controller's angles
+    couplings: tuple[tuple[int, int, float], ...] = ()
     # a calibrated arm's nominal arm, as `lab export` records it (what a controller believes in)
     nominal: RobotDescription | None = field(default=None, compare=False, repr=False)
     # a calibrated arm's domain: where it was identified, {variable: (lo, hi)} in SI units
@@ -168,9 +177,41 @@ class RobotDescription:
                 )
             if j.mass < 0:
                 raise DescriptionError(f"robot {self.name!r}: joint {i} mass {j.mass} < 0")
+        self._check_couplings()
         why = payload_problem(self.payload)  # the rule of the measurement reader too
         if why:
             raise DescriptionError(f"robot {self.name!r}: {why}")
+
+    def _check_couplings(self) -> None:
+        seen = set()
+        for c in self.couplings:
+            joint, on, factor = c
+            where = f"robot {self.name!r}: coupling of joint {joint} on joint {on}"
+            if not (1 <= joint <= 6 and 1 <= on <= 6) or joint == on:
+                raise DescriptionError(
+                    f"{where}: joints are 1..6 and a joint is not coupled on itself"
+                )
+            if not math.isfinite(factor) or factor == 0:
+                raise DescriptionError(
+                    f"{where}: factor {factor!r} must be a finite non-zero number"
+                )
+            if (joint, on) in seen:
+                raise DescriptionError(f"{where}: stated twice")
+            seen.add((joint, on))
+        if self.couplings and abs(np.linalg.det(self.coupling_matrix)) < 1e-9:
+            raise DescriptionError(
+                f"robot {self.name!r}: the couplings {self.couplings} leave the joints dependent "
+                "(the controller's angles could not be recovered from the arm's)"
+            )
+
+    @property
+    def coupling_matrix(self) -> np.ndarray:
+        """(6, 6) ``C``: the DH table's angles are ``C q + theta_offset``, q the controller's
+        (the identity for an arm without couplings)."""
+        C = np.eye(6)
+        for joint, on, factor in self.couplings:
+            C[joint - 1, on - 1] += factor
+        return C
 
     # -- arrays -------------------------------------------------------------------------------
     def column(self, key: str) -> np.ndarray:
@@ -347,6 +388,8 @@ class RobotDescription:
             }
         if self.effects:
             doc["effects"] = {k: dict(v) for k, v in self.effects.items()}
+        if self.couplings:
+            doc["couplings"] = [{"joint": j, "on": o, "factor": f} for j, o, f in self.couplings]
         if self.stations:
             doc["stations"] = [
                 {
@@ -433,8 +476,10 @@ _KEYS = {
         "stations",
         "nominal",
         "domain",
+        "couplings",
     },
     "station": {"station", "translation", "rotation_vector"},
+    "coupling": {"joint", "on", "factor"},
     "joint": {"alpha", "a", "d", "theta_offset", "limits", "mass", "com", "beta"},
     "tool": {"point"},
     "base": {"translation", "rotation_vector"},
@@ -495,6 +540,24 @@ def _stations(doc: dict, source: str, L: float, A: float) -> tuple[tuple[int, Ve
         t = vec3(c * L for c in _get(st, "translation", source, "vec3", w))
         r = vec3(c * A for c in _get(st, "rotation_vector", source, "vec3", w))
         out.append((int(sid), t, r))
+    return tuple(out)
+
+
+def _couplings(doc: dict, source: str) -> tuple[tuple[int, int, float], ...]:
+    """The ``[[couplings]]`` of a description: (joint, on, factor), ``theta_joint = q_joint +
+    factor * q_on`` in the DH table."""
+    rows = doc.get("couplings", [])
+    if not isinstance(rows, list):
+        raise DescriptionError(f"{source}: [[couplings]] must be a list of tables")
+    out = []
+    for k, c in enumerate(rows, start=1):
+        w = f"coupling {k}: "
+        _table(c, source, w, "coupling")
+        joint, on = (_get(c, key, source, float, w) for key in ("joint", "on"))
+        for key, v in (("joint", joint), ("on", on)):
+            if v != int(v) or not 1 <= v <= 6:
+                raise DescriptionError(f"{source}: {w}'{key}' must be a joint 1..6, got {v:g}")
+        out.append((int(joint), int(on), _get(c, "factor", source, float, w)))
     return tuple(out)
 
 
@@ -618,6 +681,7 @@ def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription
             stations=stations,
             nominal=nominal,
             domain=domain,
+            couplings=_couplings(doc, source),
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{source}: {exc}") from None

@@ -227,6 +227,16 @@ class Sensitivities:
     def rows_d(self) -> np.ndarray:
         return self._f.axes[1:, 2]
 
+    @cached_property
+    def rows_joint(self) -> np.ndarray:
+        """d p / d q_j (6, 3, N), the controller's joint angles: ``rows_theta`` where each joint
+        is its own, through the coupling (``theta = C q``) where joints are coupled. What a
+        joint-angle effect, which moves the controller's angle, writes its columns from."""
+        C = self.state.chain.coupling
+        if C is None:
+            return self.rows_theta
+        return np.einsum("ij,ixn->jxn", C, self.rows_theta)
+
     def _base_rotation_columns(self) -> tuple[np.ndarray, np.ndarray]:
         """J_l(r) of the base rotation as columns (3 j, 3, 1 or N) and the base translation
         (3, 1 or N), of each pose's station."""
@@ -258,6 +268,7 @@ class Sensitivities:
     d_beta = property(lambda self: self.rows_beta.transpose(2, 1, 0))
     d_a = property(lambda self: self.rows_a.transpose(2, 1, 0))
     d_theta = property(lambda self: self.rows_theta.transpose(2, 1, 0))
+    d_joint = property(lambda self: self.rows_joint.transpose(2, 1, 0))
     d_d = property(lambda self: self.rows_d.transpose(2, 1, 0))
     d_base = property(lambda self: self.base_cols.transpose(2, 1, 0))
     d_tool = property(lambda self: self.tool_cols.transpose(2, 1, 0))

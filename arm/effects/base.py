@@ -321,10 +321,10 @@ class JointAngleEffect(Effect):
             and cls.joint_jacobian is JointAngleEffect.joint_jacobian
         ):  # linear, one joint per parameter: a gather and a product
             joints, basis = inputs.cached(self, self._sparse_regressor)
-            np.multiply(sens.rows_theta[joints], basis[:, None, :], out=out)
+            np.multiply(sens.rows_joint[joints], basis[:, None, :], out=out)
         else:  # a subclass with its own (dense or non-linear) joint Jacobian
             out[...] = np.einsum(
-                "jxn,njk->kxn", sens.rows_theta, self.joint_jacobian(inputs, values)
+                "jxn,njk->kxn", sens.rows_joint, self.joint_jacobian(inputs, values)
             )
         return True
 
