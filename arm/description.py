@@ -323,7 +323,8 @@ class RobotDescription:
     def to_urdf(self) -> str:
         """The arm as a URDF (:func:`arm.urdf.urdf_of_chain`): frame 0 as ``base_link``, the DH
         frames as ``link1`` .. ``link6``, the flange as ``flange``; its masses as point masses.
-        The base transform and the tool points are metrology, not the arm's: they stay out."""
+        The base transform and the tool points are metrology, not the arm's: they stay out; the
+        joints' couplings stay in (``<coupling joint on factor/>``, which :func:`from_urdf` reads)."""
         from arm.urdf import urdf_of_chain
 
         m = self.to_modified()
@@ -339,6 +340,7 @@ class RobotDescription:
             m.masses,
             m.coms,
             m.flange_matrix,
+            m.couplings,
         )
 
     # -- TOML ---------------------------------------------------------------------------------
@@ -723,6 +725,7 @@ def from_urdf(arm: UrdfArm) -> RobotDescription:
             flange_translation=vec3(clean(c) for c in flange[:3, 3]),
             flange_rotation=vec3(clean(c) for c in rotation_vector(flange[:3, :3])),
             urdf=arm.source,
+            couplings=arm.couplings,
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{arm.source.path}: {exc}") from None

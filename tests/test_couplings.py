@@ -166,3 +166,24 @@ def test_a_fit_in_the_controllers_angles_needs_the_coupling_stated():
     assert res.rms_mm < 1.2 * SIGMA * np.sqrt(3) * 1e3
     with pytest.raises(FitError, match="cannot follow these measurements"):
         fit(d, load_robot(FANUC), "geometric", noise_mm=SIGMA * 1e3)
+
+
+def test_the_urdf_keeps_the_couplings(tmp_path):
+    """Written as a URDF and read back, the coupled arm moves its tool as the robot file's does."""
+    robot = _coupled()
+    path = tmp_path / "fanuc.urdf"
+    path.write_text(robot.to_urdf())
+    assert '<coupling joint="joint3" on="joint2" factor="-1.0"/>' in path.read_text()
+    back = load_robot(path)
+    assert back.couplings == J3_FROM_HORIZON
+    q = _q(20, 7)
+    np.testing.assert_allclose(
+        tool_points(Chain.from_description(back), q, np.zeros(3)) @ back.base_matrix[:3, :3].T
+        + back.base_matrix[:3, 3],
+        tool_points(Chain.from_description(robot), q, np.zeros(3)),
+        atol=1e-12,
+    )
+    bad = tmp_path / "bad.urdf"
+    bad.write_text(path.read_text().replace('on="joint2"', 'on="column_joint"'))
+    with pytest.raises(DescriptionError, match=r"'column_joint' is not one of the arm's joints"):
+        load_robot(bad)
