@@ -216,6 +216,7 @@ def test_the_robot_toml_tables_name_every_key_the_writer_emits():
         nominal=seed_robot(),  # what `lab export` records
         stations=((1, (0.1, 0.0, 0.0), (0.0, 0.0, 0.2)), (2, (3.0, 1.0, 0.0), (0.0, 0.0, 1.0))),
         domain={"n_poses": 40, "q1": (-1.0, 1.0), "temperature": (20.5, 20.9)},
+        couplings=((3, 2, -1.0),),  # FANUC's J3 from the horizon
     )
     assert isinstance(full, RobotDescription)
     back = RobotDescription.from_toml(full.to_toml())
@@ -226,7 +227,7 @@ def test_the_robot_toml_tables_name_every_key_the_writer_emits():
     documented_top = {re.sub(r"[\[\]]|\.NAME", "", names(r[0])[0]): r for r in top}
     assert set(documented_top) == set(doc), set(doc) ^ set(documented_top)
     assert {names(r[0])[0] for r in joint} == set(doc["joints"][0])
-    for key in ("tools", "base", "flange", "stations"):  # each sub-table's keys, in its row
+    for key in ("tools", "base", "flange", "stations", "couplings"):  # each sub-table's keys
         value = doc[key][0] if isinstance(doc[key], list) else doc[key]
         for sub in value:
             assert f"`{sub}" in documented_top[key][2], (key, sub)
