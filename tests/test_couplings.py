@@ -164,8 +164,21 @@ def test_a_fit_in_the_controllers_angles_needs_the_coupling_stated():
     d = _campaign(robot, 150, 6)
     res = fit(d, robot, "geometric", noise_mm=SIGMA * 1e3)
     assert res.rms_mm < 1.2 * SIGMA * np.sqrt(3) * 1e3
-    with pytest.raises(FitError, match="cannot follow these measurements"):
+    # without it, the refusal names the coupling that explains the rows
+    with pytest.raises(FitError, match="cannot follow these measurements") as refused:
         fit(d, load_robot(FANUC), "geometric", noise_mm=SIGMA * 1e3)
+    assert "coupled joints 2 and 3 (theta_3 = q_3 - q_2" in str(refused.value)
+    assert "[[couplings]] joint = 3, on = 2, factor = -1)" in str(refused.value)
+
+
+def test_no_coupling_is_named_where_none_explains_the_rows():
+    """Rows of the uncoupled arm read in the wrong unit: the refusal names no coupling."""
+    robot = load_robot(FANUC)
+    d = _campaign(robot, 60, 8)
+    in_mm = MeasurementSet(d.q, d.xyz * 1e-3, {}, "m_as_mm.csv")
+    with pytest.raises(FitError) as refused:
+        fit(in_mm, robot, "geometric")
+    assert "coupl" not in str(refused.value)
 
 
 def test_the_urdf_keeps_the_couplings(tmp_path):
