@@ -200,3 +200,14 @@ def test_the_urdf_keeps_the_couplings(tmp_path):
     bad.write_text(path.read_text().replace('on="joint2"', 'on="column_joint"'))
     with pytest.raises(DescriptionError, match=r"'column_joint' is not one of the arm's joints"):
         load_robot(bad)
+
+
+def test_the_simulator_and_the_mpc_refuse_a_coupled_arm_rather_than_ignore_it():
+    from agents.tool_model import ToolModel, UnsupportedEffectError
+    from envs.plant import Plant, PlantError
+
+    robot = _coupled()
+    with pytest.raises(PlantError, match="coupled joints"):
+        Plant(robot)
+    with pytest.raises(UnsupportedEffectError, match="coupled joints"):
+        ToolModel(ErrorModel(robot, "geometric"))
