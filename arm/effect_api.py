@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from arm.description import RobotDescription
-from arm.errors import SixAxisError
+from arm.errors import EffectError
 from arm.kinematics import Chain, ColumnFrames, Workspace, cross_columns
 from arm.so3 import left_jacobian
 
@@ -40,10 +40,6 @@ __all__ = [
 #: :attr:`arm.description.RobotDescription.reach`: a UR10's (1.46 m) and the seed arm's
 #: (1.50 m) with room to spare; a larger arm's length bounds grow in proportion.
 REFERENCE_REACH = 1.6
-
-
-class EffectError(SixAxisError, ValueError):
-    """An unknown effect, a bad effect specification or a missing measured column."""
 
 
 @dataclass(frozen=True)
