@@ -20,7 +20,7 @@ from arm.sampling import sample_parameters, sample_poses
 from lab import FitError, fit
 from tests._lab_data import SIGMA
 
-FANUC = Path(__file__).parent / "data" / "fanuc_r2000ic.toml"
+FANUC = "r2000ic_like"  # the shipped heavy arm (arm/robots/)
 J3_FROM_HORIZON = ((3, 2, -1.0),)  # theta_3 = q_3 - q_2
 
 

@@ -24,7 +24,7 @@ from lab import FitError, diagnose, fit
 from tests._lab_data import SIGMA, campaign
 from tests.conftest import random_q, rokae_arm
 
-FANUC = Path(__file__).parent / "data" / "fanuc_r2000ic.toml"
+FANUC = "r2000ic_like"  # the shipped heavy arm (arm/robots/)
 
 
 def _arms() -> dict[str, RobotDescription]:
