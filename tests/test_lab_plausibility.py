@@ -3,7 +3,6 @@ parameter, declared by its effect (a user's too), the likely cause named, an exp
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
