@@ -52,6 +52,7 @@ __all__ = [
     "OneLineErrors",
     "OrientationUnitOpt",
     "OutliersOpt",
+    "ReferencesOpt",
     "RobotOpt",
     "ValidateOpt",
     "check_outputs",
@@ -254,6 +255,17 @@ ValidateOpt = Annotated[
         "--validate", help="Held-out measurements (same units) for validation RMS and median."
     ),
 ]
+ReferencesOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--references",
+        help="Reference points measured at a station the calibration has not seen (a "
+        "measurement CSV, same units: at least 3 points not on one line with their joints, or "
+        "6-DoF rows): the station's frame is fitted on them alone, the arm as calibrated, and "
+        "its residual printed; they stay out of any validation figure.",
+        metavar="REFS.csv",
+    ),
+]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the JSON object only.")]
 JsonOutOpt = Annotated[
     Path | None,
@@ -276,6 +288,7 @@ class LabArgs:
     robot: RobotOpt = "seed"
     effects: EffectsOpt = "geometric"
     validate: ValidateOpt = None
+    references: ReferencesOpt = None
     noise_mm: NoiseOpt = _LAB_DEFAULT.noise_mm
     noise_ppm: NoisePpmOpt = _LAB_DEFAULT.noise_ppm
     noise_mrad: NoiseMradOpt = _LAB_DEFAULT.noise_mrad
@@ -309,7 +322,9 @@ class LabArgs:
         parsed effects to the lab, which takes them as they are (parsed once)."""
         opts = self.options()
         check_outputs(
-            outputs, [data, self.validate, self.robot, *(self.effect_module or ())], as_json
+            outputs,
+            [data, self.validate, self.references, self.robot, *(self.effect_module or ())],
+            as_json,
         )
         load_modules(self.effect_module)
         effects = parse_effects(self.effects)
@@ -320,6 +335,18 @@ class LabArgs:
             None if self.validate is None else read_data(self.validate, *units, option="--validate")
         )
         return arm, meas, val, opts, effects
+
+    def read_references(self) -> Any:
+        """The ``--references`` measurement set (None when not given), in the data's units."""
+        if self.references is None:
+            return None
+        if self.validate is None:
+            fail(
+                f"--references {self.references}: reference points register the station of "
+                "--validate's data; give --validate too"
+            )
+        units = (self.length_unit, self.angle_unit, self.orientation_unit, self.measured)
+        return read_data(self.references, *units, option="--references")
 
     def next_step(self) -> dict[str, Any]:
         """The options that a printed next step must repeat to work on the same data (the arm,
@@ -344,6 +371,7 @@ class LabArgs:
             "--robot": _given(self.robot, default.robot),
             "--effects": _given(self.effects, default.effects),
             "--validate": self.validate,
+            "--references": self.references,
             "--noise-mm": self.noise_mm,
             "--noise-ppm": self.noise_ppm or None,
             "--noise-mrad": self.noise_mrad,
