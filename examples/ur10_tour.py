@@ -9,7 +9,9 @@
   has not seen) as a program to compensate: its joints (q1..q6) and the points the arm reached
   there, measured from A's station (x, y, z): the targets, in that station's frame;
 * ``tour/A_references.csv``: ``--references`` other measured poses of A: the reference points
-  that register A's station.
+  that register A's station;
+* ``tour/D_references.csv``: ``--references`` poses of D, which register D's station where a
+  calibration of B alone is validated on D (they are left out of the validation figure).
 
 The program's poses keep away from the wrist's and the elbow's singularities (|q5| and |q3| at
 least ``--clear`` rad), where the compensation of a program is a question of its own. Rows are
@@ -71,9 +73,14 @@ def main(argv: list[str] | None = None) -> int:
     atomic_write_text(out / "BD.csv", "\n".join([header_b, *joined]) + "\n")
     atomic_write_text(out / "A_program.csv", "\n".join([header_a, *(a[i] for i in program)]) + "\n")
     atomic_write_text(out / "A_references.csv", "\n".join([header_a, *(a[i] for i in refs)]) + "\n")
+    d_refs = sorted(rng.choice(len(d), min(args.references, len(d)), False))
+    atomic_write_text(
+        out / "D_references.csv", "\n".join([header_d, *(d[i] for i in d_refs)]) + "\n"
+    )
     print(
         f"wrote {out / 'BD.csv'} ({len(joined)} poses of B and D), {out / 'A_program.csv'} "
-        f"({len(program)} poses of A) and {out / 'A_references.csv'} ({len(refs)} of A)"
+        f"({len(program)} poses of A), {out / 'A_references.csv'} ({len(refs)} of A) and "
+        f"{out / 'D_references.csv'} ({len(d_refs)} of D)"
     )
     return 0
 

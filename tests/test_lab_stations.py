@@ -8,6 +8,7 @@ to a URDF with its module."""
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -231,3 +232,186 @@ def test_a_bags_discovered_effect_goes_to_a_urdf_with_its_module(tmp_path):
     finally:
         for extra in set(EFFECTS) - before:
             del EFFECTS[extra]
+
+
+# -- the command line --------------------------------------------------------------------------------
+def _targets_csv(program: TargetSet, path, station: bool = True):
+    cols = ["q1", "q2", "q3", "q4", "q5", "q6", "x", "y", "z"] + (["station"] if station else [])
+    rows = [
+        ",".join(
+            [*map(repr, map(float, q)), *map(repr, map(float, x))]
+            + ([str(int(s))] if station else [])
+        )
+        for q, x, s in zip(program.q, program.xyz, program.columns["station"], strict=True)
+    ]
+    path.write_text(",".join(cols) + "\n" + "\n".join(rows) + "\n")
+    return path
+
+
+def _joints(path) -> np.ndarray:
+    table = np.genfromtxt(path, delimiter=",", names=True, skip_header=1)
+    return np.column_stack([table[f"q{j}"] for j in range(1, 7)])
+
+
+def test_the_command_line_registers_a_new_station_for_compensate(calibrated, tmp_path):
+    """`lab compensate --references`: through the TOML and the URDF, the same joints and the
+    registration's residual said; without them, one error line that says how to register."""
+    import json
+
+    from arm.measurements import write_measurements
+    from tests._cli import lab as cli
+    from tests._cli import one_error_line
+
+    c, _res, _toml, _urdf, where = calibrated
+    program = _targets_csv(_program(c, 3), tmp_path / "program.csv")
+    refs = tmp_path / "refs.csv"
+    write_measurements(_references(c, 3), refs)
+    got = {}
+    for arm in ("cal.toml", "cal.urdf"):
+        out = tmp_path / f"joints_{arm}.csv"
+        args = [program, "--robot", where / arm, "--references", refs, "-o", out]
+        r = cli("compensate", *args)
+        assert r.exit_code == 0, r.output
+        assert "station 3 registered on 4 reference points of" in r.stdout
+        got[arm] = _joints(out)
+        r = cli("compensate", *args, "--json")
+        summary = json.loads(r.stdout)
+        assert summary["registration"]["station"] == 3 and summary["converged"] == 10
+        r = cli("compensate", program, "--robot", where / arm, "-o", tmp_path / "x.csv")
+        assert r.exit_code == 2 and "Traceback" not in r.output
+        said = r.stderr.splitlines()  # the URDF's note (read with its metrology file), the error
+        assert said[-1].startswith("error: ") and "station(s) [3] not among" in said[-1]
+        assert "--references REFS.csv" in said[-1] and len(said) == 1 + arm.endswith(".urdf")
+    assert np.max(np.abs(got["cal.toml"] - got["cal.urdf"])) < 1e-9
+    two = tmp_path / "two.csv"
+    write_measurements(_references(c, 3, n=2), two)
+    r = cli("compensate", program, "--robot", where / "cal.toml", "--references", two)
+    one_error_line(r, "two.csv", "2 reference point(s)", "at least 3")
+    r = cli("compensate", program, "--robot", where / "cal.toml", "--references", tmp_path / "no")
+    one_error_line(r, "--references")
+
+
+def test_the_command_line_validates_a_new_station_on_its_references(tmp_path):
+    """`lab fit --validate NEW.csv --references REFS.csv`: the new station registered on the
+    references, which stay out of the figure; without them, or references without --validate,
+    one error line."""
+    import json
+
+    from arm.measurements import write_measurements
+    from tests._cli import lab as cli
+    from tests._cli import one_error_line
+
+    c = pose_campaign(load_robot(ROBOT), seed=7)
+    data, val, refs = tmp_path / "data.csv", tmp_path / "val.csv", tmp_path / "refs.csv"
+    write_measurements(c.measure(120, stations=(1, 2))[0], data)
+    write_measurements(c.measure(30, stations=(3,))[0], val)
+    write_measurements(_references(c, 3, n=5), refs)
+    common = [data, "--robot", ROBOT, "--measured", "x,y,z", "--noise-mm", 0.015]
+    r = cli("fit", *common, "--validate", val, "--references", refs, "--json")
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert out["validation_registered"] == [3]
+    (reg,) = out["validation_registrations"]
+    assert reg["n_points"] == 5 and reg["source"] == str(refs)
+    assert out["validation_rms_mm"] < 0.2
+    r = cli("fit", *common, "--validate", val, "--references", refs)
+    assert "validation: station 3 registered on 5 reference points" in r.stdout
+    one_error_line(cli("fit", *common, "--validate", val), "station(s) 3", "--references")
+    one_error_line(cli("fit", *common, "--references", refs), "--references", "--validate")
+
+
+def test_the_command_line_exports_a_saved_calibration(calibrated, tmp_path):
+    """`lab export --from`: TOML -> URDF (the nominal arm's URDF by --robot) and back, without
+    refitting; DATA and --from are alternatives, exactly one; the fit's options are refused."""
+    from tests._cli import lab as cli
+    from tests._cli import one_error_line
+
+    _c, _res, toml, _urdf, where = calibrated
+    out = tmp_path / "again.urdf"
+    r = cli("export", "--from", where / "cal.toml", "--robot", ROBOT, "-o", out)
+    assert r.exit_code == 0, r.output
+    assert "tracker frames of its stations" in r.stdout
+    assert description_difference(toml, read_calibrated_urdf(out)) < 1e-9
+    r = cli("export", "--from", out, "-o", tmp_path / "back.toml")
+    assert r.exit_code == 0, r.output
+    assert description_difference(toml, load_robot(tmp_path / "back.toml")) < 1e-9
+    one_error_line(
+        cli("export", where / "x.csv", "--from", where / "cal.toml"), "DATA.csv", "not both"
+    )
+    one_error_line(cli("export", "-o", tmp_path / "y.toml"), "--from", "one of them")
+    one_error_line(
+        cli("export", "--from", where / "cal.toml", "-o", tmp_path / "z.urdf"),
+        "records no URDF",
+        "--robot ARM.urdf",
+    )
+    one_error_line(
+        cli("export", "--from", where / "cal.toml", "--effects", "geometric,thermal"),
+        "--effects",
+        "nothing is fitted",
+    )
+    assert not (tmp_path / "z.urdf").exists()
+
+
+def test_the_command_line_bags_to_a_urdf(tmp_path):
+    """`lab bag --export FILE.urdf`: the averaged calibration as the calibrated URDF and its
+    metrology file (refused before: only a TOML), read back by --robot FILE.urdf."""
+    from arm.description import seed_robot
+    from arm.measurements import concatenate, write_measurements
+    from tests._cli import lab as cli
+    from tests._cli import one_error_line
+    from tests._lab_data import session
+
+    true = {"c2": 6e-6, "c3": 4e-6, "da2": 2e-4}
+    (tmp_path / "seed.urdf").write_text(seed_robot().to_urdf())
+    data = tmp_path / "two.csv"
+    two = concatenate([session(true, 150, 1, 11), session(true, 60, 2, 12)])
+    two.columns["station"] = two.columns.pop("session")  # one tracker station per session
+    write_measurements(two, data)
+    urdf = tmp_path / "bagged.urdf"
+    common = ["--robot", tmp_path / "seed.urdf", "--bags", 2, "--poses", 100, "--noise-mm", 0.015]
+    r = cli("bag", data, *common, "--export", urdf)
+    assert r.exit_code == 0, r.output
+    assert urdf.is_file() and (tmp_path / "bagged.metrology.toml").is_file()
+    back = read_calibrated_urdf(urdf)
+    assert "compliance" in back.effects
+    r = cli("compensate", data, "--robot", urdf, "--free-orientation", "-o", tmp_path / "j.csv")
+    assert r.exit_code == 0, r.output
+    # an arm read from a TOML has no URDF to correct: refused before the draws
+    r = cli("bag", data, "--bags", 1, "--export", tmp_path / "x.urdf")
+    one_error_line(r, "not read from a URDF")
+    assert not (tmp_path / "x.urdf").exists()
+
+
+def test_the_ur10_tour_through_the_urdf_and_the_toml(tmp_path, monkeypatch):
+    """docs/lab.md's tour, its files cut by examples/ur10_tour.py: B and D (stations 2 and 4)
+    calibrated, exported as a URDF and from it as a TOML; 40 of A's poses (station 1, unseen)
+    registered on 4 of A's points and compensated through each: every point converges, the two
+    give the same joints to 1e-6 rad, and the start error (the calibration's residual at those
+    poses) is printed beside the joint change."""
+    import json
+    import runpy
+
+    from tests._cli import lab as cli
+
+    monkeypatch.chdir(tmp_path)
+    tour = runpy.run_path(str(Path(__file__).resolve().parents[1] / "examples" / "ur10_tour.py"))
+    assert tour["main"](["-o", "tour"]) == 0
+    fit_args = ["--robot", "ur10_robot", "--effects", "geometric,compliance[2,3]"]
+    noise = ["--noise-mm", 0.015, "--noise-ppm", 6]
+    r = cli("export", "tour/BD.csv", *fit_args, *noise, "-o", "ur10.urdf")
+    assert r.exit_code == 0, r.output
+    r = cli("export", "--from", "ur10.urdf", "-o", "ur10.toml")
+    assert r.exit_code == 0, r.output
+    joints = {}
+    for arm in ("ur10.urdf", "ur10.toml"):
+        out = f"joints_{arm}.csv"
+        args = ["tour/A_program.csv", "--robot", arm, "--references", "tour/A_references.csv"]
+        r = cli("compensate", *args, "-o", out, "--json")
+        assert r.exit_code == 0, r.output
+        summary = json.loads(r.stdout)
+        assert summary["converged"] == summary["n_targets"] == 40
+        assert summary["registration"]["station"] == 1
+        assert summary["registration"]["n_points"] == 4
+        assert 0.1 < summary["start_rms_mm"] < 2.0  # the calibration's residual there
+        joints[arm] = _joints(out)
+    assert np.max(np.abs(joints["ur10.urdf"] - joints["ur10.toml"])) < 1e-6
