@@ -45,7 +45,7 @@ import scipy.linalg
 from scipy.linalg import lapack
 
 from agents.tool_model import BufferedFunction, ToolModel
-from arm.effects import Cyclic, Effect, parse_effects
+from arm.effects import Effect, parse_effects, union_of
 from arm.errormodel import ErrorModel
 from arm.kinematics import gravity_torques
 from arm.measurements import MeasurementSet
@@ -137,29 +137,7 @@ def merge_effects(model: ErrorModel, effects: str | Sequence[str | Effect]) -> l
     orders of each joint), a new one is appended. A diagnosis's
     suggestion (``geometric,backlash[1,5]``), which repeats the model's effects, merges to
     itself."""
-    order: list[str] = []
-    joints: dict[str, set[int] | None] = {}
-    orders: dict[int, set[int]] = {}  # a cyclic effect's orders per joint, merged
-    for e in [*model.effects, *parse_effects(effects)]:
-        if isinstance(e, Cyclic):
-            for j, ks in e.orders.items():
-                orders.setdefault(j, set()).update(ks)
-        if e.name not in joints:
-            order.append(e.name)
-            joints[e.name] = None if e.joints is None else set(e.joints)
-        elif joints[e.name] is not None:
-            if e.joints is None:
-                joints[e.name] = None
-            else:
-                joints[e.name] |= set(e.joints)  # type: ignore[operator]
-    out = []
-    for name in order:
-        if name == Cyclic.name and orders:
-            out.append(Cyclic({j: sorted(ks) for j, ks in orders.items()}).label)
-            continue
-        js = joints[name]
-        out.append(name if js is None else f"{name}[{','.join(map(str, sorted(js)))}]")
-    return out
+    return [e.label for e in union_of([*model.effects, *parse_effects(effects)])]
 
 
 class MeasurementBuffer:

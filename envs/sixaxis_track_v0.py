@@ -21,7 +21,7 @@ from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 from gymnasium.wrappers import TimeLimit
 
-from arm.constraints import Constraint, Interval, OneOf, TypeOf, description
+from arm.constraints import Constraint, Interval, OneOf, TypeOf, constraints_of, description
 from arm.description import RobotDescription, load_robot
 from arm.errors import SixAxisError
 from envs.instrument import InstrumentError, LaserTracker, TemperatureSensor, TrackerConfig
@@ -186,16 +186,17 @@ MAX_FRAME = 4096
 RENDER_MODES = ("rgb_array",)
 _CONTROL_DT = PHYSICS_DT * SUBSTEPS
 
+#: the tracker's options, as the instrument declares them (:class:`envs.instrument.TrackerConfig`)
+_TRACKER = constraints_of(TrackerConfig)
+_TRACKER_OPTIONS = ("noise_mm", "measure_every", "dropout", "latency_steps")
+
 #: what each plain option may be (:mod:`arm.constraints`; ``True``: None too), in the constructor's
 #: order; the scenario, the robot, the posture and the overrides are judged by the libraries that
 #: read them (:func:`envs.scenarios.draw_truth`, :func:`arm.description.load_robot`,
 #: :func:`envs.trajectories.check_posture`) and the instrument's options by its own rules too
 OPTION_CONSTRAINTS: dict[str, tuple[Constraint, bool]] = {
     "trajectory": (OneOf(KINDS), True),
-    "noise_mm": (Interval(float, 0.0, None, why="mm"), False),
-    "measure_every": (Interval(int, 1, None, why="control steps"), False),
-    "dropout": (Interval(float, 0.0, 1.0, closed="left", why="a probability"), False),
-    "latency_steps": (Interval(int, 0, None, why="control steps"), False),
+    **{k: (_TRACKER[k][0][0], False) for k in _TRACKER_OPTIONS},
     "measurements": (TypeOf(bool), False),
     "temperature_noise": (Interval(float, 0.0, None, why="K"), False),
     "temperature_lag": (Interval(float, 0.0, None, why="s"), False),

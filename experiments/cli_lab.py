@@ -28,13 +28,17 @@ import typer
 
 from arm.constraints import Interval, OneOf
 from arm.measurements import ANGLE_UNITS
+from arm.noise import NOISE_MM, NOISE_MRAD, NOISE_PPM
 from experiments.cli_inputs import (
+    INPUTS,
     AngleOpt,
     DataArg,
     EffectsOpt,
+    ExportInputs,
     JsonOpt,
     JsonOutOpt,
     LabArgs,
+    LabInputs,
     LengthOpt,
     ModuleOpt,
     ReferencesOpt,
@@ -43,9 +47,12 @@ from experiments.cli_inputs import (
     declared,
     lab_command,
     load_modules,
+    module_output,
+    option_of,
     parse_effects,
     read_arm,
     read_data,
+    refuse_noise,
     writing,
 )
 from experiments.cli_output import (
@@ -152,14 +159,15 @@ def fit_cmd(
     emit_json(result.to_dict(), as_json, out)
 
 
+AlphaOpt = Annotated[float, declared(ALPHA, "alpha")]
+
+
 # -- diagnose ---------------------------------------------------------------------------------------
 @lab_command(app, "diagnose", omit=("validate", "references"))
 def diagnose_cmd(
     data: DataArg,
     lab: LabArgs,
-    alpha: Annotated[
-        float, declared(ALPHA, "alpha", "Family-wise false-alarm rate of the tests.")
-    ] = 0.02,
+    alpha: AlphaOpt = 0.02,
     as_json: JsonOpt = False,
     out: JsonOutOpt = None,
 ) -> None:
@@ -174,7 +182,7 @@ def diagnose_cmd(
     with user_errors(), console.status("fitting and testing the candidate effects..."):
         d = diagnose(meas, arm, effects, options=opts, alpha=alpha)
     if not as_json:
-        print_diagnosis(d, data, lab.next_step())
+        print_diagnosis(d, data, {c: lab.next_step(c) for c in ("fit", "discover")})
     emit_json(d.to_dict(), as_json, out)
 
 
@@ -190,34 +198,21 @@ DiscoverEffectsOpt = Annotated[
 ]
 
 
-@lab_command(app, "discover", omit=("loss", "outliers", "accept_large"), effects=DiscoverEffectsOpt)
+@lab_command(
+    app,
+    "discover",
+    omit=("loss", "outliers", "accept_large", "f_scale_mm"),
+    effects=DiscoverEffectsOpt,
+)
 def discover_cmd(
     data: DataArg,
     output: Annotated[
-        Path | None,
-        typer.Option(
-            "--output",
-            "-o",
-            help="The effect module (Python) to write when terms are found; load it with "
-            "--effect-module. Nothing is written when nothing is found.",
-            metavar="MODULE.py",
-        ),
+        Path | None, module_output("when terms are found (nothing when nothing is found)")
     ] = None,
     *,
     lab: LabArgs,
-    alpha: Annotated[
-        float,
-        declared(ALPHA, "alpha", "Family-wise false-discovery rate (as diagnose's --alpha)."),
-    ] = 0.02,
-    order: Annotated[
-        int,
-        declared(
-            ORDER,
-            "order",
-            "The highest harmonic sin/cos(m*q) per turn scanned on every joint (fewer on a "
-            "joint whose sampling resolves fewer: a grid aliases high orders).",
-        ),
-    ] = 64,
+    alpha: AlphaOpt = 0.02,
+    order: Annotated[int, declared(ORDER, "order")] = 64,
     name: Annotated[
         str, typer.Option(help="The discovered effect's name (lower case, digits, _).")
     ] = "discovered",
@@ -253,7 +248,7 @@ def discover_cmd(
         with user_errors(), writing(output):
             written = d.write_module(output)
     if not as_json:
-        print_discovery(d, written, data, lab.next_step())
+        print_discovery(d, written, data, lab.next_step("fit"))
     emit_json(d.to_dict(), as_json, out)
 
 
@@ -263,12 +258,9 @@ def bag_cmd(
     data: DataArg,
     output: Annotated[
         Path | None,
-        typer.Option(
-            "--output",
-            "-o",
-            help="The effect module (Python) of every draw's discovered terms, when there are "
-            "any; the averaged values are in --json.",
-            metavar="MODULE.py",
+        module_output(
+            "of every draw's discovered terms, when there are any (the averaged values are in "
+            "--json)"
         ),
     ] = None,
     *,
@@ -390,9 +382,7 @@ def report_cmd(
     ),
     *,
     lab: LabArgs,
-    rounds: Annotated[
-        int, declared(ROUNDS, "rounds", "At most this many rounds of diagnose-and-refit.")
-    ] = 3,
+    rounds: Annotated[int, declared(ROUNDS, "rounds")] = 3,
 ) -> None:
     """Fit, diagnose, refit what the diagnosis suggests; write an HTML report.
 
@@ -402,14 +392,7 @@ def report_cmd(
     from lab.report_html import write as write_html
 
     arm, meas, val, opts, effects = lab.read(data, [(output, "--output")])
-    flags = lab.flags()
-    screening = {k: flags.pop(k) for k in ("--outliers", "--accept-large")}
-    command = command_line(
-        "lab",
-        "report",
-        data,
-        **{"-o": output, **flags, "--rounds": None if rounds == 3 else rounds, **screening},
-    )
+    command = command_line("lab", "report", data, **lab.flags())
     t0 = time.perf_counter()
     with steps() as step:
         with user_errors():
@@ -440,8 +423,8 @@ def plan_cmd(
     output: Annotated[
         Path, typer.Option("--output", "-o", help="The poses CSV to write (q1..q6).")
     ] = Path("poses.csv"),
-    robot: RobotOpt = "seed",
-    effects: EffectsOpt = "geometric",
+    robot: RobotOpt = INPUTS.robot,
+    effects: EffectsOpt = INPUTS.effects,
     effect_module: ModuleOpt = None,
     candidates: Annotated[
         int, typer.Option(help="Random candidate poses (within the limits) to choose from.")
@@ -458,21 +441,20 @@ def plan_cmd(
     noise_mm: Annotated[
         float,
         declared(
-            Interval(float, 0.0, None, closed="neither"),
+            NOISE_MM,
             "noise_mm",
-            "The instrument's per-axis noise (mm): parameters that N poses cannot determine "
-            "above it are not planned for.",
+            "Parameters that N poses cannot determine above it are not planned for.",
         ),
     ] = 0.015,
     seed: Annotated[int, typer.Option(help="Seed of the random candidates.")] = 0,
-    angle_unit: AngleOpt = "rad",
+    angle_unit: AngleOpt = INPUTS.angle_unit,
     noise_mrad: Annotated[
         float | None,
         declared(
-            Interval(float, 0.0, None, closed="neither"),
+            NOISE_MRAD,
             "noise_mrad",
-            "Plan for an instrument that measures the tool frame's orientation too, with this "
-            "per-axis noise (mrad): six rows a pose, weighted against the position's.",
+            "Plan for an instrument that measures the tool frame's orientation too: six rows a "
+            "pose, weighted against the position's.",
         ),
     ] = None,
     as_json: JsonOpt = False,
@@ -484,6 +466,7 @@ def plan_cmd(
     from arm.measurements import write_poses
     from lab import plan
 
+    refuse_noise(noise_mm, 0.0, noise_mrad)
     check_outputs([(output, "--output")], [robot, *(effect_module or ())], as_json)
     load_modules(effect_module)
     parsed = parse_effects(effects)
@@ -520,8 +503,7 @@ CollectNOpt = Annotated[
     int, declared(Interval(int, 1, None), "n", "Random poses to measure.", "--n", "-n")
 ]
 CollectNoiseMmOpt = Annotated[
-    float,
-    declared(Interval(float, 0.0, None), "noise_mm", "The tracker's per-axis noise (mm)."),
+    float, declared(NOISE_MM, "noise_mm", "The simulated tracker's; 0: none drawn.")
 ]
 CollectSeedOpt = Annotated[int, typer.Option(help="Seed of the poses, the motions and the noise.")]
 CollectArmSeedOpt = Annotated[
@@ -544,15 +526,7 @@ CollectAngleUnitOpt = Annotated[
         "sixaxis lab plan writes it; else rad).",
     ),
 ]
-CollectNoisePpmOpt = Annotated[
-    float,
-    declared(
-        Interval(float, 0.0, None),
-        "noise_ppm",
-        "The noise grows with the distance from the tracker: sigma = --noise-mm + "
-        "--noise-ppm um per m of distance, per axis.",
-    ),
-]
+CollectNoisePpmOpt = Annotated[float, declared(NOISE_PPM, "noise_ppm")]
 CollectStationsOpt = Annotated[
     int,
     declared(
@@ -580,8 +554,7 @@ CollectOrientationOpt = Annotated[
     ),
 ]
 CollectNoiseMradOpt = Annotated[
-    float,
-    declared(Interval(float, 0.0, None), "noise_mrad", "The orientation's per-axis noise (mrad)."),
+    float, declared(NOISE_MRAD, "noise_mrad", "The simulated probe's, with --orientation.")
 ]
 CollectOrientationFractionOpt = Annotated[
     float,
@@ -608,7 +581,7 @@ def collect_cmd(
     arm_seed: CollectArmSeedOpt = None,
     poses: CollectPosesOpt = None,
     angle_unit: CollectAngleUnitOpt = None,
-    robot: RobotOpt = "seed",
+    robot: RobotOpt = INPUTS.robot,
     noise_ppm: CollectNoisePpmOpt = 0.0,
     stations: CollectStationsOpt = 0,
     first_station: CollectFirstStationOpt = 1,
@@ -695,17 +668,7 @@ def export_cmd(
     ] = None,
     *,
     lab: LabArgs,
-    source: Annotated[
-        Path | None,
-        typer.Option(
-            "--from",
-            help="A saved calibration (a robot TOML from lab export or lab bag --export, or a "
-            "calibrated URDF with its metrology file) to export again without refitting, in "
-            "place of DATA; to a URDF, --robot names the nominal arm's URDF where the file "
-            "records none.",
-            metavar="CAL.toml|CAL.urdf",
-        ),
-    ] = None,
+    source: Annotated[Path | None, option_of(ExportInputs, "source")] = None,
     name: Annotated[
         str | None, typer.Option(help="The calibrated arm's name (default: <robot>-calibrated).")
     ] = None,
@@ -740,7 +703,7 @@ def export_cmd(
     export_format = export_format_of(output, export_format)
     if output is None:
         output = Path(f"calibrated.{export_format}")
-    outputs = [(output, "--output")]
+    outputs: list[tuple[Path | None, str]] = [(output, "--output")]
     if export_format == "urdf":
         outputs.append((metrology_path(output), "--output's metrology file"))
     if source is not None:
@@ -777,6 +740,10 @@ def _said_urdf(output: Path, out) -> None:
         say(f"wrote {m}, the module of its discovered effect: --effect-module {m}")
 
 
+# what `lab export --from` takes of the shared options: the nominal arm, the effect modules
+_SAVED_FLAGS = ("--robot", "--effect-module", "--from", "--output", "--name", "--format")
+
+
 def _export_saved(
     source: Path,
     output: Path,
@@ -799,7 +766,7 @@ def _export_saved(
     load_modules(lab.effect_module)
     cal = read_arm(str(source), "--from")
     if export_format == "urdf":
-        nominal = None if lab.robot == LabArgs().robot else read_arm(lab.robot)
+        nominal = None if lab.robot == INPUTS.robot else read_arm(lab.robot)
         with user_errors(), writing(output):
             out = export_urdf(cal, output, name=name, nominal=nominal)
         _said_urdf(output, out)
@@ -807,10 +774,6 @@ def _export_saved(
     with user_errors(), writing(output):
         back = export_robot(cal, output, name=name)
     say(f"wrote the calibrated arm {back.name!r} to {output}; use it with --robot {output}")
-
-
-# what `lab export --from` takes of the shared options: the nominal arm, the effect modules
-_SAVED_FLAGS = ("--robot", "--effect-module")
 
 
 def export_format_of(output: Path | None, given: str | None) -> str:
@@ -839,8 +802,7 @@ def compensate_cmd(
         ),
     ],
     robot: Annotated[
-        str,
-        typer.Option("--robot", "-r", help="The calibrated arm (a TOML from sixaxis lab export)."),
+        str, option_of(LabInputs, "robot", lead="The calibrated arm (from sixaxis lab export).")
     ],
     output: Annotated[
         Path, typer.Option("--output", "-o", help="The joint-angle CSV to write.")
@@ -868,8 +830,8 @@ def compensate_cmd(
         ),
     ] = None,
     effect_module: ModuleOpt = None,
-    length_unit: LengthOpt = "m",
-    angle_unit: AngleOpt = "rad",
+    length_unit: LengthOpt = INPUTS.length_unit,
+    angle_unit: AngleOpt = INPUTS.angle_unit,
     references: ReferencesOpt = None,
     keep_unreached: Annotated[
         bool,

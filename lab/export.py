@@ -879,6 +879,19 @@ def _nominal_start(
     return q_start, ok_start
 
 
+def _nominal_of(
+    cal: RobotDescription, nominal: RobotDescription | str | Path | None
+) -> tuple[RobotDescription, bool]:
+    """The arm the controller believes in: ``nominal`` where given, else the one the calibrated
+    file records, else the arm itself; and whether that was taken without a record."""
+    if nominal is not None:
+        return (nominal if isinstance(nominal, RobotDescription) else load_robot(nominal)), False
+    # a shipped arm is its own nominal; one that carries a calibration's marks (effect values,
+    # Hayati's beta) and no record of its nominal arm was exported before the record existed
+    calibrated = bool(cal.effects) or any(j.beta for j in cal.joints)
+    return (cal.nominal if cal.nominal is not None else cal), cal.nominal is None and calibrated
+
+
 def compensate(
     robot: RobotDescription | str | Path,
     targets: TargetSet | np.ndarray,
@@ -930,15 +943,7 @@ def compensate(
             "free and the arm may turn its wrist anyhow; give one of them, or ask for a free "
             "orientation (--free-orientation)"
         )
-    if nominal is None:
-        # a shipped arm is its own nominal; one that carries a calibration's marks (effect values,
-        # Hayati's beta) and no record of its nominal arm was exported before the record existed
-        calibrated = bool(cal.effects) or any(j.beta for j in cal.joints)
-        unrecorded = cal.nominal is None and calibrated
-        nom = cal.nominal if cal.nominal is not None else cal
-    else:
-        unrecorded = False
-        nom = nominal if isinstance(nominal, RobotDescription) else load_robot(nominal)
+    nom, unrecorded = _nominal_of(cal, nominal)
     cal = cal.to_modified()
     cols = dict(targets.columns) | {
         k: np.asarray(v, dtype=float) for k, v in (columns or {}).items()
