@@ -415,3 +415,29 @@ def test_the_ur10_tour_through_the_urdf_and_the_toml(tmp_path, monkeypatch):
         assert 0.1 < summary["start_rms_mm"] < 2.0  # the calibration's residual there
         joints[arm] = _joints(out)
     assert np.max(np.abs(joints["ur10.urdf"] - joints["ur10.toml"])) < 1e-6
+
+
+@pytest.mark.parametrize("command", ["discover", "report", "export", "bag"])
+def test_every_command_that_validates_takes_references(command, tmp_path):
+    """--validate at a station the fit has not seen: refused without --references in one line
+    that says how to register it, run with them (the flag is declared once for every command
+    that validates)."""
+    from arm.measurements import write_measurements
+    from tests._cli import lab as cli
+    from tests._cli import one_error_line
+
+    c = pose_campaign(load_robot(ROBOT), seed=8)
+    data, val, refs = tmp_path / "data.csv", tmp_path / "val.csv", tmp_path / "refs.csv"
+    write_measurements(c.measure(80, stations=(1, 2))[0], data)
+    write_measurements(c.measure(20, stations=(3,))[0], val)
+    write_measurements(_references(c, 3, n=4), refs)
+    out = {
+        "discover": [],
+        "report": ["-o", tmp_path / "r.html", "--rounds", 0],
+        "export": ["-o", tmp_path / "cal.toml"],
+        "bag": ["--bags", 1],
+    }[command]
+    common = [data, "--robot", ROBOT, "--measured", "x,y,z", "--noise-mm", 0.015, *out]
+    one_error_line(cli(command, *common, "--validate", val), "station(s) 3", "--references")
+    r = cli(command, *common, "--validate", val, "--references", refs)
+    assert r.exit_code == 0, r.output
