@@ -11,14 +11,15 @@ modes, ``bool`` is true or false, ``| None`` lets None through, and :func:`decla
         loss: Literal["linear", "huber"] = "linear"
 
         def __post_init__(self) -> None:
-            refuse(problems(self), ValueError)
+            refuse(problems(self), OptionsError)  # a SixAxisError and a ValueError
 
     Options(noise_mm=-1, loss="l2")
-    # ValueError: noise_mm must be positive, got -1; loss must be one of linear, huber, got 'l2'
+    # OptionsError: noise_mm must be positive, got -1; loss must be one of linear, huber, got 'l2'
 
 The same constraints feed the command line's choices and ranges (:func:`choices`,
 :func:`Interval.bounds`) and the checks of a mapping (a TOML table, an agent's settings) with
-:func:`check`. Plain data and the standard library only: every layer can use it.
+:func:`check`. Plain data, the standard library and :mod:`arm.errors` only: every layer can use
+it.
 
 A declaration also says what a value is (``help=``, ``unit=``), so that a command line's option
 is made from it (``experiments.cli_inputs.option_of``) and nothing about an option is written
@@ -38,6 +39,8 @@ import typing
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol
+
+from arm.errors import UnknownNameError
 
 __all__ = [
     "NON_NEGATIVE",
@@ -306,7 +309,7 @@ def declaration(cls: type, name: str) -> Mapping[str, Any]:
     for f in dataclasses.fields(cls):
         if f.name == name:
             return f.metadata
-    raise KeyError(f"{cls.__name__} has no field {name!r}")
+    raise UnknownNameError(f"{cls.__name__} has no field {name!r}")
 
 
 @dataclass(frozen=True)
@@ -407,7 +410,7 @@ def choices(cls: type, name: str) -> tuple[Any, ...]:
     for c in constraints_of(cls)[name][0]:
         if isinstance(c, OneOf):
             return c.values
-    raise KeyError(f"{cls.__name__}.{name} is not a choice of modes")
+    raise UnknownNameError(f"{cls.__name__}.{name} is not a choice of modes")
 
 
 def check(

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from arm.constraints import NON_NEGATIVE, Quantity, check, refuse
-from arm.errors import SixAxisError
+from arm.errors import NoiseError
 from arm.measurements import MeasurementSet
 
 __all__ = [
@@ -38,10 +38,6 @@ __all__ = [
     "NoiseError",
     "noise_law_problems",
 ]
-
-
-class NoiseError(SixAxisError, ValueError):
-    """A noise setting out of range, or a data set whose uncertainty is not stated."""
 
 
 def _flag(key: str) -> str:

@@ -11,7 +11,7 @@ import numpy as np
 
 from arm.description import RobotDescription
 from arm.errormodel import ErrorModel
-from arm.errors import SixAxisError
+from arm.errors import SamplingError
 from arm.kinematics import Chain, tool_points
 
 __all__ = [
@@ -33,10 +33,6 @@ MAX_POSES = 1_000_000
 #: random poses tried per pose wanted (at least ``_MIN_TRIES`` in all) before concluding that the
 #: arm never lifts its tool above the floor
 _TRIES_PER_POSE, _MIN_TRIES = 1000, 100_000
-
-
-class SamplingError(SixAxisError, ValueError):
-    """A seed or a count that cannot be drawn from, or an arm whose poses cannot be sampled."""
 
 
 def rng_from(seed: int | np.random.Generator | None, what: str = "seed") -> np.random.Generator:

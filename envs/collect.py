@@ -28,11 +28,11 @@ import numpy as np
 
 from arm.constraints import Constraint, Interval, check, refuse
 from arm.description import RobotDescription, load_robot
-from arm.errors import SixAxisError
 from arm.measurements import MeasurementSet, write_measurements
 from arm.noise import NOISE_MM, NOISE_MRAD, NOISE_PPM
 from arm.sampling import SamplingError, check_count, rng_from, sample_poses
 from arm.so3 import rotation_matrix, rotation_vector
+from envs.errors import CollectError, DivergedError
 from envs.instrument import TrackerStation, place_stations
 
 if TYPE_CHECKING:
@@ -51,10 +51,6 @@ CAMPAIGN_RULES: dict[str, tuple[list[Constraint], bool]] = {
     "noise_mrad": ([NOISE_MRAD.rule], False),
     "orientation_fraction": ([Interval(float, 0.0, 1.0, why="a fraction of the rows")], False),
 }
-
-
-class CollectError(SixAxisError, ValueError):
-    """Poses or payloads that cannot be measured: a wrong shape, NaN, outside the joint limits."""
 
 
 APPROACH = 0.03  # rad: each joint's last move towards the pose
@@ -307,7 +303,7 @@ def _measure_poses(
                 break
             ref = ref + miss
         if plant.diverged():
-            raise RuntimeError(f"the simulation diverged at pose {i}: {q}")
+            raise DivergedError(f"the simulation diverged at pose {i}: {q}")
         q_out[i] = plant.q
         world[i] = plant.tool_point()
         frames[i] = plant.tool_frame()

@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from arm.constraints import Interval, declare, problems, refuse
-from arm.errors import SixAxisError
 from arm.noise import NOISE_MM
 from arm.so3 import rotation_matrix, rotation_vector
+from envs.errors import InstrumentError
 
 __all__ = [
     "InstrumentError",
@@ -36,10 +36,6 @@ __all__ = [
     "TrackerStation",
     "place_stations",
 ]
-
-
-class InstrumentError(SixAxisError, ValueError):
-    """An instrument setting out of range."""
 
 
 @dataclass(frozen=True)

@@ -78,7 +78,9 @@ __all__ = [
     "parse_effects",
     "read_arm",
     "read_data",
+    "read_sessions",
     "refuse_noise",
+    "sessions_json",
     "writing",
 ]
 
@@ -299,9 +301,12 @@ EffectsOpt = Annotated[str, option_of(LabInputs, "effects")]
 
 
 DataArg = Annotated[
-    Path,
+    list[Path],
     typer.Argument(
-        help="A measurement CSV (docs/format.md, the measurement CSV).", metavar="DATA.csv"
+        help="Measurement CSV files (docs/format.md, the measurement CSV), each a session: a "
+        "station column decides a row's station, a file without one is a station of its own, "
+        "the same id in two files is the same station.",
+        metavar="DATA.csv...",
     ),
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the JSON object only.")]
@@ -381,25 +386,26 @@ class LabArgs(LabInputs):
 
     def read(
         self,
-        data: Path,
+        data: Sequence[Path],
         outputs: Sequence[tuple[Path | None, str]] = (),
         as_json: bool = False,
     ) -> Read:
         """The options checked, the output places checked, the effect modules registered, the
         effects parsed (a bad ``--effects`` refused before the data are read), the robot and the
-        data read. The command hands the parsed effects to the lab, which takes them as they are
-        (parsed once)."""
+        data read, several files joined as sessions (:func:`read_sessions`): (arm, data,
+        held-out data or None, options, effects). The command hands the parsed effects to the
+        lab, which takes them as they are (parsed once)."""
         opts = self.options()
         check_outputs(
             outputs,
-            [data, self.validate, self.references, self.robot, *(self.effect_module or ())],
+            [*data, self.validate, self.references, self.robot, *(self.effect_module or ())],
             as_json,
         )
         load_modules(self.effect_module)
         effects = parse_effects(self.effects)
         arm = read_arm(self.robot)
         units = (self.length_unit, self.angle_unit, self.orientation_unit, self.measured)
-        meas = read_data(data, *units)
+        meas = read_sessions(data, *units)
         val = (
             None if self.validate is None else read_data(self.validate, *units, option="--validate")
         )
@@ -630,6 +636,34 @@ def read_data(
     for w in caught:  # on stderr: stdout carries the command's output (with --json, only it)
         err_console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
     return data
+
+
+def read_sessions(
+    paths: Sequence[Path],
+    length_unit: str,
+    angle_unit: str,
+    orientation_unit: str | None = None,
+    measured: str | None = None,
+) -> Any:
+    """The measurement files, each read as :func:`read_data` does, joined as the sessions they
+    are (:func:`arm.sessions.join_sessions`; what the join says, on stderr)."""
+    import warnings
+
+    from arm.measurements import MeasurementWarning
+    from arm.sessions import join_sessions
+
+    sets = [read_data(p, length_unit, angle_unit, orientation_unit, measured) for p in paths]
+    with user_errors(), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MeasurementWarning)
+        joined = join_sessions(sets)
+    for w in caught:
+        err_console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
+    return joined
+
+
+def sessions_json(data: Any) -> dict[str, Any]:
+    """The sessions a command's data were joined from, for its JSON (docs/format.md)."""
+    return {"sessions": [s.to_dict() for s in data.sessions]}
 
 
 def check_outputs(

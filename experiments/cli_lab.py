@@ -52,7 +52,9 @@ from experiments.cli_inputs import (
     parse_effects,
     read_arm,
     read_data,
+    read_sessions,
     refuse_noise,
+    sessions_json,
     writing,
 )
 from experiments.cli_output import (
@@ -69,14 +71,17 @@ from experiments.cli_output import (
     print_fit,
     print_plan,
     print_report,
+    print_sessions,
     say,
     steps,
     user_errors,
 )
-from lab.options import ALPHA, CRITERIA, EXPORT_FORMATS, ORDER, ROUNDS, LabOptions
+from lab.options import ALPHA, CRITERIA, EXPORT_FORMATS, ORDER, ROUNDS, LabOptions, UpdateOptions
 
 if TYPE_CHECKING:
     from arm.effects import Effect
+
+UPDATE = UpdateOptions()
 
 app = typer.Typer(
     help="The model lab: compare the model with measurements, find what it misses.",
@@ -155,8 +160,9 @@ def fit_cmd(
     arm, meas, val, opts, effects = lab.read(data, [(out, "--out")], as_json)
     result = _fitted(meas, arm, effects, opts, val, extrapolate, lab.read_references())
     if not as_json:
+        print_sessions(meas)
         print_fit(result)
-    emit_json(result.to_dict(), as_json, out)
+    emit_json(result.to_dict() | sessions_json(meas), as_json, out)
 
 
 AlphaOpt = Annotated[float, declared(ALPHA, "alpha")]
@@ -182,8 +188,9 @@ def diagnose_cmd(
     with user_errors(), console.status("fitting and testing the candidate effects..."):
         d = diagnose(meas, arm, effects, options=opts, alpha=alpha)
     if not as_json:
+        print_sessions(meas)
         print_diagnosis(d, data, {c: lab.next_step(c) for c in ("fit", "discover")})
-    emit_json(d.to_dict(), as_json, out)
+    emit_json(d.to_dict() | sessions_json(meas), as_json, out)
 
 
 # -- discover ---------------------------------------------------------------------------------------
@@ -248,8 +255,9 @@ def discover_cmd(
         with user_errors(), writing(output):
             written = d.write_module(output)
     if not as_json:
+        print_sessions(meas)
         print_discovery(d, written, data, lab.next_step("fit"))
-    emit_json(d.to_dict(), as_json, out)
+    emit_json(d.to_dict() | sessions_json(meas), as_json, out)
 
 
 # -- bag --------------------------------------------------------------------------------------------
@@ -344,6 +352,7 @@ def bag_cmd(
             else:
                 export_robot(b.result, export)
     if not as_json:
+        print_sessions(meas)
         print_fit(result)
         draws = "1 draw" if b.bags == 1 else f"{b.bags} draws"
         say(f"bag: {draws} of at most {poses} poses per session; effects: {b.suggestion}")
@@ -359,6 +368,7 @@ def bag_cmd(
             )
     emit_json(
         result.to_dict()
+        | sessions_json(meas)
         | {
             "bag": {
                 "bags": b.bags,
@@ -412,6 +422,123 @@ def report_cmd(
             write_html(rep, output)
         step(None)
     print_report(rep, output, time.perf_counter() - t0)
+
+
+# -- update -----------------------------------------------------------------------------------------
+@app.command("update")
+def update_cmd(
+    calibration: Annotated[
+        str,
+        typer.Argument(
+            help="The calibration to update: a robot TOML that sixaxis lab export (or lab bag "
+            "--export, lab update -o) wrote, or its calibrated URDF with the metrology file "
+            "beside it; it carries the parameters' covariance and spread (its uncertainty "
+            "table).",
+            metavar="CAL.toml",
+        ),
+    ],
+    data: DataArg,
+    output: Annotated[
+        Path | None,
+        typer.Option(
+            "--output",
+            "-o",
+            help="Write the updated calibration as a robot TOML (with its posterior "
+            "covariance): --robot FILE.toml anywhere, or updated again.",
+            metavar="FILE.toml",
+        ),
+    ] = None,
+    remount: Annotated[bool, option_of(UpdateOptions, "remount")] = UPDATE.remount,
+    noise_mm: Annotated[float | None, option_of(UpdateOptions, "noise_mm")] = UPDATE.noise_mm,
+    robot: Annotated[
+        str | None,
+        option_of(
+            LabInputs,
+            "robot",
+            lead="The arm the new poses were measured on, refused unless it is the one the "
+            "calibration calibrated (by name); default: not checked.",
+        ),
+    ] = None,
+    validate: Annotated[Path | None, option_of(LabInputs, "validate")] = None,
+    references: ReferencesOpt = None,
+    effect_module: ModuleOpt = None,
+    length_unit: LengthOpt = INPUTS.length_unit,
+    angle_unit: AngleOpt = INPUTS.angle_unit,
+    extrapolate: ExtrapolateOpt = False,
+    as_json: JsonOpt = False,
+    out: JsonOutOpt = None,
+) -> None:
+    """Update a calibration with a few poses of a new session or region (a MAP fit).
+
+    The calibration's parameters, with their covariance widened by the spread between the
+    sessions it was fitted on, are the prior; the new session's base (and with --remount the
+    tool) is fitted on the new poses alone; each effect is kept, refitted or dropped as the new
+    poses predict best. The result is a calibration like any other (-o: export, compensate)."""
+    from dataclasses import replace
+
+    from lab.export import export_robot
+    from lab.uncertainty import predicted_rms
+    from lab.update import prior_of, update
+
+    if output is not None and export_format_of(output, None) == "urdf":
+        fail(
+            f"--output {output}: an updated calibration is written as a robot TOML; give FILE.toml"
+        )
+    inputs = [calibration, *data, validate, references, robot, *(effect_module or ())]
+    check_outputs([(output, "--output"), (out, "--out")], inputs, as_json)
+    load_modules(effect_module)
+    cal = read_arm(calibration, "CAL")
+    arm = read_arm(robot) if robot is not None else None
+    meas = read_sessions(data, length_unit, angle_unit)
+    val = (
+        None
+        if validate is None
+        else read_data(validate, length_unit, angle_unit, option="--validate")
+    )
+    refs = None
+    if references is not None:
+        if val is None:
+            fail(f"--references {references}: they register --validate's station; give --validate")
+        refs = read_data(references, length_unit, angle_unit, option="--references")
+    with user_errors(), console.status(f"updating {calibration} with {len(meas)} poses..."):
+        prior = replace(prior_of(cal), source=calibration)
+        u = update(prior, meas, remount=remount, noise_mm=noise_mm, robot=arm)
+        result = (
+            u.result
+            if val is None
+            else u.result.validate(val, extrapolate=extrapolate, references=refs)
+        )
+        alone = predicted = None
+        if val is not None and u.prior_result is not None:
+            alone = u.prior_result.validate(val, extrapolate=extrapolate, references=refs)
+            predicted = (
+                predicted_rms(u.result, val, unseen=False),
+                predicted_rms(u.prior_result, val, unseen=True, u=u.prior.uncertainty),
+            )
+    if output is not None:
+        with user_errors(), writing(output):
+            export_robot(result, output)
+    if not as_json:
+        print_sessions(meas)
+        say(u.summary())
+        if alone is not None and val is not None:
+            say(
+                f"validation on {len(val)} points: RMS "
+                f"{result.validation_rms_mm:.4f} mm updated, {alone.validation_rms_mm:.4f} mm "
+                "the calibration alone (its base placed on the new poses)"
+            )
+        if predicted is not None:
+            say(f"updated: {predicted[0].text()}")
+            say(f"the calibration alone: {predicted[1].text()}")
+        if output is not None:
+            say(f"wrote the updated calibration to {output}; use it with --robot {output}")
+    summary = result.to_dict() | sessions_json(meas) | {"update": u.to_dict()}
+    if alone is not None:
+        summary["update"]["prior_validation_rms_mm"] = alone.validation_rms_mm
+    if predicted is not None:
+        summary["update"]["predicted"] = predicted[0].to_dict()
+        summary["update"]["prior_predicted"] = predicted[1].to_dict()
+    emit_json(summary, as_json, out)
 
 
 # -- plan -------------------------------------------------------------------------------------------
@@ -650,11 +777,11 @@ def collect_cmd(
 @lab_command(app, "export")
 def export_cmd(
     data: Annotated[
-        Path | None,
+        list[Path] | None,
         typer.Argument(
-            help="A measurement CSV to fit, then export (docs/format.md, the measurement CSV); "
-            "or leave it out and give --from.",
-            metavar="[DATA.csv]",
+            help="Measurement CSV files to fit, then export (docs/format.md, the measurement "
+            "CSV; each a session, as lab fit takes them); or leave them out and give --from.",
+            metavar="[DATA.csv...]",
         ),
     ] = None,
     output: Annotated[
@@ -695,10 +822,10 @@ def export_cmd(
     from lab.export import export_robot
     from lab.urdf_export import export_urdf, metrology_path, require_urdf
 
-    if (data is None) == (source is None):
+    if bool(data) == (source is not None):
         fail(
             "give DATA.csv (fit it, then export) or --from CAL (export a saved calibration), "
-            + ("not both" if data is not None else "one of them")
+            + ("not both" if data else "one of them")
         )
     export_format = export_format_of(output, export_format)
     if output is None:
@@ -709,7 +836,7 @@ def export_cmd(
     if source is not None:
         _export_saved(source, output, export_format, lab, name, outputs)
         return
-    assert data is not None
+    assert data
     arm, meas, val, opts, effects = lab.read(data, outputs)
     if export_format == "urdf":
         with user_errors():  # before the fit: a TOML arm has no URDF to correct

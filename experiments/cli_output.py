@@ -79,8 +79,11 @@ def _table(title: str, *columns: tuple[str, Justify]) -> Table:
 # -- commands as text ------------------------------------------------------------------------------
 def command_line(*words: object, **options: object) -> str:
     """The ``sixaxis`` command line that these words and (non-default) options spell: an option
-    whose value is None, False or [] is left out, True is a bare flag, a list repeats the flag."""
-    out = ["sixaxis", *map(str, words)]
+    whose value is None, False or [] is left out, True is a bare flag, a list repeats the flag;
+    a list among the words is its items (the data files of a command)."""
+    out = ["sixaxis"]
+    for w in words:
+        out += map(str, w) if isinstance(w, list | tuple) else [str(w)]
     for flag, value in options.items():
         if value is None or value is False or value == []:
             continue
@@ -300,6 +303,12 @@ def say(text: str) -> None:
 
 
 # -- the lab's commands -----------------------------------------------------------------------------
+def print_sessions(data: Any) -> None:
+    """The sessions of several files joined (nothing for one file)."""
+    if len(data.sessions) > 1:
+        say("sessions: " + "; ".join(s.text() for s in data.sessions))
+
+
 def print_fit(result: Any) -> None:
     console.print(fit_table(result))
     say(result.summary())
@@ -338,7 +347,7 @@ def print_notes(notes: Sequence[str], title: str) -> None:
         say(f"{title}: {n}")
 
 
-def discover_command(data: Path, d: Any, context: dict[str, Any] | None = None) -> str:
+def discover_command(data: Path | list[Path], d: Any, context: dict[str, Any] | None = None) -> str:
     """The ``sixaxis lab discover`` command that continues an ``unexplained`` diagnosis: from
     the diagnosed model (not the catalogue's partial explanation, whose approximating terms would
     hide the form), with the options the diagnosis was given that discover takes (``context``:
@@ -355,7 +364,7 @@ def discover_command(data: Path, d: Any, context: dict[str, Any] | None = None) 
 
 
 def print_diagnosis(
-    d: Any, data: Path, next_steps: Mapping[str, dict[str, Any]] | None = None
+    d: Any, data: Path | list[Path], next_steps: Mapping[str, dict[str, Any]] | None = None
 ) -> None:
     """A diagnosis for people; ``next_steps``: per command (``fit``, ``discover``), the flags
     that a printed step of it repeats."""
@@ -421,7 +430,10 @@ def print_diagnosis(
 
 
 def print_discovery(
-    d: Any, output: Path | None, data: Path | None = None, context: dict[str, Any] | None = None
+    d: Any,
+    output: Path | None,
+    data: Path | list[Path] | None = None,
+    context: dict[str, Any] | None = None,
 ) -> None:
     """A discovery for people; ``context``: the options the next step printed repeats."""
     floor = f", noise floor {d.noise_floor_mm:.4f} mm" if d.noise_floor_mm else ""

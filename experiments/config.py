@@ -96,8 +96,8 @@ from arm.constraints import (
     from_annotation,
     type_name,
 )
-from arm.errors import SixAxisError
 from arm.files import input_problem
+from experiments.errors import ConfigError, MissingSeedsError
 from experiments.metrics import (
     DEFAULT_CONVERGE_MM,
     DEFAULT_METRICS,
@@ -146,16 +146,6 @@ MAX_RUNS = 200_000
 DRAWN_SEED_LOW = 2**32
 DRAWN_SEED_HIGH = 2**63
 LABEL_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
-
-
-class ConfigError(SixAxisError, ValueError):
-    """A config that cannot run: the message names the file and every key at fault."""
-
-    def __init__(self, source: str, problems: Sequence[str]) -> None:
-        self.source = source
-        self.problems = list(problems)
-        lines = "\n".join(f"  - {p}" for p in self.problems)
-        super().__init__(f"{source}: bad experiment config:\n{lines}")
 
 
 def canonical_json(obj: Any) -> str:
@@ -363,7 +353,7 @@ class ExperimentConfig:
         them)."""
         if self.draw_seeds:
             if episode_seeds is None or len(episode_seeds) < self.draw_seeds:
-                raise ValueError(
+                raise MissingSeedsError(
                     f"config {self.name}: its {self.draw_seeds} episode seeds are drawn when the "
                     "sweep starts; pass them (episode_seeds)"
                 )

@@ -53,7 +53,6 @@ from arm.description import RobotDescription, load_robot, vec3
 from arm.effect_api import EffectError
 from arm.effects import EFFECTS
 from arm.errormodel import ErrorModel
-from arm.errors import SixAxisError
 from arm.files import OutputError, atomic_write_text
 from arm.ik import IKResult, InverseKinematics, solve_model_pose, solve_position
 from arm.measurements import (
@@ -73,8 +72,10 @@ from arm.measurements import (
 from arm.params import TOOL_ROTATION_NAMES
 from arm.so3 import rotation_matrix, rotation_vector
 from lab.domain import Domain, out_of_domain, warn_out_of_domain
+from lab.errors import CompensationError, ExportError
 from lab.registration import StationRegistration, register_station
 from lab.result import SCHEMA_VERSION, FitResult
+from lab.uncertainty import Uncertainty, uncertainty_of
 
 __all__ = [
     "Compensation",
@@ -98,14 +99,6 @@ EXPORT_TOL = 1e-9
 # rad: a compensated joint angle this far from its start is named (a calibration moves the joints
 # by milliradians; this much only near a wrist singularity, where joints 4 and 6 share a turn)
 FAR_RAD = 0.2
-
-
-class ExportError(SixAxisError, ValueError):
-    """The calibrated arm cannot be exported faithfully; nothing was written."""
-
-
-class CompensationError(SixAxisError, ValueError):
-    """Bad compensation input: the message names the file, line, column or effect."""
 
 
 # --------------------------------------------------------------------------------------------------
@@ -133,14 +126,21 @@ def calibrated_model(robot: RobotDescription, targets: Sequence[int] = (0,)) -> 
         raise CompensationError(f"robot {robot.name!r}: {exc}") from None
 
 
-def calibrated_description(result: FitResult, name: str | None = None) -> RobotDescription:
+def calibrated_description(
+    result: FitResult, name: str | None = None, uncertainty: Uncertainty | None = None
+) -> RobotDescription:
     """The calibrated arm of ``result`` as a file records it: the fit's description
     (:meth:`FitResult.description`), the nominal arm it was fitted to (what a controller believes
-    in, where compensation without a program starts) and, where the data named their tracker
-    station, each station's frame (so that targets given in a station's frame are mapped, and a
-    station the calibration never saw is refused)."""
+    in, where compensation without a program starts), the parameters' covariance and the spread
+    between the sessions of the fit (``uncertainty`` where given, else measured from the fit,
+    :mod:`lab.uncertainty`) and, where the data named their tracker station, each station's
+    frame (so that targets given in a station's frame are mapped, and a station the calibration
+    never saw is refused)."""
     desc = result.description(name or f"{result.model.robot.name}-calibrated")
     desc = replace(desc, nominal=replace(result.model.robot, nominal=None))
+    if uncertainty is None:
+        uncertainty = uncertainty_of(result)
+    desc = replace(desc, uncertainty=uncertainty.to_dict())
     if "station" in result.inputs.columns or len(result.model.stations) > 1:
         desc = replace(
             desc,
@@ -158,10 +158,15 @@ def export_robot(
     name: str | None = None,
     length_unit: str = "m",
     angle_unit: str = "deg",
+    uncertainty: Uncertainty | None = None,
 ) -> RobotDescription:
     """Write the calibrated arm of ``calibration`` (a fit, or a calibrated arm read from a
     file: a TOML or a calibrated URDF, exported again without refitting) as a robot TOML
-    (atomically) and return it as read back (what ``load_robot(path)`` gives).
+    (atomically) and return it as read back (what ``load_robot(path)`` gives). It carries the
+    parameters' covariance and the spread between the sessions of the fit (``[uncertainty]``,
+    :mod:`lab.uncertainty`): ``uncertainty`` where given, else the result's own (an update's),
+    else measured from the fit (its sessions each fitted alone); a saved calibration keeps its
+    own.
 
     Before writing, the text is parsed and its predictions compared with the fitted model's on
     the fitted poses (with the fit's gravity torques, see the module docstring), or with the
@@ -176,11 +181,13 @@ def export_robot(
         raise ExportError(f"{path}: angle unit must be one of rad, deg, got {angle_unit!r}")
     if isinstance(calibration, RobotDescription):
         desc = calibration if name is None else replace(calibration, name=name)
+        if uncertainty is not None:
+            desc = replace(desc, uncertainty=uncertainty.to_dict())
         result = None
     else:
         result = calibration
         register_own_effects(result)
-        desc = calibrated_description(result, name)
+        desc = calibrated_description(result, name, uncertainty)
     text = desc.to_toml(length_unit, angle_unit)
     back = RobotDescription.from_toml(text, source=str(path))
     try:

@@ -27,7 +27,7 @@ from arm.constraints import POSITIVE, Interval, Quantity, choices, declare, prob
 from arm.effects import MAX_ORDER
 from arm.measurements import COMPONENTS
 from arm.noise import NOISE_MM, NOISE_MRAD, NOISE_PPM, InstrumentNoise, noise_law_problems
-from lab.errors import FitError
+from lab.errors import FitError, UnknownOptionError
 
 __all__ = [
     "ALPHA",
@@ -43,6 +43,7 @@ __all__ = [
     "OptionFields",
     "OutlierMode",
     "Solver",
+    "UpdateOptions",
 ]
 
 Loss = Literal["linear", "huber", "soft_l1"]
@@ -176,6 +177,27 @@ ORDER = Quantity(
 )
 #: the report's rounds of diagnose-and-refit
 ROUNDS = Quantity(Interval(int, 0, None), help="At most this many rounds of diagnose-and-refit")
+
+
+@dataclass(frozen=True)
+class UpdateOptions:
+    """The options of :func:`lab.update.update`, each declared once (:func:`arm.constraints.declare`): the keywords
+    of :func:`update` and the options of ``sixaxis lab update``."""
+
+    remount: bool = declare(
+        False,
+        help="The tool was re-mounted: its offset is fitted on the new poses alone, as the base "
+        "is (without it the calibration's tool is the prior).",
+    )
+    noise_mm: float | None = declare(
+        None,
+        POSITIVE,
+        unit="mm",
+        help="The per-axis noise the new poses are weighted by against the prior. Default: the "
+        "residual of one session fitted alone, as the calibration states it.",
+    )
+
+
 CRITERIA = ("o1", "o4")  # lab.plan's pose-set criteria (Borm & Menq, Nahvi & Hollerbach)
 
 LOSSES: tuple[str, ...] = choices(LabOptions, "loss")
@@ -194,7 +216,7 @@ def resolve(options: LabOptions | None, **given: Any) -> LabOptions:
         raise FitError(f"options must be a LabOptions, got {type(options).__name__}")
     unknown = [k for k in given if k not in OptionFields.__annotations__]
     if unknown:
-        raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
+        raise UnknownOptionError(f"unexpected keyword argument(s): {', '.join(unknown)}")
     twice = [k for k, v in given.items() if not _same(v, getattr(DEFAULTS, k))]
     if twice:
         raise FitError(

@@ -59,6 +59,7 @@ from lab.export import (
     write_modules,
 )
 from lab.result import SCHEMA_VERSION, FitResult
+from lab.uncertainty import Uncertainty
 
 __all__ = ["UrdfExport", "export_urdf", "metrology_path", "read_calibrated_urdf", "require_urdf"]
 
@@ -153,6 +154,7 @@ def export_urdf(
     path: str | Path,
     name: str | None = None,
     nominal: RobotDescription | None = None,
+    uncertainty: Uncertainty | None = None,
 ) -> UrdfExport:
     """Write the calibrated arm of ``calibration`` as a URDF at ``path`` and its metrology file
     beside it (:func:`metrology_path`), both atomically, after checking them (module
@@ -161,7 +163,9 @@ def export_urdf(
     ``nominal`` the URDF arm it was fitted to where it does not record one. An effect the
     catalogue does not define goes with its module: the one it was loaded from is named in the
     metrology file, one made in memory (a bag's discovered terms) is written beside as
-    ``path`` with ``.py``. Raises :class:`lab.export.ExportError` naming what is wrong; nothing
+    ``path`` with ``.py``. The parameters' covariance and the spread between sessions
+    (``[uncertainty]``, :mod:`lab.uncertainty`) as :func:`lab.export.export_robot` writes them.
+    Raises :class:`lab.export.ExportError` naming what is wrong; nothing
     is written then."""
     path = Path(path)
     if path.suffix.lower() != ".urdf":
@@ -172,7 +176,9 @@ def export_urdf(
     side = metrology_path(path)
     if isinstance(calibration, FitResult):
         register_own_effects(calibration)
-        cal = calibrated_description(calibration, name or f"{arm_nominal.name}-calibrated")
+        cal = calibrated_description(
+            calibration, name or f"{arm_nominal.name}-calibrated", uncertainty
+        )
         targets = tuple(calibration.model.targets)
         fit_doc = {
             "source": str(calibration.source),
@@ -181,6 +187,8 @@ def export_urdf(
         }
     else:
         cal = calibration if name is None else replace(calibration, name=name)
+        if uncertainty is not None:
+            cal = replace(cal, uncertainty=uncertainty.to_dict())
         cal = replace(cal, nominal=replace(arm_nominal, nominal=None))
         targets = tuple(range(len(cal.tools)))
         fit_doc = {"source": cal.name, "effects": ["geometric", *cal.effects]}
@@ -284,6 +292,9 @@ def _metrology(
             n: Path(m).name if Path(m).parent.resolve() == path.parent.resolve() else m
             for n, m in modules.items()
         }
+    # the parameters' covariance and the spread between sessions (lab.uncertainty), as a robot
+    # TOML carries them: by parameter name, relative to the nominal arm below
+    doc["uncertainty"] = dict(cal.uncertainty)
     # the arm the controller believes in, as a robot description (compensation starts from it)
     doc["nominal"] = tomllib.loads(replace(nominal, nominal=None).to_toml("m", "rad"))
     if cal.domain:
@@ -356,6 +367,7 @@ def _calibrated(
             effects=effects,
             stations=stations,
             domain=domain,
+            uncertainty=dict(doc.get("uncertainty", {})),
         )
     except (KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, UrdfError | DescriptionError):

@@ -155,7 +155,8 @@ LAB_ORDER = [
     {"candidates", "spectral"},
     {"screening"},
     {"identification", "transfer"},
-    {"diagnosis", "discovery", "planning", "export"},
+    {"uncertainty"},
+    {"diagnosis", "discovery", "planning", "export", "update"},
     {"urdf_export", "bagging"},
     {"report", "lab_report", "report_html", "plots"},
 ]
