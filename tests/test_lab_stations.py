@@ -441,3 +441,42 @@ def test_every_command_that_validates_takes_references(command, tmp_path):
     one_error_line(cli(command, *common, "--validate", val), "station(s) 3", "--references")
     r = cli(command, *common, "--validate", val, "--references", refs)
     assert r.exit_code == 0, r.output
+
+
+def test_update_validates_a_new_station_on_its_references(tmp_path):
+    """`lab update CAL NEW.csv --validate OTHER.csv --references REFS.csv`: held-out poses of a
+    station neither the calibration nor the update has seen are validated through the frame the
+    references register; without them, refused in one line."""
+    import json
+
+    from arm.measurements import write_measurements
+    from arm.sessions import join_sessions
+    from tests._cli import lab as cli
+    from tests._cli import one_error_line
+    from tests._lab_data import drifting_session
+
+    rng = np.random.default_rng(100)
+    values = {
+        f"{f}{j}": rng.normal(0.0, s)
+        for j in range(1, 7)
+        for f, s in (("dalpha", 3e-4), ("da", 3e-4), ("dtheta", 1e-3))
+    } | {"c2": 6e-6, "c3": 4e-6}
+    lo, hi = np.array([-2.0, -1.8, -0.8, -2.0, -1.4, -2.5]), np.array([2.0, -0.7, 0.8, 2, 1.4, 2.5])
+
+    def drawn(n: int, station: int, seed: int):
+        return drifting_session(values, n, station, seed, region=(rng.uniform(lo, hi), 0.9))
+
+    sessions = [drawn(200, s, s) for s in (1, 2, 3)]
+    res = _quiet(lab.fit, join_sessions(sessions), "seed", "geometric,compliance")
+    export_robot(res, tmp_path / "cal.toml")
+    new, other = tmp_path / "new.csv", tmp_path / "other.csv"
+    write_measurements(drawn(40, 9, 9), new)
+    held = drawn(40, 7, 7)  # another station again
+    write_measurements(held, other)
+    refs = tmp_path / "refs.csv"
+    write_measurements(held.subset(np.arange(4)), refs)
+    args = ["update", tmp_path / "cal.toml", new, "--validate", other]
+    one_error_line(cli(*args), "station(s) 7", "--references")
+    r = cli(*args, "--references", refs, "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["validation_registered"] == [7]
