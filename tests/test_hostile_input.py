@@ -205,6 +205,16 @@ _LONG_FILE_OPTIONS = {
     "compensate --robot": ("compensate", _DATA, "--robot", f"{_LONG}.toml"),
     "compensate --nominal": ("compensate", _DATA, "--robot", "seed", "--nominal", _LONG),
     "compensate -o": ("compensate", _DATA, "--robot", "seed", "-o", f"{_LONG}.csv"),
+    "compensate --references": (
+        "compensate",
+        _DATA,
+        "--robot",
+        "seed",
+        "--references",
+        f"{_LONG}.csv",
+    ),
+    "fit --references": ("fit", _DATA, "--validate", _DATA, "--references", f"{_LONG}.csv"),
+    "export --from": ("export", "--from", f"{_LONG}.toml", "-o", "{tmp}/x.toml"),
     "compensate --effect-module": (
         "compensate",
         _DATA,
