@@ -1030,6 +1030,32 @@ def _nominal_of(
     return (cal.nominal if cal.nominal is not None else cal), cal.nominal is None and calibrated
 
 
+def _target_set(targets: TargetSet | np.ndarray, free_orientation: bool) -> TargetSet:
+    """The targets as a set (points (N, 3) alone as given), refused where there are none or
+    where they fix no orientation and none is asked to be free."""
+    if not isinstance(targets, TargetSet):
+        targets = TargetSet(np.asarray(targets, dtype=float).reshape(-1, 3))
+    if len(targets) == 0:
+        raise CompensationError(f"{targets.source}: no targets")
+    if targets.q is None and targets.R is None and not free_orientation:
+        raise CompensationError(
+            f"{targets.source}: the targets have neither the program's joint angles (q1..q6) nor "
+            "an orientation (rvx, rvy, rvz or roll, pitch, yaw), so the tool's orientation is "
+            "free and the arm may turn its wrist anyhow; give one of them, or ask for a free "
+            "orientation (--free-orientation)"
+        )
+    return targets
+
+
+def _say_unrecorded(cal: RobotDescription, unrecorded: bool) -> None:
+    if unrecorded:
+        log.warning(
+            "%s records no nominal arm (not written by lab export): its own table is taken "
+            "as the nominal one; give the arm the controller believes in (--nominal)",
+            cal.name,
+        )
+
+
 def compensate(
     robot: RobotDescription | str | Path,
     targets: TargetSet | np.ndarray,
@@ -1069,18 +1095,8 @@ def compensate(
         if references is None or isinstance(references, StationRegistration)
         else register_references(cal, references)
     )
-    if not isinstance(targets, TargetSet):
-        targets = TargetSet(np.asarray(targets, dtype=float).reshape(-1, 3))
+    targets = _target_set(targets, free_orientation)
     n = len(targets)
-    if n == 0:
-        raise CompensationError(f"{targets.source}: no targets")
-    if targets.q is None and targets.R is None and not free_orientation:
-        raise CompensationError(
-            f"{targets.source}: the targets have neither the program's joint angles (q1..q6) nor "
-            "an orientation (rvx, rvy, rvz or roll, pitch, yaw), so the tool's orientation is "
-            "free and the arm may turn its wrist anyhow; give one of them, or ask for a free "
-            "orientation (--free-orientation)"
-        )
     nom, unrecorded = _nominal_of(cal, nominal)
     cal = cal.to_modified()
     cols = dict(targets.columns) | {
@@ -1108,12 +1124,7 @@ def compensate(
     if targets.q is not None:
         q_start, ok_start, start = np.array(targets.q, dtype=float), np.ones(n, bool), "program"
     else:
-        if unrecorded:
-            log.warning(
-                "%s records no nominal arm (not written by lab export): its own table is taken "
-                "as the nominal one; give the arm the controller believes in (--nominal)",
-                cal.name,
-            )
+        _say_unrecorded(cal, unrecorded)
         q_start, ok_start = _nominal_start(cal, nom_model, cols, xyz, R, tol, seed)
         start = "nominal_ik"
 
