@@ -461,3 +461,58 @@ def test_agents_told_the_scenarios_effects_are_marked_informed(tmp_path):
     runs_table = rows(runs_csv(board))
     told = [r for r in runs_table if r["agent"] == "told"]
     assert {(r["scenario"], r["informed"]) for r in told} == {("backlash", "1"), ("nominal", "0")}
+
+
+def test_every_interval_the_leaderboard_prints_is_the_loop_written_bootstrap(runs):
+    """Cells, pairs (and the orderings among them), the cost of an effect, the aggregate and the
+    CSV's intervals of the mean: each against the bootstrap written as a loop over resamples
+    from the same draws (tests/_bootstrap_loops.py)."""
+    from tests import _bootstrap_loops as loops
+
+    _, path = runs
+    board = build_leaderboard(path, reference="nominal")
+    an, store = board.analysis, RunStore(path)
+
+    def values(agent: str, scen: str, metric: str = "rms_mm") -> list[float]:
+        return [store.load(f"{agent}__{scen}__seed{s}")["metrics"][metric] for s in (0, 1, 2)]
+
+    def ratio_interval(a: list[float], b: list[float]) -> tuple[float, float]:
+        lo, hi = loops.bca([list(np.log(a)), list(np.log(b))], loops.mean_difference)
+        return float(np.exp(lo)), float(np.exp(hi))
+
+    checked = 0
+    for a in board.agents:
+        for s in board.scenarios:
+            iv = an["cells"][a][s]["rms_mm"]
+            lo, hi = loops.bca([list(np.log(values(a, s)))], loops.mean)
+            assert (iv["lo"], iv["hi"]) == pytest.approx((np.exp(lo), np.exp(hi)), rel=1e-12)
+            checked += 1
+    for p in an["pairs"] + [o for s in board.scenarios for o in an["orderings"][s]]:
+        expect = ratio_interval(
+            values(p["better"], p["scenario"]), values(p["worse"], p["scenario"])
+        )
+        assert (p["lo"], p["hi"]) == pytest.approx(expect, rel=1e-12)
+        checked += 1
+    for a, by_scen in an["cost_of_effect"].items():
+        for s, iv in by_scen.items():
+            expect = ratio_interval(values(a, s), values(a, "nominal"))
+            assert (iv["lo"], iv["hi"]) == pytest.approx(expect, rel=1e-12)
+            checked += 1
+    for a, agg in an["aggregate"].items():
+        ratios = [
+            [
+                [x / r for x, r in zip(values(a, s), values("nominal", s), strict=True)]
+                for s in sorted(board.scenarios)
+            ]
+        ]
+        assert (agg["iqm"]["lo"], agg["iqm"]["hi"]) == pytest.approx(
+            loops.stratified(ratios, loops.iqm), rel=1e-12
+        )
+        checked += 1
+    for row in rows(to_csv(board)):
+        lo, hi = loops.bca([values(row["agent"], row["scenario"])], loops.mean)
+        assert (float(row["rms_mm_lo"]), float(row["rms_mm_hi"])) == pytest.approx(
+            (lo, hi), rel=1e-12
+        )
+        checked += 1
+    assert checked >= 6 + 6 + 4 + 3 + 6

@@ -416,7 +416,8 @@ def _md_intro(board: Leaderboard, command: str | None) -> list[str]:
         "controller can do; (informed): told the scenario's effects in its config. Orderings are "
         "claimed only where the paired interval resolves them (`<`); `≈` is not resolved. "
         "Intervals are 95 % bootstrap intervals (BCa, episodes resampled; paired where two "
-        "agents or scenarios are compared)."
+        "agents or scenarios are compared; over training seeds and episodes for an agent of "
+        "several seeds)."
     )
     lines += ["", "Made by:", "", "```"]
     if man.get("command"):
@@ -469,8 +470,9 @@ def _md_aggregate(board: Leaderboard, order: Sequence[str]) -> list[str]:
         "",
         f"Each agent's `{m0}` over `{ref}`'s on the same episode, over every scenario and "
         "episode: the interquartile mean (IQM) of the ratios, as rliable recommends, and their "
-        "geometric mean; 95 % bootstrap intervals that resample episodes in every scenario "
-        "at once. Below 1: better than the reference.",
+        "geometric mean; 95 % percentile intervals of the stratified bootstrap (rliable's: "
+        "each resample draws the episodes anew within each scenario, and for an agent of "
+        "several training seeds first the seeds). Below 1: better than the reference.",
         "",
         "| agent | IQM of the ratios | geometric mean |",
         "|---|---:|---:|",
