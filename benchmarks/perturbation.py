@@ -70,6 +70,11 @@ def leaderboard_specs(agents: Sequence[str], scenarios: Sequence[str], seeds: Se
     raw["seeds"] = [int(s) for s in seeds]
     raw["scenarios"] = list(scenarios)
     raw["agents"] = [a for a in raw["agents"] if a.get("label", a["name"]) in agents]
+    for a in raw["agents"]:  # per-scenario settings of the scenarios measured only
+        if "scenario_settings" in a:
+            a["scenario_settings"] = {
+                k: v for k, v in a["scenario_settings"].items() if k in scenarios
+            }
     missing = set(agents) - {a.get("label", a["name"]) for a in raw["agents"]}
     if missing:
         raise SystemExit(f"error: no agent {', '.join(sorted(missing))} in {CONFIG.name}")
@@ -91,7 +96,7 @@ def perturbed(rel: float, seed: int) -> Iterator[None]:
 
     make = registry.make_agent
     if rel:
-        registry.make_agent = lambda name, **kw: _Perturbed(make(name, **kw), rel, seed=seed)  # type: ignore[assignment]
+        registry.make_agent = lambda name, **kw: _Perturbed(make(name, **kw), rel, seed=seed)
     try:
         yield
     finally:
