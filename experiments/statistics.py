@@ -64,6 +64,7 @@ __all__ = [
     "mean_interval",
     "paired_ratio",
     "seeded_geometric_mean_interval",
+    "seeded_mean_interval",
     "seeded_paired_ratio",
     "stratified_distribution",
 ]
@@ -284,6 +285,31 @@ def seeded_geometric_mean_interval(by_seed: Mapping[Any, Mapping[int, float]]) -
         return NAN
     logs = np.log([[s[k] for k in keys] for s in by_seed.values()])
     return _seeded_exp_mean(logs)
+
+
+def seeded_mean_interval(by_seed: Mapping[Any, Mapping[int, float]]) -> Interval:
+    """The arithmetic mean of an agent's values over its training seeds and episodes (the
+    episodes every seed has) and its interval: one seed, :func:`mean_interval`; several, the
+    percentile interval of the stratified bootstrap (seeds, then episodes within each seed)."""
+    if len(by_seed) == 1:
+        return mean_interval(list(next(iter(by_seed.values())).values()))
+    keys = sorted(
+        set.intersection(
+            *(
+                {k for k, v in s.items() if v is not None and np.isfinite(v)}
+                for s in by_seed.values()
+            )
+        )
+    )
+    if not keys:
+        return NAN
+    x = np.array([[s[k] for k in keys] for s in by_seed.values()], dtype=float)
+    m = float(np.mean(x))
+    if np.ptp(x) == 0:
+        return Interval(m, m, m, x.size)
+    dist = stratified_distribution(x[:, None, :], lambda r: np.mean(_flat(r), axis=-1))
+    lo, hi = _percentile_interval(dist)
+    return Interval(m, lo, hi, x.size)
 
 
 def seeded_paired_ratio(

@@ -563,6 +563,13 @@ def test_an_agent_over_training_seeds_is_ranked_as_one_agent(tmp_path):
     agg = an["aggregate"]["hold"]["iqm"]
     assert (agg["lo"], agg["hi"]) == pytest.approx(loops.stratified(ratios, loops.iqm), rel=1e-12)
     assert an["compute"]["hold"]["ranked_seeds"] == [1, 2, 3]
+    csv_row = next(
+        r for r in rows(to_csv(board)) if r["agent"] == "hold" and r["scenario"] == "geometric"
+    )
+    expect = loops.stratified([[values(lb, "geometric")] for lb in labels], loops.mean)
+    assert (float(csv_row["rms_mm_lo"]), float(csv_row["rms_mm_hi"])) == pytest.approx(
+        expect, rel=1e-12
+    )
 
     table = rows(runs_csv(board))
     assert sorted({(r["agent"], r["train_seed"]) for r in table if r["agent_name"] == "hold"}) == [

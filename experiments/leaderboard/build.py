@@ -5,6 +5,7 @@ scenario, with the paired analysis (:mod:`experiments.comparisons`). Its files a
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -275,10 +276,7 @@ def _rows(
             theirs = cell(failed, agent, scen)
             if not mine and not theirs:
                 continue
-            stats = {
-                m: summarize((metric_value(r, m) for r in mine), interval=m in (rank_by, *HEADLINE))
-                for m in metrics
-            }
+            stats = {m: _summary(mine, m, interval=m in (rank_by, *HEADLINE)) for m in metrics}
             everyone = mine + theirs
             rows.append(
                 Row(
@@ -296,6 +294,22 @@ def _rows(
                 )
             )
     return rows
+
+
+def _summary(mine: list[dict[str, Any]], metric: str, interval: bool) -> Summary:
+    """A metric of a cell's runs: over its episodes, and for an agent of several training seeds
+    with the interval of the stratified bootstrap over seeds and episodes."""
+    s = summarize((metric_value(r, metric) for r in mine), interval=interval)
+    by_seed: dict[int | None, dict[int, float]] = {}
+    for r in mine:
+        seed = split_train_seed(r["spec"]["agent_label"])[1]
+        by_seed.setdefault(seed, {})[episode_order(r)] = metric_value(r, metric)
+    if not interval or len(by_seed) < 2 or not s.has_ci:
+        return s
+    from experiments.statistics import seeded_mean_interval
+
+    ci = seeded_mean_interval(by_seed)
+    return dataclasses.replace(s, ci95=(ci.hi - ci.lo) / 2, lo=ci.lo, hi=ci.hi)
 
 
 def episode_order(rec: dict[str, Any]) -> int:
