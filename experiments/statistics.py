@@ -278,8 +278,9 @@ def seeded_geometric_mean_interval(by_seed: Mapping[Any, Mapping[int, float]]) -
     (``{seed: {episode: value}}``, the episodes every seed has) and its interval: with one seed,
     :func:`geometric_mean_interval`; with several, the stratified bootstrap (seeds, then episodes
     within each seed)."""
-    if len(by_seed) == 1:
-        return geometric_mean_interval(list(next(iter(by_seed.values())).values()))
+    if len(by_seed) == 1:  # in the episodes' order, whatever order the records were read in
+        only = next(iter(by_seed.values()))
+        return geometric_mean_interval([only[k] for k in sorted(only)])
     keys = _common_episodes(list(by_seed.values()))
     if not keys:
         return NAN
@@ -292,7 +293,8 @@ def seeded_mean_interval(by_seed: Mapping[Any, Mapping[int, float]]) -> Interval
     episodes every seed has) and its interval: one seed, :func:`mean_interval`; several, the
     percentile interval of the stratified bootstrap (seeds, then episodes within each seed)."""
     if len(by_seed) == 1:
-        return mean_interval(list(next(iter(by_seed.values())).values()))
+        only = next(iter(by_seed.values()))
+        return mean_interval([only[k] for k in sorted(only)])
     keys = sorted(
         set.intersection(
             *(

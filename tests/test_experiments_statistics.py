@@ -170,3 +170,19 @@ def test_an_agent_over_seeds_is_the_loop_written_stratified_bootstrap():
     # one seed is the agent of one network
     one = aggregate_over_seeds({7: agent[1]}, ref)
     assert one == aggregate_to_reference(agent[1], ref)
+
+
+def test_a_cells_interval_does_not_depend_on_the_order_the_records_were_read_in():
+    """Run files are read in their names' order (ep0, ep1, ep10, ...): the interval is taken
+    over the episodes in their own order all the same."""
+    from experiments.statistics import (
+        geometric_mean_interval,
+        seeded_geometric_mean_interval,
+        seeded_mean_interval,
+    )
+
+    x = _lognormal(8, 20)
+    by_name = {k: float(x[k]) for k in sorted(range(20), key=lambda k: f"ep{k}")}
+    assert list(by_name) != list(range(20))
+    assert seeded_geometric_mean_interval({0: by_name}) == geometric_mean_interval(x)
+    assert seeded_mean_interval({0: by_name}) == mean_interval(x)
