@@ -26,9 +26,11 @@ from typing import Any
 
 import numpy as np
 
+from agents.errors import AgentError, AgentStateError
+from arm.constraints import Constraint, check, refuse
 from envs.task import TaskInfo, Truth
 
-__all__ = ["Agent", "measurement_columns", "solve_time_stats"]
+__all__ = ["Agent", "measurement_columns", "refuse_settings", "solve_time_stats"]
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +47,14 @@ def measurement_columns(info: Mapping[str, Any]) -> dict[str, float]:
     arr = np.asarray(cols, dtype=float).reshape(-1)
     names = ("temperature", *(f"dir{i}" for i in range(1, 7)), "payload")
     return {n: float(v) for n, v in zip(names, arr, strict=False)}
+
+
+def refuse_settings(declared: Mapping[str, Constraint], **values: Any) -> None:
+    """Refuse every one of ``values`` (an agent's or an estimator's settings, by name) that
+    breaks its ``declared`` constraint (:mod:`arm.constraints`), all named in one
+    :class:`~agents.errors.AgentError`: ``forgetting must lie in (0, 1], got 2``. None passes: a
+    setting left unset is the caller's to judge."""
+    refuse(check(values, {k: ([c], True) for k, c in declared.items()}), AgentError)
 
 
 def solve_time_stats(times: list[float] | np.ndarray, prefix: str = "solve_time") -> dict:
@@ -75,7 +85,7 @@ class Agent(abc.ABC):
     def task(self) -> TaskInfo:
         """The task of the current episode, as :meth:`reset` (or :meth:`next_phase`) set it."""
         if self._task is None:
-            raise RuntimeError(f"{self.name}: no task yet; call reset(task) first")
+            raise AgentStateError(f"{self.name}: no task yet; call reset(task) first")
         return self._task
 
     @task.setter

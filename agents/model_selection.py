@@ -48,14 +48,17 @@ from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
+from agents.base import refuse_settings
 from agents.online_calibration import (
     CHI2_3_GATE,
+    ESTIMATOR_SETTINGS,
     cached_identifiable,
     compiled_update,
     merge_effects,
     prior_scales,
 )
 from agents.tool_model import ToolModel, cached_tool_model
+from arm.constraints import Constraint, Interval
 from arm.effects import EFFECTS, candidate_effects, make_effect
 from arm.errormodel import ErrorModel
 
@@ -65,6 +68,12 @@ log = logging.getLogger(__name__)
 
 #: the name of the drifting null among the shadows (the current model with a short memory)
 DRIFT = "drift"
+#: what the selection's settings may be (:mod:`arm.constraints`): the test's level, and the
+#: points a shadow takes before it is scored
+SELECTION_SETTINGS: dict[str, Constraint] = {
+    "alpha": Interval(float, 0.0, 1.0, closed="neither"),
+    "burn_in": Interval(int, 0, None),
+}
 
 
 class ShadowEstimator:
@@ -82,10 +91,7 @@ class ShadowEstimator:
         tool_model: ToolModel | None = None,
         forgetting: float = 1.0,
     ) -> None:
-        if sigma <= 0:
-            raise ValueError(f"sigma must be positive, got {sigma}")
-        if not 0.0 < forgetting <= 1.0:
-            raise ValueError(f"forgetting must be in (0, 1], got {forgetting}")
+        refuse_settings(ESTIMATOR_SETTINGS, sigma=sigma, forgetting=forgetting)
         self.model = model
         self.sigma = float(sigma)
         self.free = list(cached_identifiable(model) if free is None else free)
@@ -181,10 +187,7 @@ class SequentialSelection:
         forgetting: float = 1.0,
         drift: float | None = 0.95,
     ) -> None:
-        if not 0.0 < alpha < 1.0:
-            raise ValueError(f"alpha must lie in (0, 1), got {alpha}")
-        if burn_in < 0:
-            raise ValueError(f"burn_in must be >= 0, got {burn_in}")
+        refuse_settings(SELECTION_SETTINGS, alpha=alpha, burn_in=burn_in)
         self.model = model
         self.families = list(families)
         self.alpha = float(alpha)

@@ -46,14 +46,17 @@ import casadi as ca
 import numpy as np
 import scipy.linalg
 
-from agents.base import Agent, measurement_columns, solve_time_stats
+from agents.base import Agent, measurement_columns, refuse_settings, solve_time_stats
+from agents.errors import AgentError
 from agents.online_calibration import (
+    ESTIMATOR_SETTINGS,
     MeasurementBuffer,
     RecursiveLeastSquares,
     cached_identifiable,
     merge_effects,
 )
 from agents.tool_model import BufferedFunction, ToolModel, cached_tool_model
+from arm.constraints import Constraint, Interval, OneOf
 from arm.errormodel import ErrorModel
 from envs.task import Observation, TaskInfo, Truth
 
@@ -62,6 +65,14 @@ __all__ = ["QP_SOLVERS", "KinematicMPC", "MPCAgent", "Widening"]
 log = logging.getLogger(__name__)
 
 QP_SOLVERS = ("daqp", "osqp", "qpoases", "proxqp")
+#: what the MPC's settings may be (:mod:`arm.constraints`): its solver, the steps it plans
+#: ahead, the decay per step of the measured error it carries forward, the points it keeps
+MPC_SETTINGS: dict[str, Constraint] = {
+    "solver": OneOf((*QP_SOLVERS, "ipopt")),
+    "horizon": Interval(int, 1, None),
+    "error_decay": Interval(float, 0.0, 1.0, closed="left"),
+    "buffer": Interval(int, 0, None),
+}
 MM = 1e3  # the cost is in mm: tracking errors of 0.01-1 mm give well-scaled QPs
 
 
@@ -109,12 +120,7 @@ class KinematicMPC:
         velocity_margin: float = 0.98,
         fast: bool = True,
     ) -> None:
-        if solver not in (*QP_SOLVERS, "ipopt"):
-            raise ValueError(
-                f"unknown MPC solver {solver!r}; choose one of {', '.join((*QP_SOLVERS, 'ipopt'))}"
-            )
-        if horizon < 1:
-            raise ValueError(f"horizon must be at least 1, got {horizon}")
+        refuse_settings(MPC_SETTINGS, solver=solver, horizon=horizon, error_decay=error_decay)
         self.tm = tool_model
         self.dt = float(dt)
         self.v_max = np.asarray(v_max, dtype=float) * velocity_margin
@@ -126,8 +132,6 @@ class KinematicMPC:
         self.rho_dv = float(rho_dv)
         self.rho_v = float(rho_v)
         self.rho_q = float(rho_q)
-        if not 0.0 <= error_decay < 1.0:
-            raise ValueError(f"error_decay must be in [0, 1), got {error_decay}")
         self.error_decay = float(error_decay)
         N = self.N
         I6 = np.eye(6)
@@ -521,8 +525,15 @@ class MPCAgent(Agent):
     ) -> None:
         super().__init__()
         self.closed_form = bool(closed_form)
-        if int(buffer) < 0:
-            raise ValueError(f"buffer must be >= 0 points, got {buffer}")
+        refuse_settings(  # all at once, when the agent is made (a config is checked by it)
+            MPC_SETTINGS | ESTIMATOR_SETTINGS,
+            solver=solver,
+            horizon=horizon,
+            error_decay=error_decay,
+            buffer=buffer,
+            forgetting=forgetting,
+            sigma=sigma,
+        )
         self.buffer_points = int(buffer)
         self.buffer: MeasurementBuffer | None = None
         self.solver = solver
@@ -553,7 +564,7 @@ class MPCAgent(Agent):
         self.truth = truth
         if self.oracle:
             if truth is None:
-                raise ValueError("mpc-oracle needs the plant's truth (env.unwrapped.truth)")
+                raise AgentError("mpc-oracle needs the plant's truth (env.unwrapped.truth)")
             self.model = truth.model
             self.p = np.array(truth.params, dtype=float)
         else:
@@ -610,7 +621,7 @@ class MPCAgent(Agent):
         set); a controller that must keep its deadlines builds this off the control path (a
         thread) and hands it to :meth:`adopt_widening`."""
         if self.model is None or self.oracle:
-            raise ValueError("widen needs a running, non-oracle MPCAgent (call reset first)")
+            raise AgentError("widen needs a running, non-oracle MPCAgent (call reset first)")
         model = ErrorModel(
             self.model.robot, merge_effects(self.model, effects), targets=self.model.targets
         )

@@ -44,8 +44,11 @@ import numpy as np
 import scipy.linalg
 from scipy.linalg import lapack
 
+from agents.base import refuse_settings
+from agents.errors import AgentError
 from agents.tool_model import BufferedFunction, ToolModel
-from arm.effects import Cyclic, Effect, parse_effects
+from arm.constraints import POSITIVE, Constraint, Interval
+from arm.effects import Effect, parse_effects, union_of
 from arm.errormodel import ErrorModel
 from arm.kinematics import gravity_torques
 from arm.measurements import MeasurementSet
@@ -63,6 +66,14 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: what the estimators' settings may be (:mod:`arm.constraints`): the measurement noise (m, per
+#: axis) and the forgetting factor (1: remember everything); the buffer's capacity in points
+ESTIMATOR_SETTINGS: dict[str, Constraint] = {
+    "sigma": POSITIVE,
+    "forgetting": Interval(float, 0.0, 1.0, closed="right"),
+}
+BUFFER_SETTINGS: dict[str, Constraint] = {"capacity": Interval(int, 1, None)}
 
 _I3 = np.eye(3)
 
@@ -137,29 +148,7 @@ def merge_effects(model: ErrorModel, effects: str | Sequence[str | Effect]) -> l
     orders of each joint), a new one is appended. A diagnosis's
     suggestion (``geometric,backlash[1,5]``), which repeats the model's effects, merges to
     itself."""
-    order: list[str] = []
-    joints: dict[str, set[int] | None] = {}
-    orders: dict[int, set[int]] = {}  # a cyclic effect's orders per joint, merged
-    for e in [*model.effects, *parse_effects(effects)]:
-        if isinstance(e, Cyclic):
-            for j, ks in e.orders.items():
-                orders.setdefault(j, set()).update(ks)
-        if e.name not in joints:
-            order.append(e.name)
-            joints[e.name] = None if e.joints is None else set(e.joints)
-        elif joints[e.name] is not None:
-            if e.joints is None:
-                joints[e.name] = None
-            else:
-                joints[e.name] |= set(e.joints)  # type: ignore[operator]
-    out = []
-    for name in order:
-        if name == Cyclic.name and orders:
-            out.append(Cyclic({j: sorted(ks) for j, ks in orders.items()}).label)
-            continue
-        js = joints[name]
-        out.append(name if js is None else f"{name}[{','.join(map(str, sorted(js)))}]")
-    return out
+    return [e.label for e in union_of([*model.effects, *parse_effects(effects)])]
 
 
 class MeasurementBuffer:
@@ -178,8 +167,7 @@ class MeasurementBuffer:
     COLUMNS = ("t", "temperature", "payload", *(f"dir{i}" for i in range(1, 7)))
 
     def __init__(self, capacity: int = 1000) -> None:
-        if capacity < 1:
-            raise ValueError(f"buffer capacity must be >= 1, got {capacity}")
+        refuse_settings(BUFFER_SETTINGS, capacity=capacity)
         self.capacity = int(capacity)
         self._q = np.empty((capacity, 6))
         self._xyz = np.empty((capacity, 3))
@@ -414,10 +402,7 @@ class RecursiveLeastSquares:
         max_rejections: int = 5,
         tool_model: ToolModel | None = None,
     ) -> None:
-        if not 0.0 < forgetting <= 1.0:
-            raise ValueError(f"forgetting must be in (0, 1], got {forgetting}")
-        if sigma <= 0:
-            raise ValueError(f"sigma must be positive, got {sigma}")
+        refuse_settings(ESTIMATOR_SETTINGS, sigma=sigma, forgetting=forgetting)
         self.sigma = float(sigma)
         self.forgetting = float(forgetting)
         self.gate = float(gate)
@@ -434,7 +419,7 @@ class RecursiveLeastSquares:
         self.idx = self.layout.indices(self.free)
         self.p0 = model.nominal() if p0 is None else np.array(p0, dtype=float)
         if self.p0.shape != (len(self.layout),):
-            raise ValueError(f"p0 must have {len(self.layout)} values, got {self.p0.shape}")
+            raise AgentError(f"p0 must have {len(self.layout)} values, got {self.p0.shape}")
         s = prior_scales(model) if scales is None else np.asarray(scales, dtype=float)
         self.scale = self.prior_factor * s[self.idx]
         self._p0_free = self.p0[self.idx]
@@ -509,7 +494,7 @@ class RecursiveLeastSquares:
     def _check_wider(self, model: ErrorModel) -> None:
         missing = [nm for nm in self.layout.names if nm not in model.layout.names]
         if missing:
-            raise ValueError(
+            raise AgentError(
                 f"widen: the new model ({', '.join(model.effect_names)}) lacks parameter(s) "
                 f"{', '.join(missing[:5])}; it must have every parameter of the current one "
                 f"({', '.join(self.model.effect_names)})"
@@ -559,7 +544,7 @@ class RecursiveLeastSquares:
         free = self.widened_free(model) if free is None else list(free)
         lost = [nm for nm in self.free if nm not in free]
         if lost:
-            raise ValueError(f"widen: free parameter(s) {', '.join(lost)} would be dropped")
+            raise AgentError(f"widen: free parameter(s) {', '.join(lost)} would be dropped")
         added = [nm for nm in free if nm not in self.free]
         p_full = model.nominal()
         p_full[model.layout.indices(old_names)] = self._p

@@ -59,9 +59,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from agents.base import Agent, solve_time_stats
+from agents.base import Agent, refuse_settings, solve_time_stats
+from agents.errors import AgentStateError, PolicyFileError
 from agents.reference import FeedforwardAgent
-from arm.errors import SixAxisError
+from arm.constraints import POSITIVE, Constraint, OneOf
 from arm.files import check_input_file, read_input_text
 from envs.task import Observation, TaskInfo, Truth
 from envs.wrappers import ToolDisplacement
@@ -90,6 +91,13 @@ Algo = Literal["ppo", "sac", "td3"]
 VARIANTS: tuple[str, ...] = typing.get_args(Variant)
 ALGOS: tuple[str, ...] = typing.get_args(Algo)
 MM = 1e3
+#: what the policy's interface takes (:mod:`arm.constraints`): its variant, the residual's reach
+#: and the tool variant's step, in mm
+POLICY_SETTINGS: dict[str, Constraint] = {
+    "variant": OneOf(VARIANTS),
+    "offset_mm": POSITIVE,
+    "tool_step_mm": POSITIVE,
+}
 #: preview steps the residual policy sees (relative to the reference now)
 RESIDUAL_PREVIEW = (0, 1, 2, 4, 9)
 #: preview steps at which the residual policy sees the joint velocities the path asks for
@@ -101,10 +109,6 @@ ERROR_HISTORY = 3
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu")
 
 
-class PolicyFileError(SixAxisError, ValueError):
-    """A policy file that is missing, unsafe to load, or does not fit its description."""
-
-
 # --------------------------------------------------------------------------------------------------
 class PolicyIO:
     """The policy's side of SixAxisTrack-v0 for one episode: :meth:`features` of each observation
@@ -114,12 +118,9 @@ class PolicyIO:
     def __init__(
         self, variant: str = "residual", offset_mm: float = 0.5, tool_step_mm: float = 5.0
     ) -> None:
-        if variant not in VARIANTS:
-            raise ValueError(f"unknown policy variant {variant!r}; choose {', '.join(VARIANTS)}")
-        if not offset_mm > 0:
-            raise ValueError(f"offset_mm must be > 0, got {offset_mm}")
-        if not tool_step_mm > 0:
-            raise ValueError(f"tool_step_mm must be > 0, got {tool_step_mm}")
+        refuse_settings(
+            POLICY_SETTINGS, variant=variant, offset_mm=offset_mm, tool_step_mm=tool_step_mm
+        )
         self.variant = variant
         self.offset_mm = float(offset_mm)
         self.tool_step_mm = float(tool_step_mm)
@@ -178,7 +179,7 @@ class PolicyIO:
     def features(self, obs: np.ndarray, info: Mapping[str, Any]) -> np.ndarray:
         task = self.task
         if task is None:
-            raise RuntimeError("PolicyIO.features before reset(): no task yet")
+            raise AgentStateError("PolicyIO.features before reset(): no task yet")
         if self.tool is not None:  # the operational-space interface: envs.wrappers's numbers
             return self.tool.clipped(self.tool.observe(obs, info))
         o = Observation.parse(task, obs)
@@ -255,7 +256,7 @@ class PolicyIO:
             self.prev_action = np.clip(np.asarray(a, dtype=float).reshape(-1), -1.0, 1.0)
             return self.tool.command(a)
         if self._o is None:
-            raise RuntimeError("PolicyIO.action before features(): no observation yet")
+            raise AgentStateError("PolicyIO.action before features(): no observation yet")
         a = np.clip(np.asarray(a, dtype=float).reshape(-1), -1.0, 1.0)
         self.prev_action = a
         if self.variant == "plain":

@@ -26,8 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from agents.base import Agent, measurement_columns, solve_time_stats
+from agents.base import Agent, measurement_columns, refuse_settings, solve_time_stats
+from agents.errors import AgentError
 from agents.tool_model import cached_tool_model
+from arm.constraints import NON_NEGATIVE, Constraint, Interval
 from arm.errormodel import ErrorModel
 from envs.task import Observation, TaskInfo, Truth
 
@@ -40,6 +42,13 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: what the reference controllers' settings may be (:mod:`arm.constraints`): the fraction of the
+#: error removed per step, and when the calibrated agent fits (s from the episode's start)
+REFERENCE_SETTINGS: dict[str, Constraint] = {
+    "gain": Interval(float, 0.0, 1.0, closed="right"),
+    "calibration_seconds": NON_NEGATIVE,
+}
 
 
 class HoldAgent(Agent):
@@ -71,8 +80,7 @@ class NominalAgent(Agent):
         self, gain: float = 0.5, damping: float = 1e-3, effects: str | Sequence[str] = "geometric"
     ) -> None:
         super().__init__()
-        if not 0.0 < gain <= 1.0:
-            raise ValueError(f"gain must be in (0, 1], got {gain}")
+        refuse_settings(REFERENCE_SETTINGS, gain=gain)
         self.gain = float(gain)
         self.damping = float(damping)
         self.effects = effects
@@ -287,7 +295,7 @@ def _fit_scipy(model, q, xyz, columns, p0, loss, noise) -> tuple[np.ndarray, lis
     inputs = model.inputs(q, columns)
     free = identifiable_parameters(model, q, columns, p=p0, noise=noise)
     if 3 * len(q) < len(free) or not free:
-        raise ValueError(
+        raise AgentError(
             f"{len(q)} measurements cannot determine {len(free)} parameters of {model!r}"
         )
     idx = model.layout.indices(free)
@@ -336,13 +344,12 @@ class CalibratedAgent(NominalAgent):
         super().__init__(gain=gain, damping=damping, effects=effects)
         if isinstance(calibration_seconds, str):
             if calibration_seconds != "each_phase":
-                raise ValueError(
+                raise AgentError(
                     f"calibration_seconds must be seconds, None or 'each_phase', got "
                     f"{calibration_seconds!r}"
                 )
             calibration_seconds = None
-        if calibration_seconds is not None and calibration_seconds < 0:
-            raise ValueError(f"calibration_seconds must be >= 0, got {calibration_seconds}")
+        refuse_settings(REFERENCE_SETTINGS, calibration_seconds=calibration_seconds)
         self.calibration_seconds = calibration_seconds
         self.min_measurements = int(min_measurements)
 

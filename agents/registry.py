@@ -27,8 +27,8 @@ from pathlib import Path
 from typing import Any
 
 from agents.base import Agent
+from agents.errors import AgentError
 from arm.constraints import check, constraints_of
-from arm.errors import SixAxisError
 
 __all__ = [
     "AGENTS",
@@ -43,10 +43,6 @@ __all__ = [
     "make_agent",
     "resolve_agent",
 ]
-
-
-class AgentError(SixAxisError, ValueError):
-    """An unknown agent or bad settings, with the name at fault."""
 
 
 #: the relative tolerance within which an agent's leaderboard rows reproduce on another CPU,

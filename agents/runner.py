@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from agents.base import Agent
-from arm.errors import SixAxisError
+from agents.errors import AgentFailure, EpisodeError, TimeLimitExceeded
 from envs.task import Truth, controller_info
 
 __all__ = [
@@ -74,22 +74,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 ENV_ID = "SixAxisTrack-v0"
-
-
-class AgentFailure(SixAxisError, RuntimeError):
-    """The agent failed: it raised, returned an action that is not 6 finite numbers, or its
-    process ended; the message names the agent, the call and the step. ``agent_traceback``:
-    the agent's own traceback, when it ran in a process of its own."""
-
-    agent_traceback: str = ""
-
-
-class TimeLimitExceeded(SixAxisError, TimeoutError):
-    """The run was still going at its time limit."""
-
-
-class EpisodeError(SixAxisError, ValueError):
-    """An episode that cannot run as asked (a phase longer than the env's episode)."""
 
 
 def agent_seed(episode_seed: int) -> int:
@@ -220,14 +204,14 @@ def workspace_campaign(
     postures are the seed arm's; another arm needs its own (a posture outside its joint limits is
     refused by the env)."""
     if not postures:
-        raise ValueError("workspace_campaign needs at least one calibration posture")
+        raise EpisodeError("workspace_campaign needs at least one calibration posture")
     if not kinds:
-        raise ValueError("workspace_campaign needs at least one trajectory kind")
+        raise EpisodeError("workspace_campaign needs at least one trajectory kind")
     if isinstance(judge_posture, str):
         try:
             judge_posture = JUDGE_POSTURES[judge_posture]
         except KeyError:
-            raise ValueError(
+            raise EpisodeError(
                 f"unknown judge_posture {judge_posture!r}; known: {', '.join(JUDGE_POSTURES)}, "
                 "or 6 joint angles"
             ) from None
@@ -349,7 +333,7 @@ def run_episode(
     if phases is None:
         phases = [Phase("track", episode_seconds, {}, judged=True)]
     if not phases:
-        raise ValueError("run_episode needs at least one phase")
+        raise EpisodeError("run_episode needs at least one phase")
     cols: dict[str, list] = {
         k: [] for k in ("time", "phase", "judged", "err", "act", "meas", "solve")
     }
@@ -376,7 +360,7 @@ def run_episode(
                 _call(name, "reset", 0, agent.reset, task, seed=agent_seed(seed), truth=given)
             else:
                 if not _same_truth(truth0, truth):
-                    raise ValueError(
+                    raise EpisodeError(
                         f"phase {ph.name!r}: overrides {dict(ph.overrides)} change the sampled "
                         "arm; a phase must keep the truth of the episode"
                     )

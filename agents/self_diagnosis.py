@@ -91,6 +91,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from scipy import stats
 
+from agents.errors import AgentError
 from agents.model_selection import SequentialSelection, candidate_families
 from agents.mpc import MPCAgent, Widening
 from agents.online_calibration import MeasurementBuffer, RecursiveLeastSquares, merge_effects
@@ -299,7 +300,7 @@ class DiagnosisSettings:
             found.append(
                 f"window ({self.window}) must be at least first_points ({self.first_points})"
             )
-        refuse(found, ValueError)
+        refuse(found, AgentError)
 
 
 class DiagnosingMPCAgent(MPCAgent):
@@ -339,12 +340,12 @@ class DiagnosingMPCAgent(MPCAgent):
         own = {f.name for f in dataclasses.fields(DiagnosisSettings)}
         given = {k: settings_and_mpc.pop(k) for k in list(settings_and_mpc) if k in own}
         if settings is not None and given:
-            raise ValueError(f"give the settings once: settings= and {', '.join(given)}")
+            raise AgentError(f"give the settings once: settings= and {', '.join(given)}")
         if settings_and_mpc.get("oracle"):
-            raise ValueError("mpc-diagnose is not an oracle: it diagnoses its own model")
+            raise AgentError("mpc-diagnose is not an oracle: it diagnoses its own model")
         st = settings if settings is not None else DiagnosisSettings(**given)
         if buffer < st.window:
-            raise ValueError(f"buffer ({buffer}) must hold the window ({st.window} points)")
+            raise AgentError(f"buffer ({buffer}) must hold the window ({st.window} points)")
         super().__init__(effects=effects, buffer=buffer, name=name, **settings_and_mpc)
         self.settings = st
 

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from agents.errors import UnsupportedEffectError
 from arm.effects import (
     REFERENCE_TEMPERATURE,
     Backlash,
@@ -43,7 +44,7 @@ from arm.effects import (
     Transmission,
 )
 from arm.errormodel import ErrorModel
-from arm.errors import SixAxisError
+from arm.errors import ModelError
 from arm.kinematics import Chain
 
 __all__ = [
@@ -55,10 +56,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-
-class UnsupportedEffectError(SixAxisError, ValueError):
-    """An effect that the CasADi tool model cannot express."""
 
 
 @dataclass(frozen=True)
@@ -87,9 +84,9 @@ class BufferedFunction:
 
     def __init__(self, f: ca.Function) -> None:
         if f.n_in() != 1 or f.n_out() != 1:
-            raise ValueError(f"{f.name()}: expected one input and one output")
+            raise UnsupportedEffectError(f"{f.name()}: expected one input and one output")
         if not (f.sparsity_in(0).is_dense() and f.sparsity_out(0).is_dense()):
-            raise ValueError(f"{f.name()}: input and output must be dense (ca.densify)")
+            raise UnsupportedEffectError(f"{f.name()}: input and output must be dense (ca.densify)")
         self.function = f
         self.arg = np.zeros(f.nnz_in(0))
         self.res = np.zeros(f.nnz_out(0))
@@ -248,7 +245,7 @@ class ToolModel:
         q = np.asarray(q, dtype=float).reshape(6)
         p = np.asarray(p, dtype=float).reshape(-1)
         if p.shape != (len(self.layout),):
-            raise ValueError(f"expected {len(self.layout)} parameters, got shape {p.shape}")
+            raise ModelError(f"expected {len(self.layout)} parameters, got shape {p.shape}")
         cvec = columns if isinstance(columns, np.ndarray) else self.column_vector(columns)
         return np.concatenate([q, p, cvec, self._offsets(q, p, cvec)])
 

@@ -51,6 +51,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents.base import Agent
+from agents.errors import TrainConfigError, TrainingError
 from agents.policy import (
     POLICY_DIR,
     Algo,
@@ -62,8 +63,15 @@ from agents.policy import (
     save_policy_file,
 )
 from agents.reference import FeedforwardAgent
-from arm.constraints import Interval, check, constraints_of, declare, problems
-from arm.errors import SixAxisError
+from arm.constraints import (
+    NON_NEGATIVE,
+    POSITIVE,
+    Interval,
+    check,
+    constraints_of,
+    declare,
+    problems,
+)
 from envs.task import TaskInfo, Truth, controller_info
 
 __all__ = [
@@ -115,8 +123,6 @@ MIN_EPISODE_SEED = 1000
 Reward = Literal["log", "improvement", "env"]
 REWARDS: tuple[str, ...] = typing.get_args(Reward)
 AT_LEAST_1 = Interval(int, 1, None)
-NON_NEGATIVE = Interval(float, 0.0, None)
-POSITIVE = Interval(float, 0.0, None, closed="neither")
 #: how the policy's features are scaled: SB3's running mean and variance (updated all through
 #: training, from the first flailing steps on), or the fixed scales the interface declares
 #: (``envs.wrappers.ToolDisplacement.feature_scale``; the tool variant only)
@@ -127,10 +133,6 @@ ObsNormalization = Literal["running", "fixed"]
 FIXED_SCALE_CLIP = 1000.0
 #: keys of [train.hyperparameters] that the trainer sets itself
 _RESERVED = {"policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model"}
-
-
-class TrainConfigError(SixAxisError, ValueError):
-    """A training config that cannot run, naming the file and the key."""
 
 
 @dataclass
@@ -385,9 +387,11 @@ class PolicyEnv(gym.Wrapper):
     ) -> None:
         super().__init__(env)
         if terminate_mm and reward != "log":
-            raise ValueError("terminate_mm is for the log reward (its alive bonus)")
+            raise TrainConfigError("terminate_mm is for the log reward (its alive bonus)")
         if reward == "improvement" and (variant != "residual" or shadow is None):
-            raise ValueError("the improvement reward needs a residual policy and a shadow env")
+            raise TrainConfigError(
+                "the improvement reward needs a residual policy and a shadow env"
+            )
         self.io = PolicyIO(variant, offset_mm, tool_step_mm)
         self.shadow = shadow if reward == "improvement" else None
         self.shadow_base = FeedforwardAgent()
@@ -489,7 +493,7 @@ class EpisodeSeeds:
 
     def __call__(self) -> int:
         if self.next >= self.stop:
-            raise RuntimeError(f"training ran out of episode seeds at {self.next}")
+            raise TrainingError(f"training ran out of episode seeds at {self.next}")
         s = self.next
         self.next += 1
         return s
@@ -1068,7 +1072,7 @@ def ship_policy(
 
     run_dir = Path(run_dir)
     if which not in ("best", "final"):
-        raise ValueError(f"which must be 'best' or 'final', got {which!r}")
+        raise TrainConfigError(f"which must be 'best' or 'final', got {which!r}")
     src = run_dir / f"{which}.npz"
     _, meta = load_policy_file(src)  # refuses anything unsafe or inconsistent
     name = name or str(meta["name"])

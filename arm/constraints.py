@@ -11,14 +11,22 @@ modes, ``bool`` is true or false, ``| None`` lets None through, and :func:`decla
         loss: Literal["linear", "huber"] = "linear"
 
         def __post_init__(self) -> None:
-            refuse(problems(self), ValueError)
+            refuse(problems(self), OptionsError)  # a SixAxisError and a ValueError
 
     Options(noise_mm=-1, loss="l2")
-    # ValueError: noise_mm must be positive, got -1; loss must be one of linear, huber, got 'l2'
+    # OptionsError: noise_mm must be positive, got -1; loss must be one of linear, huber, got 'l2'
 
 The same constraints feed the command line's choices and ranges (:func:`choices`,
 :func:`Interval.bounds`) and the checks of a mapping (a TOML table, an agent's settings) with
-:func:`check`. Plain data and the standard library only: every layer can use it.
+:func:`check`. Plain data, the standard library and :mod:`arm.errors` only: every layer can use
+it.
+
+A declaration also says what a value is (``help=``, ``unit=``), so that a command line's option
+is made from it (``experiments.cli_inputs.option_of``) and nothing about an option is written
+twice; a quantity taken in several places (the instrument's noise, :mod:`arm.noise`) is one
+:class:`Quantity`, its rule, unit and text, that each place declares its field with:
+
+    noise_mm: float | None = declare(None, NOISE_MM, help="Default: estimated.")
 """
 
 from __future__ import annotations
@@ -32,16 +40,22 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol
 
+from arm.errors import UnknownNameError
+
 __all__ = [
+    "NON_NEGATIVE",
+    "POSITIVE",
     "AnyOf",
     "Constraint",
     "Interval",
     "ListOf",
     "OneOf",
+    "Quantity",
     "TypeOf",
     "check",
     "choices",
     "constraints_of",
+    "declaration",
     "declare",
     "description",
     "expectation",
@@ -142,6 +156,11 @@ class Interval:
         return lo, hi
 
 
+#: a number > 0, and one >= 0 (the commonest ranges of a physical quantity)
+POSITIVE = Interval(float, 0.0, None, closed="neither")
+NON_NEGATIVE = Interval(float, 0.0, None, closed="left")
+
+
 @dataclass(frozen=True)
 class OneOf:
     """One of a few values (a ``Literal`` type's modes)."""
@@ -231,9 +250,66 @@ class AnyOf:
         return " or ".join(c.noun for c in self.options)
 
 
-def declare(default: Any, *constraints: Constraint) -> Any:
-    """A dataclass field with ``default`` and the constraints beyond its type."""
-    return dataclasses.field(default=default, metadata={"constraints": constraints})
+@dataclass(frozen=True)
+class Quantity:
+    """A quantity declared once, wherever it is taken: what values it may have, its unit and
+    what it is, in words that read after its name or flag (``help``). A field or an option takes
+    it whole (:func:`declare`, the command line's declarations), so that one rule and one text
+    hold for it everywhere:
+
+        NOISE_MM = Quantity(NON_NEGATIVE, "mm", "The instrument's per-axis standard uncertainty")
+        noise_mm: float | None = declare(None, NOISE_MM, help="Default: estimated.")
+    """
+
+    constraint: Constraint
+    unit: str = ""
+    help: str = ""
+
+    @property
+    def rule(self) -> Constraint:
+        """The constraint, its unit said with a range's bound: ``must be >= 0 (mm)``."""
+        c = self.constraint
+        if isinstance(c, Interval) and self.unit and not c.why:
+            return dataclasses.replace(c, why=self.unit)
+        return c
+
+    def text(self, more: str = "") -> str:
+        """The help: what it is, its unit, then ``more`` (what one use adds)."""
+        unit = f" ({self.unit})" if self.unit else ""
+        return " ".join(t for t in (f"{self.help}{unit}." if self.help else "", more) if t)
+
+
+def declare(
+    default: Any,
+    *constraints: Constraint | Quantity,
+    help: str = "",
+    unit: str = "",
+    **cli: Any,
+) -> Any:
+    """A dataclass field with ``default``, the constraints beyond its type, what it is
+    (``help``) and its ``unit``; a :class:`Quantity` gives its constraint, unit and help (``help``
+    then adds to its text). ``cli``: how a command line takes it, where its name and type do not
+    say (``flags=("--robot", "-r")``, ``metavar=...``, ``cli=False``: not an option there); read
+    back with :func:`declaration`."""
+    cons: list[Constraint] = []
+    for c in constraints:
+        if isinstance(c, Quantity):
+            cons.append(c.rule)
+            unit = unit or c.unit
+            help = c.text(help)
+        else:
+            cons.append(c)
+    meta = {"constraints": tuple(cons), "help": help, "unit": unit, **cli}
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def declaration(cls: type, name: str) -> Mapping[str, Any]:
+    """What :func:`declare` said of the field ``name`` of the dataclass ``cls`` (``help``,
+    ``unit``, ``constraints`` and the command line's keys); empty where nothing was declared."""
+    for f in dataclasses.fields(cls):
+        if f.name == name:
+            return f.metadata
+    raise UnknownNameError(f"{cls.__name__} has no field {name!r}")
 
 
 @dataclass(frozen=True)
@@ -334,7 +410,7 @@ def choices(cls: type, name: str) -> tuple[Any, ...]:
     for c in constraints_of(cls)[name][0]:
         if isinstance(c, OneOf):
             return c.values
-    raise KeyError(f"{cls.__name__}.{name} is not a choice of modes")
+    raise UnknownNameError(f"{cls.__name__}.{name} is not a choice of modes")
 
 
 def check(

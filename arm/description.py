@@ -50,6 +50,10 @@ SI units inside (m, rad, kg). The TOML file states its own units::
     [nominal]                    # optional, written by `lab export`: the nominal arm that was
     name = "seed"                # calibrated, a whole description in the same form (its own
     ...                          # units; no [nominal] of its own)
+
+    [uncertainty]                # optional, written by `lab export`: the calibration's parameters
+    parameters = ["da2", ...]    # relative to [nominal], their covariance and the spread between
+    ...                          # the sessions it was fitted on, SI (docs/format.md)
 """
 
 from __future__ import annotations
@@ -65,7 +69,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from arm.errors import SixAxisError
+from arm.errors import DescriptionError
 from arm.files import atomic_write_text, read_input_text
 from arm.ranges import payload_problem
 from arm.so3 import rotation_matrix, rotation_vector
@@ -94,10 +98,6 @@ _ANGLE = {"rad": 1.0, "deg": math.pi / 180.0}
 #: turn up to +-400 deg (a UR's +-360 deg); beyond two turns a limit is a unit slip (degrees
 #: declared as radians) or a typo, and ``plan`` would write poses no arm can reach.
 MAX_JOINT_TRAVEL = 4.0 * math.pi
-
-
-class DescriptionError(SixAxisError, ValueError):
-    """A robot description that cannot be used, with the file and key at fault."""
 
 
 @dataclass(frozen=True)
@@ -147,6 +147,10 @@ class RobotDescription:
     # (q1..q6 rad, tau1..tau6 N·m, temperature degC, payload kg, t s) and "n_poses"
     # (lab.domain); empty for a drawn arm. Not part of equality.
     domain: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+    # a calibrated arm's parameters with their covariance and the spread between the sessions
+    # it was fitted on (docs/format.md, [uncertainty]; lab.uncertainty reads it), SI units;
+    # empty for an arm no calibration wrote. Not part of equality.
+    uncertainty: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if len(self.joints) != 6:
@@ -351,6 +355,8 @@ class RobotDescription:
                 k: (int(v) if k == "n_poses" else [float(v[0]), float(v[1])])
                 for k, v in self.domain.items()
             }
+        if self.uncertainty:
+            doc["uncertainty"] = dict(self.uncertainty)
         return doc
 
     def save(self, path: str | Path, length_unit: str = "m", angle_unit: str = "deg") -> None:
@@ -421,6 +427,7 @@ _KEYS = {
         "stations",
         "nominal",
         "domain",
+        "uncertainty",
     },
     "station": {"station", "translation", "rotation_vector"},
     "joint": {"alpha", "a", "d", "theta_offset", "limits", "mass", "com", "beta"},
@@ -589,6 +596,9 @@ def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription
         effects[name] = {k: _get(vals, k, source, float, f"effects.{name}: ") for k in vals}
     stations = _stations(doc, source, L, A)
     domain = _domain(doc.get("domain", {}), source)
+    uncertainty = doc.get("uncertainty", {})
+    if not isinstance(uncertainty, dict):
+        raise DescriptionError(f"{source}: [uncertainty] must be a table")
     try:
         return RobotDescription(
             name=_get(doc, "name", source, str, "", Path(source).stem),
@@ -606,6 +616,7 @@ def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription
             stations=stations,
             nominal=nominal,
             domain=domain,
+            uncertainty=uncertainty,
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{source}: {exc}") from None

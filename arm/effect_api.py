@@ -22,15 +22,11 @@ from typing import Any
 import numpy as np
 
 from arm.description import RobotDescription
-from arm.errors import SixAxisError
+from arm.errors import EffectError
 from arm.kinematics import Chain, ColumnFrames, Workspace, cross_columns
 from arm.so3 import left_jacobian
 
 __all__ = ["AngularSensitivities", "ChainState", "EffectError", "ModelInputs", "Sensitivities"]
-
-
-class EffectError(SixAxisError, ValueError):
-    """An unknown effect, a bad effect specification or a missing measured column."""
 
 
 @dataclass

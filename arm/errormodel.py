@@ -42,6 +42,7 @@ from arm.effects import (
     parse_effects,
     user_code,
 )
+from arm.errors import ModelError
 from arm.kinematics import (
     Chain,
     ColumnFrames,
@@ -122,10 +123,10 @@ class ErrorModel:
         self.effects: list[Effect] = parse_effects(effects)
         self.targets = tuple(int(t) for t in targets)
         if not self.targets or len(set(self.targets)) != len(self.targets):
-            raise ValueError(f"targets must be distinct ids, got {targets}")
+            raise ModelError(f"targets must be distinct ids, got {targets}")
         self.stations = tuple(int(s) for s in stations)
         if not self.stations or len(set(self.stations)) != len(self.stations):
-            raise ValueError(f"stations must be distinct ids, got {stations}")
+            raise ModelError(f"stations must be distinct ids, got {stations}")
         self.orientation = bool(orientation)
         geometric = any(isinstance(e, Geometric) for e in self.effects)
         if (len(self.stations) > 1 or self.orientation) and not geometric:
@@ -192,7 +193,7 @@ class ErrorModel:
         """Per-pose inputs. ``columns`` may hold t, temperature, payload, dir1..6, target, others."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         if q.ndim != 2 or q.shape[1] != 6:
-            raise ValueError(f"{source}: joint angles must have shape (N, 6), got {q.shape}")
+            raise ModelError(f"{source}: joint angles must have shape (N, 6), got {q.shape}")
         cols = {k: np.asarray(v, dtype=float) for k, v in (columns or {}).items()}
         missing = sorted(c for c in self.required_columns() if c not in cols)
         if missing:
@@ -318,7 +319,7 @@ class ErrorModel:
         """Measured points (N, 3); with ``jacobian=True`` also d points / d p (N, 3, P)."""
         p = np.asarray(p, dtype=float)
         if p.shape != (len(self.layout),):
-            raise ValueError(f"expected {len(self.layout)} parameters, got shape {p.shape}")
+            raise ModelError(f"expected {len(self.layout)} parameters, got shape {p.shape}")
         if not jacobian:
             theta = self.joint_angles(inputs, p)
             st = self.state(inputs, p)
@@ -378,7 +379,7 @@ class ErrorModel:
         frame's axes) with R(p + e_k h) = exp([w h]x) R(p) to first order in h."""
         p = np.asarray(p, dtype=float)
         if p.shape != (len(self.layout),):
-            raise ValueError(f"expected {len(self.layout)} parameters, got shape {p.shape}")
+            raise ModelError(f"expected {len(self.layout)} parameters, got shape {p.shape}")
         st, f = self._evaluate(inputs, p, self._work if jacobian else None)
         point = self._point(st, f, inputs.target)
         R = f.axes[6].transpose(2, 1, 0)  # (N, 3, 3): column k is axis k of the last frame

@@ -40,7 +40,7 @@ import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from arm.errors import SixAxisError
+from arm.errors import InputFileError, OutputError
 
 __all__ = [
     "MAX_INPUT_BYTES",
@@ -77,15 +77,6 @@ MAX_INPUT_BYTES: dict[str, int] = {
     "python": 16 << 20,
     "weights": 256 << 20,
 }
-
-
-class OutputError(SixAxisError, ValueError):
-    """An output path that would replace an input or something that is not a regular file, or
-    that cannot be written."""
-
-
-class InputFileError(SixAxisError, ValueError):
-    """An input that is not a regular file, is too large, or cannot be read."""
 
 
 # -- what stands at a path --------------------------------------------------------------------------

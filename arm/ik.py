@@ -63,7 +63,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from arm.description import RobotDescription
-from arm.errors import SixAxisError
+from arm.errors import IKError
 from arm.kinematics import Chain, link_frames
 from arm.so3 import rot_x, rot_y, rot_z, rotation_vector
 
@@ -90,10 +90,6 @@ TWO_PI = 2.0 * math.pi
 POSE_TOL = 1e-9  # m and rad: a returned solution reproduces the pose this well
 _STRUCTURE_EXACT = 1e-9  # deviations below this count as the exact structure
 _STRUCTURE_NEAR = 0.05  # m / rad: closer than this, the closed form seeds a refinement
-
-
-class IKError(SixAxisError, ValueError):
-    """Bad input to an inverse-kinematics function (shapes, unknown tool)."""
 
 
 class IKResult(NamedTuple):

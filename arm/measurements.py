@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arm.errors import SixAxisError, SixAxisWarning, warn
+from arm.errors import MeasurementError, MeasurementWarning, warn
 from arm.files import (
     OutputError,
     atomic_path,
@@ -100,13 +100,25 @@ LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
 
 
-class MeasurementError(SixAxisError, ValueError):
-    """Bad measurement input; the message names the file, the line and the column."""
+@dataclass(frozen=True)
+class Session:
+    """One file of several joined into one set (:func:`arm.sessions.join_sessions`): its name,
+    how many rows it gave and the station ids of its rows (() for a file read alone without a
+    station column)."""
 
+    source: str
+    rows: int
+    stations: tuple[int, ...] = ()
 
-class MeasurementWarning(SixAxisWarning):
-    """A measurement file the lab reads, with something the user should know: a column that no
-    catalogued effect reads (kept for custom effects), a name close to a known one."""
+    def to_dict(self) -> dict:
+        return {"source": self.source, "rows": self.rows, "stations": list(self.stations)}
+
+    def text(self) -> str:
+        ids = ", ".join(map(str, self.stations))
+        where = (
+            f", station {ids}" if len(self.stations) == 1 else f", stations {ids}" if ids else ""
+        )
+        return f"{self.source} ({self.rows} rows{where})"
 
 
 @dataclass
@@ -122,7 +134,8 @@ class MeasurementSet:
     about the measurement frame's axes), None for positions alone; ``std`` (N, 6), each row's
     standard uncertainty of those components (m, rad; NaN where the file states none), or None;
     ``orientation_form``, the form the file gave it in (``rotvec`` or ``rpy``), for writing it
-    back; ``notes``, the warnings given when the file was read."""
+    back; ``notes``, the warnings given when the file was read; ``sessions``, the files the set
+    was joined from (:mod:`arm.sessions`), () for a set read from one file or made in memory."""
 
     q: np.ndarray
     xyz: np.ndarray
@@ -134,6 +147,7 @@ class MeasurementSet:
     std: np.ndarray | None = None
     orientation_form: str = "rotvec"
     notes: list[str] = field(default_factory=list)
+    sessions: tuple[Session, ...] = ()
 
     def __post_init__(self) -> None:
         self.q = np.asarray(self.q, dtype=float).reshape(-1, 6)
@@ -276,6 +290,7 @@ class MeasurementSet:
             rows(self.std),
             self.orientation_form,
             list(self.notes),
+            self.sessions,
         )
 
     def split(

@@ -21,39 +21,81 @@ the std is the row's sigma as given.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from arm.errors import SixAxisError
+from arm.constraints import NON_NEGATIVE, Quantity, check, refuse
+from arm.errors import NoiseError
 from arm.measurements import MeasurementSet
 
-__all__ = ["InstrumentNoise", "NoiseError"]
+__all__ = [
+    "NOISE_MM",
+    "NOISE_MRAD",
+    "NOISE_PPM",
+    "InstrumentNoise",
+    "NoiseError",
+    "noise_law_problems",
+]
 
 
-class NoiseError(SixAxisError, ValueError):
-    """A noise setting out of range, or a data set whose uncertainty is not stated."""
+def _flag(key: str) -> str:
+    return "--" + key.replace("_", "-")
+
+
+#: the instrument's noise, declared once for every place that takes it (the lab's options and
+#: command line, the simulated tracker of the env and of ``collect``): >= 0 each; where it is a
+#: stated uncertainty that weighs rows (the lab), :func:`noise_law_problems` adds that a law of
+#: zero states none. A simulator draws no noise from 0 (a perfect instrument).
+NOISE_MM = Quantity(NON_NEGATIVE, "mm", "The instrument's per-axis standard uncertainty")
+NOISE_PPM = Quantity(
+    NON_NEGATIVE,
+    "um per m",
+    "How the per-axis standard uncertainty grows with the distance from the tracker (a GTS3800: "
+    "6): sigma = --noise-mm + --noise-ppm x distance, the tracker at the origin of the "
+    "measurement frame (of each station)",
+)
+NOISE_MRAD = Quantity(
+    NON_NEGATIVE, "mrad", "The per-axis standard uncertainty of a measured orientation"
+)
+
+
+def noise_law_problems(
+    mm: float | None, ppm: float = 0.0, mrad: float | None = None, name: Any = str
+) -> list[str]:
+    """What is wrong with a stated instrument model (every problem, each naming its option by
+    ``name(key)``, e.g. as a flag): each value out of its declared range, then a law that weighs
+    a row infinitely (``noise_mm`` 0 without a ``noise_ppm`` term, ``noise_mrad`` 0)."""
+    quantities = {"noise_mm": NOISE_MM, "noise_ppm": NOISE_PPM, "noise_mrad": NOISE_MRAD}
+    values = {"noise_mm": mm, "noise_ppm": ppm, "noise_mrad": mrad}
+    rules = {k: ([q.rule], k != "noise_ppm") for k, q in quantities.items()}
+    found = check(values, rules, name=name)
+    if found:
+        return found
+    if mm == 0 and not ppm:
+        found.append(
+            f"{name('noise_mm')} 0 without {name('noise_ppm')} states no noise at all (rows would "
+            "weigh infinitely): give a distance term, or a noise > 0"
+        )
+    if mrad == 0:
+        found.append(f"{name('noise_mrad')} must be positive where it weighs rows, got 0")
+    return found
 
 
 @dataclass(frozen=True)
 class InstrumentNoise:
     """Per axis ``sigma = mm + ppm * distance`` (mm, and um per m of distance from the tracker)
     for positions; ``mrad`` per axis for orientations. ``mm`` None: not stated (then ``ppm``
-    alone, if given, is the whole law)."""
+    alone, if given, is the whole law). The values' rules: :data:`NOISE_MM`, :data:`NOISE_PPM`,
+    :data:`NOISE_MRAD` and :func:`noise_law_problems`."""
 
     mm: float | None = None
     ppm: float = 0.0
     mrad: float | None = None
 
     def __post_init__(self) -> None:
-        for name, v in (("--noise-mm", self.mm), ("--noise-ppm", self.ppm)):
-            if v is not None and not (math.isfinite(v) and v >= 0):
-                raise NoiseError(f"{name} must be a finite number >= 0, got {v}")
-        if self.mrad is not None and not (math.isfinite(self.mrad) and self.mrad > 0):
-            raise NoiseError(f"--noise-mrad must be a finite number > 0, got {self.mrad}")
-        if self.mm == 0 and self.ppm == 0:
-            raise NoiseError("--noise-mm 0 without --noise-ppm states no noise at all")
+        refuse(noise_law_problems(self.mm, self.ppm, self.mrad, _flag), NoiseError)
 
     @property
     def positions_stated(self) -> bool:

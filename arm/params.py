@@ -25,6 +25,8 @@ from typing import Literal
 
 import numpy as np
 
+from arm.errors import ModelError, UnknownNameError
+
 __all__ = [
     "BASE_NAMES",
     "ROW_FAMILIES",
@@ -50,11 +52,11 @@ class ParameterLayout:
         k = 0
         for effect, names in self.groups:
             if effect in slices:
-                raise ValueError(f"effect {effect!r} appears twice in the model")
+                raise ModelError(f"effect {effect!r} appears twice in the model")
             slices[effect] = slice(k, k + len(names))
             for n in names:
                 if n in index:
-                    raise ValueError(f"parameter {n!r} is declared by two effects")
+                    raise ModelError(f"parameter {n!r} is declared by two effects")
                 index[n] = k
                 k += 1
         object.__setattr__(self, "_index", index)
@@ -82,7 +84,7 @@ class ParameterLayout:
         try:
             return self._index[name]
         except KeyError:
-            raise KeyError(
+            raise UnknownNameError(
                 f"unknown parameter {name!r}; the model has {', '.join(self.names)}"
             ) from None
 
@@ -93,7 +95,7 @@ class ParameterLayout:
         try:
             return self._slices[effect]
         except KeyError:
-            raise KeyError(
+            raise UnknownNameError(
                 f"effect {effect!r} is not in the model ({', '.join(self.effects)})"
             ) from None
 
@@ -104,7 +106,7 @@ class ParameterLayout:
     def as_dict(self, values: np.ndarray) -> dict[str, float]:
         values = np.asarray(values, dtype=float)
         if values.shape != (len(self),):
-            raise ValueError(f"expected {len(self)} parameter values, got shape {values.shape}")
+            raise ModelError(f"expected {len(self)} parameter values, got shape {values.shape}")
         return {n: float(v) for n, v in zip(self.names, values, strict=True)}
 
     def vector(self, values: Mapping[str, float], default: np.ndarray | float = 0.0) -> np.ndarray:

@@ -11,14 +11,16 @@ import numpy as np
 
 from arm.description import RobotDescription
 from arm.errormodel import ErrorModel
-from arm.errors import SixAxisError
+from arm.errors import SamplingError
 from arm.kinematics import Chain, tool_points
 
 __all__ = [
     "MAX_POSES",
     "MIN_TOOL_HEIGHT",
+    "NEAR_MARGIN",
     "SamplingError",
     "check_count",
+    "region_of",
     "rng_from",
     "sample_parameters",
     "sample_poses",
@@ -31,10 +33,6 @@ MAX_POSES = 1_000_000
 #: random poses tried per pose wanted (at least ``_MIN_TRIES`` in all) before concluding that the
 #: arm never lifts its tool above the floor
 _TRIES_PER_POSE, _MIN_TRIES = 1000, 100_000
-
-
-class SamplingError(SixAxisError, ValueError):
-    """A seed or a count that cannot be drawn from, or an arm whose poses cannot be sampled."""
 
 
 def rng_from(seed: int | np.random.Generator | None, what: str = "seed") -> np.random.Generator:
@@ -86,19 +84,50 @@ def sample_parameters(
     return p
 
 
+#: how far (rad) the poses planned for a program's region reach beyond its joints' range
+NEAR_MARGIN = 0.1
+
+
+def region_of(
+    robot: RobotDescription, program: np.ndarray, margin: float = 0.05
+) -> tuple[np.ndarray, np.ndarray]:
+    """The joint region of a program's joints (P, 6): per joint, the range it covers widened by
+    :data:`NEAR_MARGIN` on each side, within the limits (shrunk by ``margin``)."""
+    q = np.asarray(program, dtype=float)
+    if q.ndim != 2 or q.shape[1] != 6 or len(q) == 0 or not np.isfinite(q).all():
+        raise SamplingError(
+            f"a program's joints must be a non-empty (P, 6) array of finite angles, got shape "
+            f"{q.shape}"
+        )
+    lo = np.maximum(q.min(axis=0) - NEAR_MARGIN, robot.lower + margin)
+    hi = np.minimum(q.max(axis=0) + NEAR_MARGIN, robot.upper - margin)
+    if np.any(lo > hi):
+        bad = [j + 1 for j in np.flatnonzero(lo > hi)]
+        raise SamplingError(
+            f"the program's joints q{', q'.join(map(str, bad))} lie outside the arm's joint limits"
+        )
+    return lo, hi
+
+
 def sample_poses(
     robot: RobotDescription,
     n: int,
     rng: np.random.Generator,
     min_height: float = MIN_TOOL_HEIGHT,
     margin: float = 0.05,
+    near: np.ndarray | None = None,
 ) -> np.ndarray:
     """``n`` joint configurations uniform within the limits (shrunk by ``margin`` rad), keeping the
     nominal tool point above ``min_height`` (in the robot base frame). An arm that does not lift
     its tool above ``min_height`` in ``1000 n`` tries (an arm of zero lengths, lengths in mm read
-    as m) is a :class:`SamplingError`, not an endless search."""
+    as m) is a :class:`SamplingError`, not an endless search.
+
+    ``near`` (P, 6): the joints of a program; the poses are drawn from its region instead, the
+    box of its joints widened by :data:`NEAR_MARGIN` rad on each side (:func:`region_of`)."""
     n = check_count(n, "the number of poses")
     lo, hi = robot.lower + margin, robot.upper - margin
+    if near is not None:
+        lo, hi = region_of(robot, near, margin)
     chain = Chain.from_description(robot)
     tool = robot.to_modified().tool_points[0]
     out = np.empty((0, 6))

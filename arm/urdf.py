@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from arm.errors import SixAxisError
+from arm.errors import UrdfError
 from arm.so3 import rot_x, rot_y, rot_z, rotation_matrix
 
 __all__ = [
@@ -71,10 +71,6 @@ log = logging.getLogger(__name__)
 PARALLEL_TOL = 0.05
 GRAVITY = (0.0, 0.0, -9.81)  # m/s², in the root link's frame
 ARM_JOINTS = ("revolute", "continuous")
-
-
-class UrdfError(SixAxisError, ValueError):
-    """A URDF that cannot be read as a six-axis arm: the message names the file, joint or link."""
 
 
 @dataclass(frozen=True)

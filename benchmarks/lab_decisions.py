@@ -65,6 +65,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from arm import seed_robot  # noqa: E402
+from arm.description import RobotDescription  # noqa: E402
 from arm.errormodel import ErrorModel  # noqa: E402
 from arm.files import atomic_write_text  # noqa: E402
 from arm.measurements import MeasurementSet  # noqa: E402
@@ -195,11 +196,13 @@ def visible_rms(model: ErrorModel, inputs, p: np.ndarray, names: list[str]) -> f
     return float(np.sqrt(np.sum(r**2) / (d.size / 3)))
 
 
-def model_campaign(spec: dict[str, Any]) -> tuple[MeasurementSet, list[dict[str, Any]]]:
-    """The error model's campaign of ``spec``: the data and the planted effects with the sizes
-    reached (x the floor)."""
-    rng = np.random.default_rng([SEED0, spec["seed"], 1])
-    robot = seed_robot()
+def model_campaign(
+    spec: dict[str, Any], robot: RobotDescription | None = None, seed0: int = SEED0
+) -> tuple[MeasurementSet, list[dict[str, Any]]]:
+    """The error model's campaign of ``spec`` on ``robot`` (default the seed arm): the data and
+    the planted effects with the sizes reached (x the floor)."""
+    rng = np.random.default_rng([seed0, spec["seed"], 1])
+    robot = robot or seed_robot()
     labels = [_label(p) for p in spec["planted"]]
     truth = ErrorModel(robot, ",".join(["geometric", *labels]))
     geo = list(truth.layout.names[truth.layout.slice("geometric")])

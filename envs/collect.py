@@ -26,11 +26,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from arm.constraints import Constraint, Interval, check, refuse
 from arm.description import RobotDescription, load_robot
-from arm.errors import SixAxisError
 from arm.measurements import MeasurementSet, write_measurements
+from arm.noise import NOISE_MM, NOISE_MRAD, NOISE_PPM
 from arm.sampling import SamplingError, check_count, rng_from, sample_poses
 from arm.so3 import rotation_matrix, rotation_vector
+from envs.errors import CollectError, DivergedError
 from envs.instrument import TrackerStation, place_stations
 
 if TYPE_CHECKING:
@@ -41,8 +43,14 @@ __all__ = ["CollectError", "check_poses", "collect_measurements"]
 log = logging.getLogger(__name__)
 
 
-class CollectError(SixAxisError, ValueError):
-    """Poses or payloads that cannot be measured: a wrong shape, NaN, outside the joint limits."""
+#: the simulated instrument's settings: the quantities of :mod:`arm.noise` (0 draws no noise: a
+#: perfect instrument) and the share of rows whose orientation is seen
+CAMPAIGN_RULES: dict[str, tuple[list[Constraint], bool]] = {
+    "noise_mm": ([NOISE_MM.rule], False),
+    "noise_ppm": ([NOISE_PPM.rule], False),
+    "noise_mrad": ([NOISE_MRAD.rule], False),
+    "orientation_fraction": ([Interval(float, 0.0, 1.0, why="a fraction of the rows")], False),
+}
 
 
 APPROACH = 0.03  # rad: each joint's last move towards the pose
@@ -218,11 +226,13 @@ def _check_campaign(
     if approach is not None:
         if approach.shape != poses.shape or not np.all(np.abs(approach) == 1.0):
             raise CollectError(f"approach must be +-1 of shape {poses.shape}")
-    for name, v in (("noise_mm", noise_mm), ("noise_ppm", noise_ppm), ("noise_mrad", noise_mrad)):
-        if not (math.isfinite(v) and v >= 0):
-            raise CollectError(f"{name} must be a finite number >= 0, got {v}")
-    if not 0.0 <= orientation_fraction <= 1.0:
-        raise CollectError(f"orientation_fraction must be in [0, 1], got {orientation_fraction}")
+    values = {
+        "noise_mm": noise_mm,
+        "noise_ppm": noise_ppm,
+        "noise_mrad": noise_mrad,
+        "orientation_fraction": orientation_fraction,
+    }
+    refuse(check(values, CAMPAIGN_RULES), CollectError)
 
 
 def _stations(
@@ -293,7 +303,7 @@ def _measure_poses(
                 break
             ref = ref + miss
         if plant.diverged():
-            raise RuntimeError(f"the simulation diverged at pose {i}: {q}")
+            raise DivergedError(f"the simulation diverged at pose {i}: {q}")
         q_out[i] = plant.q
         world[i] = plant.tool_point()
         frames[i] = plant.tool_frame()

@@ -22,8 +22,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from arm.errors import SixAxisError
+from arm.constraints import Interval, declare, problems, refuse
+from arm.noise import NOISE_MM
 from arm.so3 import rotation_matrix, rotation_vector
+from envs.errors import InstrumentError
 
 __all__ = [
     "InstrumentError",
@@ -36,34 +38,21 @@ __all__ = [
 ]
 
 
-class InstrumentError(SixAxisError, ValueError):
-    """An instrument setting out of range."""
-
-
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Per-axis noise (mm, one standard deviation), the sampling period (control steps), the
-    probability that a sample is lost, the delivery latency (control steps), on/off."""
+    """Per-axis noise (mm, one standard deviation: :data:`arm.noise.NOISE_MM`; 0 draws none),
+    the sampling period (control steps), the probability that a sample is lost, the delivery
+    latency (control steps), on/off; each declared with its range (the env's options take
+    them from here)."""
 
-    noise_mm: float = 0.015
-    measure_every: int = 5
-    dropout: float = 0.0
-    latency_steps: int = 0
+    noise_mm: float = declare(0.015, NOISE_MM, help="The simulated tracker's; 0 draws none.")
+    measure_every: int = declare(5, Interval(int, 1, None, why="control steps"))
+    dropout: float = declare(0.0, Interval(float, 0.0, 1.0, closed="left", why="a probability"))
+    latency_steps: int = declare(0, Interval(int, 0, None, why="control steps"))
     enabled: bool = True
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.noise_mm) and self.noise_mm >= 0):
-            raise InstrumentError(f"noise_mm must be >= 0, got {self.noise_mm}")
-        if int(self.measure_every) != self.measure_every or self.measure_every < 1:
-            raise InstrumentError(
-                f"measure_every must be a positive integer, got {self.measure_every}"
-            )
-        if not 0.0 <= self.dropout < 1.0:
-            raise InstrumentError(f"dropout must be in [0, 1), got {self.dropout}")
-        if int(self.latency_steps) != self.latency_steps or self.latency_steps < 0:
-            raise InstrumentError(
-                f"latency_steps must be a non-negative integer, got {self.latency_steps}"
-            )
+        refuse(problems(self), InstrumentError)
 
 
 @dataclass

@@ -49,11 +49,12 @@ from typing import Any
 
 import numpy as np
 
+from arm.constraints import Interval, check, constraints_of, declare, refuse
 from arm.description import RobotDescription
 from arm.effects import REFERENCE_TEMPERATURE
-from arm.errors import SixAxisError
 from arm.kinematics import gravity_torques
 from arm.so3 import rot_x, rot_y, rot_z, rotation_matrix
+from envs.errors import PlantError
 from envs.simulator import mujoco
 
 __all__ = [
@@ -121,10 +122,6 @@ def _add_scenery(spec: mujoco.MjSpec, r: RobotDescription) -> Any:
     return base
 
 
-class PlantError(SixAxisError, ValueError):
-    """A plant configuration that cannot be built or applied."""
-
-
 def _vec6(x, name: str) -> np.ndarray:
     a = np.array(np.broadcast_to(np.asarray(x, dtype=float), (6,)), dtype=float)
     if not np.all(np.isfinite(a) | np.isinf(a)) or np.any(np.isnan(a)):
@@ -178,8 +175,8 @@ class HiddenEffects:
     kappa: float = 0.0
     temperature0: float = AMBIENT
     heating: float = 0.0
-    cooling_time: float = 600.0
-    payload0: float = 0.0
+    cooling_time: float = declare(600.0, Interval(float, 0.0, None, closed="neither", why="s"))
+    payload0: float = declare(0.0, Interval(float, 0.0, None, why="kg"))
     payload_schedule: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
@@ -208,10 +205,11 @@ class HiddenEffects:
             raise PlantError(f"stiffness must be > 0 (inf for rigid), got {self.stiffness}")
         if np.any(self.gap < 0) or np.any(self.bearing_friction < 0):
             raise PlantError("backlash gaps and bearing friction must be >= 0")
-        if self.payload0 < 0 or any(m < 0 for _, m in self.payload_schedule):
+        if any(m < 0 for _, m in self.payload_schedule):
             raise PlantError("payload masses must be >= 0 kg")
-        if self.cooling_time <= 0:
-            raise PlantError(f"cooling_time must be > 0 s, got {self.cooling_time}")
+        declared = constraints_of(HiddenEffects)  # the scalars' ranges (the arrays' are above)
+        scalars = {k: getattr(self, k) for k in ("cooling_time", "payload0")}
+        refuse(check(scalars, declared), PlantError)
 
     @property
     def needs_elastic(self) -> bool:

@@ -42,9 +42,9 @@ import numpy as np
 from arm.description import RobotDescription
 from arm.effects import Backlash, Compliance, Cyclic, JointScale, Thermal, Transmission
 from arm.errormodel import ErrorModel
-from arm.errors import SixAxisError
 from arm.kinematics import gravity_torques
 from arm.sampling import sample_parameters, sample_poses
+from envs.errors import ScenarioError
 from envs.plant import AMBIENT, HiddenEffects
 
 __all__ = [
@@ -64,10 +64,6 @@ EFFECTS = ("geometric", "compliance", "transmission", "backlash", "thermal", "pa
 _ALL = ("geometric", "compliance", "transmission", "backlash", "thermal", "payload")
 CYCLIC_JOINTS = 3  # joints with cyclic errors in the cyclic scenario
 CYCLIC_ORDERS = 2  # orders per such joint
-
-
-class ScenarioError(SixAxisError, ValueError):
-    """An unknown scenario, or an override that names an unknown effect or parameter."""
 
 
 @dataclass(frozen=True)

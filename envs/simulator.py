@@ -13,16 +13,12 @@ from __future__ import annotations
 import os
 import sys
 
-from arm.errors import SixAxisError
+from envs.errors import SimulatorError
 
 __all__ = ["GL_BACKENDS", "SimulatorError", "mujoco"]
 
 #: the values of MUJOCO_GL that MuJoCo takes on this platform (besides "disable")
 GL_BACKENDS = ("egl", "osmesa", "glfw") if sys.platform.startswith("linux") else ("glfw",)
-
-
-class SimulatorError(SixAxisError, RuntimeError):
-    """MuJoCo cannot start or render (the GL backend that ``MUJOCO_GL`` names)."""
 
 
 if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):

@@ -18,12 +18,12 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.error import ResetNeeded
 from gymnasium.wrappers import TimeLimit
 
-from arm.constraints import Constraint, Interval, OneOf, TypeOf, description
+from arm.constraints import Constraint, Interval, OneOf, TypeOf, constraints_of, description
 from arm.description import RobotDescription, load_robot
 from arm.errors import SixAxisError
+from envs.errors import ActionError, EnvOptionError, EnvStateError
 from envs.instrument import InstrumentError, LaserTracker, TemperatureSensor, TrackerConfig
 from envs.plant import MAX_SPEED, PHYSICS_DT, SUBSTEPS, Plant
 from envs.scenarios import SCENARIOS, EpisodeTruth, Scenario, draw_truth, get_scenario
@@ -171,14 +171,6 @@ def _observation_space(nominal: RobotDescription, slices: dict[str, slice], n: i
     return spaces.Box(low, high, (n,), np.float32)
 
 
-class EnvOptionError(SixAxisError, ValueError):
-    """Keyword arguments the env does not take; the message names every key at fault."""
-
-
-class EnvStateError(SixAxisError, ResetNeeded, RuntimeError):
-    """A call the env cannot answer in its state (``step`` before ``reset``)."""
-
-
 #: the largest rendered frame, pixels per side (4K video is 3840 x 2160; MuJoCo's offscreen buffer
 #: and the H.264 encoder refuse frames far beyond)
 MAX_FRAME = 4096
@@ -186,16 +178,17 @@ MAX_FRAME = 4096
 RENDER_MODES = ("rgb_array",)
 _CONTROL_DT = PHYSICS_DT * SUBSTEPS
 
+#: the tracker's options, as the instrument declares them (:class:`envs.instrument.TrackerConfig`)
+_TRACKER = constraints_of(TrackerConfig)
+_TRACKER_OPTIONS = ("noise_mm", "measure_every", "dropout", "latency_steps")
+
 #: what each plain option may be (:mod:`arm.constraints`; ``True``: None too), in the constructor's
 #: order; the scenario, the robot, the posture and the overrides are judged by the libraries that
 #: read them (:func:`envs.scenarios.draw_truth`, :func:`arm.description.load_robot`,
 #: :func:`envs.trajectories.check_posture`) and the instrument's options by its own rules too
 OPTION_CONSTRAINTS: dict[str, tuple[Constraint, bool]] = {
     "trajectory": (OneOf(KINDS), True),
-    "noise_mm": (Interval(float, 0.0, None, why="mm"), False),
-    "measure_every": (Interval(int, 1, None, why="control steps"), False),
-    "dropout": (Interval(float, 0.0, 1.0, closed="left", why="a probability"), False),
-    "latency_steps": (Interval(int, 0, None, why="control steps"), False),
+    **{k: (_TRACKER[k][0][0], False) for k in _TRACKER_OPTIONS},
     "measurements": (TypeOf(bool), False),
     "temperature_noise": (Interval(float, 0.0, None, why="K"), False),
     "temperature_lag": (Interval(float, 0.0, None, why="s"), False),
@@ -244,7 +237,7 @@ class SixAxisTrackEnv(gym.Env):
     commanded ``action[i] * v_max[i]`` rad/s (``task.v_max``), rate-limited to ``a_max[i] * dt``
     per step (``task.a_max``); its position loop integrates the command within the joint limits
     and its torque is limited to ``task.torque_max``. Values outside [-1, 1] are clipped; NaN, inf
-    or a wrong shape raise ``ValueError``.
+    or a wrong shape raise :class:`~envs.errors.ActionError` (a ``ValueError``).
 
     | Num | Action                         | Min | Max | Joint  | Unit               |
     |-----|--------------------------------|-----|-----|--------|--------------------|
@@ -547,7 +540,7 @@ class SixAxisTrackEnv(gym.Env):
         super().reset(seed=seed)
         kind = (options or {}).get("trajectory", self.trajectory_kind)
         if kind is not None and kind not in KINDS:
-            raise ValueError(
+            raise EnvOptionError(
                 f"options['trajectory'] must be one of {', '.join(KINDS)}, got {kind!r}"
             )
         posture = (options or {}).get("posture", self.posture)
@@ -678,18 +671,18 @@ class SixAxisTrackEnv(gym.Env):
             try:
                 action = np.asarray(action, dtype=float)
             except (TypeError, ValueError) as exc:
-                raise ValueError(f"action must be 6 numbers, got {action!r}") from exc
+                raise ActionError(f"action must be 6 numbers, got {action!r}") from exc
         if action.shape != (6,):
-            raise ValueError(f"action must have shape (6,), got shape {action.shape}")
+            raise ActionError(f"action must have shape (6,), got shape {action.shape}")
         try:
             finite = math.isfinite(action.sum(dtype=float))  # NaN and inf propagate
             a = np.minimum(action, 1.0, dtype=float)
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"action must be 6 numbers, got {action!r}") from exc
+            raise ActionError(f"action must be 6 numbers, got {action!r}") from exc
         if not finite:
             bad = np.flatnonzero(~np.isfinite(np.asarray(action, dtype=float))).tolist()
             if bad:
-                raise ValueError(f"action has NaN or inf at index {bad}: {action}")
+                raise ActionError(f"action has NaN or inf at index {bad}: {action}")
         np.maximum(a, -1.0, out=a)
         return a
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from arm.description import RobotDescription
 from arm.errormodel import ErrorModel
+from envs.errors import ObservationError
 
 __all__ = ["CONTROLLER_INFO_KEYS", "Observation", "TaskInfo", "Truth", "controller_info"]
 
@@ -141,7 +142,9 @@ class Observation:
         def part(name: str, default: np.ndarray | None = None) -> np.ndarray:
             if name not in sl:
                 if default is None:
-                    raise KeyError(f"the observation has no {name!r} (slices: {sorted(sl)})")
+                    raise ObservationError(
+                        f"the observation has no {name!r} (slices: {sorted(sl)})"
+                    )
                 return default
             return obs[sl[name]]
 

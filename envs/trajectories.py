@@ -25,10 +25,10 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from arm.description import RobotDescription
-from arm.errors import SixAxisError
 from arm.ik import solve_point
 from arm.kinematics import Chain, link_frames
 from arm.sampling import MIN_TOOL_HEIGHT
+from envs.errors import TrajectoryError
 
 __all__ = [
     "KINDS",
@@ -48,10 +48,6 @@ CHECK_DT = 0.1  # s between the points that the reachability check solves
 JOINT_MARGIN = 0.1  # rad kept from the joint limits
 SPEED_FRACTION = 0.5  # of v_max that the nominal joint speeds may use
 MIN_SINGULAR = 0.05  # m/rad, smallest singular value of the position Jacobian
-
-
-class TrajectoryError(SixAxisError, ValueError):
-    """An unknown trajectory kind, or no reachable trajectory found."""
 
 
 def _ramp_phase(t: np.ndarray, ramp: float) -> np.ndarray:

@@ -36,8 +36,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from arm.constraints import POSITIVE, check, refuse
 from arm.description import RobotDescription
 from arm.kinematics import Chain
+from envs.errors import ActionError, EnvOptionError, EnvStateError
 
 __all__ = [
     "INTERFACES",
@@ -54,6 +56,8 @@ INTERFACES = ("joint", "tool")
 #: s, the age of the model error observed before the first measurement (and the cap of any age)
 MAX_ERROR_AGE = 1.0
 MM = 1e3
+#: the tool interface's step (mm): the displacement that an action of 1 commands
+TOOL_STEP_MM = POSITIVE
 #: mm, the bound of every relative length the tool interface observes (twice the env's workspace)
 _LENGTH_BOUND_MM = 1e4
 
@@ -204,10 +208,10 @@ class ToolDisplacement:
     """
 
     def __init__(self, task: Any, step_mm: float = 5.0, damping: float = 1e-3) -> None:
-        if isinstance(step_mm, bool) or not (
-            isinstance(step_mm, int | float) and math.isfinite(step_mm) and step_mm > 0
-        ):
-            raise ValueError(f"tool_step_mm must be a positive number of mm, got {step_mm!r}")
+        refuse(
+            check({"tool_step_mm": step_mm}, {"tool_step_mm": ([TOOL_STEP_MM], False)}),
+            EnvOptionError,
+        )
         self.task = task
         self.step_mm = float(step_mm)
         self.damping = float(damping)
@@ -306,10 +310,10 @@ class ToolDisplacement:
     def joint_velocity(self, action: np.ndarray) -> np.ndarray:
         """The joint velocity (6,) rad/s the action asks for (limits applied); remembers it."""
         if self._pose is None:
-            raise RuntimeError("ToolDisplacement.command before observe(): no pose yet")
+            raise EnvStateError("ToolDisplacement.command before observe(): no pose yet")
         a = np.array(action, dtype=float).reshape(-1)
         if a.shape != (3,) or not math.isfinite(a.sum()):
-            raise ValueError(
+            raise ActionError(
                 f"the tool interface's action must be 3 finite numbers, got {action!r}"
             )
         np.minimum(a, 1.0, out=a)
@@ -418,7 +422,9 @@ class NominalToolObservation(gym.ObservationWrapper):
         # the reference and its preview are one block of the env's observation: one subtraction
         self._points = slice(self._ref.start, self._preview.stop)
         if self._ref.stop != self._preview.start:
-            raise ValueError("NominalToolObservation needs the preview right after the reference")
+            raise EnvOptionError(
+                "NominalToolObservation needs the preview right after the reference"
+            )
 
     def observation(self, observation: Any) -> np.ndarray:
         obs = np.asarray(observation, dtype=float)

@@ -1,12 +1,15 @@
 """What the ``sixaxis lab`` commands take: their shared options and how their inputs are read.
 
-The options' choices and ranges come from the library's vocabulary, not from this module:
-:func:`declared` turns a declared constraint (:mod:`arm.constraints`: ``lab.LabOptions``'s fields,
-the lab's ``ALPHA``, ``ORDER``, ``ROUNDS``, the units of :mod:`arm.measurements`) into a typer
-option whose help shows the choices or the range and whose value is refused in the library's own
-words, naming the flag: ``error: --noise-mm must be positive, got -1.0``. Everything else a
-command is given is judged by the library it calls, inside :func:`~experiments.cli_output.
-user_errors` (one line ``error: ...``, exit code 2).
+Every option is made from one declaration (:func:`arm.constraints.declare`: its name, type,
+range or choices, unit and help): the fields of ``lab.LabOptions`` and of :class:`LabInputs` (what
+the commands read) by :func:`option_of`, a quantity of its own (``lab.options.ALPHA``,
+``arm.noise.NOISE_MM``) by :func:`declared`. The help shows the choices or the range, a bad value
+is refused in the library's own words naming the flag (``error: --noise-mm must be >= 0, got
+-1.0``), and :class:`LabArgs` gathers the fitting commands' options, repeats them
+(:meth:`LabArgs.flags`) and carries them into a printed next step (:meth:`LabArgs.next_step`)
+from the registered commands themselves. Everything else a command is given is judged by the
+library it calls, inside :func:`~experiments.cli_output.user_errors` (one line ``error: ...``,
+exit code 2).
 """
 
 from __future__ import annotations
@@ -15,8 +18,8 @@ import contextlib
 import functools
 import inspect
 import typing
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, fields
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -24,17 +27,31 @@ import typer
 from rich.markup import escape
 from typer.core import TyperGroup
 
-from arm.constraints import Constraint, Interval, OneOf, constraints_of
+from arm.constraints import (
+    Constraint,
+    Interval,
+    OneOf,
+    Quantity,
+    TypeOf,
+    check,
+    constraints_of,
+    declaration,
+    declare,
+)
 from arm.errors import SixAxisError
 from arm.measurements import ANGLE_UNITS, LENGTH_UNITS
+from arm.noise import noise_law_problems
 from experiments.cli_output import console, err_console, fail, user_errors
-
-if TYPE_CHECKING:
-    from arm.effects import Effect
 from lab.options import LabOptions
 
+if TYPE_CHECKING:
+    from arm.description import RobotDescription
+    from arm.effects import Effect
+    from arm.measurements import MeasurementSet
+
 __all__ = [
-    "AcceptLargeOpt",
+    "INPUTS",
+    "NOT_CARRIED",
     "AngleOpt",
     "DataArg",
     "DeclaredError",
@@ -42,25 +59,26 @@ __all__ = [
     "JsonOpt",
     "JsonOutOpt",
     "LabArgs",
+    "LabInputs",
     "LengthOpt",
-    "LossOpt",
-    "MeasuredOpt",
     "ModuleOpt",
-    "NoiseMradOpt",
-    "NoiseOpt",
-    "NoisePpmOpt",
     "OneLineErrors",
-    "OrientationUnitOpt",
-    "OutliersOpt",
+    "Read",
     "RobotOpt",
-    "ValidateOpt",
     "check_outputs",
+    "cli_fields",
     "declared",
+    "flag_of",
     "lab_command",
     "load_modules",
+    "module_output",
+    "option_of",
     "parse_effects",
     "read_arm",
     "read_data",
+    "read_sessions",
+    "refuse_noise",
+    "sessions_json",
     "writing",
 ]
 
@@ -98,21 +116,31 @@ def _declared(exc: BaseException) -> str | None:
 
 
 def declared(
-    constraint: Constraint, key: str, help: str, *flags: str, lower: bool = False, **kw: Any
+    constraint: Constraint | Quantity,
+    key: str,
+    help: str = "",
+    *flags: str,
+    lower: bool = False,
+    **kw: Any,
 ) -> Any:
     """A typer option checked by ``constraint`` (its choices or range shown in the help), named
-    ``flags`` (default ``--key``); ``lower``: a choice given in any case."""
-    flags = flags or ("--" + key.replace("_", "-"),)
+    ``flags`` (default ``--key``); a :class:`~arm.constraints.Quantity` gives its constraint and
+    its text, which ``help`` adds to; ``lower``: a choice given in any case."""
+    if isinstance(constraint, Quantity):
+        checked, help = constraint.rule, constraint.text(help)
+    else:
+        checked = constraint
+    flags = flags or (flag_of(key),)
     flag = flags[0]
     kind: Callable[[str], Any] = str
-    if isinstance(constraint, Interval):
-        kind = int if constraint.kind is int else float
-        lo, hi = constraint.low, constraint.high
+    if isinstance(checked, Interval):
+        kind = int if checked.kind is int else float
+        lo, hi = checked.low, checked.high
         metavar = "<int>" if kind is int else "<float>"
         if lo is not None or hi is not None:
-            metavar += f" {constraint.predicate.removeprefix('be ').removeprefix('lie ')}"
-    elif isinstance(constraint, OneOf):
-        metavar = "[" + "|".join(map(str, constraint.values)) + "]"
+            metavar += f" {checked.predicate.removeprefix('be ').removeprefix('lie ')}"
+    elif isinstance(checked, OneOf):
+        metavar = "[" + "|".join(map(str, checked.values)) + "]"
     else:
         metavar = "<value>"
 
@@ -123,135 +151,135 @@ def declared(
             v = kind(value.lower() if lower else value)
         except ValueError:
             v = value
-        if not constraint.holds(v):
-            raise DeclaredError(f"{flag} must {constraint.predicate}, got {v!r}")
+        if not checked.holds(v):
+            raise DeclaredError(f"{flag} must {checked.predicate}, got {v!r}")
         return v
 
-    return typer.Option(*flags, help=help, parser=parse, metavar=metavar, **kw)
+    return typer.Option(*flags, help=help, parser=parse, **({"metavar": metavar} | kw))
 
 
-def _option(key: str) -> Constraint:
-    return constraints_of(LabOptions)[key][0][0]
+def flag_of(key: str) -> str:
+    """The command-line flag of a declared name: ``noise_mm`` -> ``--noise-mm``."""
+    return "--" + key.replace("_", "-")
 
 
-_NOISE_HELP = (
-    "The instrument's per-axis standard uncertainty (mm); the noise floor of a 3-D RMS is this "
-    "times sqrt(3). Refused where the fit's residual refutes it (more than 3x the noise it "
-    "shows, beyond chance: a unit slip). Default: estimated from the residual."
-)
-NoiseOpt = Annotated[float | None, declared(_option("noise_mm"), "noise_mm", _NOISE_HELP)]
-LossOpt = Annotated[
-    str, declared(_option("loss"), "loss", "linear (least squares), huber or soft_l1 (robust).")
-]
-OutliersOpt = Annotated[
-    str,
-    declared(
-        _option("outliers"),
-        "outliers",
-        "auto: leave gross outliers out of the fit and the tests, named by line (a 3-D "
-        "residual beyond the radius that Gaussian noise of the robust scale exceeds in 1 % of "
-        "clean data sets, once the model and every catalogued effect explain what they can); "
-        "keep: fit every pose.",
-    ),
-]
-AcceptLargeOpt = Annotated[
-    bool,
-    typer.Option(
-        "--accept-large",
-        help="Keep a model whose identified parameters exceed the plausible bound of their "
-        "kind (10 mm for a DH length error, 50 mrad for a DH angle error, ten times an "
-        "effect's typical size) instead of refusing it; base and tool are never bounded.",
-    ),
-]
-NoisePpmOpt = Annotated[
-    float,
-    declared(
-        _option("noise_ppm"),
-        "noise_ppm",
-        "How the per-axis sigma grows with the distance from the tracker, um per m (a "
-        "GTS3800: 6): sigma = --noise-mm + --noise-ppm x distance, the tracker at the origin of "
-        "the measurement frame (of each station). Rows are weighted by it.",
-    ),
-]
-NoiseMradOpt = Annotated[
-    float | None,
-    declared(
-        _option("noise_mrad"),
-        "noise_mrad",
-        "The per-axis standard uncertainty of a measured orientation (mrad); needed to weigh "
-        "orientation rows against positions (or std_rx, std_ry, std_rz columns).",
-    ),
-]
-OrientationUnitOpt = Annotated[
-    str | None,
-    declared(
-        OneOf(tuple(ANGLE_UNITS)),
-        "orientation_unit",
-        "Unit of the orientation columns (rvx.. or roll, pitch, yaw) and their stds. Default: "
-        "the --angle-unit.",
-    ),
-]
-MeasuredOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--measured",
-        help="The components the instrument measures, of x,y,z,rx,ry,rz (rx..rz: the "
-        "orientation about the measurement frame's axes). Default: every one the file has "
-        "columns for; x,y,z fits the positions alone.",
-    ),
-]
-LengthOpt = Annotated[
-    str,
-    declared(OneOf(tuple(LENGTH_UNITS)), "length_unit", "Unit of x, y, z in the CSV files."),
-]
-AngleOpt = Annotated[
-    str, declared(OneOf(tuple(ANGLE_UNITS)), "angle_unit", "Unit of q1..q6 in the CSV files.")
-]
+def option_of(cls: type, name: str, more: str = "", lead: str = "") -> Any:
+    """The typer option of the field ``name`` of the dataclass ``cls``, made from its
+    declaration (:func:`arm.constraints.declare`): its flags (``flags=``, else ``--name``; a bool
+    that defaults to true also ``--no-name``), its help (``lead`` before it and ``more`` after
+    it, where one command says more), its choices or range, checked in the library's words
+    naming the flag. The default stays the field's: a command gives it as ``= DEFAULT.name``:
+
+        robot: Annotated[str, option_of(LabInputs, "robot")] = INPUTS.robot
+    """
+    return _typed_option(cls, name, more, lead)[1]
 
 
-DataArg = Annotated[
-    Path,
-    typer.Argument(
-        help="A measurement CSV (docs/format.md, the measurement CSV).", metavar="DATA.csv"
-    ),
-]
-RobotOpt = Annotated[
-    str,
-    typer.Option(
-        "--robot",
-        "-r",
-        help=(
-            "The nominal arm: a robot TOML or URDF file, or a shipped name; a URDF's chain "
-            "may follow it: 'ur5_robot.urdf#tip=tool0,base=base'. A calibrated URDF is read "
-            "with the metrology file that lab export wrote beside it."
-        ),
+def _typed_option(cls: type, name: str, more: str = "", lead: str = "") -> tuple[Any, Any]:
+    """(the type typer reads the option as, its typer option)."""
+    meta = declaration(cls, name)
+    hint = typing.get_type_hints(cls)[name]
+    cons, none_ok = constraints_of(cls)[name]
+    default = next(f.default for f in fields(cls) if f.name == name)
+    help = " ".join(t for t in (lead, meta.get("help", ""), more) if t)
+    flags = tuple(meta.get("flags", ())) or (flag_of(name),)
+    extra = {k: meta[k] for k in ("metavar",) if k in meta}
+    if cons and isinstance(cons[0], TypeOf) and cons[0].kind is bool:
+        if default is True:
+            flags = (f"{flags[0]}/--no-{flags[0].removeprefix('--')}", *flags[1:])
+        return bool, typer.Option(*flags, help=help, **extra)
+    checked = cons[0] if cons and isinstance(cons[0], Interval | OneOf) else None
+    if checked is None:
+        return hint, typer.Option(*flags, help=help, **extra)
+    kind: Any = str
+    if isinstance(checked, Interval):
+        kind = int if checked.kind is int else float
+    option = declared(checked, name, help, *flags, lower=meta.get("lower", False), **extra)
+    return (kind | None if none_ok else kind), option
+
+
+def annotated_option(cls: type, name: str) -> Any:
+    """``Annotated[type, option]`` of the field ``name`` of ``cls`` (:func:`option_of`), for a
+    parameter made at run time (:func:`lab_command`)."""
+    kind, option = _typed_option(cls, name)
+    return Annotated[kind, option]
+
+
+def cli_fields(cls: type) -> list[str]:
+    """The fields of ``cls`` that are command-line options (all but those declared
+    ``cli=False``), in their order."""
+    return [f.name for f in fields(cls) if f.metadata.get("cli", True)]
+
+
+@dataclass(frozen=True)
+class LabInputs:
+    """The lab's shared command-line options that are not :class:`lab.LabOptions` fields: what
+    the commands read (the arm, its effects, held-out data, effect modules) and how (the units),
+    each declared once here with its default, choices and help. Commands outside
+    :class:`LabArgs` (``plan``, ``compensate``, ``collect``) take the same ones with
+    :func:`option_of` (``robot: Annotated[str, option_of(LabInputs, "robot")] =
+    INPUTS.robot``)."""
+
+    robot: str = declare(
+        "seed",
+        help="The arm: a robot TOML or URDF file, or a shipped name; a URDF's chain may follow "
+        "it: 'ur5_robot.urdf#tip=tool0,base=base'. A calibrated URDF is read with the "
+        "metrology file that lab export wrote beside it.",
+        flags=("--robot", "-r"),
         metavar="FILE|NAME",
-    ),
-]
-EffectsOpt = Annotated[
-    str,
-    typer.Option(
-        "--effects",
-        "-e",
+    )
+    effects: str = declare(
+        "geometric",
         help="Effects to fit, comma separated, optionally on some joints: "
         "geometric,compliance[2,3]. Catalogue: geometric, compliance, transmission, joint_scale, "
         "backlash, load_backlash, thermal, cyclic with its joints and orders per turn "
         "(cyclic[2:17,29;4:2]), and any --effect-module defines.",
-    ),
-]
-ModuleOpt = Annotated[
-    list[Path] | None,
-    typer.Option(
-        "--effect-module",
+        flags=("--effects", "-e"),
+    )
+    validate: Path | None = declare(
+        None, help="Held-out measurements (same units) for validation RMS and median."
+    )
+    orientation_unit: str | None = declare(
+        None,
+        OneOf(tuple(ANGLE_UNITS)),
+        help="Unit of the orientation columns (rvx.. or roll, pitch, yaw) and their stds. "
+        "Default: the --angle-unit.",
+    )
+    measured: str | None = declare(
+        None,
+        help="The components the instrument measures, of x,y,z,rx,ry,rz (rx..rz: the "
+        "orientation about the measurement frame's axes). Default: every one the file has "
+        "columns for; x,y,z fits the positions alone.",
+    )
+    effect_module: list[Path] | None = declare(
+        None,
         help="A Python file defining Effect subclasses to register (repeatable). The file is "
         "imported, so its code runs: give only files you trust.",
         metavar="FILE.py",
-    ),
-]
-ValidateOpt = Annotated[
-    Path | None,
-    typer.Option(
-        "--validate", help="Held-out measurements (same units) for validation RMS and median."
+    )
+    length_unit: str = declare(
+        "m", OneOf(tuple(LENGTH_UNITS)), help="Unit of x, y, z in the CSV files."
+    )
+    angle_unit: str = declare(
+        "rad", OneOf(tuple(ANGLE_UNITS)), help="Unit of q1..q6 in the CSV files."
+    )
+
+
+INPUTS = LabInputs()
+RobotOpt = Annotated[str, option_of(LabInputs, "robot")]
+ModuleOpt = Annotated[list[Path] | None, option_of(LabInputs, "effect_module")]
+LengthOpt = Annotated[str, option_of(LabInputs, "length_unit")]
+AngleOpt = Annotated[str, option_of(LabInputs, "angle_unit")]
+EffectsOpt = Annotated[str, option_of(LabInputs, "effects")]
+
+
+DataArg = Annotated[
+    list[Path],
+    typer.Argument(
+        help="Measurement CSV files (docs/format.md, the measurement CSV), each a session: a "
+        "station column decides a row's station, a file without one is a station of its own, "
+        "the same id in two files is the same station.",
+        metavar="DATA.csv...",
     ),
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the JSON object only.")]
@@ -261,105 +289,150 @@ JsonOutOpt = Annotated[
 ]
 
 
+def module_output(help: str) -> Any:
+    """``-o MODULE.py``: where a command writes the effect module of discovered terms (``lab
+    discover``, ``lab bag``); ``help`` says when it is written."""
+    return typer.Option(
+        "--output",
+        "-o",
+        help=f"The effect module (Python) to write {help}; load it with --effect-module.",
+        metavar="MODULE.py",
+    )
+
+
 # -- the lab's shared options -----------------------------------------------------------------------
-_LAB_DEFAULT = LabOptions()
+#: options that a printed next step never repeats: where a command writes (its own outputs)
+NOT_CARRIED = frozenset({"output", "out", "as_json"})
 
 
 @dataclass(frozen=True)
-class LabArgs:
-    """What the lab's commands that fit take alike (fit, diagnose, discover, report, export): the
-    arm, the model, the held-out data, the instrument, the fit's options and the data's units,
-    each declared once with its help (the ``...Opt`` types above) and its default (a
-    :class:`lab.LabOptions` field's own). :func:`lab_command` puts them into a command where it
-    declares ``lab: LabArgs``, in this order, and calls the command with them gathered here."""
+class Read:
+    """What :meth:`LabArgs.read` read: the arm, the data, the held-out data (or None), the
+    options checked and the effects parsed."""
 
-    robot: RobotOpt = "seed"
-    effects: EffectsOpt = "geometric"
-    validate: ValidateOpt = None
-    noise_mm: NoiseOpt = _LAB_DEFAULT.noise_mm
-    noise_ppm: NoisePpmOpt = _LAB_DEFAULT.noise_ppm
-    noise_mrad: NoiseMradOpt = _LAB_DEFAULT.noise_mrad
-    orientation_unit: OrientationUnitOpt = None
-    measured: MeasuredOpt = None
-    loss: LossOpt = _LAB_DEFAULT.loss
-    effect_module: ModuleOpt = None
-    length_unit: LengthOpt = "m"
-    angle_unit: AngleOpt = "rad"
-    outliers: OutliersOpt = _LAB_DEFAULT.outliers
-    accept_large: AcceptLargeOpt = _LAB_DEFAULT.accept_large
+    arm: RobotDescription
+    data: MeasurementSet
+    validation: MeasurementSet | None
+    options: LabOptions
+    effects: list[Effect]
+
+    def __iter__(self) -> Iterator[Any]:  # arm, data, validation, options, effects = lab.read()
+        return iter((self.arm, self.data, self.validation, self.options, self.effects))
+
+
+@dataclass(frozen=True)
+class LabArgs(LabInputs):
+    """What the lab's commands that fit take alike (fit, diagnose, discover, bag, report,
+    export): the options of :class:`LabInputs` and every command-line field of
+    :class:`lab.LabOptions`, both made from their declarations. :func:`lab_command` puts them into
+    a command where it declares ``lab: LabArgs`` and gathers them here, with the command's own
+    context (``run``: its click context, every option's value by name), from which
+    :meth:`flags` and :meth:`next_step` are derived: no option is listed twice.
+
+    Adding an option to the lab's fitting commands is one declaration (a ``LabOptions`` field,
+    or a ``LabInputs`` field for what the command reads) and the code that uses it:
+
+        # lab/options.py, in LabOptions
+        gate_mm: float | None = declare(None, POSITIVE, help="Leave out rows beyond it (mm).")
+        # experiments/cli_inputs.py, in LabInputs (a file the command reads)
+        references: Path | None = declare(None, help="The reference points (CSV).")
+
+    ``--gate-mm`` then appears in every fitting command, its value goes to ``LabOptions`` and
+    the printed next steps repeat it where the next command takes it."""
+
+    given: Mapping[str, Any] = field(default_factory=dict)
+    run: Any = field(default=None, repr=False, compare=False)
 
     def options(self) -> LabOptions:
         """The :class:`lab.LabOptions` these state (``measured`` is the data's: it is read with
-        them); a value the options refuse is one error line."""
-        known = {f.name for f in fields(LabOptions)} - {"measured"}
-        with user_errors():
-            return LabOptions(
-                **{f.name: getattr(self, f.name) for f in fields(self) if f.name in known}
+        them); a value the options refuse is one error line naming its flag."""
+        values = dict(self.given)
+        found = check(values, constraints_of(LabOptions), name=flag_of)
+        if not found and {"noise_mm", "noise_ppm", "noise_mrad"} <= values.keys():
+            found = noise_law_problems(
+                values["noise_mm"], values["noise_ppm"], values["noise_mrad"], flag_of
             )
+        if found:
+            fail("; ".join(found))
+        with user_errors():
+            return LabOptions(**values)
 
     def read(
         self,
-        data: Path,
+        data: Sequence[Path],
         outputs: Sequence[tuple[Path | None, str]] = (),
         as_json: bool = False,
-    ) -> tuple[Any, Any, Any, LabOptions, list[Effect]]:
+    ) -> Read:
         """The options checked, the output places checked, the effect modules registered, the
         effects parsed (a bad ``--effects`` refused before the data are read), the robot and the
-        data read: (arm, data, held-out data or None, options, effects). The command hands the
-        parsed effects to the lab, which takes them as they are (parsed once)."""
+        data read, several files joined as sessions (:func:`read_sessions`): (arm, data,
+        held-out data or None, options, effects). The command hands the parsed effects to the
+        lab, which takes them as they are (parsed once)."""
         opts = self.options()
         check_outputs(
-            outputs, [data, self.validate, self.robot, *(self.effect_module or ())], as_json
+            outputs, [*data, self.validate, self.robot, *(self.effect_module or ())], as_json
         )
         load_modules(self.effect_module)
         effects = parse_effects(self.effects)
         arm = read_arm(self.robot)
         units = (self.length_unit, self.angle_unit, self.orientation_unit, self.measured)
-        meas = read_data(data, *units)
+        meas = read_sessions(data, *units)
         val = (
             None if self.validate is None else read_data(self.validate, *units, option="--validate")
         )
-        return arm, meas, val, opts, effects
+        return Read(arm, meas, val, opts, effects)
 
-    def next_step(self) -> dict[str, Any]:
-        """The options that a printed next step must repeat to work on the same data (the arm,
-        the units, the effect modules, the noise and the screening), as command-line flags; the
-        defaults left out."""
-        default = LabArgs()
-        return {
-            "--robot": _given(self.robot, default.robot),
-            "--length-unit": _given(self.length_unit, default.length_unit),
-            "--angle-unit": _given(self.angle_unit, default.angle_unit),
-            "--effect-module": [str(m) for m in self.effect_module or ()],
-            "--noise-mm": self.noise_mm,
-            "--loss": _given(self.loss, default.loss),
-            "--outliers": _given(self.outliers, default.outliers),
-            "--accept-large": self.accept_large,
-        }
+    def next_step(self, command: str, replaced: Sequence[str] = ("effects",)) -> dict[str, Any]:
+        """The flags that a printed ``sixaxis lab COMMAND`` step repeats so as to work on the same
+        data alike: every option given to this command (not at the next one's default) that
+        ``command`` takes (read from its registered parameters), but those ``replaced`` (the
+        step states its own) and the outputs (:data:`NOT_CARRIED`); none that ``command``
+        refuses."""
+        ctx = self.run
+        if ctx is None:
+            return {}
+        target = ctx.parent.command.get_command(ctx.parent, command)
+        skip = NOT_CARRIED | set(replaced)
+        return _flags(ctx.params, [p for p in target.params if p.name not in skip])
 
     def flags(self) -> dict[str, Any]:
-        """Every option given, as the command-line flags that repeat it (defaults left out)."""
-        default = LabArgs()
-        return {
-            "--robot": _given(self.robot, default.robot),
-            "--effects": _given(self.effects, default.effects),
-            "--validate": self.validate,
-            "--noise-mm": self.noise_mm,
-            "--noise-ppm": self.noise_ppm or None,
-            "--noise-mrad": self.noise_mrad,
-            "--orientation-unit": self.orientation_unit,
-            "--measured": self.measured,
-            "--loss": _given(self.loss, default.loss),
-            "--effect-module": [str(m) for m in self.effect_module or []],
-            "--length-unit": _given(self.length_unit, default.length_unit),
-            "--angle-unit": _given(self.angle_unit, default.angle_unit),
-            "--outliers": _given(self.outliers, default.outliers),
-            "--accept-large": self.accept_large,
-        }
+        """Every option given to this command, as the command-line flags that repeat it (the
+        defaults left out), in the command's order."""
+        ctx = self.run
+        return {} if ctx is None else _flags(ctx.params, ctx.command.params)
 
 
-def _given(value: Any, default: Any) -> Any:
-    return None if value == default else value
+def _flags(values: Mapping[str, Any], params: Sequence[Any]) -> dict[str, Any]:
+    """``values`` (by parameter name) as the flags of the options ``params`` (click parameters),
+    those at the option's default left out: a bool as a bare flag (``--no-x`` for false where
+    the default is true), a list repeated."""
+    out: dict[str, Any] = {}
+    for p in params:
+        if getattr(p, "param_type_name", "") != "option" or p.name not in values:
+            continue
+        value = values[p.name]
+        if isinstance(value, tuple):
+            value = list(value)
+        if _same(value, p.default) or value is None or value == []:
+            continue
+        if isinstance(value, bool):
+            out[p.opts[0] if value else p.secondary_opts[0]] = True
+        elif isinstance(value, list):
+            out[p.opts[0]] = [str(v) for v in value]
+        else:
+            out[p.opts[0]] = value
+    return out
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(b, tuple | list):
+        b = list(b)
+    return (type(a) is type(b) and a == b) or (
+        isinstance(a, float) and isinstance(b, int) and a == b
+    )
+
+
+_RUN = "lab_run_context"
 
 
 def lab_command(
@@ -372,28 +445,39 @@ def lab_command(
         @lab_command(app, "diagnose", omit=("validate",))
         def diagnose_cmd(data: DataArg, lab: LabArgs, alpha: AlphaOpt = 0.02) -> None: ...
     """
-    hints = typing.get_type_hints(LabArgs, include_extras=True)
+    shared = [(LabInputs, n) for n in cli_fields(LabInputs) if n not in omit] + [
+        (LabOptions, n) for n in cli_fields(LabOptions) if n not in omit
+    ]
+    defaults = {n: getattr(cls(), n) for cls, n in shared}
+    inputs = set(cli_fields(LabInputs))
 
     def register(func: Callable[..., None]) -> Callable[..., None]:
         sig = inspect.signature(func, eval_str=True)
         params = list(sig.parameters.values())
         at = [p.name for p in params].index("lab")
-        shared = [
+        made = [
             inspect.Parameter(
-                f.name,
+                n,
                 params[at].kind,
-                default=f.default,
-                annotation=replace.get(f.name, hints[f.name]),
+                default=defaults[n],
+                annotation=replace.get(n) or annotated_option(cls, n),
             )
-            for f in fields(LabArgs)
-            if f.name not in omit
+            for cls, n in shared
         ]
-        signature = sig.replace(parameters=[*params[:at], *shared, *params[at + 1 :]])
-        names = [p.name for p in shared]
+        # the command's own context (typer passes it to a parameter of its type): its values
+        run = inspect.Parameter(_RUN, inspect.Parameter.KEYWORD_ONLY, annotation=typer.Context)
+        rest = [*params[at + 1 :], run]
+        signature = sig.replace(parameters=[*params[:at], *made, *rest])
+        names = [p.name for p in made]
 
         @functools.wraps(func)
         def command(*args: Any, **kwargs: Any) -> None:
-            lab = LabArgs(**{k: kwargs.pop(k) for k in names})
+            got = {k: kwargs.pop(k) for k in names}
+            lab = LabArgs(
+                **{k: v for k, v in got.items() if k in inputs},
+                given={k: v for k, v in got.items() if k not in inputs},
+                run=kwargs.pop(_RUN),
+            )
             func(*args, lab=lab, **kwargs)
 
         command.__signature__ = signature  # type: ignore[attr-defined]
@@ -403,6 +487,15 @@ def lab_command(
         return app.command(name)(command)
 
     return register
+
+
+def refuse_noise(mm: float | None, ppm: float = 0.0, mrad: float | None = None) -> None:
+    """One error line if the instrument model these flags state is refused
+    (:func:`arm.noise.noise_law_problems`, naming the flags), for a command outside
+    :class:`LabArgs` (``lab plan``)."""
+    found = noise_law_problems(mm, ppm, mrad, flag_of)
+    if found:
+        fail("; ".join(found))
 
 
 # -- inputs -----------------------------------------------------------------------------------------
@@ -443,7 +536,7 @@ def parse_effects(effects: str) -> list[Effect]:
     return parsed
 
 
-def read_arm(robot: str, flag: str = "--robot") -> Any:
+def read_arm(robot: str, flag: str = "--robot") -> RobotDescription:
     from arm.description import load_robot
     from arm.effects import check_robot_effects
 
@@ -453,7 +546,7 @@ def read_arm(robot: str, flag: str = "--robot") -> Any:
         return arm
 
 
-def _calibrated_urdf(robot: str, flag: str) -> Any:
+def _calibrated_urdf(robot: str, flag: str) -> RobotDescription | None:
     """The calibrated arm of a URDF that ``lab export --format urdf`` wrote, where its metrology
     file lies beside it: the corrected chain with the tracker frame, the tool points and the
     effects' values, as ``--robot calibrated.toml`` gives them (None for any other robot)."""
@@ -479,7 +572,7 @@ def read_data(
     orientation_unit: str | None = None,
     measured: str | None = None,
     option: str = "",
-) -> Any:
+) -> MeasurementSet:
     """The measurement set of ``path``; the columns the format does not know are said (a
     ``MeasurementWarning``), not dropped. ``option`` (e.g. ``--validate``) is named in an error
     about a file given by an option."""
@@ -501,6 +594,34 @@ def read_data(
     for w in caught:  # on stderr: stdout carries the command's output (with --json, only it)
         err_console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
     return data
+
+
+def read_sessions(
+    paths: Sequence[Path],
+    length_unit: str,
+    angle_unit: str,
+    orientation_unit: str | None = None,
+    measured: str | None = None,
+) -> Any:
+    """The measurement files, each read as :func:`read_data` does, joined as the sessions they
+    are (:func:`arm.sessions.join_sessions`; what the join says, on stderr)."""
+    import warnings
+
+    from arm.measurements import MeasurementWarning
+    from arm.sessions import join_sessions
+
+    sets = [read_data(p, length_unit, angle_unit, orientation_unit, measured) for p in paths]
+    with user_errors(), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MeasurementWarning)
+        joined = join_sessions(sets)
+    for w in caught:
+        err_console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
+    return joined
+
+
+def sessions_json(data: Any) -> dict[str, Any]:
+    """The sessions a command's data were joined from, for its JSON (docs/format.md)."""
+    return {"sessions": [s.to_dict() for s in data.sessions]}
 
 
 def check_outputs(

@@ -27,13 +27,16 @@ import typer
 
 from arm.constraints import Interval, OneOf
 from arm.measurements import ANGLE_UNITS
+from arm.noise import NOISE_MM, NOISE_MRAD, NOISE_PPM
 from experiments.cli_inputs import (
+    INPUTS,
     AngleOpt,
     DataArg,
     EffectsOpt,
     JsonOpt,
     JsonOutOpt,
     LabArgs,
+    LabInputs,
     LengthOpt,
     ModuleOpt,
     RobotOpt,
@@ -41,8 +44,14 @@ from experiments.cli_inputs import (
     declared,
     lab_command,
     load_modules,
+    module_output,
+    option_of,
     parse_effects,
     read_arm,
+    read_data,
+    read_sessions,
+    refuse_noise,
+    sessions_json,
     writing,
 )
 from experiments.cli_output import (
@@ -59,14 +68,17 @@ from experiments.cli_output import (
     print_fit,
     print_plan,
     print_report,
+    print_sessions,
     say,
     steps,
     user_errors,
 )
-from lab.options import ALPHA, CRITERIA, EXPORT_FORMATS, ORDER, ROUNDS, LabOptions
+from lab.options import ALPHA, CRITERIA, EXPORT_FORMATS, ORDER, ROUNDS, LabOptions, UpdateOptions
 
 if TYPE_CHECKING:
     from arm.effects import Effect
+
+UPDATE = UpdateOptions()
 
 app = typer.Typer(
     help="The model lab: compare the model with measurements, find what it misses.",
@@ -135,8 +147,12 @@ def fit_cmd(
     arm, meas, val, opts, effects = lab.read(data, [(out, "--out")], as_json)
     result = _fitted(meas, arm, effects, opts, val, extrapolate)
     if not as_json:
+        print_sessions(meas)
         print_fit(result)
-    emit_json(result.to_dict(), as_json, out)
+    emit_json(result.to_dict() | sessions_json(meas), as_json, out)
+
+
+AlphaOpt = Annotated[float, declared(ALPHA, "alpha")]
 
 
 # -- diagnose ---------------------------------------------------------------------------------------
@@ -144,9 +160,7 @@ def fit_cmd(
 def diagnose_cmd(
     data: DataArg,
     lab: LabArgs,
-    alpha: Annotated[
-        float, declared(ALPHA, "alpha", "Family-wise false-alarm rate of the tests.")
-    ] = 0.02,
+    alpha: AlphaOpt = 0.02,
     as_json: JsonOpt = False,
     out: JsonOutOpt = None,
 ) -> None:
@@ -161,8 +175,9 @@ def diagnose_cmd(
     with user_errors(), console.status("fitting and testing the candidate effects..."):
         d = diagnose(meas, arm, effects, options=opts, alpha=alpha)
     if not as_json:
-        print_diagnosis(d, data, lab.next_step())
-    emit_json(d.to_dict(), as_json, out)
+        print_sessions(meas)
+        print_diagnosis(d, data, {c: lab.next_step(c) for c in ("fit", "discover")})
+    emit_json(d.to_dict() | sessions_json(meas), as_json, out)
 
 
 # -- discover ---------------------------------------------------------------------------------------
@@ -177,34 +192,21 @@ DiscoverEffectsOpt = Annotated[
 ]
 
 
-@lab_command(app, "discover", omit=("loss", "outliers", "accept_large"), effects=DiscoverEffectsOpt)
+@lab_command(
+    app,
+    "discover",
+    omit=("loss", "outliers", "accept_large", "f_scale_mm"),
+    effects=DiscoverEffectsOpt,
+)
 def discover_cmd(
     data: DataArg,
     output: Annotated[
-        Path | None,
-        typer.Option(
-            "--output",
-            "-o",
-            help="The effect module (Python) to write when terms are found; load it with "
-            "--effect-module. Nothing is written when nothing is found.",
-            metavar="MODULE.py",
-        ),
+        Path | None, module_output("when terms are found (nothing when nothing is found)")
     ] = None,
     *,
     lab: LabArgs,
-    alpha: Annotated[
-        float,
-        declared(ALPHA, "alpha", "Family-wise false-discovery rate (as diagnose's --alpha)."),
-    ] = 0.02,
-    order: Annotated[
-        int,
-        declared(
-            ORDER,
-            "order",
-            "The highest harmonic sin/cos(m*q) per turn scanned on every joint (fewer on a "
-            "joint whose sampling resolves fewer: a grid aliases high orders).",
-        ),
-    ] = 64,
+    alpha: AlphaOpt = 0.02,
+    order: Annotated[int, declared(ORDER, "order")] = 64,
     name: Annotated[
         str, typer.Option(help="The discovered effect's name (lower case, digits, _).")
     ] = "discovered",
@@ -232,8 +234,9 @@ def discover_cmd(
         with user_errors(), writing(output):
             written = d.write_module(output)
     if not as_json:
-        print_discovery(d, written, data, lab.next_step())
-    emit_json(d.to_dict(), as_json, out)
+        print_sessions(meas)
+        print_discovery(d, written, data, lab.next_step("fit"))
+    emit_json(d.to_dict() | sessions_json(meas), as_json, out)
 
 
 # -- bag --------------------------------------------------------------------------------------------
@@ -242,12 +245,9 @@ def bag_cmd(
     data: DataArg,
     output: Annotated[
         Path | None,
-        typer.Option(
-            "--output",
-            "-o",
-            help="The effect module (Python) of every draw's discovered terms, when there are "
-            "any; the averaged values are in --json.",
-            metavar="MODULE.py",
+        module_output(
+            "of every draw's discovered terms, when there are any (the averaged values are in "
+            "--json)"
         ),
     ] = None,
     *,
@@ -319,6 +319,7 @@ def bag_cmd(
                 load_effect_module(written)  # the arm names the effect: it must be registered
             export_robot(b.result, export)
     if not as_json:
+        print_sessions(meas)
         print_fit(result)
         draws = "1 draw" if b.bags == 1 else f"{b.bags} draws"
         say(f"bag: {draws} of at most {poses} poses per session; effects: {b.suggestion}")
@@ -330,6 +331,7 @@ def bag_cmd(
             say(f"wrote the averaged calibration to {export}; use it with --robot {export}")
     emit_json(
         result.to_dict()
+        | sessions_json(meas)
         | {
             "bag": {
                 "bags": b.bags,
@@ -353,9 +355,7 @@ def report_cmd(
     ),
     *,
     lab: LabArgs,
-    rounds: Annotated[
-        int, declared(ROUNDS, "rounds", "At most this many rounds of diagnose-and-refit.")
-    ] = 3,
+    rounds: Annotated[int, declared(ROUNDS, "rounds")] = 3,
 ) -> None:
     """Fit, diagnose, refit what the diagnosis suggests; write an HTML report.
 
@@ -365,14 +365,7 @@ def report_cmd(
     from lab.report_html import write as write_html
 
     arm, meas, val, opts, effects = lab.read(data, [(output, "--output")])
-    flags = lab.flags()
-    screening = {k: flags.pop(k) for k in ("--outliers", "--accept-large")}
-    command = command_line(
-        "lab",
-        "report",
-        data,
-        **{"-o": output, **flags, "--rounds": None if rounds == 3 else rounds, **screening},
-    )
+    command = command_line("lab", "report", data, **lab.flags())
     t0 = time.perf_counter()
     with steps() as step:
         with user_errors():
@@ -393,6 +386,113 @@ def report_cmd(
     print_report(rep, output, time.perf_counter() - t0)
 
 
+# -- update -----------------------------------------------------------------------------------------
+@app.command("update")
+def update_cmd(
+    calibration: Annotated[
+        str,
+        typer.Argument(
+            help="The calibration to update: a robot TOML that sixaxis lab export (or lab bag "
+            "--export, lab update -o) wrote, or its calibrated URDF with the metrology file "
+            "beside it; it carries the parameters' covariance and spread (its uncertainty "
+            "table).",
+            metavar="CAL.toml",
+        ),
+    ],
+    data: DataArg,
+    output: Annotated[
+        Path | None,
+        typer.Option(
+            "--output",
+            "-o",
+            help="Write the updated calibration as a robot TOML (with its posterior "
+            "covariance): --robot FILE.toml anywhere, or updated again.",
+            metavar="FILE.toml",
+        ),
+    ] = None,
+    remount: Annotated[bool, option_of(UpdateOptions, "remount")] = UPDATE.remount,
+    noise_mm: Annotated[float | None, option_of(UpdateOptions, "noise_mm")] = UPDATE.noise_mm,
+    robot: Annotated[
+        str | None,
+        option_of(
+            LabInputs,
+            "robot",
+            lead="The arm the new poses were measured on, refused unless it is the one the "
+            "calibration calibrated (by name); default: not checked.",
+        ),
+    ] = None,
+    validate: Annotated[Path | None, option_of(LabInputs, "validate")] = None,
+    effect_module: ModuleOpt = None,
+    length_unit: LengthOpt = INPUTS.length_unit,
+    angle_unit: AngleOpt = INPUTS.angle_unit,
+    extrapolate: ExtrapolateOpt = False,
+    as_json: JsonOpt = False,
+    out: JsonOutOpt = None,
+) -> None:
+    """Update a calibration with a few poses of a new session or region (a MAP fit).
+
+    The calibration's parameters, with their covariance widened by the spread between the
+    sessions it was fitted on, are the prior; the new session's base (and with --remount the
+    tool) is fitted on the new poses alone; each effect is kept, refitted or dropped as the new
+    poses predict best. The result is a calibration like any other (-o: export, compensate)."""
+    from dataclasses import replace
+
+    from lab.export import export_robot
+    from lab.uncertainty import predicted_rms
+    from lab.update import prior_of, update
+
+    if output is not None and export_format_of(output, None) == "urdf":
+        fail(
+            f"--output {output}: an updated calibration is written as a robot TOML; give FILE.toml"
+        )
+    inputs = [calibration, *data, validate, robot, *(effect_module or ())]
+    check_outputs([(output, "--output"), (out, "--out")], inputs, as_json)
+    load_modules(effect_module)
+    cal = read_arm(calibration, "CAL")
+    arm = read_arm(robot) if robot is not None else None
+    meas = read_sessions(data, length_unit, angle_unit)
+    val = (
+        None
+        if validate is None
+        else read_data(validate, length_unit, angle_unit, option="--validate")
+    )
+    with user_errors(), console.status(f"updating {calibration} with {len(meas)} poses..."):
+        prior = replace(prior_of(cal), source=calibration)
+        u = update(prior, meas, remount=remount, noise_mm=noise_mm, robot=arm)
+        result = u.result if val is None else u.result.validate(val, extrapolate=extrapolate)
+        alone = predicted = None
+        if val is not None and u.prior_result is not None:
+            alone = u.prior_result.validate(val, extrapolate=extrapolate)
+            predicted = (
+                predicted_rms(u.result, val, unseen=False),
+                predicted_rms(u.prior_result, val, unseen=True, u=u.prior.uncertainty),
+            )
+    if output is not None:
+        with user_errors(), writing(output):
+            export_robot(result, output)
+    if not as_json:
+        print_sessions(meas)
+        say(u.summary())
+        if alone is not None and val is not None:
+            say(
+                f"validation on {len(val)} points: RMS "
+                f"{result.validation_rms_mm:.4f} mm updated, {alone.validation_rms_mm:.4f} mm "
+                "the calibration alone (its base placed on the new poses)"
+            )
+        if predicted is not None:
+            say(f"updated: {predicted[0].text()}")
+            say(f"the calibration alone: {predicted[1].text()}")
+        if output is not None:
+            say(f"wrote the updated calibration to {output}; use it with --robot {output}")
+    summary = result.to_dict() | sessions_json(meas) | {"update": u.to_dict()}
+    if alone is not None:
+        summary["update"]["prior_validation_rms_mm"] = alone.validation_rms_mm
+    if predicted is not None:
+        summary["update"]["predicted"] = predicted[0].to_dict()
+        summary["update"]["prior_predicted"] = predicted[1].to_dict()
+    emit_json(summary, as_json, out)
+
+
 # -- plan -------------------------------------------------------------------------------------------
 @app.command("plan")
 def plan_cmd(
@@ -402,8 +502,8 @@ def plan_cmd(
     output: Annotated[
         Path, typer.Option("--output", "-o", help="The poses CSV to write (q1..q6).")
     ] = Path("poses.csv"),
-    robot: RobotOpt = "seed",
-    effects: EffectsOpt = "geometric",
+    robot: RobotOpt = INPUTS.robot,
+    effects: EffectsOpt = INPUTS.effects,
     effect_module: ModuleOpt = None,
     candidates: Annotated[
         int, typer.Option(help="Random candidate poses (within the limits) to choose from.")
@@ -420,21 +520,20 @@ def plan_cmd(
     noise_mm: Annotated[
         float,
         declared(
-            Interval(float, 0.0, None, closed="neither"),
+            NOISE_MM,
             "noise_mm",
-            "The instrument's per-axis noise (mm): parameters that N poses cannot determine "
-            "above it are not planned for.",
+            "Parameters that N poses cannot determine above it are not planned for.",
         ),
     ] = 0.015,
     seed: Annotated[int, typer.Option(help="Seed of the random candidates.")] = 0,
-    angle_unit: AngleOpt = "rad",
+    angle_unit: AngleOpt = INPUTS.angle_unit,
     noise_mrad: Annotated[
         float | None,
         declared(
-            Interval(float, 0.0, None, closed="neither"),
+            NOISE_MRAD,
             "noise_mrad",
-            "Plan for an instrument that measures the tool frame's orientation too, with this "
-            "per-axis noise (mrad): six rows a pose, weighted against the position's.",
+            "Plan for an instrument that measures the tool frame's orientation too: six rows a "
+            "pose, weighted against the position's.",
         ),
     ] = None,
     as_json: JsonOpt = False,
@@ -446,6 +545,7 @@ def plan_cmd(
     from arm.measurements import write_poses
     from lab import plan
 
+    refuse_noise(noise_mm, 0.0, noise_mrad)
     check_outputs([(output, "--output")], [robot, *(effect_module or ())], as_json)
     load_modules(effect_module)
     parsed = parse_effects(effects)
@@ -482,8 +582,7 @@ CollectNOpt = Annotated[
     int, declared(Interval(int, 1, None), "n", "Random poses to measure.", "--n", "-n")
 ]
 CollectNoiseMmOpt = Annotated[
-    float,
-    declared(Interval(float, 0.0, None), "noise_mm", "The tracker's per-axis noise (mm)."),
+    float, declared(NOISE_MM, "noise_mm", "The simulated tracker's; 0: none drawn.")
 ]
 CollectSeedOpt = Annotated[int, typer.Option(help="Seed of the poses, the motions and the noise.")]
 CollectArmSeedOpt = Annotated[
@@ -506,15 +605,7 @@ CollectAngleUnitOpt = Annotated[
         "sixaxis lab plan writes it; else rad).",
     ),
 ]
-CollectNoisePpmOpt = Annotated[
-    float,
-    declared(
-        Interval(float, 0.0, None),
-        "noise_ppm",
-        "The noise grows with the distance from the tracker: sigma = --noise-mm + "
-        "--noise-ppm um per m of distance, per axis.",
-    ),
-]
+CollectNoisePpmOpt = Annotated[float, declared(NOISE_PPM, "noise_ppm")]
 CollectStationsOpt = Annotated[
     int,
     declared(
@@ -542,8 +633,7 @@ CollectOrientationOpt = Annotated[
     ),
 ]
 CollectNoiseMradOpt = Annotated[
-    float,
-    declared(Interval(float, 0.0, None), "noise_mrad", "The orientation's per-axis noise (mrad)."),
+    float, declared(NOISE_MRAD, "noise_mrad", "The simulated probe's, with --orientation.")
 ]
 CollectOrientationFractionOpt = Annotated[
     float,
@@ -570,7 +660,7 @@ def collect_cmd(
     arm_seed: CollectArmSeedOpt = None,
     poses: CollectPosesOpt = None,
     angle_unit: CollectAngleUnitOpt = None,
-    robot: RobotOpt = "seed",
+    robot: RobotOpt = INPUTS.robot,
     noise_ppm: CollectNoisePpmOpt = 0.0,
     stations: CollectStationsOpt = 0,
     first_station: CollectFirstStationOpt = 1,
@@ -729,8 +819,7 @@ def compensate_cmd(
         ),
     ],
     robot: Annotated[
-        str,
-        typer.Option("--robot", "-r", help="The calibrated arm (a TOML from sixaxis lab export)."),
+        str, option_of(LabInputs, "robot", lead="The calibrated arm (from sixaxis lab export).")
     ],
     output: Annotated[
         Path, typer.Option("--output", "-o", help="The joint-angle CSV to write.")
@@ -758,8 +847,8 @@ def compensate_cmd(
         ),
     ] = None,
     effect_module: ModuleOpt = None,
-    length_unit: LengthOpt = "m",
-    angle_unit: AngleOpt = "rad",
+    length_unit: LengthOpt = INPUTS.length_unit,
+    angle_unit: AngleOpt = INPUTS.angle_unit,
     keep_unreached: Annotated[
         bool,
         typer.Option(

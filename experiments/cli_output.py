@@ -13,7 +13,7 @@ import contextlib
 import json
 import math
 import shlex
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, NoReturn
 
@@ -79,8 +79,11 @@ def _table(title: str, *columns: tuple[str, Justify]) -> Table:
 # -- commands as text ------------------------------------------------------------------------------
 def command_line(*words: object, **options: object) -> str:
     """The ``sixaxis`` command line that these words and (non-default) options spell: an option
-    whose value is None, False or [] is left out, True is a bare flag, a list repeats the flag."""
-    out = ["sixaxis", *map(str, words)]
+    whose value is None, False or [] is left out, True is a bare flag, a list repeats the flag;
+    a list among the words is its items (the data files of a command)."""
+    out = ["sixaxis"]
+    for w in words:
+        out += map(str, w) if isinstance(w, list | tuple) else [str(w)]
     for flag, value in options.items():
         if value is None or value is False or value == []:
             continue
@@ -300,6 +303,12 @@ def say(text: str) -> None:
 
 
 # -- the lab's commands -----------------------------------------------------------------------------
+def print_sessions(data: Any) -> None:
+    """The sessions of several files joined (nothing for one file)."""
+    if len(data.sessions) > 1:
+        say("sessions: " + "; ".join(s.text() for s in data.sessions))
+
+
 def print_fit(result: Any) -> None:
     console.print(fit_table(result))
     say(result.summary())
@@ -338,28 +347,28 @@ def print_notes(notes: Sequence[str], title: str) -> None:
         say(f"{title}: {n}")
 
 
-def discover_command(data: Path, d: Any, context: dict[str, Any] | None = None) -> str:
+def discover_command(data: Path | list[Path], d: Any, context: dict[str, Any] | None = None) -> str:
     """The ``sixaxis lab discover`` command that continues an ``unexplained`` diagnosis: from
     the diagnosed model (not the catalogue's partial explanation, whose approximating terms would
-    hide the form), with its noise (the one stated, not one measured from repeated poses, which
-    discover measures again) and the options the diagnosis was given."""
+    hide the form), with the options the diagnosis was given that discover takes (``context``:
+    the instrument's noise as stated, not one measured from repeated poses, which discover
+    measures again)."""
     effects = ",".join(d.effects)
-    ctx = dict(context or {})
-    ctx.pop("--accept-large", None)  # discover's own fits keep the bounds
-    if d.noise_source == "stated":
-        ctx["--noise-mm"] = d.noise_mm
     return command_line(
         "lab",
         "discover",
         data,
         **{"--effects": None if effects == "geometric" else effects, "-o": "discovered.py"},
-        **ctx,
+        **(context or {}),
     )
 
 
-def print_diagnosis(d: Any, data: Path, context: dict[str, Any] | None = None) -> None:
-    """A diagnosis for people; ``context``: the options the next steps printed repeat."""
-    ctx = dict(context or {})
+def print_diagnosis(
+    d: Any, data: Path | list[Path], next_steps: Mapping[str, dict[str, Any]] | None = None
+) -> None:
+    """A diagnosis for people; ``next_steps``: per command (``fit``, ``discover``), the flags
+    that a printed step of it repeats."""
+    steps_ = next_steps or {}
     floor = f", noise floor {d.noise_floor_mm:.4f} mm" if d.noise_floor_mm else ""
     console.print(
         f"model [bold]{escape(', '.join(d.effects))}[/bold] on {d.fit.n_points} points: RMS "
@@ -374,7 +383,8 @@ def print_diagnosis(d: Any, data: Path, context: dict[str, Any] | None = None) -
     elif d.verdict == "unexplained":
         line += " (the residual is above the noise and no catalogued effect explains it)"
     if d.suggestion:
-        then = escape(command_line("lab", "fit", data, **{"--effects": d.suggestion}, **ctx))
+        fit = steps_.get("fit", {})
+        then = escape(command_line("lab", "fit", data, **{"--effects": d.suggestion}, **fit))
         if d.verdict == "unexplained":
             line += f"; the catalogue's best, which explains part: {then}"
         else:
@@ -396,7 +406,7 @@ def print_diagnosis(d: Any, data: Path, context: dict[str, Any] | None = None) -
     if d.verdict == "unexplained":
         say(
             "next: let the lab search for the missing term's form: "
-            + discover_command(data, d, ctx)
+            + discover_command(data, d, steps_.get("discover"))
         )
     print_left_out(d.fit.duplicates, d.outlier_list, d.outlier_rule, "the fit and the tests")
     lack: dict[str, list[str]] = {}  # what is missing -> the candidates that need it
@@ -420,7 +430,10 @@ def print_diagnosis(d: Any, data: Path, context: dict[str, Any] | None = None) -
 
 
 def print_discovery(
-    d: Any, output: Path | None, data: Path | None = None, context: dict[str, Any] | None = None
+    d: Any,
+    output: Path | None,
+    data: Path | list[Path] | None = None,
+    context: dict[str, Any] | None = None,
 ) -> None:
     """A discovery for people; ``context``: the options the next step printed repeats."""
     floor = f", noise floor {d.noise_floor_mm:.4f} mm" if d.noise_floor_mm else ""

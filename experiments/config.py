@@ -98,8 +98,8 @@ from arm.constraints import (
     from_annotation,
     type_name,
 )
-from arm.errors import SixAxisError
 from arm.files import input_problem
+from experiments.errors import ConfigError, MissingSeedsError
 from experiments.metrics import (
     DEFAULT_CONVERGE_MM,
     DEFAULT_METRICS,
@@ -162,16 +162,6 @@ def split_train_seed(label: str) -> tuple[str, int | None]:
     if m is None or m["seed"] is None:
         return label, None
     return m["agent"], int(m["seed"])
-
-
-class ConfigError(SixAxisError, ValueError):
-    """A config that cannot run: the message names the file and every key at fault."""
-
-    def __init__(self, source: str, problems: Sequence[str]) -> None:
-        self.source = source
-        self.problems = list(problems)
-        lines = "\n".join(f"  - {p}" for p in self.problems)
-        super().__init__(f"{source}: bad experiment config:\n{lines}")
 
 
 def canonical_json(obj: Any) -> str:
@@ -379,7 +369,7 @@ class ExperimentConfig:
         them)."""
         if self.draw_seeds:
             if episode_seeds is None or len(episode_seeds) < self.draw_seeds:
-                raise ValueError(
+                raise MissingSeedsError(
                     f"config {self.name}: its {self.draw_seeds} episode seeds are drawn when the "
                     "sweep starts; pass them (episode_seeds)"
                 )

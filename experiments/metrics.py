@@ -43,6 +43,8 @@ from typing import Any
 
 import numpy as np
 
+from experiments.errors import MetricError, UnknownMetricError
+
 __all__ = [
     "DEFAULT_CONVERGE_MM",
     "DEFAULT_METRICS",
@@ -169,7 +171,7 @@ def episode_metrics(
     names = list(names)
     unknown = [n for n in names if n not in METRICS]
     if unknown:
-        raise KeyError(f"unknown metric(s) {unknown}; known: {', '.join(METRICS)}")
+        raise UnknownMetricError(f"unknown metric(s) {unknown}; known: {', '.join(METRICS)}")
     names += [c for n in names if (c := METRICS[n].companion) is not None and c not in names]
     judged = np.asarray(result.judged, dtype=bool)
     t = np.asarray(result.time, dtype=float)
@@ -275,7 +277,7 @@ def calibration_error_mm(
     else:
         missing = [n for n in names if n not in truth_model.layout]
         if missing:
-            raise ValueError(
+            raise MetricError(
                 f"the identified parameters {missing} are not in the truth's model and no model "
                 "of the estimate was given"
             )

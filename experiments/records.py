@@ -28,8 +28,8 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from arm.errors import SixAxisError
 from arm.files import OutputError, atomic_write_text, folder_problem, make_folders, shown
+from experiments.errors import RecordError
 
 __all__ = [
     "RECORD_SCHEMA",
@@ -64,10 +64,6 @@ _PACKAGES = (
     "torch",
     "stable-baselines3",
 )
-
-
-class RecordError(SixAxisError, ValueError):
-    """A record file that cannot be read, naming the file."""
 
 
 def jsonable(obj: Any) -> Any:

@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from arm.errors import SixAxisError
+from experiments.errors import ReproduceError
 from experiments.metrics import METRICS
 from experiments.records import git_state, source_root
 
@@ -76,11 +76,6 @@ REQUIRED = (
     "run_key",
     "run_hash",
 )
-
-
-class ReproduceError(SixAxisError, ValueError):
-    """A summary that cannot be read, a row that cannot be rerun (dirty, unknown commit, missing
-    config), naming the file, row and column."""
 
 
 @dataclass

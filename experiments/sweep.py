@@ -48,8 +48,8 @@ from pathlib import Path
 from typing import Any
 
 from agents.isolation import THREAD_VARS
-from arm.errors import SixAxisError
 from experiments.config import ExperimentConfig, RunSpec
+from experiments.errors import SweepError
 from experiments.records import RECORD_SCHEMA, RunStore, environment_info, jsonable, repo_path
 
 __all__ = [
@@ -67,10 +67,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 RunFn = Callable[[RunSpec], Mapping[str, Any]]
-
-
-class SweepError(SixAxisError, RuntimeError):
-    """A sweep that cannot start (e.g. records of another spec under the same run keys)."""
 
 
 @dataclass

@@ -21,18 +21,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from arm.errors import SixAxisError
 from arm.files import atomic_path, check_output
+from experiments.errors import VideoError
 
 __all__ = ["MAX_FRAME", "VideoError", "VideoInfo", "render_episode"]
 
 MAX_FRAME = 4096  # pixels a side, as the env renders (envs.sixaxis_track_v0.MAX_FRAME)
 
 log = logging.getLogger(__name__)
-
-
-class VideoError(SixAxisError, ValueError):
-    """Video settings that cannot be written (frame size, rate), or no video writer installed."""
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,7 @@ from typing import Unpack
 import numpy as np
 
 from arm.description import RobotDescription, as_robot
-from arm.effects import Cyclic, Effect, parse_effects
+from arm.effects import parse_effects, union_of
 from arm.errors import warn
 from arm.measurements import MeasurementSet, as_measurements
 from arm.params import parse_parameter_name
@@ -60,26 +60,11 @@ BAGS = 10
 POSES = 1000
 
 
-def _joined(a: Effect, b: Effect) -> Effect:
-    """One effect of ``a``'s kind over what either covers: the joints of both (all where either
-    takes all), a cyclic effect's orders per joint."""
-    if isinstance(a, Cyclic) and isinstance(b, Cyclic):
-        js = {*a.orders, *b.orders}
-        return Cyclic({j: [*a.orders.get(j, ()), *b.orders.get(j, ())] for j in js})
-    if a.joints is None or b.joints is None:
-        return type(a)()
-    return type(a)(joints=[*a.joints, *b.joints])
-
-
 def union_effects(specs: Sequence[str]) -> str:
     """The union of effects strings, in the order first met, each effect as its label writes it:
     ``compliance[2]`` and ``compliance[3]`` give ``compliance[2,3]``, the orders of ``cyclic``
     are joined per joint (runs of three or more as ranges)."""
-    merged: dict[str, Effect] = {}
-    for spec in specs:
-        for e in parse_effects(spec):
-            merged[e.name] = e if e.name not in merged else _joined(merged[e.name], e)
-    return ",".join(e.label for e in merged.values())
+    return ",".join(e.label for e in union_of(e for spec in specs for e in parse_effects(spec)))
 
 
 @dataclass

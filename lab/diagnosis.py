@@ -88,7 +88,7 @@ from scipy.optimize import brentq
 from scipy.stats import chi2, ncx2
 
 from arm.description import RobotDescription
-from arm.effects import Cyclic, Effect, cyclic_readings
+from arm.effects import Cyclic, Effect, cyclic_readings, union_of
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from lab import blocks as _blocks
@@ -347,8 +347,8 @@ def diagnose(
     ``data``: a measurement set (or its file), screened once (:func:`lab.screen`: duplicates,
     the fit's outliers, and the poses beyond the model and every candidate, which the tests
     leave out), or a :class:`lab.Screen` made before (nothing screened again). The options
-    (``noise_mm`` ... ``register``, or ``options=``) are :class:`lab.LabOptions`; ``noise_mm``,
-    the instrument's per-axis standard uncertainty (mm), also decides ``none`` against
+    (``noise_mm`` ... ``register``, or ``options=``) are :class:`lab.LabOptions`; ``noise_mm``
+    (:data:`arm.noise.NOISE_MM`) also decides ``none`` against
     ``unexplained``. ``alpha``: the family-wise false-alarm rate. ``candidates``: effect names
     to test (default: every registered effect). ``across_blocks``: confirm the chosen effects by
     leaving each session (or station) out in turn, dropping those that do not help where they
@@ -861,36 +861,7 @@ def _alternative_notes(scan: CyclicScan) -> list[str]:
 def _suggestion(model: ErrorModel, chosen: list[Candidate]) -> str:
     """The model to fit next: the fitted effects plus the chosen candidates, joints merged (a
     cyclic error's orders merged per joint)."""
-    joints: dict[str, set[int] | None] = {}
-    orders: dict[int, set[int]] = {}
-    for e in model.effects:
-        joints[e.name] = None if e.joints is None else set(e.joints)
-        if isinstance(e, Cyclic):
-            for j, ks in e.orders.items():
-                orders.setdefault(j, set()).update(ks)
-    order = [e.name for e in model.effects]
-    for c in chosen:
-        if c.orders is not None and c.joints is not None:
-            orders.setdefault(c.joints[0], set()).update(c.orders)
-            if c.effect not in order:
-                order.append(c.effect)
-            continue
-        if c.effect not in joints:
-            order.append(c.effect)
-            joints[c.effect] = set()
-        current = joints[c.effect]
-        if c.joints is None or current is None:  # the whole effect
-            joints[c.effect] = None
-        else:
-            current |= set(c.joints)
-    out = []
-    for name in order:
-        if name == Cyclic.name and orders:
-            out.append(Cyclic({j: sorted(ks) for j, ks in orders.items()}).label)
-            continue
-        js = joints[name]
-        out.append(name if js is None else f"{name}[{','.join(map(str, sorted(js)))}]")
-    return ",".join(out)
+    return ",".join(e.label for e in union_of([*model.effects, *(c.label for c in chosen)]))
 
 
 # --------------------------------------------------------------------------------------------------

@@ -635,7 +635,7 @@ def discover(
     miss; see the module docstring. ``data``: a measurement set (or its file), screened once
     (:func:`lab.screen`), or a :class:`lab.Screen` made before (its fit is the start; nothing
     screened again). The options (``noise_mm`` ... ``register``, or ``options=``) are
-    :class:`lab.LabOptions`; ``noise_mm``, the instrument's per-axis standard uncertainty, also
+    :class:`lab.LabOptions`; ``noise_mm`` (:data:`arm.noise.NOISE_MM`) also
     decides the verdict ``none`` against ``unexplained``. ``alpha``: the family-wise
     false-discovery rate; ``validate``: held-out data for the refitted model; ``order``: the
     highest harmonic; ``name``: the discovered effect's name; ``across_blocks``: keep the
@@ -643,8 +643,10 @@ def discover(
     (:mod:`lab.transfer`; None: where the data have at least :data:`lab.transfer.MIN_BLOCKS`)."""
     check_alpha(alpha)
     opts = resolve(options, **keywords)
-    if not ORDER.holds(order):
-        raise FitError(f"order (the highest harmonic) must {ORDER.predicate}, got {order!r}")
+    if not ORDER.constraint.holds(order):
+        raise FitError(
+            f"order (the highest harmonic) must {ORDER.constraint.predicate}, got {order!r}"
+        )
     if not _NAME.fullmatch(name) or keyword.iskeyword(name):
         raise FitError(f"effect name {name!r} must be lower-case letters, digits and _")
     s = screened(data, robot, effects, opts, tests=False)

@@ -55,7 +55,7 @@ from arm.effect_api import ModelInputs
 from arm.effects import JointAngleEffect
 from arm.errormodel import ErrorModel
 from arm.errors import warn
-from lab.errors import LabWarning
+from lab.errors import OutOfDomainWarning, ToolPlacedWarning
 
 __all__ = [
     "DOMAIN_COLUMNS",
@@ -82,15 +82,6 @@ PROBE_POSES = 16
 #: the arc of its joint (rad) over which a once-per-turn term must have been fitted to hold over
 #: the whole turn: half a turn, where its sine and cosine are told apart from the joint's zero
 ECCENTRICITY_ARC = math.pi
-
-
-class OutOfDomainWarning(LabWarning):
-    """Data outside the domain a model was identified on (lab.domain)."""
-
-
-class ToolPlacedWarning(OutOfDomainWarning):
-    """A tool offset the fit could not identify, placed on validation data with a new station's
-    base (lab.domain, :meth:`lab.result.FitResult.validate`)."""
 
 
 def _unit(variable: str) -> str:
@@ -169,6 +160,16 @@ class Domain:
 
     def to_dict(self) -> dict[str, Any]:
         return {"n_poses": self.n_poses, "ranges": {k: list(v) for k, v in self.ranges.items()}}
+
+    def union(self, other: Domain) -> Domain:
+        """Where either was identified: each variable's range over both (a variable that one
+        of them does not record is not judged, so it is left out)."""
+        ranges = {
+            k: (min(lo, other.ranges[k][0]), max(hi, other.ranges[k][1]))
+            for k, (lo, hi) in self.ranges.items()
+            if k in other.ranges
+        }
+        return Domain(ranges, self.n_poses + other.n_poses)
 
     @classmethod
     def of_description(cls, d: Mapping[str, Any]) -> Domain | None:

@@ -1,7 +1,10 @@
-"""The lab's error and its cautions.
+"""The lab's errors and its cautions.
 
-:class:`FitError` is what every lab function raises for input it cannot use (too few poses, an
-option out of range, an effect the data cannot support); the message says why and where.
+Every error of the lab derives from :class:`LabError` (a :class:`arm.errors.SixAxisError`), each
+keeping its built-in parent: :class:`FitError` is what every lab function raises for input it
+cannot use (too few poses, an option out of range, an effect the data cannot support); the message
+says why and where. :class:`ExportError` and :class:`CompensationError` are the export's and the
+compensation's (re-exported by :mod:`lab.export`).
 The cautions are warnings (:func:`arm.errors.warn`), issued besides the log record, so that a
 user can filter them, make them errors or assert them:
 
@@ -16,19 +19,30 @@ from __future__ import annotations
 from arm.errors import SixAxisError, SixAxisWarning
 
 __all__ = [
+    "CompensationError",
     "ContaminatedError",
+    "ExportError",
     "FitError",
     "ImplausibleAcceptedWarning",
+    "LabError",
     "LabWarning",
     "NoiseRefutedError",
     "OrientationNotFittedWarning",
+    "OutOfDomainWarning",
     "PoorPoseSetWarning",
+    "ReportError",
     "RowsLeftOutWarning",
+    "ToolPlacedWarning",
+    "UnknownOptionError",
     "ValidationMismatchWarning",
 ]
 
 
-class FitError(SixAxisError, ValueError):
+class LabError(SixAxisError):
+    """Base of the lab's errors: ``except lab.LabError`` catches every one of them."""
+
+
+class FitError(LabError, ValueError):
     """A fit that cannot be done as asked: too few poses, bad options; the message says why."""
 
 
@@ -42,6 +56,22 @@ class NoiseRefutedError(FitError):
     """The stated noise is far above what the fit's residual allows
     (:func:`lab.sanity.check_stated_noise`): a unit slip, most likely. Nothing is decided on
     it: the noise decides which parameters are fitted, the verdict and when discovery stops."""
+
+
+class UnknownOptionError(LabError, TypeError):
+    """A lab entry point called with a keyword that is not one of the lab's options."""
+
+
+class ExportError(LabError, ValueError):
+    """The calibrated arm cannot be exported faithfully; nothing was written."""
+
+
+class CompensationError(LabError, ValueError):
+    """Bad compensation input: the message names the file, line, column or effect."""
+
+
+class ReportError(LabError, ValueError):
+    """A part of a report asked of a run that has none (the nominal arm's fit or diagnosis)."""
 
 
 class LabWarning(SixAxisWarning):
@@ -68,3 +98,12 @@ class OrientationNotFittedWarning(LabWarning):
 class ValidationMismatchWarning(LabWarning):
     """Held-out data fit far worse than the fitted data (:func:`lab.sanity.check_validation`):
     another arm, another frame or other units, most likely."""
+
+
+class OutOfDomainWarning(LabWarning):
+    """Data outside the domain a model was identified on (lab.domain)."""
+
+
+class ToolPlacedWarning(OutOfDomainWarning):
+    """A tool offset the fit could not identify, placed on validation data with a new station's
+    base (lab.domain, :meth:`lab.result.FitResult.validate`)."""

@@ -273,11 +273,7 @@ def fit_rows(
         return analyse_jacobian(model, _without(J, held), **kw)
 
     # identifiability at the start (the structure), fit, again with the noise known, refit
-    if blocks.single:
-        pred, J = next(blocks.jacobians(p))[1:]
-    else:
-        pred, J = blocks.predict(p), None
-    initial_rms = rms(pred - xyz) if obs.plain else rms(model.predict(inputs, p) - xyz)
+    initial_rms, J = _at_start(blocks, model, inputs, p, xyz, obs)
     # held parameters are known: the others' identifiability is judged without their columns
     # (with the base held, row 1 is identifiable; with it free, the base absorbs row 1)
     ident = identifiability(p, J, tol=START_TOL, warn=False)
@@ -305,11 +301,7 @@ def fit_rows(
     if held.any():
         ident = replace(ident, held=tuple(np.asarray(lay.names)[held]))
     free2 = ident.identifiable & ~held
-    if not free2.any():
-        raise FitError(
-            f"{data.source}: no parameter of {', '.join(lay.effects)} can be identified from these"
-            f" {len(xyz)} poses at a noise of {noise * 1e3:.3g} mm"
-        )
+    _check_any_identifiable(free2, lay.effects, data.source, len(xyz), noise)
     if not np.array_equal(free2, free):
         free = free2
         sol = solved(np.where(free | held, sol.params, p), free, ident.scale)
@@ -352,6 +344,34 @@ def fit_rows(
             _loose_tool(model, free, held),
         ),
     )
+
+
+def _at_start(
+    blocks: Blocks,
+    model: ErrorModel,
+    inputs: ModelInputs,
+    p: np.ndarray,
+    xyz: np.ndarray,
+    obs: Observations,
+) -> tuple[float, np.ndarray | None]:
+    """The RMS of the points at the start ``p``, and the whole Jacobian there when the rows are
+    one block (None otherwise: the identifiability pass then works from the blocks' R)."""
+    if blocks.single:
+        pred, J = next(blocks.jacobians(p))[1:]
+    else:
+        pred, J = blocks.predict(p), None
+    return (rms(pred - xyz) if obs.plain else rms(model.predict(inputs, p) - xyz)), J
+
+
+def _check_any_identifiable(
+    free: np.ndarray, effects: Sequence[str], source: str, n_rows: int, noise: float
+) -> None:
+    """Refuse a fit of which the poses identify no parameter at the noise found."""
+    if not free.any():
+        raise FitError(
+            f"{source}: no parameter of {', '.join(effects)} can be identified from these"
+            f" {n_rows} poses at a noise of {noise * 1e3:.3g} mm"
+        )
 
 
 def _loose_tool(model: ErrorModel, free: np.ndarray, held: np.ndarray) -> tuple[str, ...]:

@@ -53,7 +53,6 @@ from arm.description import RobotDescription, load_robot, vec3
 from arm.effect_api import EffectError
 from arm.effects import EFFECTS
 from arm.errormodel import ErrorModel
-from arm.errors import SixAxisError
 from arm.files import OutputError, atomic_write_text
 from arm.ik import IKResult, InverseKinematics, solve_model_pose, solve_position
 from arm.measurements import (
@@ -71,7 +70,9 @@ from arm.measurements import (
 from arm.params import TOOL_ROTATION_NAMES
 from arm.so3 import rotation_matrix, rotation_vector
 from lab.domain import Domain, out_of_domain, warn_out_of_domain
+from lab.errors import CompensationError, ExportError
 from lab.result import SCHEMA_VERSION, FitResult
+from lab.uncertainty import Uncertainty, uncertainty_of
 
 __all__ = [
     "Compensation",
@@ -93,14 +94,6 @@ EXPORT_TOL = 1e-9
 # rad: a compensated joint angle this far from its start is named (a calibration moves the joints
 # by milliradians; this much only near a wrist singularity, where joints 4 and 6 share a turn)
 FAR_RAD = 0.2
-
-
-class ExportError(SixAxisError, ValueError):
-    """The calibrated arm cannot be exported faithfully; nothing was written."""
-
-
-class CompensationError(SixAxisError, ValueError):
-    """Bad compensation input: the message names the file, line, column or effect."""
 
 
 # --------------------------------------------------------------------------------------------------
@@ -134,9 +127,13 @@ def export_robot(
     name: str | None = None,
     length_unit: str = "m",
     angle_unit: str = "deg",
+    uncertainty: Uncertainty | None = None,
 ) -> RobotDescription:
     """Write the calibrated arm of ``result`` as a robot TOML (atomically) and return it as read
-    back (what ``load_robot(path)`` gives).
+    back (what ``load_robot(path)`` gives). It carries the parameters' covariance and the spread
+    between the sessions of the fit (``[uncertainty]``, :mod:`lab.uncertainty`): ``uncertainty``
+    where given, else the result's own (an update's), else measured from the fit (its sessions
+    each fitted alone).
 
     Before writing, the text is parsed and its predictions of the fitted poses compared with the
     fitted model's (with the fit's gravity torques, see the module docstring); a difference over
@@ -152,6 +149,9 @@ def export_robot(
     desc = result.description(name or f"{result.model.robot.name}-calibrated")
     # the arm the controller believes in, which compensation starts from without a program
     desc = replace(desc, nominal=replace(result.model.robot, nominal=None))
+    if uncertainty is None:
+        uncertainty = uncertainty_of(result)
+    desc = replace(desc, uncertainty=uncertainty.to_dict())
     if len(result.model.stations) > 1:  # each station's frame, for targets given in it
         desc = replace(
             desc,

@@ -58,8 +58,7 @@ def fit(
     model fitted to the screen's rows).
 
     The options (``noise_mm`` ... ``register``, or ``options=``) are :class:`lab.LabOptions`:
-    ``noise_mm`` the instrument's per-axis standard uncertainty, if known (else estimated from
-    the residual); ``loss`` ``linear`` (Levenberg-Marquardt), ``huber`` or ``soft_l1``;
+    ``noise_mm`` (:data:`arm.noise.NOISE_MM`), if known (else estimated from the residual); ``loss`` ``linear`` (Levenberg-Marquardt), ``huber`` or ``soft_l1``;
     ``outliers`` ``auto`` leaves gross outliers out by the rule of :mod:`lab.screening` (the
     result names them, ``result.outlier_list``), ``keep`` fits every pose (rows repeated exactly
     are counted once either way, ``result.duplicates``); ``accept_large`` keeps a model whose

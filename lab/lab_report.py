@@ -14,6 +14,7 @@ import numpy as np
 from arm.description import RobotDescription
 from arm.measurements import MeasurementSet
 from lab.diagnosis import Diagnosis
+from lab.errors import ReportError
 from lab.result import Duplicate, FitResult, Outlier
 
 __all__ = ["LabReport", "ModelRun", "Sensitivity"]
@@ -61,14 +62,14 @@ class ModelRun:
     def fitted(self) -> FitResult:
         """The fit: every run but the nominal arm's has one."""
         if self.fit is None:
-            raise ValueError(f"{self.label}: the nominal arm has no fit")
+            raise ReportError(f"{self.label}: the nominal arm has no fit")
         return self.fit
 
     @property
     def diagnosed(self) -> Diagnosis:
         """The diagnosis: every run but the nominal arm's has one."""
         if self.diagnosis is None:
-            raise ValueError(f"{self.label}: the nominal arm has no diagnosis")
+            raise ReportError(f"{self.label}: the nominal arm has no diagnosis")
         return self.diagnosis
 
     @property

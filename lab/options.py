@@ -23,11 +23,11 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Literal, TypedDict
 
-from arm.constraints import Interval, choices, declare, problems, refuse
+from arm.constraints import POSITIVE, Interval, Quantity, choices, declare, problems, refuse
 from arm.effects import MAX_ORDER
 from arm.measurements import COMPONENTS
-from arm.noise import InstrumentNoise
-from lab.errors import FitError
+from arm.noise import NOISE_MM, NOISE_MRAD, NOISE_PPM, InstrumentNoise, noise_law_problems
+from lab.errors import FitError, UnknownOptionError
 
 __all__ = [
     "ALPHA",
@@ -43,54 +43,86 @@ __all__ = [
     "OptionFields",
     "OutlierMode",
     "Solver",
+    "UpdateOptions",
 ]
 
 Loss = Literal["linear", "huber", "soft_l1"]
 OutlierMode = Literal["auto", "keep"]
 Solver = Literal["lm", "minpack"]
 
-POSITIVE = Interval(float, 0.0, None, closed="neither")
-NON_NEGATIVE = Interval(float, 0.0, None, closed="left")
-
 
 @dataclass(frozen=True)
 class LabOptions:
-    """How the lab fits and screens; the same for every entry point.
+    """How the lab fits and screens; the same for every entry point. Each field is declared once
+    with its range, unit and meaning (``help``: also the text of its command-line option, e.g.
+    ``sixaxis lab fit --noise-mm``, which is made from it). The instrument's three fields are the
+    quantities of :mod:`arm.noise` (:class:`arm.noise.InstrumentNoise`, docs/format.md): with
+    them, or with the rows' own ``std_*`` columns, every row is weighted by its sigma and every
+    test compares the residual with it.
 
-    ``noise_mm``: the instrument's per-axis standard uncertainty (mm), if known (else estimated
-    from the residual); the identifiability pass and the diagnosis's noise test use it.
-    ``loss``: ``linear`` (least squares), ``huber`` or ``soft_l1`` (robust to outliers).
-    ``outliers``: ``auto`` leaves gross outliers out by the rule of :mod:`lab.screening`,
-    ``keep`` fits every pose (duplicates are counted once either way). ``accept_large``: keep a
-    model whose identified parameters exceed the plausible bound of their kind
-    (:mod:`lab.plausibility`) instead of refusing it. ``solver``: ``lm`` (the lab's
-    Levenberg-Marquardt, :mod:`lab.solver`) or ``minpack`` (scipy's ``lmder``), for the linear
-    loss. ``f_scale_mm``: the robust loss's threshold (default 1.345 robust sigmas).
-    ``max_evaluations``: of the model, per solve. ``register``: place a geometric model's base
-    and tool offsets in closed form first (:mod:`lab.registration`).
+    A new option is one field here (its declaration: default, range, help) and the code that
+    uses it; the command line of every fitting command (:class:`experiments.cli_inputs.LabArgs`),
+    the keywords of the entry points (:class:`OptionFields`, kept alike by a test) and the printed
+    next steps follow:
 
-    The instrument model (:class:`arm.noise.InstrumentNoise`, docs/format.md): ``noise_ppm``,
-    the growth of the per-axis sigma with the distance from the tracker (um per m: sigma =
-    ``noise_mm`` + ``noise_ppm`` x distance); ``noise_mrad``, an orientation's per-axis sigma.
-    With them, or with the rows' own ``std_*`` columns, every row is weighted by its sigma and
-    every test compares the residual with it. ``measured``: the components (of ``x y z rx ry
-    rz``) to fit, default every one the data measured (``x,y,z``: the positions alone).
+        gate_mm: float | None = declare(None, POSITIVE, help="Leave out rows beyond it (mm).")
     """
 
-    noise_mm: float | None = declare(None, POSITIVE)
-    loss: Loss = "linear"
-    outliers: OutlierMode = "auto"
-    accept_large: bool = False
-    solver: Solver = "lm"
-    f_scale_mm: float | None = declare(None, POSITIVE)
-    max_evaluations: int = declare(100, Interval(int, 1, None))
-    register: bool = True
-    noise_ppm: float = declare(0.0, NON_NEGATIVE)
-    noise_mrad: float | None = declare(None, POSITIVE)
-    measured: tuple[str, ...] | None = None
+    noise_mm: float | None = declare(
+        None,
+        NOISE_MM,
+        help="The noise floor of a 3-D RMS is this times sqrt(3). Refused where the fit's "
+        "residual refutes it (more than 3x the noise it shows, beyond chance: a unit slip); 0 "
+        "only with --noise-ppm. Default: estimated from the residual.",
+    )
+    loss: Loss = declare("linear", help="linear (least squares), huber or soft_l1 (robust).")
+    outliers: OutlierMode = declare(
+        "auto",
+        help="auto: leave gross outliers out of the fit and the tests, named by line (a 3-D "
+        "residual beyond the radius that Gaussian noise of the robust scale exceeds in 1 % of "
+        "clean data sets, once the model and every catalogued effect explain what they can); "
+        "keep: fit every pose (duplicates are counted once either way).",
+    )
+    accept_large: bool = declare(
+        False,
+        help="Keep a model whose identified parameters exceed the plausible bound of their "
+        "kind (10 mm for a DH length error, 50 mrad for a DH angle error, ten times an "
+        "effect's typical size) instead of refusing it; base and tool are never bounded.",
+    )
+    solver: Solver = declare(
+        "lm",
+        help="For the linear loss: lm (the lab's Levenberg-Marquardt) or minpack (scipy's lmder).",
+    )
+    f_scale_mm: float | None = declare(
+        None, POSITIVE, unit="mm", help="The robust loss's threshold (default 1.345 robust sigmas)."
+    )
+    max_evaluations: int = declare(
+        100, Interval(int, 1, None), help="Evaluations of the model per solve, at most."
+    )
+    register: bool = declare(
+        True,
+        help="Place a geometric model's base and tool offsets in closed form before the fit "
+        "(--no-register: start from the nominal ones).",
+    )
+    noise_ppm: float = declare(0.0, NOISE_PPM, help="Rows are weighted by it.")
+    noise_mrad: float | None = declare(
+        None,
+        NOISE_MRAD,
+        help="Needed to weigh orientation rows against positions (or std_rx, "
+        "std_ry, std_rz columns).",
+    )
+    measured: tuple[str, ...] | None = declare(
+        None,
+        help="The components (of x y z rx ry rz) to fit, default every one the data measured "
+        "(x, y, z: the positions alone).",
+        cli=False,  # the command line's --measured says what the data measured (read with them)
+    )
 
     def __post_init__(self) -> None:
-        refuse(problems(self), FitError)
+        found = problems(self)
+        if not found:
+            found = noise_law_problems(self.noise_mm, self.noise_ppm, self.noise_mrad)
+        refuse(found, FitError)
         if self.measured is not None:
             bad = [c for c in self.measured if c not in COMPONENTS]
             if bad or not {"x", "y", "z"} <= set(self.measured):
@@ -133,9 +165,39 @@ class OptionFields(TypedDict, total=False):
 
 
 # the entry points' own settings, declared here so that the command line takes them alike
-ALPHA = Interval(float, 0.0, 1.0, closed="neither")  # a family-wise rate (diagnose, discover)
-ORDER = Interval(int, 1, MAX_ORDER)  # the highest order per turn discover scans
-ROUNDS = Interval(int, 0, None)  # the report's rounds of diagnose-and-refit
+#: a family-wise rate (diagnose, discover)
+ALPHA = Quantity(
+    Interval(float, 0.0, 1.0, closed="neither"), help="Family-wise false-alarm rate of the tests"
+)
+#: the highest order per turn discover scans
+ORDER = Quantity(
+    Interval(int, 1, MAX_ORDER),
+    help="The highest harmonic sin/cos(m*q) per turn scanned on every joint (fewer on a joint "
+    "whose sampling resolves fewer: a grid aliases high orders)",
+)
+#: the report's rounds of diagnose-and-refit
+ROUNDS = Quantity(Interval(int, 0, None), help="At most this many rounds of diagnose-and-refit")
+
+
+@dataclass(frozen=True)
+class UpdateOptions:
+    """The options of :func:`lab.update.update`, each declared once (:func:`arm.constraints.declare`): the keywords
+    of :func:`update` and the options of ``sixaxis lab update``."""
+
+    remount: bool = declare(
+        False,
+        help="The tool was re-mounted: its offset is fitted on the new poses alone, as the base "
+        "is (without it the calibration's tool is the prior).",
+    )
+    noise_mm: float | None = declare(
+        None,
+        POSITIVE,
+        unit="mm",
+        help="The per-axis noise the new poses are weighted by against the prior. Default: the "
+        "residual of one session fitted alone, as the calibration states it.",
+    )
+
+
 CRITERIA = ("o1", "o4")  # lab.plan's pose-set criteria (Borm & Menq, Nahvi & Hollerbach)
 
 LOSSES: tuple[str, ...] = choices(LabOptions, "loss")
@@ -154,7 +216,7 @@ def resolve(options: LabOptions | None, **given: Any) -> LabOptions:
         raise FitError(f"options must be a LabOptions, got {type(options).__name__}")
     unknown = [k for k in given if k not in OptionFields.__annotations__]
     if unknown:
-        raise TypeError(f"unexpected keyword argument(s): {', '.join(unknown)}")
+        raise UnknownOptionError(f"unexpected keyword argument(s): {', '.join(unknown)}")
     twice = [k for k, v in given.items() if not _same(v, getattr(DEFAULTS, k))]
     if twice:
         raise FitError(
@@ -169,8 +231,8 @@ def _same(a: Any, b: Any) -> bool:
 
 def check_alpha(alpha: float) -> None:
     """Refuse a family-wise rate outside (0, 1), in the declared words."""
-    if not ALPHA.holds(alpha):
-        raise FitError(f"alpha must {ALPHA.predicate}, got {alpha!r}")
+    if not ALPHA.constraint.holds(alpha):
+        raise FitError(f"alpha must {ALPHA.constraint.predicate}, got {alpha!r}")
 
 
 #: what `sixaxis lab export --format` writes: a robot TOML, or the arm's URDF with its metrology

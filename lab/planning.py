@@ -32,10 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
+from arm.constraints import refuse
 from arm.description import RobotDescription, as_robot
 from arm.effect_api import EffectError
 from arm.effects import Effect
 from arm.errormodel import ErrorModel
+from arm.noise import noise_law_problems
 from arm.sampling import SamplingError, check_count, rng_from, sample_poses
 from lab.errors import FitError
 from lab.identifiability import Identifiability, analyse_jacobian
@@ -126,6 +128,7 @@ def plan(
     seed: int | np.random.Generator = 0,
     max_exchanges: int = 1000,
     noise_mrad: float | None = None,
+    near: np.ndarray | None = None,
 ) -> Plan:
     """Choose ``n`` poses from ``candidates`` (an (M, 6) array, or how many random ones to draw)
     that maximise ``criterion`` (``o1`` or ``o4``) for identifying ``effects`` of ``robot``.
@@ -135,17 +138,26 @@ def plan(
     off joint 6's axis makes dalpha6 barely separable from dd5): chasing them would spend the
     poses on directions no calibration resolves.
 
+    ``near``: the joints (P, 6) of a program the calibration must hold for: the random candidates
+    are drawn from its joint region (:func:`arm.sampling.region_of`: the range of each joint, a
+    little wider), so the poses chosen are the ones that identify the most *there*, the poses to
+    measure for updating a calibration before it is used in another part of the workspace.
+
     ``noise_mrad``: the instrument measures the tool frame's orientation too, with this
     per-axis noise: each pose gives six rows, the orientation's weighted against the position's
     by ``noise_mm / noise_mrad`` (:mod:`lab.observations`), and the tool frame's rotation is a
     parameter."""
     if criterion not in CRITERIA:
         raise FitError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+    refuse(noise_law_problems(noise_mm, 0.0, noise_mrad), FitError)
     robot = as_robot(robot)
     try:
         rng = rng_from(seed, "seed")
         if isinstance(candidates, int | np.integer):
-            cand = sample_poses(robot, check_count(candidates, "candidates", MAX_CANDIDATES), rng)
+            count = check_count(candidates, "candidates", MAX_CANDIDATES)
+            cand = sample_poses(robot, count, rng, near=near)
+        elif near is not None:
+            raise FitError("give candidates as a count with near=: they are drawn from its region")
         else:
             cand = np.asarray(candidates, dtype=float).reshape(-1, 6)
     except SamplingError as exc:

@@ -28,6 +28,7 @@ import numpy as np
 from scipy import stats
 
 from arm.measurements import MeasurementSet
+from lab.errors import FitError
 
 __all__ = [
     "NoiseFloor",
@@ -88,7 +89,7 @@ def repeatability(data: MeasurementSet, tolerance: float = TOLERANCE) -> Repeata
     ``tolerance`` rad, and the same ``target`` and ``station`` where the data have them), or
     None when too few repeat (fewer than :data:`MIN_DOF` degrees of freedom)."""
     if not tolerance > 0:
-        raise ValueError(f"tolerance must be positive, got {tolerance}")
+        raise FitError(f"tolerance must be positive, got {tolerance}")
     n = len(data)
     if n < 2:
         return None

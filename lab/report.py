@@ -36,6 +36,7 @@ from arm.measurements import MeasurementSet, as_measurements
 from arm.params import parameter_unit
 from lab import plots
 from lab.diagnosis import diagnose, hint_variables
+from lab.errors import FitError
 from lab.identifiability import CONDITION_WARNING, typical_magnitudes
 from lab.lab_report import LabReport, ModelRun, Sensitivity
 from lab.options import LabOptions, OptionFields, resolve
@@ -224,7 +225,7 @@ def _hint_projection(
             if r2 > best + 1e-9:
                 best, direction = r2, name
     if direction is None:
-        raise ValueError(f"no direction to project the residual on for {variable!r}")
+        raise FitError(f"no direction to project the residual on for {variable!r}")
     use, y, label = options[direction]
     return use, x, y, label, direction
 

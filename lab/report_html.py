@@ -635,6 +635,11 @@ def _data_section(r: LabReport) -> list[str]:
             ["", ""],
             [
                 ["measurements", f"<code>{_e(r.data.source)}</code>, {len(r.data)} poses"],
+                *(
+                    [["sessions", _e("; ".join(x.text() for x in r.data.sessions))]]
+                    if len(r.data.sessions) > 1
+                    else []
+                ),
                 ["columns", _e(cols)],
                 ["targets", _e(", ".join(map(str, r.data.targets)))],
                 ["robot", f"<code>{_e(r.robot.name)}</code>, {_e(r.robot.convention)} DH"],

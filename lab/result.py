@@ -13,7 +13,7 @@ The numbers are computed by :mod:`lab.estimation` (the fit of the rows given) an
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -171,6 +171,13 @@ class FitResult:
     refit: Callable[[Sequence[str]], np.ndarray] | None = field(
         default=None, repr=False, compare=False
     )
+    # the parameters' covariance and the spread between sessions where the fit states them
+    # itself (an update's posterior: lab.update), as a calibration file's [uncertainty] table
+    # (lab.uncertainty); None: an export measures them
+    uncertainty: Mapping[str, Any] | None = field(default=None, repr=False, compare=False)
+    # where the model was identified, where it is not the fitted rows' alone (an update: the
+    # calibration's domain and the new poses'); None: the fitted rows' (Domain.of(inputs))
+    fitted_domain: Domain | None = field(default=None, repr=False, compare=False)
 
     # -- the rows counted (lab.screening) ---------------------------------------------------------
     @property
@@ -358,8 +365,9 @@ class FitResult:
 
     @property
     def domain(self) -> Domain:
-        """Where the model was identified: the ranges of the fitted poses (lab.domain)."""
-        return Domain.of(self.inputs)
+        """Where the model was identified: the ranges of the fitted poses (lab.domain), or
+        those it states (:attr:`fitted_domain`)."""
+        return self.fitted_domain if self.fitted_domain is not None else Domain.of(self.inputs)
 
     def out_of_domain(
         self, data: MeasurementSet | ModelInputs
@@ -554,7 +562,10 @@ class FitResult:
         """The calibrated arm: a description whose nominal model reproduces this fit."""
         desc = self.model.description(self.params, name=name)
         dom = self.domain
-        return replace(desc, domain={"n_poses": dom.n_poses, **dom.ranges})
+        desc = replace(desc, domain={"n_poses": dom.n_poses, **dom.ranges})
+        return (
+            desc if self.uncertainty is None else replace(desc, uncertainty=dict(self.uncertainty))
+        )
 
     # -- tables ----------------------------------------------------------------------------------
     def rows(self) -> list[dict]:

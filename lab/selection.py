@@ -10,6 +10,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy import stats
 
+from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
 
 __all__ = ["ForwardSelection", "f_test", "holm", "press_rms"]
@@ -100,7 +101,7 @@ class ForwardSelection:
         """Add a trial's columns: its ``pieces``, or those that ``basis`` builds again."""
         if pieces is None:
             if basis is None:
-                raise ValueError("a remembered trial has no pieces: give its basis")
+                raise FitError("a remembered trial has no pieces: give its basis")
             out = self._trial(basis)
             if out is None:
                 return

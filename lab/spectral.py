@@ -57,6 +57,7 @@ from scipy import sparse, stats
 
 from arm.params import parameter_unit
 from lab.blocks import Blocks
+from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
 
 __all__ = ["CyclicProblem", "CyclicScan", "cyclic_scan", "joint_sampling", "resolvable_order"]
@@ -93,14 +94,14 @@ class CyclicProblem:
     def __post_init__(self) -> None:
         m = self.residual.shape[0]
         if self.model.shape[0] != m or self.joint.shape != (m, 6) or self.pose.shape != (m,):
-            raise ValueError(
+            raise FitError(
                 f"rows disagree: residual {self.residual.shape}, model {self.model.shape}, "
                 f"joint {self.joint.shape}, pose {self.pose.shape}"
             )
         if self.q.ndim != 2 or self.q.shape[1] != 6:
-            raise ValueError(f"q must be (N, 6), got {self.q.shape}")
+            raise FitError(f"q must be (N, 6), got {self.q.shape}")
         if m and (self.pose.min() < 0 or self.pose.max() >= self.q.shape[0]):
-            raise ValueError("pose indices must lie within 0..N-1")
+            raise FitError("pose indices must lie within 0..N-1")
 
     @property
     def n_poses(self) -> int:
@@ -684,7 +685,7 @@ class CyclicScanner:
         bound: float | None = None,
     ) -> None:
         if order < 1:
-            raise ValueError(f"order must be at least 1, got {order}")
+            raise FitError(f"order must be at least 1, got {order}")
         prob = problem
         self.prob, self.order, self.max_terms = prob, order, max_terms
         self.alias_level, self.bound = alias_level, bound

@@ -22,6 +22,7 @@ import numpy as np
 
 from arm.effect_api import ModelInputs
 from arm.effects import REFERENCE_TEMPERATURE, JointAngleEffect
+from arm.errors import EffectError
 
 __all__ = ["Expr", "Fn", "Mul", "Pow", "Scaled", "TermEffect", "Var", "term_effect"]
 
@@ -53,7 +54,7 @@ class Var(Expr):
     def value(self, env: Mapping[str, np.ndarray | None]) -> np.ndarray:
         v = env[self.name]
         if v is None:
-            raise ValueError(f"the data have no {self.name!r} for this term")
+            raise EffectError(f"the data have no {self.name!r} for this term")
         return v
 
     def variables(self) -> set[str]:
@@ -187,7 +188,7 @@ class TermEffect(JointAngleEffect):
     def basis(self, inputs, joint, term):
         expr = self.expressions.get(term)
         if expr is None:
-            raise ValueError(f"unknown term {term!r}")
+            raise EffectError(f"unknown term {term!r}")
         used = set().union(*(e.variables() for e in self.expressions.values()))
         return expr.value(_inputs_variables(inputs, joint, used))
 

@@ -46,6 +46,7 @@ from lab.export import (
     station_bases,
 )
 from lab.result import SCHEMA_VERSION, FitResult
+from lab.uncertainty import Uncertainty, uncertainty_of
 
 __all__ = ["UrdfExport", "export_urdf", "metrology_path", "read_calibrated_urdf", "require_urdf"]
 
@@ -94,7 +95,12 @@ def require_urdf(robot: RobotDescription) -> None:
         raise ExportError(_not_urdf(robot))
 
 
-def export_urdf(result: FitResult, path: str | Path, name: str | None = None) -> UrdfExport:
+def export_urdf(
+    result: FitResult,
+    path: str | Path,
+    name: str | None = None,
+    uncertainty: Uncertainty | None = None,
+) -> UrdfExport:
     """Write the calibrated arm of ``result`` (a fit of a robot read from a URDF) as a URDF at
     ``path`` and its metrology file beside it (:func:`metrology_path`), both atomically, after
     checking them (module docstring). Raises :class:`lab.export.ExportError` naming what is wrong;
@@ -166,6 +172,9 @@ def export_urdf(result: FitResult, path: str | Path, name: str | None = None) ->
             effects.pop("geometric")
     if effects:
         doc["effects"] = effects
+    # the parameters' covariance and the spread between sessions (lab.uncertainty), as a robot
+    # TOML carries them: by parameter name, relative to the nominal arm below
+    doc["uncertainty"] = (uncertainty or uncertainty_of(result)).to_dict()
     # the arm the controller believes in, as a robot description (compensation starts from it)
     doc["nominal"] = tomllib.loads(replace(nominal, nominal=None).to_toml("m", "rad"))
     import tomli_w
@@ -244,6 +253,7 @@ def _calibrated(
             base_translation=vec3(B[:3, 3]),
             base_rotation=vec3(rotation_vector(B[:3, :3])),
             effects=effects,
+            uncertainty=dict(doc.get("uncertainty", {})),
         )
     except (KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, UrdfError):

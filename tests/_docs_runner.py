@@ -23,8 +23,8 @@ The conventions of README.md and docs/*.md (the runner enforces them):
   left out (without it the keys must be the same); numbers to the digits shown.
 - ``<!-- docs: skip: REASON -->`` on the line before a block's fence skips the block (the test
   counts and reports these; the reason is required).
-- ``<!-- docs: time column: NAME -->`` before a block: the table column headed NAME holds times,
-  not compared.
+- ``<!-- docs: time column: NAME -->`` before a block: the table column headed NAME (the header
+  as the table prints it, drawn with rules or without) holds times, not compared.
 
 Every page is run in a fresh temporary folder holding links to the repository's ``data/`` and
 ``examples/``, so the pages' commands find the shipped data sets and files that earlier blocks made.
@@ -187,10 +187,36 @@ def line_matches(shown: str, got: str) -> bool:
     return all(_close(x, y) for x, y in zip(sn, gn, strict=True))
 
 
-def _blank_columns(line: str, columns: set[int]) -> str:
-    """A table row with the cells of ``columns`` emptied (cells split at the rows' rules)."""
-    cells = line.split("│")
-    return "│".join("" if i in columns else c for i, c in enumerate(cells))
+@dataclass(frozen=True)
+class _TimeCells:
+    """Where a table's time columns are, read off its header as it is drawn: by cell (a box
+    table, header cells between ``┃``, rows' between ``│``) or by span of characters (a table
+    drawn without rules: columns apart by two or more spaces, each value under its header)."""
+
+    cells: frozenset[int] = frozenset()
+    spans: tuple[tuple[int, int], ...] = ()
+
+    @classmethod
+    def of(cls, header: str, names: tuple[str, ...]) -> _TimeCells | None:
+        """The time columns of ``header``, if it is a table's header naming one of ``names``."""
+        if "┃" in header:
+            cells = {i for i, c in enumerate(header.split("┃")) if c.strip() in names}
+            return cls(cells=frozenset(cells)) if cells else None
+        spans = tuple(m.span() for m in re.finditer(r"\S+(?: \S+)*", header) if m.group() in names)
+        return cls(spans=spans) if spans else None
+
+    def blank(self, row: str) -> str:
+        """``row`` with the time columns' values emptied."""
+        if self.cells and "│" in row:
+            parts = row.split("│")
+            return "│".join("" if i in self.cells else c for i, c in enumerate(parts))
+        words = re.finditer(r"\S+", row)  # every word that reaches into a header's span
+        cut = [
+            m.span() for m in words if any(m.start() < hi and m.end() > lo for lo, hi in self.spans)
+        ]
+        for lo, hi in reversed(cut):
+            row = row[:lo] + " " * (hi - lo) + row[hi:]
+        return row
 
 
 class _Number(str):
@@ -246,16 +272,27 @@ def compare(command: Command, output: str, where: str, time_columns: tuple[str, 
         compare_json(command, output, where)
         return
     printed = output.splitlines()
-    times: set[int] = set()
+    # the time columns of the last table header quoted, as the page draws it and as printed
+    page_times: _TimeCells | None = None
+    printed_times: _TimeCells | None = None
     k = 0
     for at, shown in command.quoted:
         if not _norm(shown) or _norm(shown).strip("│ ") == "...":
             continue
-        if "┃" in shown:  # a table's header: where its time columns are
-            times = {i for i, c in enumerate(shown.split("┃")) if c.strip() in time_columns}
-        if times and "│" in shown:
-            shown = _blank_columns(shown, times)
-        while k < len(printed) and not line_matches(shown, _blank_columns(printed[k], times)):
+        header = _TimeCells.of(shown, time_columns)
+        if header is not None:
+            page_times = header
+        elif page_times is not None:
+            shown = page_times.blank(shown)
+        while k < len(printed):
+            if header is not None:
+                if line_matches(shown, printed[k]):
+                    printed_times = _TimeCells.of(printed[k], time_columns)
+                    break
+            elif line_matches(
+                shown, printed_times.blank(printed[k]) if printed_times else printed[k]
+            ):
+                break
             k += 1
         if k == len(printed):
             raise DocError(

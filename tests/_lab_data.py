@@ -169,3 +169,47 @@ def session(values: dict, n: int, session: int, seed: int) -> MeasurementSet:
     xyz = model.predict(inputs_of(model, MeasurementSet(q, np.zeros((n, 3)), cols)), p)
     xyz = xyz + SIGMA * rng.standard_normal(xyz.shape)
     return MeasurementSet(q, xyz, cols, source=f"session{session}.csv")
+
+
+def drifting_session(
+    values: dict,
+    n: int,
+    station: int,
+    seed: int,
+    *,
+    rehome_mrad: float = 2.0,
+    remount_mm: float = 0.0,
+    region: tuple[np.ndarray, float] | None = None,
+) -> MeasurementSet:
+    """``n`` poses of one session of the seed arm whose physics (``values``: geometric and
+    compliance parameters) stays, as a new session finds it: measured from a tracker station of
+    its own (id ``station``; the base metres away, turned), each joint re-homed (its zero offset
+    shifted by up to ``rehome_mrad``), the tool re-mounted (each coordinate shifted by up to
+    ``remount_mm``), the shop at another temperature (a column no effect reads), the poses in
+    ``region`` (a centre (6,) and a half-width, rad) or anywhere; 15 um of noise per axis."""
+    from lab.result import inputs_of
+
+    rng = np.random.default_rng(seed)
+    lo = np.array([-2.5, -2.2, -1.2, -2.5, -1.8, -3.0])
+    hi = np.array([2.5, -0.3, 1.2, 2.5, 1.8, 3.0])
+    if region is not None:
+        centre, half = region
+        lo, hi = np.maximum(lo, centre - half), np.minimum(hi, centre + half)
+    q = rng.uniform(lo, hi, size=(n, 6))
+    model = ErrorModel(load_robot("seed"), "geometric,compliance", stations=(station,))
+    p = model.layout.vector(values, default=model.nominal())
+    lay = model.layout
+    for j in range(1, 7):
+        p[lay.index(f"dtheta{j}")] += 1e-3 * rehome_mrad * rng.uniform(-1.0, 1.0)
+    for c in ("tx", "ty", "tz"):
+        p[lay.index(c)] += 1e-3 * remount_mm * rng.uniform(-1.0, 1.0)
+    p[lay.indices(["bx", "by", "bz"])] = rng.uniform(-3.0, 3.0, 3)
+    p[lay.index("brz")] = rng.uniform(-np.pi, np.pi)
+    p[lay.indices(["brx", "bry"])] = rng.normal(0.0, 0.01, 2)
+    cols = {
+        "station": np.full(n, float(station)),
+        "temperature": 20.0 + rng.uniform(-5.0, 5.0) + rng.normal(0.0, 0.2, n),
+    }
+    xyz = model.predict(inputs_of(model, MeasurementSet(q, np.zeros((n, 3)), cols)), p)
+    xyz = xyz + SIGMA * rng.standard_normal(xyz.shape)
+    return MeasurementSet(q, xyz, cols, source=f"station{station}.csv")

@@ -220,7 +220,7 @@ def test_widening_mid_episode_continues_with_the_wider_model(kin_env):
 
 def test_unknown_solver_and_bad_horizon_are_refused(setup):
     _, tm, _ = setup
-    with pytest.raises(ValueError, match="unknown MPC solver"):
+    with pytest.raises(ValueError, match="solver must be one of daqp, osqp"):
         _mpc(tm, "gurobi")
     with pytest.raises(ValueError, match="horizon"):
         _mpc(tm, horizon=0)

@@ -216,6 +216,15 @@ def test_the_robot_toml_tables_name_every_key_the_writer_emits():
         nominal=seed_robot(),  # what `lab export` records
         stations=((1, (0.1, 0.0, 0.0), (0.0, 0.0, 0.2)), (2, (3.0, 1.0, 0.0), (0.0, 0.0, 1.0))),
         domain={"n_poses": 40, "q1": (-1.0, 1.0), "temperature": (20.5, 20.9)},
+        uncertainty={  # what `lab export` records of a calibration of two sessions
+            "parameters": ["da2", "c2"],
+            "values": {"da2": 1e-4, "c2": 6e-6, "dtheta6": 0.0},
+            "covariance": [[1e-12, 0.0], [0.0, 1e-16]],
+            "sigma": 2e-5,
+            "sessions": 2,
+            "spread": [3e-5, 0.0],
+            "unmeasured": ["c2"],
+        },
     )
     assert isinstance(full, RobotDescription)
     back = RobotDescription.from_toml(full.to_toml())
@@ -226,7 +235,7 @@ def test_the_robot_toml_tables_name_every_key_the_writer_emits():
     documented_top = {re.sub(r"[\[\]]|\.NAME", "", names(r[0])[0]): r for r in top}
     assert set(documented_top) == set(doc), set(doc) ^ set(documented_top)
     assert {names(r[0])[0] for r in joint} == set(doc["joints"][0])
-    for key in ("tools", "base", "flange", "stations"):  # each sub-table's keys, in its row
+    for key in ("tools", "base", "flange", "stations", "uncertainty"):  # each's keys, in its row
         value = doc[key][0] if isinstance(doc[key], list) else doc[key]
         for sub in value:
             assert f"`{sub}" in documented_top[key][2], (key, sub)
@@ -284,6 +293,7 @@ def outputs(tmp_path_factory) -> dict[str, dict]:
         "compensate", d / "targets.csv", "--robot", d / "cal.toml", "-o", d / "joints.csv"
     )
     out["joints_csv"] = {"text": (d / "joints.csv").read_text()}
+    out["update"] = lab_json("update", d / "cal.toml", d / "val.csv", "--validate", d / "val.csv")
     return out
 
 
@@ -323,6 +333,16 @@ def expanded(text: str) -> set[str]:
         else:
             out.add(n)
     return out
+
+
+def test_the_update_section_lists_the_keys_update_adds_to_fit(outputs):
+    printed = json_keys(outputs["update"])
+    documented = documented_keys("fit") | documented_keys("update")
+    # fit's lists of objects (outliers, duplicates, implausible) are empty in an update: its
+    # object is fit's, every key of it documented, and the one key it adds is update's
+    assert printed - documented == set(), printed - documented
+    assert {k for k in documented if "[]" not in k} - printed == set()
+    assert set(outputs["update"]) - set(outputs["fit"]) == documented_keys("update")
 
 
 def test_the_joints_file_is_as_documented(outputs):
@@ -454,7 +474,9 @@ def test_the_real_data_options_and_keys_are_documented():
 
 
 # -- the lab's options ------------------------------------------------------------------------------
-@pytest.mark.parametrize("command", ["fit", "diagnose", "discover", "plan", "collect", "report"])
+@pytest.mark.parametrize(
+    "command", ["fit", "diagnose", "discover", "plan", "collect", "report", "update"]
+)
 def test_every_option_of_the_lab_commands_is_documented(command):
     """Each ``--option`` of the command is named in docs/format.md as a whole word (``--stations``
     is not ``--stations-x``)."""

@@ -496,11 +496,11 @@ def test_the_options_choices_and_ranges_are_the_librarys(files):
     res = runner.invoke(app, ["lab", "fit", "--help"], env={"COLUMNS": "200"})
     assert "[" + "|".join(LOSSES) + "]" in res.stdout and "[auto|keep]" in res.stdout
     for args, line in (
-        (["--noise-mm", "-1"], "error: --noise-mm must be positive, got -1.0"),
+        (["--noise-mm", "-1"], "error: --noise-mm must be >= 0 (mm), got -1.0"),
         (["--loss", "l2"], "error: --loss must be one of linear, huber, soft_l1, got 'l2'"),
         (["--length-unit", "inch"], "error: --length-unit must be one of m, mm, got 'inch'"),
     ):
         res = lab("fit", files["geo"], *args)
         assert res.exit_code == 2 and res.stderr.strip() == line, res.stderr
-    with pytest.raises(Exception, match=r"noise_mm must be positive, got -1\.0"):
+    with pytest.raises(Exception, match=r"noise_mm must be >= 0 \(mm\), got -1\.0"):
         LabOptions(noise_mm=-1.0)  # the same check, in the library's own name

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from arm.errormodel import ErrorModel
-from arm.sampling import sample_poses
+from arm.sampling import NEAR_MARGIN, sample_poses
 from lab import FitError, fit, plan
 from tests._lab_data import campaign
 
@@ -75,3 +75,29 @@ def test_plan_errors(seed):
         plan(20, seed, criterion="d")
     with pytest.raises(FitError, match=r"dir1 \(needed by backlash\).*columns="):
         plan(20, seed, "geometric,backlash", candidates=100)
+
+
+def test_poses_planned_near_a_program_lie_in_its_region_and_beat_random_ones_there(seed):
+    """``near=``: the candidates come from the program's joint region (each joint's range, 0.1
+    rad wider), and the plan beats as many random poses of that region on O1."""
+    rng = np.random.default_rng(3)
+    program = sample_poses(seed, 200, rng)
+    program[:, 0] = rng.uniform(1.0, 1.6, 200)  # the program works in one sector of q1
+    program[:, 3] = rng.uniform(-0.5, 0.2, 200)
+    p = plan(20, seed, "geometric", near=program, candidates=1500, seed=0)
+    lo, hi = program.min(axis=0) - NEAR_MARGIN, program.max(axis=0) + NEAR_MARGIN
+    assert np.all((p.candidates >= lo) & (p.candidates <= hi))
+    assert np.all((p.q >= lo) & (p.q <= hi))
+    assert np.ptp(p.q[:, 0]) < 0.6 + 2 * NEAR_MARGIN  # not the whole turn of q1
+    assert p.o1 > 1.25 * p.random_o1  # 1.40 here
+    region = p.candidates[np.random.default_rng(9).choice(len(p.candidates), 20, replace=False)]
+    assert p.o1 > o1_of(seed, region, p.identifiability)
+
+
+def test_a_program_outside_the_limits_is_refused_by_joint(seed):
+    program = np.zeros((5, 6))
+    program[:, 2] = 9.0  # beyond q3's limits
+    with pytest.raises(FitError, match="q3"):
+        plan(10, seed, "geometric", near=program)
+    with pytest.raises(FitError, match="near="):
+        plan(10, seed, "geometric", near=np.zeros((5, 6)), candidates=np.zeros((40, 6)))

@@ -134,14 +134,18 @@ def test_every_entry_point_takes_the_same_options():
 @pytest.mark.parametrize("bad", [-1, 0, math.nan, math.inf])
 def test_a_bad_noise_is_refused_alike_everywhere(seed, bad):
     """lab.fit once accepted noise_mm=-1, 0 and NaN, lab.diagnose accepted inf: now every entry
-    point refuses each, with one message, before any work."""
+    point refuses each, with one message, before any work (0 states no noise without a
+    distance term: arm.noise's rule)."""
     data = campaign(seed, "geometric", seed=3).measure(40)
     messages = set()
     for f in ENTRY_POINTS.values():
         with pytest.raises(lab.FitError) as info:
             f(data, seed, "geometric", noise_mm=bad)
         messages.add(str(info.value))
-    assert messages == {f"noise_mm must be positive, got {bad!r}"}
+    if bad == 0:
+        assert len(messages) == 1 and "noise_mm 0 without noise_ppm" in messages.pop()
+    else:
+        assert messages == {f"noise_mm must be >= 0 (mm), got {bad!r}"}
 
 
 def test_every_bad_option_is_named_at_once():
@@ -149,7 +153,7 @@ def test_every_bad_option_is_named_at_once():
         LabOptions(noise_mm=-1, loss="l2", outliers="drop", max_evaluations=0, accept_large=1)
     text = str(info.value)
     for part in (
-        "noise_mm must be positive, got -1",
+        "noise_mm must be >= 0 (mm), got -1",
         "loss must be one of linear, huber, soft_l1, got 'l2'",
         "outliers must be one of auto, keep, got 'drop'",
         "accept_large must be true or false, got 1",

@@ -59,7 +59,7 @@ from arm.effects.registry import (
     register_effect,
     user_module_failure,
 )
-from arm.effects.specs import candidate_effects, make_effect, parse_effects
+from arm.effects.specs import candidate_effects, make_effect, parse_effects, union_of
 
 __all__ = [
     "EFFECTS",
@@ -87,6 +87,7 @@ __all__ = [
     "order_reading",
     "parse_effects",
     "register_effect",
+    "union_of",
     "user_code",
     "user_module_failure",
 ]

@@ -6,13 +6,14 @@ tests whole.
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 from arm.effect_api import EffectError
 from arm.effects.base import Effect
+from arm.effects.joint_angle import Cyclic
 from arm.effects.registry import EFFECTS, load_entry_points
 
-__all__ = ["candidate_effects", "make_effect", "parse_effects"]
+__all__ = ["candidate_effects", "make_effect", "parse_effects", "union_of"]
 
 _EFFECT_PATTERN = re.compile(r"^\s*([a-z][a-z0-9_]*)\s*(?:\[([^\]]*)\])?\s*$")
 
@@ -62,3 +63,25 @@ def parse_effects(spec: str | Sequence[str | Effect]) -> list[Effect]:
     if dup:
         raise EffectError(f"effect(s) listed twice: {', '.join(sorted(dup))}")
     return effects
+
+
+def union_of(effects: Iterable[str | Effect]) -> list[Effect]:
+    """One effect per name, in the order first met, over what every effect of that name covers:
+    ``backlash[1]`` and ``backlash[5]`` give ``backlash[1,5]``; one on all joints covers all; a
+    cyclic error's orders are joined per joint. The one union of effects: a diagnosis's
+    suggestion, the bag's model of its draws, an online model widened by a candidate."""
+    merged: dict[str, Effect] = {}
+    for e in map(make_effect, effects):
+        merged[e.name] = e if e.name not in merged else _joined(merged[e.name], e)
+    return list(merged.values())
+
+
+def _joined(a: Effect, b: Effect) -> Effect:
+    """One effect of ``a``'s kind over what either covers: the joints of both (all where either
+    takes all), a cyclic effect's orders per joint."""
+    if isinstance(a, Cyclic) and isinstance(b, Cyclic):
+        js = {*a.orders, *b.orders}
+        return Cyclic({j: [*a.orders.get(j, ()), *b.orders.get(j, ())] for j in js})
+    if a.joints is None or b.joints is None:
+        return type(a)()
+    return type(a)(joints=[*a.joints, *b.joints])
