@@ -44,7 +44,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-import scipy.linalg
+from scipy.linalg import lapack
 
 from agents.base import Agent, measurement_columns, refuse_settings, solve_time_stats
 from agents.errors import AgentError
@@ -148,6 +148,7 @@ class KinematicMPC:
         self._decay = self.error_decay ** np.arange(1, N + 1)  # of the present error, by step
         self._lbx = -np.tile(self.v_max, N)
         self._ubx = np.tile(self.v_max, N)
+        self._A_and_I = np.vstack([self.A, np.eye(6 * N)])
         self._warm_start = solver in ("osqp", "qpoases", "ipopt")
         # a plan violating the constraints by more than this (rad/s) is a failed solve: active-set
         # methods are exact; first-order ones (OSQP's ADMM) stop near the solution, or at their
@@ -317,27 +318,22 @@ class KinematicMPC:
         self._fast = BufferedFunction(ca.Function("mpc_qp_data_flat", [w], [out]))
 
     def _unconstrained(self, w: np.ndarray) -> tuple[np.ndarray, float]:
-        """The QP's unconstrained minimiser ``-H^-1 g`` (LAPACK's Cholesky) and its largest
-        constraint violation (NaN or inf where the data or the factorisation are not finite)."""
+        """The QP's unconstrained minimiser ``-H^-1 g`` (LAPACK's Cholesky, ``dposv``) and its
+        largest constraint violation (NaN or inf where the data or the factorisation are not
+        finite: no constraint is then taken to hold)."""
         assert self._fast is not None
         n, nA = 6 * self.N, self.nA
         out = self._fast(w)
         H = out[: n * n].reshape(n, n)  # symmetric: CasADi's column order is the same matrix
-        g = out[n * n : n * n + n]
-        lba, uba = out[n * n + n : n * n + n + nA], out[n * n + n + nA :]
-        try:
-            factor = scipy.linalg.cho_factor(H, lower=True, check_finite=False)
-        except np.linalg.LinAlgError:
+        _, v, info = lapack.dposv(H, out[n * n : n * n + n], lower=1)
+        if info != 0:
             return np.full(n, np.nan), np.inf
-        v = -scipy.linalg.cho_solve(factor, g, check_finite=False)
-        Av = self.A @ v
-        violation = max(
-            float(np.max(Av - uba)),
-            float(np.max(lba - Av)),
-            float(np.max(v - self._ubx)),
-            float(np.max(self._lbx - v)),
-        )
-        return v, violation
+        v = -v
+        # the constraint rows and the velocity bounds at once: [A; I] v within [lba; lbx], [uba; ubx]
+        rows = self._A_and_I @ v
+        lo = np.concatenate((out[n * n + n : n * n + n + nA], self._lbx))
+        hi = np.concatenate((out[n * n + n + nA :], self._ubx))
+        return v, float(np.max(np.maximum(rows - hi, lo - rows)))
 
     def solve(
         self,
