@@ -212,3 +212,25 @@ def test_every_agents_declared_tolerance_covers_its_measured_drift():
     for label, measured in data["agents"].items():
         assert cross_cpu_rtol(name[label]) >= measured["tolerance"], label
     assert cross_cpu_rtol("mpc") >= 1.1e-4
+
+
+def test_a_row_of_one_training_seed_is_kept_and_reruns(tmp_path):
+    """A learned agent's network labelled by its training seed (``ppo@s3``): the leaderboard
+    ranks it as ``ppo`` (its one seed), the runs CSV keeps its rows with their training seed,
+    and ``sixaxis reproduce`` reruns one from its commit."""
+    cfg = load_config(ROOT / "tests" / "configs" / "reproduce-seeds.toml")
+    assert not run_sweep(cfg, tmp_path / "runs", workers=0).failed
+    board = build_leaderboard(tmp_path / "runs", allow_dirty=not CLEAN)
+    assert board.agents == ["nominal", "ppo"]
+    rows = list(csv.DictReader(io.StringIO(runs_csv(board))))
+    mine = [r for r in rows if r["agent_name"] == "ppo"]
+    assert [(r["agent"], r["train_seed"], r["run_key"]) for r in mine] == [
+        ("ppo@s3", "3", "ppo@s3__geometric__ep0"),
+        ("ppo@s3", "3", "ppo@s3__geometric__ep1"),
+    ]
+    if not CLEAN:
+        pytest.skip("this checkout has local changes: its commit does not hold the rows")
+    summary = write_rows(tmp_path / "runs.csv", rows)
+    res = CliRunner().invoke(app, ["reproduce", str(summary), "--run", "ppo@s3__geometric__ep1"])
+    assert res.exit_code == 0, res.output
+    assert "reproduced: every metric of 1 row(s) is the same" in res.output
