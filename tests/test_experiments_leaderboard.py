@@ -563,6 +563,18 @@ def test_an_agent_over_training_seeds_is_ranked_as_one_agent(tmp_path):
     agg = an["aggregate"]["hold"]["iqm"]
     assert (agg["lo"], agg["hi"]) == pytest.approx(loops.stratified(ratios, loops.iqm), rel=1e-12)
     assert an["compute"]["hold"]["ranked_seeds"] == [1, 2, 3]
+    cost = an["cost_of_effect"]["hold"]["geometric"]
+    per_seed = [
+        [
+            [
+                float(np.log(x / y))
+                for x, y in zip(values(lb, "geometric"), values(lb, "nominal"), strict=True)
+            ]
+        ]
+        for lb in labels
+    ]
+    lo, hi = loops.stratified(per_seed, loops.mean)
+    assert (cost["lo"], cost["hi"]) == pytest.approx((np.exp(lo), np.exp(hi)), rel=1e-12)
     csv_row = next(
         r for r in rows(to_csv(board)) if r["agent"] == "hold" and r["scenario"] == "geometric"
     )
