@@ -33,7 +33,9 @@ __all__ = [
     "ReportError",
     "RowsLeftOutWarning",
     "ToolPlacedWarning",
+    "UncertaintyError",
     "UnknownOptionError",
+    "UpdateWarning",
     "ValidationMismatchWarning",
 ]
 
@@ -107,3 +109,12 @@ class OutOfDomainWarning(LabWarning):
 class ToolPlacedWarning(OutOfDomainWarning):
     """A tool offset the fit could not identify, placed on validation data with a new station's
     base (lab.domain, :meth:`lab.result.FitResult.validate`)."""
+
+
+class UncertaintyError(FitError):
+    """A calibration's ``[uncertainty]`` that cannot be used: the message names the file and the
+    key."""
+
+
+class UpdateWarning(LabWarning):
+    """An update that could not free every parameter it frees: too few poses (named)."""

@@ -38,7 +38,7 @@ import numpy as np
 
 from arm.measurements import MeasurementSet
 from arm.params import parse_parameter_name
-from lab.errors import FitError, LabWarning
+from lab.errors import FitError, LabWarning, UncertaintyError
 from lab.identifiability import typical_magnitudes
 from lab.options import LabOptions
 from lab.result import FitResult
@@ -54,11 +54,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-
-class UncertaintyError(FitError):
-    """A calibration's ``[uncertainty]`` that cannot be used: the message names the file and the
-    key."""
 
 
 def is_base(name: str) -> bool:

@@ -46,7 +46,7 @@ from arm.errors import warn
 from arm.measurements import MeasurementSet, as_measurements
 from arm.params import BASE_NAMES
 from lab.domain import Domain
-from lab.errors import FitError, LabWarning
+from lab.errors import FitError, UpdateWarning
 from lab.estimation import model_of
 from lab.identifiability import Identifiability
 from lab.options import UpdateOptions
@@ -65,10 +65,6 @@ CHANGE = 0.9
 STEP_TOL = 1e-10  # m or rad, scaled: Gauss-Newton stops when no parameter moves more
 #: the smallest variance of a prior's direction, relative to its largest (correlations scaled)
 PRIOR_RCOND = 1e-12
-
-
-class UpdateWarning(LabWarning):
-    """An update that could not free every parameter it frees: too few poses (named)."""
 
 
 @dataclass(frozen=True)
