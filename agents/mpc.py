@@ -44,7 +44,6 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from scipy.linalg import lapack
 
 from agents.base import Agent, measurement_columns, refuse_settings, solve_time_stats
 from agents.errors import AgentError
@@ -148,7 +147,6 @@ class KinematicMPC:
         self._decay = self.error_decay ** np.arange(1, N + 1)  # of the present error, by step
         self._lbx = -np.tile(self.v_max, N)
         self._ubx = np.tile(self.v_max, N)
-        self._A_and_I = np.vstack([self.A, np.eye(6 * N)])
         self._warm_start = solver in ("osqp", "qpoases", "ipopt")
         # a plan violating the constraints by more than this (rad/s) is a failed solve: active-set
         # methods are exact; first-order ones (OSQP's ADMM) stop near the solution, or at their
@@ -299,12 +297,13 @@ class KinematicMPC:
         self._step = ca.Function("mpc_qp_step", [w], [ca.vertcat(*out)])
 
     def _build_fast(self) -> None:
-        """The QP's data (Hessian, gradient, bounds) in one compiled function called through its
-        own buffers, for :meth:`_unconstrained`: the unconstrained minimiser by a Cholesky solve
-        of the Hessian, and how far it violates the constraints. When no constraint binds this
-        *is* the QP's solution (the problem is convex), and it is what the tracking steps almost
-        always are: the solver runs only when the minimiser violates a bound (a few steps of an
-        episode, at the first corrections).
+        """The QP's unconstrained minimiser ``-H^-1 g`` by a factorisation of the Hessian
+        (CasADi's own sparse LDL': no BLAS, whose threads would round differently from one
+        process to the next), and how far it violates the constraints, in one compiled function
+        called through its own buffers. When no constraint binds this *is* the QP's solution (the
+        problem is convex), and it is what the tracking steps almost always are: the solver runs
+        only when the minimiser violates a bound (a few steps of an episode, at the first
+        corrections).
 
         Not a structured closed form: one (the Hessian's Kronecker form split by the generalised
         eigenvectors of its constant part) took a few thousand scalar operations instead of a
@@ -313,27 +312,18 @@ class KinematicMPC:
         factorisation does, and the MPC's rows then moved by up to 1e-5 on another CPU
         (``benchmarks/perturbation.py``)."""
         H, g, lba, uba, inputs = self._qp_data()
-        w = ca.vertcat(*inputs)
-        out = ca.densify(ca.vertcat(ca.vec(H), g, lba, uba))
-        self._fast = BufferedFunction(ca.Function("mpc_qp_data_flat", [w], [out]))
-
-    def _unconstrained(self, w: np.ndarray) -> tuple[np.ndarray, float]:
-        """The QP's unconstrained minimiser ``-H^-1 g`` (LAPACK's Cholesky, ``dposv``) and its
-        largest constraint violation (NaN or inf where the data or the factorisation are not
-        finite: no constraint is then taken to hold)."""
-        assert self._fast is not None
-        n, nA = 6 * self.N, self.nA
-        out = self._fast(w)
-        H = out[: n * n].reshape(n, n)  # symmetric: CasADi's column order is the same matrix
-        _, v, info = lapack.dposv(H, out[n * n : n * n + n], lower=1)
-        if info != 0:
-            return np.full(n, np.nan), np.inf
-        v = -v
-        # the constraint rows and the velocity bounds at once: [A; I] v within [lba; lbx], [uba; ubx]
-        rows = self._A_and_I @ v
-        lo = np.concatenate((out[n * n + n : n * n + n + nA], self._lbx))
-        hi = np.concatenate((out[n * n + n + nA :], self._ubx))
-        return v, float(np.max(np.maximum(rows - hi, lo - rows)))
+        data = ca.Function("mpc_qp_data", list(inputs), [H, g, lba, uba])
+        sizes = [int(x.numel()) for x in inputs]
+        w = ca.MX.sym("w", sum(sizes))
+        parts = ca.vertsplit(w, list(np.cumsum([0, *sizes])))
+        Hw, gw, lbaw, ubaw = data(*parts)
+        v = -ca.solve(Hw, gw, "ldl")
+        Av = ca.mtimes(ca.DM(self.A), v)
+        violation = ca.mmax(
+            ca.vertcat(Av - ubaw, lbaw - Av, v - ca.DM(self._ubx), ca.DM(self._lbx) - v)
+        )
+        f = ca.Function("mpc_unconstrained", [w], [ca.densify(ca.vertcat(v, violation))])
+        self._fast = BufferedFunction(f)
 
     def solve(
         self,
@@ -360,13 +350,13 @@ class KinematicMPC:
         parts = [z, refs.reshape(-1), v_prev, qp_, r0]
         n = 6 * self.N
         if self._fast is not None:
-            v_free, violation = self._unconstrained(np.concatenate(parts))
-            if violation <= 0.0:  # no constraint binds (NaN does not pass)
+            out = self._fast(np.concatenate(parts))
+            if out[n] <= 0.0:  # no constraint binds (NaN does not pass)
                 self.last_status = "ok"
                 if self._warm_start:
                     self._lam_x[:] = 0.0
                     self._lam_a[:] = 0.0
-                return self._accept(True, v_free, v_prev)
+                return self._accept(True, out[:n].copy(), v_prev)
             self.n_constrained += 1
         if self._warm_start:
             parts += [self._warm(), self._lam_x, self._lam_a]
