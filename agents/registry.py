@@ -50,8 +50,8 @@ __all__ = [
 #: unless its spec declares a larger one (README: ``sixaxis reproduce --rtol 1e-6``)
 CROSS_CPU_RTOL = 1e-6
 #: the QP MPCs' (results/perturbation.md): a few units in the last place of every observation
-#: still grow past 1e-8 in two to four episodes of eight (up to 5e-5; the median episode 2e-9 to
-#: 6e-8), and a relative 1e-12 to 9e-5. The same MPC by IPOPT stays below 1e-9 and keeps 1e-6.
+#: still grow past 1e-8 in two to five episodes of eight (up to 2.2e-5; the median episode 1e-9
+#: to 7e-8), and a relative 1e-12 to 9e-5. The same MPC by IPOPT stays below 1e-9 and keeps 1e-6.
 MPC_CROSS_CPU_RTOL = 1e-3
 
 
