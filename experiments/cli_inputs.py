@@ -56,6 +56,7 @@ __all__ = [
     "DataArg",
     "DeclaredError",
     "EffectsOpt",
+    "ExportInputs",
     "JsonOpt",
     "JsonOutOpt",
     "LabArgs",
@@ -64,6 +65,7 @@ __all__ = [
     "ModuleOpt",
     "OneLineErrors",
     "Read",
+    "ReferencesOpt",
     "RobotOpt",
     "check_outputs",
     "cli_fields",
@@ -231,13 +233,22 @@ class LabInputs:
     effects: str = declare(
         "geometric",
         help="Effects to fit, comma separated, optionally on some joints: "
-        "geometric,compliance[2,3]. Catalogue: geometric, compliance, transmission, joint_scale, "
-        "backlash, load_backlash, thermal, cyclic with its joints and orders per turn "
+        "geometric,compliance[2,3]. Catalogue: geometric, compliance, lumped_compliance (without "
+        "a mass model), transmission, joint_scale, backlash, load_backlash, thermal, cyclic with "
+        "its joints and orders per turn "
         "(cyclic[2:17,29;4:2]), and any --effect-module defines.",
         flags=("--effects", "-e"),
     )
     validate: Path | None = declare(
         None, help="Held-out measurements (same units) for validation RMS and median."
+    )
+    references: Path | None = declare(
+        None,
+        help="Reference points measured at a station the calibration has not seen (a "
+        "measurement CSV, same units: at least 3 points not on one line with their joints, or "
+        "6-DoF rows): the station's frame is fitted on them alone, the arm as calibrated, and "
+        "its residual printed; they stay out of any validation figure.",
+        metavar="REFS.csv",
     )
     orientation_unit: str | None = declare(
         None,
@@ -266,6 +277,23 @@ class LabInputs:
 
 
 INPUTS = LabInputs()
+
+
+@dataclass(frozen=True)
+class ExportInputs:
+    """``lab export``'s own input: a saved calibration to export again, in place of DATA."""
+
+    source: Path | None = declare(
+        None,
+        help="A saved calibration (a robot TOML from lab export or lab bag --export, or a "
+        "calibrated URDF with its metrology file) to export again without refitting, in place of "
+        "DATA; to a URDF, --robot names the nominal arm's URDF where the file records none.",
+        flags=("--from",),
+        metavar="CAL.toml|CAL.urdf",
+    )
+
+
+ReferencesOpt = Annotated[Path | None, option_of(LabInputs, "references")]
 RobotOpt = Annotated[str, option_of(LabInputs, "robot")]
 ModuleOpt = Annotated[list[Path] | None, option_of(LabInputs, "effect_module")]
 LengthOpt = Annotated[str, option_of(LabInputs, "length_unit")]
@@ -370,7 +398,9 @@ class LabArgs(LabInputs):
         lab, which takes them as they are (parsed once)."""
         opts = self.options()
         check_outputs(
-            outputs, [*data, self.validate, self.robot, *(self.effect_module or ())], as_json
+            outputs,
+            [*data, self.validate, self.references, self.robot, *(self.effect_module or ())],
+            as_json,
         )
         load_modules(self.effect_module)
         effects = parse_effects(self.effects)
@@ -381,6 +411,19 @@ class LabArgs(LabInputs):
             None if self.validate is None else read_data(self.validate, *units, option="--validate")
         )
         return Read(arm, meas, val, opts, effects)
+
+    def read_references(self) -> MeasurementSet | None:
+        """The ``--references`` measurement set (None when not given), in the data's units;
+        refused without ``--validate``, whose new station they register."""
+        if self.references is None:
+            return None
+        if self.validate is None:
+            fail(
+                f"--references {self.references}: reference points register the station of "
+                "--validate's data; give --validate too"
+            )
+        units = (self.length_unit, self.angle_unit, self.orientation_unit, self.measured)
+        return read_data(self.references, *units, option="--references")
 
     def next_step(self, command: str, replaced: Sequence[str] = ("effects",)) -> dict[str, Any]:
         """The flags that a printed ``sixaxis lab COMMAND`` step repeats so as to work on the same
