@@ -86,9 +86,6 @@ log = logging.getLogger(__name__)
 # restores every one that the data determine (RANK_TOL and the noise criterion) and refits.
 START_TOL = 1e-2
 IMPLAUSIBLE_RMS = 0.1  # m: after a fit, no real arm's model is this far from most measurements
-# a campaign whose poses identify fewer than this share of the parameters fitted is refused
-# (a full one identifies about 3/4; one pose 3 of 33)
-MIN_RANK_SHARE = 1 / 3
 
 
 def distinct_poses(data: MeasurementSet) -> int:
@@ -300,7 +297,7 @@ def fit_rows(
     ident = identifiability(p, J, tol=START_TOL, warn=False)
     del J
     _check_effects_identifiable(model, ident, held, data.source)
-    check_campaign(ident, held, data)
+    check_campaign(ident, held, data, options.min_identified)
     free = ident.identifiable & ~held
     sol = solved(p, free, ident.scale)
     iterations, evaluations = sol.iterations, sol.evaluations
@@ -453,15 +450,19 @@ def _check_effects_identifiable(
         )
 
 
-def check_campaign(ident: Identifiability, held: np.ndarray, data: MeasurementSet) -> None:
+def check_campaign(
+    ident: Identifiability, held: np.ndarray, data: MeasurementSet, share: float = 1 / 3
+) -> None:
     """A campaign that cannot identify most of the model is refused, saying what to measure:
-    one distinct pose, or poses that identify fewer than :data:`MIN_RANK_SHARE` of the
-    parameters fitted (a full campaign identifies about three quarters: 25 of 33 on the seed
-    arm and the UR10, the rest combinations that no poses tell apart). Without this, 60 rows of
-    one pose were "fitted" with 3 of 33 parameters and called a calibration."""
+    one distinct pose, or poses that identify fewer than ``share`` (``min_identified``, a third
+    by default) of the parameters fitted (a full campaign identifies about three quarters: 25
+    of 33 on the seed arm and the UR10, the rest combinations that no poses tell apart).
+    Without this, 60 rows of one pose were "fitted" with 3 of 33 parameters and called a
+    calibration. ``share`` 0 fits whatever the poses determine (an agent's calibration phase
+    along a short path: 30 poses, 4 parameters)."""
     n = int((~held).sum())
     poses = distinct_poses(data)
-    if n == 0 or (poses > 1 and ident.rank >= MIN_RANK_SHARE * n):
+    if n == 0 or share == 0 or (poses > 1 and ident.rank >= share * n):
         return
     need = max(30, 3 * math.ceil(n / 3))
     raise FitError(

@@ -345,3 +345,5 @@ def test_a_campaign_of_one_pose_is_refused_saying_what_to_measure(seed, tmp_path
     )
     few = fit(real.subset(np.arange(12)), ur5, "geometric")
     assert few.identifiability.rank >= 11
+    # min_identified 0: whatever the poses determine (an agent's calibration phase)
+    assert fit(one, ur5, "geometric", min_identified=0.0).identifiability.rank == 3
