@@ -578,7 +578,14 @@ class DiagnosingMPCAgent(MPCAgent):
 
         spec = merge_effects(model, added)
         try:
-            res = fit(train, model.robot, spec, options=self._lab_options(), validate=test)
+            res = fit(
+                train,
+                model.robot,
+                spec,
+                options=self._lab_options(),
+                validate=test,
+                accept_other_frame=True,  # its own arm's rows, held out on purpose
+            )
         except FitError as exc:
             log.debug("mpc-diagnose: held-out fit of %s refused: %s", ",".join(spec), exc)
             return math.inf
