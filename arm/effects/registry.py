@@ -25,6 +25,7 @@ from arm.effects.joint_angle import (
     LoadBacklash,
     Transmission,
 )
+from arm.effects.extra import ExtraJoints
 from arm.effects.lumped import LumpedCompliance
 from arm.files import check_input_file
 from arm.params import parse_parameter_name
@@ -88,6 +89,7 @@ for _cls in (
     Backlash,
     LoadBacklash,
     Thermal,
+    ExtraJoints,
 ):
     register_effect(_cls)
 CATALOGUE: tuple[str, ...] = tuple(EFFECTS)
