@@ -370,7 +370,8 @@ class RobotDescription:
         """The arm as a URDF (:func:`arm.urdf.urdf_of_chain`): frame 0 as ``base_link``, the DH
         frames as ``link1`` .. ``link6``, the flange as ``flange``; its masses as point masses.
         The base transform and the tool points are metrology, not the arm's: they stay out; the
-        joints' couplings stay in (``<coupling joint on factor/>``, which :func:`from_urdf` reads)."""
+        joints' couplings stay in (``<coupling joint on factor/>``, which :func:`from_urdf` reads),
+        and so do its extra joints, before ``base_link`` (their defaults do not: URDF has none)."""
         from arm.urdf import urdf_of_chain
 
         m = self.to_modified()
@@ -387,6 +388,8 @@ class RobotDescription:
             m.coms,
             m.flange_matrix,
             m.couplings,
+            [(j.name, j.kind, np.array(j.axis), j.origin) for j in m.extra_joints],
+            m.mount_matrix,
         )
 
     # -- TOML ---------------------------------------------------------------------------------
@@ -839,21 +842,50 @@ def from_urdf(arm: UrdfArm) -> RobotDescription:
         for i in range(6)
     )
     flange = arm.flange
+    placed: dict[str, Any] = {
+        "base_translation": vec3(clean(c) for c in arm.base[:3, 3]),
+        "base_rotation": vec3(clean(c) for c in rotation_vector(arm.base[:3, :3])),
+    } | _urdf_extras(arm)
     try:
         return RobotDescription(
             name=arm.name,
             joints=joints,
             tools=(vec3(clean(c) for c in flange[:3, 3]),),
             gravity=vec3(clean(c) for c in arm.gravity),
-            base_translation=vec3(clean(c) for c in arm.base[:3, 3]),
-            base_rotation=vec3(clean(c) for c in rotation_vector(arm.base[:3, :3])),
             flange_translation=vec3(clean(c) for c in flange[:3, 3]),
             flange_rotation=vec3(clean(c) for c in rotation_vector(flange[:3, :3])),
             urdf=arm.source,
             couplings=arm.couplings,
+            **placed,
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{arm.source.path}: {exc}") from None
+
+
+def _urdf_extras(arm: UrdfArm) -> dict[str, Any]:
+    """A URDF's extra joints (:attr:`arm.urdf.UrdfArm.extra`) as a description's fields: the
+    joints, the arm's frame 0 in the last one's frame as the mount (the base then the identity:
+    the URDF's base link is the measurement frame's robot end)."""
+    if not arm.extra:
+        return {}
+    clean = lambda v: float(v) + 0.0  # noqa: E731
+    joints = tuple(
+        ExtraJoint(
+            name=name,
+            kind="prismatic" if kind == "prismatic" else "revolute",
+            axis=vec3(clean(c) for c in axis),
+            translation=vec3(clean(c) for c in origin[:3, 3]),
+            rotation=vec3(clean(c) for c in rotation_vector(origin[:3, :3])),
+        )
+        for name, kind, axis, origin in arm.extra
+    )
+    return {
+        "extra_joints": joints,
+        "mount_translation": vec3(clean(c) for c in arm.base[:3, 3]),
+        "mount_rotation": vec3(clean(c) for c in rotation_vector(arm.base[:3, :3])),
+        "base_translation": (0.0, 0.0, 0.0),
+        "base_rotation": (0.0, 0.0, 0.0),
+    }
 
 
 def load_robot(
