@@ -78,7 +78,7 @@ from __future__ import annotations
 import math
 import os
 import tomllib
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -241,6 +241,33 @@ class RobotDescription:
                 f"robot {self.name!r}: a [mount] without extra joints (put the arm's place in "
                 "[base])"
             )
+
+    def holding(self, values: Mapping[str, float]) -> RobotDescription:
+        """The arm with extra joints held at fixed values (``{"column": 0.35}``, in the robot
+        file's units, as a data column's): each one's default, what a row without its column
+        holds. A name that is none of the arm's extra joints is refused, naming them."""
+        if not values:
+            return self
+        known = {j.name: j for j in self.extra_joints}
+        for name in values:
+            if name not in known:
+                raise DescriptionError(
+                    f"robot {self.name!r} has no extra joint {name!r} "
+                    f"({', '.join(known) or 'it has none'})"
+                )
+        joints = tuple(
+            replace(j, default=values[j.name] * j.unit) if j.name in values else j
+            for j in self.extra_joints
+        )
+        nominal = self.nominal
+        if nominal is not None:  # what compensation starts from holds them too
+            nominal = nominal.holding({k: v for k, v in values.items() if k in nominal.extra_names})
+        return replace(self, extra_joints=joints, nominal=nominal)
+
+    @property
+    def extra_names(self) -> tuple[str, ...]:
+        """The names of the extra joints (the data's columns that hold their values)."""
+        return tuple(j.name for j in self.extra_joints)
 
     @property
     def mount_matrix(self) -> np.ndarray:

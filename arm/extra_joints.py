@@ -35,6 +35,7 @@ __all__ = [
     "ExtraPlacement",
     "extra_values",
     "normals",
+    "parse_joint_values",
     "place",
 ]
 
@@ -61,9 +62,7 @@ class ExtraJoint:
     def __post_init__(self) -> None:
         where = f"extra joint {self.name!r}"
         if self.kind not in ("prismatic", "revolute"):
-            raise DescriptionError(
-                f"{where}: type {self.kind!r} is not 'prismatic' or 'revolute'"
-            )
+            raise DescriptionError(f"{where}: type {self.kind!r} is not 'prismatic' or 'revolute'")
         n = math.sqrt(sum(c * c for c in self.axis))
         if not (math.isfinite(n) and n > 1e-9):
             raise DescriptionError(f"{where}: axis {self.axis} is zero or not finite")
@@ -114,6 +113,27 @@ def extra_values(
                 f"{source}: no value for extra joint {j.name!r} ({j.kind}): give a column "
                 f"{j.name!r}, --joint-value {j.name}=VALUE, or a default in the robot file"
             )
+    return out
+
+
+def parse_joint_values(specs: Sequence[str]) -> dict[str, float]:
+    """``["column=0.35", ...]`` (``--joint-value``, repeatable) as ``{"column": 0.35}``, in the
+    robot file's units; a malformed one, a value not finite or a joint given twice refused."""
+    out: dict[str, float] = {}
+    for spec in specs:
+        name, eq, value = (part.strip() for part in spec.partition("="))
+        try:
+            v = float(value) if eq and name else math.nan
+        except ValueError:
+            v = math.nan
+        if not math.isfinite(v):
+            raise DescriptionError(
+                f"--joint-value {spec!r}: give NAME=VALUE, an extra joint's name and a finite "
+                "number in the robot file's units (column=0.35)"
+            )
+        if name in out:
+            raise DescriptionError(f"--joint-value: joint {name!r} given twice")
+        out[name] = v
     return out
 
 

@@ -713,7 +713,7 @@ def urdf_of_chain(
     coms: np.ndarray,
     flange: np.ndarray | None = None,
     couplings: Sequence[tuple[int, int, float]] = (),
-    extra: Sequence[tuple[str, str, np.ndarray, np.ndarray]] = (),
+    extra_joints: Sequence[tuple[str, str, np.ndarray, np.ndarray]] = (),
     mount: np.ndarray | None = None,
 ) -> str:
     """A URDF of a modified-DH chain: links ``base_link`` (frame 0), ``link1`` .. ``link6`` (the
@@ -747,12 +747,14 @@ def urdf_of_chain(
         )
 
     parent = None
-    for name, kind, axis, origin in extra:
+    for name, kind, axis, origin in extra_joints:
         if parent is None:
             link(parent := "root")
         link(f"{name}_link")
         limit = '    <limit lower="-1000.0" upper="1000.0" effort="0" velocity="0"/>\n'
-        joint(name, kind, parent, f"{name}_link", origin, f'    <axis xyz="{_fmt(axis)}"/>\n' + limit)
+        joint(
+            name, kind, parent, f"{name}_link", origin, f'    <axis xyz="{_fmt(axis)}"/>\n' + limit
+        )
         parent = f"{name}_link"
     link("base_link")
     if parent is not None:

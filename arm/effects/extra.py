@@ -35,8 +35,8 @@ class ExtraJoints(ChainEffect):
     name = "extra_joints"
     order = 5
     needs_extra_joints = True
-    typical = {SCALE: (1e-4, 2e-3), "xt": (5e-5, 1e-3)}
-    bounds = {SCALE: 0.02, "xt": 0.01}
+    typical = {"xs": (1e-4, 2e-3), "xt": (5e-5, 1e-3)}
+    bounds = {"xs": 0.02, "xt": 0.01}
     description = "extra joints before the arm's base: each one's scale, a prismatic one's tilt"
     example = "extra_joints"
 

@@ -17,6 +17,7 @@ from arm.description import RobotDescription, seed_robot
 from arm.effect_api import EffectError
 from arm.effects.base import SOURCE_FILES, Effect, effect_origin, is_catalogued, user_code
 from arm.effects.chain import Geometric, Thermal
+from arm.effects.extra import ExtraJoints
 from arm.effects.joint_angle import (
     Backlash,
     Compliance,
@@ -25,7 +26,6 @@ from arm.effects.joint_angle import (
     LoadBacklash,
     Transmission,
 )
-from arm.effects.extra import ExtraJoints
 from arm.effects.lumped import LumpedCompliance
 from arm.files import check_input_file
 from arm.params import parse_parameter_name
