@@ -219,3 +219,19 @@ def test_the_cli_fits_with_the_column_or_a_held_value(tmp_path):
     )
     res = lab("fit", without, "--robot", ON_COLUMN, "--joint-value", "column=0.35")
     assert res.exit_code == 0, res.output
+
+
+def test_a_column_and_a_rotary_table_round_trip_through_the_urdf(tmp_path):
+    arm = _two_axes()
+    path = tmp_path / "two_axes.urdf"
+    path.write_text(arm.to_urdf())
+    again = load_robot(f"{path}#tip=flange")  # a revolute extra joint: the arm's tip is named
+    assert [(j.name, j.kind) for j in again.extra_joints] == [
+        ("column", "prismatic"),
+        ("table", "revolute"),
+    ]
+    rng = np.random.default_rng(9)
+    q = rng.uniform(-2.0, 2.0, (6, 6))
+    cols = {"column": rng.uniform(0.0, 1.0, 6), "table": rng.uniform(-1.0, 1.0, 6)}
+    at_root = replace(arm, base_translation=(0.0, 0.0, 0.0), base_rotation=(0.0, 0.0, 0.0))
+    np.testing.assert_allclose(_points(again, q, cols), _points(at_root, q, cols), atol=1e-9)
