@@ -5,6 +5,7 @@ scale error the extra_joints effect recovers."""
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -13,13 +14,14 @@ import pytest
 
 from arm.description import DescriptionError, RobotDescription, load_robot
 from arm.errormodel import ErrorModel
-from arm.errors import ModelError
+from arm.errors import ModelError, SixAxisError
 from arm.extra_joints import ExtraJoint, parse_joint_values
 from arm.ik import solve_position
 from arm.measurements import MeasurementSet, write_measurements
 from arm.so3 import rotation_matrix
 from lab import fit
-from lab.export import export_robot
+from lab.errors import OutOfDomainWarning
+from lab.export import TargetSet, compensate, export_robot
 from lab.urdf_export import export_urdf, read_calibrated_urdf
 from tests._cli import lab, one_error_line
 
@@ -235,3 +237,31 @@ def test_a_column_and_a_rotary_table_round_trip_through_the_urdf(tmp_path):
     cols = {"column": rng.uniform(0.0, 1.0, 6), "table": rng.uniform(-1.0, 1.0, 6)}
     at_root = replace(arm, base_translation=(0.0, 0.0, 0.0), base_rotation=(0.0, 0.0, 0.0))
     np.testing.assert_allclose(_points(again, q, cols), _points(at_root, q, cols), atol=1e-9)
+
+
+def test_the_simulator_and_the_mpc_refuse_an_arm_on_a_column_rather_than_ignore_it():
+    from agents.tool_model import ToolModel, UnsupportedEffectError
+    from envs.plant import Plant, PlantError
+
+    arm = load_robot(ON_COLUMN)
+    with pytest.raises(PlantError, match="extra joints \\(column\\)"):
+        Plant(arm)
+    with pytest.raises(UnsupportedEffectError, match="extra joints"):
+        ToolModel(ErrorModel(arm, "geometric"))
+
+
+def test_compensation_holds_each_targets_column_value(tmp_path):
+    data, truth, p = _campaign(120, 5, 3e-3)
+    res = fit(data, load_robot(ON_COLUMN), "geometric,extra_joints", noise_mm=SIGMA * 1e3)
+    cal = export_robot(res, tmp_path / "cal.toml")
+    q, h = _rows(8, 11)  # new poses at new heights: the truth's points are the targets
+    goal = truth.predict(truth.inputs(q, {"column": h}), p)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfDomainWarning)  # joint 1's torque: zero when fitted
+        comp = compensate(cal, TargetSet(goal, q + 1e-3, {"column": h}))
+    assert comp.converged.all()
+    reached = truth.predict(truth.inputs(comp.q, {"column": h}), p)
+    assert np.sqrt(np.mean(np.sum((reached - goal) ** 2, axis=1))) < 3 * SIGMA
+    without = TargetSet(goal, q + 1e-3)
+    with pytest.raises(SixAxisError, match="extra joint 'column'"):
+        compensate(cal, without)
