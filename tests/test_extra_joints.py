@@ -19,7 +19,7 @@ from arm.extra_joints import ExtraJoint, parse_joint_values
 from arm.ik import solve_position
 from arm.measurements import MeasurementSet, write_measurements
 from arm.so3 import rotation_matrix
-from lab import fit
+from lab import diagnose, fit
 from lab.errors import OutOfDomainWarning
 from lab.export import TargetSet, compensate, export_robot
 from lab.urdf_export import export_urdf, read_calibrated_urdf
@@ -265,3 +265,9 @@ def test_compensation_holds_each_targets_column_value(tmp_path):
     without = TargetSet(goal, q + 1e-3)
     with pytest.raises(SixAxisError, match="extra joint 'column'"):
         compensate(cal, without)
+
+
+def test_diagnose_names_a_column_scale_error():
+    data, _, _ = _campaign(200, 5, 3e-3)
+    d = diagnose(data, load_robot(ON_COLUMN), "geometric", noise_mm=SIGMA * 1e3)
+    assert d.verdict == "extra_joints"
