@@ -784,7 +784,8 @@ def _unknown_columns(header: Sequence[str], source: str, line: int) -> list[str]
     return [
         f"{source}: column(s) {named} are not among the format's columns (docs/format.md): "
         "they are kept and offered to custom effects (inputs.column) and the diagnosis's "
-        "hints, and no catalogued effect reads them"
+        "hints, and no catalogued effect reads them (but a column named after an extra joint "
+        "of the robot file holds its value)"
     ]
 
 

@@ -58,6 +58,7 @@ __all__ = [
     "DeclaredError",
     "EffectsOpt",
     "ExportInputs",
+    "JointValueOpt",
     "JsonOpt",
     "JsonOutOpt",
     "LabArgs",
@@ -271,6 +272,13 @@ class LabInputs:
         "its residual printed; they stay out of any validation figure.",
         metavar="REFS.csv",
     )
+    joint_value: list[str] | None = declare(
+        None,
+        help="Hold an extra joint of the arm (a lifting column, a track: [[extra_joints]] in a "
+        "robot TOML, a prismatic joint before the arm in a URDF) at a value, NAME=VALUE in the "
+        "robot file's units, where the data has no column of that name (repeatable).",
+        metavar="NAME=VALUE",
+    )
     orientation_unit: str | None = declare(
         None,
         OneOf(tuple(ANGLE_UNITS)),
@@ -315,6 +323,7 @@ class ExportInputs:
 
 
 ReferencesOpt = Annotated[Path | None, option_of(LabInputs, "references")]
+JointValueOpt = Annotated[list[str] | None, option_of(LabInputs, "joint_value")]
 RobotOpt = Annotated[str, option_of(LabInputs, "robot")]
 ModuleOpt = Annotated[list[Path] | None, option_of(LabInputs, "effect_module")]
 LengthOpt = Annotated[str, option_of(LabInputs, "length_unit")]
@@ -425,7 +434,7 @@ class LabArgs(LabInputs):
         )
         load_modules(self.effect_module)
         effects = parse_effects(self.effects)
-        arm = read_arm(self.robot)
+        arm = read_arm(self.robot, joint_values=self.joint_value)
         units = (self.length_unit, self.angle_unit, self.orientation_unit, self.measured)
         meas = read_sessions(data, *units)
         val = None
@@ -607,14 +616,20 @@ def parse_effects(effects: str) -> list[Effect]:
     return parsed
 
 
-def read_arm(robot: str, flag: str = "--robot") -> RobotDescription:
+def read_arm(
+    robot: str, flag: str = "--robot", joint_values: Sequence[str] | None = None
+) -> RobotDescription:
+    """The arm of ``--robot`` (a calibrated URDF with its metrology file), its extra joints held
+    at ``--joint-value``'s values."""
     from arm.description import load_robot
     from arm.effects import check_robot_effects
+    from arm.extra_joints import parse_joint_values
 
     with user_errors(prefix=f"{flag}: "):
         arm = _calibrated_urdf(robot, flag) or load_robot(robot)
         check_robot_effects(arm, robot)  # after --effect-module registered its effects
-        return arm
+    with user_errors():
+        return arm.holding(parse_joint_values(joint_values or ()))
 
 
 def _calibrated_urdf(robot: str, flag: str) -> RobotDescription | None:

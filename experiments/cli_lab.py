@@ -35,6 +35,7 @@ from experiments.cli_inputs import (
     DataArg,
     EffectsOpt,
     ExportInputs,
+    JointValueOpt,
     JsonOpt,
     JsonOutOpt,
     LabArgs,
@@ -995,6 +996,7 @@ def compensate_cmd(
     length_unit: LengthOpt = INPUTS.length_unit,
     angle_unit: AngleOpt = INPUTS.angle_unit,
     references: ReferencesOpt = None,
+    joint_value: JointValueOpt = None,
     keep_unreached: Annotated[
         bool,
         typer.Option(
@@ -1023,8 +1025,8 @@ def compensate_cmd(
     inputs = [targets, robot, *([nominal] if nominal else []), *(effect_module or ())]
     check_outputs([(output, "--output")], [*inputs, references], as_json)
     load_modules(effect_module)
-    cal = read_arm(robot)
-    nom = read_arm(nominal, "--nominal") if nominal is not None else None
+    cal = read_arm(robot, joint_values=joint_value)
+    nom = read_arm(nominal, "--nominal", joint_value) if nominal is not None else None
     refs = None
     if references is not None:
         refs = read_data(references, length_unit, angle_unit, option="--references")
