@@ -412,6 +412,8 @@ def update_cmd(
     ] = None,
     remount: Annotated[bool, option_of(UpdateOptions, "remount")] = UPDATE.remount,
     noise_mm: Annotated[float | None, option_of(UpdateOptions, "noise_mm")] = UPDATE.noise_mm,
+    rehome_mrad: Annotated[float, option_of(UpdateOptions, "rehome_mrad")] = UPDATE.rehome_mrad,
+    remount_mm: Annotated[float, option_of(UpdateOptions, "remount_mm")] = UPDATE.remount_mm,
     robot: Annotated[
         str | None,
         option_of(
@@ -458,7 +460,15 @@ def update_cmd(
     )
     with user_errors(), console.status(f"updating {calibration} with {len(meas)} poses..."):
         prior = replace(prior_of(cal), source=calibration)
-        u = update(prior, meas, remount=remount, noise_mm=noise_mm, robot=arm)
+        u = update(
+            prior,
+            meas,
+            remount=remount,
+            noise_mm=noise_mm,
+            robot=arm,
+            rehome_mrad=rehome_mrad,
+            remount_mm=remount_mm,
+        )
         result = u.result if val is None else u.result.validate(val, extrapolate=extrapolate)
         alone = predicted = None
         if val is not None and u.prior_result is not None:

@@ -48,12 +48,37 @@ __all__ = [
     "Uncertainty",
     "UncertaintyError",
     "covariance_of",
+    "least_spread",
     "predicted_rms",
     "session_spread",
     "uncertainty_of",
 ]
 
 log = logging.getLogger(__name__)
+
+
+def least_spread(
+    names: Sequence[str], rehome_mrad: float | None = None, remount_mm: float | None = None
+) -> dict[str, float]:
+    """The least spread between sessions (SI, by name) of the parameters of ``names`` that move
+    between sessions whatever the calibration measured: each joint's zero offset (``dtheta``
+    re-homed, ``rehome_mrad``) and the tool's offset (``tx``..., re-mounted, ``remount_mm``);
+    the defaults are :class:`~lab.options.UpdateOptions`' (docs/lab.md, updating)."""
+    from lab.options import UpdateOptions
+
+    d = UpdateOptions()
+    rehome = 1e-3 * (d.rehome_mrad if rehome_mrad is None else rehome_mrad)
+    remount = 1e-3 * (d.remount_mm if remount_mm is None else remount_mm)
+    out = {}
+    for n in names:
+        parsed = parse_parameter_name(n)
+        if parsed is None:
+            continue
+        if parsed.kind == "row" and parsed.family == "dtheta":
+            out[n] = rehome
+        elif parsed.kind == "tool":
+            out[n] = remount
+    return out
 
 
 def is_base(name: str) -> bool:
@@ -118,12 +143,16 @@ class Uncertainty:
         """The standard errors of the fit (sqrt of the covariance's diagonal)."""
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
-    def prior_covariance(self) -> np.ndarray:
+    def prior_covariance(self, least: Mapping[str, float] | None = None) -> np.ndarray:
         """The covariance widened by the spread between sessions (added on the diagonal): what
-        the parameters may be in a session the calibration has not seen."""
-        if self.spread is None:
-            return self.covariance
-        return self.covariance + np.diag(self.spread**2)
+        the parameters may be in a session the calibration has not seen. ``least``: the
+        smallest spread of some parameters (by name, SI; :func:`least_spread`), used where the
+        measured one is smaller or absent (one session)."""
+        spread = np.zeros(len(self.names)) if self.spread is None else self.spread
+        if least:
+            floor = np.array([least.get(n, 0.0) for n in self.names])
+            spread = np.maximum(spread, floor)
+        return self.covariance + np.diag(spread**2)
 
     def to_dict(self) -> dict[str, Any]:
         """The ``[uncertainty]`` table of a calibration file (SI units)."""
@@ -348,7 +377,9 @@ def predicted_rms(
     inputs = inputs_of(model, MeasurementSet(data.q, data.xyz, cols, data.source))
     names = [n for n in u.names if n in model.layout]
     keep = [u.names.index(n) for n in names]
-    cov = (u.prior_covariance() if unseen else u.covariance)[np.ix_(keep, keep)]
+    cov = (u.prior_covariance(least_spread(u.names)) if unseen else u.covariance)[
+        np.ix_(keep, keep)
+    ]
     _, J = model.predict(inputs, result.params, jacobian=True)
     A = J[:, :, model.layout.indices(names)].reshape(-1, len(names))
     base = [n for n in model.layout.names if is_base(n)]
