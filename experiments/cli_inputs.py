@@ -218,7 +218,8 @@ class LabInputs:
     each declared once here with its default, choices and help. Commands outside
     :class:`LabArgs` (``plan``, ``compensate``, ``collect``) take the same ones with
     :func:`option_of` (``robot: Annotated[str, option_of(LabInputs, "robot")] =
-    INPUTS.robot``)."""
+    INPUTS.robot``). A field declared with ``commands=(...)`` is an option of those commands
+    only."""
 
     robot: str = declare(
         "seed",
@@ -238,6 +239,13 @@ class LabInputs:
     )
     validate: Path | None = declare(
         None, help="Held-out measurements (same units) for validation RMS and median."
+    )
+    near: Path | None = declare(
+        None,
+        help="A program's joints (a CSV with q1..q6: a poses file, or measurements): the poses "
+        "are chosen from its joint region (each joint's range, a little wider), where the "
+        "calibration must hold for it.",
+        commands=("plan",),
     )
     orientation_unit: str | None = declare(
         None,
@@ -445,7 +453,12 @@ def lab_command(
         @lab_command(app, "diagnose", omit=("validate",))
         def diagnose_cmd(data: DataArg, lab: LabArgs, alpha: AlphaOpt = 0.02) -> None: ...
     """
-    shared = [(LabInputs, n) for n in cli_fields(LabInputs) if n not in omit] + [
+    own = [
+        n
+        for n in cli_fields(LabInputs)
+        if name in declaration(LabInputs, n).get("commands", (name,))
+    ]
+    shared = [(LabInputs, n) for n in own if n not in omit] + [
         (LabOptions, n) for n in cli_fields(LabOptions) if n not in omit
     ]
     defaults = {n: getattr(cls(), n) for cls, n in shared}

@@ -536,6 +536,7 @@ def plan_cmd(
         ),
     ] = 0.015,
     seed: Annotated[int, typer.Option(help="Seed of the random candidates.")] = 0,
+    near: Annotated[Path | None, option_of(LabInputs, "near")] = INPUTS.near,
     angle_unit: AngleOpt = INPUTS.angle_unit,
     noise_mrad: Annotated[
         float | None,
@@ -552,14 +553,21 @@ def plan_cmd(
 
     O1 (Borm & Menq) is D-optimality over all identifiable parameters, O4 (Nahvi & Hollerbach)
     the noise amplification of the weakest one; both are printed beside random pose sets."""
-    from arm.measurements import write_poses
+    from arm.measurements import read_poses, write_poses
+    from arm.sampling import region_of
     from lab import plan
 
     refuse_noise(noise_mm, 0.0, noise_mrad)
-    check_outputs([(output, "--output")], [robot, *(effect_module or ())], as_json)
+    given = [robot, *(effect_module or ()), *([near] if near is not None else [])]
+    check_outputs([(output, "--output")], given, as_json)
     load_modules(effect_module)
     parsed = parse_effects(effects)
     arm = read_arm(robot)
+    program = None
+    if near is not None:
+        with user_errors(prefix=f"--near {near}: "):
+            program = read_poses(near, angle_unit)
+            region_of(arm, program)  # within the limits, else refused here, by joint
     with user_errors(), console.status(f"choosing {n} of {candidates} poses by {criterion}..."):
         p = plan(
             n,
@@ -570,6 +578,7 @@ def plan_cmd(
             noise_mm=noise_mm,
             seed=seed,
             noise_mrad=noise_mrad,
+            near=program,
         )
     with writing(output):
         write_poses(p.q, output, angle_unit)
