@@ -247,6 +247,13 @@ class LabInputs:
         "calibration must hold for it.",
         commands=("plan",),
     )
+    predict: Path | None = declare(
+        None,
+        help="A target file (a program's joints q1..q6, or held-out measurements): print the "
+        "RMS error the calibration is expected to have there, before anything is measured "
+        "(with --validate beside the measured figure); in the JSON under predicted.",
+        commands=("fit", "bag", "update"),
+    )
     orientation_unit: str | None = declare(
         None,
         OneOf(tuple(ANGLE_UNITS)),
@@ -378,7 +385,9 @@ class LabArgs(LabInputs):
         lab, which takes them as they are (parsed once)."""
         opts = self.options()
         check_outputs(
-            outputs, [*data, self.validate, self.robot, *(self.effect_module or ())], as_json
+            outputs,
+            [*data, self.validate, self.predict, self.robot, *(self.effect_module or ())],
+            as_json,
         )
         load_modules(self.effect_module)
         effects = parse_effects(self.effects)
@@ -607,6 +616,22 @@ def read_data(
     for w in caught:  # on stderr: stdout carries the command's output (with --json, only it)
         err_console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
     return data
+
+
+def read_target(path: Path, length_unit: str, angle_unit: str) -> Any:
+    """A ``--predict`` target: held-out measurements (a file with ``x, y, z``, read as
+    :func:`read_data` reads) or a program's joints (``q1..q6`` alone, (N, 6) rad)."""
+    import csv
+
+    from arm.measurements import read_poses
+
+    with user_errors(OSError, prefix=f"--predict {path}: "):
+        with open(path, newline="") as fh:
+            rows = (r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#"))
+            header = {c.strip() for c in next(rows, [])}
+        if {"x", "y", "z"} <= header:
+            return read_data(path, length_unit, angle_unit, option="--predict")
+        return read_poses(path, angle_unit)
 
 
 def read_sessions(

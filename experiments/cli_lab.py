@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
 
@@ -50,6 +50,7 @@ from experiments.cli_inputs import (
     read_arm,
     read_data,
     read_sessions,
+    read_target,
     refuse_noise,
     sessions_json,
     writing,
@@ -77,6 +78,7 @@ from lab.options import ALPHA, CRITERIA, EXPORT_FORMATS, ORDER, ROUNDS, LabOptio
 
 if TYPE_CHECKING:
     from arm.effects import Effect
+    from lab.result import FitResult
 
 UPDATE = UpdateOptions()
 
@@ -146,10 +148,67 @@ def fit_cmd(
     lab's JSON output (SI units)."""
     arm, meas, val, opts, effects = lab.read(data, [(out, "--out")], as_json)
     result = _fitted(meas, arm, effects, opts, val, extrapolate)
+    expected = _expected(result, meas, lab, opts, val, extrapolate)
     if not as_json:
         print_sessions(meas)
         print_fit(result)
-    emit_json(result.to_dict() | sessions_json(meas), as_json, out)
+        _print_expected(expected)
+    emit_json(result.to_dict() | sessions_json(meas) | _expected_json(expected), as_json, out)
+
+
+def _unseen(result: FitResult, target: Any) -> bool:
+    """Whether a ``--predict`` target is a session the fit has not seen: a program's joints (it
+    runs later), or measurements from a station the fit has no base of."""
+    from arm.measurements import MeasurementSet
+
+    if not isinstance(target, MeasurementSet) or "station" not in target.columns:
+        return True
+    import numpy as np
+
+    return not set(np.unique(target.columns["station"]).astype(int)) <= set(result.model.stations)
+
+
+def _expected(
+    result: FitResult,
+    meas: Any,
+    lab: LabArgs,
+    opts: LabOptions,
+    val: Any,
+    extrapolate: bool,
+) -> tuple[Any, float | None] | None:
+    """With ``--predict``: the :class:`lab.prediction.Expectation` on its target, and the chosen
+    model's RMS measured on the ``--validate`` rows (None without them)."""
+    if lab.predict is None:
+        return None
+    from lab.prediction import expect
+
+    target = read_target(lab.predict, lab.length_unit, lab.angle_unit)
+    with user_errors(), console.status("the blocked checks for the prediction..."):
+        e = expect(result, meas, target, unseen=_unseen(result, target), options=opts)
+        measured = None
+        if val is not None:
+            done = e.result.validate(val, extrapolate=extrapolate)
+            measured = done.validation_rms_mm
+    return e, measured
+
+
+def _print_expected(expected: tuple[Any, float | None] | None) -> None:
+    if expected is None:
+        return
+    e, measured = expected
+    say(f"--predict: {e.text()}")
+    if measured is not None:
+        say(
+            f"--predict: predicted {e.prediction.rms_mm:.4f} mm, measured {measured:.4f} mm on "
+            "the --validate rows"
+        )
+
+
+def _expected_json(expected: tuple[Any, float | None] | None) -> dict[str, Any]:
+    if expected is None:
+        return {}
+    e, measured = expected
+    return {"predicted": e.to_dict() | {"measured_rms_mm": measured}}
 
 
 AlphaOpt = Annotated[float, declared(ALPHA, "alpha")]
@@ -306,6 +365,7 @@ def bag_cmd(
         result = b.result if val is None else b.result.validate(val, extrapolate=extrapolate)
         if val is not None:  # foreign held-out data: warned about as `lab fit` does
             check_validation(result, val.source)
+    expected = _expected(b.result, meas, lab, opts, val, extrapolate)
     written = None
     if output is not None and b.discovered is not None:
         with user_errors(), writing(output):
@@ -329,9 +389,11 @@ def bag_cmd(
             say(f"wrote {written} (the discovered terms of every draw: --effect-module)")
         if export is not None:
             say(f"wrote the averaged calibration to {export}; use it with --robot {export}")
+        _print_expected(expected)
     emit_json(
         result.to_dict()
         | sessions_json(meas)
+        | _expected_json(expected)
         | {
             "bag": {
                 "bags": b.bags,
@@ -424,6 +486,7 @@ def update_cmd(
         ),
     ] = None,
     validate: Annotated[Path | None, option_of(LabInputs, "validate")] = None,
+    predict: Annotated[Path | None, option_of(LabInputs, "predict")] = INPUTS.predict,
     effect_module: ModuleOpt = None,
     length_unit: LengthOpt = INPUTS.length_unit,
     angle_unit: AngleOpt = INPUTS.angle_unit,
@@ -447,7 +510,7 @@ def update_cmd(
         fail(
             f"--output {output}: an updated calibration is written as a robot TOML; give FILE.toml"
         )
-    inputs = [calibration, *data, validate, robot, *(effect_module or ())]
+    inputs = [calibration, *data, validate, predict, robot, *(effect_module or ())]
     check_outputs([(output, "--output"), (out, "--out")], inputs, as_json)
     load_modules(effect_module)
     cal = read_arm(calibration, "CAL")
@@ -477,12 +540,15 @@ def update_cmd(
                 predicted_rms(u.result, val, unseen=False),
                 predicted_rms(u.prior_result, val, unseen=True, u=u.prior.uncertainty),
             )
+    target_pred = _update_prediction(u.result, predict, length_unit, angle_unit)
     if output is not None:
         with user_errors(), writing(output):
             export_robot(result, output)
     if not as_json:
         print_sessions(meas)
         say(u.summary())
+        if target_pred is not None:
+            say(f"--predict {predict}: {target_pred.text()}")
         if alone is not None and val is not None:
             say(
                 f"validation on {len(val)} points: RMS "
@@ -500,7 +566,22 @@ def update_cmd(
     if predicted is not None:
         summary["update"]["predicted"] = predicted[0].to_dict()
         summary["update"]["prior_predicted"] = predicted[1].to_dict()
+    if target_pred is not None:
+        measured = None if val is None else result.validation_rms_mm
+        summary["predicted"] = target_pred.to_dict() | {"measured_rms_mm": measured}
     emit_json(summary, as_json, out)
+
+
+def _update_prediction(result: FitResult, predict: Path | None, length: str, angle: str) -> Any:
+    """``--predict`` of an update: its posterior covariance through the target's poses (the new
+    poses are too few for blocked checks: no fallback)."""
+    if predict is None:
+        return None
+    from lab.uncertainty import predicted_rms
+
+    target = read_target(predict, length, angle)
+    with user_errors():
+        return predicted_rms(result, target, unseen=False)
 
 
 # -- plan -------------------------------------------------------------------------------------------
