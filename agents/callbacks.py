@@ -3,17 +3,21 @@ concern, combined in a ``CallbackList`` by :func:`agents.training.train`.
 
     CallbackList([CriticBurnIn(20_000), EveryCrossing(25_000, 8, evaluate), Progress(report, n)])
 
+:class:`Patience` is the rule that ends a run once its evaluations stop improving; the
+evaluation feeds it and :class:`StopWhen` ends the training when it says so.
+
 Importing this module imports stable-baselines3 (and torch): :mod:`agents.training` imports it
 only when it trains.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-__all__ = ["CriticBurnIn", "EveryCrossing", "LearningRateAt", "Progress"]
+__all__ = ["CriticBurnIn", "EveryCrossing", "LearningRateAt", "Patience", "Progress", "StopWhen"]
 
 
 class CriticBurnIn(BaseCallback):
@@ -77,3 +81,39 @@ class LearningRateAt(BaseCallback):
 
     def _on_step(self) -> bool:
         return True
+
+
+class Patience:
+    """The patience rule: a run stops once ``evaluations`` evaluations in a row have not improved
+    on the bar by ``improvement`` (relative: 0.02 is 2 %). The bar is the first evaluation, then
+    each one that beats it by that much: slow gains add up against it (1 % an evaluation resets
+    it every third evaluation), noise around a plateau does not. ``update(error)`` takes an
+    evaluation's error (lower is better; the trainer's: the geometric mean over the scenarios of
+    the settled RMS, mm) and returns whether to stop. ``evaluations = 0`` never stops."""
+
+    def __init__(self, evaluations: int, improvement: float = 0.02) -> None:
+        self.evaluations, self.improvement = int(evaluations), float(improvement)
+        self.bar = math.inf
+        self.waited = 0
+        self.stopped = False
+
+    def update(self, error: float) -> bool:
+        if error < self.bar * (1.0 - self.improvement) or (
+            math.isinf(self.bar) and math.isfinite(error)
+        ):
+            self.bar, self.waited = float(error), 0
+        else:
+            self.waited += 1
+        self.stopped = self.evaluations > 0 and self.waited >= self.evaluations
+        return self.stopped
+
+
+class StopWhen(BaseCallback):
+    """Ends the training (SB3 stops when a callback returns False) once ``stop()`` is true."""
+
+    def __init__(self, stop: Callable[[], bool]) -> None:
+        super().__init__()
+        self.stop = stop
+
+    def _on_step(self) -> bool:
+        return not self.stop()

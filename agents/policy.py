@@ -1,7 +1,7 @@
 """Learned policies as agents: what the policy observes, what its action means, and its network
 weights in a file that loads without unpickling.
 
-Three variants share one pipeline (:class:`PolicyIO`, a pure function of the env's observation
+Four variants share one pipeline (:class:`PolicyIO`, a pure function of the env's observation
 and info stream, so the same code runs in training and in evaluation):
 
 * ``residual`` (residual RL, Johannink et al. 2019): the base is the ``feedforward`` reference
@@ -14,8 +14,14 @@ and info stream, so the same code runs in training and in evaluation):
   nominal model's damped pseudo-inverse; the observation is the tracking error, the preview
   relative to the reference, the last measured model error and its age and the previous action,
   in mm. No base controller: what the policy does, it learned.
+  With ``observe`` (``"joints"``, ``"payload"``, ``"temperature"``, as ``gym.make(...,
+  interface="tool", observe=[...])`` gives them) it also sees the encoders' angles and velocities,
+  the declared payload and the temperature sensor's reading, in the env's units, scaled by the
+  interface's declared fixed scales (``ToolDisplacement.feature_offset``/``feature_scale``).
 * ``plain``: the policy's action is the env's action, normalised joint velocities (6); the plain
   ``ppo`` was trained on it before the tool interface (and tracked at 6-7 mm).
+* ``joint``: the env's own interface as it is: the raw observation in, the env's action out (a
+  stable-baselines3 policy trained on ``gym.make("SixAxisTrack-v0")`` itself, :func:`from_sb3`).
 
 What the residual policy observes (mm where lengths): the encoders (angles, velocities), the
 base's last command and the joints' last directions of motion, the joint velocities the path asks
@@ -64,8 +70,9 @@ from agents.errors import AgentStateError, PolicyFileError
 from agents.reference import FeedforwardAgent
 from arm.constraints import POSITIVE, Constraint, OneOf
 from arm.files import check_input_file, read_input_text
+from envs.errors import EnvOptionError
 from envs.task import Observation, TaskInfo, Truth
-from envs.wrappers import ToolDisplacement
+from envs.wrappers import ToolDisplacement, observed
 
 __all__ = [
     "ALGOS",
@@ -81,12 +88,13 @@ __all__ = [
     "check_policy_description",
     "load_policy_file",
     "save_policy_file",
+    "shipped_policies",
 ]
 
 log = logging.getLogger(__name__)
 
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
-Variant = Literal["residual", "plain", "tool"]
+Variant = Literal["residual", "plain", "tool", "joint"]
 Algo = Literal["ppo", "sac", "td3"]
 VARIANTS: tuple[str, ...] = typing.get_args(Variant)
 ALGOS: tuple[str, ...] = typing.get_args(Algo)
@@ -116,26 +124,35 @@ class PolicyIO:
     policy's."""
 
     def __init__(
-        self, variant: str = "residual", offset_mm: float = 0.5, tool_step_mm: float = 5.0
+        self,
+        variant: str = "residual",
+        offset_mm: float = 0.5,
+        tool_step_mm: float = 5.0,
+        observe: tuple[str, ...] | list[str] = (),
     ) -> None:
         refuse_settings(
             POLICY_SETTINGS, variant=variant, offset_mm=offset_mm, tool_step_mm=tool_step_mm
         )
+        if observe and variant != "tool":
+            raise PolicyFileError(f"observe is for the tool variant, not {variant!r}")
         self.variant = variant
         self.offset_mm = float(offset_mm)
         self.tool_step_mm = float(tool_step_mm)
+        self.observe = observed(observe)
         self.base = FeedforwardAgent()
         self.task: TaskInfo | None = None
         self.tool: ToolDisplacement | None = None
 
     @property
     def action_size(self) -> int:
-        return 6 if self.variant == "plain" else 3
+        return 6 if self.variant in ("plain", "joint") else 3
 
     def observation_size(self, task: TaskInfo) -> int:
         P = int(task.preview_steps)
         if self.variant == "tool":
-            return ToolDisplacement(task, self.tool_step_mm).obs_size
+            return ToolDisplacement(task, self.tool_step_mm, observe=self.observe).obs_size
+        if self.variant == "joint":
+            return int(task.obs_size)
         if self.variant == "residual":
             return (
                 6 * 4
@@ -155,7 +172,7 @@ class PolicyIO:
     def reset(self, task: TaskInfo) -> None:
         self.task = task
         if self.variant == "tool":
-            self.tool = ToolDisplacement(task, self.tool_step_mm)
+            self.tool = ToolDisplacement(task, self.tool_step_mm, observe=self.observe)
         else:
             self.base.reset(task)
         self._start_phase()
@@ -164,7 +181,7 @@ class PolicyIO:
         self.task = task
         if self.tool is not None:  # the tool interface keeps its model error, as feedforward does
             error, error_time = self.tool.error, self.tool.error_time
-            self.tool = ToolDisplacement(task, self.tool_step_mm)
+            self.tool = ToolDisplacement(task, self.tool_step_mm, observe=self.observe)
             self.tool.error, self.tool.error_time = error, error_time
         else:
             self.base.next_phase(task)
@@ -182,6 +199,8 @@ class PolicyIO:
             raise AgentStateError("PolicyIO.features before reset(): no task yet")
         if self.tool is not None:  # the operational-space interface: envs.wrappers's numbers
             return self.tool.clipped(self.tool.observe(obs, info))
+        if self.variant == "joint":  # the env's own observation, as an SB3 policy of it sees it
+            return np.array(obs, dtype=np.float64)
         o = Observation.parse(task, obs)
         self._o, self._info = o, info
         base = self.base
@@ -255,6 +274,9 @@ class PolicyIO:
         if self.tool is not None:
             self.prev_action = np.clip(np.asarray(a, dtype=float).reshape(-1), -1.0, 1.0)
             return self.tool.command(a)
+        if self.variant == "joint":
+            self.prev_action = np.clip(np.asarray(a, dtype=float).reshape(-1), -1.0, 1.0)
+            return self.prev_action
         if self._o is None:
             raise AgentStateError("PolicyIO.action before features(): no observation yet")
         a = np.clip(np.asarray(a, dtype=float).reshape(-1), -1.0, 1.0)
@@ -583,7 +605,7 @@ def _check_sizes(meta: dict, variant: str, where: str) -> None:
         raise PolicyFileError(
             f"{where}: obs_size must be a whole number from 1 to {MAX_OBS_SIZE}, got {obs!r}"
         )
-    want = 6 if variant == "plain" else 3
+    want = 6 if variant in ("plain", "joint") else 3
     if not _is_int(act) or act != want:
         raise PolicyFileError(f"{where}: act_size of a {variant} policy is {want}, got {act!r}")
     offset = meta.get("offset_mm", 0.5)
@@ -596,6 +618,13 @@ def _check_sizes(meta: dict, variant: str, where: str) -> None:
         )
     if not isinstance(meta.get("use_sde", False), bool):
         raise PolicyFileError(f"{where}: use_sde must be true or false, got {meta['use_sde']!r}")
+    observe = meta.get("observe", [])
+    try:
+        observed(observe)
+    except EnvOptionError as exc:
+        raise PolicyFileError(f"{where}: {exc}") from None
+    if observe and variant != "tool":
+        raise PolicyFileError(f"{where}: observe is for the tool variant, not {variant!r}")
 
 
 def _check_policy_kwargs(algo: str, kw: dict, where: str) -> None:
@@ -657,24 +686,69 @@ def _network_parameters(algo: str, kw: dict, obs: int, act: int, where: str) -> 
 
 
 # --------------------------------------------------------------------------------------------------
-class PolicyAgent(Agent):
-    """A trained policy as an agent: the shipped ``policy`` of ``agents/policies/`` by name, or a
-    policy file (``path``, a ``.npz`` with its ``.json``); deterministic actions."""
+def shipped_policies() -> list[str]:
+    """The names of the policies shipped in ``agents/policies/``."""
+    return sorted(p.stem for p in POLICY_DIR.glob("*.npz"))
 
-    def __init__(self, policy: str = "ppo-residual", path: str | None = None) -> None:
+
+def _policy_path(policy: str | None, path: str | None) -> Path:
+    """The policy file of a shipped ``policy`` name or of a file ``path`` (one of the two)."""
+    if policy is not None and path is not None:
+        raise PolicyFileError(
+            f"policy {policy!r} and path {path!r}: give one, policy (a shipped policy's name) or "
+            "path (a policy file); a file goes on the leaderboard as the agent 'policy' with "
+            'settings {"path": ...}'
+        )
+    if path is not None:
+        return _file_as_written(str(path))
+    if policy is None:
+        raise PolicyFileError(
+            "give policy (a shipped policy's name: "
+            f"{', '.join(shipped_policies()) or 'none shipped'}) or path (a policy file)"
+        )
+    if "/" in policy or "\\" in policy or policy.endswith(".npz"):
+        raise PolicyFileError(
+            f"policy {policy!r} names a file: give it as path, to the agent 'policy' "
+            f'(`sixaxis evaluate policy --settings \'{{"path": "{policy}"}}\'`); policy is a '
+            f"shipped policy's name: {', '.join(shipped_policies()) or 'none shipped'}"
+        )
+    found = POLICY_DIR / f"{policy}.npz"
+    if not found.exists():
+        raise PolicyFileError(
+            f"no shipped policy {policy!r} (shipped: {', '.join(shipped_policies()) or 'none'}; "
+            "a policy file goes in path); train one with `sixaxis train ppo --config "
+            "experiments/configs/ppo-residual.toml --ship`"
+        )
+    return found
+
+
+def _file_as_written(path: str) -> Path:
+    """``path`` as written if it ends in ``.npz``, else with ``.npz`` added; a file of another
+    kind (a stable-baselines3 ``.zip``, a pickle) is refused: loading it would run code."""
+    given = Path(path)
+    if given.suffix == ".npz":
+        return given
+    if given.suffix and given.exists():
+        raise PolicyFileError(
+            f"path {path!r}: refusing to load a policy that is not a .npz weight file (a "
+            "stable-baselines3 .zip or a pickle would run code when loaded); export an SB3 "
+            "model with agents.from_sb3"
+        )
+    return Path(path + ".npz")
+
+
+class PolicyAgent(Agent):
+    """A trained policy as an agent, deterministic: the shipped ``policy`` of
+    ``agents/policies/`` by name, or a policy file ``path`` (a ``.npz`` with its ``.json``,
+    taken as written, ``.npz`` added if it is not there); one of the two, never both. ``name``
+    is how it shows (default: the policy's name, or the file's stem)."""
+
+    def __init__(
+        self, policy: str | None = None, path: str | None = None, name: str | None = None
+    ) -> None:
         super().__init__()
-        self.name = policy
-        self.path = Path(path) if path else POLICY_DIR / f"{policy}.npz"
-        if self.path.suffix != ".npz":
-            raise PolicyFileError(
-                f"path {str(self.path)!r}: refusing to load a policy that is not a .npz weight "
-                "file (a stable-baselines3 .zip or a pickle would run code when loaded)"
-            )
-        if not self.path.exists():
-            raise PolicyFileError(
-                f"no trained policy at {self.path}; train one with `sixaxis train ppo --config "
-                "experiments/configs/ppo-residual.toml --ship`"
-            )
+        self.path = _policy_path(policy, path)
+        self.name = name or policy or self.path.stem
         check_input_file(self.path, "policy file", "weights", PolicyFileError)
         self.network: PolicyNetwork | None = None
         self.meta: dict[str, Any] = {}
@@ -701,6 +775,7 @@ class PolicyAgent(Agent):
             self.meta["variant"],
             float(self.meta.get("offset_mm", 0.5)),
             float(self.meta.get("tool_step_mm", 5.0)),
+            tuple(self.meta.get("observe", ())),
         )
         self.io.reset(task)
         n = self.io.observation_size(task)

@@ -6,7 +6,8 @@ model): its name, the class that makes it, the settings it is made with, what it
 ``sixaxis agents`` lists them.
 
 Every ``agents/policies/<name>.npz`` is registered as ``<name>``: a learned policy loads from that
-file (weights as arrays, no unpickling) or from ``path``, another such file.
+file (weights as arrays, no unpickling). ``policy`` runs a policy file of your own, given as the
+setting ``path`` (``agents.from_sb3`` writes one from a stable-baselines3 model).
 
 A class path (``package.module:Class``) imports that module: it runs the module's code, so name
 only classes you trust.
@@ -110,6 +111,12 @@ AGENTS: dict[str, AgentSpec] = {
             "mpc-diagnose",
             "agents.self_diagnosis:DiagnosingMPCAgent",
             "the MPC that diagnoses its own model with the lab and widens it",
+        ),
+        AgentSpec(
+            "policy",
+            "agents.policy:PolicyAgent",
+            "a policy file of your own (settings: path, e.g. runs/ppo-seed1/best.npz; "
+            "agents.from_sb3 writes one from any SB3 model)",
         ),
         *(
             AgentSpec(

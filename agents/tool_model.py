@@ -174,6 +174,11 @@ class ToolModel:
         self.layout = model.layout
         self.target = int(target)
         robot = model.robot
+        if robot.couplings:
+            raise UnsupportedEffectError(
+                f"robot {robot.name!r} has coupled joints: the MPC's CasADi model turns each "
+                "joint on its own and does not represent them"
+            )
         self._chain0 = Chain.from_description(robot)
         self._tool0 = np.array(robot.tool_points[min(self.target, len(robot.tools) - 1)])
         self._custom: list[JointAngleEffect] = []

@@ -26,6 +26,19 @@ return, the wall time and the env steps per second), ``best.npz``/``.json`` (the
 lowest mean log settled RMS so far, in the shipped format), ``final.npz``/``.json``, and
 ``checkpoint.zip`` with ``checkpoint.npz`` (SB3's own save and the normalisation, for ``--resume``).
 
+When to stop. ``total_timesteps`` is the budget; ``patience`` ends a run sooner, once that many
+evaluations in a row have not improved on the best by ``patience_improvement`` (2 %, of the
+geometric mean over the scenarios of the settled RMS; :class:`agents.callbacks.Patience`). The
+default, 0, trains to the budget, as every config before the rule did (so a shipped policy's
+recorded config still means what it meant); the tuning configs and new recipes declare 5. A
+``learning_rate_schedule`` that falls to 0 would end the improvement itself, so with patience on
+it must end on a floor (or stay constant).
+
+Diagnostics. ``train(..., diagnostics=DIR)`` (``sixaxis train ppo --diagnostics DIR``) hands SB3's
+own logger a folder: its standard scalars (PPO's ``train/approx_kl``, ``train/clip_fraction``,
+``train/entropy_loss``, ``train/explained_variance``, the losses; SAC's and TD3's losses) in
+``progress.csv``, and TensorBoard event files where ``tensorboard`` is installed.
+
 Torch runs on one thread (``torch.set_num_threads(1)``): small networks on two shared cores ran
 30x slower with two.
 """
@@ -72,6 +85,7 @@ from arm.constraints import (
     declare,
     problems,
 )
+from envs.errors import EnvOptionError
 from envs.task import TaskInfo, Truth, controller_info
 
 __all__ = [
@@ -156,6 +170,7 @@ class TrainConfig:
     tool_step_mm: float = declare(5.0, POSITIVE)
     terminate_mm: float = declare(0.0, NON_NEGATIVE)
     obs_normalization: ObsNormalization = "running"
+    observe: tuple[str, ...] = ()
     reward: Reward = "log"
     reward_scale_mm: float = declare(0.05, POSITIVE)
     action_penalty: float = declare(0.0, NON_NEGATIVE)
@@ -170,6 +185,8 @@ class TrainConfig:
     )
     eval_episodes: int = declare(1, AT_LEAST_1)
     checkpoint_every: int = declare(50_000, AT_LEAST_1)
+    patience: int = declare(0, Interval(int, 0, None, why="evaluations; 0: never stops early"))
+    patience_improvement: float = declare(0.02, Interval(float, 0.0, 1.0, closed="left"))
     learning_rate_schedule: list[list[float]] = field(default_factory=list)
     output: str = ""
     hyperparameters: dict[str, Any] = field(default_factory=dict)
@@ -180,6 +197,7 @@ class TrainConfig:
         if not self.output:
             self.output = f"runs/{self.name}-seed{self.seed}"
         self.scenarios = tuple(self.scenarios)
+        self.observe = tuple(self.observe)
 
     @property
     def episode_steps(self) -> int:
@@ -242,6 +260,7 @@ class TrainConfig:
             out.append("terminate_mm is for the log reward (its alive bonus)")
         if self.obs_normalization == "fixed" and self.variant != "tool":
             out.append("obs_normalization 'fixed' is for the tool variant (its declared scales)")
+        out += self._observe_rules()
         if self.critic_burn_in and self.algo == "ppo":
             out.append(
                 "critic_burn_in is for the off-policy algorithms (sac, td3): PPO has no critic"
@@ -253,7 +272,10 @@ class TrainConfig:
         if unknown:
             out.append(f"hyperparameters: {cls.__name__} takes no {', '.join(unknown)}")
         if reserved:
-            out.append(f"hyperparameters: {', '.join(reserved)} are set by the trainer")
+            out.append(
+                f"hyperparameters: {', '.join(reserved)} are set by the trainer (SB3's logs: "
+                "`sixaxis train ... --diagnostics DIR`)"
+            )
         try:
             policy_kwargs_for_sb3(self.hyperparameters.get("policy_kwargs", {}))
         except ValueError as exc:
@@ -266,6 +288,19 @@ class TrainConfig:
             except (TypeError, ValueError) as exc:
                 out.append(f"env: {exc}")
         return out
+
+    def _observe_rules(self) -> list[str]:
+        from envs.wrappers import observed
+
+        if not self.observe:
+            return []
+        if self.variant != "tool":
+            return ["observe is for the tool variant (the interface's observation option)"]
+        try:
+            observed(self.observe)
+        except EnvOptionError as exc:
+            return [str(exc)]
+        return []
 
     def _schedule_rules(self) -> list[str]:
         sched = self.learning_rate_schedule
@@ -287,6 +322,12 @@ class TrainConfig:
             out.append(f"hyperparameters.learning_rate: {key} sets it; give one of the two")
         if self.algo != "ppo":
             out.append(f"{key} is for ppo (its updates after each rollout)")
+        if not out and self.patience and sched[-1][1] == 0:
+            out.append(
+                f"{key} ends at 0 with patience on: a rate of 0 stops the improvement itself; "
+                "end on a floor (e.g. [[0, 3e-4], [1e6, 3e-5]]) or set patience = 0 to train to "
+                "the budget"
+            )
         return out
 
     def learning_rate_at(self, step: float) -> float:
@@ -304,6 +345,7 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d["scenarios"] = list(self.scenarios)
+        d["observe"] = list(self.observe)
         return d
 
 
@@ -384,6 +426,7 @@ class PolicyEnv(gym.Wrapper):
         shadow: gym.Env | None = None,
         tool_step_mm: float = 5.0,
         terminate_mm: float = 0.0,
+        observe: tuple[str, ...] = (),
     ) -> None:
         super().__init__(env)
         if terminate_mm and reward != "log":
@@ -392,7 +435,7 @@ class PolicyEnv(gym.Wrapper):
             raise TrainConfigError(
                 "the improvement reward needs a residual policy and a shadow env"
             )
-        self.io = PolicyIO(variant, offset_mm, tool_step_mm)
+        self.io = PolicyIO(variant, offset_mm, tool_step_mm, observe)
         self.shadow = shadow if reward == "improvement" else None
         self.shadow_base = FeedforwardAgent()
         task = env.unwrapped.task  # type: ignore[attr-defined]
@@ -521,6 +564,7 @@ def make_policy_env(
         shadow=make() if cfg.reward == "improvement" else None,
         tool_step_mm=cfg.tool_step_mm,
         terminate_mm=cfg.terminate_mm,
+        observe=cfg.observe,
     )
 
 
@@ -534,6 +578,7 @@ def _meta(cfg: TrainConfig, obs_size: int, act_size: int) -> dict[str, Any]:
         "act_size": act_size,
         "offset_mm": cfg.offset_mm,
         "tool_step_mm": cfg.tool_step_mm,
+        "observe": list(cfg.observe),
         "policy_kwargs": dict(hp.get("policy_kwargs", {})),
         "use_sde": bool(hp.get("use_sde", False)),
         "config": cfg.to_dict(),
@@ -593,6 +638,7 @@ def train(
     progress: Callable[[int, int], None] | None = None,
     resume: bool = False,
     stop_at: int | None = None,
+    diagnostics: str | Path | None = None,
 ) -> Path:
     """Train as configured (see the module docstring for what is written); ``progress(done,
     total)`` is called as steps are taken; ``resume`` continues from ``output``'s checkpoint
@@ -600,8 +646,11 @@ def train(
     the run there (its checkpoint, ``final`` and summary written) to be resumed later with a
     config that trains the steps taken the same (:func:`resume_differences`: more steps, other
     evaluations, a learning rate that changes only from the checkpoint on; the summary records
-    what changed). A resumed run starts new episodes, and its random streams afresh. Returns
-    the output directory."""
+    what changed). A resumed run starts new episodes, and its random streams afresh; its
+    patience starts again from the best evaluation so far. ``diagnostics``: a folder for SB3's
+    own logger (``progress.csv`` of its standard scalars: KL, clip fraction, entropy,
+    explained variance, losses; TensorBoard event files too where ``tensorboard`` is
+    installed). Returns the output directory."""
     import torch
 
     torch.set_num_threads(1)
@@ -614,6 +663,7 @@ def train(
     sequence = EpisodeSeeds(seeds.start, seeds.stop)
     venv, obs_size, act_size = _training_envs(cfg, sequence)
     run = _Run(cfg, out, venv, sequence, _meta(cfg, obs_size, act_size))
+    run.diagnostics = None if diagnostics is None else Path(diagnostics)
     run.start(act_size, resuming, differences)
     # after the resume's check: a refused resume leaves the run's records as they were
     from arm.files import atomic_write_text
@@ -663,8 +713,8 @@ def _training_envs(cfg: TrainConfig, sequence: EpisodeSeeds) -> tuple[Any, int, 
     if fixed:  # the interface's declared scales, never updated (saved as the policy's own)
         from envs.wrappers import ToolDisplacement
 
-        scale = ToolDisplacement(probe.unwrapped.task, cfg.tool_step_mm).feature_scale
-        venv.obs_rms = fixed_mean_std(np.zeros_like(scale), scale**2)
+        tool = ToolDisplacement(probe.unwrapped.task, cfg.tool_step_mm, observe=cfg.observe)
+        venv.obs_rms = fixed_mean_std(tool.feature_offset, tool.feature_scale**2)
     return venv, int(probe.observation_space.shape[0]), int(probe.action_space.shape[0])
 
 
@@ -700,6 +750,9 @@ class _Run:
         self.best = math.inf
         self.curve_path = out / "curve.csv"
         self.t_start = 0.0
+        self.patience = _patience(cfg)
+        self.last_evaluated = -1
+        self.diagnostics: Path | None = None
 
     def start(self, act_size: int, resuming: bool, differences: Mapping[str, Any]) -> None:
         """The model: loaded from the checkpoint with its normalisation and episode seeds, or
@@ -710,8 +763,10 @@ class _Run:
         if not resuming:
             self.model = cls("MlpPolicy", venv, seed=cfg.seed, device="cpu", verbose=0, **hp)
             _shrink_output(self.model, cfg.algo, cfg.init_output_scale)
+            self._log_diagnostics()
             return
         self.model = cls.load(out / "checkpoint.zip", env=venv, device="cpu")
+        self._log_diagnostics()
         state = np.load(out / "checkpoint.npz", allow_pickle=False)
         obs_rms: Any = venv.obs_rms  # one RunningMeanStd: the observation is a flat Box
         ret_rms: Any = venv.ret_rms
@@ -744,6 +799,24 @@ class _Run:
             atomic_write_text(self.curve_path, header.getvalue())  # then appended to, row by row
         self.t_start = time.perf_counter()
 
+    def _log_diagnostics(self) -> None:
+        """SB3's own logger into ``diagnostics`` (when given): its standard scalars (PPO's
+        approx_kl, clip_fraction, entropy_loss, explained_variance, the losses; SAC's and TD3's
+        losses, ent_coef) as ``progress.csv``, and as TensorBoard event files where the
+        ``tensorboard`` package is installed."""
+        if self.diagnostics is None:
+            return
+        import importlib.util
+
+        from stable_baselines3.common.logger import configure
+
+        from arm.files import make_folders
+
+        make_folders(self.diagnostics)
+        formats = ["csv"] + (["tensorboard"] if importlib.util.find_spec("tensorboard") else [])
+        self.model.set_logger(configure(str(self.diagnostics), formats))
+        log.info("SB3's diagnostics (%s) in %s", ", ".join(formats), self.diagnostics)
+
     def network(self) -> PolicyNetwork:
         return PolicyNetwork(self.cfg.algo, self.model.policy, _normalisation(self.venv))
 
@@ -768,6 +841,14 @@ class _Run:
         with open(self.curve_path, "a", newline="") as fh:
             csv.writer(fh).writerow(row)
         log.info("%d steps: settled RMS %s", steps, settled)
+        self.last_evaluated = steps
+        if self.patience.update(math.exp(score)):
+            log.info(
+                "stopping at %d steps: %d evaluations without a %.0f %% improvement",
+                steps,
+                self.patience.waited,
+                100 * self.patience.improvement,
+            )
         if score < self.best:
             self.best = score
             save_policy_file(
@@ -797,7 +878,7 @@ class _Run:
         as configured, then evaluated at its end."""
         from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
-        from agents.callbacks import CriticBurnIn, EveryCrossing, LearningRateAt, Progress
+        from agents.callbacks import CriticBurnIn, EveryCrossing, LearningRateAt, Progress, StopWhen
 
         cfg = self.cfg
         callbacks: list[BaseCallback] = []
@@ -806,13 +887,16 @@ class _Run:
         callbacks += [
             EveryCrossing(cfg.eval_every, cfg.n_envs, self.evaluate),
             EveryCrossing(cfg.checkpoint_every, cfg.n_envs, lambda n: self.checkpoint()),
+            StopWhen(lambda: self.patience.stopped),
         ]
         if progress is not None:
             callbacks.append(Progress(progress, cfg.total_timesteps))
         if self.done_before == 0:
             self.evaluate(0)
-        else:  # best.npz stays the best of the whole run
+        else:  # best.npz stays the best of the whole run, and the patience's bar
             self.best = _best_so_far(self.out / "best.npz", cfg, self.meta)
+            if math.isfinite(self.best):
+                self.patience.update(math.exp(self.best))
         callbacks += [LearningRateAt(cfg.learning_rate_at)] if cfg.learning_rate_schedule else []
         self.model.learn(
             total_timesteps=min(cfg.total_timesteps, stop_at or cfg.total_timesteps)
@@ -820,7 +904,7 @@ class _Run:
             callback=CallbackList(callbacks),
             reset_num_timesteps=self.done_before == 0,
         )
-        if self.model.num_timesteps % cfg.eval_every:
+        if self.model.num_timesteps != self.last_evaluated:
             self.evaluate(int(self.model.num_timesteps))
 
     def finish(self, differences: Mapping[str, Any]) -> None:
@@ -844,11 +928,19 @@ class _Run:
             "steps_per_s": (int(model.num_timesteps) - done_before) / wall,
             "resumed_at": done_before,
             "wall_s_this_session": wall,
+            # the patience rule (evaluations without a relative improvement) ended the run
+            "stopped_by_patience": self.patience.stopped,
         }
         # what the config changed at the resume (nothing that trains the steps before it)
         summary |= {"resumed_with": dict(differences)} if done_before else {}
         atomic_write_text(self.out / "summary.json", json.dumps(summary, indent=2) + "\n")
         log.info("trained %d steps in %.0f s", model.num_timesteps, wall)
+
+
+def _patience(cfg: TrainConfig) -> Any:
+    from agents.callbacks import Patience
+
+    return Patience(cfg.patience, cfg.patience_improvement)
 
 
 def _evaluate_in_training(

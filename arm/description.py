@@ -47,6 +47,11 @@ SI units inside (m, rad, kg). The TOML file states its own units::
     translation = [2.0, -1.2, -0.6]
     rotation_vector = [0.0, 0.0, 126.0]
 
+    [[couplings]]                # optional: a joint's DH angle moves with another's; the
+    joint = 3                    # data's rows are the controller's angles: theta_3 = q_3 +
+    on = 2                       # factor * q_2 (FANUC's J3, measured from the horizon)
+    factor = -1.0
+
     [nominal]                    # optional, written by `lab export`: the nominal arm that was
     name = "seed"                # calibrated, a whole description in the same form (its own
     ...                          # units; no [nominal] of its own)
@@ -141,6 +146,10 @@ class RobotDescription:
     # a calibration from several tracker stations: (id, translation, rotation vector) of each
     # station's frame <- robot base; the base above is the first station's
     stations: tuple[tuple[int, Vec3, Vec3], ...] = ()
+    # linear couplings of the joints: (joint, on, factor), theta_joint = q_joint + factor *
+    # q_on in the DH table, q the controller's angles (FANUC's J3, measured from the horizon:
+    # (3, 2, -1.0)); the rows of a data file are the controller's angles
+    couplings: tuple[tuple[int, int, float], ...] = ()
     # a calibrated arm's nominal arm, as `lab export` records it (what a controller believes in)
     nominal: RobotDescription | None = field(default=None, compare=False, repr=False)
     # a calibrated arm's domain: where it was identified, {variable: (lo, hi)} in SI units
@@ -172,9 +181,41 @@ class RobotDescription:
                 )
             if j.mass < 0:
                 raise DescriptionError(f"robot {self.name!r}: joint {i} mass {j.mass} < 0")
+        self._check_couplings()
         why = payload_problem(self.payload)  # the rule of the measurement reader too
         if why:
             raise DescriptionError(f"robot {self.name!r}: {why}")
+
+    def _check_couplings(self) -> None:
+        seen = set()
+        for c in self.couplings:
+            joint, on, factor = c
+            where = f"robot {self.name!r}: coupling of joint {joint} on joint {on}"
+            if not (1 <= joint <= 6 and 1 <= on <= 6) or joint == on:
+                raise DescriptionError(
+                    f"{where}: joints are 1..6 and a joint is not coupled on itself"
+                )
+            if not math.isfinite(factor) or factor == 0:
+                raise DescriptionError(
+                    f"{where}: factor {factor!r} must be a finite non-zero number"
+                )
+            if (joint, on) in seen:
+                raise DescriptionError(f"{where}: stated twice")
+            seen.add((joint, on))
+        if self.couplings and abs(np.linalg.det(self.coupling_matrix)) < 1e-9:
+            raise DescriptionError(
+                f"robot {self.name!r}: the couplings {self.couplings} leave the joints dependent "
+                "(the controller's angles could not be recovered from the arm's)"
+            )
+
+    @property
+    def coupling_matrix(self) -> np.ndarray:
+        """(6, 6) ``C``: the DH table's angles are ``C q + theta_offset``, q the controller's
+        (the identity for an arm without couplings)."""
+        C = np.eye(6)
+        for joint, on, factor in self.couplings:
+            C[joint - 1, on - 1] += factor
+        return C
 
     # -- arrays -------------------------------------------------------------------------------
     def column(self, key: str) -> np.ndarray:
@@ -231,6 +272,18 @@ class RobotDescription:
         q = np.asarray(q, dtype=float)
         return np.all((q >= self.lower - tol) & (q <= self.upper + tol), axis=-1)
 
+    @property
+    def reach(self) -> float:
+        """The arm's size, m: the lengths of its links from the shoulder to the flange, every
+        ``|a|`` and ``|d|`` of the modified DH table but the first row's ``d`` (the shoulder's
+        height above the base moves nothing), and the flange's offset. An upper bound of the
+        reach a data sheet states (1.46 m for a UR10 of 1.3 m, 3.11 m for a FANUC R-2000iC of
+        2.66 m), computed the same way for every arm; what the plausible bounds of its lengths
+        scale with (:class:`arm.effect_api.ArmSize`)."""
+        m = self.to_modified()
+        flange = np.linalg.norm(m.flange_matrix[:3, 3])
+        return float(np.abs(m.column("a")).sum() + np.abs(m.column("d")[1:]).sum() + flange)
+
     def parallel_rows(self, tol: float = 1e-6) -> tuple[int, ...]:
         """Rows i (1-based, i >= 2) whose axis z_i is parallel to z_{i-1} (alpha_{i-1} = 0 or pi).
 
@@ -274,7 +327,8 @@ class RobotDescription:
     def to_urdf(self) -> str:
         """The arm as a URDF (:func:`arm.urdf.urdf_of_chain`): frame 0 as ``base_link``, the DH
         frames as ``link1`` .. ``link6``, the flange as ``flange``; its masses as point masses.
-        The base transform and the tool points are metrology, not the arm's: they stay out."""
+        The base transform and the tool points are metrology, not the arm's: they stay out; the
+        joints' couplings stay in (``<coupling joint on factor/>``, which :func:`from_urdf` reads)."""
         from arm.urdf import urdf_of_chain
 
         m = self.to_modified()
@@ -290,6 +344,7 @@ class RobotDescription:
             m.masses,
             m.coms,
             m.flange_matrix,
+            m.couplings,
         )
 
     # -- TOML ---------------------------------------------------------------------------------
@@ -339,6 +394,8 @@ class RobotDescription:
             }
         if self.effects:
             doc["effects"] = {k: dict(v) for k, v in self.effects.items()}
+        if self.couplings:
+            doc["couplings"] = [{"joint": j, "on": o, "factor": f} for j, o, f in self.couplings]
         if self.stations:
             doc["stations"] = [
                 {
@@ -427,9 +484,11 @@ _KEYS = {
         "stations",
         "nominal",
         "domain",
+        "couplings",
         "uncertainty",
     },
     "station": {"station", "translation", "rotation_vector"},
+    "coupling": {"joint", "on", "factor"},
     "joint": {"alpha", "a", "d", "theta_offset", "limits", "mass", "com", "beta"},
     "tool": {"point"},
     "base": {"translation", "rotation_vector"},
@@ -490,6 +549,24 @@ def _stations(doc: dict, source: str, L: float, A: float) -> tuple[tuple[int, Ve
         t = vec3(c * L for c in _get(st, "translation", source, "vec3", w))
         r = vec3(c * A for c in _get(st, "rotation_vector", source, "vec3", w))
         out.append((int(sid), t, r))
+    return tuple(out)
+
+
+def _couplings(doc: dict, source: str) -> tuple[tuple[int, int, float], ...]:
+    """The ``[[couplings]]`` of a description: (joint, on, factor), ``theta_joint = q_joint +
+    factor * q_on`` in the DH table."""
+    rows = doc.get("couplings", [])
+    if not isinstance(rows, list):
+        raise DescriptionError(f"{source}: [[couplings]] must be a list of tables")
+    out = []
+    for k, c in enumerate(rows, start=1):
+        w = f"coupling {k}: "
+        _table(c, source, w, "coupling")
+        joint, on = (_get(c, key, source, float, w) for key in ("joint", "on"))
+        for key, v in (("joint", joint), ("on", on)):
+            if v != int(v) or not 1 <= v <= 6:
+                raise DescriptionError(f"{source}: {w}'{key}' must be a joint 1..6, got {v:g}")
+        out.append((int(joint), int(on), _get(c, "factor", source, float, w)))
     return tuple(out)
 
 
@@ -616,6 +693,7 @@ def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription
             stations=stations,
             nominal=nominal,
             domain=domain,
+            couplings=_couplings(doc, source),
             uncertainty=uncertainty,
         )
     except DescriptionError as exc:
@@ -658,6 +736,7 @@ def from_urdf(arm: UrdfArm) -> RobotDescription:
             flange_translation=vec3(clean(c) for c in flange[:3, 3]),
             flange_rotation=vec3(clean(c) for c in rotation_vector(flange[:3, :3])),
             urdf=arm.source,
+            couplings=arm.couplings,
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{arm.source.path}: {exc}") from None

@@ -26,7 +26,47 @@ from arm.errors import EffectError
 from arm.kinematics import Chain, ColumnFrames, Workspace, cross_columns
 from arm.so3 import left_jacobian
 
-__all__ = ["AngularSensitivities", "ChainState", "EffectError", "ModelInputs", "Sensitivities"]
+__all__ = [
+    "REFERENCE_REACH",
+    "AngularSensitivities",
+    "ArmSize",
+    "ChainState",
+    "EffectError",
+    "ModelInputs",
+    "Sensitivities",
+]
+
+#: The size up to which an arm's plausible bounds keep their stated values, m of
+#: :attr:`arm.description.RobotDescription.reach`: a UR10's (1.46 m) and the seed arm's
+#: (1.50 m) with room to spare; a larger arm's length bounds grow in proportion.
+REFERENCE_REACH = 1.6
+
+
+@dataclass(frozen=True)
+class ArmSize:
+    """What an effect's plausible bounds may scale with (:meth:`arm.effects.Effect.plausible_bound`):
+    the arm's ``reach`` (m, :attr:`arm.description.RobotDescription.reach`) and its ``payload``
+    (kg, the description's; 0 where unknown).
+
+    A length error of a machined arm grows with the arm (a casting of 1 m and one of 3 m are held
+    to tolerances of the same relative size, and a data sheet rounds longer links more): the
+    bound of a length is its stated value times :attr:`length_factor`, 1 up to the size of a
+    UR10 (:data:`REFERENCE_REACH`), then in proportion to the reach (1.94 for a FANUC
+    R-2000iC of 3.11 m). An angle's bound does not grow: a machined angle is held to the same
+    tolerance at any size, and its effect on the tool already grows with the lever."""
+
+    reach: float
+    payload: float = 0.0
+
+    @classmethod
+    def of(cls, robot: RobotDescription) -> ArmSize:
+        return cls(reach=robot.reach, payload=float(robot.payload))
+
+    @property
+    def length_factor(self) -> float:
+        """How many times the stated bound a length of this arm may be off: 1 up to
+        :data:`REFERENCE_REACH`, the reach over it beyond."""
+        return max(1.0, self.reach / REFERENCE_REACH)
 
 
 @dataclass
@@ -183,6 +223,16 @@ class Sensitivities:
     def rows_d(self) -> np.ndarray:
         return self._f.axes[1:, 2]
 
+    @cached_property
+    def rows_joint(self) -> np.ndarray:
+        """d p / d q_j (6, 3, N), the controller's joint angles: ``rows_theta`` where each joint
+        is its own, through the coupling (``theta = C q``) where joints are coupled. What a
+        joint-angle effect, which moves the controller's angle, writes its columns from."""
+        C = self.state.chain.coupling
+        if C is None:
+            return self.rows_theta
+        return np.einsum("ij,ixn->jxn", C, self.rows_theta)
+
     def _base_rotation_columns(self) -> tuple[np.ndarray, np.ndarray]:
         """J_l(r) of the base rotation as columns (3 j, 3, 1 or N) and the base translation
         (3, 1 or N), of each pose's station."""
@@ -214,6 +264,7 @@ class Sensitivities:
     d_beta = property(lambda self: self.rows_beta.transpose(2, 1, 0))
     d_a = property(lambda self: self.rows_a.transpose(2, 1, 0))
     d_theta = property(lambda self: self.rows_theta.transpose(2, 1, 0))
+    d_joint = property(lambda self: self.rows_joint.transpose(2, 1, 0))
     d_d = property(lambda self: self.rows_d.transpose(2, 1, 0))
     d_base = property(lambda self: self.base_cols.transpose(2, 1, 0))
     d_tool = property(lambda self: self.tool_cols.transpose(2, 1, 0))

@@ -399,19 +399,20 @@ class ErrorModel:
 
     def joint_jacobian(self, inputs: ModelInputs, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Measured points (N, 3) and their derivatives by the effective joint angles theta
-        (N, 3, 6), in the measurement frame: the step direction of inverse kinematics on the
-        calibrated model (:func:`arm.ik.solve_position`)."""
+        (N, 3, 6, the controller's angles where joints are coupled), in the measurement frame:
+        the step direction of inverse kinematics on the calibrated model
+        (:func:`arm.ik.solve_position`)."""
         st, f = self._evaluate(inputs, np.asarray(p, dtype=float))
         point = self._point(st, f, inputs.target)
         sens = Sensitivities(st, f, point, None, self._pose_stations(inputs))
-        return point.T.copy(), np.ascontiguousarray(sens.d_theta)
+        return point.T.copy(), np.ascontiguousarray(sens.d_joint)
 
     def joint_turns(self, inputs: ModelInputs, p: np.ndarray) -> np.ndarray:
         """The tool frame's rotation by each effective joint angle (N, 3, 6): joint i's axis in
         the measurement frame (:meth:`joint_jacobian`'s companion for orientations)."""
         st, f = self._evaluate(inputs, np.asarray(p, dtype=float))
         turn = AngularSensitivities(st, f, f.o[6], None, self._pose_stations(inputs))
-        return np.ascontiguousarray(turn.d_theta)
+        return np.ascontiguousarray(turn.d_joint)
 
     def joint_pose_jacobian(
         self, inputs: ModelInputs, p: np.ndarray
@@ -430,8 +431,8 @@ class ErrorModel:
         return (
             point.T.copy(),
             R,
-            np.ascontiguousarray(sens.d_theta),
-            np.ascontiguousarray(turn.d_theta),
+            np.ascontiguousarray(sens.d_joint),
+            np.ascontiguousarray(turn.d_joint),
         )
 
     def _numeric_columns(self, inputs: ModelInputs, p: np.ndarray, sl: slice) -> np.ndarray:

@@ -64,7 +64,7 @@ import numpy as np
 
 from arm.description import RobotDescription
 from arm.errors import IKError
-from arm.kinematics import Chain, link_frames
+from arm.kinematics import Chain, by_joint, link_frames
 from arm.so3 import rot_x, rot_y, rot_z, rotation_vector
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -263,7 +263,7 @@ def solve_pose(
         J = np.empty((q.shape[0], 6, 6))
         J[:, :3] = np.cross(f.z, p[:, None, :] - f.o[:, 1:]).transpose(0, 2, 1)
         J[:, 3:] = f.z.transpose(0, 2, 1)
-        return pose_error(T, T_target[idx]), J
+        return pose_error(T, T_target[idx]), by_joint(chain, J)
 
     res = _levenberg_marquardt(residual, q0, robot.lower, robot.upper, tol, max_iter, damping)
     return IKResult(*(x[0] for x in res)) if single else res
@@ -294,7 +294,7 @@ def solve_point(
         f = link_frames(chain, q)
         p = f.point(point)
         J = np.cross(f.z, p[:, None, :] - f.o[:, 1:]).transpose(0, 2, 1)
-        return target_xyz[idx] - p, J
+        return target_xyz[idx] - p, by_joint(chain, J)
 
     res = _levenberg_marquardt(residual, q0, m.lower, m.upper, tol, max_iter, damping)
     return IKResult(*(x[0] for x in res)) if single else res
@@ -388,6 +388,7 @@ class WristStructure:
     d6: float
     alpha: np.ndarray  # (6,)
     offset: np.ndarray  # (6,) theta offsets
+    uncouple: np.ndarray | None = None  # (6, 6) the coupling's inverse: q = C^-1 (theta - offset)
 
 
 def _deviations(chain: Chain) -> dict[str, float]:
@@ -448,6 +449,7 @@ def _structure(chain: Chain) -> WristStructure:
         d6=float(d[5]),
         alpha=np.array(al, dtype=float),
         offset=np.array(chain.theta_offset, dtype=float),
+        uncouple=None if chain.coupling is None else np.linalg.inv(chain.coupling),
     )
 
 
@@ -513,6 +515,8 @@ def _branches(
                 theta[:, k] = np.stack([th1, th2, th3, th4, th5, th6], axis=-1)
                 ok[:, k] = okA & okC & ok5
                 k += 1
+    if ws.uncouple is not None:  # the DH table's angles to the controller's
+        return _wrap((theta - ws.offset) @ ws.uncouple.T), ok
     return _wrap(theta - ws.offset), ok
 
 
@@ -608,7 +612,7 @@ class InverseKinematics:
             J = np.empty((qq.shape[0], 6, 6))
             J[:, :3] = np.cross(f.z, f.o[:, 6:7] - f.o[:, 1:]).transpose(0, 2, 1)
             J[:, 3:] = f.z.transpose(0, 2, 1)
-            return pose_error(_homogeneous(f.R[:, 6], f.o[:, 6]), T6[idx]), J
+            return pose_error(_homogeneous(f.R[:, 6], f.o[:, 6]), T6[idx]), by_joint(chain, J)
 
         return _levenberg_marquardt(residual, q, -big, big, tol, max_iter, damping)
 

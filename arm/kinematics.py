@@ -3,7 +3,9 @@
 Row i of the chain is ``RotX(alpha_{i-1}) RotY(beta_{i-1}) TransX(a_{i-1}) RotZ(theta_i) TransZ(d_i)``
 with ``theta_i = q_i + theta_offset_i`` (``beta`` is Hayati's parameter, zero on a nominal arm).
 Every function takes joint angles ``q`` of shape (N, 6) (or (6,)) and broadcasts the chain's
-arrays, which are (6,) or, for per-pose lengths such as thermal growth, (N, 6).
+arrays, which are (6,) or, for per-pose lengths such as thermal growth, (N, 6). The angles are the
+controller's: where the arm's joints are coupled (FANUC's J3 measured from the horizon), the
+chain's ``coupling`` turns them into the DH table's, ``theta = C q + theta_offset``.
 
 The tool-point FK transforms the point backwards through the six rows (about 15 flops a row, one
 ``sin``/``cos`` per joint per batch); :func:`link_frames` builds all frames for Jacobians.
@@ -24,6 +26,7 @@ __all__ = [
     "ColumnFrames",
     "Frames",
     "Workspace",
+    "by_joint",
     "column_frames",
     "cross_columns",
     "geometric_jacobian",
@@ -42,6 +45,9 @@ class Chain:
     beta: np.ndarray
     d: np.ndarray
     theta_offset: np.ndarray
+    # the joints' linear coupling (6, 6): theta_DH = coupling @ q + theta_offset, q the
+    # controller's angles (RobotDescription.coupling_matrix); None where each joint is its own
+    coupling: np.ndarray | None = None
 
     @classmethod
     def from_description(cls, robot: RobotDescription) -> Chain:
@@ -52,6 +58,7 @@ class Chain:
             beta=m.column("beta"),
             d=m.column("d"),
             theta_offset=m.column("theta_offset"),
+            coupling=m.coupling_matrix if m.couplings else None,
         )
 
     def replace(self, **kw) -> Chain:
@@ -65,7 +72,10 @@ def _rows(x: np.ndarray) -> np.ndarray:
 
 
 def _angles(chain: Chain, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    th = np.ascontiguousarray(np.atleast_2d(q).T) + _rows(chain.theta_offset)
+    qt = np.atleast_2d(q).T
+    if chain.coupling is not None:  # the controller's angles to the DH table's
+        qt = chain.coupling @ qt
+    th = np.ascontiguousarray(qt) + _rows(chain.theta_offset)
     return np.cos(th), np.sin(th)
 
 
@@ -278,7 +288,8 @@ def cross_columns(u: np.ndarray, v: np.ndarray, out: np.ndarray | None = None) -
 def geometric_jacobian(chain: Chain, q: np.ndarray, point: np.ndarray) -> np.ndarray:
     """The geometric Jacobian (N, 6, 6) of ``point`` (in the last frame): rows (v; omega).
 
-    ``J[:, :3, i] = z_i x (p - o_i)``, ``J[:, 3:, i] = z_i``, all in the base frame.
+    ``J[:, :3, i] = z_i x (p - o_i)``, ``J[:, 3:, i] = z_i``, all in the base frame; by the
+    controller's angles where joints are coupled (:func:`by_joint`).
     """
     q = np.asarray(q, dtype=float)
     single = q.ndim == 1
@@ -288,7 +299,14 @@ def geometric_jacobian(chain: Chain, q: np.ndarray, point: np.ndarray) -> np.nda
     J = np.empty((z.shape[0], 6, 6))
     J[:, :3, :] = np.cross(z, p[:, None, :] - f.o[:, 1:]).transpose(0, 2, 1)
     J[:, 3:, :] = z.transpose(0, 2, 1)
+    J = by_joint(chain, J)
     return J[0] if single else J
+
+
+def by_joint(chain: Chain, J: np.ndarray) -> np.ndarray:
+    """Derivatives by the DH angles (..., 6 columns) as derivatives by the controller's angles:
+    ``J C`` where the chain's joints are coupled, ``J`` itself otherwise."""
+    return J if chain.coupling is None else J @ chain.coupling
 
 
 TORQUE_BLOCK = 4096  # poses per block of gravity_torques

@@ -11,6 +11,8 @@ parser of the catalogue's parameter names (their grammar is in docs/format.md).
     trx try trz                       the tool frame's rotation (where an orientation is measured)
     c{i} ts{i} tc{i} g{i} bl{i} lb{i} per-joint effects (i = 1..6)
     cs{i}_{k} cc{i}_{k}               a cyclic error of order k (k per turn) of joint i
+    lc{i}_{x|y|z}{k}                  joint i's gravity deflection from link k's first moment
+                                      along x, y or z (lumped_compliance)
     kappa                             thermal expansion
 
 Any other name belongs to a user's effect.
@@ -135,6 +137,7 @@ _GRAMMAR = re.compile(
     r"|(?P<turn>trx|try|trz)"
     r"|(?P<tool>tx|ty|tz)(?P<target>[0-9]*)"
     r"|(?P<cyclic>cs|cc)(?P<cyclic_i>[1-6])_(?P<order>[1-9][0-9]*)"
+    r"|(?P<lumped>lc)(?P<lumped_i>[1-6])_(?P<link_axis>[xyz][1-6])"
     r"|(?P<joint>ts|tc|bl|lb|c|g)(?P<joint_i>[1-6])"
     r"|(?P<global>kappa)"
 )
@@ -163,6 +166,7 @@ _UNITS = {
     "tc": "rad",
     "cs": "rad",
     "cc": "rad",
+    "lc": "rad",
     "g": "1",
     "bl": "rad",
     "lb": "rad",
@@ -222,6 +226,8 @@ def parse_parameter_name(name: str) -> ParameterName | None:
         return ParameterName(name, "tool", g["tool"], int(g["target"]) if g["target"] else None)
     if g["cyclic"] is not None:
         return ParameterName(name, "joint", g["cyclic"], int(g["cyclic_i"]), int(g["order"]))
+    if g["lumped"] is not None:
+        return ParameterName(name, "joint", "lc", int(g["lumped_i"]))
     if g["joint"] is not None:
         return ParameterName(name, "joint", g["joint"], int(g["joint_i"]))
     return ParameterName(name, "global", g["global"])

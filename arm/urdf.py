@@ -110,6 +110,9 @@ class UrdfArm:
     link_offsets: np.ndarray
     origins: np.ndarray
     gravity: np.ndarray
+    # <coupling joint="joint3" on="joint2" factor="-1"/> under <robot>: (joint, on, factor) by
+    # the arm's joint numbers 1..6, theta_joint = q_joint + factor q_on
+    couplings: tuple[tuple[int, int, float], ...] = ()
 
 
 # -- small transforms -------------------------------------------------------------------------------
@@ -338,11 +341,36 @@ def read_urdf(
         link_offsets=offsets,
         origins=np.array([_origin(j, src) for j in joints]),
         gravity=R_anchor_0.T @ np.array(GRAVITY),
+        couplings=_couplings(text, [j.name for j in joints], src),
     )
     log.info(
         "%s: arm %r from %r to %r, joints %s", src, arm.name, base, tip, ", ".join(arm.joint_names)
     )
     return arm
+
+
+def _couplings(text: str, names: Sequence[str], src: str) -> tuple[tuple[int, int, float], ...]:
+    """The ``<coupling joint= on= factor=/>`` elements under ``<robot>`` (an extension of this
+    project: URDF itself has no additive coupling of two actuated joints, and its readers skip
+    an element they do not know), by the arm's joint numbers."""
+    from lxml import etree
+
+    root = etree.fromstring(text.encode("utf-8"), parser=etree.XMLParser(resolve_entities=False))
+    out = []
+    for el in root.findall("coupling"):
+        joint, on, factor = (el.get(k) for k in ("joint", "on", "factor"))
+        where = f"{src}: <coupling joint={joint!r} on={on!r}>"
+        for jn in (joint, on):
+            if jn not in names:
+                raise UrdfError(
+                    f"{where}: {jn!r} is not one of the arm's joints ({', '.join(names)})"
+                )
+        try:
+            value = float(factor if factor is not None else "")
+        except ValueError:
+            raise UrdfError(f"{where}: factor {factor!r} is not a number") from None
+        out.append((names.index(joint) + 1, names.index(on) + 1, value))
+    return tuple(out)
 
 
 def _read_text(source: str | Path) -> str:
@@ -647,12 +675,14 @@ def urdf_of_chain(
     masses: np.ndarray,
     coms: np.ndarray,
     flange: np.ndarray | None = None,
+    couplings: Sequence[tuple[int, int, float]] = (),
 ) -> str:
     """A URDF of a modified-DH chain: links ``base_link`` (frame 0), ``link1`` .. ``link6`` (the
     DH frames), ``flange`` (frame 6 . ``flange``, fixed), revolute joints ``joint1`` .. ``joint6``
     about their z with the rows as origins (``RotX(alpha) RotY(beta) TransX(a) RotZ(theta_offset)
     TransZ(d)``, every float to its last bit), the links' masses at their centres of mass (point
-    masses: a DH table carries no inertia). :func:`read_urdf` of it is the same chain."""
+    masses: a DH table carries no inertia), and the joints' couplings as ``<coupling joint on
+    factor/>`` elements. :func:`read_urdf` of it is the same chain."""
     F = np.eye(4) if flange is None else np.asarray(flange, dtype=float)
     out = ['<?xml version="1.0" encoding="utf-8"?>', f'<robot name="{name}">']
 
@@ -696,5 +726,7 @@ def urdf_of_chain(
         )
     link("flange")
     joint("flange_joint", "fixed", "link6", "flange", F)
+    for jn, on, factor in couplings:
+        out.append(f'  <coupling joint="joint{jn}" on="joint{on}" factor="{float(factor)!r}"/>')
     out.append("</robot>")
     return "\n".join(out) + "\n"

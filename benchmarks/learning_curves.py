@@ -211,6 +211,67 @@ def pilot_sections(folder: Path) -> list[str]:
     return lines
 
 
+#: training seeds per learned agent (rliable's minimum for an interval over seeds)
+SEEDS_PER_AGENT = 5
+#: the tuning grid of benchmarks/ppo_tuning.py: points x steps each
+TUNING_STEPS = 9 * 200_000
+
+
+def cost_lines(table: list[dict], seeds: int = SEEDS_PER_AGENT) -> list[str]:
+    """What ``seeds`` training seeds of each policy cost, from the wall times of its measured
+    seeds (each run alone on a core of two shared ones), and the tuning grid of the plain
+    policy at its measured steps/s."""
+    lines = [
+        "",
+        f"## The cost of {seeds} seeds per agent",
+        "",
+        f"Estimated from the measured runs above: {seeds} x the wall time of a seed (its range "
+        "over the seeds measured), one run per core; two at a time on the 2 cores halves the "
+        "wall clock, not the CPU. The plain policy's patience rule (`ppo-observe.toml`) can end "
+        "a seed sooner than its cap; the figures are for the whole budget.",
+        "",
+        f"| policy | seeds measured | wall time a seed (min) | {seeds} seeds, CPU (h) | "
+        f"{seeds} seeds, two at a time (h) |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    total_lo = total_hi = 0.0
+    for name in dict.fromkeys(r["name"] for r in table):
+        walls = [float(r["wall_s"]) for r in table if r["name"] == name]
+        lo, hi = min(walls), max(walls)
+        total_lo, total_hi = total_lo + seeds * lo, total_hi + seeds * hi
+        lines.append(
+            f"| {name} | {len(walls)} | {_span(lo / 60, hi / 60, '.0f')} | "
+            f"{_span(seeds * lo / 3600, seeds * hi / 3600)} | "
+            f"{_span(seeds * lo / 7200, seeds * hi / 7200)} |"
+        )
+    plain = [float(r["steps_per_s"]) for r in table if r["name"] == "ppo"]
+    lines += [
+        "",
+        f"In all: {total_lo / 3600:.1f}-{total_hi / 3600:.1f} h of CPU, "
+        f"{total_lo / 7200:.1f}-{total_hi / 7200:.1f} h on the 2 cores.",
+    ]
+    if plain:
+        lo, hi = TUNING_STEPS / max(plain) / 3600, TUNING_STEPS / min(plain) / 3600
+        lines.append(
+            f"The tuning grid of the plain policy (`benchmarks/ppo_tuning.py`: 3 gammas x 3 "
+            f"learning rates x 200k steps) at its measured {min(plain):.0f}-{max(plain):.0f} "
+            f"steps/s: {lo:.1f}-{hi:.1f} h of CPU, {lo / 2:.1f}-{hi / 2:.1f} h with `--jobs 2`."
+        )
+    lines.append(
+        "`ppo-observe.toml` caps a seed at 2.4M steps, twice the plain policy's measured 1.2M: "
+        "up to twice its row if the patience rule never ends it. A session of 3 hours fits one "
+        "agent's seeds two at a time (the plain policy's over two sessions: `--stop-at` and "
+        "`--resume`, with the checkpoints kept outside the repository)."
+    )
+    return lines
+
+
+def _span(lo: float, hi: float, fmt: str = ".1f") -> str:
+    """``lo-hi`` as printed, or one number where both print the same."""
+    a, b = format(lo, fmt), format(hi, fmt)
+    return a if a == b else f"{a}-{b}"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("names", nargs="*", default=["ppo-residual", "sac-residual", "ppo"])
@@ -344,6 +405,7 @@ def main() -> None:
         )
     total = sum(r["wall_s"] for r in table)
     lines += ["", f"Training wall time in all: {total / 3600:.2f} h (2 shared CPU cores)."]
+    lines += cost_lines(table)
     lines += resume_lines([r for name in args.names for r in gather(args.runs, name)])
     lines += pilot_sections(args.out / "pilots")
     atomic_write_text(args.out / "README.md", "\n".join(lines) + "\n")

@@ -45,7 +45,7 @@ def _episode(job: tuple[str, str, str, int]) -> tuple[str, str, int, dict[str, f
     from agents.training import EPISODE_SECONDS, LEADERBOARD_ENV, SETTLE_SECONDS
     from experiments.metrics import episode_metrics
 
-    agent = make_agent(what) if what in REFERENCES else PolicyAgent(label, path=what)
+    agent = make_agent(what) if what in REFERENCES else PolicyAgent(path=what, name=label)
     env = dict(LEADERBOARD_ENV) | {"scenario": scenario}
     r = run_episode(agent, env, seed=seed, episode_seconds=EPISODE_SECONDS)
     m, _ = episode_metrics(r, METRICS, settle_seconds=SETTLE_SECONDS)

@@ -287,6 +287,11 @@ class Plant:
         self.nominal = robot.to_modified()
         if not self.nominal.has_mass_model:
             raise PlantError(f"robot {robot.name!r} has no masses: the plant needs a mass model")
+        if self.nominal.couplings:
+            raise PlantError(
+                f"robot {robot.name!r} has coupled joints ({len(self.nominal.couplings)}): the "
+                "MuJoCo plant drives each joint on its own and does not represent them"
+            )
         self.elastic = bool(elastic)
         self.physics_dt = float(physics_dt)
         self.substeps = int(substeps)

@@ -71,15 +71,21 @@ def _outside_observation(overrides: Any) -> str | None:
     return None
 
 
-def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any) -> gym.Env:
+def make_env(
+    interface: str = "joint",
+    tool_step_mm: float = 5.0,
+    observe: Sequence[str] = (),
+    **kwargs: Any,
+) -> gym.Env:
     """``SixAxisTrack-v0`` as ``gym.make`` builds it: the env in a ``TimeLimit`` of its own
     ``episode_seconds`` (500 steps by default), so that the episode and the limit agree.
     ``interface="tool"`` puts the operational-space interface around it
     (:class:`envs.wrappers.ToolDisplacementAction`: a tool displacement of up to ``tool_step_mm``
-    mm per step and axis, relative observations in mm); ``"joint"`` (the default) is the env's
-    own, normalised joint velocities. ``make_env.env_class`` is the env's class (its options,
-    ``check_options``)."""
-    from envs.wrappers import INTERFACES, ToolDisplacementAction
+    mm per step and axis, relative observations in mm, followed by the env's own readings that
+    ``observe`` names: ``"joints"``, ``"payload"``, ``"temperature"``); ``"joint"`` (the default)
+    is the env's own, normalised joint velocities. ``make_env.env_class`` is the env's class (its
+    options, ``check_options``)."""
+    from envs.wrappers import INTERFACES, OBSERVABLE, ToolDisplacementAction
 
     problems = {}
     for key, value, constraint in (
@@ -88,6 +94,11 @@ def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any)
     ):
         if not constraint.holds(value):
             problems[key] = f"expected {description(constraint)}, got {value!r}"
+    names = list(observe) if isinstance(observe, list | tuple) else None
+    if names is None or any(n not in OBSERVABLE for n in names) or len(set(names)) < len(names):
+        problems["observe"] = f"expected distinct names of {', '.join(OBSERVABLE)}, got {observe!r}"
+    elif names and interface != "tool":
+        problems["observe"] = "is an option of the tool interface (interface='tool')"
     if problems:
         raise EnvOptionError(
             "SixAxisTrack-v0: " + "; ".join(f"{k}: {m}" for k, m in problems.items())
@@ -95,7 +106,7 @@ def make_env(interface: str = "joint", tool_step_mm: float = 5.0, **kwargs: Any)
     env = SixAxisTrackEnv(**kwargs)
     limited = TimeLimit(env, env.episode_steps)
     if interface == "tool":
-        return ToolDisplacementAction(limited, float(tool_step_mm))
+        return ToolDisplacementAction(limited, float(tool_step_mm), observe=tuple(observe))
     return limited
 
 
@@ -282,6 +293,31 @@ class SixAxisTrackEnv(gym.Env):
     and 0-0.5 kg off (drawn per episode; ``overrides={"payload": {"declare_delay": 0,
     "declare_error": 0}}`` declares it at once and right), so a controller must notice the change
     in its measurements.
+
+    ## The tool interface
+    ``gym.make("SixAxisTrack-v0", interface="tool", tool_step_mm=5.0, observe=[...])``
+    (:class:`envs.wrappers.ToolDisplacementAction`): the action ``Box(-1, 1, (3,))`` is a tool
+    displacement of up to ``tool_step_mm`` mm per step and axis; the observation is relative and
+    not normalised. Each index has a declared fixed scale (the wrapper's ``feature_offset`` and
+    ``feature_scale``): ``(obs - offset) / scale`` is of order 1, and is what the trainer feeds
+    its networks (``obs_normalization = "fixed"``) and saves with the policy.
+
+    | Num   | Observation                                            | Min        | Max        | Name (obs_slices) | Unit  | Offset | Scale   |
+    |-------|--------------------------------------------------------|------------|------------|-------------------|-------|--------|---------|
+    | 0-2   | reference minus the tool point as the nominal model,   | -1e4       | 1e4        | tracking_error    | mm    | 0      | 1       |
+    |       | corrected by the last measured model error, places it |            |            |                   |       |        |         |
+    | 3-32  | the next 10 references minus the reference now         | -1e4       | 1e4        | preview           | mm    | 0      | step_mm |
+    | 33-35 | model error at the last measurement (0 before one)     | -1e4       | 1e4        | model_error       | mm    | 0      | 1       |
+    | 36    | its age, capped at 1 (1 before the first)              | 0          | 1          | model_error_age   | s     | 0      | 0.1     |
+    | 37-39 | the last action                                        | -1         | 1          | previous_action   | 1     | 0      | 1       |
+    | 40-45 | ``"joints"``: encoder angles of axes 1-6               | lower - pi | upper + pi | q                 | rad   | 0      | 1       |
+    | 46-51 | ``"joints"``: encoder velocities of axes 1-6           | -100       | 100        | qd                | rad/s | 0      | 1       |
+    | 52    | ``"payload"``: payload, as the operator declared it    | 0          | 100        | payload           | kg    | 0      | 1       |
+    | 53    | ``"temperature"``: arm temperature, as its sensor reads | -50       | 200        | temperature       | degC  | 20     | 5       |
+
+    (indices for ``preview_steps=10`` and ``observe=["joints", "payload", "temperature"]``; the
+    parts of ``observe`` come in this order, whatever the order given, and one left out shifts
+    those after it.)
 
     ## Rewards
     ``reward = reward_tracking + reward_jerk`` with ``reward_tracking = -|p_true - p_ref|`` in mm

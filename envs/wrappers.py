@@ -38,21 +38,36 @@ import numpy as np
 
 from arm.constraints import POSITIVE, check, refuse
 from arm.description import RobotDescription
+from arm.effects import REFERENCE_TEMPERATURE
 from arm.kinematics import Chain
 from envs.errors import ActionError, EnvOptionError, EnvStateError
 
 __all__ = [
     "INTERFACES",
     "MAX_ERROR_AGE",
+    "OBSERVABLE",
     "NominalKinematics",
     "NominalToolObservation",
     "ToolDisplacement",
     "ToolDisplacementAction",
+    "nominal_reach",
     "nominal_tool_point",
+    "observed",
 ]
 
 #: the interfaces ``gym.make("SixAxisTrack-v0", interface=...)`` offers
 INTERFACES = ("joint", "tool")
+#: what the tool interface may observe beyond its relative quantities (``observe=``): the joints
+#: (encoder angles and velocities), the declared payload, the temperature sensor's reading; the
+#: parts follow ``previous_action`` in this order, whatever the order asked for
+OBSERVABLE = ("joints", "payload", "temperature")
+#: the env's own observation parts each of them appends, with the fixed scale (offset, scale) a
+#: learner divides them by: ``(x - offset) / scale`` is of order 1 (rad, rad/s, kg, degC)
+_OBSERVED_PARTS: dict[str, tuple[tuple[str, int, float, float], ...]] = {
+    "joints": (("q", 6, 0.0, 1.0), ("qd", 6, 0.0, 1.0)),
+    "payload": (("payload", 1, 0.0, 1.0),),
+    "temperature": (("temperature", 1, REFERENCE_TEMPERATURE, 5.0),),
+}
 #: s, the age of the model error observed before the first measurement (and the cap of any age)
 MAX_ERROR_AGE = 1.0
 MM = 1e3
@@ -168,12 +183,37 @@ class NominalKinematics:
         return (x, y, w), (r0, r1, r2)
 
 
+def nominal_reach(robot: RobotDescription, target: int = 0) -> float:
+    """A bound of the distance from the base's origin to the nominal tool point at any joint
+    angles, m: the sum of every link's offsets and the tool's (the triangle inequality)."""
+    kin = NominalKinematics(robot, target)
+    links = sum(abs(r[9]) + abs(r[10]) + abs(r[11]) for r in kin.rows)  # TransX(a) shifts
+    return float(links + sum(abs(d) for d in kin.d) + math.hypot(*kin.tool))
+
+
 def nominal_tool_point(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
     """The nominal model's tool point (3,) m at encoder angles ``q`` (6,)."""
     return NominalKinematics(robot).point(q)
 
 
 # --------------------------------------------------------------------------------------------------
+def observed(observe: Any) -> tuple[str, ...]:
+    """``observe`` (names of :data:`OBSERVABLE`, any order) in the interface's order; an unknown
+    or repeated name is an :class:`EnvOptionError` naming it."""
+    if isinstance(observe, str) or not isinstance(observe, tuple | list):
+        raise EnvOptionError(
+            f"observe must be a list of names from {', '.join(OBSERVABLE)}, got {observe!r}"
+        )
+    for name in observe:
+        if name not in OBSERVABLE:
+            raise EnvOptionError(
+                f"observe: unknown part {name!r}; the tool interface observes {', '.join(OBSERVABLE)}"
+            )
+    if len(set(observe)) != len(observe):
+        raise EnvOptionError(f"observe: {list(observe)} names a part twice")
+    return tuple(name for name in OBSERVABLE if name in observe)
+
+
 class ToolDisplacement:
     """The operational-space interface as a pure function of the env's observation and
     controller info, for one episode: :meth:`observe` each step (the policy's observation, mm),
@@ -188,16 +228,34 @@ class ToolDisplacement:
     servo's rate limit: what the plant would do to the command anyway, applied before it so the
     direction is kept as far as it can be) and stopped at a joint limit.
 
-    The observation (mm unless said; ``obs_slices`` names each part):
+    The observation (``obs_slices`` names each part; ``low``/``high`` its bounds, ``feature_offset``
+    and ``feature_scale`` the fixed scales a learner normalises it by, ``(x - offset) / scale``,
+    which the trainer uses and saves with the policy):
 
-    | name                | size | what                                                          |
-    |---------------------|------|---------------------------------------------------------------|
-    | `tracking_error`    | 3    | r - (x_nom(q) + e): the reference minus the tool point as the |
-    |                     |      | nominal model corrected by the last measurement places it     |
-    | `preview`           | 3P   | the next P references minus the reference now                 |
-    | `model_error`       | 3    | e = y - x_nom(q_y) at the last tracker measurement y (0 before one) |
-    | `model_error_age`   | 1    | its age, s, capped at 1 (1 before the first measurement)      |
-    | `previous_action`   | 3    | the last action, in [-1, 1]                                   |
+    | name                | size | what                                                  | unit  | offset | scale   |
+    |---------------------|------|-------------------------------------------------------|-------|--------|---------|
+    | `tracking_error`    | 3    | r - (x_nom(q) + e): the reference minus the tool point | mm   | 0      | 1       |
+    |                     |      | as the nominal model corrected by the last measurement |      |        |         |
+    |                     |      | places it                                              |      |        |         |
+    | `preview`           | 3P   | the next P references minus the reference now         | mm    | 0      | step_mm |
+    | `model_error`       | 3    | e = y - x_nom(q_y) at the last tracker measurement y  | mm    | 0      | 1       |
+    |                     |      | (0 before one)                                        |       |        |         |
+    | `model_error_age`   | 1    | its age, capped at 1 (1 before the first measurement) | s     | 0      | 0.1     |
+    | `previous_action`   | 3    | the last action, in [-1, 1]                           | 1     | 0      | 1       |
+
+    With ``observe`` (any of :data:`OBSERVABLE`), the env's own readings follow, in its units
+    (``obs_slices`` names them as the env does; bounds: the env's):
+
+    | observe         | name          | size | what                                    | unit  | offset | scale |
+    |-----------------|---------------|------|-----------------------------------------|-------|--------|-------|
+    | `"joints"`      | `q`           | 6    | encoder angles (motor side)             | rad   | 0      | 1     |
+    |                 | `qd`          | 6    | encoder velocities                      | rad/s | 0      | 1     |
+    | `"payload"`     | `payload`     | 1    | the payload as the operator declared it | kg    | 0      | 1     |
+    | `"temperature"` | `temperature` | 1    | the arm's temperature sensor's reading  | degC  | 20     | 5     |
+
+    Without them the policy cannot tell the configuration-, load- and temperature-dependent
+    errors the scenarios hide from one another: only the tracker's model error, as it was at the
+    last measurement.
 
     The true tool point is about ``x_nom(q) + e`` (what ``feedforward`` tracks with), so the
     tracking error is the best estimate of the true one the agent has, and ``a = (p_1 + gain * t)
@@ -207,11 +265,18 @@ class ToolDisplacement:
     the same point; trained policies missed by 10-15 % of the model error, 0.3-0.5 mm.)
     """
 
-    def __init__(self, task: Any, step_mm: float = 5.0, damping: float = 1e-3) -> None:
+    def __init__(
+        self,
+        task: Any,
+        step_mm: float = 5.0,
+        damping: float = 1e-3,
+        observe: tuple[str, ...] | list[str] = (),
+    ) -> None:
         refuse(
             check({"tool_step_mm": step_mm}, {"tool_step_mm": ([TOOL_STEP_MM], False)}),
             EnvOptionError,
         )
+        self.observe_parts = observed(observe)
         self.task = task
         self.step_mm = float(step_mm)
         self.damping = float(damping)
@@ -228,12 +293,14 @@ class ToolDisplacement:
         self._v_max = self.v_max.tolist()
         self._dv = self.dv.tolist()
         self._lower, self._upper = self.q_lower.tolist(), self.q_upper.tolist()
+        extra = [part for name in self.observe_parts for part in _OBSERVED_PARTS[name]]
         sizes = (
             ("tracking_error", 3),
             ("preview", 3 * self.P),
             ("model_error", 3),
             ("model_error_age", 1),
             ("previous_action", 3),
+            *((name, n) for name, n, _, _ in extra),
         )
         self.obs_slices: dict[str, slice] = {}
         k = 0
@@ -242,17 +309,25 @@ class ToolDisplacement:
             k += n
         self.obs_size = k
         self._age = self.obs_slices["model_error_age"].start
-        high = np.full(k, _LENGTH_BOUND_MM)
+        self._action_end = self.obs_slices["previous_action"].stop
+        #: (where in this observation, where in the env's) of each of the env's parts observed
+        self._copied = [(self.obs_slices[name], sl[name]) for name, _, _, _ in extra]
+        # the env's parts are bounded by the env's own space (ToolDisplacementAction's), here not
+        high = np.full(k, np.inf)
+        high[: self._action_end] = _LENGTH_BOUND_MM
         high[self.obs_slices["model_error_age"]] = MAX_ERROR_AGE
         high[self.obs_slices["previous_action"]] = 1.0
         low = -high
         low[self.obs_slices["model_error_age"]] = 0.0
         self.low, self.high = low, high
-        #: a typical size of each feature (mm, s, 1): a learner's fixed normalisation
-        scale = np.ones(k)
+        #: a typical size of each feature (mm, s, 1, rad, rad/s, kg, K) and its centre: a
+        #: learner's fixed normalisation, ``(x - feature_offset) / feature_scale``
+        scale, offset = np.ones(k), np.zeros(k)
         scale[self.obs_slices["preview"]] = self.step_mm
         scale[self.obs_slices["model_error_age"]] = 0.1
-        self.feature_scale = scale
+        for name, _, centre, size in extra:
+            offset[self.obs_slices[name]], scale[self.obs_slices[name]] = centre, size
+        self.feature_scale, self.feature_offset = scale, offset
         self.reset()
 
     def reset(self) -> None:
@@ -287,7 +362,9 @@ class ToolDisplacement:
         out[sl["model_error"]] = self.error
         out[: self._age] *= MM
         out[self._age] = min(max(age, 0.0), MAX_ERROR_AGE)
-        out[self._age + 1 :] = self.prev_action
+        out[self._age + 1 : self._action_end] = self.prev_action
+        for mine, env_part in self._copied:
+            out[mine] = obs[env_part]
         return out
 
     def _measured(self, info: Mapping[str, Any], q: list[float], x: Any) -> None:
@@ -359,22 +436,41 @@ class ToolDisplacement:
         return self.joint_velocity(action) / self.v_max
 
 
-class ToolDisplacementAction(gym.Wrapper):
+class ToolDisplacementAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """SixAxisTrack-v0 with the operational-space interface of :class:`ToolDisplacement`: the
     action ``Box(-1, 1, (3,))`` is a tool displacement of up to ``step_mm`` mm per step and axis,
     the observation ``Box(low, high, (10 + 3P,), float32)`` the relative quantities in mm that
-    :class:`ToolDisplacement` lists (``obs_slices`` names them). Reward, episode end and ``info``
+    :class:`ToolDisplacement` lists (``obs_slices`` names them), followed by the env's own
+    readings ``observe`` asks for (:data:`OBSERVABLE`, within the env's bounds). The observation
+    is not normalised: ``feature_offset`` and ``feature_scale`` are the fixed scales a learner
+    divides it by (``(obs - offset) / scale``, the trainer's). Reward, episode end and ``info``
     are the env's (its jerk penalty is on the joint-velocity command the interface sends)."""
 
-    def __init__(self, env: gym.Env, step_mm: float = 5.0, damping: float = 1e-3) -> None:
+    def __init__(
+        self,
+        env: gym.Env,
+        step_mm: float = 5.0,
+        damping: float = 1e-3,
+        observe: tuple[str, ...] | list[str] = (),
+    ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(
+            self, step_mm=step_mm, damping=damping, observe=tuple(observe)
+        )
         super().__init__(env)
-        self.interface = ToolDisplacement(env.unwrapped.task, step_mm, damping)  # type: ignore[attr-defined]
+        task = env.unwrapped.task  # type: ignore[attr-defined]
+        self.interface = ToolDisplacement(task, step_mm, damping, observe)
         self.obs_slices = dict(self.interface.obs_slices)
+        self.feature_offset = self.interface.feature_offset.copy()
+        self.feature_scale = self.interface.feature_scale.copy()
+        low, high = self.interface.low.copy(), self.interface.high.copy()
+        base = env.observation_space
+        assert isinstance(base, gym.spaces.Box)
+        for name in self.interface.obs_slices:
+            if name in task.obs_slices and not np.isfinite(high[self.obs_slices[name]]).all():
+                low[self.obs_slices[name]] = base.low[task.obs_slices[name]]
+                high[self.obs_slices[name]] = base.high[task.obs_slices[name]]
         self.observation_space = gym.spaces.Box(
-            self.interface.low.astype(np.float32),
-            self.interface.high.astype(np.float32),
-            (self.interface.obs_size,),
-            np.float32,
+            low.astype(np.float32), high.astype(np.float32), (self.interface.obs_size,), np.float32
         )
         self.action_space = gym.spaces.Box(-1.0, 1.0, (3,), np.float32)
 
@@ -391,11 +487,14 @@ class ToolDisplacementAction(gym.Wrapper):
         return self.interface.clipped(self.interface.observe(obs, info)).astype(np.float32)
 
 
-class NominalToolObservation(gym.ObservationWrapper):
+class NominalToolObservation(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     """SixAxisTrack-v0's observation followed by ``tool_nominal``, ``ref_minus_tool`` and
-    ``preview_minus_tool`` (see the module docstring); ``obs_slices`` names every part."""
+    ``preview_minus_tool`` (see the module docstring); ``obs_slices`` names every part. Its bounds
+    are finite: the nominal tool point lies within the arm's reach (:func:`nominal_reach` from
+    the base), the references within the env's bounds, and their differences within the sum."""
 
     def __init__(self, env: gym.Env) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
         super().__init__(env)
         task = env.unwrapped.task  # type: ignore[attr-defined]
         self.task = task
@@ -416,8 +515,18 @@ class NominalToolObservation(gym.ObservationWrapper):
         )
         base = env.observation_space
         assert isinstance(base, gym.spaces.Box)
-        low = np.concatenate([base.low, np.full(k - n0, -np.inf, dtype=np.float32)])
-        high = np.concatenate([base.high, np.full(k - n0, np.inf, dtype=np.float32)])
+        # the tool point within the reach of the base's origin; the references within the env's
+        # bounds: each difference within their sum (float32-safe: rounded outwards by a mm)
+        o0 = np.asarray(self.kin.o0)
+        tool_lo, tool_hi = (
+            o0 - nominal_reach(task.robot) - 1e-3,
+            o0 + nominal_reach(task.robot) + 1e-3,
+        )
+        ref_lo = np.minimum(base.low[self._ref], base.low[self._preview].reshape(-1, 3).min(0))
+        ref_hi = np.maximum(base.high[self._ref], base.high[self._preview].reshape(-1, 3).max(0))
+        diff_lo, diff_hi = ref_lo - tool_hi, ref_hi - tool_lo
+        low = np.concatenate([base.low, tool_lo, np.tile(diff_lo, 1 + P)]).astype(np.float32)
+        high = np.concatenate([base.high, tool_hi, np.tile(diff_hi, 1 + P)]).astype(np.float32)
         self.observation_space = gym.spaces.Box(low, high, (k,), np.float32)
         # the reference and its preview are one block of the env's observation: one subtraction
         self._points = slice(self._ref.start, self._preview.stop)

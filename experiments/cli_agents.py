@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
@@ -14,6 +15,8 @@ import numpy as np
 import typer
 from rich.table import Table
 
+from arm.constraints import declare
+from experiments.cli_inputs import option_of
 from experiments.cli_output import console, fail, user_errors
 
 train_app = typer.Typer(help="Train learning agents.", no_args_is_help=True)
@@ -28,6 +31,7 @@ def _train(
     ship: bool,
     resume: bool,
     stop_at: int | None = None,
+    diagnostics: Path | None = None,
 ) -> None:
     from agents.training import load_train_config, ship_policy, train
 
@@ -60,8 +64,13 @@ def _train(
         def update(n: int, total: int) -> None:
             bar.update(job, completed=n)
 
-        out = train(cfg, progress=update, resume=resume, stop_at=stop_at)
+        with user_errors():
+            out = train(
+                cfg, progress=update, resume=resume, stop_at=stop_at, diagnostics=diagnostics
+            )
     console.print(f"done in {time.perf_counter() - t0:.0f} s: {out}")
+    if diagnostics is not None:
+        console.print(f"SB3's diagnostics: {diagnostics / 'progress.csv'}")
     if ship:
         with console.status("evaluating the policy on the leaderboard's episodes..."):
             dst = ship_policy(out)
@@ -71,6 +80,24 @@ def _train(
 _CONFIG_HELP = (
     "A TOML file with a [train] table (default: experiments/configs/<algo>-residual.toml)."
 )
+
+
+@dataclass(frozen=True)
+class TrainInputs:
+    """What ``sixaxis train ppo|sac|td3`` takes beside its config, each declared once
+    (:func:`arm.constraints.declare`; the option made from it by
+    :func:`~experiments.cli_inputs.option_of`)."""
+
+    diagnostics: Path | None = declare(
+        None,
+        help="A folder for stable-baselines3's own logger: progress.csv of its standard scalars "
+        "(PPO's KL, clip fraction, entropy, explained variance, losses; SAC's and TD3's losses), "
+        "and TensorBoard event files where the tensorboard package is installed.",
+        metavar="DIR",
+    )
+
+
+TRAIN_INPUTS = TrainInputs()
 _RESUME_HELP = (
     "Continue the run in the output directory from its last checkpoint (SB3's own save, which "
     "unpickles: resume only runs you made)."
@@ -102,8 +129,11 @@ def _make_train_command(algo: str) -> None:
                 "config's total_timesteps unchanged.",
             ),
         ] = None,
+        diagnostics: Annotated[
+            Path | None, option_of(TrainInputs, "diagnostics")
+        ] = TRAIN_INPUTS.diagnostics,
     ) -> None:
-        _train(algo, config, seed, timesteps, output, ship, resume, stop_at)
+        _train(algo, config, seed, timesteps, output, ship, resume, stop_at, diagnostics)
 
     command.__doc__ = (
         f"Train {algo.upper()} (stable-baselines3) on SixAxisTrack-v0: evaluations (curve.csv), "

@@ -232,8 +232,9 @@ class LabInputs:
     effects: str = declare(
         "geometric",
         help="Effects to fit, comma separated, optionally on some joints: "
-        "geometric,compliance[2,3]. Catalogue: geometric, compliance, transmission, joint_scale, "
-        "backlash, load_backlash, thermal, cyclic with its joints and orders per turn "
+        "geometric,compliance[2,3]. Catalogue: geometric, compliance, lumped_compliance (without "
+        "a mass model), transmission, joint_scale, backlash, load_backlash, thermal, cyclic with "
+        "its joints and orders per turn "
         "(cyclic[2:17,29;4:2]), and any --effect-module defines.",
         flags=("--effects", "-e"),
     )

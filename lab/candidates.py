@@ -91,6 +91,14 @@ def candidate_model(
             skipped[e.label] = f"needs {why}"
             continue
         effects.append(e)
+    # a candidate that stands in for another where that one cannot be tested (compliance without
+    # a mass model) is not tested beside it
+    tested = {e.name for e in effects}
+    effects = [
+        e
+        for k, e in enumerate(effects)
+        if k < len(model.effects) or not e.stands_in_for or e.stands_in_for not in tested
+    ]
     full = ErrorModel(
         model.robot,
         effects,
@@ -159,8 +167,10 @@ def candidate_groups(
             continue
         if isinstance(e, JointAngleEffect):
             per: list[tuple[int, CandidateGroup]] = []
+            names = full.layout.names[full.layout.slice(e.name)]
+            joint_of = dict(zip(names, e.parameter_joints(full.robot), strict=True))
             for j in e.active_joints():
-                js = tuple(n for n in (f"{t}{j}" for t in e.terms) if n in new)
+                js = tuple(n for n in new if joint_of[n] == j)
                 if js:
                     per.append((j, CandidateGroup(e.name, (j,), js)))
             groups += [g for _, g in per]

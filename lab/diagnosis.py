@@ -88,7 +88,8 @@ from scipy.optimize import brentq
 from scipy.stats import chi2, ncx2
 
 from arm.description import RobotDescription
-from arm.effects import Cyclic, Effect, cyclic_readings, union_of
+from arm.effect_api import ArmSize
+from arm.effects import Cyclic, Effect, cyclic_readings, plausible_bound_of, union_of
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
 from lab import blocks as _blocks
@@ -469,13 +470,14 @@ class _Catalogue:
         """A function of a candidate's parameter names: its columns (the model's span
         projected out), nominal values and plausible bounds (none with ``accept_large``)."""
         full, p_full = self.full, self.full.nominal()
+        size = ArmSize.of(full.robot)
 
         def columns_of(names: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             idx = full.layout.indices(names)
             bounds = [
                 None
                 if options.accept_large
-                else full.effects[_effect_index(full, nm)].plausible_bound(nm)
+                else plausible_bound_of(full.effects[_effect_index(full, nm)], nm, size)
                 for nm in names
             ]
             return (

@@ -42,7 +42,7 @@ import numpy as np
 
 from arm.description import RobotDescription, as_robot
 from arm.effect_api import EffectError, ModelInputs
-from arm.effects import Effect, missing_inputs
+from arm.effects import EFFECTS, Effect, missing_inputs
 from arm.errormodel import ErrorModel
 from arm.errors import warn
 from arm.measurements import COMPONENTS, MeasurementSet, as_measurements
@@ -58,7 +58,12 @@ from lab.identifiability import Identifiability, analyse_jacobian
 from lab.observations import Observations, observations_of, uses_orientation
 from lab.options import LabOptions
 from lab.plausibility import Implausible, implausible, likely_cause
-from lab.registration import register_base, register_tool_rotation, tool_indices
+from lab.registration import (
+    coupling_hint,
+    register_base,
+    register_tool_rotation,
+    tool_indices,
+)
 from lab.repeatability import stated_noise_of
 from lab.result import FitResult, inputs_of, rms
 from lab.sanity import check_stated_noise
@@ -110,7 +115,13 @@ def model_of(
     for e in model.effects:
         why = missing_inputs(e, model.robot, list(data.columns))
         if why:
-            raise FitError(f"{data.source}: {e.label} cannot be fitted without {why}")
+            twin = [n for n, cls in EFFECTS.items() if cls.stands_in_for == e.name]
+            instead = (
+                f" (or fit {twin[0]}, which needs no mass model)"
+                if twin and e.needs_masses and not model.robot.has_mass_model
+                else ""
+            )
+            raise FitError(f"{data.source}: {e.label} cannot be fitted without {why}{instead}")
     return model, inputs_of(model, data)
 
 
@@ -189,16 +200,23 @@ def _warn_positions_alone(source: str) -> None:
     warn(text, OrientationNotFittedWarning)
 
 
-def _check_follows(miss: np.ndarray, source: str, effects: Sequence[str]) -> None:
+def _check_follows(miss: np.ndarray, data: MeasurementSet, model: ErrorModel) -> None:
     """Refuse a fit whose median pose misses by more than :data:`IMPLAUSIBLE_RMS` (the median,
-    not the RMS: a few gross outliers must not condemn the model)."""
+    not the RMS: a few gross outliers must not condemn the model), naming a joint coupling that
+    would explain it (:func:`lab.registration.coupling_hint`)."""
     typical_miss = float(np.median(np.linalg.norm(miss, axis=1)))
     if typical_miss > IMPLAUSIBLE_RMS:
+        hint = coupling_hint(model.robot, data.q, data.xyz)
         raise FitError(
-            f"{source}: the model cannot follow these measurements (RMS "
+            f"{data.source}: the model cannot follow these measurements (RMS "
             f"{rms(miss) * 1e3:.4g} mm, median {typical_miss * 1e3:.4g} mm after fitting "
-            f"{', '.join(effects)}); are they in other units (length in mm, angles in deg: "
-            "say so when reading) or of another robot?"
+            f"{', '.join(model.layout.effects)}); "
+            + (
+                hint
+                if hint
+                else "are they in other units (length in mm, angles in deg: say so when "
+                "reading) or of another robot?"
+            )
         )
 
 
@@ -286,7 +304,7 @@ def fit_rows(
         sigma = float(np.sqrt(np.sum(sol.residuals**2) / max(n_eq - free.sum(), 1)))
     else:
         sigma = robust_sigma(sol.residuals[obs.measured])
-    _check_follows(points(sol), data.source, lay.effects)
+    _check_follows(points(sol), data, model)
     # the residual no noise has touched yet: what judges a stated one (lab.sanity)
     stated = stated_noise_of(sol.residuals, obs.measured, obs.sigma_ref, int(free.sum()))
     if judge_noise:
@@ -441,9 +459,12 @@ def _without(J: np.ndarray, held: np.ndarray) -> np.ndarray:
     return J
 
 
-def check_plausible(result: FitResult, accept: bool) -> tuple[Implausible, ...]:
+def check_plausible(
+    result: FitResult, accept: bool, data: MeasurementSet | None = None
+) -> tuple[Implausible, ...]:
     """The identified parameters beyond the plausible bound of their kind: an error naming them
-    and the likely cause, unless ``accept`` (then logged and returned)."""
+    and the likely cause (a joint coupling the robot file lacks, where ``data`` show one),
+    unless ``accept`` (then logged and returned)."""
     bad = tuple(implausible(result.model, result.params, result.identifiable))
     if not bad:
         return bad
@@ -456,6 +477,8 @@ def check_plausible(result: FitResult, accept: bool) -> tuple[Implausible, ...]:
         raise FitError(f"{result.source}: {by_weights}; it gives {shown}")
     if by_weights:
         cause = by_weights
+    if not accept and data is not None:
+        cause = coupling_hint(result.model.robot, data.q, data.xyz) or cause
     if not accept:
         raise FitError(
             f"{result.source}: not a plausible model of {result.model.robot.name!r}: {shown}, "

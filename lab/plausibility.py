@@ -8,14 +8,22 @@ of its kind, declared by its effect (:meth:`arm.effects.Effect.plausible_bound`)
 ==================================  ============================================================
 kind                                bound
 ==================================  ============================================================
-DH length error (da, dd)            10 mm
-DH angle error (dalpha, dtheta)     50 mrad (2.9 deg); Hayati's beta likewise
+DH length error (da, dd)            10 mm up to a UR10's size (reach 1.6 m by
+                                    :attr:`~arm.description.RobotDescription.reach`), in
+                                    proportion to the reach beyond (19 mm for a FANUC R-2000iC)
+DH angle error (dalpha, dtheta)     50 mrad (2.9 deg) at any size; Hayati's beta likewise
 base transform, tool offsets        none: a tracker stands metres away, a reflector far off the
                                     flange
 a catalogued effect                 10 times the top of its typical range (compliance 1e-4
                                     rad/(N·m), gear terms 5e-3, gaps 6e-3 rad, kappa 2.3e-4/K)
-a user's effect                     its ``bounds``, else 10 times its ``typical`` range, else none
+a user's effect                     its ``bounds``, else 10 times its ``typical`` range, else
+                                    none; the families it names in ``lengths`` scale with the
+                                    arm as the DH lengths do
 ==================================  ============================================================
+
+An effect's bound is its :meth:`~arm.effects.Effect.plausible_bound` of the parameter and the
+arm's size (:class:`arm.effect_api.ArmSize`: reach, payload); a user's effect that overrides
+``plausible_bound(self, name)`` without the size is asked as it was written.
 
 A parameter beyond its bound is an error naming it and the likely cause (the scale of the
 lengths says "units", angles near 90 or 180 degrees say "convention or another robot");
@@ -31,6 +39,8 @@ from typing import Any
 
 import numpy as np
 
+from arm.effect_api import ArmSize
+from arm.effects import plausible_bound_of
 from arm.errormodel import ErrorModel
 from arm.params import parse_parameter_name
 
@@ -51,9 +61,9 @@ class Implausible:
 
     def text(self) -> str:
         if self.unit == "m":
-            return f"{self.name} = {self.value * 1e3:+.4g} mm (bound {self.bound * 1e3:g} mm)"
+            return f"{self.name} = {self.value * 1e3:+.4g} mm (bound {self.bound * 1e3:.3g} mm)"
         if self.unit == "rad":
-            return f"{self.name} = {self.value * 1e3:+.4g} mrad (bound {self.bound * 1e3:g} mrad)"
+            return f"{self.name} = {self.value * 1e3:+.4g} mrad (bound {self.bound * 1e3:.3g} mrad)"
         unit = f" {self.unit}" if self.unit else ""
         return f"{self.name} = {self.value:+.4g}{unit} (bound {self.bound:.3g}{unit})"
 
@@ -71,15 +81,17 @@ def implausible(
     model: ErrorModel, params: np.ndarray, identifiable: np.ndarray
 ) -> list[Implausible]:
     """The identified parameters of ``model`` (those marked ``identifiable``; fixed ones sit at
-    their nominal) whose magnitude exceeds the bound their effect declares."""
+    their nominal) whose magnitude exceeds the bound their effect declares for an arm of the
+    model's size (:class:`arm.effect_api.ArmSize`)."""
     lay = model.layout
+    size = ArmSize.of(model.robot)
     out = []
     for e in model.effects:
         sl = lay.slice(e.name)
         for k, name in zip(range(sl.start, sl.stop), lay.names[sl], strict=True):
             if not identifiable[k]:
                 continue
-            bound = e.plausible_bound(name)
+            bound = plausible_bound_of(e, name, size)
             if bound is None or not abs(params[k]) > bound:
                 continue
             parsed = parse_parameter_name(name)

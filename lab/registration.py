@@ -18,9 +18,12 @@ rotation that best maps the arm's last frame onto the measured frames, given the
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from arm.description import RobotDescription
 from arm.effect_api import ModelInputs
 from arm.errormodel import ErrorModel
 from arm.kinematics import link_frames
@@ -257,3 +260,53 @@ def nominal_parameters(model: ErrorModel, inputs: ModelInputs, xyz: np.ndarray) 
     before = np.sum((model.predict(inputs, p) - xyz) ** 2)
     after = np.sum((model.predict(inputs, p_reg) - xyz) ** 2)
     return p_reg if after < before else p
+
+
+#: a coupling is named when it brings the registered arm's median miss below this share of the
+#: uncoupled arm's, and under COUPLING_MISS: the rows are then the controller's angles
+COUPLING_GAIN = 0.2
+COUPLING_MISS = 0.02  # m
+
+
+def registered_miss(robot: RobotDescription, q: np.ndarray, xyz: np.ndarray) -> float:
+    """The median miss (m) of the nominal ``robot``, its base and tool registered on the rows."""
+    model = ErrorModel(robot, "geometric")
+    inputs = model.inputs(q)
+    p = register_base(model, inputs, xyz, model.nominal())
+    return float(np.median(np.linalg.norm(model.predict(inputs, p) - xyz, axis=1)))
+
+
+def coupling_hint(robot: RobotDescription, q: np.ndarray, xyz: np.ndarray) -> str:
+    """A sentence naming the joint coupling that would explain rows the arm cannot follow, or
+    ``""``: where two consecutive axes are parallel (FANUC's J2 and J3), a controller may report
+    the second from the horizon (``theta_3 = q_3 - q_2``) or relative (``+ q_2``); the arm
+    coupled so, registered on the rows, misses them by a fraction of the uncoupled arm's miss."""
+    if len(q) < 6:
+        return ""
+    plain = registered_miss(robot, q, xyz)
+    best: tuple[float, tuple[int, int, float]] | None = None
+    for row in robot.parallel_rows():
+        for factor in (-1.0, 1.0):
+            c = (row, row - 1, factor)
+            if any((j, o) == c[:2] for j, o, _ in robot.couplings):
+                continue
+            try:
+                arm = replace(robot, couplings=(*robot.couplings, c))
+            except ValueError:  # dependent couplings
+                continue
+            miss = registered_miss(arm, q, xyz)
+            if (
+                miss < COUPLING_GAIN * plain
+                and miss < COUPLING_MISS
+                and (best is None or miss < best[0])
+            ):
+                best = (miss, c)
+    if best is None:
+        return ""
+    miss, (j, o, f) = best
+    return (
+        f"the rows fit as the controller's angles of coupled joints {o} and {j} (theta_{j} = "
+        f"q_{j} {'-' if f < 0 else '+'} q_{o}, as FANUC reports J3 from the horizon): the nominal "
+        f"arm so coupled misses by {miss * 1e3:.3g} mm (median), uncoupled by {plain * 1e3:.3g} "
+        f"mm; state it in the robot file ([[couplings]] joint = {j}, on = {o}, factor = {f:g})"
+    )

@@ -98,6 +98,7 @@ from lab.errors import ContaminatedError, FitError, NoiseRefutedError, RowsLeftO
 from lab.estimation import check_plausible, fit_rows
 from lab.observations import Observations, observations_of
 from lab.options import DEFAULTS, LabOptions, OptionFields, resolve
+from lab.registration import coupling_hint
 from lab.result import Duplicate, FitResult, Outlier, RowsCounted, inputs_of
 from lab.sanity import check_stated_noise
 from lab.solver import HUBER_K, OUTLIER_RADIUS, robust_sigma
@@ -407,6 +408,11 @@ def _masked(res: FitResult, data: MeasurementSet, far: np.ndarray) -> np.ndarray
     return None
 
 
+def _sentence(text: str) -> str:
+    """``text`` as a sentence of its own (``""`` stays empty)."""
+    return f"{text[:1].upper()}{text[1:]}." if text else ""
+
+
 def _refuse_contaminated(
     res: FitResult, data: MeasurementSet, far: np.ndarray, s: float, radius: float
 ) -> None:
@@ -423,8 +429,12 @@ def _refuse_contaminated(
         f"{d.min():.3g} to {d.max():.3g} mm off the fit of the other {n - k} (RMS "
         f"{1e3 * res.rms:.3g} mm; beyond {radius:.2f} robust sigmas of {1e3 * s:.3g} mm): more "
         f"than the {100 * MAX_OUTLIER_FRACTION:.0f} % the lab leaves out, so the fit is not a "
-        f"calibration ({where}{more}). Rows of another arm or instrument, a reflector that lost "
-        "lock? --outliers keep fits every pose"
+        f"calibration ({where}{more}). "
+        + (
+            _sentence(coupling_hint(res.model.robot, data.q, data.xyz))
+            or "Rows of another arm or instrument, a reflector that lost lock?"
+        )
+        + " --outliers keep fits every pose"
     )
 
 
@@ -950,7 +960,7 @@ def _implausible_first(data: MeasurementSet, model: _Model) -> None:
         probe = replace(model, options=options).fit(data)
     except FitError:
         return
-    check_plausible(probe, model.options.accept_large)
+    check_plausible(probe, model.options.accept_large, data)
 
 
 def _screened_fit(
@@ -977,7 +987,7 @@ def _screened_fit(
         outliers_mode=opts.outliers,
         outlier_rule=rule,
         outlier_note=note,
-        implausible=check_plausible(fit, opts.accept_large),
+        implausible=check_plausible(fit, opts.accept_large, data),
     )
     result = replace(fit, counted=counted)
     cands = None if candidates is None else tuple(candidates)

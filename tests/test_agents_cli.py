@@ -79,11 +79,11 @@ def test_a_policy_zip_with_a_pickled_payload_runs_nothing(tmp_path):
     marker = tmp_path / "pwned"
     evil = _evil_zip(tmp_path, marker)
     settings = json.dumps({"path": str(evil)})
-    res = runner.invoke(app, ["evaluate", "ppo-residual", "--settings", settings, "--seeds", "1"])
+    res = runner.invoke(app, ["evaluate", "policy", "--settings", settings, "--seeds", "1"])
     assert res.exit_code == 2 and "refusing" in res.output, res.output
     cfg = tmp_path / "shared.toml"
     text = 'name = "shared"\nseeds = [0]\nscenarios = ["geometric"]\nepisode_seconds = 1.0\nsettle_seconds = 0.5\n'
-    cfg.write_text(text + f'[[agents]]\nname = "ppo-residual"\nsettings = {{ path = "{evil}" }}\n')
+    cfg.write_text(text + f'[[agents]]\nname = "policy"\nsettings = {{ path = "{evil}" }}\n')
     res = runner.invoke(app, ["sweep", str(cfg), "--out", str(tmp_path / "runs"), "-w", "0"])
     assert res.exit_code == 2 and "refusing" in res.output, res.output
     # a run record (made by a harmless run) edited to name the zip
@@ -92,7 +92,7 @@ def test_a_policy_zip_with_a_pickled_payload_runs_nothing(tmp_path):
     assert res.exit_code == 0, res.output
     (record,) = (tmp_path / "ok").glob("hold__*.json")
     rec = json.loads(record.read_text())
-    rec["spec"]["agent"], rec["spec"]["settings"] = "ppo-residual", {"path": str(evil)}
+    rec["spec"]["agent"], rec["spec"]["settings"] = "policy", {"path": str(evil)}
     record.write_text(json.dumps(rec))
     res = runner.invoke(app, ["reproduce", str(record)])
     # refused before anything runs: the edited spec is not the run its hash names

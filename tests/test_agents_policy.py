@@ -279,7 +279,7 @@ def test_unsafe_policy_files_are_refused_and_nothing_of_them_runs(tmp_path):
     with pytest.raises(PolicyFileError, match="refusing"):
         load_policy_file(evil)
     with pytest.raises(PolicyFileError, match="refusing"):
-        PolicyAgent("ppo-residual", path=str(evil))
+        PolicyAgent(path=str(evil))
     renamed = evil.with_suffix(".npz")
     renamed.write_bytes(evil.read_bytes())
     renamed.with_suffix(".json").write_text(json.dumps(_meta("ppo", 62, 3) | {"algo": "ppo"}))

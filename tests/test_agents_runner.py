@@ -90,6 +90,7 @@ def test_registry_names_settings_and_user_classes():
         "mpc-ipopt",
         "mpc-oracle",
         "mpc-diagnose",
+        "policy",  # a policy file of your own (settings: path)
         *POLICIES,
     }
     assert {"ppo-residual"} <= set(POLICIES)

@@ -270,3 +270,168 @@ def test_a_learning_rate_schedule_is_checked_where_it_is_written(tmp_path):
         0.0,
         0.0,
     ]
+
+
+def test_the_patience_rule_stops_on_a_plateau_and_not_while_improving():
+    """A synthetic sequence of evaluations (settled RMS, mm): steady gains of 5 % never stop it;
+    gains of 1 % an evaluation add up against the bar and never stop it either; a plateau with
+    noise below 2 % stops it after exactly N evaluations; N = 0 never stops."""
+    from agents.callbacks import Patience, StopWhen
+
+    improving = Patience(5)
+    assert not any(improving.update(1.0 * 0.95**k) for k in range(40))
+    slow = Patience(5)
+    assert not any(slow.update(1.0 * 0.99**k) for k in range(60))
+    plateau = Patience(3)
+    errors = [1.0, 0.8, 0.79, 0.81, 0.795]  # 0.8 is the bar; none beats it by 2 %
+    said = [plateau.update(e) for e in errors]
+    assert said == [False, False, False, False, True]
+    callback = StopWhen(lambda: plateau.stopped)
+    assert callback._on_step() is False  # SB3 ends the training on False
+    assert StopWhen(lambda: improving.stopped)._on_step() is True
+    later = Patience(3)
+    for e in [1.0, 1.0, 1.0, 0.5]:  # a real improvement before the third evaluation resets it
+        assert not later.update(e)
+    assert [later.update(e) for e in (0.5, 0.5, 0.5)] == [False, False, True]
+    never = Patience(0)
+    assert not any(never.update(1.0) for _ in range(20))
+    nan = Patience(2)
+    assert [nan.update(e) for e in (float("nan"), 1.0, 1.0, 1.0)] == [False, False, False, True]
+
+
+def test_patience_refuses_a_schedule_that_falls_to_zero(tmp_path):
+    base = (ROOT / "experiments" / "configs" / "ppo-plain.toml").read_text()
+    path = tmp_path / "p.toml"
+    path.write_text(base.replace("patience = 0 ", "patience = 5 "))
+    with pytest.raises(TrainConfigError, match="ends at 0 with patience on"):
+        load_train_config(path)
+    floor = "learning_rate_schedule = [[600_000, 3e-4], [1_200_000, 3e-5]]"
+    path.write_text(
+        base.replace("patience = 0 ", "patience = 5 ").replace(
+            "learning_rate_schedule = [[600_000, 3e-4], [1_200_000, 0.0]]", floor
+        )
+    )
+    assert load_train_config(path).learning_rate_at(5e6) == pytest.approx(3e-5)
+
+
+@pytest.mark.slow
+def test_a_run_stops_by_patience_and_says_so(tmp_path):
+    """A run whose evaluations cannot improve (a learning rate of 0 after the first update)
+    stops after ``patience`` evaluations without 2 %, long before its budget."""
+    cfg = _tiny(tmp_path, name="p", patience=2, learning_rate_schedule=[[0, 1e-12]])
+    cfg.total_timesteps = 100_000
+    out = train(cfg)
+    steps = [int(r["steps"]) for r in _rows(out / "curve.csv")]
+    assert steps == [0, 128, 256]  # the bar at 0, two evaluations without a 2 % gain
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stopped_by_patience"] is True and summary["timesteps"] == 256
+
+
+@pytest.mark.slow
+def test_a_run_writes_sb3s_diagnostics_when_asked(tmp_path):
+    """``diagnostics=DIR``: SB3's own logger writes its standard scalars (PPO's KL, clip fraction,
+    entropy, explained variance) to DIR/progress.csv, one row per update; TensorBoard's event
+    files too where it is installed."""
+    import importlib.util
+
+    cfg = _tiny(tmp_path, name="d")
+    train(cfg, diagnostics=tmp_path / "logs")
+    with open(tmp_path / "logs" / "progress.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) >= 2
+    for key in (
+        "train/approx_kl",
+        "train/clip_fraction",
+        "train/entropy_loss",
+        "train/explained_variance",
+    ):
+        assert any(r.get(key) not in (None, "") for r in rows), key
+    events = list((tmp_path / "logs").glob("events.out.tfevents.*"))
+    assert bool(events) == (importlib.util.find_spec("tensorboard") is not None)
+
+
+@pytest.mark.slow
+def test_a_tool_policy_with_the_observe_option_trains_at_its_declared_scales(tmp_path):
+    """``observe`` reaches the policy: the file records it, its normalisation is the
+    interface's declared offsets and scales, and the shipped agent rebuilds the same features."""
+    from agents.policy import PolicyAgent
+    from agents.runner import run_episode
+    from envs.wrappers import ToolDisplacement
+
+    cfg = _tiny(
+        tmp_path,
+        variant="tool",
+        reward="log",
+        obs_normalization="fixed",
+        observe=("joints", "payload", "temperature"),
+    )
+    out = train(cfg)
+    network, meta = load_policy_file(out / "final.npz")
+    assert meta["observe"] == ["joints", "payload", "temperature"] and meta["obs_size"] == 54
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+
+    task = gym.make("SixAxisTrack-v0").unwrapped.task
+    tool = ToolDisplacement(task, 5.0, observe=("joints", "payload", "temperature"))
+    np.testing.assert_array_equal(network.mean, tool.feature_offset)
+    np.testing.assert_array_equal(network.var, tool.feature_scale**2)
+    r = run_episode(
+        PolicyAgent(path=str(out / "final")), {"scenario": "thermal"}, seed=0, episode_seconds=0.5
+    )
+    assert np.isfinite(r.true_error_mm).all()
+
+
+TINY_TOML = """[train]
+algo = "ppo"
+scenarios = ["geometric"]
+n_envs = 2
+total_timesteps = 256
+eval_every = 128
+checkpoint_every = 128
+[train.env]
+episode_seconds = 1.0
+[train.hyperparameters]
+n_steps = 64
+batch_size = 64
+n_epochs = 1
+policy_kwargs = { net_arch = [16, 16] }
+"""
+
+
+@pytest.mark.slow
+def test_sixaxis_train_writes_diagnostics_where_asked(tmp_path):
+    from typer.testing import CliRunner
+
+    from experiments.cli import app
+
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY_TOML)
+    logs = tmp_path / "logs"
+    args = ["train", "ppo", "--config", str(config), "--output", str(tmp_path / "run")]
+    res = CliRunner().invoke(app, [*args, "--diagnostics", str(logs)])
+    assert res.exit_code == 0, res.output
+    header = (logs / "progress.csv").read_text().splitlines()[0].split(",")
+    assert {"train/approx_kl", "train/clip_fraction", "train/explained_variance"} <= set(header)
+
+
+def test_the_tuning_grid_trains_each_point_at_its_gamma_and_rate_for_equal_budgets(tmp_path):
+    """benchmarks/ppo_tuning.py: each point is ppo-observe.toml with its gamma and a constant
+    learning rate, the same budget and no patience (equal cost), in a folder of its own."""
+    import argparse
+
+    from benchmarks.ppo_tuning import CONFIG, point_config
+
+    args = argparse.Namespace(
+        config=CONFIG, seed=1, runs=tmp_path, budget=200_000, eval_every=50_000, eval_episodes=2
+    )
+    a, b = point_config(args, 0.95, 1e-3), point_config(args, 0.98, 1e-4)
+    assert (a.hyperparameters["gamma"], a.learning_rate_at(0), a.learning_rate_at(1e6)) == (
+        0.95,
+        1e-3,
+        1e-3,
+    )
+    assert b.hyperparameters["gamma"] == 0.98 and b.learning_rate_at(5e5) == 1e-4
+    assert a.patience == b.patience == 0 and a.total_timesteps == b.total_timesteps == 200_000
+    assert a.observe == ("joints", "payload", "temperature") and a.output != b.output
+    assert load_train_config(CONFIG).patience == 5

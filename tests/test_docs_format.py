@@ -216,6 +216,7 @@ def test_the_robot_toml_tables_name_every_key_the_writer_emits():
         nominal=seed_robot(),  # what `lab export` records
         stations=((1, (0.1, 0.0, 0.0), (0.0, 0.0, 0.2)), (2, (3.0, 1.0, 0.0), (0.0, 0.0, 1.0))),
         domain={"n_poses": 40, "q1": (-1.0, 1.0), "temperature": (20.5, 20.9)},
+        couplings=((3, 2, -1.0),),  # FANUC's J3 from the horizon
         uncertainty={  # what `lab export` records of a calibration of two sessions
             "parameters": ["da2", "c2"],
             "values": {"da2": 1e-4, "c2": 6e-6, "dtheta6": 0.0},
@@ -235,7 +236,7 @@ def test_the_robot_toml_tables_name_every_key_the_writer_emits():
     documented_top = {re.sub(r"[\[\]]|\.NAME", "", names(r[0])[0]): r for r in top}
     assert set(documented_top) == set(doc), set(doc) ^ set(documented_top)
     assert {names(r[0])[0] for r in joint} == set(doc["joints"][0])
-    for key in ("tools", "base", "flange", "stations", "uncertainty"):  # each's keys, in its row
+    for key in ("tools", "base", "flange", "stations", "couplings", "uncertainty"):  # keys
         value = doc[key][0] if isinstance(doc[key], list) else doc[key]
         for sub in value:
             assert f"`{sub}" in documented_top[key][2], (key, sub)

@@ -30,6 +30,7 @@ TOURS = ["README.md", "docs/lab.md"]
 SKIPPED = {
     # the full leaderboard sweep and training; your own agent's shell steps (mkdir, cat), which
     # tests/test_experiments_user_agent.py runs from a blank folder
+    "docs/agents.md": 1,  # training 5 seeds of a policy (hours)
     "docs/benchmark.md": 2,
     # the Rokae data set is not shipped (no licence); lab update's new session is the user's
     "docs/lab.md": 2,

@@ -163,3 +163,136 @@ def test_a_bad_displacement_is_refused():
     for bad in ([np.nan, 0, 0], [0.1, 0.2]):
         with pytest.raises(ValueError, match="3 finite numbers"):
             env.step(np.array(bad, dtype=float))
+
+
+def _motor_state(env: gym.Env) -> tuple[np.ndarray, np.ndarray]:
+    """The motor hinges' angles and velocities, read from MuJoCo's own data by joint name."""
+    import mujoco
+
+    plant = env.unwrapped.plant
+    m, d = plant.model, plant.data
+    ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"motor{i}") for i in range(1, 7)]
+    return d.qpos[m.jnt_qposadr[ids]].copy(), d.qvel[m.jnt_dofadr[ids]].copy()
+
+
+@pytest.mark.filterwarnings("ignore:.*different from the unwrapped version")
+def test_the_observe_option_appends_the_envs_readings_at_the_declared_scales():
+    """``observe=[...]`` appends, after the interface's 40 numbers (unchanged), the encoders'
+    angles and velocities (MuJoCo's motor hinges), the declared payload and the temperature
+    sensor's reading (with a prompt, right declaration and a sensor without lag or noise: the
+    plant's exact values in ``info``), in the env's units, with the documented fixed scales; the
+    wrapper's bounds are the env's and Gymnasium's checker passes."""
+    kw = {
+        "scenario": "all",
+        "temperature_noise": 0.0,
+        "temperature_lag": 0.0,
+        "overrides": {"payload": {"declare_delay": 0.0, "declare_error": 0.0}},
+    }
+    env = gym.make(
+        "SixAxisTrack-v0", interface="tool", observe=["temperature", "joints", "payload"], **kw
+    )
+    plain = gym.make("SixAxisTrack-v0", interface="tool", **kw)
+    check_env(env, skip_render_check=True)
+    w = _interface(env)
+    sl = w.obs_slices
+    assert list(sl)[5:] == ["q", "qd", "payload", "temperature"]
+    assert (sl["q"], sl["qd"], sl["payload"], sl["temperature"]) == (
+        slice(40, 46),
+        slice(46, 52),
+        slice(52, 53),
+        slice(53, 54),
+    )
+    raw_space = env.unwrapped.observation_space
+    raw = env.unwrapped.task.obs_slices
+    for name in ("q", "qd", "payload", "temperature"):
+        np.testing.assert_array_equal(env.observation_space.low[sl[name]], raw_space.low[raw[name]])
+        np.testing.assert_array_equal(
+            env.observation_space.high[sl[name]], raw_space.high[raw[name]]
+        )
+    offset, scale = w.feature_offset, w.feature_scale
+    np.testing.assert_array_equal(offset[40:], [0.0] * 12 + [0.0, 20.0])
+    np.testing.assert_array_equal(scale[40:], [1.0] * 12 + [1.0, 5.0])
+    obs, info = env.reset(seed=11)
+    base, _ = plain.reset(seed=11)
+    rng = np.random.default_rng(1)
+    for _ in range(60):
+        np.testing.assert_array_equal(obs[:40], base)
+        q, qd = _motor_state(env)
+        np.testing.assert_allclose(obs[sl["q"]], q, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(obs[sl["qd"]], qd, rtol=1e-6, atol=1e-6)
+        assert obs[sl["payload"]][0] == pytest.approx(info["payload"], abs=1e-6)
+        assert obs[sl["temperature"]][0] == pytest.approx(info["temperature"], abs=1e-4)
+        features = (obs - offset) / scale
+        assert features[53] == pytest.approx((info["temperature"] - 20.0) / 5.0, abs=1e-4)
+        a = rng.uniform(-0.3, 0.3, 3)
+        obs, _, _, _, info = env.step(a)
+        base, *_ = plain.step(a)
+    assert np.ptp(obs[sl["qd"]]) > 0  # the arm moved
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"interface": "tool", "observe": ["torque"]}, "observe"),
+        ({"interface": "tool", "observe": "joints"}, "observe"),
+        ({"interface": "tool", "observe": ["joints", "joints"]}, "observe"),
+        ({"observe": ["joints"]}, "tool interface"),
+    ],
+)
+def test_bad_observe_options_are_refused_by_name(options, message):
+    with pytest.raises(EnvOptionError, match=message):
+        gym.make("SixAxisTrack-v0", **options)
+
+
+def test_the_learned_agents_see_the_observe_options_numbers():
+    """PolicyIO with ``observe`` gives the wrapper's observation, from the raw env's stream."""
+    env = gym.make(
+        "SixAxisTrack-v0",
+        scenario="payload",
+        interface="tool",
+        observe=["joints", "payload", "temperature"],
+    )
+    raw = gym.make("SixAxisTrack-v0", scenario="payload")
+    obs, _ = env.reset(seed=2)
+    robs, rinfo = raw.reset(seed=2)
+    io = PolicyIO("tool", observe=("payload", "joints", "temperature"))
+    io.reset(raw.unwrapped.task)
+    assert io.observation_size(raw.unwrapped.task) == 54
+    for _ in range(20):
+        np.testing.assert_allclose(
+            io.features(robs, controller_info(rinfo)), obs, rtol=1e-6, atol=1e-5
+        )
+        a = np.array([0.1, -0.1, 0.05])
+        cmd = io.action(a)
+        obs, *_ = env.step(a)
+        robs, _, _, _, rinfo = raw.step(cmd)
+
+
+def test_nominal_tool_observation_passes_gymnasiums_checker_with_finite_bounds():
+    """Finite bounds that hold (the nominal tool point within the arm's reach) and the
+    constructor recorded (``RecordConstructorArgs``), so Gymnasium's checker passes with every
+    warning but the wrapped-env notice treated as an error."""
+    import warnings
+
+    from envs.wrappers import nominal_reach
+
+    env = NominalToolObservation(gym.make("SixAxisTrack-v0", scenario="geometric"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warnings.filterwarnings("ignore", ".*different from the unwrapped version")
+        check_env(env, skip_render_check=True)
+    assert np.isfinite(env.observation_space.low).all()
+    assert np.isfinite(env.observation_space.high).all()
+    # its spec records it: gym.make rebuilds the wrapped env from the spec alone
+    again = gym.make(env.spec)
+    assert isinstance(again, NominalToolObservation)
+    assert again.observation_space == env.observation_space
+    robot = env.unwrapped.task.robot
+    rng = np.random.default_rng(0)
+    kin = NominalKinematics(robot)
+    reach = nominal_reach(robot)
+    farthest = max(
+        float(np.linalg.norm(kin.point(q) - np.asarray(kin.o0)))
+        for q in rng.uniform(robot.lower, robot.upper, (2000, 6))
+    )
+    assert farthest <= reach < 2.0 * farthest  # a bound, and not a loose one

@@ -3,15 +3,13 @@ torque its masses and payload put on joint 2 at the home pose."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
 from arm.description import load_robot
 from arm.kinematics import Chain, gravity_torques, tool_points
 
-HOME = np.array([[0.0, -math.pi / 2, 0.0, 0.0, 0.0, 0.0]])  # upper arm upright, forearm level
+HOME = np.zeros((1, 6))  # upper arm upright (theta2 = q2 - 90 deg), forearm level
 
 
 def test_the_heavy_arm_has_the_data_sheets_lengths():
@@ -24,11 +22,11 @@ def test_the_heavy_arm_has_the_data_sheets_lengths():
 
 def test_the_heavy_arms_gravity_torque_on_joint_2_at_home_in_closed_form():
     """Each mass's lever about joint 2's axis at home is its horizontal distance from it: the
-    forearm's centre 0.45 m ahead, the wrist's bodies at 1.28 m (less 0.3 m for link 4's centre),
-    the flange's 0.245 m and the payload's 0.465 m beyond the wrist."""
+    forearm's centre 0.1 m ahead, link 4's 0.55 m short of the wrist (1.28 m), link 5's 0.05 m
+    beyond it, the flange's 0.215 m less 0.03 m, the payload's 0.15 m beyond the flange."""
     arm = load_robot("r2000ic_like")
-    levers = {180.0: 0.45, 60.0: 1.28 - 0.3, 25.0: 1.28, 5.0: 1.28 + 0.215 + 0.03}
-    expected = 9.81 * (sum(m * x for m, x in levers.items()) + 165.0 * (1.28 + 0.215 + 0.25))
+    levers = [(180.0, 0.1), (70.0, 1.28 - 0.55), (25.0, 1.28 + 0.05), (6.0, 1.28 + 0.215 - 0.03)]
+    expected = 9.81 * (sum(m * x for m, x in levers) + 165.0 * (1.28 + 0.215 + 0.15))
     tau = gravity_torques(arm, HOME)[0]
     assert abs(tau[1]) == pytest.approx(expected, rel=1e-9)
     assert abs(tau[2]) == pytest.approx(expected, rel=1e-9)  # the upper arm upright adds none

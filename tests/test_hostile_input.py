@@ -747,6 +747,9 @@ def _edit_arrays(path: Path, edit) -> None:
         (lambda m: m.update(variant="bogus"), ["variant 'bogus'", "residual, plain"]),
         (lambda m: m["policy_kwargs"].update(activation_fn="os.system"), ["activation_fn"]),
         (lambda m: m.update(act_size=6), ["act_size of a residual policy is 3"]),
+        (lambda m: m.update(observe=["torque"]), ["observe: unknown part 'torque'"]),
+        (lambda m: m.update(observe="joints"), ["observe must be a list of names"]),
+        (lambda m: m.update(observe=["joints"]), ["observe is for the tool variant"]),
     ],
 )
 def test_a_policy_description_is_checked_before_its_network_is_built(
@@ -794,14 +797,14 @@ def test_a_fifo_as_a_policy_file_is_refused_without_waiting(policy, tmp_path):
     os.mkfifo(fifo)
     (tmp_path / "fifo.json").write_bytes(policy.with_suffix(".json").read_bytes())
     with pytest.raises(PolicyFileError, match="FIFO"):
-        PolicyAgent("mine", path=str(fifo))
+        PolicyAgent(path=str(fifo), name="mine")
     with pytest.raises(PolicyFileError, match="FIFO"):
         load_policy_file(fifo)
     policy.with_suffix(".json").unlink()
     os.mkfifo(policy.with_suffix(".json"))  # the description a FIFO
     with pytest.raises(PolicyFileError, match=r"p\.json: is a FIFO"):
         load_policy_file(policy)
-    res = sixaxis("evaluate", "ppo-residual", "--settings", f'{{"path": "{fifo}"}}')
+    res = sixaxis("evaluate", "policy", "--settings", f'{{"path": "{fifo}"}}')
     one_error_line(res, "fifo.npz", "FIFO")
 
 

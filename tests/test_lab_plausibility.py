@@ -8,6 +8,8 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
+from arm.description import load_robot
+from arm.effect_api import REFERENCE_REACH, ArmSize, EffectError
 from arm.effects import (
     EFFECTS,
     Backlash,
@@ -17,9 +19,11 @@ from arm.effects import (
     LoadBacklash,
     Thermal,
     Transmission,
+    plausible_bound_of,
 )
 from arm.errormodel import ErrorModel
 from arm.measurements import MeasurementSet
+from arm.sampling import sample_poses
 from lab import FitError, fit
 from lab.plausibility import implausible, likely_cause
 from tests._lab_data import campaign
@@ -117,3 +121,114 @@ def test_user_effect_bound_applies_in_a_fit(seed, monkeypatch):
         fit(data, seed, ["geometric", _Wobble(joints=[2])])
     res = fit(data, seed, ["geometric", _Wobble(joints=[2])], accept_large=True)
     assert res["w2"] == pytest.approx(5e-3, rel=1e-6)
+
+
+# -- bounds that scale with the arm (issue 41) -------------------------------------------------------
+FANUC = "r2000ic_like"  # the shipped heavy arm (arm/robots/)
+
+
+def _dd2_off(robot, value: float, n: int = 150, seed: int = 41) -> MeasurementSet:
+    """A campaign of ``robot`` whose dd2 is ``value`` off, its other geometric errors typical."""
+    c = campaign(robot, "geometric", seed=seed)
+    p = c.params.copy()
+    p[c.truth.layout.index("dd2")] = value
+    q = sample_poses(robot, n, np.random.default_rng(seed))
+    xyz = c.truth.predict(c.truth.inputs(q, {}), p)
+    xyz += np.random.default_rng(seed + 1).normal(0.0, 15e-6, xyz.shape)
+    return MeasurementSet(q, xyz, {}, f"{robot.name}.csv")
+
+
+@pytest.mark.parametrize("name", ["seed", "ur5", "ur5_robot", "ur10_robot", "ur3_robot", "z1"])
+def test_an_arm_up_to_a_ur10s_size_keeps_the_stated_bounds(name):
+    """Scaling changes nothing for the arms the lab was built on: 10 mm and 50 mrad."""
+    robot = load_robot(name)
+    size = ArmSize.of(robot)
+    assert size.length_factor == 1.0
+    g = Geometric()
+    for par, bound in (("da2", 0.01), ("dd2", 0.01), ("dalpha3", 0.05), ("beta2", 0.05)):
+        assert plausible_bound_of(g, par, size) == bound, (name, par)
+    assert plausible_bound_of(Compliance(), "c2", size) == pytest.approx(1e-4)
+
+
+def test_the_length_bounds_of_a_large_arm_grow_with_its_reach():
+    fanuc = load_robot(FANUC)
+    # the links from the shoulder to the flange, by hand: 312 + 1075 + 225 + 1280 + 215 mm
+    assert fanuc.reach == pytest.approx(0.312 + 1.075 + 0.225 + 1.280 + 0.215)
+    size = ArmSize.of(fanuc)
+    assert size.length_factor == pytest.approx(fanuc.reach / REFERENCE_REACH)
+    g = Geometric()
+    assert plausible_bound_of(g, "dd2", size) == pytest.approx(0.01 * 3.107 / 1.6)
+    assert plausible_bound_of(g, "da3", size) == pytest.approx(0.01 * 3.107 / 1.6)
+    # angles are held to the same tolerance at any size; the base and tool stay exempt
+    assert plausible_bound_of(g, "dtheta2", size) == 0.05
+    assert plausible_bound_of(g, "bx", size) is None
+    assert plausible_bound_of(Compliance(), "c2", size) == pytest.approx(1e-4)
+
+
+def test_a_large_arm_is_judged_as_one_and_a_small_one_as_before():
+    """The issue's FANUC: dd2 of +17.5 mm is a 2.6 m arm's, not a UR10's."""
+    fanuc = load_robot(FANUC)
+    res = fit(_dd2_off(fanuc, 0.0175), fanuc, "geometric")
+    assert res["dd2"] == pytest.approx(0.0175, abs=2e-4)
+    assert not res.implausible
+    ur10 = load_robot("ur10_robot")
+    with pytest.raises(FitError, match=r"dd2 = \+17\.\d+ mm \(bound 10 mm\)"):
+        fit(_dd2_off(ur10, 0.0175), ur10, "geometric")
+    # beyond the FANUC's own bound (19.4 mm) it is refused, naming that bound
+    with pytest.raises(FitError, match=r"dd2 = \+25 mm \(bound 19\.4 mm\)"):
+        fit(_dd2_off(fanuc, 0.025), fanuc, "geometric")
+
+
+class _OldStyle(JointAngleEffect):
+    """A user's effect written before the arm's size reached the bounds."""
+
+    name = "old_style_test"
+    terms = ("o",)
+
+    def basis(self, inputs, joint, term):
+        return np.sin(3 * inputs.q[:, joint - 1])
+
+    def plausible_bound(self, name):  # the one-argument form of before
+        return 2e-3
+
+
+class _Sag(JointAngleEffect):
+    """A user's effect with a length family: its bound grows with the arm, its angle's not."""
+
+    name = "sag_test"
+    terms = ("sl", "sa")
+    bounds: ClassVar[dict[str, float | None]] = {"sl": 0.004, "sa": 0.003}
+    lengths = ("sl",)
+
+    def basis(self, inputs, joint, term):
+        return np.cos(inputs.q[:, joint - 1])
+
+
+def test_user_effects_old_and_new_reach_the_arms_size(seed, monkeypatch):
+    fanuc = ArmSize.of(load_robot(FANUC))
+    assert plausible_bound_of(_OldStyle(), "o2", fanuc) == 2e-3  # asked as it was written
+    assert plausible_bound_of(_Sag(), "sl2", fanuc) == pytest.approx(0.004 * fanuc.length_factor)
+    assert plausible_bound_of(_Sag(), "sa2", fanuc) == 0.003
+    assert plausible_bound_of(_Sag(), "sl2", ArmSize.of(seed)) == 0.004
+    # in a fit: the old form's bound is applied as before
+    monkeypatch.setitem(EFFECTS, _OldStyle.name, _OldStyle)
+    c = campaign(seed, "geometric", seed=23)
+    d = c.measure(150)
+    model = ErrorModel(seed, ["geometric", _OldStyle(joints=[2])])
+    p = model.nominal()
+    p[: len(c.params)] = c.params
+    p[model.layout.index("o2")] = 5e-3
+    data = MeasurementSet(d.q, model.predict(model.inputs(d.q, d.columns), p), d.columns, "o.csv")
+    with pytest.raises(FitError, match=r"o2 = \+0.005 \(bound 0.002\)"):
+        fit(data, seed, ["geometric", _OldStyle(joints=[2])])
+
+
+def test_a_user_bound_that_is_no_number_is_one_line_naming_the_effect():
+    class _Bad(_OldStyle):
+        name = "bad_bound_test"
+
+        def plausible_bound(self, name, arm=None):
+            return "ten"
+
+    with pytest.raises(EffectError, match=r"effect 'bad_bound_test'.*returned 'ten'"):
+        plausible_bound_of(_Bad(), "o2", None)

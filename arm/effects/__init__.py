@@ -20,6 +20,7 @@ One module a job; import from the package, ``from arm.effects import JointAngleE
 * :mod:`arm.effects.base`: the base classes, and how a user's effect code is run and named;
 * :mod:`arm.effects.joint_angle`: the catalogue's joint-angle effects (compliance, cyclic...);
 * :mod:`arm.effects.chain`: the catalogue's chain effects (geometric, thermal);
+* :mod:`arm.effects.lumped`: compliance without a mass model (lumped_compliance);
 * :mod:`arm.effects.registry`: the registry, entry points, ``--effect-module`` and the checks a
   user's effect passes;
 * :mod:`arm.effects.specs`: effects from their specifications (``compliance[2,3]``).
@@ -35,6 +36,7 @@ from arm.effects.base import (
     effect_origin,
     is_catalogued,
     missing_inputs,
+    plausible_bound_of,
     user_code,
 )
 from arm.effects.chain import REFERENCE_TEMPERATURE as REFERENCE_TEMPERATURE
@@ -51,6 +53,7 @@ from arm.effects.joint_angle import (
     order_reading,
 )
 from arm.effects.joint_angle import MAX_ORDER as MAX_ORDER
+from arm.effects.lumped import LumpedCompliance, lumped_values
 from arm.effects.registry import CATALOGUE as CATALOGUE
 from arm.effects.registry import (
     EFFECTS,
@@ -74,6 +77,7 @@ __all__ = [
     "JointAngleEffect",
     "JointScale",
     "LoadBacklash",
+    "LumpedCompliance",
     "Thermal",
     "Transmission",
     "candidate_effects",
@@ -82,10 +86,12 @@ __all__ = [
     "effect_origin",
     "is_catalogued",
     "load_effect_module",
+    "lumped_values",
     "make_effect",
     "missing_inputs",
     "order_reading",
     "parse_effects",
+    "plausible_bound_of",
     "register_effect",
     "union_of",
     "user_code",

@@ -14,7 +14,7 @@ from typing import ClassVar
 import numpy as np
 
 from arm.description import RobotDescription
-from arm.effect_api import ChainState, EffectError, ModelInputs, Sensitivities
+from arm.effect_api import ArmSize, ChainState, EffectError, ModelInputs, Sensitivities
 from arm.errors import SixAxisError
 
 __all__ = [
@@ -27,6 +27,7 @@ __all__ = [
     "effect_origin",
     "is_catalogued",
     "missing_inputs",
+    "plausible_bound_of",
     "user_code",
 ]
 
@@ -99,6 +100,13 @@ class Effect:
     # typical range; an identified value beyond its bound is an error (units, another robot,
     # another convention) unless the user accepts it (lab.plausibility).
     bounds: ClassVar[dict[str, float | None]] = {}
+    # The families (name prefixes) that are lengths of the arm: their bound grows with the
+    # arm's size (ArmSize.length_factor: 1 up to a UR10's, in proportion beyond), as a DH
+    # length's does; the others keep theirs at any size.
+    lengths: ClassVar[tuple[str, ...]] = ()
+    # The catalogue effect this one stands in for where that one cannot be fitted (the mass-free
+    # lumped_compliance for compliance): the diagnosis tests it only where the other is not.
+    stands_in_for: ClassVar[str] = ""
     # An effect whose terms a scan finds (its joints and orders), rather than one the diagnosis
     # tests whole: it has no meaning without its brackets, and the catalogue's tests skip it.
     scan_only: ClassVar[bool] = False
@@ -168,15 +176,30 @@ class Effect:
                 return self.typical[prefix]
         return None
 
-    def plausible_bound(self, name: str) -> float | None:
-        """The largest plausible magnitude of parameter ``name`` (SI): from :attr:`bounds` by
-        the longest prefix, else :data:`PLAUSIBLE_FACTOR` times the top of its typical range;
-        None where the effect states neither, or exempts the family."""
+    def plausible_bound(self, name: str, arm: ArmSize | None = None) -> float | None:
+        """The largest plausible magnitude of parameter ``name`` (SI) on an arm of size ``arm``:
+        from :attr:`bounds` by the longest prefix, else :data:`PLAUSIBLE_FACTOR` times the top
+        of its typical range; None where the effect states neither, or exempts the family. A
+        family among :attr:`lengths` has its bound times ``arm.length_factor`` (none given: the
+        stated bound, that of an arm up to a UR10's size)."""
+        bound = self.stated_bound(name)
+        if bound is None or arm is None or not self.is_length(name):
+            return bound
+        return bound * arm.length_factor
+
+    def stated_bound(self, name: str) -> float | None:
+        """The bound of ``name`` as the effect states it, for an arm up to a UR10's size."""
         for prefix in sorted(self.bounds, key=len, reverse=True):
             if name.startswith(prefix):
                 return self.bounds[prefix]
         rg = self.typical_range(name)
         return None if rg is None else PLAUSIBLE_FACTOR * rg[1]
+
+    def is_length(self, name: str) -> bool:
+        """Whether ``name`` belongs to one of :attr:`lengths` (by the longest prefix of
+        :attr:`bounds` and :attr:`typical` it starts with, so that ``dd`` is not ``d``'s)."""
+        known = [p for p in (*self.bounds, *self.typical, *self.lengths) if name.startswith(p)]
+        return bool(known) and max(known, key=len) in self.lengths
 
     def ambiguity_note(self, inputs: ModelInputs, i: int) -> str | None:
         """Why this effect's law cannot say how pose ``i`` is affected (a load-dependent
@@ -208,6 +231,10 @@ class JointAngleEffect(Effect):
 
     def parameter_names(self, robot: RobotDescription, targets: Sequence[int]) -> list[str]:
         return [f"{t}{j}" for j, t in self.parameter_terms()]
+
+    def parameter_joints(self, robot: RobotDescription) -> list[int]:
+        """The joint of each parameter, in the order of :meth:`parameter_names`."""
+        return [j for j, _ in self.parameter_terms()]
 
     def basis(self, inputs: ModelInputs, joint: int, term: str) -> np.ndarray:
         """(N,) regressor of parameter ``{term}{joint}`` on theta_joint (``joint`` is 1-based)."""
@@ -294,10 +321,10 @@ class JointAngleEffect(Effect):
             and cls.joint_jacobian is JointAngleEffect.joint_jacobian
         ):  # linear, one joint per parameter: a gather and a product
             joints, basis = inputs.cached(self, self._sparse_regressor)
-            np.multiply(sens.rows_theta[joints], basis[:, None, :], out=out)
+            np.multiply(sens.rows_joint[joints], basis[:, None, :], out=out)
         else:  # a subclass with its own (dense or non-linear) joint Jacobian
             out[...] = np.einsum(
-                "jxn,njk->kxn", sens.rows_theta, self.joint_jacobian(inputs, values)
+                "jxn,njk->kxn", sens.rows_joint, self.joint_jacobian(inputs, values)
             )
         return True
 
@@ -337,6 +364,45 @@ class ChainEffect(Effect):
         out = np.empty((len(values), 3, inputs.n))
         self.jacobian_into(inputs, values, sens, out)
         return out.transpose(2, 1, 0)
+
+
+def plausible_bound_of(effect: Effect, name: str, arm: ArmSize | None) -> float | None:
+    """``effect.plausible_bound(name, arm)``: the bound of ``name`` on an arm of size ``arm``.
+    A user's effect whose own ``plausible_bound(self, name)`` predates the arm's size is asked
+    as it was written (its bound does not scale); what it raises is one line naming it."""
+    method = type(effect).plausible_bound
+    with user_code(effect, f"plausible_bound({name!r})"):
+        if method is Effect.plausible_bound or _takes_arm(method):
+            bound = effect.plausible_bound(name, arm)
+        else:
+            bound = effect.plausible_bound(name)
+    if bound is None:
+        return None
+    try:
+        value = float(bound)
+    except (TypeError, ValueError):
+        raise EffectError(
+            f"{effect_origin(effect)}: plausible_bound({name!r}) returned {bound!r:.40}, not a "
+            "number or None"
+        ) from None
+    if not value > 0:
+        raise EffectError(
+            f"{effect_origin(effect)}: plausible_bound({name!r}) returned {value:g}, not a "
+            "positive number (None exempts a parameter)"
+        )
+    return value
+
+
+def _takes_arm(method) -> bool:
+    """Whether an effect's ``plausible_bound`` takes the arm's size after the name."""
+    try:
+        params = list(inspect.signature(method).parameters.values())
+    except (TypeError, ValueError):
+        return False
+    if any(p.kind is inspect.Parameter.VAR_POSITIONAL for p in params):
+        return True
+    positional = (inspect.Parameter.POSITIONAL_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
+    return sum(p.kind in positional for p in params) >= 3  # self, name, arm
 
 
 def missing_inputs(effect: Effect, robot: RobotDescription, columns: Sequence[str]) -> str | None:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from arm.description import RobotDescription
-from arm.effect_api import ChainState
+from arm.effect_api import ArmSize, ChainState
 from arm.effects.base import ChainEffect
 from arm.params import BASE_NAMES, TOOL_ROTATION_NAMES, parse_parameter_name
 from arm.so3 import rotation_matrix
@@ -63,13 +63,19 @@ class Geometric(ChainEffect):
     # 10 mm for a length error, 50 mrad (2.9 deg) for an angle error: a machined arm is never
     # that far from its drawing. The base and the tool are exempt: a tracker stands metres from
     # the base, anyhow rotated, and a reflector may sit hundreds of millimetres off the flange.
+    # Those of an arm up to a UR10's size: a larger arm's lengths are bounded in proportion to
+    # its reach (arm.effect_api.ArmSize), its angles keep 50 mrad.
     bounds = {"da": 0.01, "dd": 0.01, "dalpha": 0.05, "dtheta": 0.05, "beta": 0.05}
+    lengths = ("da", "dd")
 
-    def plausible_bound(self, name: str) -> float | None:
+    def plausible_bound(self, name: str, arm: ArmSize | None = None) -> float | None:
         parsed = parse_parameter_name(name)
         if parsed is None or parsed.kind in ("base", "tool", "tool_rotation"):
             return None
-        return self.bounds.get(parsed.family)
+        bound = self.bounds.get(parsed.family)
+        if bound is None or arm is None or parsed.family not in self.lengths:
+            return bound
+        return bound * arm.length_factor
 
     def parameter_names(
         self,

@@ -25,6 +25,7 @@ from arm.effects.joint_angle import (
     LoadBacklash,
     Transmission,
 )
+from arm.effects.lumped import LumpedCompliance
 from arm.files import check_input_file
 from arm.params import parse_parameter_name
 
@@ -80,6 +81,7 @@ _ENTRY_POINT_CLASSES: set[str] = set()
 for _cls in (
     Geometric,
     Compliance,
+    LumpedCompliance,
     Transmission,
     Cyclic,
     JointScale,
