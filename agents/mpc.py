@@ -44,7 +44,6 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-import scipy.linalg
 
 from agents.base import Agent, measurement_columns, refuse_settings, solve_time_stats
 from agents.errors import AgentError
@@ -93,21 +92,6 @@ def _qp_options(solver: str) -> dict:
     if solver == "qpoases":
         return {"printLevel": "none", "sparse": False, "error_on_fail": False}
     return {"error_on_fail": False}
-
-
-def _inv3(S):
-    """The inverse of a 3 x 3 CasADi SX matrix by its adjugate (closed form, a few dozen
-    operations; S here is symmetric positive definite, its determinant at least 1)."""
-    a, b, c = S[0, 0], S[0, 1], S[0, 2]
-    d, e, f = S[1, 0], S[1, 1], S[1, 2]
-    g, h, k = S[2, 0], S[2, 1], S[2, 2]
-    A, B, C = e * k - f * h, -(d * k - f * g), d * h - e * g
-    adj = ca.vertcat(
-        ca.horzcat(A, -(b * k - c * h), b * f - c * e),
-        ca.horzcat(B, a * k - c * g, -(a * f - c * d)),
-        ca.horzcat(C, -(a * h - b * g), a * e - b * d),
-    )
-    return adj / (a * A + b * B + c * C)
 
 
 class KinematicMPC:
@@ -240,18 +224,13 @@ class KinematicMPC:
             g += self.rho_q * dt * np.kron(counts, np.asarray(q0) - np.asarray(q_posture))
         return H, g
 
-    def _build_qp(self) -> None:
-        """One CasADi function per step: the model's point and d x / d q at q0, the condensed QP's
-        Hessian, gradient and bounds, and the QP solver on them. Its input and output are single
-        vectors: no matrix crosses into Python."""
-        N, dt, nA = self.N, self.dt, self.nA
-        tm = self.tm
-        nz = tm.n_inputs
-        A = ca.sparsify(ca.DM(self.A))  # block bidiagonal and block lower-triangular
-        qp = {"h": ca.Sparsity.dense(6 * N, 6 * N), "a": A.sparsity()}
-        self._qp = ca.conic("mpc_qp", self.solver, qp, _qp_options(self.solver))
-        # the QP's data as an SX function (scalar expressions, fast to evaluate) ...
-        z = ca.SX.sym("z", nz)
+    def _qp_data(self) -> tuple[Any, Any, Any, Any, tuple[Any, ...]]:
+        """The condensed QP's Hessian, gradient and constraint bounds as scalar expressions (SX)
+        of the step's inputs ``(z, refs, v_prev, q_posture, r0)``: the model's point and
+        d x / d q at ``q0`` (``z``: encoders, parameters, columns), the references, the previous
+        command, the posture and the reference now."""
+        N, dt, tm = self.N, self.dt, self.tm
+        z = ca.SX.sym("z", tm.n_inputs)
         refs = ca.SX.sym("refs", 3 * N)
         v_prev = ca.SX.sym("v_prev", 6)
         q_post = ca.SX.sym("q_posture", 6)
@@ -270,7 +249,20 @@ class KinematicMPC:
         counts = ca.DM(N - np.arange(N))
         g = g + self.rho_q * dt * ca.kron(counts, q0 - q_post)
         lba, uba = self._symbolic_bounds(q0, v_prev)
-        data = ca.Function("mpc_qp_data", [z, refs, v_prev, q_post, r0], [H, g, lba, uba])
+        return H, g, lba, uba, (z, refs, v_prev, q_post, r0)
+
+    def _build_qp(self) -> None:
+        """One CasADi function per step: the model's point and d x / d q at q0, the condensed QP's
+        Hessian, gradient and bounds, and the QP solver on them. Its input and output are single
+        vectors: no matrix crosses into Python."""
+        N, nA = self.N, self.nA
+        nz = self.tm.n_inputs
+        A = ca.sparsify(ca.DM(self.A))  # block bidiagonal and block lower-triangular
+        qp = {"h": ca.Sparsity.dense(6 * N, 6 * N), "a": A.sparsity()}
+        self._qp = ca.conic("mpc_qp", self.solver, qp, _qp_options(self.solver))
+        # the QP's data as an SX function (scalar expressions, fast to evaluate) ...
+        H, g, lba, uba, inputs = self._qp_data()
+        data = ca.Function("mpc_qp_data", list(inputs), [H, g, lba, uba])
         # ... and the solver called on it, in an MX function
         n_in = nz + 3 * N + 15
         w = ca.MX.sym("w", n_in + (12 * N + nA if self._warm_start else 0))
@@ -305,52 +297,30 @@ class KinematicMPC:
         self._step = ca.Function("mpc_qp_step", [w], [ca.vertcat(*out)])
 
     def _build_fast(self) -> None:
-        """The QP's unconstrained minimiser in closed form, and how far it violates the
-        constraints, in one compiled function (called through its own buffers).
+        """The QP's unconstrained minimiser ``-H^-1 g`` by a factorisation of the Hessian
+        (CasADi's own sparse LDL': no BLAS, whose threads would round differently from one
+        process to the next), and how far it violates the constraints, in one compiled function
+        called through its own buffers. When no constraint binds this *is* the QP's solution (the
+        problem is convex), and it is what the tracking steps almost always are: the solver runs
+        only when the minimiser violates a bound (a few steps of an episode, at the first
+        corrections).
 
-        With ``M = J'J`` the Hessian is ``R_N (x) I_6 + dt^2 C (x) M`` (``R_N`` the N x N weights
-        of the move, speed and posture terms): the plan ``V`` (6 x N, v_k its columns) solves
-        ``V R_N + M V C' = -G`` (``C' = dt^2 C``). Multiplying by ``J`` gives a 3 x N equation for
-        ``Y = J V``, ``Y R_N + (J J') Y C' = -J G``, which the generalised eigenvectors ``T`` of
-        ``(C', R_N)`` (``T' R_N T = I``, ``T' C' T = diag(mu)``, constant) split into N
-        independent 3 x 3 systems ``(I + mu_k J J') z_k = (-J G T)_k``, ``Y = Z T'``; then
-        ``V = (-G - J' Y C') R_N^-1``. A few thousand scalar operations instead of a 60 x 60
-        factorisation. When no constraint binds this *is* the QP's solution (the problem is
-        convex), and it is what the tracking steps almost always are: the solver runs only when
-        the minimiser violates a bound (a few steps of an episode, at the first corrections)."""
-        N, dt = self.N, self.dt
-        tm = self.tm
-        nz = tm.n_inputs
-        Dn = np.eye(N) - np.eye(N, k=-1)
-        C2 = dt * dt * self._C
-        RN = self.rho_dv * Dn.T @ Dn + self.rho_v * np.eye(N) + self.rho_q * dt * dt * self._C
-        mu, T = scipy.linalg.eigh(C2, RN)
-        w = ca.SX.sym("w", nz + 3 * N + 15)
-        o = nz + 3 * N
-        z, refs, v_prev = w[:nz], w[nz:o], w[o : o + 6]
-        q_post, r0 = w[o + 6 : o + 12], w[o + 12 :]
-        q0 = z[:6]
-        P, nc = len(tm.layout), len(tm.column_names)
-        x = tm.expression(q0, z[6 : 6 + P], z[6 + P : 6 + P + nc], z[6 + P + nc :])
-        Jm = ca.jacobian(x, q0) * MM
-        E = (ca.repmat(x, 1, N) - ca.reshape(refs, 3, N)) * MM
-        E = E - ca.mtimes(x - r0, ca.DM(self._decay).T) * MM
-        S = ca.mtimes(E, ca.DM(np.tril(np.ones((N, N)))))
-        G = dt * ca.mtimes(Jm.T, S)  # (6, N): the gradient, column k for v_k
-        G[:, 0] = G[:, 0] - self.rho_dv * v_prev
-        G = G + self.rho_q * dt * ca.mtimes(q0 - q_post, ca.DM(N - np.arange(N)).T)
-        F = -ca.mtimes(ca.mtimes(Jm, G), ca.DM(T))
-        JJ = ca.mtimes(Jm, Jm.T)
-        Z = ca.horzcat(
-            *(ca.mtimes(_inv3(ca.SX.eye(3) + float(mu[k]) * JJ), F[:, k]) for k in range(N))
-        )
-        Y = ca.mtimes(Z, ca.DM(T.T))
-        V = ca.mtimes(-G - ca.mtimes(ca.mtimes(Jm.T, Y), ca.DM(C2)), ca.DM(np.linalg.inv(RN)))
-        v = ca.vec(V)
-        Av = ca.vertcat(ca.vec(ca.mtimes(V, ca.DM(Dn.T))), dt * ca.vec(ca.cumsum(V, 1)))
-        lba, uba = self._symbolic_bounds(q0, v_prev)
+        Not a structured closed form: one (the Hessian's Kronecker form split by the generalised
+        eigenvectors of its constant part) took a few thousand scalar operations instead of a
+        60 x 60 factorisation, but cancelled two terms of the size of the tracking error's
+        gradient, carried a rounding difference of the encoders a thousand times further than a
+        factorisation does, and the MPC's rows then moved by up to 1e-5 on another CPU
+        (``benchmarks/perturbation.py``)."""
+        H, g, lba, uba, inputs = self._qp_data()
+        data = ca.Function("mpc_qp_data", list(inputs), [H, g, lba, uba])
+        sizes = [int(x.numel()) for x in inputs]
+        w = ca.MX.sym("w", sum(sizes))
+        parts = ca.vertsplit(w, list(np.cumsum([0, *sizes])))
+        Hw, gw, lbaw, ubaw = data(*parts)
+        v = -ca.solve(Hw, gw, "ldl")
+        Av = ca.mtimes(ca.DM(self.A), v)
         violation = ca.mmax(
-            ca.vertcat(Av - uba, lba - Av, v - ca.DM(self._ubx), ca.DM(self._lbx) - v)
+            ca.vertcat(Av - ubaw, lbaw - Av, v - ca.DM(self._ubx), ca.DM(self._lbx) - v)
         )
         f = ca.Function("mpc_unconstrained", [w], [ca.densify(ca.vertcat(v, violation))])
         self._fast = BufferedFunction(f)

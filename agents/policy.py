@@ -799,10 +799,11 @@ class PolicyAgent(Agent):
         self._times.append(self.last_solve_time)
         return out
 
-    def report(self) -> dict[str, float | list]:
+    def report(self) -> dict[str, Any]:
         """Solve times, and the training budget the policy file records (the shipped run's
-        steps and wall time, and how many seeds were trained to choose it)."""
-        out: dict[str, float | list] = dict(solve_time_stats(self._times))
+        steps and wall time, how many seeds were trained to choose it, and which of them was
+        shipped: ``training_picked``, ``best`` or ``median``, where the file says)."""
+        out: dict[str, Any] = dict(solve_time_stats(self._times))
         training = self.meta.get("training") or {}
         for key, field in (
             ("training_steps", "timesteps"),
@@ -813,4 +814,6 @@ class PolicyAgent(Agent):
             value = training.get(field)
             if isinstance(value, (int, float)) and not isinstance(value, bool):
                 out[key] = float(value)
+        if isinstance(training.get("picked"), str):
+            out["training_picked"] = training["picked"]
         return out

@@ -33,15 +33,26 @@ from arm.constraints import check, constraints_of
 
 __all__ = [
     "AGENTS",
+    "CROSS_CPU_RTOL",
     "POLICIES",
     "AgentError",
     "AgentSpec",
     "agent_module_source",
     "agent_names",
     "check_settings",
+    "cross_cpu_rtol",
     "make_agent",
     "resolve_agent",
 ]
+
+
+#: the relative tolerance within which an agent's leaderboard rows reproduce on another CPU,
+#: unless its spec declares a larger one (README: ``sixaxis reproduce --rtol 1e-6``)
+CROSS_CPU_RTOL = 1e-6
+#: the QP MPCs' (results/perturbation.md): a few units in the last place of every observation
+#: still grow past 1e-8 in two to five episodes of eight (up to 2.2e-5; the median episode 1e-9
+#: to 7e-8), and a relative 1e-12 to 9e-5. The same MPC by IPOPT stays below 1e-9 and keeps 1e-6.
+MPC_CROSS_CPU_RTOL = 1e-3
 
 
 @dataclass(frozen=True)
@@ -49,12 +60,15 @@ class AgentSpec:
     """One registered agent, as Gymnasium's ``EnvSpec`` registers an environment: its ``name``,
     the class that makes it (``entry_point``, ``"package.module:Class"``, imported only when the
     agent is made), the ``kwargs`` it is made with before the user's settings, and one line of
-    what it is."""
+    what it is; ``cross_cpu_rtol``, the relative tolerance its rows keep on another CPU (the
+    largest a rounding difference grows to in its closed loop, measured by
+    ``benchmarks/perturbation.py``: ``results/perturbation.md``)."""
 
     name: str
     entry_point: str
     summary: str
     kwargs: Mapping[str, Any] = field(default_factory=dict)
+    cross_cpu_rtol: float = CROSS_CPU_RTOL
 
     def load(self) -> type[Agent]:
         """The agent's class."""
@@ -94,6 +108,7 @@ AGENTS: dict[str, AgentSpec] = {
             "mpc",
             "agents.mpc:MPCAgent",
             "kinematic MPC (QP, daqp) with online recursive least-squares calibration",
+            cross_cpu_rtol=MPC_CROSS_CPU_RTOL,
         ),
         AgentSpec(
             "mpc-ipopt",
@@ -106,11 +121,13 @@ AGENTS: dict[str, AgentSpec] = {
             "agents.mpc:MPCAgent",
             "the MPC given the plant's true model (needs the env's truth)",
             {"oracle": True},
+            cross_cpu_rtol=MPC_CROSS_CPU_RTOL,
         ),
         AgentSpec(
             "mpc-diagnose",
             "agents.self_diagnosis:DiagnosingMPCAgent",
             "the MPC that diagnoses its own model with the lab and widens it",
+            cross_cpu_rtol=MPC_CROSS_CPU_RTOL,
         ),
         AgentSpec(
             "policy",
@@ -133,6 +150,14 @@ AGENTS: dict[str, AgentSpec] = {
 
 def agent_names() -> list[str]:
     return list(AGENTS)
+
+
+def cross_cpu_rtol(name: str) -> float:
+    """The relative tolerance within which the rows of agent ``name`` reproduce on another CPU:
+    its spec's (:attr:`AgentSpec.cross_cpu_rtol`), or :data:`CROSS_CPU_RTOL` for a user's class,
+    whose sensitivity nobody measured."""
+    spec = AGENTS.get(name)
+    return spec.cross_cpu_rtol if spec is not None else CROSS_CPU_RTOL
 
 
 def resolve_agent(name: str) -> tuple[Callable[..., Agent], Callable[..., Any]]:

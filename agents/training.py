@@ -1152,11 +1152,13 @@ def ship_policy(
     name: str | None = None,
     seeds_trained: int = 1,
     wall_s_all_seeds: float | None = None,
+    picked: str | None = None,
 ) -> Path:
     """Copy a run's ``best`` or ``final`` policy into ``agents/policies/<name>.npz`` (and .json)
     with its deterministic evaluation on the public episodes and its training budget (the run's
     steps and wall time, from its ``summary.json``; how many seeds were trained to choose it and
-    their wall time in all) recorded in the .json."""
+    their wall time in all; ``picked``, which seed of them this is: ``"best"`` or ``"median"``)
+    recorded in the .json: the leaderboard says what the shipped row is from it."""
     from agents.policy import load_policy_file
     from arm.files import atomic_path, atomic_write_text
 
@@ -1180,6 +1182,8 @@ def ship_policy(
         "seeds_trained": int(seeds_trained),
         "wall_s_all_seeds": wall_s_all_seeds if wall_s_all_seeds is not None else wall,
     }
+    if picked is not None:
+        meta["training"]["picked"] = str(picked)
     meta["leaderboard"] = policy_evaluation_record(src)  # the same weights
     with atomic_path(dst) as tmp:
         tmp.write_bytes(src.read_bytes())

@@ -364,6 +364,7 @@ def main() -> None:
                 name,
                 seeds_trained=len(runs),
                 wall_s_all_seeds=round(sum(walls), 1),
+                picked=args.pick,
             )
             print(f"{name}: shipped the {args.pick} seed {median['run']} to {dst}")
     for (ax1, ax2), kind in zip(axes, ("residual policies", "plain policies"), strict=True):

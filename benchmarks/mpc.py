@@ -1,7 +1,7 @@
 """Kinematic MPC solve time per control step, QP against IPOPT, with the tracking error of each,
 in one run: the same seeded SixAxisTrack-v0 episodes driven by the MPC with online calibration,
-its linearised QP (the closed-form step with DAQP when a bound binds, the default; DAQP on every
-step; qpOASES and OSQP) and the full nonlinear program solved by IPOPT. A step's time is
+its linearised QP (the unconstrained step by an LDL' factorisation, DAQP when a bound binds, the
+default; DAQP on every step; qpOASES and OSQP) and the full nonlinear program solved by IPOPT. A step's time is
 everything the agent does in ``act``: the estimator's update when a tracker point arrives, the
 model's point and Jacobian, the QP and its solution (so the "model update" is included).
 Targets (issue 12): the default's median step at least 60x faster than IPOPT's median, its p95
@@ -132,8 +132,9 @@ def main() -> None:
         "long IPOPT solve more often than a 0.1 ms step, which flatters the wall-clock ratio). "
         "Medians over seeds of per-episode statistics; the tracking RMS after the first "
         f"{SETTLE_S:g} s and over the whole episode, mean over seeds. `daqp` is the default: the "
-        "QP's unconstrained minimiser in closed form, DAQP when it violates a bound (every QP row "
-        "takes the closed form; the solver differs only there); `daqp-every-step` runs DAQP "
+        "QP's unconstrained minimiser by an LDL' factorisation of its Hessian, DAQP when it violates a "
+        "bound (every QP row takes that step; the solver differs only there); `daqp-every-step` "
+        "runs DAQP "
         "(through CasADi, cold) on every step, as the MPC did before.",
         "",
         "| solver | wall median / p95 (ms) | CPU median / p95 (ms) | p95 / median, wall / CPU | "
@@ -164,8 +165,8 @@ def main() -> None:
         "Where the time goes: every CasADi function is called through its own buffers "
         "(`Function.buffer`; a plain call's numpy conversions cost 30-40 us, more than the "
         "evaluation); the QP's step is one compiled function (the model's point and Jacobian, the "
-        "gradient, the closed-form minimiser from the Hessian's Kronecker structure, the "
-        "constraint check); the estimator's update is one compiled function (its information "
+        "gradient and Hessian, CasADi's LDL' solve, the constraint check); the estimator's "
+        "update is one compiled function (its information "
         "refactored by CasADi's LDL: the regularised forgetting's (1 - lam) I term is full rank, "
         "so a rank-one factor update cannot take it). The p95 falls on the tracker steps (every "
         "5th), which add the estimator's update (fifth column) to a step that itself got 4x "

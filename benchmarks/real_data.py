@@ -597,7 +597,7 @@ def _held_out(res, data: MeasurementSet) -> dict:
     """A FitResult validated on ``data`` as a user's --validate does it (a station the fit has
     not seen registered, terms not extrapolated out of the fitted domain): the 3-D errors, and
     what lay outside the domain."""
-    v = res.validate(data)
+    v = res.validate(data, register_on_rows=True)
     e = 1e3 * np.linalg.norm(v.validation_residuals, axis=1)
     return {
         "rms_mm": float(np.sqrt(np.mean(e**2))),

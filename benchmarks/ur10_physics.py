@@ -136,8 +136,8 @@ def leave_one_out(series, fitting) -> list[dict]:
         row: dict = {"left_out": left, "models": {}}
         for m in MODELS:
             res = _fit(train, m)
-            v = res.validate(series[left])
-            x = res.validate(series[left], extrapolate=True)
+            v = res.validate(series[left], register_on_rows=True)
+            x = res.validate(series[left], extrapolate=True, register_on_rows=True)
             assert v.validation_residuals is not None and x.validation_residuals is not None
             row["models"][m] = {
                 "held_out_rms_mm": _rms_mm(v.validation_residuals),

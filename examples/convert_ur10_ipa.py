@@ -6,7 +6,7 @@ in its own region of the joint space (``data/ur10/README.md``). Their converted 
 
     python examples/convert_ur10_ipa.py SOURCE_DIR -o data/ur10
     sixaxis lab fit data/ur10/series_B.csv --robot ur10_robot --noise-mm 0.015 --noise-ppm 6 \\
-        --validate data/ur10/series_D.csv
+        --validate data/ur10/series_D.csv --references tour/D_references.csv
 
 Input, a folder holding one CSV per series whose name starts ``series_A``, ``series_B`` and
 ``series_D`` (github.com/christianlandgraf/ipa-robot-accuracy, commit 507fba6), in either layout:

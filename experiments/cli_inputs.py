@@ -56,6 +56,7 @@ __all__ = [
     "DataArg",
     "DeclaredError",
     "EffectsOpt",
+    "ExportInputs",
     "JsonOpt",
     "JsonOutOpt",
     "LabArgs",
@@ -64,6 +65,7 @@ __all__ = [
     "ModuleOpt",
     "OneLineErrors",
     "Read",
+    "ReferencesOpt",
     "RobotOpt",
     "check_outputs",
     "cli_fields",
@@ -255,6 +257,14 @@ class LabInputs:
         "(with --validate beside the measured figure); in the JSON under predicted.",
         commands=("fit", "bag", "update"),
     )
+    references: Path | None = declare(
+        None,
+        help="Reference points measured at a station the calibration has not seen (a "
+        "measurement CSV, same units: at least 3 points not on one line with their joints, or "
+        "6-DoF rows): the station's frame is fitted on them alone, the arm as calibrated, and "
+        "its residual printed; they stay out of any validation figure.",
+        metavar="REFS.csv",
+    )
     orientation_unit: str | None = declare(
         None,
         OneOf(tuple(ANGLE_UNITS)),
@@ -282,6 +292,23 @@ class LabInputs:
 
 
 INPUTS = LabInputs()
+
+
+@dataclass(frozen=True)
+class ExportInputs:
+    """``lab export``'s own input: a saved calibration to export again, in place of DATA."""
+
+    source: Path | None = declare(
+        None,
+        help="A saved calibration (a robot TOML from lab export or lab bag --export, or a "
+        "calibrated URDF with its metrology file) to export again without refitting, in place of "
+        "DATA; to a URDF, --robot names the nominal arm's URDF where the file records none.",
+        flags=("--from",),
+        metavar="CAL.toml|CAL.urdf",
+    )
+
+
+ReferencesOpt = Annotated[Path | None, option_of(LabInputs, "references")]
 RobotOpt = Annotated[str, option_of(LabInputs, "robot")]
 ModuleOpt = Annotated[list[Path] | None, option_of(LabInputs, "effect_module")]
 LengthOpt = Annotated[str, option_of(LabInputs, "length_unit")]
@@ -387,7 +414,14 @@ class LabArgs(LabInputs):
         opts = self.options()
         check_outputs(
             outputs,
-            [*data, self.validate, self.predict, self.robot, *(self.effect_module or ())],
+            [
+                *data,
+                self.validate,
+                self.references,
+                self.predict,
+                self.robot,
+                *(self.effect_module or ()),
+            ],
             as_json,
         )
         load_modules(self.effect_module)
@@ -399,6 +433,19 @@ class LabArgs(LabInputs):
             None if self.validate is None else read_data(self.validate, *units, option="--validate")
         )
         return Read(arm, meas, val, opts, effects)
+
+    def read_references(self) -> MeasurementSet | None:
+        """The ``--references`` measurement set (None when not given), in the data's units;
+        refused without ``--validate``, whose new station they register."""
+        if self.references is None:
+            return None
+        if self.validate is None:
+            fail(
+                f"--references {self.references}: reference points register the station of "
+                "--validate's data; give --validate too"
+            )
+        units = (self.length_unit, self.angle_unit, self.orientation_unit, self.measured)
+        return read_data(self.references, *units, option="--references")
 
     def next_step(self, command: str, replaced: Sequence[str] = ("effects",)) -> dict[str, Any]:
         """The flags that a printed ``sixaxis lab COMMAND`` step repeats so as to work on the same

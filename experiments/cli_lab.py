@@ -20,6 +20,7 @@ MuJoCo.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
@@ -33,12 +34,14 @@ from experiments.cli_inputs import (
     AngleOpt,
     DataArg,
     EffectsOpt,
+    ExportInputs,
     JsonOpt,
     JsonOutOpt,
     LabArgs,
     LabInputs,
     LengthOpt,
     ModuleOpt,
+    ReferencesOpt,
     RobotOpt,
     check_outputs,
     declared,
@@ -124,12 +127,22 @@ ExtrapolateOpt = Annotated[
 ]
 
 
-def _fitted(meas, arm, effects: list[Effect], opts: LabOptions, val, extrapolate: bool = False):
+def _fitted(
+    meas, arm, effects: list[Effect], opts: LabOptions, val, extrapolate: bool = False, refs=None
+):
     """The lab's fit of a command's data (``lab fit``, ``lab export``)."""
     from lab import fit
 
     with user_errors():
-        return fit(meas, arm, effects, options=opts, validate=val, extrapolate=extrapolate)
+        return fit(
+            meas,
+            arm,
+            effects,
+            options=opts,
+            validate=val,
+            references=refs,
+            extrapolate=extrapolate,
+        )
 
 
 # -- fit --------------------------------------------------------------------------------------------
@@ -147,8 +160,9 @@ def fit_cmd(
     parameters the poses cannot identify; --json prints the JSON object of docs/format.md, the
     lab's JSON output (SI units)."""
     arm, meas, val, opts, effects = lab.read(data, [(out, "--out")], as_json)
-    result = _fitted(meas, arm, effects, opts, val, extrapolate)
-    expected = _expected(result, meas, lab, opts, val, extrapolate)
+    refs = lab.read_references()
+    result = _fitted(meas, arm, effects, opts, val, extrapolate, refs)
+    expected = _expected(result, meas, lab, opts, val, extrapolate, refs)
     if not as_json:
         print_sessions(meas)
         print_fit(result)
@@ -175,6 +189,7 @@ def _expected(
     opts: LabOptions,
     val: Any,
     extrapolate: bool,
+    refs: Any = None,
 ) -> tuple[Any, float | None] | None:
     """With ``--predict``: the :class:`lab.prediction.Expectation` on its target, and the chosen
     model's RMS measured on the ``--validate`` rows (None without them)."""
@@ -187,7 +202,7 @@ def _expected(
         e = expect(result, meas, target, unseen=_unseen(result, target), options=opts)
         measured = None
         if val is not None:
-            done = e.result.validate(val, extrapolate=extrapolate)
+            done = e.result.validate(val, extrapolate=extrapolate, references=refs)
             measured = done.validation_rms_mm
     return e, measured
 
@@ -204,7 +219,12 @@ def _print_expected(expected: tuple[Any, float | None] | None) -> None:
         )
 
 
-def _expected_json(expected: tuple[Any, float | None] | None) -> dict[str, Any]:
+def _expected_json(
+    expected: tuple[Any, float | None] | None, say_it: bool = False
+) -> dict[str, Any]:
+    """The JSON of a --predict (none without it); ``say_it``: print it too (its text)."""
+    if say_it:
+        _print_expected(expected)
     if expected is None:
         return {}
     e, measured = expected
@@ -215,7 +235,7 @@ AlphaOpt = Annotated[float, declared(ALPHA, "alpha")]
 
 
 # -- diagnose ---------------------------------------------------------------------------------------
-@lab_command(app, "diagnose", omit=("validate",))
+@lab_command(app, "diagnose", omit=("validate", "references"))
 def diagnose_cmd(
     data: DataArg,
     lab: LabArgs,
@@ -286,7 +306,15 @@ def discover_cmd(
     arm, meas, val, opts, effects = lab.read(data, [(output, "--output"), (out, "--out")], as_json)
     with user_errors(), console.status("fitting the model and searching the library..."):
         d = discover(
-            meas, arm, effects, options=opts, validate=val, alpha=alpha, order=order, name=name
+            meas,
+            arm,
+            effects,
+            options=opts,
+            validate=val,
+            references=lab.read_references(),
+            alpha=alpha,
+            order=order,
+            name=name,
         )
     written = None
     if output is not None and d.terms:
@@ -326,10 +354,11 @@ def bag_cmd(
     export: Annotated[
         Path | None,
         typer.Option(
-            help="Also write the averaged calibration as a robot TOML (as `lab export` does); "
-            "with discovered terms, use it with their module (-o, default FILE.py beside it): "
-            "--robot FILE.toml --effect-module FILE.py.",
-            metavar="FILE.toml",
+            help="Also write the averaged calibration as `lab export` does: a robot TOML "
+            "(FILE.toml) or, for an arm read from a URDF, the calibrated URDF and its metrology "
+            "file (FILE.urdf); with discovered terms, use it with their module (-o, default "
+            "FILE.py beside it): --robot FILE --effect-module FILE.py.",
+            metavar="FILE.toml|FILE.urdf",
         ),
     ] = None,
     extrapolate: ExtrapolateOpt = False,
@@ -347,25 +376,32 @@ def bag_cmd(
     from lab.bagging import bag
     from lab.discovery import check_module_path
     from lab.sanity import check_validation
+    from lab.urdf_export import metrology_path, require_urdf
 
-    if export is not None and export_format_of(export, None) == "urdf":
-        fail(
-            f"--export {export}: the averaged calibration is written as a robot TOML; give "
-            "FILE.toml (a calibrated URDF: sixaxis lab export --format urdf)"
-        )
+    as_urdf = export is not None and export_format_of(export, None) == "urdf"
     if output is None and export is not None:  # the discovered terms go beside the arm
         output = export.with_suffix(".py")
     if output is not None:
         with user_errors():
             check_module_path(output)
     places = [(output, "--output"), (out, "--out"), (export, "--export")]
+    if as_urdf and export is not None:
+        places.append((metrology_path(export), "--export's metrology file"))
     arm, meas, val, opts, _ = lab.read(data, places, as_json)
+    refs = lab.read_references()
+    if as_urdf:
+        with user_errors():  # before the draws: a TOML arm has no URDF to correct
+            require_urdf(arm)
     with user_errors(), console.status(f"the lab's path on {bags} draws of the poses..."):
         b = bag(meas, arm, bags=bags, poses=poses, seed=seed, name=name, options=opts)
-        result = b.result if val is None else b.result.validate(val, extrapolate=extrapolate)
+        result = (
+            b.result
+            if val is None
+            else b.result.validate(val, extrapolate=extrapolate, references=refs)
+        )
         if val is not None:  # foreign held-out data: warned about as `lab fit` does
             check_validation(result, val.source)
-    expected = _expected(b.result, meas, lab, opts, val, extrapolate)
+    expected = _expected(b.result, meas, lab, opts, val, extrapolate, refs)
     written = None
     if output is not None and b.discovered is not None:
         with user_errors(), writing(output):
@@ -373,11 +409,15 @@ def bag_cmd(
     if export is not None:
         from arm.effects import load_effect_module
         from lab.export import export_robot
+        from lab.urdf_export import export_urdf
 
         with user_errors(), writing(export):
             if written is not None:
                 load_effect_module(written)  # the arm names the effect: it must be registered
-            export_robot(b.result, export)
+            if as_urdf:
+                export_urdf(b.result, export)
+            else:
+                export_robot(b.result, export)
     if not as_json:
         print_sessions(meas)
         print_fit(result)
@@ -388,24 +428,23 @@ def bag_cmd(
         if written is not None:
             say(f"wrote {written} (the discovered terms of every draw: --effect-module)")
         if export is not None:
-            say(f"wrote the averaged calibration to {export}; use it with --robot {export}")
-        _print_expected(expected)
+            beside = f" and {metrology_path(export)}" if as_urdf else ""
+            say(
+                f"wrote the averaged calibration to {export}{beside}; use it with --robot "
+                f"{export}" + (f" --effect-module {written}" if written is not None else "")
+            )
     emit_json(
         result.to_dict()
         | sessions_json(meas)
-        | _expected_json(expected)
-        | {
-            "bag": {
-                "bags": b.bags,
-                "poses": poses,
-                "seed": seed,
-                "effects": b.suggestion,
-                "refused": b.refused,
-            }
-        },
+        | _expected_json(expected, not as_json)
+        | {"bag": {"bags": b.bags, "poses": poses, "seed": seed} | _bag_choice(b)},
         as_json,
         out,
     )
+
+
+def _bag_choice(b: Any) -> dict[str, Any]:
+    return {"effects": b.suggestion, "refused": b.refused}
 
 
 # -- report -----------------------------------------------------------------------------------------
@@ -437,6 +476,7 @@ def report_cmd(
                 effects,
                 options=opts,
                 validate=val,
+                references=lab.read_references(),
                 rounds=rounds,
                 command=command,
                 progress=step,
@@ -487,6 +527,7 @@ def update_cmd(
     ] = None,
     validate: Annotated[Path | None, option_of(LabInputs, "validate")] = None,
     predict: Annotated[Path | None, option_of(LabInputs, "predict")] = INPUTS.predict,
+    references: ReferencesOpt = None,
     effect_module: ModuleOpt = None,
     length_unit: LengthOpt = INPUTS.length_unit,
     angle_unit: AngleOpt = INPUTS.angle_unit,
@@ -510,7 +551,7 @@ def update_cmd(
         fail(
             f"--output {output}: an updated calibration is written as a robot TOML; give FILE.toml"
         )
-    inputs = [calibration, *data, validate, predict, robot, *(effect_module or ())]
+    inputs = [calibration, *data, validate, references, predict, robot, *(effect_module or ())]
     check_outputs([(output, "--output"), (out, "--out")], inputs, as_json)
     load_modules(effect_module)
     cal = read_arm(calibration, "CAL")
@@ -521,6 +562,11 @@ def update_cmd(
         if validate is None
         else read_data(validate, length_unit, angle_unit, option="--validate")
     )
+    refs = None
+    if references is not None:
+        if val is None:
+            fail(f"--references {references}: they register --validate's station; give --validate")
+        refs = read_data(references, length_unit, angle_unit, option="--references")
     with user_errors(), console.status(f"updating {calibration} with {len(meas)} poses..."):
         prior = replace(prior_of(cal), source=calibration)
         u = update(
@@ -532,10 +578,14 @@ def update_cmd(
             rehome_mrad=rehome_mrad,
             remount_mm=remount_mm,
         )
-        result = u.result if val is None else u.result.validate(val, extrapolate=extrapolate)
+        result = (
+            u.result
+            if val is None
+            else u.result.validate(val, extrapolate=extrapolate, references=refs)
+        )
         alone = predicted = None
         if val is not None and u.prior_result is not None:
-            alone = u.prior_result.validate(val, extrapolate=extrapolate)
+            alone = u.prior_result.validate(val, extrapolate=extrapolate, references=refs)
             predicted = (
                 predicted_rms(u.result, val, unseen=False),
                 predicted_rms(u.prior_result, val, unseen=True, u=u.prior.uncertainty),
@@ -546,20 +596,7 @@ def update_cmd(
             export_robot(result, output)
     if not as_json:
         print_sessions(meas)
-        say(u.summary())
-        if target_pred is not None:
-            say(f"--predict {predict}: {target_pred.text()}")
-        if alone is not None and val is not None:
-            say(
-                f"validation on {len(val)} points: RMS "
-                f"{result.validation_rms_mm:.4f} mm updated, {alone.validation_rms_mm:.4f} mm "
-                "the calibration alone (its base placed on the new poses)"
-            )
-        if predicted is not None:
-            say(f"updated: {predicted[0].text()}")
-            say(f"the calibration alone: {predicted[1].text()}")
-        if output is not None:
-            say(f"wrote the updated calibration to {output}; use it with --robot {output}")
+        _say_update(u, result, val, alone, predicted, (predict, target_pred), output)
     summary = result.to_dict() | sessions_json(meas) | {"update": u.to_dict()}
     if alone is not None:
         summary["update"]["prior_validation_rms_mm"] = alone.validation_rms_mm
@@ -570,6 +607,27 @@ def update_cmd(
         measured = None if val is None else result.validation_rms_mm
         summary["predicted"] = target_pred.to_dict() | {"measured_rms_mm": measured}
     emit_json(summary, as_json, out)
+
+
+def _say_update(
+    u: Any, result: Any, val: Any, alone: Any, predicted: Any, target: Any, output: Path | None
+) -> None:
+    """The text of ``lab update``: what it did, the --predict target's prediction, the
+    validation beside the calibration alone, where it wrote."""
+    say(u.summary())
+    if target[1] is not None:
+        say(f"--predict {target[0]}: {target[1].text()}")
+    if alone is not None and val is not None:
+        say(
+            f"validation on {len(val)} points: RMS "
+            f"{result.validation_rms_mm:.4f} mm updated, {alone.validation_rms_mm:.4f} mm "
+            "the calibration alone (its base placed on the new poses)"
+        )
+    if predicted is not None:
+        say(f"updated: {predicted[0].text()}")
+        say(f"the calibration alone: {predicted[1].text()}")
+    if output is not None:
+        say(f"wrote the updated calibration to {output}; use it with --robot {output}")
 
 
 def _update_prediction(result: FitResult, predict: Path | None, length: str, angle: str) -> Any:
@@ -828,7 +886,14 @@ def collect_cmd(
 # -- export / compensate ----------------------------------------------------------------------------
 @lab_command(app, "export")
 def export_cmd(
-    data: DataArg,
+    data: Annotated[
+        list[Path] | None,
+        typer.Argument(
+            help="Measurement CSV files to fit, then export (docs/format.md, the measurement "
+            "CSV; each a session, as lab fit takes them); or leave them out and give --from.",
+            metavar="[DATA.csv...]",
+        ),
+    ] = None,
     output: Annotated[
         Path | None,
         typer.Option(
@@ -840,6 +905,7 @@ def export_cmd(
     ] = None,
     *,
     lab: LabArgs,
+    source: Annotated[Path | None, option_of(ExportInputs, "source")] = None,
     name: Annotated[
         str | None, typer.Option(help="The calibrated arm's name (default: <robot>-calibrated).")
     ] = None,
@@ -857,7 +923,8 @@ def export_cmd(
         ),
     ] = None,
 ) -> None:
-    """Fit, then write the calibrated arm as a robot TOML or as its URDF.
+    """Fit, then write the calibrated arm as a robot TOML or as its URDF; or write a saved
+    calibration (--from) in either format.
 
     The geometric errors are folded into the DH table, base and tool, other effects' values
     kept; the TOML works as --robot anywhere. With --format urdf the arm's own URDF is written
@@ -865,32 +932,85 @@ def export_cmd(
     from lab.export import export_robot
     from lab.urdf_export import export_urdf, metrology_path, require_urdf
 
+    if bool(data) == (source is not None):
+        fail(
+            "give DATA.csv (fit it, then export) or --from CAL (export a saved calibration), "
+            + ("not both" if data else "one of them")
+        )
     export_format = export_format_of(output, export_format)
     if output is None:
         output = Path(f"calibrated.{export_format}")
-    outputs = [(output, "--output")]
+    outputs: list[tuple[Path | None, str]] = [(output, "--output")]
     if export_format == "urdf":
         outputs.append((metrology_path(output), "--output's metrology file"))
+    if source is not None:
+        _export_saved(source, output, export_format, lab, name, outputs)
+        return
+    assert data
     arm, meas, val, opts, effects = lab.read(data, outputs)
     if export_format == "urdf":
         with user_errors():  # before the fit: a TOML arm has no URDF to correct
             require_urdf(arm)
-    result = _fitted(meas, arm, effects, opts, val)
+    result = _fitted(meas, arm, effects, opts, val, refs=lab.read_references())
     say(result.summary())
     if export_format == "urdf":
         with user_errors(), writing(output):
             out = export_urdf(result, output, name=name)
-        say(
-            f"wrote the calibrated URDF {output} (the origins of {', '.join(out.joints)}) and "
-            f"{out.metrology} (the tracker frame, the tool points"
-            + (", the effects" if out.robot.effects else "")
-            + "); a controller loads the URDF and applies the rest: docs/format.md, the "
-            "calibrated URDF"
-        )
+        _said_urdf(output, out)
         return
     with user_errors(), writing(output):
         cal = export_robot(result, output, name=name)
     say(f"wrote the calibrated arm {cal.name!r} to {output}; use it with --robot {output}")
+
+
+def _said_urdf(output: Path, out) -> None:
+    say(
+        f"wrote the calibrated URDF {output} (the origins of {', '.join(out.joints)}) and "
+        f"{out.metrology} (the tracker frame"
+        + ("s of its stations" if out.robot.stations else "")
+        + ", the tool points"
+        + (", the effects" if out.robot.effects else "")
+        + "); a controller loads the URDF and applies the rest: docs/format.md, the "
+        "calibrated URDF"
+    )
+    for m in out.modules:
+        say(f"wrote {m}, the module of its discovered effect: --effect-module {m}")
+
+
+# what `lab export --from` takes of the shared options: the nominal arm, the effect modules
+_SAVED_FLAGS = ("--robot", "--effect-module", "--from", "--output", "--name", "--format")
+
+
+def _export_saved(
+    source: Path,
+    output: Path,
+    export_format: str,
+    lab: LabArgs,
+    name: str | None,
+    outputs: Sequence[tuple[Path | None, str]],
+) -> None:
+    """``lab export --from CAL``: a saved calibration written again, nothing refitted."""
+    from lab.export import export_robot
+    from lab.urdf_export import export_urdf
+
+    given = [f for f, v in lab.flags().items() if v and f not in _SAVED_FLAGS]
+    if given:
+        fail(
+            f"{given[0]}: --from exports a saved calibration as it is, nothing is fitted; leave "
+            "out the fit's options"
+        )
+    check_outputs(outputs, [source, *(lab.effect_module or ())])
+    load_modules(lab.effect_module)
+    cal = read_arm(str(source), "--from")
+    if export_format == "urdf":
+        nominal = None if lab.robot == INPUTS.robot else read_arm(lab.robot)
+        with user_errors(), writing(output):
+            out = export_urdf(cal, output, name=name, nominal=nominal)
+        _said_urdf(output, out)
+        return
+    with user_errors(), writing(output):
+        back = export_robot(cal, output, name=name)
+    say(f"wrote the calibrated arm {back.name!r} to {output}; use it with --robot {output}")
 
 
 def export_format_of(output: Path | None, given: str | None) -> str:
@@ -949,6 +1069,7 @@ def compensate_cmd(
     effect_module: ModuleOpt = None,
     length_unit: LengthOpt = INPUTS.length_unit,
     angle_unit: AngleOpt = INPUTS.angle_unit,
+    references: ReferencesOpt = None,
     keep_unreached: Annotated[
         bool,
         typer.Option(
@@ -964,17 +1085,29 @@ def compensate_cmd(
 
     Starts at the program (q1..q6) and keeps its branch, else at the nominal arm's inverse
     kinematics; prints the start's error and the joint change, through the calibrated model."""
-    from lab.export import compensate, read_targets, target_id_list, write_joints
+    from lab.export import (
+        compensate,
+        read_targets,
+        register_references,
+        target_id_list,
+        write_joints,
+    )
 
     with user_errors(prefix="--target-ids: "):
         ids = target_id_list(target_ids)
     inputs = [targets, robot, *([nominal] if nominal else []), *(effect_module or ())]
-    check_outputs([(output, "--output")], inputs, as_json)
+    check_outputs([(output, "--output")], [*inputs, references], as_json)
     load_modules(effect_module)
     cal = read_arm(robot)
     nom = read_arm(nominal, "--nominal") if nominal is not None else None
+    refs = None
+    if references is not None:
+        refs = read_data(references, length_unit, angle_unit, option="--references")
     with user_errors():
         tset = read_targets(targets, length_unit=length_unit, angle_unit=angle_unit)
+        registered = None if refs is None else register_references(cal, refs)
+        if registered is not None and not as_json:
+            say(registered.text())
         with console.status(f"solving {len(tset)} targets..."):
             comp = compensate(
                 cal,
@@ -983,6 +1116,7 @@ def compensate_cmd(
                 free_orientation=free_orientation,
                 target_ids=ids,
                 extrapolate=extrapolate,
+                references=registered,
             )
     unreached = comp.unreached()
     if unreached is not None and not keep_unreached:

@@ -329,7 +329,9 @@ def reproduce(
         typer.Option(
             help="Relative tolerance of the comparison (0: exact, as on the machine that made "
             "the rows; 1e-6 on another CPU, which rounds differently: the learned policies "
-            "infer in float64 and tests/test_policy_reproducibility.py keeps this promise)."
+            "infer in float64 and tests/test_policy_reproducibility.py keeps this promise). "
+            "Above 0, an agent that declares a larger cross-CPU tolerance (the MPCs: "
+            "results/perturbation.md) is compared within its own."
         ),
     ] = 0.0,
     run: Annotated[
@@ -364,6 +366,7 @@ def reproduce(
     if record.suffix.lower() == ".csv":
         _reproduce_rows(record, run or [], line or [], every, rtol, isolated)
         return
+    from experiments.reproduce import row_rtol
     from experiments.sweep import build_record, execute_run, run_in_worker
 
     rec, spec = _rerunnable(record)
@@ -380,7 +383,10 @@ def reproduce(
             f"the record is a failed run ({(rec.get('error') or {}).get('type')}); the rerun succeeded"
         )
     title = f"{spec.run_key}: recorded vs reproduced ({time.perf_counter() - t0:.1f} s)"
-    table, differ = _compared(rec, new, rtol, title)
+    own = row_rtol(rtol, spec.agent)
+    if own > rtol:
+        console.print(f"{spec.agent}: compared within its cross-CPU tolerance {own:g}")
+    table, differ = _compared(rec, new, own, title)
     console.print(table)
     old_t, new_t = rec.get("timing") or {}, new.get("timing") or {}
     for k in ("wall_time_s", "solve_time_median_ms"):
@@ -495,7 +501,12 @@ def _reproduce_rows(
     console.print(table)
     for o in outcomes:
         where = "not rerun" if o.where == "not rerun" else f"rerun in {o.where}"
-        console.print(f"{o.run_key} (line {o.line}): {where}", highlight=False)
+        within = (
+            f"; compared within {o.row['agent_name']}'s cross-CPU tolerance {o.rtol:g}"
+            if o.rtol > rtol
+            else ""
+        )
+        console.print(f"{o.run_key} (line {o.line}): {where}{within}", highlight=False)
     if failed:
         err_console.print(f"[red]not reproduced:[/red] {', '.join(failed)}", highlight=False)
         raise typer.Exit(1)

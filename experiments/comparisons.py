@@ -20,7 +20,13 @@ What it holds (:mod:`experiments.statistics` computes every interval):
 - ``cost_of_effect``: per agent and scenario, its ``rank_by`` there against its own on the
   ``nominal`` scenario, episode by episode (the same seeds): what the hidden effect costs it.
 - ``compute``: per agent, the training budget of a learned policy (steps and wall time of the
-  shipped run, seeds trained), the tracker points it used per episode, its solve time.
+  shipped run, seeds trained, which seed was shipped: ``best``/``median`` as its file says), the
+  training seeds it is ranked over (``ranked_seeds``: empty for one network), the tracker points
+  it used per episode, its solve time.
+
+An agent labelled ``<agent>@s<seed>`` in a sweep (``ppo@s3``) is that agent's network of one
+training seed: its runs are ranked as ``<agent>``, over all its seeds (the stratified bootstrap of
+:mod:`experiments.statistics`), and stay one row each in the runs CSV.
 """
 
 from __future__ import annotations
@@ -32,15 +38,23 @@ from typing import Any
 
 import numpy as np
 
+from experiments.config import split_train_seed
 from experiments.metrics import METRICS
 from experiments.statistics import (
     Interval,
-    aggregate_to_reference,
-    geometric_mean_interval,
+    aggregate_over_seeds,
     paired_ratio,
+    seeded_geometric_mean_interval,
+    seeded_paired_ratio,
 )
 
-__all__ = ["NOMINAL", "analyse", "episode_key"]
+__all__ = ["NOMINAL", "analyse", "episode_key", "ranked_agent"]
+
+#: the training seed key of an agent of one network (not learned, or one seed unnamed)
+ONE = -1
+
+#: {training seed: {episode: value}}: an agent's metric on one scenario
+BySeed = dict[int, dict[int, float]]
 
 #: the scenario without hidden effects, against which an effect's cost is measured
 NOMINAL = "nominal"
@@ -50,6 +64,11 @@ def episode_key(rec: Mapping[str, Any]) -> int:
     """The episode a record is (its index among drawn seeds, else its seed): what pairs runs."""
     spec = rec["spec"]
     return int(spec["episode"]) if spec.get("episode") is not None else int(spec["seed"])
+
+
+def ranked_agent(rec: Mapping[str, Any]) -> tuple[str, int | None]:
+    """The agent a record ranks as and its training seed (``ppo@s3``: ``ppo``, 3)."""
+    return split_train_seed(str(rec["spec"]["agent_label"]))
 
 
 def _value(rec: Mapping[str, Any], metric: str) -> float:
@@ -66,18 +85,28 @@ def _interval(iv: Interval) -> dict[str, float | int | None]:
 
 
 class _Runs:
-    """The successful runs by agent and scenario, each cell's runs by episode."""
+    """The successful runs by agent (over its training seeds) and scenario, each cell's runs by
+    training seed and episode."""
 
     def __init__(self, records: Iterable[Mapping[str, Any]]) -> None:
-        self.by_cell: dict[tuple[str, str], dict[int, Mapping[str, Any]]] = {}
+        self.by_cell: dict[tuple[str, str], dict[int, dict[int, Mapping[str, Any]]]] = {}
         for rec in records:
-            cell = (rec["spec"]["agent_label"], rec["spec"]["scenario_label"])
-            self.by_cell.setdefault(cell, {})[episode_key(rec)] = rec
+            agent, seed = ranked_agent(rec)
+            cell = self.by_cell.setdefault((agent, rec["spec"]["scenario_label"]), {})
+            cell.setdefault(ONE if seed is None else seed, {})[episode_key(rec)] = rec
 
-    def series(self, agent: str, scenario: str, metric: str) -> dict[int, float]:
-        """A metric of a cell, by episode."""
+    def series(self, agent: str, scenario: str, metric: str) -> BySeed:
+        """A metric of a cell, by training seed and episode."""
         cell = self.by_cell.get((agent, scenario), {})
-        return {k: _value(r, metric) for k, r in cell.items()}
+        return {sd: {k: _value(r, metric) for k, r in eps.items()} for sd, eps in cell.items()}
+
+    def seeds(self, agent: str) -> list[int]:
+        """The training seeds an agent ran with (``[ONE]``: one network)."""
+        return sorted({sd for (a, _), cell in self.by_cell.items() if a == agent for sd in cell})
+
+    def records(self, agent: str, scenario: str) -> list[Mapping[str, Any]]:
+        cell = self.by_cell.get((agent, scenario), {})
+        return [r for eps in cell.values() for r in eps.values()]
 
 
 def analyse(
@@ -133,12 +162,13 @@ def _cells(
                 continue
             row = cells.setdefault(a, {}).setdefault(s, {})
             for m in metrics:
-                values = list(runs.series(a, s, m).values())
+                by_seed = runs.series(a, s, m)
+                values = [v for eps in by_seed.values() for v in eps.values()]
                 finite = [v for v in values if math.isfinite(v)]
                 if METRICS[m].aggregate == "sum":
                     row[m] = {"total": float(sum(finite)), "n": len(finite)}
                 else:
-                    row[m] = _interval(geometric_mean_interval(values)) | {
+                    row[m] = _interval(seeded_geometric_mean_interval(by_seed)) | {
                         "mean": float(np.mean(finite)) if finite else None
                     }
     return cells
@@ -171,7 +201,9 @@ def _orderings(
         best[s] = contenders[0] if contenders else None
         for i, better in enumerate(ranked):
             for worse in ranked[i + 1 :]:
-                r = paired_ratio(runs.series(better, s, rank_by), runs.series(worse, s, rank_by))
+                r = seeded_paired_ratio(
+                    runs.series(better, s, rank_by), runs.series(worse, s, rank_by)
+                )
                 pairs.append(
                     {"scenario": s, "better": better, "worse": worse}
                     | _interval(r)
@@ -197,16 +229,44 @@ def _aggregate(
     aggregate: dict[str, dict[str, Any]] = {}
     if reference is None or reference not in cells:
         return aggregate
-    ref = {s: runs.series(reference, s, rank_by) for s in scenarios if s in cells[reference]}
+    ref = {
+        s: _over_seeds(runs.series(reference, s, rank_by))
+        for s in scenarios
+        if s in cells[reference]
+    }
     for a in agents:
         if a not in cells:
             continue
         mine = {s: runs.series(a, s, rank_by) for s in ref if s in cells[a]}
         if set(mine) != set(ref):
             continue
-        agg = aggregate_to_reference(mine, ref)
+        by_seed = {sd: {s: mine[s].get(sd, {}) for s in mine} for sd in runs.seeds(a)}
+        agg = aggregate_over_seeds(by_seed, ref)
         aggregate[a] = {k: _interval(v) for k, v in agg.items()}
     return aggregate
+
+
+def _over_seeds(by_seed: BySeed) -> dict[int, float]:
+    """A reference's value per episode: its one network's, or the geometric mean over its
+    training seeds (a reference is not resampled over seeds)."""
+    if len(by_seed) == 1:
+        return next(iter(by_seed.values()))
+    keys = set.intersection(*(set(eps) for eps in by_seed.values()))
+    return {k: float(np.exp(np.mean([np.log(eps[k]) for eps in by_seed.values()]))) for k in keys}
+
+
+def _cost(a: BySeed, base: BySeed) -> Interval:
+    """An agent on a scenario against itself on ``nominal``, seed by seed and episode by
+    episode: one network's paired ratio, or over several seeds the stratified bootstrap of the
+    per-seed, per-episode ratios."""
+    if len(a) == 1 and len(base) == 1:
+        return paired_ratio(next(iter(a.values())), next(iter(base.values())))
+    ratios = {
+        sd: {k: v / base[sd][k] for k, v in eps.items() if k in base.get(sd, {})}
+        for sd, eps in a.items()
+        if sd in base
+    }
+    return seeded_geometric_mean_interval(ratios)
 
 
 def _cost_of_effect(
@@ -225,7 +285,7 @@ def _cost_of_effect(
             continue
         base = runs.series(a, NOMINAL, rank_by)
         cost[a] = {
-            s: _interval(paired_ratio(runs.series(a, s, rank_by), base))
+            s: _interval(_cost(runs.series(a, s, rank_by), base))
             for s in scenarios
             if s != NOMINAL and s in cells[a]
         }
@@ -234,12 +294,13 @@ def _cost_of_effect(
 
 def _compute(
     runs: _Runs, agents: Sequence[str], scenarios: Sequence[str]
-) -> dict[str, dict[str, float | None]]:
-    """Each agent's compute budget: its training (from its report) and its runs' tracker points
-    and solve times."""
-    compute: dict[str, dict[str, float | None]] = {}
+) -> dict[str, dict[str, Any]]:
+    """Each agent's compute budget: its training (from its report: steps, wall time, seeds
+    trained, which of them was shipped), the training seeds it is ranked over, and its runs'
+    tracker points and solve times."""
+    compute: dict[str, dict[str, Any]] = {}
     for a in agents:
-        recs = [r for s in scenarios for r in runs.by_cell.get((a, s), {}).values()]
+        recs = [r for s in scenarios for r in runs.records(a, s)]
         if not recs:
             continue
         report = recs[0].get("report") or {}
@@ -250,6 +311,10 @@ def _compute(
             "training_wall_s": _num(report.get("training_wall_s")),
             "training_seeds": _num(report.get("training_seeds")),
             "training_wall_s_all_seeds": _num(report.get("training_wall_s_all_seeds")),
+            "training_picked": report.get("training_picked")
+            if isinstance(report.get("training_picked"), str)
+            else None,
+            "ranked_seeds": [sd for sd in runs.seeds(a) if sd != ONE],
             "tracker_points": _mean(points),
             "solve_time_median_ms": _median(solve),
         }

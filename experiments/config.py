@@ -24,6 +24,8 @@ single run starts, naming the file and the key.
     name = "mpc"                         # a registered agent, or "package.module:Class"
                                          # (a class path imports its module: that code runs)
     label = "mpc-h20"                    # optional: how it shows in records and the leaderboard
+                                         # ("ppo@s3": agent ppo's training seed 3; the
+                                         # leaderboard ranks ppo over its seeds)
     settings = { horizon = 20 }          # keyword arguments of the agent
     scenario_settings = { backlash = { effects = "geometric,backlash" } }   # per scenario, on top
     env = { preview_steps = 20 }         # optional env overrides for this agent
@@ -124,6 +126,7 @@ __all__ = [
     "parse_config",
     "short_hash",
     "spec_problems",
+    "split_train_seed",
 ]
 
 log = logging.getLogger(__name__)
@@ -146,6 +149,19 @@ MAX_RUNS = 200_000
 DRAWN_SEED_LOW = 2**32
 DRAWN_SEED_HIGH = 2**63
 LABEL_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+#: an agent's label may end in ``@s<training seed>``: one network of a learned agent trained
+#: with several seeds (``ppo@s3``: agent ``ppo``, seed 3), ranked with its other seeds
+TRAIN_SEED_MARK = "@s"
+AGENT_LABEL_RE = re.compile(r"^(?P<agent>[A-Za-z0-9][A-Za-z0-9_.+-]*)(@s(?P<seed>[0-9]+))?$")
+
+
+def split_train_seed(label: str) -> tuple[str, int | None]:
+    """The agent an agent label ranks as and its training seed: ``"ppo@s3"`` is ``("ppo",
+    3)``, ``"ppo"`` is ``("ppo", None)`` (one network, or an agent that is not learned)."""
+    m = AGENT_LABEL_RE.match(label)
+    if m is None or m["seed"] is None:
+        return label, None
+    return m["agent"], int(m["seed"])
 
 
 def canonical_json(obj: Any) -> str:
@@ -786,8 +802,11 @@ def _agent_entry(
         )
         return None
     label = a.get("label", agent.rpartition(":")[2] if ":" in agent else agent)
-    if not isinstance(label, str) or not LABEL_RE.match(label):
-        bad(f"{where}.label: {label!r} must be letters, digits and _ . + -")
+    if not isinstance(label, str) or not AGENT_LABEL_RE.match(label):
+        bad(
+            f"{where}.label: {label!r} must be letters, digits and _ . + -, optionally ending "
+            "in @s<training seed> (ppo@s3)"
+        )
         return None
     settings = a.get("settings", {})
     if not _is(settings, dict):

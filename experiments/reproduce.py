@@ -20,6 +20,13 @@ package by the folder its module was imported from, put on the child's path. The
 must still hold what ran (its sha256, recorded per run): a changed module is named and its rows
 are not rerun, since the commit does not hold its code.
 
+Tolerance. ``rtol`` 0 (the default) asks for the same numbers to the last bit, as on the machine
+that made the rows. Any ``rtol`` > 0 is a comparison on another CPU: each row is then compared
+within the larger of ``rtol`` and its agent's declared cross-CPU tolerance
+(:func:`agents.registry.cross_cpu_rtol`, measured by ``benchmarks/perturbation.py``: an MPC
+whose online calibration carries a rounding difference further than the policies do keeps a
+looser one), and :attr:`Outcome.rtol` says which.
+
 The child runs a small driver that uses only long-standing APIs (``load_config``, ``execute_run``,
 ``run_in_worker``, ``build_record``), so rows of older commits rerun too.
 """
@@ -50,6 +57,7 @@ __all__ = [
     "ReproduceError",
     "read_runs_csv",
     "reproduce_rows",
+    "row_rtol",
     "same_value",
     "select_rows",
 ]
@@ -95,6 +103,16 @@ class Outcome:
             for m in self.recorded
             if not same_value(self.recorded[m], self.reproduced.get(m, float("nan")), self.rtol)
         ]
+
+
+def row_rtol(rtol: float, agent: str) -> float:
+    """The tolerance a row of ``agent`` is compared within: 0 for 0 (exactly, as on the machine
+    that made it); otherwise the larger of ``rtol`` and the agent's cross-CPU tolerance."""
+    if rtol == 0:
+        return 0.0
+    from agents.registry import cross_cpu_rtol
+
+    return max(float(rtol), cross_cpu_rtol(agent))
 
 
 def same_value(a: float | None, b: float | None, rtol: float) -> bool:
@@ -394,7 +412,9 @@ def reproduce_rows(
     roots: dict[str, list[str]] = {}
     for line, row in rows:
         check_row(row, path, line)
-        o = Outcome(row, line, recorded_metrics(row, path, line), rtol=rtol)
+        o = Outcome(
+            row, line, recorded_metrics(row, path, line), rtol=row_rtol(rtol, row["agent_name"])
+        )
         outcomes.append(o)
         # a user's config and package: the sweep's config folder, and each module's import root
         # (a config with a user's agent needs it importable for any of its rows)

@@ -6,16 +6,16 @@ and which orderings those intervals resolve.
     r = paired_ratio(a, b)                             # a / b, episode by episode (geometric mean)
     r.resolved                                         # the interval excludes 1
 
-Every interval is a bootstrap interval (``scipy.stats.bootstrap``, BCa, 10,000 resamples, a
-fixed generator seed so that a table is the same every time it is made). For a positive quantity
+Every interval is a bootstrap interval of 10,000 resamples from a fixed generator seed, so that a
+table is the same every time it is made: BCa (``scipy.stats.bootstrap``) over the episodes of one
+scenario, percentile intervals of the stratified bootstrap across scenarios or training seeds. For a positive quantity
 the interval of its mean lies between the smallest and the largest resampled mean, so it never
 reaches below zero, where a Student-t interval of 20 skewed values can.
 
 Pairing. The leaderboard's episodes are the same for every agent and scenario (the sweep draws
 one list of seeds), so two agents on a scenario are compared episode by episode: the bootstrap
 resamples episodes, the same ones for both, which removes what the episode itself decides (the
-path, the arm's errors, the noise). An aggregate across scenarios resamples episodes the same way
-in every scenario at once (episode k has the same seed in each).
+path, the arm's errors, the noise).
 
 Ratios are taken episode by episode and summarised by their geometric mean (the mean of the
 log-ratios): scale-free, symmetric (A/B is 1/(B/A)), and not hostage to one hard episode. A cell
@@ -25,7 +25,17 @@ its orderings agree (with arithmetic means they need not).
 
 Aggregates, as rliable recommends for few runs over many tasks: the interquartile mean (IQM) of
 the per-episode ratios of an agent's settled RMS to a reference agent's on the same episode, over
-every scenario and episode, and their geometric mean.
+every scenario and episode, and their geometric mean. Their intervals come from rliable's
+*stratified* bootstrap (:func:`stratified_distribution`, percentile intervals): each resample
+draws the episodes anew within each scenario, the reference's value going with its episode.
+
+Training seeds. A learned agent is a training recipe, not one network: trained with several
+seeds it is ranked over all of them (``{seed: ...}`` inputs of the ``seeded_*`` functions and
+:func:`aggregate_over_seeds`), and its intervals come from the stratified bootstrap over seeds
+and episodes: each resample draws the seeds with replacement, then the episodes within each
+drawn seed (and scenario). An agent of one seed (every agent that is not learned) is exactly the
+single-seed case: BCa over episodes for a scenario or a pair, the stratified episode bootstrap
+for the aggregate.
 
 An ordering "A below B" on a scenario is *resolved* when the paired interval of A / B lies
 wholly below 1. Each interval is at 95 %: over many orderings some
@@ -47,11 +57,16 @@ __all__ = [
     "CONFIDENCE",
     "RESAMPLES",
     "Interval",
+    "aggregate_over_seeds",
     "aggregate_to_reference",
     "geometric_mean_interval",
     "iqm",
     "mean_interval",
     "paired_ratio",
+    "seeded_geometric_mean_interval",
+    "seeded_mean_interval",
+    "seeded_paired_ratio",
+    "stratified_distribution",
 ]
 
 CONFIDENCE = 0.95
@@ -192,46 +207,193 @@ def iqm(x: np.ndarray, axis: int = -1) -> np.ndarray:
     return np.asarray(stats.trim_mean(x, 0.25, axis=axis))
 
 
+# -- training seeds: the agent, not one network ------------------------------------------------
+#: resamples drawn at a time by the stratified bootstrap (seeds, then episodes): a block's
+#: draws are made together, the blocks one after another, so that memory stays small
+BLOCK = 1_000
+
+
+def _percentile_interval(dist: np.ndarray) -> tuple[float, float]:
+    """The percentile interval (rliable's) of a bootstrap distribution."""
+    tail = 100 * (1 - CONFIDENCE) / 2
+    lo, hi = np.percentile(dist, [tail, 100 - tail])
+    return float(lo), float(hi)
+
+
+def stratified_distribution(
+    values: np.ndarray,
+    statistic: Callable[[np.ndarray], np.ndarray],
+    resamples: int = RESAMPLES,
+    seed: int = BOOTSTRAP_SEED,
+) -> np.ndarray:
+    """The bootstrap distribution of ``statistic`` over ``values`` shaped ``(m, S, n)``
+    (training seeds, strata such as scenarios, episodes): each resample draws ``m`` seeds with
+    replacement, then, within each drawn seed and each stratum, ``n`` episodes with replacement
+    (rliable's stratified bootstrap; with one seed, episodes within each scenario).
+
+    ``statistic`` takes the resamples ``(b, m, S, n)`` and returns ``(b,)``. The draws are made
+    in blocks of :data:`BLOCK` resamples from ``numpy.random.default_rng(seed)``: in each block
+    first the seeds ``integers(0, m, (b, m))``, then the episodes ``integers(0, n, (b, m, S, n))``.
+    """
+    m, S, n = values.shape
+    rng = np.random.default_rng(seed)
+    out = np.empty(resamples)
+    strata = np.arange(S)[:, None]
+    for start in range(0, resamples, BLOCK):
+        b = min(BLOCK, resamples - start)
+        seeds = rng.integers(0, m, (b, m))
+        episodes = rng.integers(0, n, (b, m, S, n))
+        out[start : start + b] = statistic(values[seeds[:, :, None, None], strata, episodes])
+    return out
+
+
+def _flat(x: np.ndarray) -> np.ndarray:
+    """A resample ``(b, m, S, n)`` as ``(b, m * S * n)``."""
+    return x.reshape(x.shape[0], -1)
+
+
+def _seeded_exp_mean(logs: np.ndarray) -> Interval:
+    """``exp(mean(logs))`` of ``logs`` shaped ``(m, n)`` (seeds, episodes) with the interval of
+    the stratified bootstrap over seeds and episodes (percentile), exponentiated; one seed: the
+    BCa interval over episodes (:func:`_exp_mean_interval`)."""
+    m, n = logs.shape
+    if m == 1:
+        return _exp_mean_interval(logs[0])
+    g = float(np.exp(np.mean(logs)))
+    if np.ptp(logs) == 0:
+        return Interval(g, g, g, m * n)
+    dist = stratified_distribution(logs[:, None, :], lambda x: np.mean(_flat(x), axis=-1))
+    lo, hi = _percentile_interval(dist)
+    return Interval(g, float(np.exp(lo)), float(np.exp(hi)), m * n)
+
+
+def _common_episodes(series: Sequence[Mapping[int, float]]) -> list[int]:
+    """The episodes every series has a finite positive value of."""
+    keys = [{k for k, v in s.items() if v is not None and np.isfinite(v) and v > 0} for s in series]
+    return sorted(set.intersection(*keys)) if keys else []
+
+
+def seeded_geometric_mean_interval(by_seed: Mapping[Any, Mapping[int, float]]) -> Interval:
+    """The geometric mean of an agent's values over its training seeds and episodes
+    (``{seed: {episode: value}}``, the episodes every seed has) and its interval: with one seed,
+    :func:`geometric_mean_interval`; with several, the stratified bootstrap (seeds, then episodes
+    within each seed)."""
+    if len(by_seed) == 1:  # in the episodes' order, whatever order the records were read in
+        only = next(iter(by_seed.values()))
+        return geometric_mean_interval([only[k] for k in sorted(only)])
+    keys = _common_episodes(list(by_seed.values()))
+    if not keys:
+        return NAN
+    logs = np.log([[s[k] for k in keys] for s in by_seed.values()])
+    return _seeded_exp_mean(logs)
+
+
+def seeded_mean_interval(by_seed: Mapping[Any, Mapping[int, float]]) -> Interval:
+    """The arithmetic mean of an agent's values over its training seeds and episodes (the
+    episodes every seed has) and its interval: one seed, :func:`mean_interval`; several, the
+    percentile interval of the stratified bootstrap (seeds, then episodes within each seed)."""
+    if len(by_seed) == 1:
+        only = next(iter(by_seed.values()))
+        return mean_interval([only[k] for k in sorted(only)])
+    keys = sorted(
+        set.intersection(
+            *(
+                {k for k, v in s.items() if v is not None and np.isfinite(v)}
+                for s in by_seed.values()
+            )
+        )
+    )
+    if not keys:
+        return NAN
+    x = np.array([[s[k] for k in keys] for s in by_seed.values()], dtype=float)
+    m = float(np.mean(x))
+    if np.ptp(x) == 0:
+        return Interval(m, m, m, x.size)
+    dist = stratified_distribution(x[:, None, :], lambda r: np.mean(_flat(r), axis=-1))
+    lo, hi = _percentile_interval(dist)
+    return Interval(m, lo, hi, x.size)
+
+
+def seeded_paired_ratio(
+    a: Mapping[Any, Mapping[int, float]], b: Mapping[Any, Mapping[int, float]]
+) -> Interval:
+    """:func:`paired_ratio` of two agents over their training seeds (``{seed: {episode:
+    value}}`` each): the geometric mean over a's seeds and the episodes of ``a`` over that of
+    ``b`` on the same episodes. One seed each: :func:`paired_ratio` (BCa). Otherwise each
+    resample draws each agent's seeds with replacement, then one set of episodes for both (the
+    pairing), and the interval is the percentile interval."""
+    if len(a) == 1 and len(b) == 1:
+        return paired_ratio(next(iter(a.values())), next(iter(b.values())))
+    keys = _common_episodes([*a.values(), *b.values()])
+    if not keys:
+        return NAN
+    la = np.log([[s[k] for k in keys] for s in a.values()])  # (ma, n)
+    lb = np.log([[s[k] for k in keys] for s in b.values()])  # (mb, n)
+    diff = float(np.mean(la) - np.mean(lb))
+    n = len(keys)
+    if n < 2:
+        return Interval(float(np.exp(diff)), math.nan, math.nan, n)
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    dist = np.empty(RESAMPLES)
+    for start in range(0, RESAMPLES, BLOCK):
+        bb = min(BLOCK, RESAMPLES - start)
+        sa = rng.integers(0, la.shape[0], (bb, la.shape[0]))
+        sb = rng.integers(0, lb.shape[0], (bb, lb.shape[0]))
+        ep = rng.integers(0, n, (bb, n))
+        ra = la[sa[:, :, None], ep[:, None, :]].reshape(bb, -1)
+        rb = lb[sb[:, :, None], ep[:, None, :]].reshape(bb, -1)
+        dist[start : start + bb] = ra.mean(axis=-1) - rb.mean(axis=-1)
+    lo, hi = _percentile_interval(dist)
+    return Interval(float(np.exp(diff)), float(np.exp(lo)), float(np.exp(hi)), n)
+
+
 def aggregate_to_reference(
     agent: Mapping[str, Mapping[int, float]], reference: Mapping[str, Mapping[int, float]]
 ) -> dict[str, Interval]:
-    """An agent against a reference across scenarios (``{scenario: {episode: value}}`` each),
-    over the episodes that every scenario of both has: ``iqm``, the interquartile mean of the
-    per-episode ratios agent / reference over every scenario and episode, and ``geomean``, the
-    geometric mean over scenarios of the ratio of means; both with the bootstrap interval that
-    resamples episodes in every scenario at once."""
-    scenarios = sorted(agent.keys() & reference.keys())
+    """An agent (one network) against a reference across scenarios (``{scenario: {episode:
+    value}}`` each): :func:`aggregate_over_seeds` with one seed."""
+    return aggregate_over_seeds({None: agent}, reference)
+
+
+def aggregate_over_seeds(
+    agent: Mapping[Any, Mapping[str, Mapping[int, float]]],
+    reference: Mapping[str, Mapping[int, float]],
+) -> dict[str, Interval]:
+    """An agent over its training seeds (``{seed: {scenario: {episode: value}}}``) against a
+    reference across scenarios (``{scenario: {episode: value}}``), over the scenarios every seed
+    has and the episodes every scenario of every seed and of the reference has: ``iqm``, the
+    interquartile mean of the per-episode ratios agent / reference over every seed, scenario and
+    episode, and ``geomean``, their geometric mean. The intervals are percentile intervals of
+    the stratified bootstrap (:func:`stratified_distribution`): seeds drawn, then episodes
+    within each seed and scenario, the reference's value going with its episode. ``n`` is the
+    number of episodes per scenario."""
+    seeds = list(agent)
+    scenarios = sorted(set.intersection(*(set(agent[k]) for k in seeds)) & set(reference))
     if not scenarios:
         return {"iqm": NAN, "geomean": NAN}
-    common = set.intersection(
-        *(
-            {k for k, v in agent[s].items() if np.isfinite(v)}
-            & {k for k, v in reference[s].items() if np.isfinite(v) and v > 0}
-            for s in scenarios
-        )
-    )
-    keys = sorted(common)
+    finite = [
+        {k for k, v in agent[sd][s].items() if v is not None and np.isfinite(v)}
+        for sd in seeds
+        for s in scenarios
+    ]
+    finite += [set(_common_episodes([reference[s]])) for s in scenarios]
+    keys = sorted(set.intersection(*finite))
     n = len(keys)
     if n == 0:
         return {"iqm": NAN, "geomean": NAN}
-    a = np.array([[agent[s][k] for k in keys] for s in scenarios], dtype=float)  # (S, n)
-    r = np.array([[reference[s][k] for k in keys] for s in scenarios], dtype=float)
-
-    def iqm_stat(aa: np.ndarray, rr: np.ndarray, axis: int) -> np.ndarray:
-        ratios = np.moveaxis(aa / rr, axis, -1)  # (..., S, n)
-        return iqm(ratios.reshape(*ratios.shape[:-2], -1), axis=-1)
-
-    def geo_stat(aa: np.ndarray, rr: np.ndarray, axis: int) -> np.ndarray:
-        logs = np.moveaxis(np.log(aa) - np.log(rr), axis, -1)  # (..., S, n)
-        return np.exp(np.mean(logs.reshape(*logs.shape[:-2], -1), axis=-1))
-
+    ref = np.array([[reference[s][k] for k in keys] for s in scenarios], dtype=float)  # (S, n)
+    a = np.array([[[agent[sd][s][k] for k in keys] for s in scenarios] for sd in seeds])
+    ratios = a / ref  # (m, S, n)
+    stats_ = {
+        "iqm": lambda x: iqm(_flat(x), axis=-1),
+        "geomean": lambda x: np.exp(np.mean(np.log(_flat(x)), axis=-1)),
+    }
     out = {}
-    for name, stat in (("iqm", iqm_stat), ("geomean", geo_stat)):
-        value = float(stat(a, r, axis=-1))
-        if n < 2:
+    for name, stat in stats_.items():
+        value = float(stat(ratios[None])[0])
+        if n < 2 and len(seeds) < 2:
             out[name] = Interval(value, math.nan, math.nan, n)
             continue
-        # one sample per episode: the (S,) columns of both, resampled together
-        lo, hi = _bootstrap((a, r), stat, paired=True)
+        lo, hi = _percentile_interval(stratified_distribution(ratios, stat))
         out[name] = Interval(value, lo, hi, n)
     return out

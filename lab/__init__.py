@@ -36,16 +36,20 @@ if TYPE_CHECKING:
         NoiseRefutedError,
         OrientationNotFittedWarning,
         PoorPoseSetWarning,
+        RegistrationError,
         RowsLeftOutWarning,
         ValidationMismatchWarning,
     )
     from lab.estimation import identifiability_of
+    from lab.export import compensate, export_robot
     from lab.identifiability import Identifiability, analyse
     from lab.identification import fit
     from lab.options import LabOptions
     from lab.planning import Plan, plan
+    from lab.registration import StationRegistration, register_station
     from lab.result import FitResult
     from lab.screening import Screen, screen
+    from lab.urdf_export import export_urdf, read_calibrated_urdf
 
 # each public name and the module that defines it: importing ``lab`` (or ``lab.text``) loads
 # nothing else until a name is used, so the command line's ``--help`` stays fast
@@ -68,6 +72,13 @@ _HOME = {
     "OrientationNotFittedWarning": "lab.errors",
     "PoorPoseSetWarning": "lab.errors",
     "RowsLeftOutWarning": "lab.errors",
+    "RegistrationError": "lab.errors",
+    "compensate": "lab.export",
+    "export_robot": "lab.export",
+    "StationRegistration": "lab.registration",
+    "register_station": "lab.registration",
+    "export_urdf": "lab.urdf_export",
+    "read_calibrated_urdf": "lab.urdf_export",
     "identifiability_of": "lab.estimation",
     "Identifiability": "lab.identifiability",
     "analyse": "lab.identifiability",
@@ -108,15 +119,22 @@ __all__ = [
     "OrientationNotFittedWarning",
     "Plan",
     "PoorPoseSetWarning",
+    "RegistrationError",
     "RowsLeftOutWarning",
     "Screen",
+    "StationRegistration",
     "ValidationMismatchWarning",
     "analyse",
     "bag",
+    "compensate",
     "diagnose",
     "discover",
+    "export_robot",
+    "export_urdf",
     "fit",
     "identifiability_of",
     "plan",
+    "read_calibrated_urdf",
+    "register_station",
     "screen",
 ]

@@ -92,7 +92,7 @@ from arm.effects import (
     order_reading,
 )
 from arm.files import atomic_write_text
-from arm.measurements import MeasurementSet, as_measurements
+from arm.measurements import MeasurementSet
 from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
 from lab.options import ORDER, LabOptions, OptionFields, check_alpha, resolve
@@ -104,7 +104,7 @@ from lab.repeatability import (
     noise_like,
     noise_p_value,
 )
-from lab.result import SCHEMA_VERSION, FitResult
+from lab.result import SCHEMA_VERSION, FitResult, held_out
 from lab.screening import Screen, screened
 from lab.spectral import DEFAULT_ORDER as SCAN_ORDER
 from lab.spectral import MAX_TERMS, CyclicScan, ExtraColumns, cyclic_scan, problem_of_fit
@@ -626,6 +626,7 @@ def discover(
     options: LabOptions | None = None,
     alpha: float = 0.02,
     validate: MeasurementSet | str | Path | None = None,
+    references: MeasurementSet | str | Path | None = None,
     order: int = DEFAULT_ORDER,
     name: str = "discovered",
     across_blocks: bool | None = None,
@@ -637,12 +638,15 @@ def discover(
     screened again). The options (``noise_mm`` ... ``register``, or ``options=``) are
     :class:`lab.LabOptions`; ``noise_mm`` (:data:`arm.noise.NOISE_MM`) also
     decides the verdict ``none`` against ``unexplained``. ``alpha``: the family-wise
-    false-discovery rate; ``validate``: held-out data for the refitted model; ``order``: the
+    false-discovery rate; ``validate``: held-out data for the refitted model (``references``:
+    reference points that register a station of it the fit has not seen,
+    :meth:`lab.FitResult.validate`); ``order``: the
     highest harmonic; ``name``: the discovered effect's name; ``across_blocks``: keep the
     discovered effect only if it helps on a session (or station) it was not fitted on
     (:mod:`lab.transfer`; None: where the data have at least :data:`lab.transfer.MIN_BLOCKS`)."""
     check_alpha(alpha)
     opts = resolve(options, **keywords)
+    held = held_out(validate, references)
     if not ORDER.constraint.holds(order):
         raise FitError(
             f"order (the highest harmonic) must {ORDER.constraint.predicate}, got {order!r}"
@@ -659,16 +663,16 @@ def discover(
         raise FitError(f"the model already has an effect named {name!r}; choose another name")
     disc = _selection(res, s.kept, floor, alpha, order, name)
     if not disc.selected:
-        return _nothing_kept(disc, validate)
+        return _nothing_kept(disc, held)
     cls = disc.effect_class()
     if use_blocks(s.kept, across_blocks) and not _helps_across_blocks(disc, s, cls):
         disc.selected, disc.terms = [], []
-        return _nothing_kept(disc, validate)
+        return _nothing_kept(disc, held)
     # the discovered model is a new model of the rows that count: the rule judges its own misses
     # (poses where a discovered term cannot say its sign are gross misses of it, not of the base)
     refit = screened(s.kept, s.robot, [*res.model.effects, cls()], s.options, tests=False).fit
-    if validate is not None:
-        refit = refit.validate(as_measurements(validate))
+    if held is not None:
+        refit = refit.validate(held[0], references=held[1])
     _judge_refit(disc, refit, floor)
     log.info("%s", disc.summary())
     return disc
@@ -745,7 +749,9 @@ def _selection(
     )
 
 
-def _nothing_kept(disc: Discovery, validate: MeasurementSet | str | Path | None) -> Discovery:
+def _nothing_kept(
+    disc: Discovery, held: tuple[MeasurementSet, MeasurementSet | None] | None
+) -> Discovery:
     """The discovery without terms: ``none``, ``noise`` or ``unexplained`` by the residual's
     chi-square test (the module docstring's verdict)."""
     disc.terms = []
@@ -759,8 +765,8 @@ def _nothing_kept(disc: Discovery, validate: MeasurementSet | str | Path | None)
             disc.implied_noise_mm = 1e3 * math.sqrt(scan.rss0 / max(scan.dof0, 1))
         else:
             disc.verdict = "unexplained"
-    if validate is not None:
-        disc.base = disc.base.validate(as_measurements(validate))
+    if held is not None:
+        disc.base = disc.base.validate(held[0], references=held[1])
     log.info("%s", disc.summary())
     return disc
 
@@ -916,4 +922,5 @@ def _effect_class(d: Discovery) -> type[TermEffect]:
         {j: tuple(t.key for t in ts) for j, ts in forms.items()},
         {k: (float(f"{lo:.3g}"), float(f"{hi:.3g}")) for k, (lo, hi) in typical.items()},
         {k: expressions[k] for k in keys},
+        _module_source(d),
     )

@@ -414,7 +414,7 @@ def tool_placed_text(stations: Sequence[int], shift: Mapping[str, float]) -> str
     moved = ", ".join(f"{k} {1e3 * v:+.3f} mm" for k, v in shift.items())
     return (
         f"validation: {', '.join(shift)} not identified by the fit (its poses hardly turned the "
-        f"flange: the base took it); placed with the base of station(s) {ids} on the validation "
+        f"flange: the base took it); placed with the base of station(s) {ids} on the reference "
         f"points ({moved} from the fit's value): the prediction does not rest on a tool offset "
         "the calibration never determined"
     )

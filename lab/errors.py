@@ -30,6 +30,7 @@ __all__ = [
     "OrientationNotFittedWarning",
     "OutOfDomainWarning",
     "PoorPoseSetWarning",
+    "RegistrationError",
     "ReportError",
     "RowsLeftOutWarning",
     "ToolPlacedWarning",
@@ -58,6 +59,11 @@ class NoiseRefutedError(FitError):
     """The stated noise is far above what the fit's residual allows
     (:func:`lab.sanity.check_stated_noise`): a unit slip, most likely. Nothing is decided on
     it: the noise decides which parameters are fitted, the verdict and when discovery stops."""
+
+
+class RegistrationError(FitError):
+    """A station the calibration has not seen cannot be placed: no reference points measured
+    there, too few, or on one line (:func:`lab.registration.register_station`)."""
 
 
 class UnknownOptionError(LabError, TypeError):

@@ -61,16 +61,19 @@ from arm.measurements import (
     LENGTH_UNITS,
     ORIENTATION_FORMS,
     POSITION,
+    MeasurementSet,
     check_ranges,
     orientation_form,
     orientation_rotvec,
     parse_numeric_csv,
+    read_measurements,
     read_text,
 )
 from arm.params import TOOL_ROTATION_NAMES
 from arm.so3 import rotation_matrix, rotation_vector
 from lab.domain import Domain, out_of_domain, warn_out_of_domain
 from lab.errors import CompensationError, ExportError
+from lab.registration import StationRegistration, register_station
 from lab.result import SCHEMA_VERSION, FitResult
 from lab.uncertainty import Uncertainty, uncertainty_of
 
@@ -79,9 +82,11 @@ __all__ = [
     "CompensationError",
     "ExportError",
     "TargetSet",
+    "calibrated_description",
     "compensate",
     "export_robot",
     "read_targets",
+    "register_references",
     "target_id_list",
     "write_joints",
 ]
@@ -121,38 +126,22 @@ def calibrated_model(robot: RobotDescription, targets: Sequence[int] = (0,)) -> 
         raise CompensationError(f"robot {robot.name!r}: {exc}") from None
 
 
-def export_robot(
-    result: FitResult,
-    path: str | Path,
-    name: str | None = None,
-    length_unit: str = "m",
-    angle_unit: str = "deg",
-    uncertainty: Uncertainty | None = None,
+def calibrated_description(
+    result: FitResult, name: str | None = None, uncertainty: Uncertainty | None = None
 ) -> RobotDescription:
-    """Write the calibrated arm of ``result`` as a robot TOML (atomically) and return it as read
-    back (what ``load_robot(path)`` gives). It carries the parameters' covariance and the spread
-    between the sessions of the fit (``[uncertainty]``, :mod:`lab.uncertainty`): ``uncertainty``
-    where given, else the result's own (an update's), else measured from the fit (its sessions
-    each fitted alone).
-
-    Before writing, the text is parsed and its predictions of the fitted poses compared with the
-    fitted model's (with the fit's gravity torques, see the module docstring); a difference over
-    :data:`EXPORT_TOL`, an effect whose values the file cannot bring back, bad units or a path that
-    cannot be written raise :class:`ExportError`, and nothing is written (an existing file is left
-    as it was).
-    """
-    path = Path(path)
-    if length_unit not in LENGTH_UNITS:
-        raise ExportError(f"{path}: length unit must be one of m, mm, got {length_unit!r}")
-    if angle_unit not in ANGLE_UNITS:
-        raise ExportError(f"{path}: angle unit must be one of rad, deg, got {angle_unit!r}")
+    """The calibrated arm of ``result`` as a file records it: the fit's description
+    (:meth:`FitResult.description`), the nominal arm it was fitted to (what a controller believes
+    in, where compensation without a program starts), the parameters' covariance and the spread
+    between the sessions of the fit (``uncertainty`` where given, else measured from the fit,
+    :mod:`lab.uncertainty`) and, where the data named their tracker station, each station's
+    frame (so that targets given in a station's frame are mapped, and a station the calibration
+    never saw is refused)."""
     desc = result.description(name or f"{result.model.robot.name}-calibrated")
-    # the arm the controller believes in, which compensation starts from without a program
     desc = replace(desc, nominal=replace(result.model.robot, nominal=None))
     if uncertainty is None:
         uncertainty = uncertainty_of(result)
     desc = replace(desc, uncertainty=uncertainty.to_dict())
-    if len(result.model.stations) > 1:  # each station's frame, for targets given in it
+    if "station" in result.inputs.columns or len(result.model.stations) > 1:
         desc = replace(
             desc,
             stations=tuple(
@@ -160,11 +149,53 @@ def export_robot(
                 for sid, T in station_bases(result)
             ),
         )
+    return desc
+
+
+def export_robot(
+    calibration: FitResult | RobotDescription,
+    path: str | Path,
+    name: str | None = None,
+    length_unit: str = "m",
+    angle_unit: str = "deg",
+    uncertainty: Uncertainty | None = None,
+) -> RobotDescription:
+    """Write the calibrated arm of ``calibration`` (a fit, or a calibrated arm read from a
+    file: a TOML or a calibrated URDF, exported again without refitting) as a robot TOML
+    (atomically) and return it as read back (what ``load_robot(path)`` gives). It carries the
+    parameters' covariance and the spread between the sessions of the fit (``[uncertainty]``,
+    :mod:`lab.uncertainty`): ``uncertainty`` where given, else the result's own (an update's),
+    else measured from the fit (its sessions each fitted alone); a saved calibration keeps its
+    own.
+
+    Before writing, the text is parsed and its predictions compared with the fitted model's on
+    the fitted poses (with the fit's gravity torques, see the module docstring), or with the
+    given arm's on poses drawn within its limits; a difference over :data:`EXPORT_TOL`, an
+    effect whose values the file cannot bring back, bad units or a path that cannot be written
+    raise :class:`ExportError`, and nothing is written (an existing file is left as it was).
+    """
+    path = Path(path)
+    if length_unit not in LENGTH_UNITS:
+        raise ExportError(f"{path}: length unit must be one of m, mm, got {length_unit!r}")
+    if angle_unit not in ANGLE_UNITS:
+        raise ExportError(f"{path}: angle unit must be one of rad, deg, got {angle_unit!r}")
+    if isinstance(calibration, RobotDescription):
+        desc = calibration if name is None else replace(calibration, name=name)
+        if uncertainty is not None:
+            desc = replace(desc, uncertainty=uncertainty.to_dict())
+        result = None
+    else:
+        result = calibration
+        register_own_effects(result)
+        desc = calibrated_description(result, name, uncertainty)
     text = desc.to_toml(length_unit, angle_unit)
     back = RobotDescription.from_toml(text, source=str(path))
     try:
-        diff = exported_difference(result, back)
-        own = torque_difference(result, back)
+        if result is None:
+            diff = own = description_difference(desc, back)
+        else:
+            diff = exported_difference(result, back)
+            own = torque_difference(result, back)
     except CompensationError as exc:
         raise ExportError(f"{path}: cannot export the calibrated arm: {exc}; not written") from None
     if not diff <= EXPORT_TOL:
@@ -176,6 +207,7 @@ def export_robot(
         atomic_write_text(path, text)
     except (OSError, OutputError) as exc:
         raise ExportError(f"{path}: cannot be written ({exc})") from None
+    write_modules(effect_modules(desc, path)[1], path)
     log.info(
         "wrote the calibrated arm %r to %s (max difference %.2g m; %.2g m with the gravity "
         "torques of its own table)",
@@ -184,7 +216,7 @@ def export_robot(
         diff,
         own,
     )
-    if own > 0.25 * result.sigma:
+    if result is not None and own > 0.25 * result.sigma:
         log.warning(
             "%s: the calibrated arm, with the gravity torques of its own (calibrated) table, "
             "predicts the fitted poses up to %.3g mm away from the fit, which used the nominal "
@@ -194,6 +226,104 @@ def export_robot(
             result.sigma_mm,
         )
     return back
+
+
+def register_own_effects(result: FitResult) -> None:
+    """Register the effects of ``result``'s model that were made in memory with their module's
+    text (a bag's discovered terms, :func:`lab.terms.term_effect`) and are not the registered
+    class of their name, so that its calibrated arm can be read back in this process; the
+    export writes that module beside the file, for another process (``--effect-module``). An
+    effect class without its module stays unregistered: the export refuses it."""
+    from arm.effects import effect_module_file, register_effect
+
+    for e in result.model.effects:
+        cls, known = type(e), EFFECTS.get(e.name)
+        if known is cls or not getattr(cls, "module_text", ""):
+            continue
+        if known is None or effect_module_file(known) is None:
+            register_effect(cls)
+
+
+def effect_modules(robot: RobotDescription, path: Path) -> tuple[dict[str, str], dict[Path, str]]:
+    """The module of each effect the calibrated arm uses that the catalogue does not define:
+    ``{effect: module file}`` (the ``--effect-module`` it was loaded from, else the one to write
+    beside ``path``), and the modules to write, ``{file: text}``: an effect made in memory (a
+    bag's discovered terms) carries its module's text, written as ``path`` with ``.py``."""
+    from arm.effects import effect_module_file, is_catalogued
+
+    names: dict[str, str] = {}
+    writes: dict[Path, str] = {}
+    for name in robot.effects:
+        cls = EFFECTS.get(name)
+        if cls is None or is_catalogued(cls):
+            continue
+        where = effect_module_file(cls)
+        text = getattr(cls, "module_text", "")
+        if where is None and text:
+            target = path.with_suffix(".py")
+            if target in writes:
+                target = path.with_name(f"{path.stem}_{name}.py")
+            writes[target] = text
+            where = str(target)
+        if where is not None:
+            names[name] = where
+    return names, writes
+
+
+def write_modules(writes: Mapping[Path, str], path: Path) -> None:
+    """Write the effect modules of :func:`effect_modules` beside the exported ``path``."""
+    for target, text in writes.items():
+        try:
+            atomic_write_text(target, text)
+        except (OSError, OutputError) as exc:
+            raise ExportError(f"{target}: cannot be written ({exc})") from None
+        log.info("wrote %s, the module of an effect %s uses (--effect-module)", target, path)
+
+
+def station_frames(robot: RobotDescription) -> list[tuple[int | None, RobotDescription]]:
+    """Each station of a calibrated arm as the arm placed in that station's frame (its base the
+    station's), the first station first; one ``(None, robot)`` for an arm without stations."""
+    if not robot.stations:
+        return [(None, robot)]
+    return [
+        (sid, replace(robot, base_translation=t, base_rotation=r, stations=()))
+        for sid, t, r in robot.stations
+    ]
+
+
+def description_difference(
+    robot: RobotDescription, other: RobotDescription, n: int = 200, seed: int = 0
+) -> float:
+    """Largest distance (m) between the tool points that two calibrated arms predict, every tool
+    point and every station's frame, on ``n`` poses drawn within ``robot``'s limits (each effect's
+    columns at a typical value: 20 degC, no payload, each joint approached from +): what an arm
+    exported again from a file keeps of it."""
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(robot.lower, robot.upper, (n, 6))
+    ours, theirs = station_frames(robot), station_frames(other)
+    if [s for s, _ in ours] != [s for s, _ in theirs] or len(robot.tools) != len(other.tools):
+        return float("inf")
+    worst = 0.0
+    for (_, a), (_, b) in zip(ours, theirs, strict=True):
+        for k in range(len(robot.tools)):
+            targets = tuple(range(len(robot.tools)))
+            cols = {
+                "target": np.full(n, float(k)),
+                "temperature": np.full(n, 20.0),
+                "payload": np.zeros(n),
+                **{f"dir{j}": np.ones(n) for j in range(1, 7)},
+            }
+            pa = _predicted(calibrated_model(a, targets), q, cols)
+            pb = _predicted(calibrated_model(b, targets), q, cols)
+            worst = max(worst, float(np.max(np.linalg.norm(pa - pb, axis=1))))
+    return worst
+
+
+def _predicted(model: ErrorModel, q: np.ndarray, cols: dict[str, np.ndarray]) -> np.ndarray:
+    try:
+        return model.predict(model.inputs(q, cols), model.nominal())
+    except EffectError as exc:
+        raise CompensationError(str(exc)) from None
 
 
 def station_bases(result: FitResult) -> list[tuple[int, np.ndarray]]:
@@ -212,21 +342,27 @@ def station_bases(result: FitResult) -> list[tuple[int, np.ndarray]]:
 
 
 def _compare(result: FitResult, robot: RobotDescription, fit_torques: bool) -> float:
-    model = calibrated_model(robot, result.model.targets)
-    # a fit of several tracker stations exports the first station's base: its rows compare
-    rows = np.ones(result.inputs.n, dtype=bool)
-    if len(result.model.stations) > 1:
-        rows = result.inputs.stations == 0
-    columns = {k: v[rows] for k, v in result.inputs.columns.items() if k != "station"}
-    try:
-        inputs = model.inputs(result.inputs.q[rows], columns, source=result.source)
-    except EffectError as exc:
-        raise CompensationError(str(exc)) from None
-    if fit_torques:
-        inputs = replace(inputs, tau=result.inputs.tau[rows], _cache={})
-    pred = model.predict(inputs, model.nominal())
-    fitted = result.model.predict(result.inputs, result.params)[rows]
-    return float(np.max(np.linalg.norm(pred - fitted, axis=1)))
+    """The largest distance of the calibrated arm's predictions from the fit's, every station's
+    rows through that station's frame."""
+    fitted = result.model.predict(result.inputs, result.params)
+    frames = station_frames(robot)
+    several = len(result.model.stations) > 1
+    worst = 0.0
+    for s, (_, arm) in enumerate(frames if several else frames[:1]):
+        model = calibrated_model(arm, result.model.targets)
+        rows = result.inputs.stations == s if several else np.ones(result.inputs.n, dtype=bool)
+        if not rows.any():
+            continue
+        columns = {k: v[rows] for k, v in result.inputs.columns.items() if k != "station"}
+        try:
+            inputs = model.inputs(result.inputs.q[rows], columns, source=result.source)
+        except EffectError as exc:
+            raise CompensationError(str(exc)) from None
+        if fit_torques:
+            inputs = replace(inputs, tau=result.inputs.tau[rows], _cache={})
+        pred = model.predict(inputs, model.nominal())
+        worst = max(worst, float(np.max(np.linalg.norm(pred - fitted[rows], axis=1))))
+    return worst
 
 
 def exported_difference(result: FitResult, robot: RobotDescription) -> float:
@@ -355,6 +491,8 @@ class Compensation:
     nominal_robot: str
     start: str
     orientation: str
+    # the station the targets were given in, registered from reference points measured there
+    registration: StationRegistration | None = None
 
     @property
     def n(self) -> int:
@@ -400,6 +538,7 @@ class Compensation:
             "far_from_start": [int(i) for i in np.flatnonzero(change > 1e3 * FAR_RAD)],
             "median_joint_change_mrad": 1e3 * float(np.median(np.abs(self.q - self.q_start))),
             "source": self.targets.source,
+            "registration": None if self.registration is None else self.registration.to_dict(),
         }
 
     def unreached(self) -> CompensationError | None:
@@ -545,35 +684,107 @@ def _pose_starts(
 
 
 def _to_first_station(
-    cal: RobotDescription, targets: TargetSet, cols: Mapping[str, np.ndarray]
+    cal: RobotDescription, targets: TargetSet, registered: StationRegistration | None = None
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The targets' points and orientations in the calibrated arm's measurement frame (its
     first station's): a ``station`` column maps each row from its station's frame through the
-    stations the calibration recorded."""
+    stations the calibration recorded, or through the station ``registered`` from reference
+    points measured there (every row, without a station column)."""
     station = targets.columns.get("station")
-    if station is None:
+    if station is None and registered is None:
         return targets.xyz, targets.R
-    bases = {sid: (np.array(t), rotation_matrix(np.array(r))) for sid, t, r in cal.stations}
-    if not bases:  # one station: its base is the arm's
-        bases = {int(station[0]): (np.array(cal.base_translation), cal.base_matrix[:3, :3])}
-    unknown = sorted({int(v) for v in station} - set(bases))
+    t0 = np.array(cal.base_translation)
+    R0 = cal.base_matrix[:3, :3]
+    # each station's map to the first station's frame: x_first = M (x - t) + t0
+    maps = {sid: (R0 @ rotation_matrix(np.array(r)).T, np.array(t)) for sid, t, r in cal.stations}
+    if registered is not None:
+        new = registered_id(cal, targets, registered)
+        T = registered.base(cal.base_matrix)
+        maps[new] = (R0 @ T[:3, :3].T, T[:3, 3])
+        if station is None:
+            station = np.full(len(targets), float(new))
+        others = {int(v) for v in station} - {new}
+        if not cal.stations and len(others) == 1:  # the calibration's one station, unrecorded
+            maps[others.pop()] = (np.eye(3), t0)
+    elif not maps and station is not None:  # one station, its id not recorded: the arm's base
+        maps = {int(station[0]): (np.eye(3), t0)}
+    assert station is not None
+    unknown = sorted({int(v) for v in station} - set(maps))
     if unknown:
         raise CompensationError(
             f"{targets.source}: station(s) {unknown} not among the calibration's "
-            f"{sorted(bases)}: targets are given in the frame of a station the calibration "
-            "registered"
+            f"{sorted(maps)}: targets given in the frame of a station the calibration has not "
+            "seen need reference points measured there to register it (--references REFS.csv: "
+            "at least 3 points not on one line, with their joints, or 6-DoF rows)"
         )
-    t0 = np.array(cal.base_translation)
-    R0 = cal.base_matrix[:3, :3]
     xyz = np.empty_like(targets.xyz)
     R = None if targets.R is None else np.empty_like(targets.R)
-    for sid, (t, Rs) in bases.items():
+    for sid, (M, t) in maps.items():
         on = station == sid
-        M = R0 @ Rs.T  # first station <- robot base <- this station
         xyz[on] = (targets.xyz[on] - t) @ M.T + t0
         if R is not None and targets.R is not None:
             R[on] = M @ targets.R[on]
     return xyz, R
+
+
+def registered_id(
+    cal: RobotDescription, targets: TargetSet, registered: StationRegistration
+) -> int:
+    """The station id the registration places: the references' own, else the one station of
+    the targets that the calibration has not seen (-1: the targets name no station); one the
+    calibration has is refused (its frame is fitted)."""
+    own = {sid for sid, _, _ in cal.stations}
+    station = targets.columns.get("station")
+    ids = set() if station is None else {int(v) for v in station}
+    new = registered.station
+    if new is None:
+        unseen = sorted(ids - own) if own else sorted(ids)
+        if len(unseen) > 1:
+            raise CompensationError(
+                f"{targets.source}: stations {unseen} are not the calibration's, and the "
+                f"references ({registered.source}) name none: give them a station column"
+            )
+        new = unseen[0] if unseen else -1
+    if new in own:
+        raise CompensationError(
+            f"{registered.source}: station {new} is the calibration's own (its frame is "
+            "fitted): reference points register a station it has not seen"
+        )
+    if ids and new not in ids:
+        raise CompensationError(
+            f"{registered.source}: the references were measured at station {new}, but "
+            f"{targets.source} names station(s) {sorted(ids)}"
+        )
+    return new
+
+
+def register_references(
+    robot: RobotDescription | str | Path,
+    references: MeasurementSet | str | Path,
+    columns: Mapping[str, np.ndarray] | None = None,
+    length_unit: str = "m",
+    angle_unit: str = "rad",
+) -> StationRegistration:
+    """The station where ``references`` (a measurement CSV or set: joints and measured points)
+    were measured, registered on them with the calibrated arm ``robot`` as it stands
+    (:func:`lab.registration.register_station`); ``columns``: values for the effects' columns
+    the references lack (e.g. the temperature)."""
+    cal = robot if isinstance(robot, RobotDescription) else load_robot(robot)
+    if not isinstance(references, MeasurementSet):
+        references = read_measurements(references, length_unit=length_unit, angle_unit=angle_unit)
+    if columns:
+        extra = {
+            k: np.broadcast_to(np.asarray(v, dtype=float), len(references))
+            for k, v in columns.items()
+        }
+        references = replace(references, columns=extra | references.columns)
+    cal = cal.to_modified()
+    ids = references.columns.get("target")
+    model = calibrated_model(cal, _model_targets(len(cal.tools), ids, None))
+    try:
+        return register_station(model, model.nominal(), references)
+    except EffectError as exc:
+        raise CompensationError(str(exc)) from None
 
 
 def _take(cols: Mapping[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
@@ -675,6 +886,19 @@ def _nominal_start(
     return q_start, ok_start
 
 
+def _nominal_of(
+    cal: RobotDescription, nominal: RobotDescription | str | Path | None
+) -> tuple[RobotDescription, bool]:
+    """The arm the controller believes in: ``nominal`` where given, else the one the calibrated
+    file records, else the arm itself; and whether that was taken without a record."""
+    if nominal is not None:
+        return (nominal if isinstance(nominal, RobotDescription) else load_robot(nominal)), False
+    # a shipped arm is its own nominal; one that carries a calibration's marks (effect values,
+    # Hayati's beta) and no record of its nominal arm was exported before the record existed
+    calibrated = bool(cal.effects) or any(j.beta for j in cal.joints)
+    return (cal.nominal if cal.nominal is not None else cal), cal.nominal is None and calibrated
+
+
 def compensate(
     robot: RobotDescription | str | Path,
     targets: TargetSet | np.ndarray,
@@ -686,6 +910,7 @@ def compensate(
     tol: float = 1e-10,
     seed: int = 0,
     extrapolate: bool = False,
+    references: StationRegistration | MeasurementSet | str | Path | None = None,
 ) -> Compensation:
     """Joint angles that put the calibrated arm ``robot``'s tool frame on the target poses.
 
@@ -701,8 +926,18 @@ def compensate(
     An arm that records its domain (``[domain]``, lab.domain) warns where the compensated poses
     or the columns lie outside it, and solves the rows outside the range a term holds over
     without that term, unless ``extrapolate``.
+
+    Targets given in the frame of a station the calibration has not seen (a ``station`` id it
+    does not record, or no station column) are mapped through that station, registered from
+    ``references`` measured there (:func:`register_references`, or its result); without them
+    such a station id is refused.
     """
     cal = robot if isinstance(robot, RobotDescription) else load_robot(robot)
+    registered = (
+        references
+        if references is None or isinstance(references, StationRegistration)
+        else register_references(cal, references)
+    )
     if not isinstance(targets, TargetSet):
         targets = TargetSet(np.asarray(targets, dtype=float).reshape(-1, 3))
     n = len(targets)
@@ -715,15 +950,7 @@ def compensate(
             "free and the arm may turn its wrist anyhow; give one of them, or ask for a free "
             "orientation (--free-orientation)"
         )
-    if nominal is None:
-        # a shipped arm is its own nominal; one that carries a calibration's marks (effect values,
-        # Hayati's beta) and no record of its nominal arm was exported before the record existed
-        calibrated = bool(cal.effects) or any(j.beta for j in cal.joints)
-        unrecorded = cal.nominal is None and calibrated
-        nom = cal.nominal if cal.nominal is not None else cal
-    else:
-        unrecorded = False
-        nom = nominal if isinstance(nominal, RobotDescription) else load_robot(nominal)
+    nom, unrecorded = _nominal_of(cal, nominal)
     cal = cal.to_modified()
     cols = dict(targets.columns) | {
         k: np.asarray(v, dtype=float) for k, v in (columns or {}).items()
@@ -737,7 +964,7 @@ def compensate(
     except EffectError as exc:
         raise CompensationError(str(exc)) from None
     p = model.nominal()
-    xyz, R_given = _to_first_station(cal, targets, cols)
+    xyz, R_given = _to_first_station(cal, targets, registered)
 
     # the target orientations
     R = None if free_orientation else R_given
@@ -786,4 +1013,5 @@ def compensate(
         nominal_robot=nom.name,
         start=start,
         orientation=orientation,
+        registration=registered,
     )

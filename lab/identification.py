@@ -28,10 +28,10 @@ from typing import Unpack
 
 from arm.description import RobotDescription
 from arm.effects import Effect
-from arm.measurements import MeasurementSet, as_measurements
+from arm.measurements import MeasurementSet
 from lab.errors import FitError
 from lab.options import LabOptions, OptionFields, resolve
-from lab.result import FitResult
+from lab.result import FitResult, held_out
 from lab.sanity import check_validation
 from lab.screening import Screen, screened
 
@@ -47,6 +47,7 @@ def fit(
     *,
     options: LabOptions | None = None,
     validate: MeasurementSet | str | Path | None = None,
+    references: MeasurementSet | str | Path | None = None,
     start: Mapping[str, float] | None = None,
     fixed: Iterable[str] = (),
     extrapolate: bool = False,
@@ -68,7 +69,9 @@ def fit(
 
     ``validate``: held-out measurements for validation RMS and median; where they lie outside
     the fitted domain a warning says so, and terms whose form does not repeat over what was
-    fitted are left out of those rows unless ``extrapolate`` (:mod:`lab.domain`). ``start``:
+    fitted are left out of those rows unless ``extrapolate`` (:mod:`lab.domain`);
+    ``references``: poses measured at a station of the held-out data that the fit has not seen,
+    which register it (:meth:`lab.FitResult.validate`). ``start``:
     starting values by name; ``fixed``: names to hold at their starting value.
     """
     opts = resolve(options, **keywords)
@@ -77,9 +80,9 @@ def fit(
             raise FitError("start and fixed apply to a fit of data, not of a screen made before")
     s = screened(data, robot, effects, opts, tests=False, start=start, fixed=fixed)
     result = s.fit
-    if validate is not None:
-        held_out = as_measurements(validate)
-        result = result.validate(held_out, extrapolate=extrapolate)
-        check_validation(result, held_out.source)
+    held = held_out(validate, references)
+    if held is not None:
+        result = result.validate(held[0], extrapolate=extrapolate, references=held[1])
+        check_validation(result, held[0].source)
     log.info("%s", result.summary())
     return result

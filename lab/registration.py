@@ -14,11 +14,22 @@ With several tracker stations each station's base is registered on its own rows,
 shared; where the tool frame's orientation is measured, its rotation (``trx try trz``) is the
 rotation that best maps the arm's last frame onto the measured frames, given the bases
 (:func:`register_tool_rotation`, the orthogonal Procrustes solution).
+
+**A station the calibration has not seen** (:func:`register_station`): a calibrated arm is
+placed in a new tracker station's frame by reference points measured there (at least three not
+on one line, or rows with the tool frame's orientation), the arm as calibrated and only the
+station's six parameters fitted; compensation of a program given in that station's frame and
+validation of measurements made there both use it, and neither fits anything on the rows it
+serves::
+
+    reg = register_station(model, params, references)   # the references: a MeasurementSet
+    reg.rms_mm, reg.max_mm         # how far the registered arm lies from the references
+    reg.R, reg.t                   # the station's frame <- the calibration's (first station's)
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -27,10 +38,25 @@ from arm.description import RobotDescription
 from arm.effect_api import ModelInputs
 from arm.errormodel import ErrorModel
 from arm.kinematics import link_frames
-from arm.so3 import rotation_vector
+from arm.measurements import MeasurementSet
+from arm.so3 import rotation_matrix, rotation_vector
 from lab.blocks import Blocks
+from lab.errors import RegistrationError
 
-__all__ = ["register_base", "register_points", "register_stations"]
+__all__ = [
+    "StationRegistration",
+    "register_base",
+    "register_points",
+    "register_station",
+    "register_stations",
+]
+
+#: m: a 6-DoF reference row counts as its point and three more this far along its tool frame's
+#: axes (a rotation error of 1 mrad weighs as 0.1 mm of a point)
+FRAME_ARM = 0.1
+#: m: reference points whose spread off their best line is below this are collinear: the
+#: rotation about that line is not determined
+COLLINEAR = 1e-3
 
 
 def register_base(
@@ -260,6 +286,144 @@ def nominal_parameters(model: ErrorModel, inputs: ModelInputs, xyz: np.ndarray) 
     before = np.sum((model.predict(inputs, p) - xyz) ** 2)
     after = np.sum((model.predict(inputs, p_reg) - xyz) ** 2)
     return p_reg if after < before else p
+
+
+@dataclass(frozen=True)
+class StationRegistration:
+    """A new station's frame found from reference points measured there (:func:`register_station`):
+    ``R``, ``t``: the station's frame <- the calibration's measurement frame (its first
+    station's); ``residuals`` (N, 3): the registered arm's points minus the references', m;
+    ``station``: the references' station id (None: they have no station column); ``tool``: the
+    tool-point parameters placed with it, {name: change, m} (those the calibration could not
+    identify, :meth:`lab.FitResult.unidentified_tool`); ``source``: the references' file."""
+
+    R: np.ndarray
+    t: np.ndarray
+    residuals: np.ndarray
+    station: int | None = None
+    source: str = "<memory>"
+    tool: dict[str, float] | None = None
+
+    @property
+    def n_points(self) -> int:
+        return len(self.residuals)
+
+    @property
+    def rms_mm(self) -> float:
+        return 1e3 * float(np.sqrt(np.mean(np.sum(self.residuals**2, axis=1))))
+
+    @property
+    def max_mm(self) -> float:
+        return 1e3 * float(np.max(np.linalg.norm(self.residuals, axis=1)))
+
+    def base(self, first: np.ndarray) -> np.ndarray:
+        """The station's 4x4 frame <- robot base, given the calibration's ``first`` (4x4)."""
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.R, self.t
+        return T @ first
+
+    def text(self) -> str:
+        """``station 3 registered on 4 reference points of refs.csv: residual RMS ... mm``."""
+        which = "a new station" if self.station is None else f"station {self.station}"
+        return (
+            f"{which} registered on {self.n_points} reference points of {self.source} (the "
+            f"calibrated arm, its base alone fitted): residual RMS {self.rms_mm:.4f} mm, max "
+            f"{self.max_mm:.4f} mm"
+        )
+
+    def to_dict(self) -> dict:
+        return {
+            "station": self.station,
+            "source": self.source,
+            "n_points": self.n_points,
+            "rms_mm": self.rms_mm,
+            "max_mm": self.max_mm,
+            "translation": [float(v) for v in self.t],
+            "rotation_vector": [float(v) for v in rotation_vector(self.R)],
+            "tool_placed_mm": {k: 1e3 * v for k, v in (self.tool or {}).items()},
+        }
+
+
+def _frame_points(xyz: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Each 6-DoF row's point and three points along its frame's axes (4 N, 3)."""
+    axes = FRAME_ARM * np.swapaxes(R, 1, 2)  # row k of R^T: the frame's axis k
+    return np.concatenate([xyz[:, None, :], xyz[:, None, :] + axes], axis=1).reshape(-1, 3)
+
+
+def _reference_rows(
+    references: MeasurementSet, pred: np.ndarray, pred_R: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points a registration maps (predicted, measured) and which row each comes from: every
+    reference point, and for a row with a measured orientation three more along its frame."""
+    six = np.zeros(len(references), dtype=bool)
+    if pred_R is not None and references.has_orientation:
+        six = np.asarray(references.measured[:, 3:].all(axis=1))
+    if not six.any() or references.orientation is None or pred_R is None:
+        return pred, references.xyz, np.arange(len(references))
+    Rm = rotation_matrix(references.orientation[six])
+    p = np.vstack([pred[~six], _frame_points(pred[six], pred_R[six])])
+    m = np.vstack([references.xyz[~six], _frame_points(references.xyz[six], Rm)])
+    rows = np.concatenate([np.flatnonzero(~six), np.repeat(np.flatnonzero(six), 4)])
+    return p, m, rows
+
+
+def check_references(references: MeasurementSet, points: np.ndarray) -> None:
+    """Refuse references that cannot place a station: fewer than 3 points, or points on a line
+    (the rotation about it is free), with the file and what to measure."""
+    where = references.source
+    if len(points) < 3:
+        raise RegistrationError(
+            f"{where}: {len(references)} reference point(s): a station's frame needs at least 3 "
+            "points not on one line (or one row with the tool frame's orientation, 6-DoF)"
+        )
+    s = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    spread = float(s[1]) / np.sqrt(len(points))
+    if spread < COLLINEAR:
+        raise RegistrationError(
+            f"{where}: the {len(references)} reference points lie on one line (within "
+            f"{spread * 1e3:.3g} mm): the rotation about it is not determined; measure at least "
+            "3 points not on one line, metres apart where the arm reaches"
+        )
+
+
+def register_station(
+    model: ErrorModel,
+    params: np.ndarray,
+    references: MeasurementSet,
+    tool: list[str] | None = None,
+) -> StationRegistration:
+    """The frame of the station where ``references`` were measured, relative to the calibration's
+    measurement frame: the calibrated arm (``model`` at ``params``, as measured from its first
+    station) predicts each reference pose, and the rigid transform that best maps those points
+    onto the measured ones is the station's (Kabsch; a row with a measured orientation adds three
+    points along its tool frame, :data:`FRAME_ARM`). ``tool``: tool-point parameters the
+    calibration did not identify, placed with the station (:func:`register_stations`). Refuses
+    references that cannot determine it (:func:`check_references`)."""
+    which = references.columns.get("station")
+    ids = sorted({int(v) for v in which}) if which is not None else []
+    if len(ids) > 1:
+        raise RegistrationError(
+            f"{references.source}: reference points of stations {ids}: give one station's "
+            "references at a time"
+        )
+    cols = {k: v for k, v in references.columns.items() if k != "station"}
+    if len(model.stations) > 1:  # as measured from the calibration's first station
+        cols["station"] = np.full(len(references), float(model.stations[0]))
+    inputs = model.inputs(references.q, cols, source=references.source)
+    pred, pred_R = model.predict_pose(inputs, params)
+    columns = tool_columns(model, inputs, params, tool) if tool else None
+    if columns is not None:  # a tool offset the calibration could not identify: placed here
+        check_references(references, references.xyz)
+        placed, delta = register_stations(pred, references.xyz, [np.arange(len(pred))], columns)
+        pred = pred + columns @ delta
+        (R, t), shift = placed[0], dict(zip(tool or (), map(float, delta), strict=True))
+    else:
+        p, m, _ = _reference_rows(references, pred, pred_R)
+        check_references(references, m)
+        R, t = register_points(p, m)
+        shift = None
+    residuals = pred @ R.T + t - references.xyz
+    return StationRegistration(R, t, residuals, ids[0] if ids else None, references.source, shift)
 
 
 #: a coupling is named when it brings the registered arm's median miss below this share of the

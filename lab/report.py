@@ -32,7 +32,7 @@ from arm.description import RobotDescription
 from arm.effect_api import ModelInputs
 from arm.effects import Effect
 from arm.errormodel import ErrorModel
-from arm.measurements import MeasurementSet, as_measurements
+from arm.measurements import MeasurementSet
 from arm.params import parameter_unit
 from lab import plots
 from lab.diagnosis import diagnose, hint_variables
@@ -42,7 +42,7 @@ from lab.lab_report import LabReport, ModelRun, Sensitivity
 from lab.options import LabOptions, OptionFields, resolve
 from lab.registration import nominal_parameters
 from lab.report_html import HINT_PLOT_P, arm_parameters
-from lab.result import FitResult, inputs_of
+from lab.result import FitResult, held_out, inputs_of
 from lab.screening import Screen, screened
 
 __all__ = ["build_report", "error_sensitivity"]
@@ -78,6 +78,7 @@ def build_report(
     *,
     options: LabOptions | None = None,
     validate: MeasurementSet | str | Path | None = None,
+    references: MeasurementSet | str | Path | None = None,
     rounds: int = 3,
     title: str | None = None,
     command: str | None = None,
@@ -92,10 +93,12 @@ def build_report(
     :class:`lab.Screen` made before; every model is then fitted to the rows that count
     (:attr:`lab.Screen.counted`), so that the models compare pose by pose, and nothing more is
     left out; the report names what was. The options (``noise_mm`` ... ``register``, or
-    ``options=``) are :class:`lab.LabOptions`. ``validate``: held-out measurements."""
+    ``options=``) are :class:`lab.LabOptions`. ``validate``: held-out measurements; ``references``: poses that register a station of
+    them the fit has not seen (:meth:`lab.FitResult.validate`)."""
     opts = resolve(options, **keywords)
     step = progress or (lambda msg: None)
-    val = None if validate is None else as_measurements(validate)
+    held = held_out(validate, references)
+    val, refs = (None, None) if held is None else held
     shown = "geometric" if effects is None else effects
     step(
         "screening the rows and fitting "
@@ -104,7 +107,7 @@ def build_report(
     s = screened(data, robot, effects, opts, tests=True)
 
     def validated(cur: Screen) -> Screen:
-        return cur if val is None else replace(cur, fit=cur.fit.validate(val))
+        return cur if val is None else replace(cur, fit=cur.fit.validate(val, references=refs))
 
     # the rows every model is fitted to: without the gross errors the tests found as well
     cur = validated(s if not s.untested else s.refit(s.effects))
@@ -115,7 +118,7 @@ def build_report(
         ModelRun(
             "nominal",
             first.model.predict(first.inputs, p0) - data.xyz,
-            None if val is None else _nominal_validation(first, p0, val),
+            None if val is None else _nominal_validation(first, p0, val, refs),
         )
     ]
     seen = {",".join(first.effects)}
@@ -162,13 +165,15 @@ def build_report(
     return report
 
 
-def _nominal_validation(first: FitResult, p0: np.ndarray, val: MeasurementSet) -> np.ndarray:
+def _nominal_validation(
+    first: FitResult, p0: np.ndarray, val: MeasurementSet, refs: MeasurementSet | None
+) -> np.ndarray:
     """The nominal arm's residuals on the held-out poses: as a fit's validation does it (a
     station the fit has not seen gets its base registered), with the nominal parameters."""
     if "station" not in val.columns:
         return first.model.predict(inputs_of(first.model, val), p0) - val.xyz
     nominal = replace(first, params=p0)
-    r = nominal.validate(val).validation_residuals
+    r = nominal.validate(val, references=refs).validation_residuals
     assert r is not None
     return r
 

@@ -97,9 +97,10 @@ def _beyond_points_html(r: LabReport) -> str:
     if fit.validation_registered:
         ids = ", ".join(map(str, fit.validation_registered))
         bits.append(
-            f"validation station(s) {ids} not in the fit: each one's base registered rigidly "
-            "on its held-out points, the arm as fitted"
+            f"validation station(s) {ids} not in the fit: each one's frame registered rigidly "
+            "on reference points measured there, the arm as fitted"
         )
+        bits += [f"validation: {reg.text()}" for reg in fit.validation_registrations]
     return f"<p>{_e('; '.join(bits))}.</p>" if bits else ""
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -22,7 +23,7 @@ import numpy as np
 from arm.description import RobotDescription
 from arm.effect_api import EffectError, ModelInputs
 from arm.errormodel import ErrorModel
-from arm.measurements import MeasurementSet
+from arm.measurements import MeasurementSet, as_measurements
 from arm.params import ROW_FAMILIES, parameter_unit, parse_parameter_name
 from lab.blocks import Blocks
 from lab.domain import (
@@ -33,11 +34,16 @@ from lab.domain import (
     warn_out_of_domain,
     warn_tool_placed,
 )
-from lab.errors import FitError
+from lab.errors import FitError, RegistrationError
 from lab.identifiability import Identifiability
 from lab.observations import Observations
 from lab.plausibility import Implausible
-from lab.registration import register_stations, tool_columns, tool_indices
+from lab.registration import (
+    StationRegistration,
+    register_station,
+    tool_columns,
+    tool_indices,
+)
 from lab.repeatability import StatedNoise
 from lab.solver import OUTLIER_RADIUS, robust_sigma
 from lab.text import left_out_lines, parameter_cells
@@ -156,6 +162,8 @@ class FitResult:
     observations: Observations | None = field(default=None, repr=False)
     validation_rotation: np.ndarray | None = field(default=None, repr=False)
     validation_registered: tuple[int, ...] = ()
+    # each of those stations' registration on its reference points, with its residual
+    validation_registrations: tuple[StationRegistration, ...] = ()
     # tool-point parameters the fit had not identified, placed with those stations' bases on the
     # validation points: {name: its change from the fit's value (m)}
     validation_tool_placed: dict[str, float] = field(default_factory=dict)
@@ -432,7 +440,13 @@ class FitResult:
         """Predicted minus measured points (M, 3) of another measurement set, m."""
         return self.predict(data) - data.xyz
 
-    def validate(self, data: MeasurementSet, extrapolate: bool = False) -> FitResult:
+    def validate(
+        self,
+        data: MeasurementSet,
+        extrapolate: bool = False,
+        references: MeasurementSet | None = None,
+        register_on_rows: bool = False,
+    ) -> FitResult:
         """This result with validation metrics on ``data`` (held-out poses).
 
         Rows outside the model's domain (:mod:`lab.domain`) are named in a warning, and
@@ -440,9 +454,16 @@ class FitResult:
         (``validation_excursions``, ``validation_dropped``).
 
         Rows of a station the fit had not seen (a ``station`` id not among the model's) have no
-        fitted base: the arm's fitted model is placed there by a rigid registration of its
-        predicted points on theirs (6 parameters, the base alone), named in
-        ``validation_registered``; the validation then measures the arm, not the new base."""
+        fitted base: the arm's fitted model is placed there by a rigid registration on
+        ``references``, other poses measured at that station
+        (:func:`lab.registration.register_station`; named in ``validation_registered``, with
+        each registration's residual in ``validation_registrations``); the validation then
+        measures the arm on rows nothing was fitted on. A row of ``data`` that is also a
+        reference is left out of the figure. Without references such a station is refused
+        (:class:`lab.errors.RegistrationError`): a base fitted on the rows it validates
+        flatters them. ``register_on_rows`` registers such a station on the validated rows
+        themselves instead (blocked cross-validation compares models alike this way; its figure
+        is not an accuracy)."""
         model = self.model
         which = data.columns.get("station")
         known = set(model.stations)
@@ -451,6 +472,23 @@ class FitResult:
                 f"{data.source}: no station column, but the fit has stations "
                 f"{', '.join(map(str, model.stations))}: say which station measured it"
             )
+        ids = [] if which is None else sorted({int(v) for v in which})
+        new = tuple(i for i in ids if i not in known) if len(known) > 1 else ()
+        if len(known) == 1 and which is not None and ids != [model.stations[0]]:
+            new = tuple(ids)  # one base fitted: every other station is placed anew
+        if new and references is None and register_on_rows:
+            references = data.subset(np.flatnonzero(np.isin(data.columns["station"], new)))
+        elif new and references is None:
+            raise RegistrationError(
+                f"{data.source}: station(s) {', '.join(map(str, new))} not among the fit's "
+                f"({', '.join(map(str, model.stations))}): their frame is unknown, and a base "
+                "fitted on the rows it validates flatters them; give reference points measured "
+                "there (--references REFS.csv: at least 3 points not on one line, or 6-DoF "
+                "rows), which register the station and stay out of the figure"
+            )
+        if new and references is not None and not register_on_rows:
+            data = _without_references(data, references)
+            which = data.columns["station"]
         exc, drop = self.out_of_domain(data)
         warn_out_of_domain(data.source, exc, drop, extrapolate)
         if extrapolate:
@@ -463,16 +501,11 @@ class FitResult:
                 inputs_of(model, d), {n: m for n, m in sub.items() if m.any()}
             )
 
-        if which is None:
-            return self._validated(data, predict(data), None, (), outside)
-        ids = sorted({int(v) for v in which})
-        new = tuple(i for i in ids if i not in known) if len(known) > 1 else ()
-        if len(known) == 1 and ids != [model.stations[0]]:
-            new = tuple(ids)  # one base fitted: every other station is placed anew
         if not new:
             return self._validated(data, predict(data), None, (), outside)
-        # the arm as fitted, in the frame of the fit's first station; each new station's base
-        # is the rigid transform that best maps those points onto its measured ones
+        assert which is not None and references is not None
+        # the arm as fitted, in the frame of the fit's first station; each new station's frame
+        # is registered on its reference points
         cols = {k: v for k, v in data.columns.items() if k != "station"}
         if "station" in self.inputs.columns:  # as measured from the fit's first station
             cols["station"] = np.full(len(data), float(model.stations[0]))
@@ -480,32 +513,42 @@ class FitResult:
         pred = predict(first)
         pts = np.array(pred, dtype=float)
         turns = np.repeat(np.eye(3)[None], len(data), axis=0)
-        for sid in new:
-            if (n_on := int((which == sid).sum())) < 3:
-                raise FitError(
-                    f"{data.source}: station {sid}, which the fit has not seen, has "
-                    f"{n_on} rows: at least 3 place its base"
-                )
-        groups = [which == sid for sid in new]
-        # a tool offset the fit could not identify is placed with the new bases (lab.domain)
+        # a tool offset the fit could not identify is placed with the new frames (lab.domain)
         loose = self.unidentified_tool()
         columns = (
             tool_columns(model, inputs_of(model, first), self.params, loose) if loose else None
         )
-        placed, delta = register_stations(pred, data.xyz, groups, columns)
-        shift = dict(zip(loose, map(float, delta), strict=True))
-        warn_tool_placed(data.source, new, shift)
-        if columns is not None:
-            pred = pred + columns @ delta
+        placed = [self.register(_references_of(references, sid, new), loose) for sid in new]
+        shift: dict[str, float] = {}
         for sid in ids:
-            on = which == sid
             if sid not in new:
-                sub = data.subset(np.flatnonzero(on))
-                pts[on] = predict(sub, on)
-        for on, (R, t) in zip(groups, placed, strict=True):
-            pts[on] = pred[on] @ R.T + t
-            turns[on] = R
-        return self._validated(data, pts, (first, turns), new, outside, shift)
+                on = which == sid
+                pts[on] = predict(data.subset(np.flatnonzero(on)), on)
+        for sid, reg in zip(new, placed, strict=True):
+            on = which == sid
+            moved = pred[on]
+            if columns is not None and reg.tool:
+                delta = np.array([reg.tool[n] for n in loose])
+                moved = moved + columns[on] @ delta
+                shift |= reg.tool
+            pts[on] = moved @ reg.R.T + reg.t
+            turns[on] = reg.R
+        warn_tool_placed(data.source, new, shift)
+        return replace(
+            self._validated(data, pts, (first, turns), new, outside, shift),
+            validation_registrations=tuple(placed),
+        )
+
+    def register(
+        self, references: MeasurementSet, tool: list[str] | None = None
+    ) -> StationRegistration:
+        """The frame of a station this fit has not seen, registered on ``references`` measured
+        there with the arm as fitted (:func:`lab.registration.register_station`); ``tool``: the
+        unidentified tool parameters placed with it."""
+        try:
+            return register_station(self.model, self.params, references, tool)
+        except EffectError as exc:
+            raise FitError(str(exc)) from None
 
     def unidentified_tool(self) -> list[str]:
         """The tool-point parameters (``tx ty tz``, per target) this fit could not identify and
@@ -615,12 +658,8 @@ class FitResult:
                 f"validation on {len(self.validation_residuals)} points: RMS "
                 f"{self.validation_rms_mm:.4f} mm, median {self.validation_median_mm:.4f} mm"
             )
-            if self.validation_registered:
-                ids = ", ".join(map(str, self.validation_registered))
-                out.append(
-                    f"validation: station(s) {ids} not in the fit: each one's base registered "
-                    "rigidly (6 parameters) on its validation points, the arm as fitted"
-                )
+            for reg in self.validation_registrations:
+                out.append(f"validation: {reg.text()}")
             if self.validation_tool_placed:
                 out.append(
                     tool_placed_text(self.validation_registered, self.validation_tool_placed)
@@ -685,6 +724,7 @@ class FitResult:
             "orientation_rms_mrad": self.orientation_rms_mrad,
             "validation_orientation_rms_mrad": self.validation_orientation_rms_mrad,
             "validation_registered": list(self.validation_registered),
+            "validation_registrations": [r.to_dict() for r in self.validation_registrations],
             "validation_tool_placed_mm": {
                 k: 1e3 * v for k, v in self.validation_tool_placed.items()
             },
@@ -692,6 +732,60 @@ class FitResult:
             "validation_outside_domain": [e.to_dict() for e in self.validation_excursions],
             "validation_terms_left_out": list(self.validation_dropped),
         }
+
+
+def held_out(
+    validate: MeasurementSet | str | Path | None, references: MeasurementSet | str | Path | None
+) -> tuple[MeasurementSet, MeasurementSet | None] | None:
+    """The held-out data and the reference points of a station of them the fit has not seen, as
+    measurement sets (None: no held-out data; references without them are refused)."""
+    if validate is None:
+        if references is not None:
+            raise FitError(
+                "reference points register a station of held-out data: give the data too "
+                "(validate=, --validate)"
+            )
+        return None
+    return as_measurements(validate), None if references is None else as_measurements(references)
+
+
+def _references_of(references: MeasurementSet, station: int, new: Sequence[int]) -> MeasurementSet:
+    """The reference rows of ``station``: its rows by the references' station column, or all of
+    them where they have none and ``station`` is the one new station."""
+    which = references.columns.get("station")
+    if which is None:
+        if len(new) > 1:
+            raise RegistrationError(
+                f"{references.source}: no station column, but the validation has several "
+                f"stations the fit has not seen ({', '.join(map(str, new))}): say which "
+                "station measured each reference"
+            )
+        return references
+    rows = np.flatnonzero(which == station)
+    if not rows.size:
+        raise RegistrationError(
+            f"{references.source}: no reference points of station {station}, which the fit has "
+            "not seen: measure at least 3 there (not on one line), or 6-DoF rows"
+        )
+    return references.subset(rows)
+
+
+def _without_references(data: MeasurementSet, references: MeasurementSet) -> MeasurementSet:
+    """``data`` without the rows that are also references (the same joints and point): what
+    registered a station is not evidence of the arm's accuracy there."""
+    ref = {(tuple(q), tuple(x)) for q, x in zip(references.q, references.xyz, strict=True)}
+    same = np.array(
+        [(tuple(q), tuple(x)) in ref for q, x in zip(data.q, data.xyz, strict=True)], dtype=bool
+    )
+    if not same.any():
+        return data
+    if same.all():
+        raise RegistrationError(
+            f"{data.source}: every validation row is a reference point ({references.source}): "
+            "nothing is left to validate on"
+        )
+    log.info("%s: %d rows are reference points, left out of the figure", data.source, same.sum())
+    return data.subset(np.flatnonzero(~same))
 
 
 def rms(r: np.ndarray) -> float:

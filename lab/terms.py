@@ -169,6 +169,7 @@ class TermEffect(JointAngleEffect):
 
     forms: dict[int, tuple[str, ...]] = {}
     expressions: dict[str, Expr] = {}
+    module_text: str = ""
 
     def parameter_names(self, robot, targets):
         return [f"{t}{j}" for j in self.active_joints() for t in self.forms.get(j, ())]
@@ -202,10 +203,13 @@ def term_effect(
     forms: Mapping[int, tuple[str, ...]],
     typical: Mapping[str, tuple[float, float]],
     expressions: Mapping[str, Expr],
+    module_text: str = "",
 ) -> type[TermEffect]:
     """The effect class of these terms: ``forms`` the terms of each joint, ``expressions`` each
     term's tree (in the order of the class's ``terms``), ``typical`` each term's typical range;
-    ``module`` the name its ``__module__`` gives (where an error says it comes from)."""
+    ``module`` the name its ``__module__`` gives (where an error says it comes from);
+    ``module_text`` the Python text of the module that defines the same class (what an export
+    writes beside a calibrated arm that uses it, so that another process can load it)."""
     attrs = {
         "__module__": module,
         "__qualname__": class_name,
@@ -217,5 +221,6 @@ def term_effect(
         "terms": tuple(expressions),
         "typical": dict(typical),
         "expressions": dict(expressions),
+        "module_text": module_text,
     }
     return type(class_name, (TermEffect,), attrs)

@@ -49,6 +49,7 @@ __all__ = [
     "Uncertainty",
     "UncertaintyError",
     "covariance_of",
+    "draw_band",
     "least_spread",
     "predicted_rms",
     "session_spread",
@@ -396,7 +397,7 @@ def predicted_rms(
         A = A - B @ np.linalg.lstsq(B, A, rcond=None)[0]
     params = float(np.sqrt(np.einsum("ia,ab,ib->", A, cov, A) / len(data)))
     discrepancy = math.sqrt(3.0) * u.sigma
-    low, high = _band(A, cov, len(data), discrepancy)
+    low, high = draw_band(A, cov, len(data), discrepancy)
     return Prediction(
         1e3 * math.hypot(params, discrepancy),
         1e3 * params,
@@ -412,7 +413,7 @@ def predicted_rms(
 BAND_DRAWS = 400
 
 
-def _band(A: np.ndarray, cov: np.ndarray, n: int, discrepancy: float) -> tuple[float, float]:
+def draw_band(A: np.ndarray, cov: np.ndarray, n: int, discrepancy: float) -> tuple[float, float]:
     """The 5-95 % range of the RMS over the poses of one draw of the parameters from ``cov``
     (the RMS of ``A delta``, delta ~ N(0, cov)), the discrepancy added in quadrature: the
     squared RMS is a weighted sum of chi-squares, the weights the eigenvalues of

@@ -33,20 +33,33 @@ from pathlib import Path
 
 import numpy as np
 
-from arm.description import RobotDescription, from_urdf, vec3
+from arm.description import DescriptionError, RobotDescription, from_urdf, vec3
 from arm.files import OutputError, atomic_write_text, read_input_text
 from arm.params import TOOL_ROTATION_NAMES
 from arm.so3 import rotation_matrix, rotation_vector
-from arm.urdf import UrdfError, calibrated_urdf, joint_origins, read_urdf, rpy_of
+from arm.urdf import (
+    UrdfArm,
+    UrdfError,
+    UrdfSource,
+    calibrated_urdf,
+    joint_origins,
+    read_urdf,
+    rpy_of,
+)
 from lab.export import (
     EXPORT_TOL,
     CompensationError,
     ExportError,
+    calibrated_description,
+    description_difference,
+    effect_modules,
     exported_difference,
-    station_bases,
+    register_own_effects,
+    station_frames,
+    write_modules,
 )
 from lab.result import SCHEMA_VERSION, FitResult
-from lab.uncertainty import Uncertainty, uncertainty_of
+from lab.uncertainty import Uncertainty
 
 __all__ = ["UrdfExport", "export_urdf", "metrology_path", "read_calibrated_urdf", "require_urdf"]
 
@@ -66,6 +79,7 @@ class UrdfExport:
     joints: tuple[str, ...]
     robot: RobotDescription
     difference_m: float
+    modules: tuple[Path, ...] = ()
 
 
 def metrology_path(urdf: str | Path) -> Path:
@@ -95,25 +109,90 @@ def require_urdf(robot: RobotDescription) -> None:
         raise ExportError(_not_urdf(robot))
 
 
+def _urdf_nominal(
+    calibration: FitResult | RobotDescription, nominal: RobotDescription | None, path: Path
+) -> RobotDescription:
+    """The nominal arm read from a URDF that the calibration corrects: a fit's own, else
+    ``nominal`` (checked to be the arm the calibration records, ``[nominal]``), else the arm's
+    own URDF (a calibrated URDF read back, exported again)."""
+    if isinstance(calibration, FitResult):
+        fitted = calibration.model.robot
+        if fitted.urdf is None:
+            raise ExportError(f"{path}: {_not_urdf(fitted)}")
+        return fitted
+    cal = calibration
+    # the nominal arm given, else the recorded one where it keeps its URDF, else the arm's own
+    arm: RobotDescription = nominal or cal
+    if nominal is None and cal.nominal is not None and cal.nominal.urdf is not None:
+        arm = cal.nominal
+    if arm.urdf is None:
+        raise ExportError(
+            f"{path}: the calibrated arm {cal.name!r} records no URDF to correct: give the "
+            "nominal arm's URDF it was fitted to (--robot ARM.urdf; nominal= in Python)"
+        )
+    if nominal is not None and cal.nominal is not None:
+        recorded, given = cal.nominal.to_modified(), nominal.to_modified()
+        far = max(
+            float(np.max(np.abs(recorded.column(k) - given.column(k))))
+            for k in ("alpha", "a", "d", "theta_offset")
+        )
+        if far > 1e-9:
+            raise ExportError(
+                f"{path}: {nominal.name!r} is not the arm {cal.name!r} was fitted to (its "
+                f"[nominal], {cal.nominal.name!r}: a DH value differs by {far:.3g}); give the "
+                "URDF of the arm it was fitted to"
+            )
+    return arm
+
+
+def _station_table(T: np.ndarray, sid: int | None = None) -> dict:
+    return ({} if sid is None else {"station": int(sid)}) | _pose(T[:3, :3], T[:3, 3])
+
+
 def export_urdf(
-    result: FitResult,
+    calibration: FitResult | RobotDescription,
     path: str | Path,
     name: str | None = None,
+    nominal: RobotDescription | None = None,
     uncertainty: Uncertainty | None = None,
 ) -> UrdfExport:
-    """Write the calibrated arm of ``result`` (a fit of a robot read from a URDF) as a URDF at
-    ``path`` and its metrology file beside it (:func:`metrology_path`), both atomically, after
-    checking them (module docstring). Raises :class:`lab.export.ExportError` naming what is wrong;
-    nothing is written then."""
+    """Write the calibrated arm of ``calibration`` as a URDF at ``path`` and its metrology file
+    beside it (:func:`metrology_path`), both atomically, after checking them (module
+    docstring). ``calibration``: a fit of a robot read from a URDF, or a calibrated arm read
+    from a file (a robot TOML, a calibrated URDF: exported again without refitting), with
+    ``nominal`` the URDF arm it was fitted to where it does not record one. An effect the
+    catalogue does not define goes with its module: the one it was loaded from is named in the
+    metrology file, one made in memory (a bag's discovered terms) is written beside as
+    ``path`` with ``.py``. The parameters' covariance and the spread between sessions
+    (``[uncertainty]``, :mod:`lab.uncertainty`) as :func:`lab.export.export_robot` writes them.
+    Raises :class:`lab.export.ExportError` naming what is wrong; nothing
+    is written then."""
     path = Path(path)
-    nominal = result.model.robot
-    src = nominal.urdf
-    if src is None:
-        raise ExportError(f"{path}: {_not_urdf(nominal)}")
     if path.suffix.lower() != ".urdf":
         raise ExportError(f"{path}: a calibrated URDF's name ends in .urdf")
+    arm_nominal = _urdf_nominal(calibration, nominal, path)
+    src = arm_nominal.urdf
+    assert src is not None
     side = metrology_path(path)
-    cal = result.description(name or f"{nominal.name}-calibrated")
+    if isinstance(calibration, FitResult):
+        register_own_effects(calibration)
+        cal = calibrated_description(
+            calibration, name or f"{arm_nominal.name}-calibrated", uncertainty
+        )
+        targets = tuple(calibration.model.targets)
+        fit_doc = {
+            "source": str(calibration.source),
+            "effects": list(calibration.model.effect_names),
+            "rms_mm": float(calibration.rms_mm),
+        }
+    else:
+        cal = calibration if name is None else replace(calibration, name=name)
+        if uncertainty is not None:
+            cal = replace(cal, uncertainty=uncertainty.to_dict())
+        cal = replace(cal, nominal=replace(arm_nominal, nominal=None))
+        targets = tuple(range(len(cal.tools)))
+        fit_doc = {"source": cal.name, "effects": ["geometric", *cal.effects]}
+    cal = cal.to_modified()
     try:
         arm = read_urdf(src.path, tip=src.tip_link, base=src.base_link, text=src.text)
         origins = joint_origins(
@@ -127,8 +206,51 @@ def export_urdf(
         text = calibrated_urdf(arm, origins)
     except UrdfError as exc:
         raise ExportError(f"{path}: cannot write the calibrated URDF: {exc}; not written") from None
+    modules, writes = effect_modules(cal, path)
+    doc = _metrology(cal, arm, arm_nominal, path, src, targets, fit_doc, modules)
+    import tomli_w
 
-    # the metrology frames, in the base link and the tip link (URDF frames, not DH frames)
+    side_text = (
+        f"# sixaxis-track: what {path.name} cannot express (docs/format.md, 'The calibrated "
+        "URDF')\n" + tomli_w.dumps(doc)
+    )
+    back = _calibrated(text, side_text, str(path), targets)
+    try:
+        if isinstance(calibration, FitResult):
+            diff = exported_difference(calibration, back)
+        else:
+            diff = description_difference(cal, back)
+    except CompensationError as exc:
+        raise ExportError(f"{path}: cannot export the calibrated arm: {exc}; not written") from None
+    if not diff <= EXPORT_TOL:
+        raise ExportError(
+            f"{path}: the calibrated URDF and {side.name}, read back, predict the fitted poses "
+            f"{diff * 1e3:.3g} mm away from the fitted model (tolerance {EXPORT_TOL * 1e3:g} mm): an "
+            "effect whose values depend on the DH table's form cannot go beside a URDF; export a "
+            "robot TOML instead; not written"
+        )
+    try:
+        atomic_write_text(path, text)
+        atomic_write_text(side, side_text)
+    except (OSError, OutputError) as exc:
+        raise ExportError(f"{path}: cannot be written ({exc})") from None
+    write_modules(writes, path)
+    log.info("wrote the calibrated URDF %s and %s (max difference %.2g m)", path, side, diff)
+    return UrdfExport(path, side, tuple(arm.joint_names), back, diff, tuple(writes))
+
+
+def _metrology(
+    cal: RobotDescription,
+    arm: UrdfArm,
+    nominal: RobotDescription,
+    path: Path,
+    src: UrdfSource,
+    targets: tuple[int, ...],
+    fit_doc: dict,
+    modules: dict[str, str],
+) -> dict:
+    """The metrology file's table: the frames in the base link and the tip link (URDF frames,
+    not DH frames), the tools, the effects and their modules, the nominal arm, the domain."""
     to_base = np.linalg.inv(arm.base)  # frame 0 -> base link, nominal (joint 1's parent rigid)
     to_tip = np.linalg.inv(nominal.flange_matrix)  # frame 6 -> tip link
     doc: dict = {
@@ -139,23 +261,16 @@ def export_urdf(
         "tip_link": src.tip_link,
         "joints": list(arm.joint_names),
         "units": "m, rad; effect values in SI by parameter name",
-        "fit": {
-            "source": str(result.source),
-            "effects": list(result.model.effect_names),
-            "rms_mm": float(result.rms_mm),
-        },
+        "fit": fit_doc,
     }
-    stations = station_bases(result)
-    if len(stations) == 1:
-        T = stations[0][1] @ to_base
-        doc["tracker"] = _pose(T[:3, :3], T[:3, 3])
-    else:
+    doc["tracker"] = _station_table(cal.base_matrix @ to_base)
+    if cal.stations:  # every station's frame, the first the tracker's above
         doc["stations"] = [
-            {"station": s, **_pose((T @ to_base)[:3, :3], (T @ to_base)[:3, 3])}
-            for s, T in stations
+            _station_table(station.base_matrix @ to_base, sid)
+            for sid, station in station_frames(cal)
         ]
     tools = []
-    for tid, point in zip(result.model.targets, cal.tools, strict=False):
+    for tid, point in zip(targets, cal.tools, strict=False):
         p = to_tip[:3, :3] @ np.array(point) + to_tip[:3, 3]
         tools.append({"target": int(tid), "point": [float(v) for v in p]})
     doc["tools"] = tools
@@ -172,37 +287,28 @@ def export_urdf(
             effects.pop("geometric")
     if effects:
         doc["effects"] = effects
+    if modules:  # beside the URDF where they are: the name alone
+        doc["effect_modules"] = {
+            n: Path(m).name if Path(m).parent.resolve() == path.parent.resolve() else m
+            for n, m in modules.items()
+        }
     # the parameters' covariance and the spread between sessions (lab.uncertainty), as a robot
     # TOML carries them: by parameter name, relative to the nominal arm below
-    doc["uncertainty"] = (uncertainty or uncertainty_of(result)).to_dict()
+    doc["uncertainty"] = dict(cal.uncertainty)
     # the arm the controller believes in, as a robot description (compensation starts from it)
     doc["nominal"] = tomllib.loads(replace(nominal, nominal=None).to_toml("m", "rad"))
-    import tomli_w
+    if cal.domain:
+        doc["domain"] = tomllib.loads(replace(nominal, nominal=None, domain=cal.domain).to_toml())[
+            "domain"
+        ]
+    return doc
 
-    side_text = (
-        f"# sixaxis-track: what {path.name} cannot express (docs/format.md, 'The calibrated "
-        "URDF')\n" + tomli_w.dumps(doc)
-    )
 
-    back = _calibrated(text, side_text, str(path), tuple(result.model.targets))
-    try:
-        diff = exported_difference(result, back)
-    except CompensationError as exc:
-        raise ExportError(f"{path}: cannot export the calibrated arm: {exc}; not written") from None
-    if not diff <= EXPORT_TOL:
-        raise ExportError(
-            f"{path}: the calibrated URDF and {side.name}, read back, predict the fitted poses "
-            f"{diff * 1e3:.3g} mm away from the fitted model (tolerance {EXPORT_TOL * 1e3:g} mm): an "
-            "effect whose values depend on the DH table's form cannot go beside a URDF; export a "
-            "robot TOML instead; not written"
-        )
-    try:
-        atomic_write_text(path, text)
-        atomic_write_text(side, side_text)
-    except (OSError, OutputError) as exc:
-        raise ExportError(f"{path}: cannot be written ({exc})") from None
-    log.info("wrote the calibrated URDF %s and %s (max difference %.2g m)", path, side, diff)
-    return UrdfExport(path, side, tuple(arm.joint_names), back, diff)
+def _frame(table: dict) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = rotation_matrix(np.array(table["rotation_vector"], dtype=float))
+    T[:3, 3] = table["translation"]
+    return T
 
 
 def _calibrated(
@@ -213,17 +319,17 @@ def _calibrated(
         doc = tomllib.loads(metrology_text)
     except tomllib.TOMLDecodeError as exc:
         raise ExportError(f"{metrology_path(source)}: not valid TOML: {exc}") from None
+    side = metrology_path(source)
     try:
         arm = read_urdf(source, tip=doc["tip_link"], base=doc["base_link"], text=urdf_text)
         robot = from_urdf(arm)
-        if "tracker" in doc:
-            frame = doc["tracker"]
-        else:
-            frame = doc["stations"][0]
-        T = np.eye(4)
-        T[:3, :3] = rotation_matrix(np.array(frame["rotation_vector"], dtype=float))
-        T[:3, 3] = frame["translation"]
-        B = T @ robot.base_matrix  # measurement frame <- frame 0 of the URDF read back
+        frame = doc["tracker"] if "tracker" in doc else doc["stations"][0]
+        B = _frame(frame) @ robot.base_matrix  # measurement frame <- frame 0 of the URDF read back
+        stations = tuple(
+            (int(st["station"]), vec3(S[:3, 3]), vec3(rotation_vector(S[:3, :3])))
+            for st in doc.get("stations", [])
+            for S in [_frame(st) @ robot.base_matrix]
+        )
         F = robot.flange_matrix  # its frame 6 <- tip link
         tools = doc["tools"]
         if targets is not None:
@@ -239,12 +345,18 @@ def _calibrated(
                 zip(TOOL_ROTATION_NAMES, map(float, rotation_vector(R6)), strict=True)
             )
         recorded = None
+        domain: dict = {}
         if "nominal" in doc:
             import tomli_w
 
             recorded = RobotDescription.from_toml(
-                tomli_w.dumps(doc["nominal"]), source=f"{metrology_path(source)} [nominal]"
+                tomli_w.dumps(doc["nominal"]), source=f"{side} [nominal]"
             )
+            if "domain" in doc:  # read by the robot TOML's own rules
+                domain = RobotDescription.from_toml(
+                    tomli_w.dumps(doc["nominal"] | {"domain": doc["domain"]}),
+                    source=f"{side} [domain]",
+                ).domain
         return replace(
             robot,
             nominal=recorded,
@@ -253,14 +365,14 @@ def _calibrated(
             base_translation=vec3(B[:3, 3]),
             base_rotation=vec3(rotation_vector(B[:3, :3])),
             effects=effects,
+            stations=stations,
+            domain=domain,
             uncertainty=dict(doc.get("uncertainty", {})),
         )
     except (KeyError, TypeError, ValueError) as exc:
-        if isinstance(exc, UrdfError):
+        if isinstance(exc, UrdfError | DescriptionError):
             raise ExportError(str(exc)) from None
-        raise ExportError(
-            f"{metrology_path(source)}: not a metrology file of sixaxis-track ({exc!r})"
-        ) from None
+        raise ExportError(f"{side}: not a metrology file of sixaxis-track ({exc!r})") from None
 
 
 def read_calibrated_urdf(path: str | Path, metrology: str | Path | None = None) -> RobotDescription:

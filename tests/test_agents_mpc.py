@@ -224,3 +224,28 @@ def test_unknown_solver_and_bad_horizon_are_refused(setup):
         _mpc(tm, "gurobi")
     with pytest.raises(ValueError, match="horizon"):
         _mpc(tm, horizon=0)
+
+
+def test_a_rounding_difference_of_the_encoders_stays_one_in_closed_loop(kin_env):
+    """Every observation changed by a few units in the last place (relative 1e-15, what another
+    CPU's kernels change), on a plant without friction: the MPC's settled RMS moves by about
+    1e-8 on the median of five episodes (6.7e-9 here). The structured closed form of the
+    unconstrained step it replaced cancelled terms of the size of the error's gradient and
+    carried the same difference to 2.1e-7 (and to 1e-5 on the leaderboard's rows:
+    benchmarks/perturbation.py). Not every episode: the observations are float32, and now and
+    then one rounds to the neighbouring float32 value in one run and not the other (one
+    episode of five here, with the closed form as with the factorisation)."""
+    from agents.training import PerturbedObservations
+
+    drift = []
+    for seed in (1, 2, 3, 4, 5):
+        env = {"scenario": "geometric"}
+        a = run_episode(make_agent("mpc"), env, seed=seed, env_id=kin_env)
+        b = run_episode(
+            PerturbedObservations(make_agent("mpc"), 1e-15, seed=seed),
+            env,
+            seed=seed,
+            env_id=kin_env,
+        )
+        drift.append(abs(b.rms_mm(start=2.0) - a.rms_mm(start=2.0)) / a.rms_mm(start=2.0))
+    assert float(np.median(drift)) < 5e-8, drift

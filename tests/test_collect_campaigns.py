@@ -87,7 +87,8 @@ def test_noise_grows_with_distance_as_the_stated_uncertainties_say(truth, tmp_pa
 def test_the_command_line_collects_fits_and_validates_a_campaign_from_stations(tmp_path):
     """lab collect from two stations with a 6-DoF probe; lab fit of it weighs each row by its
     stated uncertainty, fits one base per station and the orientation; a validation campaign of
-    the same arm from a third station has its base registered, and the output says so."""
+    the same arm from a third station has its base registered on reference points measured
+    there, and the output says so."""
     import json
 
     from typer.testing import CliRunner
@@ -103,11 +104,20 @@ def test_the_command_line_collects_fits_and_validates_a_campaign_from_stations(t
     args = ["-n", "12", "--seed", "2", "--arm-seed", "1", "--stations", "1", "--first-station", "3"]
     r = runner.invoke(app, ["lab", "collect", "-o", str(val_csv), *args, *common])
     assert r.exit_code == 0, r.output
-    r = runner.invoke(app, ["lab", "fit", str(fit_csv), "--validate", str(val_csv), "--json"])
+    # 4 of its rows as reference points of the third station: they register it, and are left
+    # out of the validation figure
+    refs_csv = tmp_path / "refs.csv"
+    lines = val_csv.read_text().splitlines()
+    head = [t for t in lines if t.startswith("#")]
+    rows = [t for t in lines if not t.startswith("#")]
+    refs_csv.write_text("\n".join([*head, *rows[:5]]) + "\n")
+    given = ["lab", "fit", str(fit_csv), "--validate", str(val_csv), "--json"]
+    r = runner.invoke(app, [*given, "--references", str(refs_csv)])
     assert r.exit_code == 0, r.output
     out = json.loads(r.stdout)
     assert out["stations"] == [1, 2] and out["weighted"] is True
     assert out["validation_registered"] == [3]
+    assert out["validation_registrations"][0]["n_points"] == 4
     assert {"trx", "try", "trz", "bx1", "bx2"} <= set(out["parameters"])
     assert out["orientation_rms_mrad"] < 0.5 and out["validation_rms_mm"] < 0.2
     assert out["validation_orientation_rms_mrad"] < 0.5  # the same probe on the same arm

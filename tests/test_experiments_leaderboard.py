@@ -461,3 +461,184 @@ def test_agents_told_the_scenarios_effects_are_marked_informed(tmp_path):
     runs_table = rows(runs_csv(board))
     told = [r for r in runs_table if r["agent"] == "told"]
     assert {(r["scenario"], r["informed"]) for r in told} == {("backlash", "1"), ("nominal", "0")}
+
+
+def test_every_interval_the_leaderboard_prints_is_the_loop_written_bootstrap(runs):
+    """Cells, pairs (and the orderings among them), the cost of an effect, the aggregate and the
+    CSV's intervals of the mean: each against the bootstrap written as a loop over resamples
+    from the same draws (tests/_bootstrap_loops.py)."""
+    from tests import _bootstrap_loops as loops
+
+    _, path = runs
+    board = build_leaderboard(path, reference="nominal")
+    an, store = board.analysis, RunStore(path)
+
+    def values(agent: str, scen: str, metric: str = "rms_mm") -> list[float]:
+        return [store.load(f"{agent}__{scen}__seed{s}")["metrics"][metric] for s in (0, 1, 2)]
+
+    def ratio_interval(a: list[float], b: list[float]) -> tuple[float, float]:
+        lo, hi = loops.bca([list(np.log(a)), list(np.log(b))], loops.mean_difference)
+        return float(np.exp(lo)), float(np.exp(hi))
+
+    checked = 0
+    for a in board.agents:
+        for s in board.scenarios:
+            iv = an["cells"][a][s]["rms_mm"]
+            lo, hi = loops.bca([list(np.log(values(a, s)))], loops.mean)
+            assert (iv["lo"], iv["hi"]) == pytest.approx((np.exp(lo), np.exp(hi)), rel=1e-12)
+            checked += 1
+    for p in an["pairs"] + [o for s in board.scenarios for o in an["orderings"][s]]:
+        expect = ratio_interval(
+            values(p["better"], p["scenario"]), values(p["worse"], p["scenario"])
+        )
+        assert (p["lo"], p["hi"]) == pytest.approx(expect, rel=1e-12)
+        checked += 1
+    for a, by_scen in an["cost_of_effect"].items():
+        for s, iv in by_scen.items():
+            expect = ratio_interval(values(a, s), values(a, "nominal"))
+            assert (iv["lo"], iv["hi"]) == pytest.approx(expect, rel=1e-12)
+            checked += 1
+    for a, agg in an["aggregate"].items():
+        ratios = [
+            [
+                [x / r for x, r in zip(values(a, s), values("nominal", s), strict=True)]
+                for s in sorted(board.scenarios)
+            ]
+        ]
+        assert (agg["iqm"]["lo"], agg["iqm"]["hi"]) == pytest.approx(
+            loops.stratified(ratios, loops.iqm), rel=1e-12
+        )
+        checked += 1
+    for row in rows(to_csv(board)):
+        lo, hi = loops.bca([values(row["agent"], row["scenario"])], loops.mean)
+        assert (float(row["rms_mm_lo"]), float(row["rms_mm_hi"])) == pytest.approx(
+            (lo, hi), rel=1e-12
+        )
+        checked += 1
+    assert checked >= 6 + 6 + 4 + 3 + 6
+
+
+def test_an_agent_over_training_seeds_is_ranked_as_one_agent(tmp_path):
+    """``hold@s1``..``hold@s3``: one agent ``hold`` over three training seeds; its cells, pairs
+    and aggregate are the stratified bootstrap over seeds and episodes (written as loops), its
+    runs stay one row each in the runs CSV with their training seed, and the tables say how many
+    seeds a row is over."""
+    from tests import _bootstrap_loops as loops
+
+    seeded = [{"name": "hold", "label": f"hold@s{k}"} for k in (1, 2, 3)]
+    cfg = fake_config(seeds=[0, 1, 2, 3], agents=["nominal", *seeded])
+    path = tmp_path / "runs"
+    run_sweep(cfg, path, workers=0, run_fn=fake_run)
+    board = build_leaderboard(path, reference="nominal")
+    assert board.agents == ["nominal", "hold"]
+    row = board.row("hold", "geometric")
+    assert row is not None and row.n == 12 and row.seeds == 3
+    store, an = RunStore(path), board.analysis
+
+    def values(label: str, scen: str) -> list[float]:
+        return [store.load(f"{label}__{scen}__seed{e}")["metrics"]["rms_mm"] for e in range(4)]
+
+    labels = [f"hold@s{k}" for k in (1, 2, 3)]
+    cell = an["cells"]["hold"]["geometric"]["rms_mm"]
+    lo, hi = loops.stratified(
+        [[list(np.log(values(lb, "geometric")))] for lb in labels], loops.mean
+    )
+    assert (cell["lo"], cell["hi"]) == pytest.approx((np.exp(lo), np.exp(hi)), rel=1e-12)
+    assert cell["value"] == pytest.approx(
+        np.exp(np.mean(np.log([values(lb, "geometric") for lb in labels])))
+    )
+    pair = next(p for p in an["pairs"] if p["scenario"] == "nominal")
+    a, b = (
+        [values(lb, "nominal") for lb in labels] if p == "hold" else [values("nominal", "nominal")]
+        for p in (pair["better"], pair["worse"])
+    )
+    assert (pair["lo"], pair["hi"]) == pytest.approx(loops.seeded_pair(a, b), rel=1e-12)
+    ratios = [
+        [
+            [x / r for x, r in zip(values(lb, s), values("nominal", s), strict=True)]
+            for s in sorted(board.scenarios)
+        ]
+        for lb in labels
+    ]
+    agg = an["aggregate"]["hold"]["iqm"]
+    assert (agg["lo"], agg["hi"]) == pytest.approx(loops.stratified(ratios, loops.iqm), rel=1e-12)
+    assert an["compute"]["hold"]["ranked_seeds"] == [1, 2, 3]
+    cost = an["cost_of_effect"]["hold"]["geometric"]
+    per_seed = [
+        [
+            [
+                float(np.log(x / y))
+                for x, y in zip(values(lb, "geometric"), values(lb, "nominal"), strict=True)
+            ]
+        ]
+        for lb in labels
+    ]
+    lo, hi = loops.stratified(per_seed, loops.mean)
+    assert (cost["lo"], cost["hi"]) == pytest.approx((np.exp(lo), np.exp(hi)), rel=1e-12)
+    csv_row = next(
+        r for r in rows(to_csv(board)) if r["agent"] == "hold" and r["scenario"] == "geometric"
+    )
+    expect = loops.stratified([[values(lb, "geometric")] for lb in labels], loops.mean)
+    assert (float(csv_row["rms_mm_lo"]), float(csv_row["rms_mm_hi"])) == pytest.approx(
+        expect, rel=1e-12
+    )
+
+    table = rows(runs_csv(board))
+    assert sorted({(r["agent"], r["train_seed"]) for r in table if r["agent_name"] == "hold"}) == [
+        ("hold@s1", "1"),
+        ("hold@s2", "2"),
+        ("hold@s3", "3"),
+    ]
+    assert {r["train_seed"] for r in table if r["agent"] == "nominal"} == {""}
+    md = to_markdown(board)
+    assert "| hold (3 seeds) |" in md and "| nominal |" in md
+
+
+def test_one_network_beside_its_agents_seeds_is_refused(tmp_path):
+    cfg = fake_config(seeds=[0, 1], agents=["hold", {"name": "hold", "label": "hold@s2"}])
+    run_sweep(cfg, tmp_path / "runs", workers=0, run_fn=fake_run)
+    with pytest.raises(RecordError, match=r"agent 'hold' ran both as one network"):
+        build_leaderboard(tmp_path / "runs")
+
+
+def test_a_learned_row_says_which_seed_it_is_from_its_policy_file():
+    from experiments.leaderboard.writers import seeds_text
+
+    assert seeds_text({"ranked_seeds": [], "training_seeds": 3.0, "training_picked": "best"}) == (
+        " (1 seed: the best of 3 trained)"
+    )
+    assert seeds_text({"ranked_seeds": [], "training_seeds": 3.0, "training_picked": None}) == (
+        " (1 seed: one of 3 trained)"
+    )
+    assert seeds_text({"ranked_seeds": [], "training_seeds": 1.0}) == " (1 seed)"
+    assert seeds_text({"ranked_seeds": [1, 2, 3, 4, 5], "training_seeds": 1.0}) == " (5 seeds)"
+    assert seeds_text({"ranked_seeds": [], "training_seeds": None}) == ""  # not learned
+    assert seeds_text({"training_seeds": 3.0}) == ""  # an analysis from before seeds
+
+
+def test_an_agent_label_may_name_a_training_seed_and_nothing_else():
+    from experiments.config import ConfigError, split_train_seed
+
+    assert split_train_seed("ppo@s3") == ("ppo", 3)
+    assert split_train_seed("ppo-residual") == ("ppo-residual", None)
+    with pytest.raises(ConfigError, match=r"label: 'hold@x'"):
+        fake_config(agents=[{"name": "hold", "label": "hold@x"}])
+
+
+def test_a_shipped_policys_row_says_which_seed_it_is():
+    """The shipped policies' files say how many seeds were trained and which was shipped; a run's
+    report carries both, and the leaderboard's label reads them (results/learning/README.md:
+    the plain ppo is the best seed of three, the residuals the median)."""
+    from agents.policy import PolicyAgent
+    from agents.runner import run_episode
+    from experiments.leaderboard.writers import seeds_text
+
+    agent = PolicyAgent("ppo")
+    report = run_episode(agent, {"scenario": "nominal"}, seed=5, episode_seconds=0.2).report
+    assert report["training_seeds"] == 3.0 and report["training_picked"] == "best"
+    compute = {
+        "ranked_seeds": [],
+        "training_seeds": report["training_seeds"],
+        "training_picked": report["training_picked"],
+    }
+    assert seeds_text(compute) == " (1 seed: the best of 3 trained)"

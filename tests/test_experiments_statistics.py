@@ -68,3 +68,121 @@ def test_aggregates_by_hand():
     # an episode missing in one scenario leaves that episode out of every scenario
     del agent["b"][3]
     assert aggregate_to_reference(agent, ref)["iqm"].n == 11
+
+
+# -- every interval against the bootstrap written as a loop (tests/_bootstrap_loops.py) ---------
+def _lognormal(seed: int, *shape: int) -> np.ndarray:
+    return np.random.default_rng(seed).lognormal(0.0, 0.6, shape)
+
+
+def test_one_scenario_intervals_are_the_loop_written_bootstrap():
+    from experiments.statistics import geometric_mean_interval
+    from tests import _bootstrap_loops as loops
+
+    x = _lognormal(1, 12)
+    ci = mean_interval(x)
+    assert (ci.lo, ci.hi) == pytest.approx(loops.bca([list(x)], loops.mean), rel=1e-12)
+    g = geometric_mean_interval(x)
+    lo, hi = loops.bca([list(np.log(x))], loops.mean)
+    assert (g.lo, g.hi) == pytest.approx((np.exp(lo), np.exp(hi)), rel=1e-12)
+
+
+def test_a_paired_interval_is_the_loop_written_bootstrap():
+    from tests import _bootstrap_loops as loops
+
+    a, b = _lognormal(2, 15), _lognormal(3, 15)
+    r = paired_ratio(dict(enumerate(a)), dict(enumerate(b)))
+    lo, hi = loops.bca([list(np.log(a)), list(np.log(b))], loops.mean_difference)
+    assert (r.lo, r.hi) == pytest.approx((np.exp(lo), np.exp(hi)), rel=1e-12)
+
+
+def test_the_aggregate_interval_is_the_loop_written_stratified_bootstrap():
+    """Episodes resampled within each scenario; every resample's IQM over all its ratios (the
+    statistic once mixed resamples with episodes, and its 'interval' was the spread of the
+    per-scenario values)."""
+    from tests import _bootstrap_loops as loops
+
+    scen = ("a", "b", "c", "d")
+    ref = {s: dict(enumerate(_lognormal(10 + i, 8))) for i, s in enumerate(scen)}
+    agent = {
+        s: {k: v * _lognormal(20 + i, 8)[k] for k, v in ref[s].items()} for i, s in enumerate(scen)
+    }
+    agg = aggregate_to_reference(agent, ref)
+    ratios = [[[agent[s][k] / ref[s][k] for k in range(8)] for s in scen]]
+    assert (agg["iqm"].lo, agg["iqm"].hi) == pytest.approx(
+        loops.stratified(ratios, loops.iqm), rel=1e-12
+    )
+    geo = lambda xs: float(np.exp(loops.mean([np.log(x) for x in xs])))  # noqa: E731
+    assert (agg["geomean"].lo, agg["geomean"].hi) == pytest.approx(
+        loops.stratified(ratios, geo), rel=1e-12
+    )
+
+
+def test_the_aggregate_interval_is_the_episodes_not_the_spread_of_the_scenarios():
+    """Ratios 0.5, 1 and 2 on three scenarios, within 1 % on every episode: the agent's
+    aggregate is known to about 1 %, however far apart the scenarios are."""
+    rng = np.random.default_rng(4)
+    ref = {s: {k: float(rng.lognormal()) for k in range(20)} for s in ("a", "b", "c")}
+    ratio = {"a": 0.5, "b": 1.0, "c": 2.0}
+    agent = {
+        s: {k: v * ratio[s] * float(rng.lognormal(0, 0.01)) for k, v in ref[s].items()} for s in ref
+    }
+    for iv in aggregate_to_reference(agent, ref).values():
+        assert iv.lo < iv.value < iv.hi
+        assert iv.hi / iv.lo < 1.02
+
+
+def test_an_agent_over_seeds_is_the_loop_written_stratified_bootstrap():
+    """Three training seeds: seeds drawn, then episodes within each seed (and scenario)."""
+    from experiments.statistics import (
+        aggregate_over_seeds,
+        seeded_geometric_mean_interval,
+        seeded_paired_ratio,
+    )
+    from tests import _bootstrap_loops as loops
+
+    scen = ("a", "b", "c")
+    ref = {s: dict(enumerate(_lognormal(30 + i, 6))) for i, s in enumerate(scen)}
+    agent = {
+        seed: {
+            s: {k: v * _lognormal(40 + 7 * seed + i, 6)[k] for k, v in ref[s].items()}
+            for i, s in enumerate(scen)
+        }
+        for seed in (1, 2, 3)
+    }
+    agg = aggregate_over_seeds(agent, ref)
+    ratios = [[[agent[sd][s][k] / ref[s][k] for k in range(6)] for s in scen] for sd in agent]
+    assert agg["iqm"].n == 6
+    assert (agg["iqm"].lo, agg["iqm"].hi) == pytest.approx(
+        loops.stratified(ratios, loops.iqm), rel=1e-12
+    )
+    # one scenario: the cell
+    cell = seeded_geometric_mean_interval({sd: agent[sd]["a"] for sd in agent})
+    logs = [[[float(np.log(agent[sd]["a"][k])) for k in range(6)]] for sd in agent]
+    lo, hi = loops.stratified(logs, loops.mean)
+    assert (cell.lo, cell.hi) == pytest.approx((np.exp(lo), np.exp(hi)), rel=1e-12)
+    # a pair: three seeds against one
+    pair = seeded_paired_ratio({sd: agent[sd]["b"] for sd in agent}, {0: ref["b"]})
+    expect = loops.seeded_pair(
+        [[agent[sd]["b"][k] for k in range(6)] for sd in agent], [[ref["b"][k] for k in range(6)]]
+    )
+    assert (pair.lo, pair.hi) == pytest.approx(expect, rel=1e-12)
+    # one seed is the agent of one network
+    one = aggregate_over_seeds({7: agent[1]}, ref)
+    assert one == aggregate_to_reference(agent[1], ref)
+
+
+def test_a_cells_interval_does_not_depend_on_the_order_the_records_were_read_in():
+    """Run files are read in their names' order (ep0, ep1, ep10, ...): the interval is taken
+    over the episodes in their own order all the same."""
+    from experiments.statistics import (
+        geometric_mean_interval,
+        seeded_geometric_mean_interval,
+        seeded_mean_interval,
+    )
+
+    x = _lognormal(8, 20)
+    by_name = {k: float(x[k]) for k in sorted(range(20), key=lambda k: f"ep{k}")}
+    assert list(by_name) != list(range(20))
+    assert seeded_geometric_mean_interval({0: by_name}) == geometric_mean_interval(x)
+    assert seeded_mean_interval({0: by_name}) == mean_interval(x)

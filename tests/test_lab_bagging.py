@@ -158,15 +158,18 @@ def test_the_command_line_bags_exports_and_says_it(sessions, bagged, tmp_path):
     assert robot.effects["compliance"]["c2"] == pytest.approx(bagged.result["c2"], rel=1e-9)
 
 
-def test_export_to_a_urdf_name_is_refused_before_any_work(sessions, tmp_path):
-    """`--export cal.urdf` wrote a robot TOML under a .urdf name, which fails where it is read."""
+def test_export_to_a_urdf_of_an_arm_without_one_is_refused_before_any_work(sessions, tmp_path):
+    """`--export cal.urdf` of an arm read from a TOML: there is no URDF to correct; refused
+    before the draws, nothing written (an arm read from a URDF exports: test_lab_stations)."""
     from arm.measurements import write_measurements
-    from tests._cli import lab, one_error_line
+    from tests._cli import lab
 
     data = tmp_path / "two.csv"
     write_measurements(sessions, data)
     res = lab("bag", data, "--bags", 1, "--export", tmp_path / "cal.urdf")
-    one_error_line(res, "--export", "cal.urdf", ".toml")
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    said = res.stderr.splitlines()[-1]  # after the warning of the session column
+    assert said.startswith("error: ") and "not read from a URDF" in said
     assert not (tmp_path / "cal.urdf").exists()
 
 

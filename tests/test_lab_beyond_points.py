@@ -81,22 +81,35 @@ def test_orientation_rows_raise_the_rank_and_lower_the_condition_number(campaign
 
 
 def test_a_station_the_fit_has_not_seen_has_only_its_base_registered(campaign):
+    """Held-out rows of a new station are predicted through its frame registered on reference
+    points measured there (the arm as fitted, nothing refitted); without them it is refused."""
     c, data, _, _ = campaign
     other, _ = c.measure(30, stations=(3,))
-    res = _quiet_fit(data, validate=other)
+    refs, _ = c.measure(4, stations=(3,), orientation_fraction=0.0)
+    with pytest.raises(lab.RegistrationError, match=r"station\(s\) 3 not among.*--references"):
+        _quiet_fit(data, validate=other)
+    res = _quiet_fit(data, validate=other, references=refs)
     assert res.validation_registered == (3,)
-    assert "station(s) 3 not in the fit" in res.summary()
+    assert "station 3 registered on 4 reference points" in res.summary()
     assert res.to_dict()["validation_registered"] == [3]
-    # the arm as fitted: its held-out error is the model's, as on the fitted stations'
+    (reg,) = res.to_dict()["validation_registrations"]
+    assert reg["station"] == 3 and reg["n_points"] == 4 and 0 < reg["rms_mm"] < 0.1
+    # the arm as fitted: its held-out error is the model's and the registration's (4 points)
     sigma = float(np.median(other.std[:, 0]))
-    assert res.validation_rms_mm < 1e3 * 2.5 * sigma * np.sqrt(3)
+    assert res.validation_rms_mm < 1e3 * 4 * sigma * np.sqrt(3)
     assert res.validation_orientation_rms_mrad is not None
-    assert res.validation_orientation_rms_mrad < 2.5 * 0.05 * np.sqrt(3)
+    assert res.validation_orientation_rms_mrad < 0.5
     np.testing.assert_array_equal(res.params, _quiet_fit(data).params)  # nothing refitted
     # a fit of one station validated from another: the same
     one = data.subset(np.flatnonzero(data.columns["station"] == 1))
-    single = _quiet_fit(one, validate=other)
+    single = _quiet_fit(one, validate=other, references=refs)
     assert single.validation_registered == (3,)
+    # reference rows given as held-out too are left out of the figure
+    first = other.subset(np.arange(4))
+    both = _quiet_fit(data, validate=other, references=first)
+    rest = _quiet_fit(data, validate=other.subset(np.arange(4, 30)), references=first)
+    assert len(both.validation_residuals) == 26
+    assert both.validation_rms_mm == pytest.approx(rest.validation_rms_mm, rel=1e-12)
 
 
 def test_the_diagnosis_tests_the_weighted_rows():
@@ -158,7 +171,8 @@ def test_the_report_says_what_was_fitted_beyond_points(campaign, tmp_path):
     other, _ = c.measure(20, stations=(3,))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        report = build_report(data, "seed", "geometric", validate=other, rounds=0)
+        refs, _ = c.measure(4, stations=(3,), orientation_fraction=0.0)
+        report = build_report(data, "seed", "geometric", validate=other, references=refs, rounds=0)
     html = report_html.render(report)
     assert "tracker stations 1, 2, one base each" in html
     assert "orientations fitted too" in html and "weighted by its stated uncertainty" in html

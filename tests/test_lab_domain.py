@@ -272,8 +272,13 @@ def test_a_tool_offset_the_fit_could_not_identify_is_placed_with_a_new_stations_
         [-2.5, -2.5, -2.0, -2.5, -2.5, -3.0], [2.5, -0.5, 2.0, 2.5, 2.5, 3.0], (80, 6)
     )
     grid = _ur10_points(q_wide, truth, 1, 2)
+    # reference points measured there, which register the station (and place the tool)
+    q_ref = rng.uniform(
+        [-2.5, -2.5, -2.0, -2.5, -2.5, -3.0], [2.5, -0.5, 2.0, 2.5, 2.5, 3.0], (12, 6)
+    )
+    refs = _ur10_points(q_ref, truth, 1, 3)
     with pytest.warns(OutOfDomainWarning, match=r"tz not identified by the fit") as rec:
-        v = res.validate(grid)
+        v = res.validate(grid, references=refs)
     assert any("station(s) 1" in str(w.message) for w in rec)
     assert v.validation_registered == (1,)
     assert set(v.validation_tool_placed) == {"tz"}
@@ -290,7 +295,9 @@ def test_a_tool_offset_the_fit_could_not_identify_is_placed_with_a_new_stations_
         R, t = register_points(pred, grid.xyz)
         return 1e3 * float(np.sqrt(np.mean(np.sum((pred @ R.T + t - grid.xyz) ** 2, axis=1))))
 
-    assert v.validation_rms_mm <= 1.001 * rigid_rms_mm(truth["tz"])
+    # (the station registered on 12 other points, not on the rows it validates: a little above
+    # the rigid registration on those rows themselves)
+    assert v.validation_rms_mm <= 1.25 * rigid_rms_mm(truth["tz"])
     assert rigid_rms_mm(tz_fitted) > 100 * v.validation_rms_mm
     assert "tz not identified by the fit" in v.summary()
     assert v.to_dict()["validation_tool_placed_mm"]["tz"] == pytest.approx(
@@ -301,7 +308,8 @@ def test_a_tool_offset_the_fit_could_not_identify_is_placed_with_a_new_stations_
         warnings.simplefilter("ignore")
         whole = fit(grid, "ur10_robot", "geometric", noise_mm=0.015)
         assert whole.unidentified_tool() == []
-        assert whole.validate(cubes).validation_tool_placed == {}
+        refs = cubes.subset(np.arange(12))
+        assert whole.validate(cubes, references=refs).validation_tool_placed == {}
 
 
 def test_a_harmonic_holds_a_whole_turn_from_where_it_was_fitted():

@@ -76,15 +76,15 @@ def test_terms_that_do_not_help_fall_back_to_the_geometric_model(sessions):
 def test_the_band_is_the_range_of_one_draw_against_a_closed_form():
     # one parameter: the RMS over the poses of A delta, delta ~ N(0, s^2), is |z| s rms(A);
     # |z| has its 5 % and 95 % quantiles at 0.0627 and 1.960 (the half-normal's)
-    from lab.uncertainty import _band
+    from lab.uncertainty import draw_band
 
     rng = np.random.default_rng(0)
     A = rng.normal(size=(300, 1))
     s = 2e-3
-    lo, hi = _band(A, np.array([[s**2]]), len(A), 0.0)
+    lo, hi = draw_band(A, np.array([[s**2]]), len(A), 0.0)
     scale = s * np.sqrt(np.mean(A**2))
     assert lo == pytest.approx(0.0627 * scale, rel=0.25)
     assert hi == pytest.approx(1.960 * scale, rel=0.1)
     # the discrepancy adds in quadrature
-    lo2, _ = _band(A, np.array([[s**2]]), len(A), 10 * scale)
+    lo2, _ = draw_band(A, np.array([[s**2]]), len(A), 10 * scale)
     assert lo2 == pytest.approx(np.hypot(10 * scale, lo), rel=0.02)

@@ -134,7 +134,7 @@ def test_update_refuses_another_robot_and_a_file_without_uncertainty(sessions, t
 
 
 def test_fit_predicts_the_accuracy_on_a_target_before_it_is_measured(sessions, tmp_path):
-    files, _, held = sessions
+    files, new, held = sessions
     # a program's joints alone: a prediction, nothing measured
     program = tmp_path / "program.csv"
     write_poses(read_measurements(held).q, program)
@@ -144,10 +144,30 @@ def test_fit_predicts_the_accuracy_on_a_target_before_it_is_measured(sessions, t
     assert got["chosen"] in ("model", "geometric") and got["blocks"] == "sessions"
     assert got["unseen"] and got["poses"] == 200 and got["measured_rms_mm"] is None
     assert got["low_mm"] <= got["rms_mm"] <= got["high_mm"]
-    # with --validate the measured figure beside it (the text says both)
+    # with --validate the measured figure beside it (the text says both); the new station is
+    # registered on separate reference poses
     res = lab(
-        "fit", *files, "--effects", "geometric,compliance", "--predict", held, "--validate", held
+        "fit",
+        *files,
+        "--effects",
+        "geometric,compliance",
+        "--predict",
+        held,
+        "--validate",
+        held,
+        "--references",
+        new,
     )
     assert res.exit_code == 0, res.output
     assert "--predict: predicted" in res.stdout and "measured" in res.stdout
     one_error_line(lab("fit", *files, "--predict", tmp_path / "missing.csv"), "--predict")
+
+
+def test_bag_predicts_on_a_program_too(sessions, tmp_path):
+    files, _, held = sessions
+    program = tmp_path / "program.csv"
+    write_poses(read_measurements(held).q[:50], program)
+    res = lab("bag", *files, "--bags", "1", "--poses", "200", "--predict", program, "--json")
+    assert res.exit_code == 0, res.output
+    got = json.loads(res.stdout)["predicted"]
+    assert got["poses"] == 50 and got["rms_mm"] > 0 and got["chosen"] in ("model", "geometric")

@@ -97,3 +97,17 @@ def test_the_readme_section_is_rewritten_in_place_and_refused_without_markers(tm
     with pytest.raises(RecordError, match="no leaderboard section"):
         update_readme(readme, block)
     assert readme.read_text() == "# no markers\n"
+
+
+def test_the_readme_says_what_each_learned_row_is_over():
+    data = _fake(resolved=True) | {
+        "compute": {
+            "a": {"ranked_seeds": [1, 2, 3, 4, 5], "training_seeds": 5.0},
+            "b": {"ranked_seeds": [], "training_seeds": None},
+            "o": {"ranked_seeds": [], "training_seeds": 3.0, "training_picked": "median"},
+        }
+    }
+    block = readme_block(data)
+    assert "| a (5 seeds) | **0.500** |" in block
+    assert "| b | 0.600 |" in block
+    assert "| o (oracle) (1 seed: the median of 3 trained) |" in block

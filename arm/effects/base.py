@@ -44,6 +44,13 @@ SOURCE_FILES: dict[type, str] = {}
 _PACKAGE = __name__.rpartition(".")[0] + "."
 
 
+def effect_module_file(effect: Effect | type[Effect]) -> str | None:
+    """The file an ``--effect-module`` effect was loaded from (None: the catalogue's, an entry
+    point's, or a class made in memory)."""
+    cls = effect if isinstance(effect, type) else type(effect)
+    return SOURCE_FILES.get(cls)
+
+
 def effect_origin(effect: Effect | type[Effect]) -> str:
     """``effect 'mine' (module /path/mine.py)``: the effect and the file that defines it, as an
     error names them."""

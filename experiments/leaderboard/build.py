@@ -5,12 +5,14 @@ scenario, with the paired analysis (:mod:`experiments.comparisons`). Its files a
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from experiments.config import split_train_seed
 from experiments.metrics import METRICS, Summary, summarize
 from experiments.records import RecordError, RunStore
 
@@ -50,6 +52,8 @@ class Row:
     oracle: bool = False
     dirty: int = 0  # records from a tree with local changes (allowed with allow_dirty)
     informed: bool = False
+    #: the training seeds it is over (1: one network, or an agent that is not learned)
+    seeds: int = 1
 
     @property
     def display(self) -> str:
@@ -117,7 +121,8 @@ def build_leaderboard(
     allow_dirty: bool = False,
     reference: str | None = None,
 ) -> Leaderboard:
-    """Read every record of a sweep directory and summarise it over seeds.
+    """Read every record of a sweep directory and summarise it over seeds. Runs labelled
+    ``<agent>@s<training seed>`` are one agent's networks: its rows are over all of them.
 
     With the sweep's manifest (``_sweep.json``) present, only the runs of its config count (records
     left from an older config in the same directory are ignored, with a warning), and agents and
@@ -137,9 +142,11 @@ def build_leaderboard(
 
     cfg = (manifest or {}).get("config", {})
     all_recs = records + failed
-    agents = [a["label"] for a in cfg.get("agents", [])] or _ordered(
+    labels = [a["label"] for a in cfg.get("agents", [])] or _ordered(
         r["spec"]["agent_label"] for r in all_recs
     )
+    _refuse_one_network_beside_seeds(store, labels)
+    agents = _ordered(split_train_seed(a)[0] for a in labels)
     scenarios = [s["label"] for s in cfg.get("scenarios", [])] or _ordered(
         r["spec"]["scenario_label"] for r in all_recs
     )
@@ -149,10 +156,12 @@ def build_leaderboard(
     rank_by = rank_by or cfg.get("rank_by", "rms_mm")
     if rank_by not in metrics:
         raise RecordError(f"{runs_dir}: no metric {rank_by!r} in the records (have {metrics})")
-    settings = {
-        a["label"]: {"name": a["name"], "settings": a.get("settings", {}), "env": a.get("env", {})}
-        for a in cfg.get("agents", [])
-    }
+    settings: dict[str, dict[str, Any]] = {}
+    for a in cfg.get("agents", []):
+        settings.setdefault(
+            split_train_seed(a["label"])[0],
+            {"name": a["name"], "settings": a.get("settings", {}), "env": a.get("env", {})},
+        )
     rows = _rows(records, failed, agents, scenarios, metrics, rank_by)
     agents = [a for a in agents if any(r.agent == a for r in rows)]
     scenarios = [s for s in scenarios if any(r.scenario == s for r in rows)]
@@ -229,6 +238,19 @@ def _refuse_unclean(store: RunStore, records: list[dict[str, Any]]) -> None:
         )
 
 
+def _refuse_one_network_beside_seeds(store: RunStore, labels: list[str]) -> None:
+    """Refuse an agent that is both one network (``ppo``) and trained seeds (``ppo@s1``): the
+    leaderboard could not tell which of them its row ranks."""
+    seeded = {split_train_seed(a)[0] for a in labels if split_train_seed(a)[1] is not None}
+    both = sorted(seeded & set(labels))
+    if both:
+        raise RecordError(
+            f"{store.root}: agent {both[0]!r} ran both as one network (label {both[0]!r}) and "
+            f"over training seeds ({both[0]}@s<seed>); the leaderboard ranks an agent over its "
+            f"seeds: label the one network otherwise (e.g. {both[0]}-shipped) or drop it"
+        )
+
+
 def _rows(
     records: list[dict[str, Any]],
     failed: list[dict[str, Any]],
@@ -243,7 +265,8 @@ def _rows(
         return [
             r
             for r in recs
-            if r["spec"]["agent_label"] == agent and r["spec"]["scenario_label"] == scen
+            if split_train_seed(r["spec"]["agent_label"])[0] == agent
+            and r["spec"]["scenario_label"] == scen
         ]
 
     rows: list[Row] = []
@@ -253,10 +276,7 @@ def _rows(
             theirs = cell(failed, agent, scen)
             if not mine and not theirs:
                 continue
-            stats = {
-                m: summarize((metric_value(r, m) for r in mine), interval=m in (rank_by, *HEADLINE))
-                for m in metrics
-            }
+            stats = {m: _summary(mine, m, interval=m in (rank_by, *HEADLINE)) for m in metrics}
             everyone = mine + theirs
             rows.append(
                 Row(
@@ -268,9 +288,28 @@ def _rows(
                     oracle=any(is_oracle(r) for r in everyone),
                     dirty=sum(not is_clean(r) for r in everyone),
                     informed=any(is_informed(r) for r in everyone),
+                    seeds=max(
+                        1, len({split_train_seed(r["spec"]["agent_label"])[1] for r in mine})
+                    ),
                 )
             )
     return rows
+
+
+def _summary(mine: list[dict[str, Any]], metric: str, interval: bool) -> Summary:
+    """A metric of a cell's runs: over its episodes, and for an agent of several training seeds
+    with the interval of the stratified bootstrap over seeds and episodes."""
+    s = summarize((metric_value(r, metric) for r in mine), interval=interval)
+    by_seed: dict[int | None, dict[int, float]] = {}
+    for r in mine:
+        seed = split_train_seed(r["spec"]["agent_label"])[1]
+        by_seed.setdefault(seed, {})[episode_order(r)] = metric_value(r, metric)
+    if not interval or len(by_seed) < 2 or not s.has_ci:
+        return s
+    from experiments.statistics import seeded_mean_interval
+
+    ci = seeded_mean_interval(by_seed)
+    return dataclasses.replace(s, ci95=(ci.hi - ci.lo) / 2, lo=ci.lo, hi=ci.hi)
 
 
 def episode_order(rec: dict[str, Any]) -> int:

@@ -14,6 +14,7 @@ from experiments.leaderboard.writers import (
     interval_text,
     number_text,
     ordering_text,
+    seeds_text,
 )
 from experiments.records import RecordError
 
@@ -32,12 +33,13 @@ def readme_block(data: Mapping[str, Any]) -> str:
     ref = data.get("reference")
     scen = list(data["scenarios"])
     cells, agg = data["cells"], data.get("aggregate") or {}
+    compute = data.get("compute") or {}
     oracles, informed = set(data.get("oracles", [])), set(data.get("informed", []))
     order = [a for a in data["order"] if a in cells]
     commit = ", ".join(c[:10] for c in data.get("commits", []))
 
     def mark(a: str) -> str:
-        return a + marks(a in oracles, a in informed)
+        return a + marks(a in oracles, a in informed) + seeds_text(compute.get(a))
 
     def mean(a: str, s: str, m: str = m0) -> float | None:
         return ((cells.get(a, {}).get(s) or {}).get(m) or {}).get("value")

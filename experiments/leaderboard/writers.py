@@ -16,6 +16,7 @@ from typing import Any
 
 from arm.files import atomic_write_text
 from experiments.comparisons import episode_key
+from experiments.config import split_train_seed
 from experiments.leaderboard.build import (
     DIRTY_MARK,
     Leaderboard,
@@ -47,6 +48,7 @@ __all__ = [
     "ordering_text",
     "pairs_csv",
     "runs_csv",
+    "seeds_text",
     "spread_words",
     "to_csv",
     "to_json",
@@ -186,7 +188,8 @@ def pairs_csv(board: Leaderboard) -> str:
 
 
 def runs_csv(board: Leaderboard) -> str:
-    """One row per run of the leaderboard (failed ones too): agent label and name, scenario,
+    """One row per run of the leaderboard (failed ones too): agent label and name, training
+    seed (of a label ``<agent>@s<seed>``; empty for one network), scenario,
     seed, whether it is an oracle, status, the commit and whether the tree was dirty, the config
     (name, path, hash), the run key and hash, whether it was informed, a class-path agent's
     module file and its sha256 (empty for registered agents: the commit holds their code), and
@@ -197,6 +200,7 @@ def runs_csv(board: Leaderboard) -> str:
     header = [
         "agent",
         "agent_name",
+        "train_seed",
         "scenario",
         "scenario_name",
         "seed",
@@ -223,7 +227,11 @@ def runs_csv(board: Leaderboard) -> str:
     recs = sorted(
         board.records + board.failed,
         key=lambda r: (
-            order.get((r["spec"]["agent_label"], r["spec"]["scenario_label"]), len(order)),
+            order.get(
+                (split_train_seed(r["spec"]["agent_label"])[0], r["spec"]["scenario_label"]),
+                len(order),
+            ),
+            r["spec"]["agent_label"],
             episode_order(r),
         ),
     )
@@ -234,6 +242,7 @@ def runs_csv(board: Leaderboard) -> str:
             [
                 spec["agent_label"],
                 spec["agent"],
+                _blank(split_train_seed(spec["agent_label"])[1]),
                 spec["scenario_label"],
                 spec["scenario"],
                 spec["seed"],
@@ -255,6 +264,10 @@ def runs_csv(board: Leaderboard) -> str:
             ]
         )
     return buf.getvalue()
+
+
+def _blank(v: Any) -> Any:
+    return "" if v is None else v
 
 
 def _num(v: float) -> str:
@@ -383,10 +396,31 @@ def to_markdown(board: Leaderboard, command: str | None = None, plots: Sequence[
     return "\n".join(lines)
 
 
-def _md_label(board: Leaderboard, a: str) -> str:
+def seeds_text(compute: Mapping[str, Any] | None) -> str:
+    """What a learned agent's row is over, from its analysis's ``compute`` entry: `` (5 seeds)``
+    for an agent ranked over its training seeds, `` (1 seed: the best of 3 trained)`` for one
+    shipped network (which one, as its policy file says, and of how many); nothing for an agent
+    that is not learned, or an analysis written before the leaderboard knew training seeds."""
+    if not compute or compute.get("ranked_seeds") is None:
+        return ""
+    ranked = compute["ranked_seeds"]
+    if len(ranked) > 1:
+        return f" ({len(ranked)} seeds)"
+    trained, picked = compute.get("training_seeds"), compute.get("training_picked")
+    if not trained and not ranked:
+        return ""
+    if trained and trained > 1:
+        which = f"the {picked} of" if picked else "one of"
+        return f" (1 seed: {which} {trained:.0f} trained)"
+    return " (1 seed)"
+
+
+def _md_label(board: Leaderboard, a: str, seeds: bool = False) -> str:
     """An agent's label with the marks of its rows (oracle, informed, local changes)."""
     mine = [r for r in board.rows if r.agent == a]
     text = a + marks(any(r.oracle for r in mine), any(r.informed for r in mine))
+    if seeds:
+        text += seeds_text((board.analysis.get("compute") or {}).get(a))
     return text + (DIRTY_MARK if any(r.dirty for r in mine) else "")
 
 
@@ -416,7 +450,8 @@ def _md_intro(board: Leaderboard, command: str | None) -> list[str]:
         "controller can do; (informed): told the scenario's effects in its config. Orderings are "
         "claimed only where the paired interval resolves them (`<`); `≈` is not resolved. "
         "Intervals are 95 % bootstrap intervals (BCa, episodes resampled; paired where two "
-        "agents or scenarios are compared)."
+        "agents or scenarios are compared; over training seeds and episodes for an agent of "
+        "several seeds)."
     )
     lines += ["", "Made by:", "", "```"]
     if man.get("command"):
@@ -453,7 +488,7 @@ def _md_grid(
             if r.failed:
                 c += f" ({r.failed} failed)"
             cells.append(f"**{c}**" if r.best and bold else c)
-        lines.append(f"| {_md_label(board, a)} | " + " | ".join(cells) + " |")
+        lines.append(f"| {_md_label(board, a, seeds=True)} | " + " | ".join(cells) + " |")
     lines.append("")
     return lines
 
@@ -469,8 +504,9 @@ def _md_aggregate(board: Leaderboard, order: Sequence[str]) -> list[str]:
         "",
         f"Each agent's `{m0}` over `{ref}`'s on the same episode, over every scenario and "
         "episode: the interquartile mean (IQM) of the ratios, as rliable recommends, and their "
-        "geometric mean; 95 % bootstrap intervals that resample episodes in every scenario "
-        "at once. Below 1: better than the reference.",
+        "geometric mean; 95 % percentile intervals of the stratified bootstrap (rliable's: "
+        "each resample draws the episodes anew within each scenario, and for an agent of "
+        "several training seeds first the seeds). Below 1: better than the reference.",
         "",
         "| agent | IQM of the ratios | geometric mean |",
         "|---|---:|---:|",
@@ -479,7 +515,7 @@ def _md_aggregate(board: Leaderboard, order: Sequence[str]) -> list[str]:
         agg = an["aggregate"].get(a)
         if agg:
             lines.append(
-                f"| {_md_label(board, a)} | {interval_text(agg['iqm'])} | "
+                f"| {_md_label(board, a, seeds=True)} | {interval_text(agg['iqm'])} | "
                 f"{interval_text(agg['geomean'])} |"
             )
     lines.append("")
