@@ -9,7 +9,7 @@ export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 
-.PHONY: demo test test-quick lint bench leaderboard real-data lab-decisions clean
+.PHONY: demo test test-quick lint bench leaderboard real-data lab-decisions sessions clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -53,6 +53,12 @@ real-data: $(STAMP)
 lab-decisions: $(STAMP)
 	@git diff --quiet HEAD -- . || { echo "make lab-decisions: commit your changes first (the results must name a clean commit)"; exit 2; }
 	$(BIN)/python benchmarks/lab_decisions.py
+
+# A calibration across sessions over 1,000 seeded campaigns (resumable, two workers):
+# results/sessions.md and .json (benchmarks/sessions.py; about 1.5 s of CPU a campaign).
+sessions: $(STAMP)
+	@git diff --quiet HEAD -- . || { echo "make sessions: commit your changes first (the results must name a clean commit)"; exit 2; }
+	$(BIN)/python benchmarks/sessions.py
 
 # The published leaderboard, from this checkout's commit (which must have no local changes): the
 # full sweep into runs/full-<commit> (resumable: the same command continues it), then the tables,

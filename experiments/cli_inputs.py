@@ -222,7 +222,8 @@ class LabInputs:
     each declared once here with its default, choices and help. Commands outside
     :class:`LabArgs` (``plan``, ``compensate``, ``collect``) take the same ones with
     :func:`option_of` (``robot: Annotated[str, option_of(LabInputs, "robot")] =
-    INPUTS.robot``)."""
+    INPUTS.robot``). A field declared with ``commands=(...)`` is an option of those commands
+    only."""
 
     robot: str = declare(
         "seed",
@@ -263,6 +264,20 @@ class LabInputs:
         False,
         help="Validate on held-out data that fit more than 100 times worse than the fitted "
         "data (another frame or other units: refused without it, with a warning with it).",
+    )
+    near: Path | None = declare(
+        None,
+        help="A program's joints (a CSV with q1..q6: a poses file, or measurements): the poses "
+        "are chosen from its joint region (each joint's range, a little wider), where the "
+        "calibration must hold for it.",
+        commands=("plan",),
+    )
+    predict: Path | None = declare(
+        None,
+        help="A target file (a program's joints q1..q6, or held-out measurements): print the "
+        "RMS error the calibration is expected to have there, before anything is measured "
+        "(with --validate beside the measured figure); in the JSON under predicted.",
+        commands=("fit", "bag", "update"),
     )
     references: Path | None = declare(
         None,
@@ -429,7 +444,14 @@ class LabArgs(LabInputs):
         opts = self.options()
         check_outputs(
             outputs,
-            [*data, self.validate, self.references, self.robot, *(self.effect_module or ())],
+            [
+                *data,
+                self.validate,
+                self.references,
+                self.predict,
+                self.robot,
+                *(self.effect_module or ()),
+            ],
             as_json,
         )
         load_modules(self.effect_module)
@@ -525,7 +547,12 @@ def lab_command(
         @lab_command(app, "diagnose", omit=("validate",))
         def diagnose_cmd(data: DataArg, lab: LabArgs, alpha: AlphaOpt = 0.02) -> None: ...
     """
-    shared = [(LabInputs, n) for n in cli_fields(LabInputs) if n not in omit] + [
+    own = [
+        n
+        for n in cli_fields(LabInputs)
+        if name in declaration(LabInputs, n).get("commands", (name,))
+    ]
+    shared = [(LabInputs, n) for n in own if n not in omit] + [
         (LabOptions, n) for n in cli_fields(LabOptions) if n not in omit
     ]
     defaults = {n: getattr(cls(), n) for cls, n in shared}
@@ -684,6 +711,22 @@ def read_data(
         err_console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
     record_cautions(caught)
     return data
+
+
+def read_target(path: Path, length_unit: str, angle_unit: str) -> Any:
+    """A ``--predict`` target: held-out measurements (a file with ``x, y, z``, read as
+    :func:`read_data` reads) or a program's joints (``q1..q6`` alone, (N, 6) rad)."""
+    import csv
+
+    from arm.measurements import read_poses
+
+    with user_errors(OSError, prefix=f"--predict {path}: "):
+        with open(path, newline="") as fh:
+            rows = (r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#"))
+            header = {c.strip() for c in next(rows, [])}
+        if {"x", "y", "z"} <= header:
+            return read_data(path, length_unit, angle_unit, option="--predict")
+        return read_poses(path, angle_unit)
 
 
 def read_sessions(

@@ -22,7 +22,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
 
@@ -54,6 +54,7 @@ from experiments.cli_inputs import (
     read_arm,
     read_data,
     read_sessions,
+    read_target,
     refuse_noise,
     sessions_json,
     writing,
@@ -83,6 +84,7 @@ from lab.options import ALPHA, CRITERIA, EXPORT_FORMATS, ORDER, ROUNDS, LabOptio
 
 if TYPE_CHECKING:
     from arm.effects import Effect
+    from lab.result import FitResult
 
 UPDATE = UpdateOptions()
 
@@ -180,13 +182,75 @@ def fit_cmd(
     parameters the poses cannot identify; --json prints the JSON object of docs/format.md, the
     lab's JSON output (SI units)."""
     arm, meas, val, opts, effects = lab.read(data, [(out, "--out")], as_json)
-    result = _fitted(
-        meas, arm, effects, opts, val, extrapolate, lab.accept_other_frame, lab.read_references()
-    )
+    refs = lab.read_references()
+    result = _fitted(meas, arm, effects, opts, val, extrapolate, lab.accept_other_frame, refs)
+    expected = _expected(result, meas, lab, opts, val, extrapolate, refs)
     if not as_json:
         print_sessions(meas)
         print_fit(result)
-    emit_json(result.to_dict() | sessions_json(meas), as_json, out)
+        _print_expected(expected)
+    emit_json(result.to_dict() | sessions_json(meas) | _expected_json(expected), as_json, out)
+
+
+def _unseen(result: FitResult, target: Any) -> bool:
+    """Whether a ``--predict`` target is a session the fit has not seen: a program's joints (it
+    runs later), or measurements from a station the fit has no base of."""
+    from arm.measurements import MeasurementSet
+
+    if not isinstance(target, MeasurementSet) or "station" not in target.columns:
+        return True
+    import numpy as np
+
+    return not set(np.unique(target.columns["station"]).astype(int)) <= set(result.model.stations)
+
+
+def _expected(
+    result: FitResult,
+    meas: Any,
+    lab: LabArgs,
+    opts: LabOptions,
+    val: Any,
+    extrapolate: bool,
+    refs: Any = None,
+) -> tuple[Any, float | None] | None:
+    """With ``--predict``: the :class:`lab.prediction.Expectation` on its target, and the chosen
+    model's RMS measured on the ``--validate`` rows (None without them)."""
+    if lab.predict is None:
+        return None
+    from lab.prediction import expect
+
+    target = read_target(lab.predict, lab.length_unit, lab.angle_unit)
+    with user_errors(), console.status("the blocked checks for the prediction..."):
+        e = expect(result, meas, target, unseen=_unseen(result, target), options=opts)
+        measured = None
+        if val is not None:
+            done = e.result.validate(val, extrapolate=extrapolate, references=refs)
+            measured = done.validation_rms_mm
+    return e, measured
+
+
+def _print_expected(expected: tuple[Any, float | None] | None) -> None:
+    if expected is None:
+        return
+    e, measured = expected
+    say(f"--predict: {e.text()}")
+    if measured is not None:
+        say(
+            f"--predict: predicted {e.prediction.rms_mm:.4f} mm, measured {measured:.4f} mm on "
+            "the --validate rows"
+        )
+
+
+def _expected_json(
+    expected: tuple[Any, float | None] | None, say_it: bool = False
+) -> dict[str, Any]:
+    """The JSON of a --predict (none without it); ``say_it``: print it too (its text)."""
+    if say_it:
+        _print_expected(expected)
+    if expected is None:
+        return {}
+    e, measured = expected
+    return {"predicted": e.to_dict() | {"measured_rms_mm": measured}}
 
 
 AlphaOpt = Annotated[float, declared(ALPHA, "alpha")]
@@ -359,6 +423,7 @@ def bag_cmd(
         )
         if val is not None:  # foreign held-out data: warned about as `lab fit` does
             check_validation(result, val.source, lab.accept_other_frame)
+    expected = _expected(b.result, meas, lab, opts, val, extrapolate, refs)
     written = None
     if output is not None and b.discovered is not None:
         with user_errors(), writing(output):
@@ -393,18 +458,15 @@ def bag_cmd(
     emit_json(
         result.to_dict()
         | sessions_json(meas)
-        | {
-            "bag": {
-                "bags": b.bags,
-                "poses": poses,
-                "seed": seed,
-                "effects": b.suggestion,
-                "refused": b.refused,
-            }
-        },
+        | _expected_json(expected, not as_json)
+        | {"bag": {"bags": b.bags, "poses": poses, "seed": seed} | _bag_choice(b)},
         as_json,
         out,
     )
+
+
+def _bag_choice(b: Any) -> dict[str, Any]:
+    return {"effects": b.suggestion, "refused": b.refused}
 
 
 # -- report -----------------------------------------------------------------------------------------
@@ -474,6 +536,8 @@ def update_cmd(
     ] = None,
     remount: Annotated[bool, option_of(UpdateOptions, "remount")] = UPDATE.remount,
     noise_mm: Annotated[float | None, option_of(UpdateOptions, "noise_mm")] = UPDATE.noise_mm,
+    rehome_mrad: Annotated[float, option_of(UpdateOptions, "rehome_mrad")] = UPDATE.rehome_mrad,
+    remount_mm: Annotated[float, option_of(UpdateOptions, "remount_mm")] = UPDATE.remount_mm,
     robot: Annotated[
         str | None,
         option_of(
@@ -484,6 +548,7 @@ def update_cmd(
         ),
     ] = None,
     validate: Annotated[Path | None, option_of(LabInputs, "validate")] = None,
+    predict: Annotated[Path | None, option_of(LabInputs, "predict")] = INPUTS.predict,
     references: ReferencesOpt = None,
     effect_module: ModuleOpt = None,
     length_unit: LengthOpt = INPUTS.length_unit,
@@ -508,7 +573,7 @@ def update_cmd(
         fail(
             f"--output {output}: an updated calibration is written as a robot TOML; give FILE.toml"
         )
-    inputs = [calibration, *data, validate, references, robot, *(effect_module or ())]
+    inputs = [calibration, *data, validate, references, predict, robot, *(effect_module or ())]
     check_outputs([(output, "--output"), (out, "--out")], inputs, as_json)
     load_modules(effect_module)
     cal = read_arm(calibration, "CAL")
@@ -526,7 +591,15 @@ def update_cmd(
         refs = read_data(references, length_unit, angle_unit, option="--references")
     with user_errors(), console.status(f"updating {calibration} with {len(meas)} poses..."):
         prior = replace(prior_of(cal), source=calibration)
-        u = update(prior, meas, remount=remount, noise_mm=noise_mm, robot=arm)
+        u = update(
+            prior,
+            meas,
+            remount=remount,
+            noise_mm=noise_mm,
+            robot=arm,
+            rehome_mrad=rehome_mrad,
+            remount_mm=remount_mm,
+        )
         result = (
             u.result
             if val is None
@@ -539,30 +612,56 @@ def update_cmd(
                 predicted_rms(u.result, val, unseen=False),
                 predicted_rms(u.prior_result, val, unseen=True, u=u.prior.uncertainty),
             )
+    target_pred = _update_prediction(u.result, predict, length_unit, angle_unit)
     if output is not None:
         with user_errors(), writing(output):
             export_robot(result, output)
     if not as_json:
         print_sessions(meas)
-        say(u.summary())
-        if alone is not None and val is not None:
-            say(
-                f"validation on {len(val)} points: RMS "
-                f"{result.validation_rms_mm:.4f} mm updated, {alone.validation_rms_mm:.4f} mm "
-                "the calibration alone (its base placed on the new poses)"
-            )
-        if predicted is not None:
-            say(f"updated: {predicted[0].text()}")
-            say(f"the calibration alone: {predicted[1].text()}")
-        if output is not None:
-            say(f"wrote the updated calibration to {output}; use it with --robot {output}")
+        _say_update(u, result, val, alone, predicted, (predict, target_pred), output)
     summary = result.to_dict() | sessions_json(meas) | {"update": u.to_dict()}
     if alone is not None:
         summary["update"]["prior_validation_rms_mm"] = alone.validation_rms_mm
     if predicted is not None:
         summary["update"]["predicted"] = predicted[0].to_dict()
         summary["update"]["prior_predicted"] = predicted[1].to_dict()
+    if target_pred is not None:
+        measured = None if val is None else result.validation_rms_mm
+        summary["predicted"] = target_pred.to_dict() | {"measured_rms_mm": measured}
     emit_json(summary, as_json, out)
+
+
+def _say_update(
+    u: Any, result: Any, val: Any, alone: Any, predicted: Any, target: Any, output: Path | None
+) -> None:
+    """The text of ``lab update``: what it did, the --predict target's prediction, the
+    validation beside the calibration alone, where it wrote."""
+    say(u.summary())
+    if target[1] is not None:
+        say(f"--predict {target[0]}: {target[1].text()}")
+    if alone is not None and val is not None:
+        say(
+            f"validation on {len(val)} points: RMS "
+            f"{result.validation_rms_mm:.4f} mm updated, {alone.validation_rms_mm:.4f} mm "
+            "the calibration alone (its base placed on the new poses)"
+        )
+    if predicted is not None:
+        say(f"updated: {predicted[0].text()}")
+        say(f"the calibration alone: {predicted[1].text()}")
+    if output is not None:
+        say(f"wrote the updated calibration to {output}; use it with --robot {output}")
+
+
+def _update_prediction(result: FitResult, predict: Path | None, length: str, angle: str) -> Any:
+    """``--predict`` of an update: its posterior covariance through the target's poses (the new
+    poses are too few for blocked checks: no fallback)."""
+    if predict is None:
+        return None
+    from lab.uncertainty import predicted_rms
+
+    target = read_target(predict, length, angle)
+    with user_errors():
+        return predicted_rms(result, target, unseen=False)
 
 
 # -- plan -------------------------------------------------------------------------------------------
@@ -598,6 +697,7 @@ def plan_cmd(
         ),
     ] = 0.015,
     seed: Annotated[int, typer.Option(help="Seed of the random candidates.")] = 0,
+    near: Annotated[Path | None, option_of(LabInputs, "near")] = INPUTS.near,
     angle_unit: AngleOpt = INPUTS.angle_unit,
     noise_mrad: Annotated[
         float | None,
@@ -614,14 +714,21 @@ def plan_cmd(
 
     O1 (Borm & Menq) is D-optimality over all identifiable parameters, O4 (Nahvi & Hollerbach)
     the noise amplification of the weakest one; both are printed beside random pose sets."""
-    from arm.measurements import write_poses
+    from arm.measurements import read_poses, write_poses
+    from arm.sampling import region_of
     from lab import plan
 
     refuse_noise(noise_mm, 0.0, noise_mrad)
-    check_outputs([(output, "--output")], [robot, *(effect_module or ())], as_json)
+    given = [robot, *(effect_module or ()), *([near] if near is not None else [])]
+    check_outputs([(output, "--output")], given, as_json)
     load_modules(effect_module)
     parsed = parse_effects(effects)
     arm = read_arm(robot)
+    program = None
+    if near is not None:
+        with user_errors(prefix=f"--near {near}: "):
+            program = read_poses(near, angle_unit)
+            region_of(arm, program)  # within the limits, else refused here, by joint
     with user_errors(), console.status(f"choosing {n} of {candidates} poses by {criterion}..."):
         p = plan(
             n,
@@ -632,6 +739,7 @@ def plan_cmd(
             noise_mm=noise_mm,
             seed=seed,
             noise_mrad=noise_mrad,
+            near=program,
         )
     with writing(output):
         write_poses(p.q, output, angle_unit)

@@ -23,7 +23,16 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Literal, TypedDict
 
-from arm.constraints import POSITIVE, Interval, Quantity, choices, declare, problems, refuse
+from arm.constraints import (
+    NON_NEGATIVE,
+    POSITIVE,
+    Interval,
+    Quantity,
+    choices,
+    declare,
+    problems,
+    refuse,
+)
 from arm.effects import MAX_ORDER
 from arm.measurements import COMPONENTS
 from arm.noise import NOISE_MM, NOISE_MRAD, NOISE_PPM, InstrumentNoise, noise_law_problems
@@ -203,6 +212,25 @@ class UpdateOptions:
         unit="mm",
         help="The per-axis noise the new poses are weighted by against the prior. Default: the "
         "residual of one session fitted alone, as the calibration states it.",
+    )
+    # What moves between sessions even where the calibration measured no spread (one session,
+    # or sessions that happened to agree): the prior allows at least this much (lab.uncertainty,
+    # least_spread)
+    rehome_mrad: float = declare(
+        2.0,
+        NON_NEGATIVE,
+        unit="mrad",
+        help="The least spread between sessions of each joint's zero offset (a re-homing moves "
+        "it by a few mrad): the prior allows this much where the calibration measured less or "
+        "none (a calibration of one session).",
+    )
+    remount_mm: float = declare(
+        0.5,
+        NON_NEGATIVE,
+        unit="mm",
+        help="The least spread between sessions of the tool's offset (a tool taken off and put "
+        "back): the prior allows this much where the calibration measured less or none. "
+        "--remount frees the tool altogether.",
     )
 
 

@@ -17,7 +17,8 @@ alone and the spread of a parameter is the standard deviation of its values over
 that identify it about the calibration's value (their scatter, and their mean's distance from
 the calibration's value: a calibration of sessions that differ is a compromise none of them
 holds), less the part each session's own standard error explains, from two sessions at least that determine it (its standard error in the session's
-fit under its typical size; 0 where fewer do, named in :attr:`Uncertainty.unmeasured`), and at
+fit under its typical size; where fewer do, its typical size: nothing measured how it changes,
+named in :attr:`Uncertainty.unmeasured`), and at
 most its typical size (the effect's ``typical`` table: the spread of a term no session pins
 down is what any arm's may be). It
 holds what changes between sessions (a re-homed joint, a re-mounted tool, a region that
@@ -48,12 +49,38 @@ __all__ = [
     "Uncertainty",
     "UncertaintyError",
     "covariance_of",
+    "draw_band",
+    "least_spread",
     "predicted_rms",
     "session_spread",
     "uncertainty_of",
 ]
 
 log = logging.getLogger(__name__)
+
+
+def least_spread(
+    names: Sequence[str], rehome_mrad: float | None = None, remount_mm: float | None = None
+) -> dict[str, float]:
+    """The least spread between sessions (SI, by name) of the parameters of ``names`` that move
+    between sessions whatever the calibration measured: each joint's zero offset (``dtheta``
+    re-homed, ``rehome_mrad``) and the tool's offset (``tx``..., re-mounted, ``remount_mm``);
+    the defaults are :class:`~lab.options.UpdateOptions`' (docs/lab.md, updating)."""
+    from lab.options import UpdateOptions
+
+    d = UpdateOptions()
+    rehome = 1e-3 * (d.rehome_mrad if rehome_mrad is None else rehome_mrad)
+    remount = 1e-3 * (d.remount_mm if remount_mm is None else remount_mm)
+    out = {}
+    for n in names:
+        parsed = parse_parameter_name(n)
+        if parsed is None:
+            continue
+        if parsed.kind == "row" and parsed.family == "dtheta":
+            out[n] = rehome
+        elif parsed.kind == "tool":
+            out[n] = remount
+    return out
 
 
 def is_base(name: str) -> bool:
@@ -68,7 +95,7 @@ class Uncertainty:
     arm, SI, by name); ``names``, those it identified, whose covariance (P, P) it states; the per-axis residual ``sigma`` (m) of its fit, how many ``sessions`` it
     was fitted on and the ``spread`` (P,) of the values between them (standard deviations; None:
     one session, no spread); ``unmeasured``: the names that fewer than two sessions identified
-    (their spread is 0)."""
+    (their spread is their typical size: nothing measured how they change)."""
 
     names: tuple[str, ...]
     values: Mapping[str, float]
@@ -118,12 +145,16 @@ class Uncertainty:
         """The standard errors of the fit (sqrt of the covariance's diagonal)."""
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
-    def prior_covariance(self) -> np.ndarray:
+    def prior_covariance(self, least: Mapping[str, float] | None = None) -> np.ndarray:
         """The covariance widened by the spread between sessions (added on the diagonal): what
-        the parameters may be in a session the calibration has not seen."""
-        if self.spread is None:
-            return self.covariance
-        return self.covariance + np.diag(self.spread**2)
+        the parameters may be in a session the calibration has not seen. ``least``: the
+        smallest spread of some parameters (by name, SI; :func:`least_spread`), used where the
+        measured one is smaller or absent (one session)."""
+        spread = np.zeros(len(self.names)) if self.spread is None else self.spread
+        if least:
+            floor = np.array([least.get(n, 0.0) for n in self.names])
+            spread = np.maximum(spread, floor)
+        return self.covariance + np.diag(spread**2)
 
     def to_dict(self) -> dict[str, Any]:
         """The ``[uncertainty]`` table of a calibration file (SI units)."""
@@ -252,7 +283,7 @@ def session_spread(
     own = result.parameters()
     spread = np.array(
         [
-            min(_deviation(v, own[n], noise[n]), typical[n]) if len(v) >= 2 else 0.0
+            min(_deviation(v, own[n], noise[n]), typical[n]) if len(v) >= 2 else typical[n]
             for n, v in values.items()
         ]
     )
@@ -303,10 +334,14 @@ class Prediction:
     discrepancy_mm: float
     unseen: bool
     poses: int
+    low_mm: float = math.nan
+    high_mm: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "rms_mm": self.rms_mm,
+            "low_mm": self.low_mm,
+            "high_mm": self.high_mm,
             "parameters_mm": self.parameters_mm,
             "discrepancy_mm": self.discrepancy_mm,
             "unseen": self.unseen,
@@ -316,8 +351,9 @@ class Prediction:
     def text(self) -> str:
         where = "a session it has not seen" if self.unseen else "the session it was fitted on"
         return (
-            f"predicted RMS {self.rms_mm:.4f} mm on {self.poses} poses of {where} (parameters "
-            f"{self.parameters_mm:.4f} mm, the model's discrepancy {self.discrepancy_mm:.4f} mm)"
+            f"predicted RMS {self.rms_mm:.4f} mm (5-95 %: {self.low_mm:.4f}-{self.high_mm:.4f}) "
+            f"on {self.poses} poses of {where} (parameters {self.parameters_mm:.4f} mm, the "
+            f"model's discrepancy {self.discrepancy_mm:.4f} mm)"
         )
 
 
@@ -331,7 +367,8 @@ def predicted_rms(
     """The 3-D RMS ``result`` expects on the poses of ``data`` (measurements, or a program's
     joint angles (N, 6): nothing measured is read) (:class:`Prediction`): the
     covariance of its parameters (``u``, default its own, :func:`uncertainty_of`), widened by the
-    spread where the poses are ``unseen``, through the Jacobian at those poses, and the
+    spread where the poses are ``unseen`` (for a calibration of one session, which measured
+    none, the least spread, :func:`least_spread`), through the Jacobian at those poses, and the
     discrepancy of one session fitted alone. The base is placed on the poses themselves (what a
     change of the parameters moves as a base does, it takes up), and nothing is added for poses
     outside the fitted domain."""
@@ -348,7 +385,10 @@ def predicted_rms(
     inputs = inputs_of(model, MeasurementSet(data.q, data.xyz, cols, data.source))
     names = [n for n in u.names if n in model.layout]
     keep = [u.names.index(n) for n in names]
-    cov = (u.prior_covariance() if unseen else u.covariance)[np.ix_(keep, keep)]
+    # the least spread where nothing was measured between sessions (one session): sessions that
+    # were measured say how much this shop's sessions differ
+    least = least_spread(u.names) if u.spread is None else None
+    cov = (u.prior_covariance(least) if unseen else u.covariance)[np.ix_(keep, keep)]
     _, J = model.predict(inputs, result.params, jacobian=True)
     A = J[:, :, model.layout.indices(names)].reshape(-1, len(names))
     base = [n for n in model.layout.names if is_base(n)]
@@ -357,6 +397,34 @@ def predicted_rms(
         A = A - B @ np.linalg.lstsq(B, A, rcond=None)[0]
     params = float(np.sqrt(np.einsum("ia,ab,ib->", A, cov, A) / len(data)))
     discrepancy = math.sqrt(3.0) * u.sigma
+    low, high = draw_band(A, cov, len(data), discrepancy)
     return Prediction(
-        1e3 * math.hypot(params, discrepancy), 1e3 * params, 1e3 * discrepancy, unseen, len(data)
+        1e3 * math.hypot(params, discrepancy),
+        1e3 * params,
+        1e3 * discrepancy,
+        unseen,
+        len(data),
+        1e3 * low,
+        1e3 * high,
     )
+
+
+#: draws of the parameters for the band of a prediction (seeded: the same band every time)
+BAND_DRAWS = 400
+
+
+def draw_band(A: np.ndarray, cov: np.ndarray, n: int, discrepancy: float) -> tuple[float, float]:
+    """The 5-95 % range of the RMS over the poses of one draw of the parameters from ``cov``
+    (the RMS of ``A delta``, delta ~ N(0, cov)), the discrepancy added in quadrature: the
+    squared RMS is a weighted sum of chi-squares, the weights the eigenvalues of
+    ``L^T A^T A L / n`` (``cov = L L^T``)."""
+    if cov.size == 0:
+        return discrepancy, discrepancy
+    w, V = np.linalg.eigh(cov)
+    L = V * np.sqrt(np.clip(w, 0.0, None))
+    B = A @ L
+    lam = np.clip(np.linalg.eigvalsh(B.T @ B / n), 0.0, None)
+    z = np.random.default_rng(0).standard_normal((BAND_DRAWS, lam.size))
+    r2 = (z**2) @ lam + discrepancy**2
+    lo, hi = np.quantile(np.sqrt(r2), [0.05, 0.95])
+    return float(lo), float(hi)

@@ -6,7 +6,10 @@
 
 **The prior** is the calibration's parameters (``[uncertainty]`` of its file, or a fit's,
 :mod:`lab.uncertainty`) relative to the nominal arm it calibrated, with their covariance widened
-by the spread measured between the sessions it was fitted on. **Free** (no prior): the new
+by the spread measured between the sessions it was fitted on, and at least by the least spread
+declared for what moves between any two sessions (the joints' zero offsets re-homed, 2 mrad;
+the tool re-mounted, 0.5 mm: :class:`~lab.options.UpdateOptions`), so that a calibration of one
+session, which measured no spread, can still learn them. **Free** (no prior): the new
 session's base (each station's), and the tool where it was re-mounted (``remount=True``). The
 parameters the calibration did not identify are held at its values.
 
@@ -52,7 +55,13 @@ from lab.identifiability import Identifiability
 from lab.options import UpdateOptions
 from lab.registration import register_base, tool_indices
 from lab.result import FitResult, RowsCounted, rms
-from lab.uncertainty import Uncertainty, UncertaintyError, is_base, uncertainty_of
+from lab.uncertainty import (
+    Uncertainty,
+    UncertaintyError,
+    is_base,
+    least_spread,
+    uncertainty_of,
+)
 
 __all__ = ["Prior", "Update", "UpdateWarning", "prior_of", "update"]
 
@@ -354,12 +363,23 @@ def update(
     remount: bool = False,
     noise_mm: float | None = None,
     robot: RobotDescription | str | Path | None = None,
+    rehome_mrad: float = UpdateOptions.rehome_mrad,
+    remount_mm: float = UpdateOptions.remount_mm,
 ) -> Update:
     """The calibration updated with the poses of ``data`` (the module docstring). ``remount``:
     the tool was re-mounted (its offset is free); ``noise_mm``: the per-axis noise the new
     poses are weighted by (default the calibration's residual); ``robot``: the arm the poses
-    were measured on, refused unless it is the one calibrated (by name)."""
-    bad = check({"remount": remount, "noise_mm": noise_mm}, constraints_of(UpdateOptions))
+    were measured on, refused unless it is the one calibrated (by name); ``rehome_mrad``,
+    ``remount_mm``: the least spread between sessions of the joints' zero offsets and of the
+    tool's offset (:func:`lab.uncertainty.least_spread`), which the prior allows whatever the
+    calibration measured."""
+    given = {
+        "remount": remount,
+        "noise_mm": noise_mm,
+        "rehome_mrad": rehome_mrad,
+        "remount_mm": remount_mm,
+    }
+    bad = check(given, constraints_of(UpdateOptions))
     if bad:
         raise FitError("; ".join(bad))
     prior = prior_of(calibration)
@@ -382,7 +402,8 @@ def update(
         log.warning("%s", text)
         warn(text, UpdateWarning)
     keep = [j for j, n in enumerate(u.names) if n in lay and n not in order]
-    cov = u.prior_covariance()[np.ix_(keep, keep)]
+    least = least_spread(u.names, rehome_mrad, remount_mm)
+    cov = u.prior_covariance(least)[np.ix_(keep, keep)]
     names_p = [u.names[j] for j in keep]
     pb = _Problem(
         model,

@@ -156,7 +156,7 @@ LAB_ORDER = [
     {"screening"},
     {"identification", "transfer"},
     {"uncertainty"},
-    {"diagnosis", "discovery", "planning", "export", "update"},
+    {"diagnosis", "discovery", "planning", "export", "update", "prediction"},
     {"urdf_export", "bagging"},
     {"report", "lab_report", "report_html", "plots"},
 ]

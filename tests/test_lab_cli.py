@@ -330,6 +330,32 @@ def test_plan_writes_n_poses_that_read_back(files):
     assert res.exit_code == 2 and "is a directory" in res.stderr
 
 
+def test_plan_near_a_program_chooses_poses_in_its_region(files):
+    # a program that runs in a corner of the joint space: the poses are chosen there (its box,
+    # 0.1 rad wider), not anywhere within the limits
+    rng = np.random.default_rng(4)
+    lo = np.array([0.5, -1.4, 0.2, -0.5, 0.3, -1.0])
+    program = lo + 0.4 * rng.random((25, 6))
+    prog = files["dir"] / "program.csv"
+    prog.write_text("q1,q2,q3,q4,q5,q6\n" + "".join(",".join(map(str, r)) + "\n" for r in program))
+    out = files["dir"] / "near.csv"
+    got = lab_json("plan", "--n", 12, "--candidates", 300, "--near", prog, "-o", out)
+    q = read_poses(out)
+    assert q.shape == (12, 6) and np.allclose(q, got["q"], atol=1e-15)
+    assert np.all(q >= program.min(axis=0) - 0.1 - 1e-9)
+    assert np.all(q <= program.max(axis=0) + 0.1 + 1e-9)
+    # without it the poses spread over the limits
+    anywhere = np.array(lab_json("plan", "--n", 12, "--candidates", 300, "-o", out)["q"])
+    assert np.ptp(anywhere[:, 0]) > 2 * np.ptp(q[:, 0])
+    # a program outside the limits, or a file without joints, is refused by name
+    bad = files["dir"] / "bad.csv"
+    bad.write_text("q1,q2,q3,q4,q5,q6\n" + ",".join(["9"] * 6) + "\n")
+    one_error_line(lab("plan", "--near", bad, "-o", out), "--near", "q1")
+    none = files["dir"] / "none.csv"
+    none.write_text("x,y,z\n1,2,3\n")
+    one_error_line(lab("plan", "--near", none, "-o", out), "--near", "q1")
+
+
 # -- report -----------------------------------------------------------------------------------------
 def test_report_writes_html(files):
     out = files["dir"] / "report.html"

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from arm.measurements import MeasurementSet, read_measurements, write_measurements
+from arm.measurements import MeasurementSet, read_measurements, write_measurements, write_poses
 from tests._cli import lab, one_error_line
 from tests._lab_data import drifting_session
 
@@ -111,9 +111,12 @@ def test_update_a_calibration_with_a_few_poses_of_a_new_session(sessions, tmp_pa
     assert res.exit_code == 0, res.output
     assert "[uncertainty]" in cal.read_text()
     out = tmp_path / "updated.toml"
-    res = lab("update", cal, new, "--validate", held, "-o", out, "--json")
+    res = lab("update", cal, new, "--validate", held, "--predict", held, "-o", out, "--json")
     assert res.exit_code == 0, res.output
     got = json.loads(res.stdout)
+    # the prediction on the target beside the figure measured there
+    assert got["predicted"]["measured_rms_mm"] == got["validation_rms_mm"]
+    assert 0.67 <= got["validation_rms_mm"] / got["predicted"]["rms_mm"] <= 1.5
     assert got["update"]["poses"] == 30 and got["update"]["free"][:3] == ["bx", "by", "bz"]
     assert got["validation_rms_mm"] < 0.5 * got["update"]["prior_validation_rms_mm"]
     # the updated calibration is one like any other: fit on it, update it again
@@ -128,3 +131,43 @@ def test_update_refuses_another_robot_and_a_file_without_uncertainty(sessions, t
     one_error_line(lab("update", cal, new, "--robot", "ur5"), "'ur5'", "'seed'")
     one_error_line(lab("update", "seed", new), "no [nominal]")
     one_error_line(lab("update", cal, new, "-o", tmp_path / "x.urdf"), "robot TOML")
+
+
+def test_fit_predicts_the_accuracy_on_a_target_before_it_is_measured(sessions, tmp_path):
+    files, new, held = sessions
+    # a program's joints alone: a prediction, nothing measured
+    program = tmp_path / "program.csv"
+    write_poses(read_measurements(held).q, program)
+    res = lab("fit", *files, "--effects", "geometric,compliance", "--predict", program, "--json")
+    assert res.exit_code == 0, res.output
+    got = json.loads(res.stdout)["predicted"]
+    assert got["chosen"] in ("model", "geometric") and got["blocks"] == "sessions"
+    assert got["unseen"] and got["poses"] == 200 and got["measured_rms_mm"] is None
+    assert got["low_mm"] <= got["rms_mm"] <= got["high_mm"]
+    # with --validate the measured figure beside it (the text says both); the new station is
+    # registered on separate reference poses
+    res = lab(
+        "fit",
+        *files,
+        "--effects",
+        "geometric,compliance",
+        "--predict",
+        held,
+        "--validate",
+        held,
+        "--references",
+        new,
+    )
+    assert res.exit_code == 0, res.output
+    assert "--predict: predicted" in res.stdout and "measured" in res.stdout
+    one_error_line(lab("fit", *files, "--predict", tmp_path / "missing.csv"), "--predict")
+
+
+def test_bag_predicts_on_a_program_too(sessions, tmp_path):
+    files, _, held = sessions
+    program = tmp_path / "program.csv"
+    write_poses(read_measurements(held).q[:50], program)
+    res = lab("bag", *files, "--bags", "1", "--poses", "200", "--predict", program, "--json")
+    assert res.exit_code == 0, res.output
+    got = json.loads(res.stdout)["predicted"]
+    assert got["poses"] == 50 and got["rms_mm"] > 0 and got["chosen"] in ("model", "geometric")

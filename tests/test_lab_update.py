@@ -23,6 +23,7 @@ from lab.uncertainty import (
     Uncertainty,
     UncertaintyError,
     covariance_of,
+    least_spread,
     predicted_rms,
     uncertainty_of,
 )
@@ -200,3 +201,56 @@ def test_a_calibration_without_its_uncertainty_is_refused(tmp_path):
     arm = load_robot("seed")
     with pytest.raises(UncertaintyError, match="no \\[nominal\\]"):
         update(arm, session({}, 20, 1, 1))
+
+
+# -- what moves between sessions even when one session measured no spread --------------------------
+@pytest.fixture(scope="module")
+def one_session():
+    """A calibration of one session (no spread measured) and a new session of the same physics,
+    re-homed by up to 3 mrad a joint, from its own station, in its own region."""
+    rng = np.random.default_rng(500)
+    values = _truth(rng)
+    one = drifting_session(values, 300, 1, 1, rehome_mrad=3.0, region=(rng.uniform(LO, HI), 0.9))
+    new = drifting_session(values, 400, 9, 9, rehome_mrad=3.0, region=(rng.uniform(LO, HI), 0.9))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LabWarning)
+        cal = lab.fit(one, "seed", EFFECTS)
+    return prior_of(cal), new
+
+
+def test_the_least_spread_names_the_zero_offsets_and_the_tool():
+    least = least_spread(["dtheta2", "da2", "tx", "tz2", "c3", "dtheta6"])
+    assert least == {"dtheta2": 2e-3, "dtheta6": 2e-3, "tx": 0.5e-3, "tz2": 0.5e-3}
+    assert least_spread(["dtheta1"], rehome_mrad=3.0) == {"dtheta1": pytest.approx(3e-3)}
+    # a measured spread larger than the least is kept
+    u = Uncertainty(
+        ("dtheta2", "da2"),
+        {"dtheta2": 0.0, "da2": 0.0},
+        np.zeros((2, 2)),
+        1e-5,
+        2,
+        np.array([5e-3, 1e-4]),
+    )
+    np.testing.assert_allclose(np.diag(u.prior_covariance(least)), [25e-6, 1e-8])
+
+
+@pytest.mark.parametrize("k", [20, 50])
+def test_a_one_session_prior_learns_the_re_homing(one_session, k):
+    prior, new = one_session
+    assert prior.uncertainty.spread is None  # one session: nothing measured between sessions
+    test = new.subset(np.arange(100, 400))
+    poses = new.subset(np.arange(k))
+    u = update(prior, poses)
+    # without the least spread the prior holds the zero offsets at the old session's values
+    # to within their (tiny) standard errors: the update cannot learn the re-homing
+    stuck = update(prior, poses, rehome_mrad=0.0, remount_mm=0.0)
+    updated = _held_out(u.result, test)
+    assert _held_out(stuck.result, test) > 0.3  # mm
+    assert updated < 0.1 * _held_out(u.prior_result, test)
+    assert updated < 0.06  # the floor of a perfect model is 0.026
+
+
+def test_a_negative_least_spread_is_refused(one_session):
+    prior, new = one_session
+    with pytest.raises(FitError, match="rehome_mrad"):
+        update(prior, new.subset(np.arange(20)), rehome_mrad=-1.0)

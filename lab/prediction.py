@@ -1,0 +1,228 @@
+"""The accuracy a calibration expects on a target (a program's joints, or held-out measurements)
+before anything is measured there, and the model it expects to be best there (the fallback).
+
+    e = expect(result, data, program_q, unseen=True)
+    print(e.text())           # "expected RMS 0.41 mm (5-95 %: 0.22-0.63) ... with the geometric
+                              #  model: the lab's terms did not help on a session left out"
+    e.chosen                  # "model" or "geometric"
+
+**The blocked check.** The training rows are split into blocks: their sessions (a ``session``,
+else ``station`` column of two ids or more, :func:`lab.transfer.block_column`), else, for one
+session, :data:`JOINT_BLOCKS` blocks of the joint that the poses turn over the widest range
+(its lowest third, middle third, highest third: the model is fitted on two and checked on the
+third, which lies beyond what it was fitted on). Each block is left out in turn, the model
+fitted to the others and its 3-D RMS measured on it (:func:`lab.transfer.blocked_rms`), for
+the calibration's model and for the geometric one.
+
+**The fallback.** Where the calibration's model does not err less than the geometric one by
+:data:`MARGIN` on the blocks left out (the log-mean over the blocks), its terms are not
+expected to help on rows it was not fitted on: the geometric model is used (fitted on the same
+rows), and the output says so. This is decided from the training rows alone, never from the
+target's measurements.
+
+**The prediction** (:class:`lab.uncertainty.Prediction`, of the model chosen) adds in
+quadrature: the parameters' covariance through the Jacobian at the target's poses (widened by
+the spread between sessions and the least spread, :func:`lab.uncertainty.least_spread`, where
+the target is a session it has not seen), the discrepancy of a session fitted alone, and, for
+the target's poses outside the fitted domain (:mod:`lab.domain`), what the blocked check
+measured beyond the covariance's own prediction for the blocks left out (the model's
+extrapolation error). Its band (5-95 %) is that of the RMS of one session's draw of the
+parameters from their covariance: with few directions that matter (a re-homing of six
+joints), one session's error may lie well away from the expected one.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import warnings
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from arm.measurements import MeasurementSet
+from lab.errors import FitError, LabWarning
+from lab.options import LabOptions
+from lab.result import FitResult
+from lab.uncertainty import Prediction, Uncertainty, predicted_rms, uncertainty_of
+
+__all__ = ["JOINT_BLOCKS", "MARGIN", "Expectation", "blocked_check", "expect", "joint_blocks"]
+
+log = logging.getLogger(__name__)
+
+JOINT_BLOCKS = 3
+#: the calibration's model is kept where its blocked RMS is under this fraction of the geometric
+#: one's: a smaller gain on two or three blocks is within what one draw of a session varies by
+MARGIN = 0.95
+
+
+def joint_blocks(data: MeasurementSet, blocks: int = JOINT_BLOCKS) -> MeasurementSet:
+    """``data`` with a ``session`` column that splits its rows into ``blocks`` ranges of the joint
+    its poses turn over the widest range (module docstring)."""
+    j = int(np.argmax(np.ptp(data.q, axis=0)))
+    edges = np.quantile(data.q[:, j], np.linspace(0.0, 1.0, blocks + 1)[1:-1])
+    cols = dict(data.columns) | {"session": np.searchsorted(edges, data.q[:, j]).astype(float)}
+    return replace(data, columns=cols)
+
+
+def blocked_check(
+    data: MeasurementSet, result: FitResult, options: LabOptions | None = None
+) -> tuple[str, dict[str, dict[float, float]]]:
+    """The blocks (``"sessions"`` or ``"joint qN"``) and {model: {block: RMS (m)}} of ``result``'s
+    model and the geometric one, each block left out in turn (module docstring)."""
+    from lab.transfer import block_column, blocked_rms
+
+    col = block_column(data)
+    if col is not None and len(np.unique(data.columns[col])) >= 2:
+        rows, how = data, "sessions"
+    else:
+        rows = joint_blocks(data)
+        how = f"joint q{int(np.argmax(np.ptp(data.q, axis=0))) + 1}"
+    opts = options or LabOptions(noise_mm=1e3 * result.sigma)
+    robot = result.model.robot
+    out = {"model": blocked_rms(rows, robot, list(result.model.effects), opts)}
+    if result.model.effect_names != ["geometric"]:
+        out["geometric"] = blocked_rms(rows, robot, "geometric", opts)
+    return how, out
+
+
+def _log_mean(rms: dict[float, float]) -> float:
+    v = [x for x in rms.values() if math.isfinite(x) and x > 0]
+    return math.exp(float(np.mean(np.log(v)))) if v else math.inf
+
+
+@dataclass(frozen=True)
+class Expectation:
+    """What a calibration expects on a target: the ``prediction`` of the model ``chosen``
+    (``"model"``: the calibration's, or ``"geometric"``: the fallback), the ``blocked`` RMS of each
+    (mm, the log-mean over the blocks left out, by ``blocks``), the share of the target's poses
+    ``outside`` the fitted domain and the ``extrapolation_mm`` added for them."""
+
+    prediction: Prediction
+    chosen: str
+    blocked: dict[str, float]
+    blocks: str
+    outside: float
+    extrapolation_mm: float
+    result: FitResult
+
+    @property
+    def reason(self) -> str:
+        if self.chosen == "model":
+            return "the model's terms helped on the blocks left out"
+        return (
+            f"the lab's terms are not expected to help there: on the {self.blocks} left out in "
+            f"turn the model erred {self.blocked['model']:.4f} mm, the geometric one "
+            f"{self.blocked.get('geometric', math.nan):.4f} mm; the geometric model is used"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return self.prediction.to_dict() | {
+            "chosen": self.chosen,
+            "reason": self.reason,
+            "blocked_mm": self.blocked,
+            "blocks": self.blocks,
+            "outside_share": self.outside,
+            "extrapolation_mm": self.extrapolation_mm,
+        }
+
+    def text(self) -> str:
+        return f"{self.prediction.text()}; {self.reason}"
+
+
+def _targets(target: MeasurementSet | np.ndarray) -> MeasurementSet:
+    if isinstance(target, MeasurementSet):
+        return target
+    q = np.atleast_2d(np.asarray(target, dtype=float))
+    return MeasurementSet(q, np.zeros((len(q), 3)), source="program")
+
+
+def expect(
+    result: FitResult,
+    data: MeasurementSet,
+    target: MeasurementSet | np.ndarray,
+    *,
+    unseen: bool,
+    options: LabOptions | None = None,
+    geometric: FitResult | None = None,
+    u: Uncertainty | None = None,
+) -> Expectation:
+    """The :class:`Expectation` of ``result`` (fitted on ``data``) on ``target`` (module
+    docstring). ``geometric``: the geometric model fitted on the same rows, where it is at hand
+    (else it is fitted when the fallback chooses it); ``u``: the calibration's uncertainty
+    (default measured from ``result`` and ``data``)."""
+    target = _targets(target)
+    how, blocked = blocked_check(data, result, options)
+    means = {m: _log_mean(b) for m, b in blocked.items()}
+    chosen = "model"
+    if "geometric" in means and not means["model"] < MARGIN * means["geometric"]:
+        chosen = "geometric"
+    use = result
+    if chosen == "geometric":
+        use = geometric or _geometric(data, result, options)
+        u = None
+    u = u or uncertainty_of(use, data)
+    base = predicted_rms(use, target, unseen=unseen, u=u)
+    excess = _excess(use, data, blocked["model" if use is result else "geometric"], u)
+    outside = _outside_share(use, target)
+    extra = math.sqrt(outside) * excess
+    rms = math.hypot(base.rms_mm, extra)
+    pred = replace(
+        base,
+        rms_mm=rms,
+        low_mm=math.hypot(base.low_mm, extra),
+        high_mm=math.hypot(base.high_mm, extra),
+    )
+    return Expectation(
+        pred,
+        chosen,
+        {m: 1e3 * v for m, v in means.items()},
+        how,
+        outside,
+        extra,
+        use,
+    )
+
+
+def _geometric(data: MeasurementSet, result: FitResult, options: LabOptions | None) -> FitResult:
+    from lab.identification import fit
+
+    opts = options or LabOptions(noise_mm=1e3 * result.sigma)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LabWarning)
+        return fit(data, result.model.robot, "geometric", options=opts)
+
+
+def _excess(
+    result: FitResult, data: MeasurementSet, blocked: dict[float, float], u: Uncertainty
+) -> float:
+    """The RMS (mm) the blocks left out erred beyond what the covariance predicts for them (as a
+    session not seen): the model's error beyond the rows it was fitted on."""
+    from lab.transfer import block_column
+
+    col = block_column(data)
+    rows = data if col is not None else joint_blocks(data)
+    col = col or "session"
+    excess = []
+    for b, measured in blocked.items():
+        if not math.isfinite(measured):
+            continue
+        part = rows.subset(np.flatnonzero(rows.columns[col] == b))
+        try:
+            pred = predicted_rms(result, part.q, unseen=True, u=u).rms_mm
+        except FitError:
+            continue
+        excess.append(max(0.0, (1e3 * measured) ** 2 - pred**2))
+    return math.sqrt(float(np.mean(excess))) if excess else 0.0
+
+
+def _outside_share(result: FitResult, target: MeasurementSet) -> float:
+    """The share of ``target``'s poses outside ``result``'s fitted joint ranges."""
+    ranges = result.domain.ranges
+    out = np.zeros(len(target), dtype=bool)
+    for j in range(6):
+        if f"q{j + 1}" in ranges:
+            lo, hi = ranges[f"q{j + 1}"]
+            out |= (target.q[:, j] < lo) | (target.q[:, j] > hi)
+    return float(np.mean(out)) if len(out) else 0.0

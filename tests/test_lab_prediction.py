@@ -1,0 +1,90 @@
+"""The accuracy a calibration expects on a target before it is measured, and the fallback to the
+geometric model where the lab's terms are not expected to help (lab.prediction), decided from
+the training rows alone (blocked checks: sessions left out, else joint-space blocks)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import lab
+from arm.sessions import join_sessions
+from lab.errors import LabWarning
+from lab.prediction import MARGIN, expect, joint_blocks
+from tests._lab_data import session
+
+EFFECTS = "geometric,compliance[2,3]"
+
+
+def _fit(data, effects):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LabWarning)
+        return lab.fit(data, "seed", effects, noise_mm=0.015)
+
+
+def test_one_session_is_split_into_blocks_of_its_widest_joint():
+    data = session({}, 90, 1, 1)
+    data = type(data)(data.q, data.xyz, {}, data.source)  # no session column
+    blocked = joint_blocks(data)
+    ids = blocked.columns["session"]
+    j = int(np.argmax(np.ptp(data.q, axis=0)))
+    assert sorted(np.unique(ids)) == [0.0, 1.0, 2.0]
+    assert all(25 <= np.sum(ids == b) <= 35 for b in (0, 1, 2))
+    # each block a range of that joint, in order
+    assert data.q[ids == 0, j].max() <= data.q[ids == 1, j].min()
+    assert data.q[ids == 1, j].max() <= data.q[ids == 2, j].min()
+
+
+@pytest.fixture(scope="module")
+def sessions():
+    """Three sessions of an arm with joint compliance, and a fourth held out."""
+    values = {"da2": 3e-4, "dalpha3": -2e-4, "c2": 6e-6, "c3": 4e-6}
+    return join_sessions([session(values, 150, s, s) for s in (1, 2, 3)]), session(
+        values, 200, 4, 4
+    )
+
+
+def test_the_lab_model_is_kept_where_its_terms_help_on_a_session_left_out(sessions):
+    data, new = sessions
+    result = _fit(data, EFFECTS)
+    e = expect(result, data, new.q, unseen=True)
+    assert e.blocks == "sessions" and e.chosen == "model"
+    assert e.blocked["model"] < MARGIN * e.blocked["geometric"]
+    # a target inside the fitted domain (but 2 of its 200 rows)
+    assert e.outside < 0.05
+    # measured on the held-out session (nothing of it fitted; the tracker where session 1's was)
+    seen = type(new)(new.q, new.xyz, {"station": np.ones(len(new))}, new.source)
+    measured = result.validate(seen).validation_rms_mm
+    assert 0.67 <= measured / e.prediction.rms_mm <= 1.5
+    assert e.prediction.low_mm <= e.prediction.rms_mm <= e.prediction.high_mm
+
+
+def test_terms_that_do_not_help_fall_back_to_the_geometric_model(sessions):
+    # an arm without compliance: the compliance terms fit noise; the blocked check says so
+    values = {"da2": 3e-4, "dalpha3": -2e-4}
+    data = join_sessions([session(values, 150, s, 10 + s) for s in (1, 2, 3)])
+    result = _fit(data, "geometric,compliance,transmission")
+    e = expect(result, data, sessions[1].q, unseen=True)
+    assert e.chosen == "geometric"
+    assert e.result.model.effect_names == ["geometric"]
+    assert "not expected to help" in e.text()
+    assert e.to_dict()["chosen"] == "geometric"
+
+
+def test_the_band_is_the_range_of_one_draw_against_a_closed_form():
+    # one parameter: the RMS over the poses of A delta, delta ~ N(0, s^2), is |z| s rms(A);
+    # |z| has its 5 % and 95 % quantiles at 0.0627 and 1.960 (the half-normal's)
+    from lab.uncertainty import draw_band
+
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(300, 1))
+    s = 2e-3
+    lo, hi = draw_band(A, np.array([[s**2]]), len(A), 0.0)
+    scale = s * np.sqrt(np.mean(A**2))
+    assert lo == pytest.approx(0.0627 * scale, rel=0.25)
+    assert hi == pytest.approx(1.960 * scale, rel=0.1)
+    # the discrepancy adds in quadrature
+    lo2, _ = draw_band(A, np.array([[s**2]]), len(A), 10 * scale)
+    assert lo2 == pytest.approx(np.hypot(10 * scale, lo), rel=0.02)
