@@ -96,6 +96,7 @@ from lab.candidates import (
 )
 from lab.errors import ContaminatedError, FitError, NoiseRefutedError, RowsLeftOutWarning
 from lab.estimation import check_plausible, fit_rows
+from lab.lumped_choice import held_rest
 from lab.observations import Observations, observations_of
 from lab.options import DEFAULTS, LabOptions, OptionFields, resolve
 from lab.registration import coupling_hint
@@ -302,9 +303,19 @@ class _Model:
             self.parsed,
             self.options,
             start=self.start,
-            fixed=self.fixed,
+            fixed=self.fixed + self.held(data),
             judge_noise=judge_noise,
         )
+
+    def held(self, data: MeasurementSet) -> tuple[str, ...]:
+        """Parameters held at zero beyond ``fixed``: lumped_compliance's beyond its first group
+        where the rows do not say they help (:func:`lab.lumped_choice.held_rest`), decided once,
+        on the rows of this model's first fit."""
+        if "_held" not in self.__dict__:
+            self.__dict__["_held"] = held_rest(
+                data, self.robot, self.parsed, self.options, self.fixed
+            )
+        return self.__dict__["_held"]
 
     def observations(self, data: MeasurementSet) -> Observations:
         return observations_of(data, self.options.instrument, self.options.measured)

@@ -152,7 +152,7 @@ LAB_ORDER = [
     },
     {"solver", "registration", "result"},
     {"estimation", "sanity"},
-    {"candidates", "spectral"},
+    {"candidates", "spectral", "lumped_choice"},
     {"screening"},
     {"identification", "transfer"},
     {"uncertainty"},

@@ -14,7 +14,7 @@ import pytest
 from arm.description import RobotDescription, load_robot
 from arm.effect_api import EffectError
 from arm.effects import LumpedCompliance, lumped_values
-from arm.effects.lumped import base_columns, first_moments, gravity_columns
+from arm.effects.lumped import base_columns, first_group, first_moments, gravity_columns
 from arm.errormodel import ErrorModel
 from arm.kinematics import gravity_torques
 from arm.params import parse_parameter_name
@@ -223,3 +223,55 @@ def test_a_calibrated_arm_keeps_its_values_through_its_file(tmp_path):
         LumpedCompliance.from_parameters(["lc2_x1"])
     with pytest.raises(EffectError, match=r"'c2' is not a parameter of the lumped_compliance"):
         LumpedCompliance.from_parameters(["c2"])
+
+
+def _links_only(robot: RobotDescription) -> RobotDescription:
+    """``robot`` with its mass on the long links' lines alone: point masses at the elbow and the
+    wrist (links 3 and 4 with their centres at their frames' origins), nothing beyond, no
+    payload."""
+    masses = (0.0, 0.0, 8.0, 4.0, 0.0, 0.0)
+    return replace(
+        robot,
+        joints=tuple(
+            replace(j, mass=m, com=(0.0, 0.0, 0.0))
+            for j, m in zip(robot.joints, masses, strict=True)
+        ),
+        payload=0.0,
+    )
+
+
+def test_the_first_group_carries_masses_on_the_long_links():
+    """The first group (3 products on a UR: the upper arm's and forearm's moments along their
+    length) moves the joints as compliance does for masses on those links' lines alone: the
+    values equivalent to such an arm's compliance (lumped_values, least squares over the whole
+    base set) are zero outside it."""
+    robot = load_robot("ur5")
+    assert first_group(robot) == ["lc2_x2", "lc2_x3", "lc3_x3"]
+    arm = _links_only(robot)
+    values = lumped_values(arm, [0.0, 1e-5, 2e-5, 0.0, 0.0, 0.0])
+    first = set(first_group(robot))
+    largest = max(abs(v) for v in values.values())
+    assert all(abs(values[n]) > 0.01 * largest for n in first)
+    assert all(abs(v) < 1e-6 * largest for n, v in values.items() if n not in first)
+
+
+def test_the_rest_enters_only_where_the_rows_say_it_helps():
+    """A fit of geometric,lumped_compliance frees the base set beyond the first group only where
+    a blocked cross-validation of its own rows says it predicts better (lab.lumped_choice): held
+    for an arm whose mass lies on its long links, free for the heavy arm with its payload and
+    wrist off their lines; either way the held-out poses are predicted at the noise."""
+    floor = SIGMA * np.sqrt(3) * 1e3
+    ur5 = load_robot("ur5")
+    links = _links_only(ur5)
+    for arm, scale, rest_held in ((links, 3.0, True), (_arms()["fanuc"], 0.03, False)):
+        _, d, v = _compliance_campaign(arm, scale, seed=5)
+        res = fit(
+            d, _no_masses(arm), "geometric,lumped_compliance", validate=v, noise_mm=SIGMA * 1e3
+        )
+        rest = [
+            n for n in res.model.layout.names if n.startswith("lc") and n not in first_group(arm)
+        ]
+        assert rest
+        held = set(res.identifiability.held)
+        assert all((n in held) == rest_held for n in rest), arm.name
+        assert res.validation_rms_mm < 1.1 * floor, arm.name

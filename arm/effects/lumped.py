@@ -42,7 +42,7 @@ from arm.effect_api import EffectError, ModelInputs
 from arm.effects.base import Effect, JointAngleEffect
 from arm.kinematics import Chain, gravity_torques, link_frames
 
-__all__ = ["LumpedCompliance", "base_columns", "gravity_columns", "lumped_values"]
+__all__ = ["LumpedCompliance", "base_columns", "first_group", "gravity_columns", "lumped_values"]
 
 AXES = "xyz"
 #: DH angles within this of a quarter turn are that quarter turn for the choice of the base set
@@ -52,6 +52,9 @@ _POSES = 240
 #: a column whose part independent of those before it is below this, relative to the largest
 #: (each column scaled to unit RMS), adds nothing the others do not
 _RANK_TOL = 1e-7
+#: a link whose next joint lies at least this share of the longest such offset away is one of
+#: the arm's long links (:func:`first_group`)
+LONG = 0.25
 _NAME = re.compile(r"lc([1-6])_([xyz])([1-6])")
 
 Term = tuple[int, int]  # (link k 1..6, axis 0..2)
@@ -127,6 +130,27 @@ def _base_columns(structure: tuple) -> dict[int, tuple[Term, ...]]:
         rank = int(np.sum(diag > _RANK_TOL * diag[0]))
         out[j + 1] = tuple(sorted(terms[int(live[i])] for i in piv[:rank]))
     return out
+
+
+def first_group(robot: RobotDescription) -> list[str]:
+    """The names of the base parameters that carry the load along the arm's long links: for each
+    joint, link k's first moment along the axis of the largest component of ``p_k`` (the origin of
+    frame k+1 in frame k), for the links whose ``|p_k|`` is at least :data:`LONG` of the longest
+    (on a UR: ``lc2_x2``, ``lc2_x3``, ``lc3_x3``, the upper arm and forearm along their length).
+    The rest of the base set (the payload's and the wrist's moments off the links' lines) enters
+    a fit only where its own data say it helps (:mod:`lab.lumped_choice`)."""
+    m = robot.to_modified()
+    f = link_frames(Chain.from_description(m), np.zeros((1, 6)))
+    R, o = f.R[0], f.o[0]
+    p = {k: R[k].T @ (o[k + 1] - o[k]) for k in range(1, 6)}
+    longest = max(float(np.linalg.norm(v)) for v in p.values())
+    if not longest > 0:
+        return []
+    along = {
+        k: int(np.argmax(np.abs(v))) for k, v in p.items() if np.linalg.norm(v) >= LONG * longest
+    }
+    base = base_columns(robot)
+    return [parameter_name(j, (k, c)) for j in range(1, 7) for k, c in base[j] if along.get(k) == c]
 
 
 def parameter_name(joint: int, term: Term) -> str:

@@ -1,0 +1,129 @@
+"""Which of ``lumped_compliance``'s parameters a fit frees, decided from the fitted rows alone.
+
+The effect's base set (:mod:`arm.effects.lumped`) has 24 to 30 products on a 6R arm. On real
+arms most of them fit the training rows' systematic residue rather than gravity, and a held-out
+series is then worse than with ``compliance`` and the arm's masses (the UR10's series A and B
+left out: 7 % and 12 % worse); an F-test cannot tell, as the residue is significant over
+thousands of poses. Its first group (:func:`arm.effects.lumped.first_group`: the long links'
+moments along their length, 3 on a UR) does as well as ``compliance`` there, but misses a heavy
+arm's payload and wrist moments, off its links' lines.
+
+So the rest of the base set enters only where the rows say it predicts better: a blocked
+cross-validation, each block fitted on the others and predicted, with and without the rest.
+The blocks are the tracker stations when the rows come from several (a held-out station is
+registered on its own rows, as a left-out series is checked), else :data:`BLOCKS` consecutive
+runs of rows (a drift or a session's change is not averaged over). The rest is held at zero
+when the first group alone predicts at least as well.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+
+from arm.description import RobotDescription
+from arm.effects import Effect
+from arm.effects.lumped import LumpedCompliance, first_group, parameter_name
+from arm.measurements import MeasurementSet
+from lab.errors import FitError
+from lab.estimation import fit_rows
+from lab.options import LabOptions
+
+__all__ = ["held_rest"]
+
+log = logging.getLogger(__name__)
+
+#: consecutive blocks of rows measured from one station
+BLOCKS = 5
+#: fewer rows than this per block leave the whole base set free (no fair check)
+MIN_BLOCK_ROWS = 20
+
+
+def held_rest(
+    data: MeasurementSet,
+    robot: RobotDescription,
+    effects: Sequence[Effect],
+    options: LabOptions,
+    fixed: Sequence[str] = (),
+) -> tuple[str, ...]:
+    """The names of ``lumped_compliance``'s parameters beyond its first group to hold at zero in
+    a fit of ``data`` (the module docstring); () when the rest predicts better, when the effect
+    is not fitted or names its own parameters, or when the rows are too few to judge."""
+    rest = _rest(robot, effects, fixed)
+    blocks, stations = _blocks(data)
+    if not rest or blocks is None:
+        return ()
+    sub = options.replace(accept_large=True, outliers="keep")
+    free = _blocked_sse(data, robot, effects, sub, tuple(fixed), blocks, stations)
+    first = _blocked_sse(data, robot, effects, sub, tuple(fixed) + rest, blocks, stations)
+    held = first <= free
+    log.info(
+        "lumped_compliance: blocked cross-validation over %d blocks, RMS %.4g mm with its first "
+        "group, %.4g mm with all %d more: %s",
+        len(blocks),
+        1e3 * np.sqrt(first / len(data)),
+        1e3 * np.sqrt(free / len(data)),
+        len(rest),
+        "the rest held at zero" if held else "all free",
+    )
+    return rest if held else ()
+
+
+def _rest(
+    robot: RobotDescription, effects: Sequence[Effect], fixed: Sequence[str]
+) -> tuple[str, ...]:
+    lumped = [e for e in effects if isinstance(e, LumpedCompliance) and e.fixed is None]
+    if not lumped:
+        return ()
+    first = set(first_group(robot))
+    names = [parameter_name(j, t) for e in lumped for j, t in e.columns_of(robot)]
+    rest = tuple(n for n in names if n not in first and n not in fixed)
+    return rest if len(rest) < len(names) else ()  # no first group on this arm: nothing to test
+
+
+def _blocks(data: MeasurementSet) -> tuple[list[np.ndarray] | None, bool]:
+    """(the blocks of rows, whether they are stations), or None when too few rows."""
+    station = data.columns.get("station")
+    if station is not None and len(np.unique(station)) > 1:
+        blocks = [np.flatnonzero(station == s) for s in np.unique(station)]
+        stations = True
+    else:
+        blocks = np.array_split(np.arange(len(data)), BLOCKS)
+        stations = False
+    if min(len(b) for b in blocks) < MIN_BLOCK_ROWS:
+        return None, stations
+    return blocks, stations
+
+
+def _blocked_sse(
+    data: MeasurementSet,
+    robot: RobotDescription,
+    effects: Sequence[Effect],
+    options: LabOptions,
+    fixed: tuple[str, ...],
+    blocks: list[np.ndarray],
+    stations: bool,
+) -> float:
+    """Sum of the squared 3-D errors (m^2) of every block predicted by a fit of the others;
+    infinite when a fit is refused."""
+    total = 0.0
+    for b in blocks:
+        keep = np.ones(len(data), dtype=bool)
+        keep[b] = False
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                res = fit_rows(
+                    data.subset(np.flatnonzero(keep)), robot, effects, options, fixed=fixed
+                )
+                v = res.validate(data.subset(b), register_on_rows=stations)
+        except FitError:
+            return float("inf")
+        e = v.validation_residuals
+        if e is None:  # validate always sets them; a result without is no prediction
+            return float("inf")
+        total += float(np.sum(e**2))
+    return total
