@@ -55,6 +55,7 @@ from __future__ import annotations
 import itertools
 import json
 import logging
+import os
 import time
 import typing
 import zipfile
@@ -449,7 +450,7 @@ def load_policy_file(path: str | Path) -> tuple[PolicyNetwork, dict[str, Any]]:
         )
     meta_path = path.with_suffix(".json")
     check_input_file(path, "policy file", "weights", PolicyFileError)  # a FIFO would hang
-    if not meta_path.exists():
+    if not os.path.exists(meta_path):
         raise PolicyFileError(f"{path}: its description {meta_path.name} is missing")
     text = read_input_text(meta_path, "policy description", "json", PolicyFileError)
     try:
@@ -713,7 +714,7 @@ def _policy_path(policy: str | None, path: str | None) -> Path:
             f"shipped policy's name: {', '.join(shipped_policies()) or 'none shipped'}"
         )
     found = POLICY_DIR / f"{policy}.npz"
-    if not found.exists():
+    if not os.path.exists(found):
         raise PolicyFileError(
             f"no shipped policy {policy!r} (shipped: {', '.join(shipped_policies()) or 'none'}; "
             "a policy file goes in path); train one with `sixaxis train ppo --config "
@@ -728,7 +729,7 @@ def _file_as_written(path: str) -> Path:
     given = Path(path)
     if given.suffix == ".npz":
         return given
-    if given.suffix and given.exists():
+    if given.suffix and os.path.exists(given):
         raise PolicyFileError(
             f"path {path!r}: refusing to load a policy that is not a .npz weight file (a "
             "stable-baselines3 .zip or a pickle would run code when loaded); export an SB3 "

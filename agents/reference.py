@@ -268,7 +268,8 @@ def fit_measurements(
 
     data = MeasurementSet(q, xyz, columns, source="calibration phase")
     start = None if p0 is None else model.layout.as_dict(p0)
-    options = LabOptions(loss=loss, noise_mm=noise * 1e3)  # type: ignore[arg-type]  # checked
+    # the poses of a calibration phase determine what they do: no campaign to refuse
+    options = LabOptions(loss=loss, noise_mm=noise * 1e3, min_identified=0.0)  # type: ignore[arg-type]
     try:
         res = fit(data, model.robot, model.effects, options=options, start=start)
     except ContaminatedError as exc:

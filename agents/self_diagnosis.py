@@ -528,11 +528,12 @@ class DiagnosingMPCAgent(MPCAgent):
         job.replayed = total
 
     def _lab_options(self) -> LabOptions:
-        """The lab's options for this agent's fits and diagnoses: the task's tracker noise, and
-        large values accepted (an arm far off its nominal is for the lab to describe here)."""
+        """The lab's options for this agent's fits and diagnoses: the task's tracker noise,
+        large values accepted (an arm far off its nominal is for the lab to describe here), and
+        whatever its poses identify fitted (an episode's path is no campaign to refuse)."""
         from lab import LabOptions
 
-        return LabOptions(noise_mm=float(self.task.noise_mm), accept_large=True)
+        return LabOptions(noise_mm=float(self.task.noise_mm), accept_large=True, min_identified=0.0)
 
     def _pruned(
         self,
@@ -577,7 +578,14 @@ class DiagnosingMPCAgent(MPCAgent):
 
         spec = merge_effects(model, added)
         try:
-            res = fit(train, model.robot, spec, options=self._lab_options(), validate=test)
+            res = fit(
+                train,
+                model.robot,
+                spec,
+                options=self._lab_options(),
+                validate=test,
+                accept_other_frame=True,  # its own arm's rows, held out on purpose
+            )
         except FitError as exc:
             log.debug("mpc-diagnose: held-out fit of %s refused: %s", ",".join(spec), exc)
             return math.inf

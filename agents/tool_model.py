@@ -179,6 +179,11 @@ class ToolModel:
                 f"robot {robot.name!r} has coupled joints: the MPC's CasADi model turns each "
                 "joint on its own and does not represent them"
             )
+        if robot.extra_joints:
+            raise UnsupportedEffectError(
+                f"robot {robot.name!r} stands on extra joints: the MPC's CasADi model places "
+                "the arm's base once and does not represent them"
+            )
         self._chain0 = Chain.from_description(robot)
         self._tool0 = np.array(robot.tool_points[min(self.target, len(robot.tools) - 1)])
         self._custom: list[JointAngleEffect] = []

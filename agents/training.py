@@ -53,6 +53,7 @@ import itertools
 import json
 import logging
 import math
+import os
 import time
 import typing
 from collections.abc import Callable, Mapping
@@ -85,6 +86,7 @@ from arm.constraints import (
     declare,
     problems,
 )
+from arm.files import is_file
 from envs.errors import EnvOptionError
 from envs.task import TaskInfo, Truth, controller_info
 
@@ -656,7 +658,7 @@ def train(
     torch.set_num_threads(1)
     cfg.check()
     out = _output_folder(cfg)
-    resuming = resume and (out / "checkpoint.zip").exists()
+    resuming = resume and os.path.exists(out / "checkpoint.zip")
     # refused before anything is built, loaded or written
     differences = _resume_check(out, cfg) if resuming else {}
     seeds = cfg.training_seeds()
@@ -684,7 +686,7 @@ def _output_folder(cfg: TrainConfig) -> Path:
     from arm.files import folder_problem, make_folders, shown
 
     out = Path(cfg.output)
-    why = folder_problem(out) or (f"{out} is not a directory" if out.is_file() else None)
+    why = folder_problem(out) or (f"{out} is not a directory" if is_file(out) else None)
     if why:
         raise TrainConfigError(f"output {shown(out)}: cannot write the run there: {why}")
     make_folders(out)
@@ -793,7 +795,7 @@ class _Run:
             "rms_mm/mean",
             "return/mean",
         ]
-        if not resume or not self.curve_path.exists():
+        if not resume or not os.path.exists(self.curve_path):
             header = io.StringIO()
             csv.writer(header).writerow(columns)
             atomic_write_text(self.curve_path, header.getvalue())  # then appended to, row by row
@@ -967,7 +969,7 @@ def _score(res: Mapping[str, Mapping[str, list[float]]]) -> float:
 def _best_so_far(path: Path, cfg: TrainConfig, meta: Mapping[str, Any]) -> float:
     """The score of a resumed run's ``best.npz`` on this session's evaluation episodes (the
     config may have changed them), the bar a later policy must pass; inf if there is none."""
-    if not path.exists():
+    if not os.path.exists(path):
         return math.inf
     from agents.policy import load_policy_file
 
@@ -1173,7 +1175,7 @@ def ship_policy(
     # where the run wrote its records, as the default would name it (no path of this machine)
     meta["config"] = dict(meta.get("config") or {}) | {"output": f"runs/{run_dir.name}"}
     summary_path = run_dir / "summary.json"
-    summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
+    summary = json.loads(summary_path.read_text()) if os.path.exists(summary_path) else {}
     wall = summary.get("wall_s")
     meta["training"] = {
         "run": run_dir.name,

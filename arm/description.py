@@ -47,6 +47,18 @@ SI units inside (m, rad, kg). The TOML file states its own units::
     translation = [2.0, -1.2, -0.6]
     rotation_vector = [0.0, 0.0, 126.0]
 
+    [[extra_joints]]             # optional: a joint before the arm's base (a lifting column,
+    name = "column"              # a track, a rotary table), held at a value per row: the
+    type = "prismatic"           # data's column named after it (in this file's units), else
+    axis = [0.0, 0.0, 1.0]       # --joint-value column=V, else default (arm.extra_joints)
+    translation = [0.0, 0.0, 0.0]          # its origin in the previous frame (the first's:
+    rotation_vector = [0.0, 0.0, 0.0]      # the base above)
+    default = 0.0
+
+    [mount]                      # optional, with extra joints: the arm's frame 0 in the last
+    translation = [0.0, 0.0, 0.3]          # extra joint's frame
+    rotation_vector = [0.0, 0.0, 0.0]
+
     [[couplings]]                # optional: a joint's DH angle moves with another's; the
     joint = 3                    # data's rows are the controller's angles: theta_3 = q_3 +
     on = 2                       # factor * q_2 (FANUC's J3, measured from the horizon)
@@ -66,7 +78,7 @@ from __future__ import annotations
 import math
 import os
 import tomllib
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -75,7 +87,8 @@ from typing import Any, Literal
 import numpy as np
 
 from arm.errors import DescriptionError
-from arm.files import atomic_write_text, read_input_text
+from arm.extra_joints import ExtraJoint
+from arm.files import atomic_write_text, is_file, read_input_text, shown
 from arm.ranges import payload_problem
 from arm.so3 import rotation_matrix, rotation_vector
 from arm.urdf import UrdfArm, UrdfError, UrdfSource, read_urdf
@@ -150,6 +163,11 @@ class RobotDescription:
     # q_on in the DH table, q the controller's angles (FANUC's J3, measured from the horizon:
     # (3, 2, -1.0)); the rows of a data file are the controller's angles
     couplings: tuple[tuple[int, int, float], ...] = ()
+    # joints before the arm's base, held at a value per row (arm.extra_joints): measurement
+    # frame <- base <- extra joints <- mount <- frame 0
+    extra_joints: tuple[ExtraJoint, ...] = ()
+    mount_translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mount_rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # a calibrated arm's nominal arm, as `lab export` records it (what a controller believes in)
     nominal: RobotDescription | None = field(default=None, compare=False, repr=False)
     # a calibrated arm's domain: where it was identified, {variable: (lo, hi)} in SI units
@@ -182,6 +200,7 @@ class RobotDescription:
             if j.mass < 0:
                 raise DescriptionError(f"robot {self.name!r}: joint {i} mass {j.mass} < 0")
         self._check_couplings()
+        self._check_extra_joints()
         why = payload_problem(self.payload)  # the rule of the measurement reader too
         if why:
             raise DescriptionError(f"robot {self.name!r}: {why}")
@@ -207,6 +226,56 @@ class RobotDescription:
                 f"robot {self.name!r}: the couplings {self.couplings} leave the joints dependent "
                 "(the controller's angles could not be recovered from the arm's)"
             )
+
+    def _check_extra_joints(self) -> None:
+        names = [j.name for j in self.extra_joints]
+        taken = {f"q{i}" for i in range(1, 7)} | {"x", "y", "z", "t", "temperature", "payload"}
+        for n in names:
+            if names.count(n) > 1 or n in taken or not n:
+                raise DescriptionError(
+                    f"robot {self.name!r}: extra joint name {n!r} is empty, stated twice or a "
+                    "measurement column's name (the data's column named after it holds its value)"
+                )
+        if not self.extra_joints and (any(self.mount_translation) or any(self.mount_rotation)):
+            raise DescriptionError(
+                f"robot {self.name!r}: a [mount] without extra joints (put the arm's place in "
+                "[base])"
+            )
+
+    def holding(self, values: Mapping[str, float]) -> RobotDescription:
+        """The arm with extra joints held at fixed values (``{"column": 0.35}``, in the robot
+        file's units, as a data column's): each one's default, what a row without its column
+        holds. A name that is none of the arm's extra joints is refused, naming them."""
+        if not values:
+            return self
+        known = {j.name: j for j in self.extra_joints}
+        for name in values:
+            if name not in known:
+                raise DescriptionError(
+                    f"robot {self.name!r} has no extra joint {name!r} "
+                    f"({', '.join(known) or 'it has none'})"
+                )
+        joints = tuple(
+            replace(j, default=values[j.name] * j.unit) if j.name in values else j
+            for j in self.extra_joints
+        )
+        nominal = self.nominal
+        if nominal is not None:  # what compensation starts from holds them too
+            nominal = nominal.holding({k: v for k, v in values.items() if k in nominal.extra_names})
+        return replace(self, extra_joints=joints, nominal=nominal)
+
+    @property
+    def extra_names(self) -> tuple[str, ...]:
+        """The names of the extra joints (the data's columns that hold their values)."""
+        return tuple(j.name for j in self.extra_joints)
+
+    @property
+    def mount_matrix(self) -> np.ndarray:
+        """4x4: the last extra joint's frame <- the arm's frame 0 (the identity without)."""
+        T = np.eye(4)
+        T[:3, :3] = rotation_matrix(np.array(self.mount_rotation))
+        T[:3, 3] = self.mount_translation
+        return T
 
     @property
     def coupling_matrix(self) -> np.ndarray:
@@ -328,7 +397,8 @@ class RobotDescription:
         """The arm as a URDF (:func:`arm.urdf.urdf_of_chain`): frame 0 as ``base_link``, the DH
         frames as ``link1`` .. ``link6``, the flange as ``flange``; its masses as point masses.
         The base transform and the tool points are metrology, not the arm's: they stay out; the
-        joints' couplings stay in (``<coupling joint on factor/>``, which :func:`from_urdf` reads)."""
+        joints' couplings stay in (``<coupling joint on factor/>``, which :func:`from_urdf` reads),
+        and so do its extra joints, before ``base_link`` (their defaults do not: URDF has none)."""
         from arm.urdf import urdf_of_chain
 
         m = self.to_modified()
@@ -345,6 +415,8 @@ class RobotDescription:
             m.coms,
             m.flange_matrix,
             m.couplings,
+            [(j.name, j.kind, np.array(j.axis), j.origin) for j in m.extra_joints],
+            m.mount_matrix,
         )
 
     # -- TOML ---------------------------------------------------------------------------------
@@ -396,6 +468,12 @@ class RobotDescription:
             doc["effects"] = {k: dict(v) for k, v in self.effects.items()}
         if self.couplings:
             doc["couplings"] = [{"joint": j, "on": o, "factor": f} for j, o, f in self.couplings]
+        if self.extra_joints:
+            doc["extra_joints"] = [_extra_doc(j, L, A) for j in self.extra_joints]
+            doc["mount"] = {
+                "translation": [c / L for c in self.mount_translation],
+                "rotation_vector": [c / A for c in self.mount_rotation],
+            }
         if self.stations:
             doc["stations"] = [
                 {
@@ -486,7 +564,11 @@ _KEYS = {
         "domain",
         "couplings",
         "uncertainty",
+        "extra_joints",
+        "mount",
     },
+    "extra_joint": {"name", "type", "axis", "translation", "rotation_vector", "default"},
+    "mount": {"translation", "rotation_vector"},
     "station": {"station", "translation", "rotation_vector"},
     "coupling": {"joint", "on", "factor"},
     "joint": {"alpha", "a", "d", "theta_offset", "limits", "mass", "com", "beta"},
@@ -567,6 +649,60 @@ def _couplings(doc: dict, source: str) -> tuple[tuple[int, int, float], ...]:
             if v != int(v) or not 1 <= v <= 6:
                 raise DescriptionError(f"{source}: {w}'{key}' must be a joint 1..6, got {v:g}")
         out.append((int(joint), int(on), _get(c, "factor", source, float, w)))
+    return tuple(out)
+
+
+def _extra_doc(j: ExtraJoint, L: float, A: float) -> dict:
+    """An extra joint as its ``[[extra_joints]]`` table, in the file's units."""
+    unit = L if j.kind == "prismatic" else A
+    row: dict = {
+        "name": j.name,
+        "type": j.kind,
+        "axis": list(j.axis),
+        "translation": [c / L for c in j.translation],
+        "rotation_vector": [c / A for c in j.rotation],
+    }
+    if j.default is not None:
+        row["default"] = j.default / unit
+    return row
+
+
+def _extra_joints(doc: dict, source: str, L: float, A: float) -> tuple[ExtraJoint, ...]:
+    """The ``[[extra_joints]]`` of a description, SI; a data column named after one is in the
+    file's length (prismatic) or angle (revolute) unit."""
+    rows = doc.get("extra_joints", [])
+    if not isinstance(rows, list):
+        raise DescriptionError(f"{source}: [[extra_joints]] must be a list of tables")
+    out = []
+    for k, r in enumerate(rows, start=1):
+        w = f"extra joint {k}: "
+        _table(r, source, w, "extra_joint")
+        kind = _get(r, "type", source, str, w)
+        if kind not in ("prismatic", "revolute"):
+            raise DescriptionError(f"{source}: {w}type {kind!r} is not 'prismatic' or 'revolute'")
+        unit = L if kind == "prismatic" else A
+        default = r.get("default")
+        try:
+            out.append(
+                ExtraJoint(
+                    name=_get(r, "name", source, str, w),
+                    kind=kind,
+                    axis=vec3(_get(r, "axis", source, "vec3", w)),
+                    translation=vec3(
+                        c * L for c in _get(r, "translation", source, "vec3", w, (0.0, 0.0, 0.0))
+                    ),
+                    rotation=vec3(
+                        c * A
+                        for c in _get(r, "rotation_vector", source, "vec3", w, (0.0, 0.0, 0.0))
+                    ),
+                    default=None
+                    if default is None
+                    else _get(r, "default", source, float, w) * unit,
+                    unit=unit,
+                )
+            )
+        except DescriptionError as exc:
+            raise DescriptionError(f"{source}: {w}{exc}") from None
     return tuple(out)
 
 
@@ -672,6 +808,11 @@ def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription
             )
         effects[name] = {k: _get(vals, k, source, float, f"effects.{name}: ") for k in vals}
     stations = _stations(doc, source, L, A)
+    mount = _table(doc.get("mount", {}), source, "[mount] ", "mount")
+    mt = vec3(c * L for c in _get(mount, "translation", source, "vec3", "mount: ", (0.0, 0.0, 0.0)))
+    mr = vec3(
+        c * A for c in _get(mount, "rotation_vector", source, "vec3", "mount: ", (0.0, 0.0, 0.0))
+    )
     domain = _domain(doc.get("domain", {}), source)
     uncertainty = doc.get("uncertainty", {})
     if not isinstance(uncertainty, dict):
@@ -695,6 +836,9 @@ def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription
             domain=domain,
             couplings=_couplings(doc, source),
             uncertainty=uncertainty,
+            extra_joints=_extra_joints(doc, source, L, A),
+            mount_translation=mt,
+            mount_rotation=mr,
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{source}: {exc}") from None
@@ -725,21 +869,50 @@ def from_urdf(arm: UrdfArm) -> RobotDescription:
         for i in range(6)
     )
     flange = arm.flange
+    placed: dict[str, Any] = {
+        "base_translation": vec3(clean(c) for c in arm.base[:3, 3]),
+        "base_rotation": vec3(clean(c) for c in rotation_vector(arm.base[:3, :3])),
+    } | _urdf_extras(arm)
     try:
         return RobotDescription(
             name=arm.name,
             joints=joints,
             tools=(vec3(clean(c) for c in flange[:3, 3]),),
             gravity=vec3(clean(c) for c in arm.gravity),
-            base_translation=vec3(clean(c) for c in arm.base[:3, 3]),
-            base_rotation=vec3(clean(c) for c in rotation_vector(arm.base[:3, :3])),
             flange_translation=vec3(clean(c) for c in flange[:3, 3]),
             flange_rotation=vec3(clean(c) for c in rotation_vector(flange[:3, :3])),
             urdf=arm.source,
             couplings=arm.couplings,
+            **placed,
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{arm.source.path}: {exc}") from None
+
+
+def _urdf_extras(arm: UrdfArm) -> dict[str, Any]:
+    """A URDF's extra joints (:attr:`arm.urdf.UrdfArm.extra`) as a description's fields: the
+    joints, the arm's frame 0 in the last one's frame as the mount (the base then the identity:
+    the URDF's base link is the measurement frame's robot end)."""
+    if not arm.extra:
+        return {}
+    clean = lambda v: float(v) + 0.0  # noqa: E731
+    joints = tuple(
+        ExtraJoint(
+            name=name,
+            kind="prismatic" if kind == "prismatic" else "revolute",
+            axis=vec3(clean(c) for c in axis),
+            translation=vec3(clean(c) for c in origin[:3, 3]),
+            rotation=vec3(clean(c) for c in rotation_vector(origin[:3, :3])),
+        )
+        for name, kind, axis, origin in arm.extra
+    )
+    return {
+        "extra_joints": joints,
+        "mount_translation": vec3(clean(c) for c in arm.base[:3, 3]),
+        "mount_rotation": vec3(clean(c) for c in rotation_vector(arm.base[:3, :3])),
+        "base_translation": (0.0, 0.0, 0.0),
+        "base_rotation": (0.0, 0.0, 0.0),
+    }
 
 
 def load_robot(
@@ -761,10 +934,10 @@ def load_robot(
         name_or_path, tip, base = _chain_spec(name_or_path, tip, base)
     p = Path(name_or_path)
     shipped = resources.files("arm") / "robots"
-    if p.suffix.lower() != ".urdf" and not os.path.lexists(p) and (shipped / f"{p}.urdf").is_file():
+    if p.suffix.lower() != ".urdf" and not os.path.lexists(p) and is_file(shipped / f"{p}.urdf"):
         p = Path(f"{p}.urdf")  # a shipped URDF by name: "ur5_robot", "z1"
     if p.suffix.lower() == ".urdf":
-        if not os.path.lexists(p) and p.name == str(p) and (shipped / p.name).is_file():
+        if not os.path.lexists(p) and p.name == str(p) and is_file(shipped / p.name):
             text, where = (shipped / p.name).read_text(encoding="utf-8"), f"robots/{p.name}"
         else:
             text, where = read_input_text(p, "URDF file", "urdf", DescriptionError), str(p)
@@ -780,10 +953,10 @@ def load_robot(
         text = read_input_text(p, "robot description", "toml", DescriptionError)
         return RobotDescription.from_toml(text, source=str(p))
     toml = shipped / f"{name_or_path}.toml"
-    if not toml.is_file():
+    if not is_file(toml):
         names = sorted(f.name.rsplit(".", 1)[0] for f in shipped.iterdir() if "." in f.name[1:])
         raise DescriptionError(
-            f"unknown robot {str(name_or_path)!r}: not a file nor a shipped name "
+            f"unknown robot {shown(str(name_or_path))!r}: not a file nor a shipped name "
             f"({', '.join(n for n in names if not n.startswith('LICENSE') and n != 'README')})"
         )
     return RobotDescription.from_toml(toml.read_text(), source=f"robots/{name_or_path}.toml")

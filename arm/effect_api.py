@@ -23,6 +23,7 @@ import numpy as np
 
 from arm.description import RobotDescription
 from arm.errors import EffectError
+from arm.extra_joints import ExtraPlacement, place
 from arm.kinematics import Chain, ColumnFrames, Workspace, cross_columns
 from arm.so3 import left_jacobian
 
@@ -85,6 +86,8 @@ class ModelInputs:
     columns: dict[str, np.ndarray] = field(default_factory=dict)
     station: np.ndarray | None = None
     _cache: dict = field(default_factory=dict, repr=False)
+    # each pose's value of the robot's extra joints (N, k), SI (arm.extra_joints), or None
+    extra: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.station is None:
@@ -125,6 +128,7 @@ class ModelInputs:
             target=self.target[idx],
             columns={k: v[idx] for k, v in self.columns.items()},
             station=self.stations[idx],
+            extra=None if self.extra is None else self.extra[idx],
         )
 
 
@@ -152,13 +156,37 @@ class ChainState:
     station_r: np.ndarray | None = None
     tool_R: np.ndarray | None = None
     tool_r: np.ndarray | None = None
+    # the robot's extra joints (arm.extra_joints): each pose's values (N, k), SI, and the
+    # calibration's corrections, scale (k,) and tilt (k, 2); None without extra joints
+    extra_values: np.ndarray | None = None
+    extra_scale: np.ndarray | None = None
+    extra_tilt: np.ndarray | None = None
 
     def pose_base(self, station: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """The base (R, t) of every pose: one (3, 3), (3,) for a single station, else per pose
-        (N, 3, 3), (N, 3) from ``station`` (each pose's index into the stations)."""
+        (N, 3, 3), (N, 3) from ``station`` (each pose's index into the stations); with extra
+        joints, per pose through them (the arm's frame 0 in the measurement frame)."""
         if self.station_R is None or self.station_t is None or station is None:
-            return self.base_R, self.base_t
-        return self.station_R[station], self.station_t[station]
+            R, t = self.base_R, self.base_t
+        else:
+            R, t = self.station_R[station], self.station_t[station]
+        extra = self.extra_placement()
+        if extra is None:
+            return R, t
+        moved = extra.t @ R.T if R.ndim == 2 else np.einsum("nij,nj->ni", R, extra.t)
+        return R @ extra.R, t + moved
+
+    def extra_placement(self) -> ExtraPlacement | None:
+        """The arm's frame 0 behind the extra joints at each pose's values, or None."""
+        if self.extra_values is None or not self.robot.extra_joints:
+            return None
+        return place(
+            self.robot.extra_joints,
+            self.robot.mount_matrix,
+            self.extra_values,
+            self.extra_scale,
+            self.extra_tilt,
+        )
 
     def replace(self, **kw) -> ChainState:
         return replace(self, **kw)
@@ -189,6 +217,18 @@ class Sensitivities:
         self._p = point  # (3, N), measurement frame
         self._new = (lambda name, shape: np.empty(shape)) if work is None else work
         self._station = station  # each pose's station index, with several stations
+
+    @property
+    def point(self) -> np.ndarray:
+        """The measured point (3, N) of each pose, in the measurement frame."""
+        return self._p
+
+    @property
+    def station(self) -> np.ndarray | None:
+        """Each pose's station index where there are several stations, else None."""
+        return self._station
+
+    angular = False  # whether the columns are the tool frame's rotation (AngularSensitivities)
 
     @cached_property
     def _lever(self) -> np.ndarray:
@@ -277,6 +317,8 @@ class AngularSensitivities(Sensitivities):
     point's velocity ``v + w x (p - o)`` of a joint's twist, this gives its ``w``: the axis of
     alpha, beta or theta, nothing for a, d or the tool point. The catalogue's effects write their
     orientation columns from these, with the code that writes their position columns."""
+
+    angular = True
 
     def _zeros(self, shape: tuple[int, ...]) -> np.ndarray:
         return np.zeros(shape)

@@ -43,6 +43,7 @@ from arm.effects import (
     user_code,
 )
 from arm.errors import ModelError
+from arm.extra_joints import extra_values
 from arm.kinematics import (
     Chain,
     ColumnFrames,
@@ -214,7 +215,12 @@ class ErrorModel:
                 )
             target = np.zeros(q.shape[0], dtype=int)
         station = self._station_index(cols, q.shape[0], source)
-        return ModelInputs(self.robot, self.targets, q, tau, target, cols, station)
+        extra = (
+            extra_values(self.robot.extra_joints, cols, q.shape[0], source)
+            if self.robot.extra_joints
+            else None
+        )
+        return ModelInputs(self.robot, self.targets, q, tau, target, cols, station, extra=extra)
 
     def _station_index(self, cols: Mapping[str, np.ndarray], n: int, source: str) -> np.ndarray:
         """Each pose's index into the model's stations, from the ``station`` column."""
@@ -250,7 +256,7 @@ class ErrorModel:
 
     def state(self, inputs: ModelInputs | None, p: np.ndarray) -> ChainState:
         """The chain after every chain effect (``inputs`` may be None without per-pose effects)."""
-        st = self._initial_state()
+        st = self._initial_state(inputs)
         for e in self._chain_effects:
             if self._user:
                 with user_code(e, "apply"):
@@ -263,7 +269,7 @@ class ErrorModel:
                 st = e.apply(inputs, self._values(p, e), st)
         return st
 
-    def _initial_state(self) -> ChainState:
+    def _initial_state(self, inputs: ModelInputs | None = None) -> ChainState:
         return ChainState(
             robot=self.robot,
             targets=self.targets,
@@ -274,6 +280,7 @@ class ErrorModel:
             tools=self._tools0.copy(),
             stations=self.stations,
             orientation=self.orientation,
+            extra_values=None if inputs is None else inputs.extra,
         )
 
     def _evaluate(

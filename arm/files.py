@@ -38,6 +38,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator, Sequence
+from importlib.resources.abc import Traversable
 from pathlib import Path
 
 from arm.errors import InputFileError, OutputError
@@ -54,6 +55,8 @@ __all__ = [
     "check_output",
     "folder_problem",
     "input_problem",
+    "is_dir",
+    "is_file",
     "is_stdout",
     "make_folders",
     "output_problem",
@@ -107,6 +110,25 @@ def _special(path: Path) -> str | None:
     if os.path.islink(path):
         return f"a symbolic link to {what} ({os.path.realpath(path)})"
     return what
+
+
+def is_file(path: str | Path | Traversable) -> bool:
+    """Whether a regular file stands at ``path`` (links followed). Every path a user gives is
+    asked this way: a path the OS refuses to look at (a name over 255 bytes, a NUL byte, a loop
+    of links, a folder it may not enter) is no file, where ``Path.is_file`` raises for some."""
+    try:
+        return path.is_file() if not isinstance(path, str | Path) else os.path.isfile(path)
+    except (OSError, ValueError):
+        return False
+
+
+def is_dir(path: str | Path) -> bool:
+    """Whether a folder stands at ``path`` (links followed); False for a path the OS refuses to
+    look at, as :func:`is_file`."""
+    try:
+        return os.path.isdir(path)
+    except (OSError, ValueError):
+        return False
 
 
 def is_stdout(path: str | Path | None) -> bool:
@@ -196,11 +218,11 @@ def _target(path: Path) -> Path:
 
 def _same_file(a: Path, b: Path) -> bool:
     try:
-        if a.exists() and b.exists():
+        if os.path.exists(a) and os.path.exists(b):
             return os.path.samefile(a, b)
-    except OSError:
-        pass
-    return a.resolve() == b.resolve()
+        return a.resolve() == b.resolve()
+    except (OSError, ValueError):  # a path the OS refuses to look at is no input
+        return False
 
 
 def check_output(
@@ -291,7 +313,7 @@ def make_folders(folder: str | Path) -> None:
     Every writer makes the folders its output needs this way (an output's missing folders are
     made, never refused), so that a mistyped folder is seen at once, not found later empty."""
     folder = Path(folder)
-    if folder.is_dir():
+    if is_dir(folder):
         return
     folder.mkdir(parents=True, exist_ok=True)
     log.info("created the folder %s (it did not exist)", shown(folder))

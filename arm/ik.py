@@ -77,6 +77,9 @@ __all__ = [
     "flange_transform",
     "forward_pose",
     "pose_error",
+    "singular_directions",
+    "singularity",
+    "solve_model_point_near",
     "solve_model_pose",
     "solve_point",
     "solve_pose",
@@ -371,6 +374,129 @@ def solve_model_pose(
 
     robot = model.robot
     return _levenberg_marquardt(residual, q0, robot.lower, robot.upper, tol, max_iter, damping)
+
+
+# -- singular poses --------------------------------------------------------------------------------
+# the smallest singular value of a pose's Jacobian (position rows per metre of its longest lever,
+# rotation rows in rad) under this fraction of the largest: a singular pose (a wrist within a few
+# degrees of q5 = 0 on a UR or a Puma, an elbow as near its stretch, the two together sooner)
+SINGULAR_RATIO = 0.005
+_SINGULAR_KIND = ("shoulder", "elbow", "elbow", "wrist", "wrist", "wrist")
+
+
+def _scaled_svd(Jp: np.ndarray, Jw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The singular values (N, 6) and right singular vectors (N, 6, 6) of ``(Jp / L; Jw)``."""
+    Jp, Jw = np.asarray(Jp, dtype=float), np.asarray(Jw, dtype=float)
+    lever = np.maximum(np.linalg.norm(Jp, axis=1).max(axis=1), 1e-12)
+    _, s, vt = np.linalg.svd(np.concatenate([Jp / lever[:, None, None], Jw], axis=1))
+    return s, vt
+
+
+def singular_directions(Jp: np.ndarray, Jw: np.ndarray, k: int = 2) -> np.ndarray:
+    """The ``k`` joint-space directions (N, k, 6) in which a pose moves least (unit vectors, the
+    least first): at a singular pose those the arm cannot move in to first order, along which
+    its solutions split (a stretched elbow bent either way, q5 either side of 0)."""
+    return _scaled_svd(Jp, Jw)[1][:, ::-1][:, :k]
+
+
+def singularity(Jp: np.ndarray, Jw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How near each pose is to a singularity, from its joint Jacobians: the position's Jp
+    (N, 3, 6) and the rotation's Jw (N, 3, 6) (as :meth:`ErrorModel.joint_pose_jacobian`).
+
+    Returns the ratio of the smallest to the largest singular value of ``(Jp / L; Jw)`` (N,)
+    (``L`` the pose's longest lever, so that both rows are per radian), and each pose's kind
+    (N,) of str: ``""`` where the ratio is at least :data:`SINGULAR_RATIO`, else the
+    singularities of every direction below it, joined by ``+``, each named by the joint that
+    dominates the direction the arm cannot move in: joint 1 the shoulder, joints 2-3 the elbow
+    (the arm stretched or folded), joints 4-6 the wrist (axes 4 and 6 aligned)."""
+    s, vt = _scaled_svd(Jp, Jw)
+    ratio = s[:, -1] / np.maximum(s[:, 0], 1e-300)
+    kinds = np.full(len(s), "", dtype=object)
+    for i in np.flatnonzero(ratio < SINGULAR_RATIO):
+        low = np.flatnonzero(s[i] < SINGULAR_RATIO * s[i, 0])
+        names = {_SINGULAR_KIND[int(np.argmax(np.abs(vt[i, k])))] for k in low}
+        kinds[i] = "+".join(n for n in ("shoulder", "elbow", "wrist") if n in names)
+    return ratio, kinds
+
+
+def _kkt_step(
+    Jp: np.ndarray, Jw: np.ndarray, ep: np.ndarray, eo: np.ndarray, d: np.ndarray, weight: float
+) -> np.ndarray:
+    """The step dq (n, 6) minimising ``|d + dq|^2 + weight |eo - Jw dq|^2`` subject to
+    ``Jp dq = ep``: the point's equations exactly, the joints' change from the start and the
+    orientation's deviation balanced (a KKT system per pose; least squares where it is
+    singular)."""
+    n = len(Jp)
+    K = np.zeros((n, 9, 9))
+    K[:, :6, :6] = np.eye(6) + weight * np.swapaxes(Jw, 1, 2) @ Jw
+    K[:, :6, 6:] = np.swapaxes(Jp, 1, 2)
+    K[:, 6:, :6] = Jp
+    rhs = np.concatenate([-d + weight * (np.swapaxes(Jw, 1, 2) @ eo[..., None])[..., 0], ep], 1)
+    try:
+        x = np.linalg.solve(K, rhs[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        x = np.stack([np.linalg.lstsq(k, r, rcond=None)[0] for k, r in zip(K, rhs, strict=True)])
+    return x[:, :6]
+
+
+def solve_model_point_near(
+    model: ErrorModel,
+    columns: Mapping[str, np.ndarray] | None,
+    p: np.ndarray,
+    target_xyz: np.ndarray,
+    target_R: np.ndarray,
+    q0: np.ndarray,
+    weight: float = 1.0,
+    tol: float = 1e-10,
+    max_iter: int = 50,
+    start: np.ndarray | None = None,
+) -> IKResult:
+    """Encoder readings q (N, 6) for which a calibrated model predicts the points
+    ``target_xyz`` (N, 3) exactly, nearest ``q0`` (N, 6) in a balance of the joints' change and
+    the tool frame's turn from ``target_R`` (N, 3, 3): the minimum of ``|q - q0|^2 + weight *
+    |turn|^2`` (rad) on the point's three equations, by Newton steps on its KKT system.
+
+    This is the compensation of a singular pose. There the six equations of the pose have
+    solutions only far from ``q0`` (a wrist singularity turns joints 4 and 6 a long way, in
+    opposite senses, for a small turn across them; a stretched elbow bends by the square root of
+    the point's move), while the point alone is reached by a change of the order of the
+    correction, the orientation held to the same order. ``converged`` is the point's error
+    within ``tol`` (m); ``error`` is that error. The steps start at ``start`` (N, 6) (default
+    ``q0``): at a singular pose, a start off it on either side of its split
+    (:func:`singular_directions`) reaches the solution that Newton's steps from the pose itself,
+    where the point cannot move first-order, do not."""
+    target_xyz, q0, cols, p = _model_problem(columns, p, target_xyz, q0)
+    target_R = np.asarray(target_R, dtype=float).reshape(len(target_xyz), 3, 3)
+    robot = model.robot
+    q = np.clip(
+        q0.copy() if start is None else _batch(start, len(q0), (6,), "start"),
+        robot.lower,
+        robot.upper,
+    )
+    iters = np.zeros(len(q), dtype=int)
+    active = np.arange(len(q))
+    err = np.full(len(q), np.inf)
+    for _ in range(max_iter):
+        inputs = model.inputs(q[active], {k: v[active] for k, v in cols.items()})
+        xyz, R, Jp, Jw = model.joint_pose_jacobian(inputs, p)
+        ep = target_xyz[active] - xyz
+        err[active] = np.linalg.norm(ep, axis=1)
+        eo = rotation_vector(target_R[active] @ np.swapaxes(R, 1, 2))
+        dq = _kkt_step(Jp, Jw, ep, eo, q[active] - q0[active], weight)
+        done = (err[active] <= tol) & (np.abs(dq).max(axis=1) < 1e-12)
+        active = active[~done]
+        if not active.size:
+            break
+        step = dq[~done]
+        # a step the first-order model cannot be trusted for (a stretched elbow: the point's
+        # move goes with the square of the bend) is cut to 0.1 rad
+        step *= np.minimum(1.0, 0.1 / np.maximum(np.abs(step).max(axis=1), 1e-300))[:, None]
+        q[active] = np.clip(q[active] + step, robot.lower, robot.upper)
+        iters[active] += 1
+    if active.size:  # the last step's rows, at the joints returned
+        inputs = model.inputs(q[active], {k: v[active] for k, v in cols.items()})
+        err[active] = np.linalg.norm(target_xyz[active] - model.predict(inputs, p), axis=1)
+    return IKResult(q=q, converged=err <= tol, error=err, iterations=iters)
 
 
 # -- the closed form ---------------------------------------------------------------------------

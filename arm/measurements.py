@@ -27,7 +27,7 @@ import difflib
 import io
 import math
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -135,7 +135,9 @@ class MeasurementSet:
     standard uncertainty of those components (m, rad; NaN where the file states none), or None;
     ``orientation_form``, the form the file gave it in (``rotvec`` or ``rpy``), for writing it
     back; ``notes``, the warnings given when the file was read; ``sessions``, the files the set
-    was joined from (:mod:`arm.sessions`), () for a set read from one file or made in memory."""
+    was joined from (:mod:`arm.sessions`), () for a set read from one file or made in memory; ``labels``, the columns of
+    text (a ``set`` column of ``stationing`` rows), each row's cell as a string, which no fit or
+    effect reads."""
 
     q: np.ndarray
     xyz: np.ndarray
@@ -148,6 +150,7 @@ class MeasurementSet:
     orientation_form: str = "rotvec"
     notes: list[str] = field(default_factory=list)
     sessions: tuple[Session, ...] = ()
+    labels: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.q = np.asarray(self.q, dtype=float).reshape(-1, 6)
@@ -291,6 +294,7 @@ class MeasurementSet:
             self.orientation_form,
             list(self.notes),
             self.sessions,
+            {k: v[idx] for k, v in self.labels.items()},
         )
 
     def split(
@@ -349,7 +353,7 @@ class MeasurementSet:
                 "written (values must be finite, dir +-1, target and station integers)"
             )
         buf = io.StringIO()
-        buf.write(",".join(names) + "\n")
+        buf.write(",".join([*names, *self.labels]) + "\n")
         ints = {i for i, c in enumerate(names) if c in (*DIRS, *INTEGER_COLUMNS)}
 
         def cell(i: int, v: float) -> str:
@@ -357,8 +361,13 @@ class MeasurementSet:
                 return str(int(v))
             return "" if math.isnan(v) else repr(float(v))
 
-        for row in table:
-            buf.write(",".join(cell(i, v) for i, v in enumerate(row)) + "\n")
+        def text(t: str) -> str:
+            return f'"{t.replace(chr(34), chr(34) * 2)}"' if any(c in t for c in ',"') else t
+
+        labels = list(self.labels.values())
+        for r, row in enumerate(table):
+            cells = [cell(i, v) for i, v in enumerate(row)] + [text(str(x[r])) for x in labels]
+            buf.write(",".join(cells) + "\n")
         return buf.getvalue()
 
 
@@ -422,12 +431,14 @@ def concatenate(sets: Sequence[MeasurementSet], source: str | None = None) -> Me
     std = None
     if any(s.std is not None for s in sets):
         std = np.vstack([np.full((len(s), 6), np.nan) if s.std is None else s.std for s in sets])
+    shared = [c for c in sets[0].labels if all(c in s.labels for s in sets)]
     return MeasurementSet(
         np.vstack([s.q for s in sets]),
         np.vstack([s.xyz for s in sets]),
         {c: np.concatenate([s.columns[c] for s in sets]) for c in sets[0].columns},
         source or " + ".join(s.source for s in sets),
         std=std,
+        labels={c: np.concatenate([s.labels[c] for s in sets]) for c in shared},
     )
 
 
@@ -457,6 +468,9 @@ class NumericTable:
     values: np.ndarray
     lines: np.ndarray
     header_line: int = 1
+    # text columns (``text_columns``): each one's cells, and the line of its first text cell
+    labels: dict[str, np.ndarray] = field(default_factory=dict)
+    label_lines: dict[str, int] = field(default_factory=dict)
 
 
 def _lines(text: str) -> Iterator[str]:
@@ -510,6 +524,7 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
     columns: Sequence[str] | None = None,
     error: type[Exception] = MeasurementError,
     may_be_blank: Sequence[str] = (),
+    text_columns: bool = False,
 ) -> NumericTable:
     """Parse a CSV of numbers whose header names the ``required`` columns (and any others).
 
@@ -521,7 +536,9 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
     only trailing ones). ``columns``: read only these (others may hold anything), else every
     column. The columns read must have distinct, non-empty names and finite numbers in every row,
     except that a cell of a ``may_be_blank`` column may be empty (read as NaN: not measured);
-    ``error`` names the source, the line and the column of the first problem."""
+    ``error`` names the source, the line and the column of the first problem. ``text_columns``:
+    a column the format does not know (:data:`KNOWN`) that holds text (a cell neither a number
+    nor blank) is kept as labels (``labels``, the cells as strings), not refused."""
     # one row at a time into a growing array: a list of every row's cells would take 1.5 KB per
     # row of 200,000 (the text itself is a third of that)
     rows_in = _csv_rows(text, source, error)
@@ -546,23 +563,17 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
         if columns is None
         else [k for k, h in enumerate(header) if h in columns]
     )
-    seen: set[str] = set()
-    for k in read:
-        h = header[k]
-        if not h:
-            raise error(f"{source}, line {hline}: column {k + 1} has an empty name")
-        if h in seen:
-            raise error(f"{source}, line {hline}: column {h!r} appears twice")
-        seen.add(h)
-    missing = [c for c in required if c not in seen]
-    if missing:
-        raise error(
-            f"{source}, line {hline}: missing required column(s) {', '.join(missing)} "
-            f"(found: {', '.join(header)}){_header_cause(header, required)}"
-        )
+    _check_header(header, read, required, f"{source}, line {hline}", error)
     values = np.empty((1024, len(read)))
     line_of = np.empty(1024, dtype=int)
     n = 0
+    # the columns that may hold text: their cells as written, and the first cell of each that
+    # is no number (text: the column is labels; blank: refused unless some other cell is text)
+    raw: dict[int, list[str]] = (
+        {j: [] for j, k in enumerate(read) if header[k] not in KNOWN} if text_columns else {}
+    )
+    not_number: dict[int, tuple[int, str]] = {}
+    textual: set[int] = set()
     pending: list[tuple[int, int]] = []  # blank lines, allowed only at the end (no blank_lines)
     for r, row in rows_in:
         if _is_comment(row):
@@ -590,9 +601,17 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
             if may_be_blank and not cell.strip() and header[k] in may_be_blank:
                 values[n, j] = math.nan
                 continue
+            if j in raw:
+                raw[j].append(cell.strip())
             try:
                 v = float(cell)
             except ValueError:
+                if j in raw:  # text, or a blank judged once the column is read
+                    not_number.setdefault(j, (r, cell))
+                    if cell.strip():
+                        textual.add(j)
+                    values[n, j] = math.nan
+                    continue
                 extra = (
                     ""
                     if header[k] in KNOWN
@@ -608,9 +627,61 @@ def parse_numeric_csv(  # noqa: C901  (one reader: each branch a cell or a heade
             values[n, j] = v
         line_of[n] = r
         n += 1
-    values = values[:n].copy()
-    rows = line_of[:n].copy()
-    return NumericTable([header[k] for k in read], values, rows, hline)
+    names = [header[k] for k in read]
+    table = NumericTable(names, values[:n].copy(), line_of[:n].copy(), hline)
+    return _with_labels(table, raw, not_number, textual, source, error)
+
+
+def _check_header(
+    header: list[str],
+    read: list[int],
+    required: Sequence[str],
+    where: str,
+    error: type[Exception],
+) -> None:
+    """The columns read have distinct, non-empty names and the required ones are there."""
+    seen: set[str] = set()
+    for k in read:
+        h = header[k]
+        if not h:
+            raise error(f"{where}: column {k + 1} has an empty name")
+        if h in seen:
+            raise error(f"{where}: column {h!r} appears twice")
+        seen.add(h)
+    missing = [c for c in required if c not in seen]
+    if missing:
+        raise error(
+            f"{where}: missing required column(s) {', '.join(missing)} "
+            f"(found: {', '.join(header)}){_header_cause(header, required)}"
+        )
+
+
+def _with_labels(
+    table: NumericTable,
+    raw: Mapping[int, list[str]],
+    not_number: Mapping[int, tuple[int, str]],
+    textual: set[int],
+    source: str,
+    error: type[Exception],
+) -> NumericTable:
+    """``table`` with its text columns (``textual``, by position among those read) moved to
+    ``labels``; a column of numbers with a cell that is none (a blank) refused, naming it."""
+    for j, (r, cell) in not_number.items():
+        if j not in textual:  # a blank cell in a column of numbers
+            raise error(
+                f"{source}, line {r}, column {table.header[j]!r}: {cell.strip()!r} is not a "
+                "number (extra columns are kept for custom effects as numbers, or as labels "
+                "where they hold text)"
+            )
+    keep = [j for j in range(len(table.header)) if j not in textual]
+    return NumericTable(
+        [table.header[j] for j in keep],
+        table.values[:, keep],
+        table.lines,
+        table.header_line,
+        {table.header[j]: np.array(raw[j], dtype=str) for j in sorted(textual)},
+        {table.header[j]: not_number[j][0] for j in sorted(textual)},
+    )
 
 
 #: separators that a CSV written elsewhere may use instead of the comma
@@ -643,28 +714,40 @@ def as_measurements(data: MeasurementSet | str | Path) -> MeasurementSet:
 
 def read_measurements(
     path: str | Path,
-    length_unit: str = "m",
-    angle_unit: str = "rad",
+    length_unit: str | None = None,
+    angle_unit: str | None = None,
     min_rows: int = 1,
     orientation_unit: str | None = None,
     measured: Sequence[str] | None = None,
+    *,
+    fallback: tuple[str, str] = ("m", "rad"),
 ) -> MeasurementSet:
     """Read a measurement CSV (docs/format.md). ``length_unit`` (m|mm) applies to x, y, z and
     their stds; ``angle_unit`` (rad|deg) to q1..q6; ``orientation_unit`` (default
     ``angle_unit``) to the orientation columns and their stds. ``measured``: the components
     (of ``x y z rx ry rz``) the instrument measures, default every one the file has columns
-    for. ``#`` lines before the header are skipped; where one declares the angle unit (``q1..q6
-    in deg``, a poses file's), ``angle_unit`` must be that unit. Raises
+    for. ``#`` lines before the header are skipped; where one declares the units (``x, y, z in
+    mm``, ``q1..q6 in deg``: :func:`file_units`), a unit not given is that one, and one given
+    must be it; a unit neither given nor declared is ``fallback``'s (m, rad). Raises
     :class:`MeasurementError` naming file, line and column; warns (:class:`MeasurementWarning`)
     of columns the format does not know."""
     path = Path(path)
-    _length_factor(length_unit)
-    _angle_factor(angle_unit)
+    if length_unit is not None:
+        _length_factor(length_unit)
+    if angle_unit is not None:
+        _angle_factor(angle_unit)
     if orientation_unit is not None:
         _angle_factor(orientation_unit)
     text = read_text(path)
     return parse_measurements(
-        text, str(path), length_unit, angle_unit, min_rows, orientation_unit, measured
+        text,
+        str(path),
+        length_unit,
+        angle_unit,
+        min_rows,
+        orientation_unit,
+        measured,
+        fallback=fallback,
     )
 
 
@@ -701,27 +784,32 @@ def _unknown_columns(header: Sequence[str], source: str, line: int) -> list[str]
     return [
         f"{source}: column(s) {named} are not among the format's columns (docs/format.md): "
         "they are kept and offered to custom effects (inputs.column) and the diagnosis's "
-        "hints, and no catalogued effect reads them"
+        "hints, and no catalogued effect reads them (but a column named after an extra joint "
+        "of the robot file holds its value)"
     ]
 
 
 def parse_measurements(  # noqa: C901  (one reader: each branch a column family of docs/format.md)
     text: str,
     source: str,
-    length_unit: str = "m",
-    angle_unit: str = "rad",
+    length_unit: str | None = None,
+    angle_unit: str | None = None,
     min_rows: int = 1,
     orientation_unit: str | None = None,
     measured: Sequence[str] | None = None,
+    *,
+    fallback: tuple[str, str] = ("m", "rad"),
 ) -> MeasurementSet:
+    length_unit, angle_unit = file_units(text, source, length_unit, angle_unit, fallback)
     blanks = (*ORIENTATION_FORMS["rotvec"], *ORIENTATION_FORMS["rpy"], *STD_COLUMNS[3:])
-    table = parse_numeric_csv(text, source, (*JOINTS, *POSITION), may_be_blank=blanks)
-    _declared_unit(text, source, angle_unit)  # a poses file's line, kept when x, y, z were added
+    table = parse_numeric_csv(
+        text, source, (*JOINTS, *POSITION), may_be_blank=blanks, text_columns=True
+    )
     header, values = table.header, table.values
     n = values.shape[0]
     if n < min_rows:
         raise MeasurementError(f"{source}: {n} measurement rows, at least {min_rows} needed")
-    notes = _unknown_columns(header, source, table.header_line)
+    notes = _unknown_columns(header, source, table.header_line) + _label_notes(table, source)
     col = {h: values[:, k] for k, h in enumerate(header)}
 
     def check(name: str, ok: np.ndarray, what: str) -> None:
@@ -809,8 +897,32 @@ def parse_measurements(  # noqa: C901  (one reader: each branch a column family 
     for note in notes:
         warn(note, MeasurementWarning)
     return MeasurementSet(
-        q, xyz, other, source, table.lines, orientation, mask, std, form or "rotvec", notes
+        q,
+        xyz,
+        other,
+        source,
+        table.lines,
+        orientation,
+        mask,
+        std,
+        form or "rotvec",
+        notes,
+        labels=table.labels,
     )
+
+
+def _label_notes(table: NumericTable, source: str) -> list[str]:
+    """One note naming the text columns (kept as labels, ignored by the fits)."""
+    if not table.labels:
+        return []
+    named = ", ".join(
+        f"{h!r} ({str(table.labels[h][table.lines.tolist().index(r)])!r} on line {r})"
+        for h, r in table.label_lines.items()
+    )
+    return [
+        f"{source}: column(s) {named} hold text: kept as labels (MeasurementSet.labels), "
+        "ignored by the fits and offered to no effect"
+    ]
 
 
 def orientation_form(
@@ -923,25 +1035,65 @@ def write_poses(q: np.ndarray, path: str | Path, angle_unit: str = "rad") -> Non
 
 
 _DECLARED_UNIT = re.compile(r"^\s*#.*\bq1\.\.q6 in (\w+)")
+_DECLARED_LENGTH = re.compile(r"^\s*#.*\bx, ?y, ?z in (\w+)")
+
+
+def _declared(
+    text: str, source: str, pattern: re.Pattern[str], what: str, units: Mapping[str, float]
+) -> tuple[str, int] | None:
+    """The unit a ``#`` line before the header declares for ``what`` (``pattern``), with its
+    line number, or None; an unknown unit is refused, naming the line."""
+    for number, line in enumerate(_lines(text), start=1):
+        if not line.strip():
+            continue
+        if not line.lstrip().startswith("#"):
+            return None
+        m = pattern.match(line)
+        if m:
+            if m.group(1) not in units:
+                raise MeasurementError(
+                    f"{source}, line {number}: declares {what} in {m.group(1)!r}; "
+                    f"known units: {', '.join(sorted(units))}"
+                )
+            return m.group(1), number
+    return None
 
 
 def declared_angle_unit(text: str, source: str) -> tuple[str, int] | None:
     """The angle unit a poses file's ``#`` line declares (``q1..q6 in deg``), with its line
     number, or None where no such line precedes the header."""
-    for number, line in enumerate(text.splitlines(), start=1):
-        if not line.strip():
-            continue
-        if not line.lstrip().startswith("#"):
-            return None
-        m = _DECLARED_UNIT.match(line)
-        if m:
-            if m.group(1) not in ANGLE_UNITS:
-                raise MeasurementError(
-                    f"{source}, line {number}: declares q1..q6 in {m.group(1)!r}; "
-                    f"known angle units: {', '.join(sorted(ANGLE_UNITS))}"
-                )
-            return m.group(1), number
-    return None
+    return _declared(text, source, _DECLARED_UNIT, "q1..q6", ANGLE_UNITS)
+
+
+def declared_length_unit(text: str, source: str) -> tuple[str, int] | None:
+    """The length unit a measurement file's ``#`` line declares (``x, y, z in mm``), with its
+    line number, or None where no such line precedes the header."""
+    return _declared(text, source, _DECLARED_LENGTH, "x, y, z", LENGTH_UNITS)
+
+
+def file_units(
+    text: str,
+    source: str,
+    length_unit: str | None,
+    angle_unit: str | None,
+    fallback: tuple[str, str] = ("m", "rad"),
+) -> tuple[str, str]:
+    """The units to read a measurement file in: those given, else those its ``#`` lines declare
+    (``x, y, z in mm``, ``q1..q6 in deg``), else ``fallback``. A given unit that contradicts
+    the declared one is refused, naming the line: read in the wrong unit, every row would be
+    another."""
+    out = []
+    for given, found, what, option, default in (
+        (length_unit, declared_length_unit(text, source), "x, y, z", "--length-unit", fallback[0]),
+        (angle_unit, declared_angle_unit(text, source), "q1..q6", "--angle-unit", fallback[1]),
+    ):
+        if found is not None and given is not None and found[0] != given:
+            raise MeasurementError(
+                f"{source}, line {found[1]}: the file declares {what} in {found[0]}, but they "
+                f"were to be read in {given}; say {option} {found[0]}"
+            )
+        out.append(given or (found[0] if found else default))
+    return out[0], out[1]
 
 
 def _declared_unit(text: str, source: str, angle_unit: str | None, or_else: str = "") -> str | None:

@@ -120,7 +120,9 @@ class ParameterLayout:
 
 
 # --------------------------------------------------------------------------------------------------
-ParameterKind = Literal["row", "beta", "base", "tool", "tool_rotation", "joint", "global"]
+ParameterKind = Literal[
+    "row", "beta", "base", "tool", "tool_rotation", "joint", "global", "extra_joint"
+]
 
 #: the DH row families in the order of the table's columns (alpha, a, theta, d)
 ROW_FAMILIES = ("dalpha", "da", "dtheta", "dd")
@@ -140,6 +142,7 @@ _GRAMMAR = re.compile(
     r"|(?P<lumped>lc)(?P<lumped_i>[1-6])_(?P<link_axis>[xyz][1-6])"
     r"|(?P<joint>ts|tc|bl|lb|c|g)(?P<joint_i>[1-6])"
     r"|(?P<global>kappa)"
+    r"|(?P<extra>xs|xt1|xt2)_(?P<extra_name>[A-Za-z_][A-Za-z0-9_.-]*)"
 )
 
 # SI units of the catalogue's parameter families (docs/format.md, the parameter names)
@@ -171,6 +174,9 @@ _UNITS = {
     "bl": "rad",
     "lb": "rad",
     "kappa": "1/K",
+    "xs": "1",
+    "xt1": "rad",
+    "xt2": "rad",
 }
 
 
@@ -230,6 +236,8 @@ def parse_parameter_name(name: str) -> ParameterName | None:
         return ParameterName(name, "joint", "lc", int(g["lumped_i"]))
     if g["joint"] is not None:
         return ParameterName(name, "joint", g["joint"], int(g["joint_i"]))
+    if g["extra"] is not None:
+        return ParameterName(name, "extra_joint", g["extra"])
     return ParameterName(name, "global", g["global"])
 
 

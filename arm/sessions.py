@@ -105,6 +105,11 @@ def join_sessions(sets: Sequence[MeasurementSet], source: str | None = None) -> 
         orientation_form=forms.pop() if len(forms) == 1 else "rotvec",
         notes=[n for s in sets for n in s.notes],
         sessions=sessions,
+        labels={
+            c: np.concatenate([s.labels[c] for s in sets])
+            for c in sets[0].labels
+            if all(c in s.labels for s in sets)
+        },
     )
 
 

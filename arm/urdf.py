@@ -71,6 +71,7 @@ log = logging.getLogger(__name__)
 PARALLEL_TOL = 0.05
 GRAVITY = (0.0, 0.0, -9.81)  # m/s², in the root link's frame
 ARM_JOINTS = ("revolute", "continuous")
+EXTRA_JOINTS = ("prismatic", "revolute", "continuous")  # before the arm: a column, a table
 
 
 @dataclass(frozen=True)
@@ -113,6 +114,11 @@ class UrdfArm:
     # <coupling joint="joint3" on="joint2" factor="-1"/> under <robot>: (joint, on, factor) by
     # the arm's joint numbers 1..6, theta_joint = q_joint + factor q_on
     couplings: tuple[tuple[int, int, float], ...] = ()
+    # joints before the arm's base (a lifting column, a track, a rotary table; arm.extra_joints):
+    # (name, "prismatic" | "revolute", unit axis in its frame, origin 4x4 in the previous
+    # extra joint's frame, the first's in the base link's); ``base`` is then the last one's
+    # frame <- frame 0 (the description's mount), the base link its frame at value 0
+    extra: tuple[tuple[str, str, np.ndarray, np.ndarray], ...] = ()
 
 
 # -- small transforms -------------------------------------------------------------------------------
@@ -260,7 +266,8 @@ def _find_tip(links: dict, up: dict, anchor: str, source: str, base: str) -> str
             continue
         below = path[names.index(anchor) :] if anchor in names else []
         moving = _arm_joints(below)
-        if len(moving) == 6 and below and below[-1].type in ARM_JOINTS:
+        leading = next((k for k, j in enumerate(moving) if j.type != "prismatic"), len(moving))
+        if len(moving) - leading == 6 and below and below[-1].type in ARM_JOINTS:
             found.append(name)
     if len(found) == 1:
         return found[0]
@@ -294,6 +301,7 @@ def read_urdf(
     links, up, down, root = _tree(robot, src)
     base = root if base is None else base
     anchor, tip, joints = _arm_chain(links, up, base, tip, src)
+    extra, joints = joints[:-6], joints[-6:]
 
     # every link's pose at q = 0 relative to the anchor, the arm's subtree included
     pose = {anchor: np.eye(4)}
@@ -303,16 +311,16 @@ def read_urdf(
         for j in down[parent]:
             pose[j.child] = pose[parent] @ _origin(j, src)
             stack.append(j.child)
+    extras = _extras(extra, pose, base, src)
+    chain_base = base  # what a re-reading starts from (the extra joints found again)
+    if extra:  # the arm's frames in its own base link's: the last extra joint's child
+        base = extra[-1].child
     to_base = _inv(pose[base])
     world = {name: to_base @ T for name, T in pose.items()}  # in the base link's frame
     lines = []
     for j in joints:
-        axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=float)
-        n = float(np.linalg.norm(axis))
-        if not (math.isfinite(n) and n > 1e-9):
-            raise UrdfError(f"{src}: joint {j.name!r}: <axis xyz> is zero or not finite")
         J = world[j.child]
-        lines.append((J[:3, 3].copy(), J[:3, :3] @ (axis / n)))
+        lines.append((J[:3, 3].copy(), J[:3, :3] @ _axis(j, src)))
     F = _dh_frames(lines, world[tip])
     rows = _rows(F)
     check = mdh_frames(*rows, base=F[0])
@@ -325,7 +333,7 @@ def read_urdf(
     offsets = np.array([_inv(F[i + 1]) @ world[j.child] for i, j in enumerate(joints)])
     arm = UrdfArm(
         name=robot.name or Path(src).stem,
-        source=UrdfSource(text=text, path=src, base_link=base, tip_link=tip),
+        source=UrdfSource(text=text, path=src, base_link=chain_base, tip_link=tip),
         joint_names=tuple(j.name for j in joints),
         alpha=rows[0],
         a=rows[1],
@@ -342,11 +350,32 @@ def read_urdf(
         origins=np.array([_origin(j, src) for j in joints]),
         gravity=R_anchor_0.T @ np.array(GRAVITY),
         couplings=_couplings(text, [j.name for j in joints], src),
+        extra=extras,
     )
     log.info(
         "%s: arm %r from %r to %r, joints %s", src, arm.name, base, tip, ", ".join(arm.joint_names)
     )
     return arm
+
+
+def _axis(j, src: str) -> np.ndarray:
+    """A joint's unit ``<axis xyz>`` (URDF's default x)."""
+    axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), dtype=float)
+    n = float(np.linalg.norm(axis))
+    if not (math.isfinite(n) and n > 1e-9):
+        raise UrdfError(f"{src}: joint {j.name!r}: <axis xyz> is zero or not finite")
+    return axis / n
+
+
+def _extras(extra: Sequence[Any], pose: dict, base: str, src: str) -> tuple:
+    """The extra joints before the arm (:attr:`UrdfArm.extra`): each one's origin in the
+    previous one's frame (the first's in the base link's), at every value zero."""
+    out, prev = [], pose[base]
+    for j in extra:
+        kind = "prismatic" if j.type == "prismatic" else "revolute"
+        out.append((j.name, kind, _axis(j, src), _inv(prev) @ pose[j.child]))
+        prev = pose[j.child]
+    return tuple(out)
 
 
 def _couplings(text: str, names: Sequence[str], src: str) -> tuple[tuple[int, int, float], ...]:
@@ -410,7 +439,15 @@ def _arm_chain(
             "revolute joints only"
         )
     path = path[parents.index(anchor) :]
-    joints = _arm_joints(path)
+    moving = _arm_joints(path)
+    extra, joints = moving[:-6], moving[-6:]
+    for j in extra:
+        if j.type not in EXTRA_JOINTS or j.mimic is not None:
+            raise UrdfError(
+                f"{src}: joint {j.name!r} before the arm's six is {j.type}"
+                f"{' and mimics another' if j.mimic is not None else ''}: an extra joint before "
+                "the arm is prismatic or revolute"
+            )
     for j in joints:
         if j.type not in ARM_JOINTS:
             raise UrdfError(
@@ -424,7 +461,7 @@ def _arm_chain(
             f"{src}: {len(joints)} revolute joints between {base!r} and {tip!r} "
             f"({', '.join(j.name for j in joints) or 'none'}); the lab's arms have 6"
         )
-    return anchor, tip, joints
+    return anchor, tip, [*extra, *joints]
 
 
 def _limits(joints: Sequence[Any], src: str) -> tuple[list[float], list[float]]:
@@ -676,13 +713,18 @@ def urdf_of_chain(
     coms: np.ndarray,
     flange: np.ndarray | None = None,
     couplings: Sequence[tuple[int, int, float]] = (),
+    extra_joints: Sequence[tuple[str, str, np.ndarray, np.ndarray]] = (),
+    mount: np.ndarray | None = None,
 ) -> str:
     """A URDF of a modified-DH chain: links ``base_link`` (frame 0), ``link1`` .. ``link6`` (the
     DH frames), ``flange`` (frame 6 . ``flange``, fixed), revolute joints ``joint1`` .. ``joint6``
     about their z with the rows as origins (``RotX(alpha) RotY(beta) TransX(a) RotZ(theta_offset)
     TransZ(d)``, every float to its last bit), the links' masses at their centres of mass (point
     masses: a DH table carries no inertia), and the joints' couplings as ``<coupling joint on
-    factor/>`` elements. :func:`read_urdf` of it is the same chain."""
+    factor/>`` elements. Extra joints before the arm (:attr:`UrdfArm.extra`) hang from a link
+    ``root`` as joints of their own names and types, each moving a link ``NAME_link``, and the last
+    carries ``base_link`` at ``mount`` (fixed). :func:`read_urdf` of it is the same chain (the same
+    points: with extra joints its frame 0 may be placed otherwise along joint 1's axis)."""
     F = np.eye(4) if flange is None else np.asarray(flange, dtype=float)
     out = ['<?xml version="1.0" encoding="utf-8"?>', f'<robot name="{name}">']
 
@@ -704,7 +746,19 @@ def urdf_of_chain(
             f'    <origin xyz="{_fmt(T[:3, 3])}" rpy="{_fmt(rpy_of(T[:3, :3]))}"/>\n{extra}  </joint>'
         )
 
+    parent = None
+    for name, kind, axis, origin in extra_joints:
+        if parent is None:
+            link(parent := "root")
+        link(f"{name}_link")
+        limit = '    <limit lower="-1000.0" upper="1000.0" effort="0" velocity="0"/>\n'
+        joint(
+            name, kind, parent, f"{name}_link", origin, f'    <axis xyz="{_fmt(axis)}"/>\n' + limit
+        )
+        parent = f"{name}_link"
     link("base_link")
+    if parent is not None:
+        joint("mount", "fixed", parent, "base_link", np.eye(4) if mount is None else mount)
     for i in range(6):
         Q = rot_x(alpha[i]) @ rot_y(beta[i])
         T = _h(Q, Q @ np.array([a[i], 0.0, 0.0])) @ _h(

@@ -292,6 +292,12 @@ class Plant:
                 f"robot {robot.name!r} has coupled joints ({len(self.nominal.couplings)}): the "
                 "MuJoCo plant drives each joint on its own and does not represent them"
             )
+        if self.nominal.extra_joints:
+            raise PlantError(
+                f"robot {robot.name!r} stands on extra joints "
+                f"({', '.join(self.nominal.extra_names)}): the MuJoCo plant builds the arm "
+                "alone and does not represent them"
+            )
         self.elastic = bool(elastic)
         self.physics_dt = float(physics_dt)
         self.substeps = int(substeps)

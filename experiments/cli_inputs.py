@@ -39,9 +39,10 @@ from arm.constraints import (
     declare,
 )
 from arm.errors import SixAxisError
+from arm.files import is_file
 from arm.measurements import ANGLE_UNITS, LENGTH_UNITS
 from arm.noise import noise_law_problems
-from experiments.cli_output import console, err_console, fail, user_errors
+from experiments.cli_output import console, err_console, fail, record_cautions, user_errors
 from lab.options import LabOptions
 
 if TYPE_CHECKING:
@@ -57,6 +58,7 @@ __all__ = [
     "DeclaredError",
     "EffectsOpt",
     "ExportInputs",
+    "JointValueOpt",
     "JsonOpt",
     "JsonOutOpt",
     "LabArgs",
@@ -241,7 +243,27 @@ class LabInputs:
         flags=("--effects", "-e"),
     )
     validate: Path | None = declare(
-        None, help="Held-out measurements (same units) for validation RMS and median."
+        None,
+        help="Held-out measurements for validation RMS and median, in the units its '#' lines "
+        "declare ('# x, y, z in mm', '# q1..q6 in deg'), else --validate-length-unit and "
+        "--validate-angle-unit, else the data's.",
+    )
+    validate_length_unit: str | None = declare(
+        None,
+        OneOf(tuple(LENGTH_UNITS)),
+        help="Unit of x, y, z in the --validate file. Default: the one its '#' line declares, "
+        "else --length-unit.",
+    )
+    validate_angle_unit: str | None = declare(
+        None,
+        OneOf(tuple(ANGLE_UNITS)),
+        help="Unit of q1..q6 in the --validate file. Default: the one its '#' line declares, "
+        "else --angle-unit.",
+    )
+    accept_other_frame: bool = declare(
+        False,
+        help="Validate on held-out data that fit more than 100 times worse than the fitted "
+        "data (another frame or other units: refused without it, with a warning with it).",
     )
     near: Path | None = declare(
         None,
@@ -264,6 +286,13 @@ class LabInputs:
         "6-DoF rows): the station's frame is fitted on them alone, the arm as calibrated, and "
         "its residual printed; they stay out of any validation figure.",
         metavar="REFS.csv",
+    )
+    joint_value: list[str] | None = declare(
+        None,
+        help="Hold an extra joint of the arm (a lifting column, a track: [[extra_joints]] in a "
+        "robot TOML, a prismatic joint before the arm in a URDF) at a value, NAME=VALUE in the "
+        "robot file's units, where the data has no column of that name (repeatable).",
+        metavar="NAME=VALUE",
     )
     orientation_unit: str | None = declare(
         None,
@@ -309,6 +338,7 @@ class ExportInputs:
 
 
 ReferencesOpt = Annotated[Path | None, option_of(LabInputs, "references")]
+JointValueOpt = Annotated[list[str] | None, option_of(LabInputs, "joint_value")]
 RobotOpt = Annotated[str, option_of(LabInputs, "robot")]
 ModuleOpt = Annotated[list[Path] | None, option_of(LabInputs, "effect_module")]
 LengthOpt = Annotated[str, option_of(LabInputs, "length_unit")]
@@ -426,12 +456,19 @@ class LabArgs(LabInputs):
         )
         load_modules(self.effect_module)
         effects = parse_effects(self.effects)
-        arm = read_arm(self.robot)
+        arm = read_arm(self.robot, joint_values=self.joint_value)
         units = (self.length_unit, self.angle_unit, self.orientation_unit, self.measured)
         meas = read_sessions(data, *units)
-        val = (
-            None if self.validate is None else read_data(self.validate, *units, option="--validate")
-        )
+        val = None
+        if self.validate is not None:  # its own units: given, else declared, else the data's
+            val = read_data(
+                self.validate,
+                self.validate_length_unit,
+                self.validate_angle_unit,
+                *units[2:],
+                option="--validate",
+                fallback=(self.length_unit, self.angle_unit),
+            )
         return Read(arm, meas, val, opts, effects)
 
     def read_references(self) -> MeasurementSet | None:
@@ -606,14 +643,20 @@ def parse_effects(effects: str) -> list[Effect]:
     return parsed
 
 
-def read_arm(robot: str, flag: str = "--robot") -> RobotDescription:
+def read_arm(
+    robot: str, flag: str = "--robot", joint_values: Sequence[str] | None = None
+) -> RobotDescription:
+    """The arm of ``--robot`` (a calibrated URDF with its metrology file), its extra joints held
+    at ``--joint-value``'s values."""
     from arm.description import load_robot
     from arm.effects import check_robot_effects
+    from arm.extra_joints import parse_joint_values
 
     with user_errors(prefix=f"{flag}: "):
         arm = _calibrated_urdf(robot, flag) or load_robot(robot)
         check_robot_effects(arm, robot)  # after --effect-module registered its effects
-        return arm
+    with user_errors():
+        return arm.holding(parse_joint_values(joint_values or ()))
 
 
 def _calibrated_urdf(robot: str, flag: str) -> RobotDescription | None:
@@ -621,12 +664,12 @@ def _calibrated_urdf(robot: str, flag: str) -> RobotDescription | None:
     file lies beside it: the corrected chain with the tracker frame, the tool points and the
     effects' values, as ``--robot calibrated.toml`` gives them (None for any other robot)."""
     p = Path(robot)
-    if "#" in robot or p.suffix.lower() != ".urdf" or not p.is_file():
+    if "#" in robot or p.suffix.lower() != ".urdf" or not is_file(p):
         return None
     from lab.urdf_export import metrology_path, read_calibrated_urdf
 
     side = metrology_path(p)
-    if not side.is_file():
+    if not is_file(side):
         return None
     err_console.print(
         f"note: {flag} {escape(robot)}: read with {escape(str(side))} beside it (the tracker "
@@ -637,15 +680,17 @@ def _calibrated_urdf(robot: str, flag: str) -> RobotDescription | None:
 
 def read_data(
     path: Path,
-    length_unit: str,
-    angle_unit: str,
+    length_unit: str | None,
+    angle_unit: str | None,
     orientation_unit: str | None = None,
     measured: str | None = None,
     option: str = "",
+    fallback: tuple[str, str] = ("m", "rad"),
 ) -> MeasurementSet:
     """The measurement set of ``path``; the columns the format does not know are said (a
     ``MeasurementWarning``), not dropped. ``option`` (e.g. ``--validate``) is named in an error
-    about a file given by an option."""
+    about a file given by an option. A unit None is the one the file declares, else
+    ``fallback``'s (:func:`arm.measurements.file_units`)."""
     import warnings
 
     from arm.measurements import MeasurementWarning, read_measurements
@@ -660,9 +705,11 @@ def read_data(
             angle_unit=angle_unit,
             orientation_unit=orientation_unit,
             measured=parts,
+            fallback=fallback,
         )
     for w in caught:  # on stderr: stdout carries the command's output (with --json, only it)
         err_console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
+    record_cautions(caught)
     return data
 
 
@@ -702,6 +749,7 @@ def read_sessions(
         joined = join_sessions(sets)
     for w in caught:
         err_console.print(f"[yellow]warning:[/yellow] {escape(str(w.message))}", soft_wrap=True)
+    record_cautions(caught)
     return joined
 
 
@@ -721,7 +769,7 @@ def check_outputs(
     prints goes to stderr."""
     from arm.files import check_output, is_stdout
 
-    files = [Path(str(i)) for i in inputs if i is not None and Path(str(i)).is_file()]
+    files = [Path(str(i)) for i in inputs if i is not None and is_file(str(i))]
     seen: dict[Path, str] = {}
     for path, option in outputs:
         if path is None:

@@ -35,6 +35,7 @@ from experiments.cli_inputs import (
     DataArg,
     EffectsOpt,
     ExportInputs,
+    JointValueOpt,
     JsonOpt,
     JsonOutOpt,
     LabArgs,
@@ -59,6 +60,7 @@ from experiments.cli_inputs import (
     writing,
 )
 from experiments.cli_output import (
+    cautions_recorded,
     command_line,
     console,
     counted,
@@ -76,6 +78,7 @@ from experiments.cli_output import (
     say,
     steps,
     user_errors,
+    with_cautions,
 )
 from lab.options import ALPHA, CRITERIA, EXPORT_FORMATS, ORDER, ROUNDS, LabOptions, UpdateOptions
 
@@ -114,6 +117,7 @@ def _lab(ctx: typer.Context) -> None:
         previous = signal.signal(signal.SIGTERM, _terminated)
         ctx.call_on_close(lambda: signal.signal(signal.SIGTERM, previous))
     ctx.call_on_close(lambda: setattr(console, "stderr", False))  # after an output on stdout
+    ctx.with_resource(cautions_recorded())  # each caution said once, and kept for the JSON
 
 
 ExtrapolateOpt = Annotated[
@@ -128,7 +132,14 @@ ExtrapolateOpt = Annotated[
 
 
 def _fitted(
-    meas, arm, effects: list[Effect], opts: LabOptions, val, extrapolate: bool = False, refs=None
+    meas,
+    arm,
+    effects: list[Effect],
+    opts: LabOptions,
+    val,
+    extrapolate: bool = False,
+    accept_other_frame: bool = False,
+    refs=None,
 ):
     """The lab's fit of a command's data (``lab fit``, ``lab export``)."""
     from lab import fit
@@ -142,7 +153,18 @@ def _fitted(
             validate=val,
             references=refs,
             extrapolate=extrapolate,
+            accept_other_frame=accept_other_frame,
         )
+
+
+#: the options of held-out data, which a command without --validate takes none of
+VALIDATION = (
+    "validate",
+    "references",
+    "validate_length_unit",
+    "validate_angle_unit",
+    "accept_other_frame",
+)
 
 
 # -- fit --------------------------------------------------------------------------------------------
@@ -161,7 +183,7 @@ def fit_cmd(
     lab's JSON output (SI units)."""
     arm, meas, val, opts, effects = lab.read(data, [(out, "--out")], as_json)
     refs = lab.read_references()
-    result = _fitted(meas, arm, effects, opts, val, extrapolate, refs)
+    result = _fitted(meas, arm, effects, opts, val, extrapolate, lab.accept_other_frame, refs)
     expected = _expected(result, meas, lab, opts, val, extrapolate, refs)
     if not as_json:
         print_sessions(meas)
@@ -235,7 +257,7 @@ AlphaOpt = Annotated[float, declared(ALPHA, "alpha")]
 
 
 # -- diagnose ---------------------------------------------------------------------------------------
-@lab_command(app, "diagnose", omit=("validate", "references"))
+@lab_command(app, "diagnose", omit=VALIDATION)
 def diagnose_cmd(
     data: DataArg,
     lab: LabArgs,
@@ -274,7 +296,7 @@ DiscoverEffectsOpt = Annotated[
 @lab_command(
     app,
     "discover",
-    omit=("loss", "outliers", "accept_large", "f_scale_mm"),
+    omit=("loss", "outliers", "accept_large", "f_scale_mm", "accept_other_frame"),
     effects=DiscoverEffectsOpt,
 )
 def discover_cmd(
@@ -400,7 +422,7 @@ def bag_cmd(
             else b.result.validate(val, extrapolate=extrapolate, references=refs)
         )
         if val is not None:  # foreign held-out data: warned about as `lab fit` does
-            check_validation(result, val.source)
+            check_validation(result, val.source, lab.accept_other_frame)
     expected = _expected(b.result, meas, lab, opts, val, extrapolate, refs)
     written = None
     if output is not None and b.discovered is not None:
@@ -448,7 +470,7 @@ def _bag_choice(b: Any) -> dict[str, Any]:
 
 
 # -- report -----------------------------------------------------------------------------------------
-@lab_command(app, "report")
+@lab_command(app, "report", omit=("accept_other_frame",))
 def report_cmd(
     data: DataArg,
     output: Annotated[Path, typer.Option("--output", "-o", help="The HTML file to write.")] = Path(
@@ -722,7 +744,11 @@ def plan_cmd(
     with writing(output):
         write_poses(p.q, output, angle_unit)
     if as_json:
-        print(json_text(p.to_dict() | {"output": str(output), "angle_unit": angle_unit}))
+        print(
+            json_text(
+                with_cautions(p.to_dict() | {"output": str(output), "angle_unit": angle_unit})
+            )
+        )
     else:
         print_plan(p, criterion, output, angle_unit, poses=bool(noise_mrad))
 
@@ -951,7 +977,15 @@ def export_cmd(
     if export_format == "urdf":
         with user_errors():  # before the fit: a TOML arm has no URDF to correct
             require_urdf(arm)
-    result = _fitted(meas, arm, effects, opts, val, refs=lab.read_references())
+    result = _fitted(
+        meas,
+        arm,
+        effects,
+        opts,
+        val,
+        accept_other_frame=lab.accept_other_frame,
+        refs=lab.read_references(),
+    )
     say(result.summary())
     if export_format == "urdf":
         with user_errors(), writing(output):
@@ -1070,6 +1104,7 @@ def compensate_cmd(
     length_unit: LengthOpt = INPUTS.length_unit,
     angle_unit: AngleOpt = INPUTS.angle_unit,
     references: ReferencesOpt = None,
+    joint_value: JointValueOpt = None,
     keep_unreached: Annotated[
         bool,
         typer.Option(
@@ -1098,8 +1133,8 @@ def compensate_cmd(
     inputs = [targets, robot, *([nominal] if nominal else []), *(effect_module or ())]
     check_outputs([(output, "--output")], [*inputs, references], as_json)
     load_modules(effect_module)
-    cal = read_arm(robot)
-    nom = read_arm(nominal, "--nominal") if nominal is not None else None
+    cal = read_arm(robot, joint_values=joint_value)
+    nom = read_arm(nominal, "--nominal", joint_value) if nominal is not None else None
     refs = None
     if references is not None:
         refs = read_data(references, length_unit, angle_unit, option="--references")
@@ -1125,6 +1160,6 @@ def compensate_cmd(
         write_joints(comp, output)
     summary = comp.to_dict() | {"output": str(output)}
     if as_json:
-        print(json_text(summary))
+        print(json_text(with_cautions(summary)))
     else:
         print_compensation(comp, summary, output)

@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 import shlex
+import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, NoReturn
@@ -273,6 +275,67 @@ def _json_safe(obj: Any) -> Any:
     return obj
 
 
+# -- cautions ---------------------------------------------------------------------------------------
+class _Once(logging.Filter):
+    """Lets a log record through once per command: a caution the lab gives at each of its fits
+    (a poor pose set, at the screen's fit and at the refit) is said once."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: set[tuple[int, str]] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        key = (record.levelno, record.getMessage())
+        new = key not in self.seen
+        self.seen.add(key)
+        return new
+
+
+_cautions: list[warnings.WarningMessage] | None = None
+
+
+@contextlib.contextmanager
+def cautions_recorded() -> Iterator[None]:
+    """Within a lab command: every caution of the project (an :class:`arm.errors.SixAxisWarning`)
+    is recorded for the JSON (:func:`with_cautions`), and each log record is said once."""
+    global _cautions
+    from arm.errors import SixAxisWarning
+
+    # a filter per handler: a record goes through each (pytest's two among them)
+    filters = [(h, _Once()) for h in logging.getLogger().handlers]
+    for h, once in filters:
+        h.addFilter(once)
+    previous = _cautions
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SixAxisWarning)
+        _cautions = caught
+        try:
+            yield
+        finally:
+            _cautions = previous
+            for h, once in filters:
+                h.removeFilter(once)
+
+
+def record_cautions(caught: Sequence[warnings.WarningMessage]) -> None:
+    """Add warnings that a reader caught (and said) itself to the command's record."""
+    if _cautions is not None:
+        _cautions.extend(caught)
+
+
+def with_cautions(obj: dict) -> dict:
+    """``obj`` with ``warnings``: every caution the command gave, once each, in order, as
+    ``{"code": its class name, "message": ...}`` (docs/format.md, the lab's JSON output)."""
+    seen: set[tuple[str, str]] = set()
+    out = []
+    for w in _cautions or ():
+        key = (w.category.__name__, str(w.message))
+        if key not in seen:
+            seen.add(key)
+            out.append({"code": key[0], "message": key[1]})
+    return obj | {"warnings": out}
+
+
 def json_text(obj: dict) -> str:
     """A result's JSON object as text (strict JSON: NaN and inf are null)."""
     return json.dumps(_json_safe(obj), indent=2, allow_nan=False)
@@ -283,7 +346,7 @@ def emit_json(obj: dict, as_json: bool, out: Path | None) -> None:
     nothing else), else say where it went."""
     from arm.files import OutputError, atomic_write_text, is_stdout
 
-    text = json_text(obj)
+    text = json_text(with_cautions(obj))
     if out is not None:
         try:
             atomic_write_text(out, text + "\n")
@@ -579,10 +642,18 @@ def print_compensation(comp: Any, summary: dict[str, Any], output: Path) -> None
             highlight=False,
             soft_wrap=True,
         )
-    if summary["not_converged"]:
+    for kind, rows in summary["singular"].items():
+        console.print(
+            f"[yellow]singular poses ({kind}: the point solved alone, the start's split of "
+            "the joints kept, the orientation held as near as that allows):[/yellow] rows "
+            f"{', '.join(str(i + 1) for i in rows[:20])}",
+            highlight=False,
+            soft_wrap=True,
+        )
+    if summary["unreachable"]:
         console.print(
             f"[yellow]not reached (out of reach, or only beyond the joint limits):[/yellow] rows "
-            f"{', '.join(str(i + 1) for i in summary['not_converged'][:20])}",
+            f"{', '.join(str(i + 1) for i in summary['unreachable'][:20])}",
             highlight=False,
             soft_wrap=True,
         )

@@ -28,7 +28,14 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from arm.files import OutputError, atomic_write_text, folder_problem, make_folders, shown
+from arm.files import (
+    OutputError,
+    atomic_write_text,
+    folder_problem,
+    is_dir,
+    make_folders,
+    shown,
+)
 from experiments.errors import RecordError
 
 __all__ = [
@@ -278,7 +285,7 @@ class RunStore:
 
     def load(self, run_key: str) -> dict[str, Any] | None:
         p = self.path(run_key)
-        return load_record(p) if p.exists() else None
+        return load_record(p) if os.path.exists(p) else None
 
     def write(self, record: Mapping[str, Any]) -> Path:
         """Write (or replace) a record atomically: readers see the old file or the whole new one.
@@ -292,7 +299,7 @@ class RunStore:
         return p
 
     def paths(self) -> list[Path]:
-        if not self.root.is_dir():
+        if not is_dir(self.root):
             return []
         return sorted(p for p in self.root.glob("*.json") if not p.name.startswith(("_", ".")))
 
@@ -310,7 +317,7 @@ class RunStore:
 
     def manifest(self) -> dict[str, Any] | None:
         p = self.root / MANIFEST
-        if not p.exists():
+        if not os.path.exists(p):
             return None
         try:
             manifest = json.loads(p.read_text(encoding="utf-8"))
@@ -350,7 +357,7 @@ def repo_path(path: str | Path | None) -> str | None:
         return None
     p = Path(path)
     try:
-        if not p.exists():
+        if not os.path.exists(p):
             return str(path)
         resolved = p.resolve()
     except OSError:

@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from arm.files import is_file
 from experiments.errors import ReproduceError
 from experiments.metrics import METRICS
 from experiments.records import git_state, source_root
@@ -354,7 +355,7 @@ def check_row(row: Mapping[str, str], path: Path, line: int) -> None:
         raise ReproduceError(f"{where}: names no commit")
     if not row.get("config_path"):
         raise ReproduceError(f"{where}: names no config (column config_path is empty)")
-    if Path(row["config_path"]).is_absolute() and not Path(row["config_path"]).is_file():
+    if Path(row["config_path"]).is_absolute() and not is_file(row["config_path"]):
         raise ReproduceError(
             f"{where}: the config {row['config_path']} (outside the repository, where the sweep "
             "found it) is not there any more"
@@ -446,7 +447,7 @@ def reproduce_rows(
             with tempfile.TemporaryDirectory(prefix="sixaxis-reproduce-") as tmp:
                 tree = export_commit(commit, Path(tmp), root)
                 missing = [
-                    it["config_path"] for it in items if not (tree / it["config_path"]).is_file()
+                    it["config_path"] for it in items if not is_file(tree / it["config_path"])
                 ]
                 if missing:
                     raise ReproduceError(

@@ -38,6 +38,7 @@ if TYPE_CHECKING:
         PoorPoseSetWarning,
         RegistrationError,
         RowsLeftOutWarning,
+        ValidationMismatchError,
         ValidationMismatchWarning,
     )
     from lab.estimation import identifiability_of
@@ -68,6 +69,7 @@ _HOME = {
     "LabError": "lab.errors",
     "LabWarning": "lab.errors",
     "NoiseRefutedError": "lab.errors",
+    "ValidationMismatchError": "lab.errors",
     "ValidationMismatchWarning": "lab.errors",
     "OrientationNotFittedWarning": "lab.errors",
     "PoorPoseSetWarning": "lab.errors",
@@ -123,6 +125,7 @@ __all__ = [
     "RowsLeftOutWarning",
     "Screen",
     "StationRegistration",
+    "ValidationMismatchError",
     "ValidationMismatchWarning",
     "analyse",
     "bag",

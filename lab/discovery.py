@@ -91,7 +91,7 @@ from arm.effects import (
     Effect,
     order_reading,
 )
-from arm.files import atomic_write_text
+from arm.files import atomic_write_text, is_dir
 from arm.measurements import MeasurementSet
 from lab.errors import FitError
 from lab.identifiability import orthonormal_basis
@@ -613,7 +613,7 @@ def check_module_path(path: str | Path) -> Path:
     """``path`` if an effect module can be written there (a ``.py`` file: ``--effect-module``
     imports it), else a :class:`FitError`."""
     path = Path(path)
-    if path.suffix != ".py" and not path.is_dir():
+    if path.suffix != ".py" and not is_dir(path):
         raise FitError(f"{path}: the effect module must be a .py file")
     return path
 

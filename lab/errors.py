@@ -37,6 +37,7 @@ __all__ = [
     "UncertaintyError",
     "UnknownOptionError",
     "UpdateWarning",
+    "ValidationMismatchError",
     "ValidationMismatchWarning",
 ]
 
@@ -80,6 +81,12 @@ class CompensationError(LabError, ValueError):
 
 class ReportError(LabError, ValueError):
     """A part of a report asked of a run that has none (the nominal arm's fit or diagnosis)."""
+
+
+class ValidationMismatchError(FitError):
+    """Held-out data fit more than :data:`lab.sanity.VALIDATION_FOREIGN` times worse than the
+    fitted data (:func:`lab.sanity.check_validation`): another frame or other units, so that the
+    validation figures would mean nothing; refused unless ``accept_other_frame``."""
 
 
 class LabWarning(SixAxisWarning):

@@ -29,7 +29,14 @@ the calibrated model). The compensated joint angles solve the six equations of t
 calibrated model, every effect included (:func:`arm.ik.solve_model_pose`), starting at the
 program and staying on its branch: damped steps from it, each taken only where it lowers the error,
 follow the branch the program is on (targets whose joints move more than :data:`FAR_RAD` are
-named: near a wrist singularity, where joints 4 and 6 share a turn). Without a program the start is the nominal arm's inverse kinematics,
+named). At a singular start (:func:`arm.ik.singularity`: axes 4 and 6 aligned, the elbow
+stretched) the six equations have solutions only far from it, joints 4 and 6 turned a long way in
+opposite senses or the elbow bent by the square root of the correction: there, where the start is
+a solution within the calibration's correction and the six equations' solution moves a joint more
+than :data:`SPLIT_RAD` (or is not found), the point is solved alone, the joints kept near
+the start (its split of joints 4 and 6) and the orientation as near the target's as that allows
+(:func:`arm.ik.solve_model_point_near`); such targets are named singular, and those not reached
+either unreachable or singular. Without a program the start is the nominal arm's inverse kinematics,
 the nominal arm placed by the calibration's base and tool (:func:`nominal_arm`): the nominal arm
 defaults to the one the calibrated file records (``[nominal]``, written by :func:`export_robot`).
 A targets file with neither joint angles nor an orientation is refused: the point alone leaves
@@ -50,11 +57,19 @@ from pathlib import Path
 import numpy as np
 
 from arm.description import RobotDescription, load_robot, vec3
-from arm.effect_api import EffectError
+from arm.effect_api import EffectError, ModelInputs
 from arm.effects import EFFECTS
 from arm.errormodel import ErrorModel
 from arm.files import OutputError, atomic_write_text
-from arm.ik import IKResult, InverseKinematics, solve_model_pose, solve_position
+from arm.ik import (
+    IKResult,
+    InverseKinematics,
+    singular_directions,
+    singularity,
+    solve_model_point_near,
+    solve_model_pose,
+    solve_position,
+)
 from arm.measurements import (
     ANGLE_UNITS,
     JOINTS,
@@ -97,8 +112,12 @@ log = logging.getLogger(__name__)
 # carries every float to its last bit in m/rad; mm/deg conversions cost a few ulp: ~1e-15 m).
 EXPORT_TOL = 1e-9
 # rad: a compensated joint angle this far from its start is named (a calibration moves the joints
-# by milliradians; this much only near a wrist singularity, where joints 4 and 6 share a turn)
+# by milliradians)
 FAR_RAD = 0.2
+# rad: at a singular start, a solution of the pose's six equations that moves no joint more than
+# this is kept; beyond it the point is solved alone, the start's split of the joints kept (the
+# joints a calibration moves by milliradians would turn by tens or hundreds there)
+SPLIT_RAD = 0.01
 
 
 # --------------------------------------------------------------------------------------------------
@@ -493,6 +512,7 @@ class Compensation:
     orientation: str
     # the station the targets were given in, registered from reference points measured there
     registration: StationRegistration | None = None
+    singular: np.ndarray | None = None  # (N,) of str: each start's singularity, "" for none
 
     @property
     def n(self) -> int:
@@ -537,29 +557,59 @@ class Compensation:
             "max_joint_change_mrad": float(change.max()),
             "far_from_start": [int(i) for i in np.flatnonzero(change > 1e3 * FAR_RAD)],
             "median_joint_change_mrad": 1e3 * float(np.median(np.abs(self.q - self.q_start))),
+            "singular": self.singular_rows(),
+            "unreachable": [int(i) for i in np.flatnonzero(~self.converged & ~self._singular)],
             "source": self.targets.source,
             "registration": None if self.registration is None else self.registration.to_dict(),
         }
 
-    def unreached(self) -> CompensationError | None:
-        """The error that names the targets the compensated joint angles do not reach (out of
-        reach, or only beyond the joint limits on the start's branch), or None when every solve
-        met its tolerance."""
-        bad = np.flatnonzero(~self.converged)
-        if not bad.size:
-            return None
-        t = self.targets
-        miss = self.error_mm
+    @property
+    def _singular(self) -> np.ndarray:
+        kinds = self.singular if self.singular is not None else np.full(self.n, "", dtype=object)
+        return np.asarray(kinds != "", dtype=bool)
+
+    def singular_rows(self) -> dict[str, list[int]]:
+        """The targets (0-based rows) whose start is at a singular pose, by its kind (wrist,
+        elbow, elbow+wrist...): their point is reached with the start's split of the joints
+        kept, the orientation held as near as that allows (``turn``)."""
+        out: dict[str, list[int]] = {}
+        for i in np.flatnonzero(self._singular):
+            out.setdefault(str(self.singular[i]), []).append(int(i))  # type: ignore[index]
+        return out
+
+    def _named(self, rows: np.ndarray) -> str:
+        t, miss = self.targets, self.error_mm
         shown = "; ".join(
             f"{t.row_name(int(i))}: ({', '.join(f'{v:.4g}' for v in t.xyz[i])}) m missed by "
-            f"{miss[i]:.4g} mm"
-            for i in bad[:5]
+            f"{miss[i]:.4g} mm" + (f", {self.singular[i]} singularity" if self._singular[i] else "")  # type: ignore[index]
+            for i in rows[:5]
         )
-        more = f"; and {bad.size - 5} more" if bad.size > 5 else ""
+        return shown + (f"; and {rows.size - 5} more" if rows.size > 5 else "")
+
+    def unreached(self) -> CompensationError | None:
+        """The error that names the targets the compensated joint angles do not reach, or None
+        when every solve met its tolerance: those out of the arm's reach (or only beyond its
+        joint limits on the start's branch), and apart from them those at a singular pose
+        (where the arm cannot move the point towards the target at all), each with its row."""
+        bad = ~self.converged
+        if not bad.any():
+            return None
+        far, sing = np.flatnonzero(bad & ~self._singular), np.flatnonzero(bad & self._singular)
+        branch = "the program" if self.start == "program" else "the nominal solution"
+        parts = []
+        if far.size:
+            parts.append(
+                f"{far.size} unreachable ({self._named(far)}): out of the arm's reach, or only "
+                f"beyond its joint limits on the branch of {branch}"
+            )
+        if sing.size:
+            parts.append(
+                f"{sing.size} at a singular pose ({self._named(sing)}): the arm, stretched or "
+                "with axes 4 and 6 aligned, cannot move the point towards the target there"
+            )
         return CompensationError(
-            f"{t.source}: {bad.size} of {self.n} targets not reached ({shown}{more}): out of the "
-            "arm's reach, or only beyond its joint limits on the branch of "
-            + ("the program" if self.start == "program" else "the nominal solution")
+            f"{self.targets.source}: {int(bad.sum())} of {self.n} targets not reached: "
+            + "; ".join(parts)
         )
 
     def to_csv(self) -> str:
@@ -846,6 +896,87 @@ def _within_domain(
     return res._replace(q=q, converged=converged), e, turn
 
 
+def _singular_starts(
+    model: ErrorModel,
+    nom_model: ErrorModel,
+    cols: Mapping[str, np.ndarray],
+    p: np.ndarray,
+    inp_start: ModelInputs,
+    e_start: np.ndarray,
+) -> np.ndarray:
+    """Each start's singularity (N,) of str: ``""``, ``"wrist"``, ``"elbow"``,
+    ``"elbow+wrist"``... (:func:`arm.ik.singularity`, on the calibrated model), where the start
+    is a solution within the calibration's correction (the calibrated model's error there at
+    most twice the distance between the calibrated and the nominal arm's points): a target
+    farther from its start is no singular pose of the program but a target elsewhere."""
+    _, _, Jp, Jw = model.joint_pose_jacobian(inp_start, p)
+    kinds = singularity(Jp, Jw)[1]
+    nominal = nom_model.predict(nom_model.inputs(inp_start.q, cols), nom_model.nominal())
+    correction = np.linalg.norm(model.predict(inp_start, p) - nominal, axis=1)
+    kinds[np.linalg.norm(e_start, axis=1) > 2.0 * correction + 1e-6] = ""
+    return kinds
+
+
+def _keep_split(
+    model: ErrorModel,
+    cols: Mapping[str, np.ndarray],
+    p: np.ndarray,
+    xyz: np.ndarray,
+    R: np.ndarray,
+    q_start: np.ndarray,
+    singular: np.ndarray,
+    res: IKResult,
+    e_start: np.ndarray,
+    tol: float,
+) -> IKResult:
+    """The solution with the singular poses solved again for their point exactly, their joints
+    near the start and their orientation as near the target's as that allows
+    (:func:`arm.ik.solve_model_point_near`): the six equations there have solutions only far
+    from the start (joints 4 and 6 turned a long way in opposite senses), or none. A singular
+    pose whose six equations were solved with no joint moved more than :data:`SPLIT_RAD` keeps
+    that solution, and is no longer named in ``singular`` (changed in place)."""
+    singular[res.converged & (np.abs(res.q - q_start).max(axis=1) <= SPLIT_RAD)] = ""
+    rows = np.flatnonzero(singular != "")
+    if not rows.size:
+        return res
+    sub = _take(cols, rows)
+    args = (model, sub, p, xyz[rows], R[rows], q_start[rows])
+    near = solve_model_point_near(*args, tol=tol)
+    # at the singularity itself the point may not move first-order: starts off it on either
+    # side of the split, the one that reaches the point with the least change kept
+    _, _, Jp, Jw = model.joint_pose_jacobian(model.inputs(q_start[rows], sub), p)
+    for v in np.swapaxes(singular_directions(Jp, Jw), 0, 1):
+        for side in (1.0, -1.0):
+            other = solve_model_point_near(*args, tol=tol, start=q_start[rows] + side * 0.05 * v)
+            change = np.abs(other.q - q_start[rows]).max(axis=1)
+            take = other.converged & (
+                ~near.converged | (change < np.abs(near.q - q_start[rows]).max(axis=1))
+            ) | (~near.converged & (other.error < near.error))
+            near = IKResult(
+                *(
+                    np.where(take.reshape(-1, *[1] * (x.ndim - 1)), y, x)
+                    for x, y in zip(near, other, strict=True)
+                )
+            )
+    q, converged, err = res.q.copy(), res.converged.copy(), res.error.copy()
+    # the point reached near the start, else the six equations' solution where they have one,
+    # else the nearer of the point's best and the start
+    use = near.converged | ~res.converged[rows]
+    stay = use & ~near.converged & (np.linalg.norm(e_start[rows], axis=1) < near.error)
+    q[rows[use]], converged[rows[use]], err[rows[use]] = (
+        near.q[use],
+        near.converged[use],
+        near.error[use],
+    )
+    q[rows[stay]] = q_start[rows[stay]]
+    log.info(
+        "%d target(s) at a singular pose: the point reached, the program's split of the joints "
+        "kept, the orientation held as near as that allows",
+        rows.size,
+    )
+    return res._replace(q=q, converged=converged, error=err)
+
+
 def _nominal_start(
     cal: RobotDescription,
     nom_model: ErrorModel,
@@ -899,6 +1030,32 @@ def _nominal_of(
     return (cal.nominal if cal.nominal is not None else cal), cal.nominal is None and calibrated
 
 
+def _target_set(targets: TargetSet | np.ndarray, free_orientation: bool) -> TargetSet:
+    """The targets as a set (points (N, 3) alone as given), refused where there are none or
+    where they fix no orientation and none is asked to be free."""
+    if not isinstance(targets, TargetSet):
+        targets = TargetSet(np.asarray(targets, dtype=float).reshape(-1, 3))
+    if len(targets) == 0:
+        raise CompensationError(f"{targets.source}: no targets")
+    if targets.q is None and targets.R is None and not free_orientation:
+        raise CompensationError(
+            f"{targets.source}: the targets have neither the program's joint angles (q1..q6) nor "
+            "an orientation (rvx, rvy, rvz or roll, pitch, yaw), so the tool's orientation is "
+            "free and the arm may turn its wrist anyhow; give one of them, or ask for a free "
+            "orientation (--free-orientation)"
+        )
+    return targets
+
+
+def _say_unrecorded(cal: RobotDescription, unrecorded: bool) -> None:
+    if unrecorded:
+        log.warning(
+            "%s records no nominal arm (not written by lab export): its own table is taken "
+            "as the nominal one; give the arm the controller believes in (--nominal)",
+            cal.name,
+        )
+
+
 def compensate(
     robot: RobotDescription | str | Path,
     targets: TargetSet | np.ndarray,
@@ -938,18 +1095,8 @@ def compensate(
         if references is None or isinstance(references, StationRegistration)
         else register_references(cal, references)
     )
-    if not isinstance(targets, TargetSet):
-        targets = TargetSet(np.asarray(targets, dtype=float).reshape(-1, 3))
+    targets = _target_set(targets, free_orientation)
     n = len(targets)
-    if n == 0:
-        raise CompensationError(f"{targets.source}: no targets")
-    if targets.q is None and targets.R is None and not free_orientation:
-        raise CompensationError(
-            f"{targets.source}: the targets have neither the program's joint angles (q1..q6) nor "
-            "an orientation (rvx, rvy, rvz or roll, pitch, yaw), so the tool's orientation is "
-            "free and the arm may turn its wrist anyhow; give one of them, or ask for a free "
-            "orientation (--free-orientation)"
-        )
     nom, unrecorded = _nominal_of(cal, nominal)
     cal = cal.to_modified()
     cols = dict(targets.columns) | {
@@ -973,24 +1120,23 @@ def compensate(
         R = model.predict_pose(model.inputs(targets.q, cols, source=targets.source), p)[1]
 
     # the start: the program, else the nominal arm's inverse kinematics
+    nom_model = calibrated_model(nominal_arm(cal, nom), model_targets)
     if targets.q is not None:
         q_start, ok_start, start = np.array(targets.q, dtype=float), np.ones(n, bool), "program"
     else:
-        if unrecorded:
-            log.warning(
-                "%s records no nominal arm (not written by lab export): its own table is taken "
-                "as the nominal one; give the arm the controller believes in (--nominal)",
-                cal.name,
-            )
-        nom_model = calibrated_model(nominal_arm(cal, nom), model_targets)
+        _say_unrecorded(cal, unrecorded)
         q_start, ok_start = _nominal_start(cal, nom_model, cols, xyz, R, tol, seed)
         start = "nominal_ik"
 
-    # the calibrated model, from the start, on its branch
+    # the calibrated model, from the start, on its branch; at a singular pose, the start's split
+    # of the joints kept
     res = _solve(model, cols, p, xyz, R, q_start, tol)
     inp_start = model.inputs(q_start, cols, source=targets.source)
-    inp = model.inputs(res.q, cols, source=targets.source)
     e_start = model.predict(inp_start, p) - xyz
+    singular = _singular_starts(model, nom_model, cols, p, inp_start, e_start)
+    if R is not None:
+        res = _keep_split(model, cols, p, xyz, R, q_start, singular, res, e_start, tol)
+    inp = model.inputs(res.q, cols, source=targets.source)
     point, Rq = model.predict_pose(inp, p)
     e = point - xyz
     turn = _turn(R, Rq)
@@ -1014,4 +1160,5 @@ def compensate(
         start=start,
         orientation=orientation,
         registration=registered,
+        singular=singular,
     )

@@ -51,6 +51,7 @@ def fit(
     start: Mapping[str, float] | None = None,
     fixed: Iterable[str] = (),
     extrapolate: bool = False,
+    accept_other_frame: bool = False,
     **keywords: Unpack[OptionFields],
 ) -> FitResult:
     """Identify ``effects`` (default geometric) of ``robot`` (default the seed arm) from
@@ -69,9 +70,11 @@ def fit(
 
     ``validate``: held-out measurements for validation RMS and median; where they lie outside
     the fitted domain a warning says so, and terms whose form does not repeat over what was
-    fitted are left out of those rows unless ``extrapolate`` (:mod:`lab.domain`);
-    ``references``: poses measured at a station of the held-out data that the fit has not seen,
-    which register it (:meth:`lab.FitResult.validate`). ``start``:
+    fitted are left out of those rows unless ``extrapolate`` (:mod:`lab.domain`); held-out data
+    more than 100 times worse than the fit's are refused as another frame's or other units'
+    (:func:`lab.sanity.check_validation`) unless ``accept_other_frame``; ``references``: poses
+    measured at a station of the held-out data that the fit has not seen, which register it
+    (:meth:`lab.FitResult.validate`). ``start``:
     starting values by name; ``fixed``: names to hold at their starting value.
     """
     opts = resolve(options, **keywords)
@@ -83,6 +86,6 @@ def fit(
     held = held_out(validate, references)
     if held is not None:
         result = result.validate(held[0], extrapolate=extrapolate, references=held[1])
-        check_validation(result, held[0].source)
+        check_validation(result, held[0].source, accept_other_frame)
     log.info("%s", result.summary())
     return result

@@ -120,6 +120,13 @@ class LabOptions:
         help="Needed to weigh orientation rows against positions (or std_rx, "
         "std_ry, std_rz columns).",
     )
+    min_identified: float = declare(
+        1 / 3,
+        Interval(float, 0.0, 1.0),
+        help="Refuse a campaign whose poses identify less than this share of the parameters "
+        "fitted, saying what to measure (one pose identifies 3 of 33; a full campaign about "
+        "3/4); 0 fits whatever the poses determine, as an agent's short calibration phase does.",
+    )
     measured: tuple[str, ...] | None = declare(
         None,
         help="The components (of x y z rx ry rz) to fit, default every one the data measured "
@@ -170,6 +177,7 @@ class OptionFields(TypedDict, total=False):
     register: bool
     noise_ppm: float
     noise_mrad: float | None
+    min_identified: float
     measured: tuple[str, ...] | None
 
 

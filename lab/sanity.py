@@ -11,6 +11,9 @@ slip (another arm's or another frame's held-out data, a noise in the wrong unit)
   tenths of a millimetre), come from elsewhere: another arm, another frame (a tracker moved, a
   registration not applied), other units, or poses far outside the region calibrated. The
   fit stands; a :class:`lab.ValidationMismatchWarning` names the file and the likely cause.
+  Beyond :data:`VALIDATION_FOREIGN` (100) times the fit's, no region explains it: the held-out
+  data are another frame's or other units', and a :class:`lab.ValidationMismatchError` refuses
+  them (``accept_other_frame`` validates on them as they are, with the warning).
 * **A stated noise that the residual refutes** is refused (:class:`lab.NoiseRefutedError`),
   before any decision is made with it. The noise decides which parameters a fit keeps (those
   whose typical-size error moves the points by less than it are dropped), which candidates a
@@ -61,7 +64,7 @@ import numpy as np
 
 from arm import errors
 from arm.measurements import COMPONENTS, MeasurementSet
-from lab.errors import NoiseRefutedError, ValidationMismatchWarning
+from lab.errors import NoiseRefutedError, ValidationMismatchError, ValidationMismatchWarning
 from lab.repeatability import StatedNoise
 
 if TYPE_CHECKING:
@@ -74,6 +77,9 @@ log = logging.getLogger(__name__)
 
 VALIDATION_FAR = 10.0  # held-out RMS over the fit's RMS beyond which the data look foreign
 VALIDATION_FAR_MM = 1.0  # ... and at least this (mm): a model tested off its region misses less
+# held-out RMS over the fit's beyond which the data are refused as another frame's or units'
+# (a region far outside the fitted one misses by tens of times the fit's, not hundreds)
+VALIDATION_FOREIGN = 100.0
 
 
 def _say(text: str, category: type[errors.SixAxisWarning]) -> None:
@@ -81,22 +87,30 @@ def _say(text: str, category: type[errors.SixAxisWarning]) -> None:
     errors.warn(text, category)
 
 
-def check_validation(result: FitResult, source: str) -> bool:
+def check_validation(result: FitResult, source: str, accept_other_frame: bool = False) -> bool:
     """Warn where the held-out RMS of ``result`` (validated on ``source``) is more than
     :data:`VALIDATION_FAR` times its fit's and more than :data:`VALIDATION_FAR_MM`; True when it
-    warned."""
+    warned. Beyond :data:`VALIDATION_FOREIGN` times the fit's, the held-out data are another
+    frame's or other units' (a UR5 file in mm read as m: 607,195 mm), and the validation figures
+    mean nothing: :class:`lab.ValidationMismatchError`, unless ``accept_other_frame``."""
     val = result.validation_rms_mm
     fit = result.rms_mm
     if val is None or not math.isfinite(val) or not fit > 0:
         return False
     if val <= max(VALIDATION_FAR * fit, VALIDATION_FAR_MM):
         return False
-    _say(
+    text = (
         f"{source}: validation RMS {val:.4g} mm is {val / fit:.3g} times the fit's "
         f"{fit:.4g} mm: held-out data of another arm, another frame (a tracker moved, a "
-        "registration not applied) or other units, or poses far outside those fitted?",
-        ValidationMismatchWarning,
+        "registration not applied) or other units"
     )
+    if val > VALIDATION_FOREIGN * fit and not accept_other_frame:
+        raise ValidationMismatchError(
+            f"{text}; refused: give the held-out file's units (--validate-length-unit, "
+            "--validate-angle-unit, or a '# x, y, z in mm' line above its header), or "
+            "--accept-other-frame to validate on it as it is"
+        )
+    _say(f"{text}, or poses far outside those fitted?", ValidationMismatchWarning)
     return True
 
 

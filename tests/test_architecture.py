@@ -175,7 +175,7 @@ def test_the_lab_modules_build_only_on_those_above_them():
 
 
 # docs/architecture.md, `effects` in `arm`: one module a job, each building on the rows above it
-EFFECTS_ORDER = [{"base"}, {"joint_angle", "chain", "lumped"}, {"registry"}, {"specs"}]
+EFFECTS_ORDER = [{"base"}, {"joint_angle", "chain", "lumped", "extra"}, {"registry"}, {"specs"}]
 
 
 def test_the_effects_modules_build_only_on_those_above_them():

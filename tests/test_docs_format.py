@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 
 from arm.description import RobotDescription, seed_robot
 from arm.effects import CATALOGUE, EFFECTS, Geometric, make_effect
+from arm.extra_joints import ExtraJoint
 from arm.measurements import (
     JOINTS,
     KNOWN,
@@ -100,11 +101,17 @@ def code_families() -> dict[str, tuple[str, str, tuple[float, float] | None]]:
     """family -> (effect, SI unit, typical range) for every parameter the catalogue names on the
     seed arm, with one target and with several."""
     seed = seed_robot()
+    # an effect of extra joints names its parameters on an arm that has them: a column, a table
+    on_column = replace(
+        seed,
+        extra_joints=(ExtraJoint("column", "prismatic"), ExtraJoint("table", "revolute")),
+    )
     out: dict[str, tuple[str, str, tuple[float, float] | None]] = {}
     for name in CATALOGUE:
         effect = make_effect(EFFECTS[name].example or name)
+        arm = on_column if effect.needs_extra_joints else seed
         for targets in ((0,), (0, 1)):
-            names = effect.parameter_names(seed, targets)
+            names = effect.parameter_names(arm, targets)
             if isinstance(effect, Geometric):  # several stations, an orientation measured
                 names += effect.parameter_names(seed, targets, (1, 2), True)
             for p in names:
@@ -217,6 +224,8 @@ def test_the_robot_toml_tables_name_every_key_the_writer_emits():
         stations=((1, (0.1, 0.0, 0.0), (0.0, 0.0, 0.2)), (2, (3.0, 1.0, 0.0), (0.0, 0.0, 1.0))),
         domain={"n_poses": 40, "q1": (-1.0, 1.0), "temperature": (20.5, 20.9)},
         couplings=((3, 2, -1.0),),  # FANUC's J3 from the horizon
+        extra_joints=(ExtraJoint("column", "prismatic", default=0.3),),  # an arm on a column
+        mount_translation=(0.0, 0.0, 0.05),
         uncertainty={  # what `lab export` records of a calibration of two sessions
             "parameters": ["da2", "c2"],
             "values": {"da2": 1e-4, "c2": 6e-6, "dtheta6": 0.0},
@@ -236,7 +245,16 @@ def test_the_robot_toml_tables_name_every_key_the_writer_emits():
     documented_top = {re.sub(r"[\[\]]|\.NAME", "", names(r[0])[0]): r for r in top}
     assert set(documented_top) == set(doc), set(doc) ^ set(documented_top)
     assert {names(r[0])[0] for r in joint} == set(doc["joints"][0])
-    for key in ("tools", "base", "flange", "stations", "couplings", "uncertainty"):  # keys
+    for key in (
+        "tools",
+        "base",
+        "flange",
+        "stations",
+        "couplings",
+        "uncertainty",
+        "extra_joints",
+        "mount",
+    ):
         value = doc[key][0] if isinstance(doc[key], list) else doc[key]
         for sub in value:
             assert f"`{sub}" in documented_top[key][2], (key, sub)

@@ -33,8 +33,9 @@ SKIPPED = {
     "docs/agents.md": 1,  # training 5 seeds of a policy (hours)
     "docs/benchmark.md": 2,
     # the Rokae data set is not shipped (no licence); lab update's new session and --predict's
-    # program are the user's
-    "docs/lab.md": 3,
+    # program are the user's; the arm on a column's campaign, which tests/test_extra_joints.py
+    # writes and fits
+    "docs/lab.md": 4,
 }
 
 

@@ -176,6 +176,71 @@ def test_over_long_output_names_and_paths_are_refused(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+_LONG = "a" * 300
+_DATA = ROOT / "data" / "ur5" / "calibration.csv"
+# every file a `sixaxis lab` command opens, reads, checks or writes, given a name the OS refuses
+_LONG_FILE_OPTIONS = {
+    "fit DATA": ("fit", f"{_LONG}.csv"),
+    "fit --robot FILE.toml": ("fit", _DATA, "--robot", f"{_LONG}.toml"),
+    "fit --robot FILE.urdf": ("fit", _DATA, "--robot", f"{_LONG}.urdf"),
+    "fit --robot NAME": ("fit", _DATA, "--robot", _LONG),
+    "fit --validate": ("fit", _DATA, "--robot", "ur5_robot", "--validate", f"{_LONG}.csv"),
+    "fit --effect-module": ("fit", _DATA, "--effect-module", f"{_LONG}.py"),
+    "fit --out": ("fit", _DATA, "--out", f"{_LONG}.json"),
+    "fit --out in a folder": ("fit", _DATA, "--out", f"{_LONG}/fit.json"),
+    "diagnose DATA": ("diagnose", f"{_LONG}.csv"),
+    "diagnose --out": ("diagnose", _DATA, "--out", _LONG),
+    "discover -o": ("discover", _DATA, "-o", f"{_LONG}.py"),
+    "discover --validate": ("discover", _DATA, "--validate", _LONG),
+    "bag -o": ("bag", _DATA, "-o", f"{_LONG}.py"),
+    "bag --export": ("bag", _DATA, "--export", f"{_LONG}.toml"),
+    "report -o": ("report", _DATA, "-o", f"{_LONG}.html"),
+    "plan -o": ("plan", "-o", f"{_LONG}.csv"),
+    "plan --robot": ("plan", "--robot", _LONG),
+    "collect -o": ("collect", "-o", f"{_LONG}.csv"),
+    "collect --poses": ("collect", "-o", "{tmp}/m.csv", "--poses", f"{_LONG}.csv"),
+    "export -o": ("export", _DATA, "-o", f"{_LONG}.toml"),
+    "export --robot": ("export", _DATA, "--robot", f"{_LONG}.urdf"),
+    "compensate TARGETS": ("compensate", f"{_LONG}.csv", "--robot", "seed"),
+    "compensate --robot": ("compensate", _DATA, "--robot", f"{_LONG}.toml"),
+    "compensate --nominal": ("compensate", _DATA, "--robot", "seed", "--nominal", _LONG),
+    "compensate -o": ("compensate", _DATA, "--robot", "seed", "-o", f"{_LONG}.csv"),
+    "compensate --references": (
+        "compensate",
+        _DATA,
+        "--robot",
+        "seed",
+        "--references",
+        f"{_LONG}.csv",
+    ),
+    "fit --references": ("fit", _DATA, "--validate", _DATA, "--references", f"{_LONG}.csv"),
+    "export --from": ("export", "--from", f"{_LONG}.toml", "-o", "{tmp}/x.toml"),
+    "compensate --effect-module": (
+        "compensate",
+        _DATA,
+        "--robot",
+        "seed",
+        "--effect-module",
+        f"{_LONG}.py",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_LONG_FILE_OPTIONS))
+def test_a_file_name_the_os_refuses_is_an_error_line_for_every_file_option(
+    case, tmp_path, monkeypatch
+):
+    """A name over 255 bytes (``OSError: File name too long`` where ``Path.is_file`` looks at
+    it) in any file option of any lab command: one line, exit 2, no traceback, nothing written,
+    the name shortened in the message."""
+    cmd, *args = _LONG_FILE_OPTIONS[case]
+    args = [str(a).replace("{tmp}", str(tmp_path)) for a in args]
+    monkeypatch.chdir(tmp_path)
+    err = one_error_line(sixaxis("lab", cmd, *args))
+    assert len(err) < 400
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_render_refuses_a_directory_a_device_a_foreign_extension_and_a_huge_frame(tmp_path):
     folder = tmp_path / "video.mp4"
     folder.mkdir()
@@ -1065,3 +1130,20 @@ def test_over_long_output_folders_of_sweep_leaderboard_and_train_are_one_line(tm
         sixaxis("train", "ppo", "--config", train, "--output", long), "name of 300 bytes"
     )
     assert list(tmp_path.iterdir()) == []
+
+
+def test_no_module_asks_pathlib_whether_a_users_path_exists():
+    """``Path.is_file``, ``exists`` and ``is_dir`` raise ``OSError`` for a name the OS refuses
+    (the traceback found three times): every module asks :func:`arm.files.is_file` /
+    :func:`arm.files.is_dir` or ``os.path``, which answer False."""
+    import re
+
+    found = [
+        f"{p.relative_to(ROOT)}:{i}"
+        for pkg in ("arm", "lab", "envs", "agents", "experiments")
+        for p in sorted((ROOT / pkg).rglob("*.py"))
+        if p != ROOT / "arm" / "files.py"
+        for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+        if re.search(r"\.(is_file|exists|is_dir)\(\)", line)
+    ]
+    assert found == []

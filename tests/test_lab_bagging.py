@@ -225,6 +225,7 @@ def test_when_every_draw_would_take_every_pose_it_says_so_and_runs_one_path(capl
 def test_held_out_data_of_another_arm_is_warned_about_as_fit_does(sessions, caplog, tmp_path):
     """`lab bag --validate` of foreign data gave a held-out RMS of metres without the warning
     `lab fit` gives (lab.sanity.check_validation)."""
+    import json
     import logging
 
     from arm.measurements import write_measurements
@@ -234,10 +235,19 @@ def test_held_out_data_of_another_arm_is_warned_about_as_fit_does(sessions, capl
     write_measurements(sessions, data)
     other = session(TRUE, 30, 1, 13)
     write_measurements(replace(other, xyz=other.xyz * 1.5), held)  # another arm, or units
+    args = ("bag", data, "--bags", 1, "--noise-mm", 0.015, "--validate", held)
     with caplog.at_level(logging.WARNING):
-        res = lab("bag", data, "--bags", 1, "--noise-mm", 0.015, "--validate", held)
+        res = lab(*args, "--accept-other-frame", "--json")
     assert res.exit_code == 0, res.output
     assert "other.csv: validation RMS" in caplog.text and "another arm" in caplog.text
+    codes = [w["code"] for w in json.loads(res.stdout)["warnings"]]
+    assert "ValidationMismatchWarning" in codes
+    # hundreds of times the fit's RMS: refused without --accept-other-frame, as lab fit does
+    res = lab(*args)
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    error = res.stderr.splitlines()[-1]  # after the reader's notes of the 'session' column
+    assert error.startswith("error: ") and "other.csv: validation RMS" in error
+    assert "another arm" in error and "--accept-other-frame" in error
 
 
 def test_the_draws_refits_outside_the_domain_are_not_logged_either(sessions, caplog):

@@ -5,12 +5,15 @@ inverse kinematics misses by the calibration error. Bad input is refused with no
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from arm.description import load_robot
 from arm.effects import JointAngleEffect
+from arm.ik import solve_model_pose
 from arm.kinematics import Chain, gravity_torques, link_frames, tool_points
 from arm.sampling import sample_poses
 from arm.so3 import rotation_matrix
@@ -29,6 +32,7 @@ from lab.export import (
     write_joints,
 )
 from tests._beyond_points import pose_campaign
+from tests._cli import lab, one_error_line
 from tests._lab_data import campaign
 
 
@@ -173,16 +177,24 @@ def test_compensation_keeps_the_program(seed, true_arm):
     hit = 1e3 * np.linalg.norm(true_fk(true_arm, comp.q) - targets.xyz, axis=1)
     assert hit.max() < 1e-4  # mm: 0.1 um
     turn = angle_between(true_frame(true_arm, comp.q), true_frame(true_arm, q_prog))
-    assert turn.max() < 1e-9
+    singular = comp.singular != ""
+    assert 0 < singular.sum() < 5  # random poses near a stretched elbow or an aligned wrist
+    assert turn[~singular].max() < 1e-9
+    assert turn[singular].max() < 0.02  # the orientation held as near as the program's split allows
+    np.testing.assert_allclose(comp.turn, turn, atol=1e-9)
     # on the program's branch: the joints move by what the model's error implies (milliradians;
-    # tens near a wrist singularity, where joints 4 and 6 share a turn), the wrist not flipped
+    # tens near a singularity), the wrist not flipped
     change = np.abs(comp.q - q_prog).max(axis=1)
     assert np.median(change) < 0.02 and change.max() < FAR_RAD
     assert np.all(np.sign(np.sin(comp.q[:, 4])) == np.sign(np.sin(q_prog[:, 4])))
     assert np.all(true_arm.within_limits(comp.q))
     d = comp.to_dict()
     assert d["start_rms_mm"] == pytest.approx(np.sqrt(np.mean(miss**2)))
-    assert d["rms_mm"] < 1e-4 and d["converged"] == 40 and d["max_turn_mrad"] < 1e-6
+    assert d["rms_mm"] < 1e-4 and d["converged"] == 40 and d["unreachable"] == []
+    assert d["max_turn_mrad"] == pytest.approx(1e3 * turn.max(), abs=1e-6)
+    assert sorted(i for rows in d["singular"].values() for i in rows) == list(
+        np.flatnonzero(singular)
+    )
     assert d["max_joint_change_mrad"] == pytest.approx(1e3 * change.max())
     assert d["median_joint_change_mrad"] == pytest.approx(1e3 * np.median(np.abs(comp.q - q_prog)))
 
@@ -348,3 +360,105 @@ def test_per_station_targets_are_mapped_through_the_calibrations_registration(se
     far = TargetSet(x, q=q, columns={"station": np.full(8, 3.0)})
     with pytest.raises(CompensationError, match=r"station\(s\) \[3\] not among the calibra"):
         compensate(path, far)
+
+
+# -- singular poses ---------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def small_calibration(seed):
+    """A true arm whose errors are 15 % of the typical ones: a calibration that moves the points
+    by tenths of a millimetre, as the UR10's does (0.47 mm RMS)."""
+    c = campaign(seed, "geometric,compliance", seed=3, hidden_level="typical")
+    p0 = c.truth.nominal()
+    return c.truth.description(p0 + 0.15 * (c.params - p0), name="truth")
+
+
+def test_singular_poses_keep_the_programs_split_and_unreachable_targets_are_named(
+    seed, small_calibration
+):
+    """A program taught on the nominal arm with two poses at the wrist singularity (q5 = 0: axes
+    4 and 6 aligned), one with the elbow stretched, and one target 2 m beyond the arm. The six
+    equations of a pose have solutions there only far from the program (joints 4 and 6 turned
+    in opposite senses by hundreds of mrad); compensation reaches the point, checked by the
+    plain kinematics, with joint changes of the calibration's order, and names the rows."""
+    arm = small_calibration
+    q = sample_poses(seed, 8, np.random.default_rng(8))
+    q[1:3, 4] = 0.0  # the wrist singular
+    q[3, 2] = -np.arctan2(0.35, 0.1634)  # the wrist centre (a3, d4) in line with joints 2 and 3
+    xyz = fk(seed, q)
+    xyz[7] += [2.0, 0.0, 0.0]
+    comp = compensate(arm, TargetSet(xyz, q=q), nominal=seed)
+    kinds = comp.singular
+    assert "wrist" in kinds[1] and "wrist" in kinds[2] and "elbow" in kinds[3]
+    assert kinds[7] == ""  # 2 m from its program: a target elsewhere, not a singular pose
+    assert list(comp.converged) == [True] * 7 + [False]
+    hit = np.linalg.norm(true_fk(arm, comp.q[:7]) - xyz[:7], axis=1)
+    assert hit.max() < 1e-7
+    change = np.abs(comp.q - q)
+    assert change[1:3, :3].max() < 1e-3  # the joints the wrist singularity leaves alone: sub-mrad
+    assert change[1:4].max() < 2.5e-3  # joints 4 and 6 keep the program's split
+    assert comp.turn[1:4].max() < 2e-3  # the orientation held to the calibration's order
+    # what the six equations alone would do at the wrist-singular poses
+    model = calibrated_model(arm.to_modified())
+    R = model.predict_pose(model.inputs(q[1:3], {}), model.nominal())[1]
+    six = solve_model_pose(model, {}, model.nominal(), xyz[1:3], R, q[1:3])
+    assert np.abs(six.q - q[1:3])[:, [3, 5]].max() > 0.1
+    d = comp.to_dict()
+    assert d["unreachable"] == [7] and d["not_converged"] == [7]
+    assert {i for rows in d["singular"].values() for i in rows} >= {1, 2, 3}
+    msg = str(comp.unreached())
+    assert "1 of 8 targets not reached: 1 unreachable (row 8: (" in msg
+    assert "out of the arm's reach" in msg and "singular" not in msg
+
+
+def test_a_target_beyond_a_stretched_arm_is_named_a_singularity(seed):
+    """The UR10 upright, elbow stretched and wrist aligned (q3 = q5 = 0): a target 0.05 mm
+    below the calibrated point is reached by bending the elbow, one 0.05 mm above is beyond the
+    stretched arm; it is named as a singular pose, with its row, and left at the program."""
+    ur = load_robot("ur10_robot")
+    c = campaign(ur, "geometric", seed=1)
+    p0 = c.truth.nominal()
+    arm = c.truth.description(p0 + 0.15 * (c.params - p0), name="truth")
+    q = np.array([[-np.pi, -np.pi / 2, 0.0, -np.pi / 2, 0.0, 0.0]] * 2)
+    model = calibrated_model(arm.to_modified())
+    top = model.predict(model.inputs(q, {}), model.nominal())
+    xyz = top + np.array([[0.0, 0.0, 5e-5], [0.0, 0.0, -5e-5]])
+    comp = compensate(arm, TargetSet(xyz, q=q), nominal=ur)
+    assert list(comp.singular) == ["elbow+wrist"] * 2
+    assert list(comp.converged) == [False, True]
+    assert np.linalg.norm(fk(arm, comp.q[1:]) - xyz[1:]) < 1e-9  # by the plain kinematics
+    np.testing.assert_array_equal(comp.q[0], q[0])
+    assert comp.error_mm[0] == pytest.approx(0.05, abs=1e-6)
+    msg = str(comp.unreached())
+    assert "1 of 2 targets not reached: 1 at a singular pose (row 1: (" in msg
+    assert "missed by 0.05 mm, elbow+wrist singularity" in msg and "unreachable" not in msg
+    assert comp.to_dict()["unreachable"] == []
+
+
+def test_the_cli_names_singular_and_unreachable_rows(seed, small_calibration, tmp_path):
+    """``lab compensate``: a program with a wrist-singular pose and a target out of reach is
+    refused in one line naming the unreachable row; with --keep-unreached the file is written,
+    the JSON lists the singular and the unreachable rows, and the text names the singular ones."""
+    arm_toml = tmp_path / "truth.toml"
+    arm_toml.write_text(small_calibration.to_toml())
+    q = sample_poses(seed, 4, np.random.default_rng(8))
+    q[1, 4] = 0.0
+    xyz = fk(seed, q)
+    xyz[3] += [2.0, 0.0, 0.0]
+    targets = tmp_path / "program.csv"
+    rows = [",".join(f"{v:.17g}" for v in (*a, *b)) for a, b in zip(q, xyz, strict=True)]
+    targets.write_text("q1,q2,q3,q4,q5,q6,x,y,z\n" + "\n".join(rows) + "\n")
+    out = tmp_path / "joints.csv"
+    args = ("compensate", targets, "--robot", arm_toml, "--nominal", "seed", "-o", out)
+    one_error_line(
+        lab(*args),
+        "program.csv: 1 of 4 targets not reached: 1 unreachable (line 5: (",
+        "out of the arm's reach",
+        "--keep-unreached",
+    )
+    assert not out.exists()
+    res = lab(*args, "--keep-unreached", "--json")
+    assert res.exit_code == 0, res.output
+    d = json.loads(res.stdout)
+    assert d["unreachable"] == [3] and d["singular"] == {"wrist": [1]}
+    res = lab(*args, "--keep-unreached")
+    assert "singular poses (wrist" in res.stdout and "rows 2" in res.stdout

@@ -316,3 +316,34 @@ def test_registration_from_any_tracker_pose_and_tool(arm, request):
         c = campaign(truth, "geometric", seed=30 + s)
         res = fit(c.measure(100), robot, "geometric", validate=c.measure(200))
         assert res.validation_rms_mm < 1.2 * FLOOR_MM, (arm, s)
+
+
+def test_a_campaign_of_one_pose_is_refused_saying_what_to_measure(seed, tmp_path):
+    """60 rows of one pose with 15 um jitter (and 1 urad on the joints) identify 3 of the 33
+    geometric parameters: refused in one line that says how many poses to measure, through the
+    library and the command line; 12 distinct poses (the fewest a test of the lab fits) are not."""
+    from arm.description import load_robot
+    from tests._cli import lab, one_error_line
+
+    ur5 = load_robot("ur5_robot")
+    rng = np.random.default_rng(0)
+    real = read_measurements("data/ur5/calibration.csv")
+    one = MeasurementSet(
+        real.q[:1] + rng.normal(0.0, 1e-6, (60, 6)),
+        real.xyz[:1] + rng.normal(0.0, 15e-6, (60, 3)),
+        source="one.csv",
+    )
+    with pytest.raises(FitError, match=r"one\.csv: 60 distinct poses identify 3 of the model's 33"):
+        fit(one, ur5, "geometric")
+    path = tmp_path / "one.csv"
+    write_measurements(one, path)
+    one_error_line(
+        lab("fit", path, "--robot", "ur5_robot"),
+        "identify 3 of the model's 33 parameters",
+        "measure at least 33 poses spread over every joint's range",
+        "sixaxis lab plan --n 33",
+    )
+    few = fit(real.subset(np.arange(12)), ur5, "geometric")
+    assert few.identifiability.rank >= 11
+    # min_identified 0: whatever the poses determine (an agent's calibration phase)
+    assert fit(one, ur5, "geometric", min_identified=0.0).identifiability.rank == 3

@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 
 import numpy as np
 import pytest
 
+from arm.description import load_robot
 from arm.files import OutputError
 from arm.measurements import (
     MeasurementError,
@@ -94,10 +96,15 @@ MALFORMED = {
     "too few rows": (f"{HEADER}\n{ROW}\n{ROW}\n", 30, ["2 measurement rows, at least 30 needed"]),
     "duplicate column": (f"{HEADER},x\n{ROW},1\n", 1, ["line 1", "column 'x' appears twice"]),
     "empty column name": (f"{HEADER},\n{ROW},1\n", 1, ["line 1", "column 10 has an empty name"]),
-    "text in an extra column": (
-        f"{HEADER},operator\n{ROW},anna\n",
+    "a blank cell in an extra column of numbers": (
+        f"{HEADER},humidity\n{ROW},41.5\n{ROW},\n",
         1,
-        ["line 2", "column 'operator'", "must be numeric"],
+        ["line 3", "column 'humidity'", "'' is not a number", "as labels where they hold text"],
+    ),
+    "text in a column the format knows": (
+        f"{HEADER},temperature\n{ROW},warm\n",
+        1,
+        ["line 2", "column 'temperature'", "'warm' is not a number"],
     ),
 }
 
@@ -289,10 +296,35 @@ def test_a_poses_file_with_the_measured_points_added_is_read_by_every_reader(tmp
     rows = [f"{r},{','.join(repr(float(v)) for v in p)}" for r, p in zip(rows, xyz, strict=True)]
     deg = _file(tmp_path, "\n".join([first, header + ",x,y,z", *rows]) + "\n", "deg.csv")
     with pytest.raises(
-        MeasurementError, match=r"deg.csv, line 1: the file declares q1\.\.q6 in deg"
+        MeasurementError,
+        match=r"deg.csv, line 1: the file declares q1\.\.q6 in deg.*--angle-unit deg",
     ):
-        read_measurements(deg)
+        read_measurements(deg, angle_unit="rad")
     assert np.allclose(read_measurements(deg, angle_unit="deg").q, q, atol=1e-12)
+    assert np.allclose(read_measurements(deg).q, q, atol=1e-12)  # a unit not given: the declared
+
+
+def test_a_declared_length_unit_is_read_and_a_contradicting_one_refused(tmp_path):
+    """``# x, y, z in mm`` above the header: the reader takes mm where no unit is given (over
+    the fallback, the data's unit for a held-out file), refuses another unit given, naming the
+    line, and an unknown unit."""
+    path = _file(tmp_path, f"# tracker export, x, y, z in mm\n{HEADER}\n{ROW}\n")
+    metres = read_measurements(_file(tmp_path, f"{HEADER}\n{ROW}\n", "m.csv"))
+    mm = read_measurements(path)
+    np.testing.assert_allclose(mm.xyz, metres.xyz * 1e-3)
+    np.testing.assert_allclose(read_measurements(path, fallback=("m", "deg")).xyz, mm.xyz)
+    np.testing.assert_allclose(read_measurements(path, length_unit="mm").xyz, mm.xyz)
+    with pytest.raises(
+        MeasurementError, match=r"line 1: the file declares x, y, z in mm.*--length-unit mm"
+    ):
+        read_measurements(path, length_unit="m")
+    bad = _file(tmp_path, f"# x, y, z in inch\n{HEADER}\n{ROW}\n", "inch.csv")
+    with pytest.raises(MeasurementError, match=r"line 1: declares x, y, z in 'inch'"):
+        read_measurements(bad)
+    # no declaration: the fallback's unit (a held-out file read in the data's)
+    np.testing.assert_allclose(
+        read_measurements(tmp_path / "m.csv", fallback=("mm", "rad")).xyz, mm.xyz
+    )
 
 
 @pytest.mark.parametrize("where", ["between rows", "after the last row"])
@@ -317,3 +349,36 @@ def test_a_file_of_comments_alone_is_refused():
 
     with pytest.raises(MeasurementError, match=r"^c.csv: only comment lines, expected a header"):
         parse_measurements("# a\n# b\n", "c.csv")
+
+
+def test_text_columns_are_kept_as_labels_named_once_and_ignored_by_the_fits(tmp_path):
+    """A ``set`` column of ``stationing`` rows (and a quoted cell with a comma, a blank one) is
+    kept as labels, named in one note; a numeric extra column stays a number for custom effects;
+    the fit of the file equals the fit of the file without the text column; the labels are
+    written back."""
+    from lab import fit
+    from tests._lab_data import campaign
+
+    seed = load_robot("seed")
+    data = campaign(seed, "geometric", seed=4).measure(40)
+    plain = _file(tmp_path, data.to_csv(), "plain.csv")
+    lines = plain.read_text().splitlines()
+    sets = ["stationing", '"a, b"', ""] * 14
+    text = "\n".join(
+        [lines[0] + ",set,humidity"]
+        + [f"{row},{sets[i]},{40 + i}" for i, row in enumerate(lines[1:])]
+    )
+    labelled = _file(tmp_path, text + "\n", "labelled.csv")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        d = read_measurements(labelled)
+    notes = [str(w.message) for w in caught if "hold text" in str(w.message)]
+    assert len(notes) == 1 and "'set' ('stationing' on line 2)" in notes[0]
+    assert list(d.labels) == ["set"] and list(d.labels["set"][:3]) == ["stationing", "a, b", ""]
+    assert "set" not in d.columns and d.columns["humidity"][1] == 41.0
+    assert sum("hold text" in n for n in d.notes) == 1
+    assert list(d.subset([1, 0]).labels["set"]) == ["a, b", "stationing"]
+    back = read_measurements(_file(tmp_path, d.to_csv(), "back.csv"))
+    assert list(back.labels["set"]) == list(d.labels["set"])
+    a, b = fit(plain, seed, "geometric"), fit(d, seed, "geometric")
+    np.testing.assert_array_equal(a.params, b.params)

@@ -21,6 +21,7 @@ One module a job; import from the package, ``from arm.effects import JointAngleE
 * :mod:`arm.effects.joint_angle`: the catalogue's joint-angle effects (compliance, cyclic...);
 * :mod:`arm.effects.chain`: the catalogue's chain effects (geometric, thermal);
 * :mod:`arm.effects.lumped`: compliance without a mass model (lumped_compliance);
+* :mod:`arm.effects.extra`: the robot's extra joints (a column's scale and tilt: extra_joints);
 * :mod:`arm.effects.registry`: the registry, entry points, ``--effect-module`` and the checks a
   user's effect passes;
 * :mod:`arm.effects.specs`: effects from their specifications (``compliance[2,3]``).
@@ -42,6 +43,7 @@ from arm.effects.base import (
 )
 from arm.effects.chain import REFERENCE_TEMPERATURE as REFERENCE_TEMPERATURE
 from arm.effects.chain import Geometric, Thermal
+from arm.effects.extra import ExtraJoints as ExtraJoints
 from arm.effects.joint_angle import (
     FAST_PARTS,
     Backlash,

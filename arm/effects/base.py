@@ -102,6 +102,9 @@ class Effect:
     # What the effect cannot be fitted without, besides ``columns``: the arm's mass model (an
     # effect driven by gravity torques; without masses they are zero and it moves nothing).
     needs_masses: ClassVar[bool] = False
+    # ... or the robot's extra joints (a column, a track: arm.extra_joints), whose corrections
+    # it fits; on an arm without any it has no parameters.
+    needs_extra_joints: ClassVar[bool] = False
     # The largest plausible magnitude of each parameter family (name prefix), SI units; None
     # exempts a family. A family without one is bounded by PLAUSIBLE_FACTOR times the top of its
     # typical range; an identified value beyond its bound is an error (units, another robot,
@@ -422,5 +425,10 @@ def missing_inputs(effect: Effect, robot: RobotDescription, columns: Sequence[st
         return (
             f"the arm's mass model: robot {robot.name!r} has no link masses, its gravity "
             "torques are zero; give each joint's mass and com in its TOML"
+        )
+    if effect.needs_extra_joints and not robot.extra_joints:
+        return (
+            f"extra joints before the arm's base: robot {robot.name!r} has none ([[extra_joints]] "
+            "in its TOML, a prismatic or revolute joint before the arm in its URDF)"
         )
     return None

@@ -17,6 +17,7 @@ from arm.description import RobotDescription, seed_robot
 from arm.effect_api import EffectError
 from arm.effects.base import SOURCE_FILES, Effect, effect_origin, is_catalogued, user_code
 from arm.effects.chain import Geometric, Thermal
+from arm.effects.extra import ExtraJoints
 from arm.effects.joint_angle import (
     Backlash,
     Compliance,
@@ -88,6 +89,7 @@ for _cls in (
     Backlash,
     LoadBacklash,
     Thermal,
+    ExtraJoints,
 ):
     register_effect(_cls)
 CATALOGUE: tuple[str, ...] = tuple(EFFECTS)

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from arm.files import is_dir
 from experiments.config import split_train_seed
 from experiments.metrics import METRICS, Summary, summarize
 from experiments.records import RecordError, RunStore
@@ -133,7 +134,7 @@ def build_leaderboard(
     ``reference``: the agent the aggregates are taken against (default ``feedforward`` when it
     ran, else none)."""
     store = RunStore(runs_dir)
-    if not store.root.is_dir():
+    if not is_dir(store.root):
         raise RecordError(f"{store.root}: no such runs directory")
     manifest = store.manifest()
     records, failed, ignored = _read_records(store, manifest, runs_dir)
