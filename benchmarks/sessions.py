@@ -260,8 +260,10 @@ def _run(spec: dict[str, Any]) -> dict[str, Any]:
     pool = new.measure(q_new[:POOL], "new")
     refs = new.measure(q_new[POOL : POOL + REFERENCES], "references")
     test = new.measure(q_new[POOL + REFERENCES :], "held-out")
-    # no gross outliers are planted (the screen is benchmarks/lab_decisions.py's concern)
-    opts = {"noise_mm": 1e3 * sigma, "accept_large": True, "outliers": "keep"}
+    # the lab's default screen (outliers="auto"), as a user fits: no gross outliers are planted,
+    # but the model has no per-session joint offsets, and the rule leaves out a few of the
+    # re-homing's largest residuals in about a third of the campaigns (1-12 poses, <= 3 %)
+    opts = {"noise_mm": 1e3 * sigma, "accept_large": True}
     cal = {
         "lab": lab.fit(data, robot, effects, **opts),
         "geometric": lab.fit(data, robot, "geometric", **opts),

@@ -31,7 +31,11 @@ millimetres the fit is dragged so far that the robust scale of its residual grow
 rule flags only a few. So the residual is also judged against a fit that follows the majority: a
 least-trimmed-squares fit of the model's own linearisation (the parameters that fit best the
 :data:`LTS_SHARE` half of the poses they fit best, by random subsets and concentration steps
-with a fixed seed; on at most :data:`LTS_POSES` poses), reweighted once. Where it flags more
+with a fixed seed; on at most :data:`LTS_POSES` poses), reweighted once. The half is taken of each
+tracker station's poses: a pose is judged through its station's base, which only poses of that
+station place (trimmed across stations, the best half of two re-homed sessions is the larger one,
+and the other looks a mass of gross errors). No fit of the rule judges poses whose station its
+poses do not place; such flags are a station's as a whole, not gross errors. Where it flags more
 poses than the stated fraction and more than the least-squares fit did, the rule also starts from
 the rows it keeps, and where that settles on poses apart from the rest (below), those are the
 gross errors.
@@ -84,6 +88,7 @@ from arm.effects import Effect, parse_effects
 from arm.errormodel import ErrorModel
 from arm.errors import warn
 from arm.measurements import MeasurementSet, as_measurements
+from arm.params import parse_parameter_name
 from lab.blocks import Blocks
 from lab.candidates import (
     ModelFit,
@@ -375,14 +380,15 @@ def _trimmed_fit(res: FitResult, data: MeasurementSet) -> tuple[np.ndarray, np.n
         """Each pose's squared miss (T, m) under each step of ``D`` (T, P)."""
         return np.sum(((ef[:, None] + Af @ D.T).reshape(m, 3, -1)) ** 2, axis=1).T
 
+    groups = _stations_of(part)
+
     def concentrate(D: np.ndarray, steps: int) -> tuple[np.ndarray, np.ndarray]:
-        """Concentration steps: refit each on its h best poses; (trimmed sums (T,), steps)."""
-        rows = np.arange(len(D))[:, None]
+        """Concentration steps: refit each on its h best poses (each station's share of them);
+        (trimmed sums (T,), steps)."""
         for _ in range(steps):
-            W = np.zeros((len(D), m))
-            W[rows, np.argpartition(misses(D), h - 1, axis=1)[:, :h]] = 1.0
-            D = solve(W)
-        return np.sum(np.partition(misses(D), h - 1, axis=1)[:, :h], axis=1), D
+            D = solve(_best(misses(D), groups, h, m).astype(float))
+        d2 = misses(D)
+        return np.sum(np.where(_best(d2, groups, h, m), d2, 0.0), axis=1), D
 
     W0 = np.zeros((LTS_TRIALS, m))
     picks = np.argsort(rng.random((LTS_TRIALS, m)), axis=1)[:, :k0]  # random starting subsets
@@ -396,9 +402,32 @@ def _trimmed_fit(res: FitResult, data: MeasurementSet) -> tuple[np.ndarray, np.n
     p[free] += best[1] / norms
     r = Blocks(res.model, inputs_of(res.model, data)).predict(p) - data.xyz
     d2 = np.sum(r**2, axis=1)
-    core = np.zeros(n, dtype=bool)
-    core[np.argsort(d2, kind="stable")[: math.ceil(h * n / m)]] = True
+    core = _best(d2[None, :], _stations_of(data), h, m)[0]
     return r, core
+
+
+def _stations_of(data: MeasurementSet) -> list[np.ndarray]:
+    """The rows of each tracker station of ``data`` (one group where there is no station
+    column)."""
+    station = data.columns.get("station")
+    if station is None:
+        return [np.arange(len(data))]
+    return [np.flatnonzero(station == v) for v in np.unique(station)]
+
+
+def _best(d2: np.ndarray, groups: Sequence[np.ndarray], h: int, m: int) -> np.ndarray:
+    """The poses (a mask (T, N)) that each row of squared misses ``d2`` (T, N) fits best: ``h``
+    of every ``m`` poses *of each station* (``groups``: their rows), so that a trimmed fit
+    places every station's base. Trimmed across stations, the best half of two re-homed
+    sessions is the larger session alone, and the other, its base placed by a couple of its
+    poses, looks a mass of gross errors."""
+    T = len(d2)
+    out = np.zeros(d2.shape, dtype=bool)
+    rows = np.arange(T)[:, None]
+    for g in groups:
+        k = min(len(g), -(-h * len(g) // m))  # ceil(h * len(g) / m), at least one
+        out[rows, g[np.argpartition(d2[:, g], k - 1, axis=1)[:, :k]]] = True
+    return out
 
 
 def _masked(res: FitResult, data: MeasurementSet, far: np.ndarray) -> np.ndarray | None:
@@ -417,6 +446,30 @@ def _masked(res: FitResult, data: MeasurementSet, far: np.ndarray) -> np.ndarray
     if flagged.sum() > MAX_OUTLIER_FRACTION * n and flagged.sum() > far.sum():
         return flagged
     return None
+
+
+def _places_stations(
+    first: FitResult, res: FitResult, data: MeasurementSet, keep: np.ndarray
+) -> bool:
+    """Whether the fit ``res`` of the poses ``keep`` of ``data`` places every tracker station's
+    base as ``first`` (the fit of every pose) does: each station keeps the poses to
+    over-determine its base :data:`REFUSE_REDUNDANCY` times (6 parameters, 3 rows a pose: 6
+    poses), and every base parameter ``first`` identified is identified. A pose is judged by its
+    residual through its station's base: where the poses kept do not place that base (a trimmed
+    fit that kept 2 poses of a re-homed session of 150 left its base turned 7 degrees, and called
+    the other 148 gross errors of 10 to 245 mm), its poses cannot be judged by that fit."""
+    station = data.columns.get("station")
+    if station is not None:
+        kept = station[keep]
+        for s in np.unique(station):
+            if np.count_nonzero(kept == s) < 2 * REFUSE_REDUNDANCY:
+                return False
+    placed = dict(zip(res.model.layout.names, res.identifiable, strict=True))
+    return all(
+        placed.get(n, False)
+        for n, ok in zip(first.model.layout.names, first.identifiable, strict=True)
+        if ok and (p := parse_parameter_name(n)) is not None and p.kind == "base"
+    )
 
 
 def _sentence(text: str) -> str:
@@ -510,9 +563,12 @@ def _apart(st: _Round) -> np.ndarray | None:
     return d >= ds[split[0] + 1]
 
 
-def _confirm_apart(data: MeasurementSet, model: _Model, st: _Round, flags: Flags) -> _Round | None:
+def _confirm_apart(
+    data: MeasurementSet, model: _Model, st: _Round, flags: Flags, first: FitResult
+) -> _Round | None:
     """The state with the poses :func:`_apart` names left out and the others refitted, where
-    they are still apart then (settled): gross errors; else None."""
+    they are still apart then (settled): gross errors; else None (also where the poses left
+    do not place every station: :func:`_places_stations`). ``first``: the fit of every pose."""
     top = _apart(st)
     # gross errors are the minority the trimmed fit leaves out: a "group apart" of more than
     # half the poses is the spread of an effect (a fit of the few left would fail or mean nothing)
@@ -522,6 +578,8 @@ def _confirm_apart(data: MeasurementSet, model: _Model, st: _Round, flags: Flags
     try:
         res = model.fit(data.subset(keep))
     except FitError:
+        return None
+    if not _places_stations(first, res, data, keep):
         return None
     _, s, radius, r = flags(res, data, keep)
     again = _Round(res, keep, top, s, radius, r, st.rounds + 1)
@@ -637,14 +695,52 @@ Flags = Callable[
 
 
 def _iterate(
-    data: MeasurementSet, model: _Model, st: _Round, flags: Flags, rounds: int = MAX_ROUNDS
+    data: MeasurementSet,
+    model: _Model,
+    st: _Round,
+    flags: Flags,
+    first: FitResult,
+    rounds: int = MAX_ROUNDS,
 ) -> _Round:
-    """Leave out what is flagged and refit, until the set no longer changes (or ``rounds``)."""
+    """Leave out what is flagged and refit, until the set no longer changes (or ``rounds``).
+    Where the poses left would not place every station (:func:`_places_stations`; ``first``:
+    the fit of every pose), the flags are a station's as a whole, not gross errors: nothing is
+    flagged."""
     while st.far.any() and st.rounds < rounds and not st.settled:
         keep = ~st.far
         res = model.fit(data.subset(keep))
+        if not _places_stations(first, res, data, keep):
+            log.info("%s: the poses flagged leave a station unplaced: none flagged", data.source)
+            return replace(st, far=np.zeros_like(st.far))
         st = _Round(res, keep, *flags(res, data, keep), st.rounds + 1)
     return st
+
+
+def _from_trimmed(
+    data: MeasurementSet,
+    model: _Model,
+    first: FitResult,
+    masked: np.ndarray,
+    with_candidates: Flags,
+) -> _Round | None:
+    """The rule started from the poses a trimmed fit keeps (``~masked``), settled; None where
+    they do not place every station (:func:`_places_stations`: the trimmed fit took the half
+    of the poses it fits best from one session, and cannot judge the other's)."""
+    keep = ~masked
+    res = model.fit(data.subset(keep))
+    if not _places_stations(first, res, data, keep):
+        log.info("%s: the trimmed fit leaves a station unplaced: not a start", data.source)
+        return None
+    # from a trimmed set the flags shrink to the gross errors: a few more rounds allowed
+    # the candidates explain a missing effect's spread where the poses left are enough for
+    # them; fitted to too few, they would explain the noise away and flag clean poses
+    enough = 3 * keep.sum() >= 4 * _columns(first, data)
+    flags: Flags = with_candidates if enough else _own_flags
+    start = _Round(res, keep, *flags(res, data, keep), 1)
+    robust = _iterate(data, model, start, flags, first, MAX_ROUNDS + 3)
+    if not (robust.settled and robust.separated):  # gross errors among a spread?
+        return _confirm_apart(data, model, robust, flags, first)
+    return robust
 
 
 def _fit_outliers(
@@ -668,19 +764,8 @@ def _fit_outliers(
         return first, _Judged(everyone, [], st.s, st.radius, 0, note)
     # the trimmed start reads plain 3-D points (no weights, no orientations)
     masked = _masked(first, data, st.far) if obs.plain else None
-    robust = None
-    if masked is not None:  # least squares may have hidden them: start from the trimmed fit
-        keep = ~masked
-        res = model.fit(data.subset(keep))
-        # from a trimmed set the flags shrink to the gross errors: a few more rounds allowed
-        # the candidates explain a missing effect's spread where the poses left are enough for
-        # them; fitted to too few, they would explain the noise away and flag clean poses
-        enough = 3 * keep.sum() >= 4 * _columns(first, data)
-        flags: Flags = with_candidates if enough else _own_flags
-        start = _Round(res, keep, *flags(res, data, keep), 1)
-        robust = _iterate(data, model, start, flags, MAX_ROUNDS + 3)
-        if not (robust.settled and robust.separated):  # gross errors among a spread?
-            robust = _confirm_apart(data, model, robust, flags)
+    # least squares may have hidden them: start from the trimmed fit
+    robust = None if masked is None else _from_trimmed(data, model, first, masked, with_candidates)
     if (
         robust is not None
         and robust.settled
@@ -691,7 +776,7 @@ def _fit_outliers(
     ):
         st = robust  # gross errors that least squares hid, settled and apart as they are
     else:
-        st = _iterate(data, model, st, with_candidates)
+        st = _iterate(data, model, st, with_candidates, first)
     if st.far.sum() > MAX_OUTLIER_FRACTION * n:
         if (
             st.settled
