@@ -8,7 +8,8 @@ is ``r2000ic_like`` (a FANUC R-2000iC/165F's data-sheet lengths, 2.66 m reach, m
 order (about 1,100 kg) and a 165 kg payload, arm/robots/), drawn from the error model with the same
 machinery (:func:`lab_decisions.model_campaign`: geometric errors of their typical size, each
 planted effect scaled to a size over the noise floor), and the lab is given the arm **without
-its masses**, as a user with a data-sheet URDF has it. Every campaign plants gravity deflection
+its masses**, as a user with a data-sheet URDF has it, and with its parallelogram coupling
+(J3 reported against the horizon, ``theta3 = q3 - q2``; the rows are the controller's angles). Every campaign plants gravity deflection
 (``compliance`` on joints 2 and 3, or 2, 3 and 5), 0.03x to 50x the floor, and in 40 % one more
 effect of the catalogue; 60 to 1,000 poses, 10 to 50 um of noise per axis, a temperature span of
 0 to 25 K. It is handled as the printed output tells a user: ``diagnose`` the geometric model
@@ -87,6 +88,16 @@ def _planted(rng: np.random.Generator, name: str, joints: list[int]) -> dict[str
     return {"effect": name, "joints": joints, "order": order, "size": float(size)}
 
 
+#: the arm's parallelogram: its controller gives J3 against the horizon, theta3 = q3 - q2
+COUPLING = ((3, 2, -1.0),)
+
+
+def coupled(robot: RobotDescription) -> RobotDescription:
+    """The arm as its controller reports it: the rows' q3 is J3 against the horizon (the
+    robot file's ``[[couplings]]``, docs/format.md), as the real R-2000iC's are."""
+    return replace(robot, couplings=COUPLING)
+
+
 def without_masses(robot: RobotDescription) -> RobotDescription:
     """The arm as a data sheet gives it: the lengths, no link masses (the payload is declared)."""
     return replace(
@@ -112,7 +123,7 @@ def _run_campaign(seed: int, rec: dict[str, Any]) -> dict[str, Any]:
     logging.disable(logging.WARNING)
     warnings.simplefilter("ignore")
     t0, c0 = time.perf_counter(), time.process_time()
-    robot = load_robot(ROBOT)
+    robot = coupled(load_robot(ROBOT))
     data, planted = ld.model_campaign(rec, robot, SEED0)
     rec["planted"] = planted
     lab_arm = without_masses(robot)
