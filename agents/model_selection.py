@@ -59,7 +59,7 @@ from agents.online_calibration import (
 )
 from agents.tool_model import ToolModel, cached_tool_model
 from arm.constraints import Constraint, Interval
-from arm.effects import EFFECTS, candidate_effects, make_effect
+from arm.effects import EFFECTS, Effect, candidate_effects, make_effect, missing_inputs
 from arm.errormodel import ErrorModel
 
 __all__ = ["DRIFT", "SequentialSelection", "ShadowEstimator", "candidate_families"]
@@ -147,21 +147,27 @@ def candidate_families(
     model: ErrorModel, candidates: Iterable[str] | None = None, columns: Iterable[str] = ()
 ) -> list[str]:
     """The effect families a selection tests beside ``model``: ``candidates`` (default the
-    catalogue) without the geometric errors, those the model has (on any joint) and those that
-    need a column the data lack (``columns``; empty: no check)."""
+    catalogue) without the geometric errors, those the model has (on any joint), those that
+    need a column the data lack (``columns``; empty: no check), those the arm cannot carry (a
+    mass model, extra joints: :func:`arm.effects.missing_inputs`, as the lab's diagnosis skips
+    them) and a stand-in where the effect it stands in for is tested (``lumped_compliance``
+    beside ``compliance``)."""
     have = {e.name for e in model.effects}
     cols = set(columns)
-    out = []
+    found: list[Effect] = []
     for spec in candidate_effects() if candidates is None else candidates:
         if isinstance(spec, str) and spec.strip() in EFFECTS and EFFECTS[spec.strip()].scan_only:
             continue  # needs its joints and orders: not a family tested whole
         e = make_effect(spec)
-        if e.name == "geometric" or e.name in have or e.name in out:
+        if e.name == "geometric" or e.name in have or e.name in [f.name for f in found]:
             continue
         if cols and any(c not in cols for c in e.columns):
             continue
-        out.append(e.name)
-    return out
+        if missing_inputs(e, model.robot, e.columns):  # the arm's own lack, not the data's
+            continue
+        found.append(e)
+    tested = {e.name for e in found} | have
+    return [e.name for e in found if not e.stands_in_for or e.stands_in_for not in tested]
 
 
 class SequentialSelection:
