@@ -207,7 +207,10 @@ class Session:
 
 def run_campaign(seed: int) -> dict[str, Any]:
     t0, c0 = time.perf_counter(), time.process_time()
-    logging.disable(logging.WARNING)  # the domain's and the pose set's warnings, per fit
+    # the domain's and the pose set's warnings, per fit; restored after (a caller in the same
+    # process, a test, keeps its log)
+    previous = logging.root.manager.disable
+    logging.disable(logging.WARNING)
     spec = draw(seed)
     rec: dict[str, Any] = {"seed": seed, "spec": spec}
     try:
@@ -216,6 +219,8 @@ def run_campaign(seed: int) -> dict[str, Any]:
             rec |= _run(spec)
     except Exception as exc:  # a campaign that fails is recorded, not lost
         rec["error"] = f"{type(exc).__name__}: {exc}"
+    finally:
+        logging.disable(previous)
     rec["seconds"] = time.perf_counter() - t0
     rec["cpu_seconds"] = time.process_time() - c0
     return rec
