@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing as mp
 import sys
 import time
 import warnings
@@ -243,20 +242,7 @@ def main() -> None:
     args = ap.parse_args()
     commit = ld._commit()
     path = args.records or ld.RUNS / f"heavy_arm-{commit}" / "records.jsonl"
-    seeds = list(range(args.count))
-    done = ld.load(path)
-    todo = [s for s in seeds if s not in done]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if todo:
-        ctx = mp.get_context("spawn")
-        with path.open("a") as fh, ctx.Pool(args.workers, maxtasksperchild=50) as pool:
-            for i, rec in enumerate(pool.imap_unordered(run_campaign, todo, chunksize=1)):
-                fh.write(json.dumps(rec) + "\n")
-                fh.flush()
-                done[rec["seed"]] = rec
-                if (i + 1) % 25 == 0:
-                    print(f"{i + 1} of {len(todo)} campaigns", flush=True)
-    records = [done[s] for s in seeds]
+    records = ld.run(list(range(args.count)), path, args.workers, run_campaign, every=25)
     summary = summarise(records)
     payload = {"schema_version": 1, "commit": commit, "seed0": SEED0, **summary}
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -55,6 +55,7 @@ import sys
 import time
 import warnings
 from collections import Counter, defaultdict
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -805,18 +806,27 @@ def load(path: Path) -> dict[int, dict[str, Any]]:
     return out
 
 
-def run(seeds: list[int], records: Path, workers: int = WORKERS) -> list[dict[str, Any]]:
+def run(
+    seeds: list[int],
+    records: Path,
+    workers: int = WORKERS,
+    campaign: Callable[[int], dict[str, Any]] | None = None,
+    every: int = 50,
+) -> list[dict[str, Any]]:
+    """The records of ``seeds``: those in ``records`` kept, the others run by ``campaign``
+    (default this benchmark's) in ``workers`` processes and appended as each ends (resumable)."""
+    campaign = campaign or run_campaign
     done = load(records)
     todo = [s for s in seeds if s not in done]
     records.parent.mkdir(parents=True, exist_ok=True)
     if todo:
         ctx = mp.get_context("spawn")
         with records.open("a") as fh, ctx.Pool(workers, maxtasksperchild=50) as pool:
-            for i, rec in enumerate(pool.imap_unordered(run_campaign, todo, chunksize=1)):
+            for i, rec in enumerate(pool.imap_unordered(campaign, todo, chunksize=1)):
                 fh.write(json.dumps(rec) + "\n")
                 fh.flush()
                 done[rec["seed"]] = rec
-                if (i + 1) % 50 == 0:
+                if (i + 1) % every == 0:
                     print(f"{i + 1} of {len(todo)} campaigns", flush=True)
     return [done[s] for s in seeds]
 
