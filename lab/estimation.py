@@ -206,7 +206,7 @@ def _check_follows(miss: np.ndarray, data: MeasurementSet, model: ErrorModel) ->
     would explain it (:func:`lab.registration.coupling_hint`)."""
     typical_miss = float(np.median(np.linalg.norm(miss, axis=1)))
     if typical_miss > IMPLAUSIBLE_RMS:
-        hint = coupling_hint(model.robot, data.q, data.xyz)
+        hint = coupling_hint(model.robot, data.q, data.xyz, data.columns)
         raise FitError(
             f"{data.source}: the model cannot follow these measurements (RMS "
             f"{rms(miss) * 1e3:.4g} mm, median {typical_miss * 1e3:.4g} mm after fitting "
@@ -502,7 +502,7 @@ def check_plausible(
     if by_weights:
         cause = by_weights
     if not accept and data is not None:
-        cause = coupling_hint(result.model.robot, data.q, data.xyz) or cause
+        cause = coupling_hint(result.model.robot, data.q, data.xyz, data.columns) or cause
     if not accept:
         raise FitError(
             f"{result.source}: not a plausible model of {result.model.robot.name!r}: {shown}, "

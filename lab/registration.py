@@ -29,6 +29,7 @@ serves::
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -72,7 +73,8 @@ def register_base(
     Alternates Kabsch's rotation of the chain's points onto ``xyz`` and linear least squares for
     the base translation and each target's tool point given the rotation; each step lowers the sum
     of squares, so it converges from a tool hundreds of millimetres off. Returns ``params`` with the
-    base (and tool) parameters replaced."""
+    base (and tool) parameters replaced. On an arm with extra joints the chain's points are placed
+    through them at each row's values first (the base is the frame they start from)."""
     lay = model.layout
     p = np.array(params, dtype=float)
     st = model.state(inputs, p)
@@ -82,6 +84,10 @@ def register_base(
         st_b = model.state(part, p)
         f = link_frames(st_b.chain, model.joint_angles(part, p))
         o6[sl], R6[sl] = f.o[:, 6], f.R[:, 6]
+    extra = st.extra_placement()
+    if extra is not None:  # frame 0 placed per row by the extra joints: the base is before them
+        o6 = np.einsum("nij,nj->ni", extra.R, o6) + extra.t
+        R6 = extra.R @ R6
     tool = st.tools.copy()
     tgt = inputs.target
     n, K = inputs.n, len(model.targets)
@@ -432,45 +438,77 @@ COUPLING_GAIN = 0.2
 COUPLING_MISS = 0.02  # m
 
 
-def registered_miss(robot: RobotDescription, q: np.ndarray, xyz: np.ndarray) -> float:
-    """The median miss (m) of the nominal ``robot``, its base and tool registered on the rows."""
+def registered_miss(
+    robot: RobotDescription,
+    q: np.ndarray,
+    xyz: np.ndarray,
+    columns: Mapping[str, np.ndarray] | None = None,
+) -> float:
+    """The median miss (m) of the nominal ``robot``, its base and tool registered on the rows
+    (its extra joints at the values ``columns`` give them, else their defaults)."""
     model = ErrorModel(robot, "geometric")
-    inputs = model.inputs(q)
+    held = {k: v for k, v in (columns or {}).items() if k in robot.extra_names}
+    inputs = model.inputs(q, held)
     p = register_base(model, inputs, xyz, model.nominal())
     return float(np.median(np.linalg.norm(model.predict(inputs, p) - xyz, axis=1)))
 
 
-def coupling_hint(robot: RobotDescription, q: np.ndarray, xyz: np.ndarray) -> str:
-    """A sentence naming the joint coupling that would explain rows the arm cannot follow, or
-    ``""``: where two consecutive axes are parallel (FANUC's J2 and J3), a controller may report
-    the second from the horizon (``theta_3 = q_3 - q_2``) or relative (``+ q_2``); the arm
-    coupled so, registered on the rows, misses them by a fraction of the uncoupled arm's miss."""
-    if len(q) < 6:
-        return ""
-    plain = registered_miss(robot, q, xyz)
-    best: tuple[float, tuple[int, int, float]] | None = None
+def _coupling_readings(
+    robot: RobotDescription,
+) -> Iterator[tuple[RobotDescription, tuple[int, int, float], bool]]:
+    """The arm read otherwise: with a coupling of two consecutive parallel joints added (either
+    sign), or without one the robot file states; each with that coupling and whether it was
+    stated (so removed)."""
     for row in robot.parallel_rows():
         for factor in (-1.0, 1.0):
             c = (row, row - 1, factor)
             if any((j, o) == c[:2] for j, o, _ in robot.couplings):
                 continue
             try:
-                arm = replace(robot, couplings=(*robot.couplings, c))
+                yield replace(robot, couplings=(*robot.couplings, c)), c, False
             except ValueError:  # dependent couplings
                 continue
-            miss = registered_miss(arm, q, xyz)
-            if (
-                miss < COUPLING_GAIN * plain
-                and miss < COUPLING_MISS
-                and (best is None or miss < best[0])
-            ):
-                best = (miss, c)
+    for c in robot.couplings:
+        yield replace(robot, couplings=tuple(x for x in robot.couplings if x != c)), c, True
+
+
+def coupling_hint(
+    robot: RobotDescription,
+    q: np.ndarray,
+    xyz: np.ndarray,
+    columns: Mapping[str, np.ndarray] | None = None,
+) -> str:
+    """A sentence naming the joint coupling that would explain rows the arm cannot follow, or
+    ``""``: where two consecutive axes are parallel (FANUC's J2 and J3), a controller may report
+    the second from the horizon (``theta_3 = q_3 - q_2``) or relative (``+ q_2``), and a robot
+    file may state a coupling the rows do not have; the arm read so, registered on the rows,
+    misses them by a fraction of the arm's own miss."""
+    if len(q) < 6:
+        return ""
+    plain = registered_miss(robot, q, xyz, columns)
+    best: tuple[float, tuple[int, int, float], bool] | None = None
+    for arm, c, stated in _coupling_readings(robot):
+        miss = registered_miss(arm, q, xyz, columns)
+        if (
+            miss < COUPLING_GAIN * plain
+            and miss < COUPLING_MISS
+            and (best is None or miss < best[0])
+        ):
+            best = (miss, c, stated)
     if best is None:
         return ""
-    miss, (j, o, f) = best
+    miss, (j, o, f), stated = best
+    law = f"theta_{j} = q_{j} {'-' if f < 0 else '+'} q_{o}"
+    if stated:
+        return (
+            f"the rows fit as the arm's own angles, joint {j} not coupled on joint {o}: the "
+            f"nominal arm without the robot file's coupling ({law}) misses by {miss * 1e3:.3g} mm "
+            f"(median), with it by {plain * 1e3:.3g} mm; the rows are not the controller's angles "
+            f"it states (remove [[couplings]] joint = {j}, on = {o}, or give the controller's)"
+        )
     return (
-        f"the rows fit as the controller's angles of coupled joints {o} and {j} (theta_{j} = "
-        f"q_{j} {'-' if f < 0 else '+'} q_{o}, as FANUC reports J3 from the horizon): the nominal "
-        f"arm so coupled misses by {miss * 1e3:.3g} mm (median), uncoupled by {plain * 1e3:.3g} "
-        f"mm; state it in the robot file ([[couplings]] joint = {j}, on = {o}, factor = {f:g})"
+        f"the rows fit as the controller's angles of coupled joints {o} and {j} ({law}, as "
+        f"FANUC reports J3 from the horizon): the nominal arm so coupled misses by "
+        f"{miss * 1e3:.3g} mm (median), uncoupled by {plain * 1e3:.3g} mm; state it in the robot "
+        f"file ([[couplings]] joint = {j}, on = {o}, factor = {f:g})"
     )

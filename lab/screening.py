@@ -495,7 +495,7 @@ def _refuse_contaminated(
         f"than the {100 * MAX_OUTLIER_FRACTION:.0f} % the lab leaves out, so the fit is not a "
         f"calibration ({where}{more}). "
         + (
-            _sentence(coupling_hint(res.model.robot, data.q, data.xyz))
+            _sentence(coupling_hint(res.model.robot, data.q, data.xyz, data.columns))
             or "Rows of another arm or instrument, a reflector that lost lock?"
         )
         + " --outliers keep fits every pose"
