@@ -238,3 +238,24 @@ def test_a_tilted_mount_is_the_plain_arm_with_gravity_turned_by_hand():
     # and the robot file keeps it: gravity stays in the frame the extra joints start from
     again = RobotDescription.from_toml(arm.to_toml())
     np.testing.assert_allclose(again.frame0_gravity(), by_hand.gravity, atol=1e-12)
+
+
+def test_a_fit_finds_joint_1s_compliance_on_a_table_that_tilts_the_arm(tmp_path):
+    """Joint 1 of an upright arm carries no gravity torque; tilted by its table it does, and a
+    fit of rows drawn so recovers its compliance (held at its standard error)."""
+    from lab import fit
+
+    arm = load_robot(_write(tmp_path, _text(True, '<extra_joint joint="table"/>\n')))
+    truth = ErrorModel(arm, "geometric,compliance")
+    names = truth.layout.names
+    p = truth.nominal()
+    c = dict(zip([f"c{i}" for i in range(1, 7)], [3e-5, 2e-5, 2e-5, 4e-5, 4e-5, 4e-5], strict=True))
+    for k, v in c.items():
+        p[names.index(k)] = v
+    q, table = _rows(150, 8)
+    rng = np.random.default_rng(9)
+    xyz = truth.predict(truth.inputs(q, {"table": table}), p) + rng.normal(0.0, 20e-6, (150, 3))
+    res = fit(MeasurementSet(q, xyz, {"table": table}), arm, "geometric,compliance", noise_mm=0.02)
+    k = res.identifiability.names.index("c1")
+    assert abs(res.params[k] - c["c1"]) < max(4 * res.std[k], 2e-6), (res.params[k], res.std[k])
+    assert res.std[k] < c["c1"] / 5  # measured, not a prior
