@@ -119,6 +119,7 @@ class ErrorModel:
         orientation: bool = False,
     ) -> None:
         self.robot = robot.to_modified()
+        self.described = robot  # as its file states it (its own DH convention), for messages
         if robot.effects:
             check_robot_effects(self.robot)
         self.effects: list[Effect] = parse_effects(effects)

@@ -237,7 +237,7 @@ def test_no_coupling_is_named_where_none_explains_the_rows():
     in_mm = MeasurementSet(d.q, d.xyz * 1e-3, {}, "m_as_mm.csv")
     with pytest.raises(FitError) as refused:
         fit(in_mm, robot, "geometric")
-    assert "coupl" not in str(refused.value)
+    assert "coupl" not in str(refused.value) and "convention =" not in str(refused.value)
 
 
 def test_the_urdf_keeps_the_couplings(tmp_path):
@@ -270,3 +270,17 @@ def test_the_simulator_and_the_mpc_refuse_a_coupled_arm_rather_than_ignore_it():
         Plant(robot)
     with pytest.raises(UnsupportedEffectError, match="coupled joints"):
         ToolModel(ErrorModel(robot, "geometric"))
+
+
+@pytest.mark.parametrize(("arm", "said"), [("ur5", "modified"), ("seed", "standard")])
+def test_a_dh_table_read_in_the_wrong_convention_is_named(arm, said):
+    """A data sheet's DH table in a robot file that reads it in the other convention (a standard
+    table where `convention` was left out): the refusal names the convention that fits."""
+    robot = load_robot(arm)
+    d = _campaign(robot, 120, 11)
+    wrong = replace(robot, convention=said)
+    with pytest.raises(FitError) as refused:
+        fit(d, wrong, "geometric", noise_mm=SIGMA * 1e3)
+    message = str(refused.value)
+    assert f'say convention = "{robot.convention}"' in message, message
+    assert "coupl" not in message
