@@ -3,9 +3,11 @@ lab's modified-DH model, and a calibrated model written back into the same URDF.
 
 **In.** :func:`read_urdf` reads the file with yourdfpy (a strict XML parse first, so a broken file
 is refused with its line instead of being "recovered"), finds the chain from the base link to the
-tip link (the tip named, or found when exactly one link ends a chain of six revolute joints: on
-``z1.urdf`` the gripper's joint is a seventh and not part of the arm) and converts the joint
-placements at q = 0 into
+tip link (the tip named, or found when exactly one link ends a chain of six revolute joints after
+any extra joints: where a seventh revolute joint allows two readings, the arm is the one whose
+joints 1 and 2 are not parallel: on ``z1.urdf`` the gripper's joint is a seventh and not part of
+the arm, on a rotary table the table's is; ``<extra_joint joint default/>`` under ``<robot>``
+declares a joint before the arm and its default) and converts the joint placements at q = 0 into
 
 * modified DH rows ``RotX(alpha_{i-1}) RotY(beta_{i-1}) TransX(a_{i-1}) RotZ(theta_i) TransZ(d_i)``
   with ``theta_i = q_i + theta_offset_i``: the x axis of frame i is the common normal of joint
