@@ -289,20 +289,18 @@ def _declared_extra(text: str, src: str) -> dict[str, float | None]:
     return out
 
 
-def _chain_reading(path: list, declared: Mapping[str, Any]) -> list | None:
-    """The moving joints of ``path`` (root to a link) read as extra joints then an arm of six,
-    or None where they cannot be: fewer than six, the path not ending on a revolute joint, an
-    arm joint that is not revolute, mimics or is declared extra, or a joint before the arm that
-    is no extra joint's kind or mimics another."""
+def _reads_as_arm(path: list, declared: Mapping[str, Any]) -> bool:
+    """Whether the moving joints of ``path`` (from the base to a link) read as extra joints then
+    an arm of six ending at the link: not where there are fewer than six, the path ends on no
+    revolute joint, an arm joint is not revolute, mimics or is declared extra, or a joint before
+    the arm is no extra joint's kind or mimics another."""
     moving = _arm_joints(path)
     if len(moving) < 6 or not path or path[-1].type not in ARM_JOINTS:
-        return None
+        return False
     extra, arm = moving[:-6], moving[-6:]
     if any(j.type not in ARM_JOINTS or j.mimic is not None or j.name in declared for j in arm):
-        return None
-    if any(j.type not in EXTRA_JOINTS or j.mimic is not None for j in extra):
-        return None
-    return moving
+        return False
+    return all(j.type in EXTRA_JOINTS and j.mimic is None for j in extra)
 
 
 def _first_axes_parallel(path: list, src: str) -> bool:
@@ -334,7 +332,7 @@ def _find_tip(
         if anchor not in names:
             continue
         below = path[names.index(anchor) :]
-        if _chain_reading(below, declared) is not None:
+        if _reads_as_arm(below, declared):
             found.append((name, below))
     if len(found) > 1:  # a seventh revolute joint: the reading whose joints 1 and 2 cross
         crossing = [(n, b) for n, b in found if not _first_axes_parallel(b, src)]
