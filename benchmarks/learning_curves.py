@@ -230,7 +230,7 @@ def cost_lines(table: list[dict], seeds: int = SEEDS_PER_AGENT) -> list[str]:
         "",
         f"Estimated from the measured runs above: {seeds} x the wall time of a seed (its range "
         "over the seeds measured), one run per core; two at a time on the 2 cores halves the "
-        "wall clock, not the CPU. The plain policy's patience rule (`ppo-observe.toml`) can end "
+        "wall clock, not the CPU. The plain policy's patience rule (`ppo-plain.toml`) can end "
         "a seed sooner than its cap; the figures are for the whole budget.",
         "",
         f"| policy | seeds measured | wall time a seed (min) | {seeds} seeds, CPU (h) | "
@@ -261,7 +261,7 @@ def cost_lines(table: list[dict], seeds: int = SEEDS_PER_AGENT) -> list[str]:
             f"steps/s: {lo:.1f}-{hi:.1f} h of CPU, {lo / 2:.1f}-{hi / 2:.1f} h with `--jobs 2`."
         )
     lines.append(
-        "`ppo-observe.toml` caps a seed at 2.4M steps, twice the plain policy's measured 1.2M: "
+        "`ppo-plain.toml` caps a seed at 2.4M steps, twice the previous plain policy's measured 1.2M: "
         "up to twice its row if the patience rule never ends it. A session of 3 hours fits one "
         "agent's seeds two at a time (the plain policy's over two sessions: `--stop-at` and "
         "`--resume`, with the checkpoints kept outside the repository)."

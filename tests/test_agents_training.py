@@ -416,7 +416,7 @@ def test_sixaxis_train_writes_diagnostics_where_asked(tmp_path):
 
 
 def test_the_tuning_grid_trains_each_point_at_its_gamma_and_rate_for_equal_budgets(tmp_path):
-    """benchmarks/ppo_tuning.py: each point is ppo-observe.toml with its gamma and a constant
+    """benchmarks/ppo_tuning.py: each point is ppo-plain.toml with its gamma and a constant
     learning rate, the same budget and no patience (equal cost), in a folder of its own."""
     import argparse
 
