@@ -39,7 +39,7 @@ from agents.training import (
 )
 from arm.errormodel import ErrorModel
 from envs.wrappers import NominalToolObservation
-from experiments.config import load_config
+from experiments.config import load_config, split_train_seed
 
 CONFIGS = Path(__file__).resolve().parents[1] / "experiments" / "configs"
 TRAIN_CONFIGS = sorted(p for p in CONFIGS.glob("*.toml") if "[train]" in p.read_text())
@@ -389,7 +389,13 @@ def test_the_shipped_policies_are_weight_files():
     assert {"ppo-residual"} <= set(POLICIES)
     assert {"sac-residual", "td3-residual"} & set(POLICIES)  # the off-policy residual
     full = load_config(CONFIGS / "full.toml", check_agents=False)
-    assert set(POLICIES) <= {a.agent for a in full.agents}  # every one on the leaderboard
+    # every one on the leaderboard, over its training seeds (each seed's network a file of its own)
+    ranked = {split_train_seed(a.label)[0] for a in full.agents}
+    assert set(POLICIES) <= ranked
+    for a in full.agents:
+        if split_train_seed(a.label)[1] is not None:
+            assert a.agent == "policy" and Path(a.settings["path"]).stem == a.label
+            assert (POLICY_DIR.parents[1] / a.settings["path"]).exists(), a.label
     for name in POLICIES:
         path = POLICY_DIR / f"{name}.npz"
         assert path.exists(), name
