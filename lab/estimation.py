@@ -95,6 +95,25 @@ def distinct_poses(data: MeasurementSet) -> int:
     return max(1, len(np.unique(np.hstack(keys), axis=0)))
 
 
+def rehomed_stations(data: MeasurementSet) -> bool:
+    """Whether each station of ``data`` is a session of its own (files joined by
+    :func:`arm.sessions.join_sessions`, each measured from one station no other file shares),
+    two at least: each was re-homed, and a fit gives each its own zero offsets
+    (:class:`arm.effects.chain.Geometric`). Stations of one file are one session (the tracker
+    moved, the arm not re-homed); a station two files share holds two sessions, which the
+    model cannot tell apart: no offsets of their own then."""
+    stations = data.stations
+    if len(stations) < 2 or len(data.sessions) < 2:
+        return False
+    owner: dict[int, int] = {}
+    for k, s in enumerate(data.sessions):
+        for sid in s.stations:
+            if sid in owner or len(s.stations) != 1:
+                return False
+            owner[sid] = k
+    return all(s in owner for s in stations)
+
+
 def model_of(
     data: MeasurementSet,
     robot: RobotDescription,
@@ -108,7 +127,12 @@ def model_of(
     turn = uses_orientation(data, measured, noise)
     try:
         model = ErrorModel(
-            robot, effects, targets=data.targets, stations=data.stations, orientation=turn
+            robot,
+            effects,
+            targets=data.targets,
+            stations=data.stations,
+            orientation=turn,
+            rehomed=rehomed_stations(data),
         )
     except EffectError as exc:
         raise FitError(str(exc)) from None
