@@ -34,7 +34,7 @@ from __future__ import annotations
 import logging
 import math
 import warnings
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
@@ -94,7 +94,11 @@ SYSTEMATIC = 1.5
 
 def distinct_poses(data: MeasurementSet) -> int:
     """How many distinct poses the rows hold: distinct joint readings (with the target and the
-    station, where the data name them)."""
+    station, where the data name them). Repeated poses average the instrument's noise but not
+    the model's own error: what the poses determine is judged per distinct pose, as if each were
+    measured once (480,000 rows of 60 poses made nearly dependent parameters "identifiable" by
+    the row count alone; a missing effect then drove them to centimetres and the fit was refused
+    as another robot's file)."""
     keys = [data.q] + [data.columns[c][:, None] for c in ("target", "station") if c in data.columns]
     return max(1, len(np.unique(np.hstack(keys), axis=0)))
 
@@ -206,16 +210,25 @@ def _registered(
 
 
 def _restored_beyond_residual(
-    ident: Identifiability, first: np.ndarray, strict: Identifiability
+    ident: Identifiability,
+    first: np.ndarray,
+    judge: Callable[..., Identifiability],
+    left: float,
+    noise: float,
+    repeats: float,
 ) -> Identifiability:
     """``ident`` without the parameters it restores (nearly dependent at the start: not in
-    ``first``) that the data do not determine beyond what the model leaves (``strict``, judged by
-    the residual where it exceeds the noise): held and named with their combination, as weak.
+    ``first``) that the data do not determine beyond what the model leaves (``left``, m per
+    axis, where :data:`SYSTEMATIC` times the ``noise`` or more; ``judge(noise=...)`` the
+    identifiability at the solution): held and named with their combination, as weak.
     The residual is systematic, and a near-null direction determined against the instrument's
     noise alone takes it up: the UR10's tool 0.3 mm off joint 6's axis made dalpha6 and da6
     separable at 0.015 mm, and the 0.26 mm the geometric model leaves on its three series drove
     them, with dtheta5 and dd5, to 296 mrad, 27 mm, 148 mrad and 56 mm (refused as
     implausible)."""
+    if not (left > SYSTEMATIC * noise and (ident.identifiable & ~first).any()):
+        return ident
+    strict = judge(noise=left * math.sqrt(repeats))
     drop = ident.identifiable & ~first & ~strict.identifiable
     if not drop.any():
         return ident
@@ -364,18 +377,11 @@ def fit_rows(
     if judge_noise:
         check_stated_noise(stated, options, data)
     noise = _noise_of(noise_mm, obs, sol.residuals, sigma)
-    # Repeated poses average the instrument's noise but not the model's own error: what the poses
-    # determine is judged per distinct pose, as if each were measured once. (480,000 rows of 60
-    # poses made nearly dependent parameters "identifiable" by the row count alone; a missing
-    # effect then drove them to centimetres and the fit was refused as another robot's file.)
-    repeats = len(xyz) / distinct_poses(data)
+    repeats = len(xyz) / distinct_poses(data)  # judged per distinct pose (distinct_poses)
     ident = identifiability(sol.params, sol.jacobian, noise=noise * math.sqrt(repeats), warn=True)
     left = float(np.sqrt(np.mean(points(sol) ** 2)))  # m per axis: what the model leaves
-    if left > SYSTEMATIC * noise and (ident.identifiable & ~free & ~held).any():
-        strict = identifiability(
-            sol.params, sol.jacobian, noise=left * math.sqrt(repeats), warn=False
-        )
-        ident = _restored_beyond_residual(ident, free | held, strict)
+    judge = partial(identifiability, sol.params, sol.jacobian, warn=False)
+    ident = _restored_beyond_residual(ident, free | held, judge, left, noise, repeats)
     if held.any():
         ident = replace(ident, held=tuple(np.asarray(lay.names)[held]))
     free2 = ident.identifiable & ~held
