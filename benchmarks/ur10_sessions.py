@@ -24,7 +24,10 @@ For each series L of ``data/ur10`` (A, B, D: each its own session and tracker st
   left out in turn, finds that its terms do not help: ``sixaxis lab fit ... --predict``); its
   **prediction** is ``expect``'s, made for the scored rows before they are read.
 * **k = 20, 50, 100, 300** poses of L drawn at random, L's other poses scored:
-  the **prior alone** (the lab's calibration, its base fitted on the k poses: ``Update.prior_result``),
+  the **prior alone**: each calibration, L's station registered on the k poses as references
+  (``validate(rest, references=poses)``, as at k = 0); beside it the lab's calibration as
+  ``lab.update`` places it (its base fitted on the k poses, every term kept:
+  ``Update.prior_result``, what ``lab update --validate`` prints as the calibration alone);
   the k poses **alone** (``lab.fit`` geometric; and the lab's path on them, as above), the
   **update** (``lab.update.update(prior, poses)``: ``sixaxis lab update CAL.toml NEW.csv``) of
   the lab's calibration and of the geometric one, and the update's **prediction**
@@ -85,6 +88,7 @@ REFERENCES = UR10_REFERENCES
 COLUMNS = {
     "geometric": "geometric calibration (prior alone)",
     "prior": "the lab's calibration (prior alone)",
+    "prior_update": "the lab's calibration as lab.update places it (Update.prior_result)",
     "geometric_alone": "the k poses alone, geometric",
     "lab_alone": "the k poses alone, the lab's path",
     "update": "update of the lab's calibration",
@@ -239,10 +243,13 @@ def k_draw(cal: dict, left: MeasurementSet, k: int, rng, work: Path, tag: str) -
     seconds = time.perf_counter() - t
     assert u.prior_result is not None
     ug = update(cal["priors"]["geometric"], poses)
-    assert ug.prior_result is not None
     out = {
-        "geometric": _rms(ug.prior_result, rest),
-        "prior": _rms(u.prior_result, rest),
+        # the calibration alone, its station registered on the k poses as references
+        # (--references: the mechanism k = 0 uses), and as lab.update places it (its base
+        # fitted on the k poses, every term of the calibration kept: Update.prior_result)
+        "geometric": _rms(cal["geometric"], rest, poses),
+        "prior": _rms(cal["lab"], rest, poses),
+        "prior_update": _rms(u.prior_result, rest),
         "update": _rms(u.result, rest),
         "update_geometric": _rms(ug.result, rest),
         "predicted": predicted_rms(u.result, rest, unseen=False).rms_mm,
@@ -360,10 +367,10 @@ def markdown(report: dict) -> str:
         )
         + ".",
         "",
-        "| left out | k | geometric calibration | the lab's calibration | k alone: geometric | "
-        "k alone: the lab's path | update | update of the geometric | predicted | measured / "
-        "predicted (median, range) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| left out | k | geometric calibration | the lab's calibration | the lab's calibration "
+        "as lab.update places it | k alone: geometric | k alone: the lab's path | update | "
+        "update of the geometric | predicted | measured / predicted (median, range) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for f in report["folds"]:
         for k, e in f["k"].items():
@@ -371,18 +378,24 @@ def markdown(report: dict) -> str:
             r = s["ratio"]
             lab = _cell(s["prior"])
             if k == "0":
-                lab += f"; chosen in {s['chosen_lab']}/{r['n']} draws"
+                lab += f"; chosen in {s['chosen_lab']} of {r['n']} draws"
             lines.append(
                 f"| {f['left_out']} | {k} | {_cell(s['geometric'])} | {lab} | "
                 + (
-                    " | | | | "
+                    " | | | | | "
                     if k == "0"
-                    else f"{_cell(s['geometric_alone'])} | {_cell(s['lab_alone'])} | "
+                    else f"{_cell(s['prior_update'])} | "
+                    f"{_cell(s['geometric_alone'])} | {_cell(s['lab_alone'])} | "
                     f"{_cell(s['update'])} | {_cell(s['update_geometric'])} | "
                 )
                 + f"{_cell(s['predicted'])} | {r['median']:.2f} ({r['min']:.2f}-{r['max']:.2f}) |"
             )
     lines += [
+        "",
+        "The calibrations alone are registered on the k poses as references (`--references`, "
+        "as at k = 0); the column beside them is the lab's calibration as `lab.update` places "
+        "it (its base fitted on the k poses, every term kept: what `lab update --validate` "
+        "prints as the calibration alone). The targets compare the update with the first.",
         "",
         "At k = 0 the prediction is that of the chosen model (lab.prediction.expect), "
         "and measured is the chosen model's figure; at k > 0 both are the update's "
