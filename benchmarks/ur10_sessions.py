@@ -3,6 +3,8 @@ the real series without fitting anything on the rows scored.
 
     python benchmarks/ur10_sessions.py               # make real-data runs it after real_data.py
     python benchmarks/ur10_sessions.py --draws 2 --folds D --out /tmp/x     # one fold, quickly
+    python benchmarks/ur10_sessions.py --folds A --out /tmp/a &   # the folds side by side, then
+    python benchmarks/ur10_sessions.py --merge /tmp/[abd]/ur10_sessions.json  # joined in results/
 
 Writes ``results/ur10_sessions.md`` and ``results/ur10_sessions.json`` (atomically, at the end),
 naming the commit they came from and whether the tree was clean.
@@ -354,6 +356,11 @@ def markdown(report: dict) -> str:
         f"Made by `python benchmarks/ur10_sessions.py` (`make real-data`) in {report['wall_s']:.0f} s "
         f"({report['cpu_s']:.0f} s of CPU) on {report['machine']}, commit {report['commit']}"
         + ("" if report["clean"] else " (with local changes)")
+        + (
+            f"; {report['merged_runs']} runs of single folds, side by side, joined (`--merge`)"
+            if report.get("merged_runs")
+            else ""
+        )
         + ".",
         "",
         "Each series of `data/ur10` left out in turn; the calibration from the other two whole "
@@ -455,7 +462,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--draws", type=int, default=DRAWS, help="draws per fold and k")
     ap.add_argument("--folds", default="".join(UR10_SERIES), help="the series left out (ABD)")
     ap.add_argument("--out", type=Path, default=OUT, help="where ur10_sessions.md/.json go")
+    ap.add_argument(
+        "--merge",
+        type=Path,
+        nargs="+",
+        help="join the ur10_sessions.json of runs of single folds (--folds A, B, D run side by "
+        "side, of one commit: each fold's draws are seeded by the fold) into --out; runs nothing",
+    )
     args = ap.parse_args(argv)
+    if args.merge:
+        return _write(merge([json.loads(p.read_text()) for p in args.merge]), args.out)
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
     from lab import LabWarning
 
@@ -486,14 +502,38 @@ def main(argv: list[str] | None = None) -> int:
         "folds": folds,
         "held": _held(folds),
     }
-    args.out.mkdir(parents=True, exist_ok=True)
+    return _write(report, args.out)
+
+
+def _write(report: dict, out: Path) -> int:
+    out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(
-        args.out / "ur10_sessions.json", json.dumps(report, indent=2, default=_json) + "\n"
+        out / "ur10_sessions.json", json.dumps(report, indent=2, default=_json) + "\n"
     )
     text = markdown(report)
-    atomic_write_text(args.out / "ur10_sessions.md", text)
+    atomic_write_text(out / "ur10_sessions.md", text)
     print(text)
     return 0
+
+
+def merge(reports: list[dict]) -> dict:
+    """One report of the folds of ``reports`` (runs of single folds, of one commit and
+    settings): the wall time is the longest run's, the CPU time their sum."""
+    first = reports[0]
+    same = ("commit", "clean", "draws", "ks", "references", "seed")
+    for r in reports[1:]:
+        bad = [k for k in same if r[k] != first[k]]
+        if bad:
+            raise SystemExit(f"error: the runs differ in {', '.join(bad)}: not one benchmark")
+    order = {s: i for i, s in enumerate(UR10_SERIES)}
+    folds = sorted((f for r in reports for f in r["folds"]), key=lambda f: order[f["left_out"]])
+    return first | {
+        "wall_s": max(r["wall_s"] for r in reports),
+        "cpu_s": sum(r["cpu_s"] for r in reports),
+        "folds": folds,
+        "held": _held(folds),
+        "merged_runs": len(reports),
+    }
 
 
 def _json(v):
