@@ -4,6 +4,8 @@ scored (issue 38, Deliver 6), and the targets are judged as the issue states the
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
@@ -80,3 +82,28 @@ def test_the_targets_are_judged_on_the_medians_as_the_issue_states():
     assert t["50"]["update_within_5pct"] and not t["50"]["update_15pct_better_than_both"]
     assert not t["100"]["update_within_5pct"] and "update_15pct_better_than_both" not in t["100"]
     assert t["20"]["prediction_in_band"] and not t["100"]["prediction_in_band"]  # 1.0 and 2.7
+
+
+def test_a_calibration_refitted_once_per_set_of_terms_validates_as_it_is(b_and_d):
+    """ur10_sessions reuses the refit without out-of-domain terms across draws: the same
+    figures as the result itself (D's temperatures lie outside B's: the thermal line drops)."""
+    from benchmarks.ur10_sessions import _refits_once
+
+    b, d = b_and_d
+    res = lab.fit(b, "ur10_robot", "geometric,thermal", noise_mm=0.015, noise_ppm=6.0)
+    calls = []
+    original = res.refit
+    assert original is not None
+
+    def counted(names):
+        calls.append(tuple(names))
+        return original(names)
+
+    once = _refits_once(dataclasses.replace(res, refit=counted))
+    refs, rest = reference_split(d)
+    want = res.validate(rest, references=refs)
+    assert want.validation_dropped  # the thermal line is left out there
+    for _ in range(2):
+        got = once.validate(rest, references=refs)
+        np.testing.assert_allclose(got.validation_residuals, want.validation_residuals)
+    assert len(calls) == len(set(calls)) >= 1
