@@ -19,8 +19,9 @@ few for blocks of :data:`MIN_BLOCK_ROWS` (no fair check: the first group alone).
 Judged on folds its design never saw (``benchmarks/lumped_heldout.py``): with any gain taken,
 the UR10's series B alone freed the rest for a 1.6 % lower blocked RMS (its five runs of rows
 share the session's residue), and the fit then missed series A and D by 2.1x and 2.9x the first
-group's error; with too few rows it freed all of them, and ``geometric,lumped_compliance`` was
-refused on the UR5's 20 random poses. A heavy arm's payload and wrist moments, where the rest is
+group's error; with too few rows to judge (the Rokae's 29) it freed all of them. (On the UR5's
+20 random poses the fit is refused either way: the parameter count, held ones included, exceeds
+the equations.) A heavy arm's payload and wrist moments, where the rest is
 the law, lowered it by 38 % and more where it was freed in the first twelve of
 ``benchmarks/heavy_arm.py``'s campaigns.
 """

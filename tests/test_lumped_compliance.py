@@ -280,8 +280,8 @@ def test_the_rest_enters_only_where_the_rows_say_it_helps():
 
 def test_too_few_rows_to_judge_hold_the_rest():
     """60 poses make blocks of 12, too few for a fair check (lab.lumped_choice.MIN_BLOCK_ROWS):
-    the rest is held and the first group fitted alone, where all 27 more once made the fit of a
-    UR5's 20 poses refused (63 parameters for 60 equations)."""
+    the rest is held and the first group fitted alone (all 27 more were once freed there, as on
+    the Rokae's 29 poses)."""
     arm = _arms()["fanuc"]
     c, _, v = _compliance_campaign(arm, 0.03, seed=5)
     d = c.measure(60)
