@@ -1155,12 +1155,18 @@ def ship_policy(
     seeds_trained: int = 1,
     wall_s_all_seeds: float | None = None,
     picked: str | None = None,
+    folder: str | Path | None = None,
+    evaluate: bool = True,
 ) -> Path:
     """Copy a run's ``best`` or ``final`` policy into ``agents/policies/<name>.npz`` (and .json)
     with its deterministic evaluation on the public episodes and its training budget (the run's
     steps and wall time, from its ``summary.json``; how many seeds were trained to choose it and
     their wall time in all; ``picked``, which seed of them this is: ``"best"`` or ``"median"``)
-    recorded in the .json: the leaderboard says what the shipped row is from it."""
+    recorded in the .json: the leaderboard says what the shipped row is from it.
+
+    ``folder`` ships elsewhere (``agents/policies/seeds/``: every training seed of an agent, which
+    the leaderboard ranks as the agent, ``ppo@s3``); ``evaluate=False`` leaves out the evaluation
+    on the public episodes (a seed's rows are the sweep's own)."""
     from agents.policy import load_policy_file
     from arm.files import atomic_path, atomic_write_text
 
@@ -1170,7 +1176,8 @@ def ship_policy(
     src = run_dir / f"{which}.npz"
     _, meta = load_policy_file(src)  # refuses anything unsafe or inconsistent
     name = name or str(meta["name"])
-    dst = POLICY_DIR / f"{name}.npz"
+    dst = Path(folder or POLICY_DIR) / f"{name}.npz"
+    dst.parent.mkdir(parents=True, exist_ok=True)
     meta = dict(meta) | {"name": name, "source": f"{run_dir.name}/{which}.npz"}
     # where the run wrote its records, as the default would name it (no path of this machine)
     meta["config"] = dict(meta.get("config") or {}) | {"output": f"runs/{run_dir.name}"}
@@ -1186,7 +1193,9 @@ def ship_policy(
     }
     if picked is not None:
         meta["training"]["picked"] = str(picked)
-    meta["leaderboard"] = policy_evaluation_record(src)  # the same weights
+    meta.pop("leaderboard", None)  # a record is of the file it was made for
+    if evaluate:
+        meta["leaderboard"] = policy_evaluation_record(src)  # the same weights
     with atomic_path(dst) as tmp:
         tmp.write_bytes(src.read_bytes())
     atomic_write_text(dst.with_suffix(".json"), json.dumps(meta, indent=2) + "\n")

@@ -87,7 +87,7 @@ from typing import Any, Literal
 import numpy as np
 
 from arm.errors import DescriptionError
-from arm.extra_joints import ExtraJoint
+from arm.extra_joints import ExtraJoint, place
 from arm.files import atomic_write_text, is_file, read_input_text, shown
 from arm.ranges import payload_problem
 from arm.so3 import rotation_matrix, rotation_vector
@@ -168,6 +168,9 @@ class RobotDescription:
     extra_joints: tuple[ExtraJoint, ...] = ()
     mount_translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mount_rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # the file it was read from (a shipped one as robots/NAME.toml), for messages; not part of
+    # equality
+    source: str = field(default="", compare=False, repr=False)
     # a calibrated arm's nominal arm, as `lab export` records it (what a controller believes in)
     nominal: RobotDescription | None = field(default=None, compare=False, repr=False)
     # a calibrated arm's domain: where it was identified, {variable: (lo, hi)} in SI units
@@ -353,6 +356,21 @@ class RobotDescription:
         flange = np.linalg.norm(m.flange_matrix[:3, 3])
         return float(np.abs(m.column("a")).sum() + np.abs(m.column("d")[1:]).sum() + flange)
 
+    def frame0_gravity(self, values: np.ndarray | None = None) -> np.ndarray:
+        """Gravity in the arm's frame 0 (m/s²): ``gravity`` itself without extra joints (3,); with
+        them, ``gravity`` is in the frame they start from, and frame 0 turns with them and the
+        mount: at each row's values (N, k), SI, (N, 3), or at their defaults (zero where none),
+        (3,). A tilted mount or a tilting rotary table so tilts the gravity the arm feels."""
+        g = np.asarray(self.gravity, dtype=float)
+        if not self.extra_joints:
+            return g
+        held = values is None
+        if held:
+            values = np.array([[j.default or 0.0 for j in self.extra_joints]])
+        R = place(self.extra_joints, self.mount_matrix, np.asarray(values, dtype=float)).R
+        out = np.einsum("nji,j->ni", R, g)  # R^T g: frame 0 <- the extra joints' first frame
+        return out[0] if held else out
+
     def parallel_rows(self, tol: float = 1e-6) -> tuple[int, ...]:
         """Rows i (1-based, i >= 2) whose axis z_i is parallel to z_{i-1} (alpha_{i-1} = 0 or pi).
 
@@ -398,7 +416,8 @@ class RobotDescription:
         frames as ``link1`` .. ``link6``, the flange as ``flange``; its masses as point masses.
         The base transform and the tool points are metrology, not the arm's: they stay out; the
         joints' couplings stay in (``<coupling joint on factor/>``, which :func:`from_urdf` reads),
-        and so do its extra joints, before ``base_link`` (their defaults do not: URDF has none)."""
+        and so do its extra joints, before ``base_link``, each declared with its default
+        (``<extra_joint joint default/>``)."""
         from arm.urdf import urdf_of_chain
 
         m = self.to_modified()
@@ -417,6 +436,7 @@ class RobotDescription:
             m.couplings,
             [(j.name, j.kind, np.array(j.axis), j.origin) for j in m.extra_joints],
             m.mount_matrix,
+            {j.name: j.default for j in m.extra_joints if j.default is not None},
         )
 
     # -- TOML ---------------------------------------------------------------------------------
@@ -839,6 +859,7 @@ def _from_dict(doc: dict, source: str, nested: bool = False) -> RobotDescription
             extra_joints=_extra_joints(doc, source, L, A),
             mount_translation=mt,
             mount_rotation=mr,
+            source="" if source.startswith("<") else source,
         )
     except DescriptionError as exc:
         raise DescriptionError(f"{source}: {exc}") from None
@@ -883,6 +904,7 @@ def from_urdf(arm: UrdfArm) -> RobotDescription:
             flange_rotation=vec3(clean(c) for c in rotation_vector(flange[:3, :3])),
             urdf=arm.source,
             couplings=arm.couplings,
+            source=arm.source.path,
             **placed,
         )
     except DescriptionError as exc:
@@ -903,6 +925,7 @@ def _urdf_extras(arm: UrdfArm) -> dict[str, Any]:
             axis=vec3(clean(c) for c in axis),
             translation=vec3(clean(c) for c in origin[:3, 3]),
             rotation=vec3(clean(c) for c in rotation_vector(origin[:3, :3])),
+            default=arm.extra_defaults.get(name),
         )
         for name, kind, axis, origin in arm.extra
     )

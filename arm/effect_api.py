@@ -74,7 +74,8 @@ class ArmSize:
 class ModelInputs:
     """Everything per pose that the model needs besides the parameters, computed once per data set.
 
-    ``tau`` are the gravity torques of the nominal arm at the encoder reading (payload included);
+    ``tau`` are the gravity torques of the nominal arm at the encoder reading (payload included,
+    gravity as each pose's extra joints turn frame 0: ``gravity``);
     ``target`` is each pose's index into the model's targets, ``station`` into its stations.
     """
 
@@ -88,6 +89,8 @@ class ModelInputs:
     _cache: dict = field(default_factory=dict, repr=False)
     # each pose's value of the robot's extra joints (N, k), SI (arm.extra_joints), or None
     extra: np.ndarray | None = None
+    # each pose's gravity in frame 0 (N, 3), where extra joints turn it, or None (the robot's)
+    gravity: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.station is None:
@@ -129,6 +132,7 @@ class ModelInputs:
             columns={k: v[idx] for k, v in self.columns.items()},
             station=self.stations[idx],
             extra=None if self.extra is None else self.extra[idx],
+            gravity=None if self.gravity is None else self.gravity[idx],
         )
 
 

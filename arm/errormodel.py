@@ -119,6 +119,7 @@ class ErrorModel:
         orientation: bool = False,
     ) -> None:
         self.robot = robot.to_modified()
+        self.described = robot  # as its file states it (its own DH convention), for messages
         if robot.effects:
             check_robot_effects(self.robot)
         self.effects: list[Effect] = parse_effects(effects)
@@ -201,8 +202,14 @@ class ErrorModel:
             needs = {c: [e.name for e in self.effects if c in e.columns] for c in missing}
             detail = "; ".join(f"{c} (needed by {', '.join(v)})" for c, v in needs.items())
             raise EffectError(f"{source}: missing column(s) {detail}")
-        payload = cols.get("payload")
-        tau = gravity_torques(self.robot, q, payload=payload)
+        extra = (
+            extra_values(self.robot.extra_joints, cols, q.shape[0], source, self.robot.source)
+            if self.robot.extra_joints
+            else None
+        )
+        # the gravity frame 0 feels where extra joints turn it (a tilting table), nominal values
+        gravity = None if extra is None else self.robot.frame0_gravity(extra)
+        tau = gravity_torques(self.robot, q, payload=cols.get("payload"), gravity=gravity)
         if "target" in cols:
             t = cols["target"]
             if np.any(t != np.round(t)):
@@ -215,12 +222,9 @@ class ErrorModel:
                 )
             target = np.zeros(q.shape[0], dtype=int)
         station = self._station_index(cols, q.shape[0], source)
-        extra = (
-            extra_values(self.robot.extra_joints, cols, q.shape[0], source)
-            if self.robot.extra_joints
-            else None
+        return ModelInputs(
+            self.robot, self.targets, q, tau, target, cols, station, extra=extra, gravity=gravity
         )
-        return ModelInputs(self.robot, self.targets, q, tau, target, cols, station, extra=extra)
 
     def _station_index(self, cols: Mapping[str, np.ndarray], n: int, source: str) -> np.ndarray:
         """Each pose's index into the model's stations, from the ``station`` column."""

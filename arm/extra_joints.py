@@ -34,6 +34,7 @@ __all__ = [
     "ExtraJoint",
     "ExtraPlacement",
     "extra_values",
+    "missing_value",
     "normals",
     "parse_joint_values",
     "place",
@@ -91,10 +92,16 @@ def normals(axis: np.ndarray) -> np.ndarray:
 
 
 def extra_values(
-    joints: Sequence[ExtraJoint], columns: Mapping[str, np.ndarray], n: int, source: str
+    joints: Sequence[ExtraJoint],
+    columns: Mapping[str, np.ndarray],
+    n: int,
+    source: str,
+    robot_file: str = "",
 ) -> np.ndarray:
     """Each row's value of each extra joint (N, k), SI: the column named after the joint (in the
-    joint's ``unit``), else its default; a joint with neither is an error naming it."""
+    joint's ``unit``), else its default; a joint with neither is an error naming it, the data,
+    the robot file (``robot_file``: a ``.urdf`` path says how a URDF declares a default) and the
+    three ways to give it."""
     out = np.empty((n, len(joints)))
     for k, j in enumerate(joints):
         if j.name in columns:
@@ -109,11 +116,23 @@ def extra_values(
         elif j.default is not None:
             out[:, k] = j.default
         else:
-            raise ModelError(
-                f"{source}: no value for extra joint {j.name!r} ({j.kind}): give a column "
-                f"{j.name!r}, --joint-value {j.name}=VALUE, or a default in the robot file"
-            )
+            raise ModelError(f"{source}: {missing_value(j, robot_file)}")
     return out
+
+
+def missing_value(joint: ExtraJoint, robot_file: str = "") -> str:
+    """What a row without a value of ``joint`` is told: the three ways to give one, in the robot
+    file's own form (a URDF's ``<extra_joint>`` element, or a robot TOML's ``default``)."""
+    name, unit = joint.name, "m" if joint.kind == "prismatic" else "rad"
+    if robot_file.lower().endswith(".urdf"):
+        declare = f'<extra_joint joint="{name}" default="VALUE"/> under <robot> (in {unit})'
+    else:
+        declare = "default = VALUE under its [[extra_joints]] (in the file's units)"
+    return (
+        f"no value for extra joint {name!r} ({joint.kind}) of {robot_file or 'the robot'}, "
+        f"which states no default: give the data a column {name!r}, --joint-value {name}=VALUE "
+        f"for every row, or a default in the robot file: {declare}"
+    )
 
 
 def parse_joint_values(specs: Sequence[str]) -> dict[str, float]:

@@ -317,12 +317,14 @@ def gravity_torques(
     q: np.ndarray,
     payload: float | np.ndarray | None = None,
     chain: Chain | None = None,
+    gravity: np.ndarray | None = None,
 ) -> np.ndarray:
     """Torques (N, 6) that gravity exerts about each joint axis (docs/format.md, compliance).
 
     ``tau_i = z_i . sum_{k>=i} (c_k - o_i) x (m_k g)``, the payload a point mass at the first tool
     point; this is minus the torque a motor must hold. ``payload`` overrides the description's, and
-    may be one value per pose.
+    may be one value per pose; ``gravity`` (3,) or (N, 3), in frame 0, the robot's
+    (:meth:`~arm.description.RobotDescription.frame0_gravity`: extra joints at their defaults).
     """
     q = np.asarray(q, dtype=float)
     single = q.ndim == 1
@@ -333,9 +335,12 @@ def gravity_torques(
         # block by block: the seven frames of 200k poses take 130 MB, their torques 10 MB
         out = np.empty((len(q), 6))
         pay = None if payload is None else np.broadcast_to(np.asarray(payload, float), len(q))
+        grav = None if gravity is None else np.asarray(gravity, dtype=float)
+        per_row = grav is not None and grav.ndim == 2
         for a in range(0, len(q), TORQUE_BLOCK):
             b = slice(a, a + TORQUE_BLOCK)
-            out[b] = gravity_torques(robot, q[b], None if pay is None else pay[b], chain)
+            gb = grav[b] if per_row and grav is not None else grav
+            out[b] = gravity_torques(robot, q[b], None if pay is None else pay[b], chain, gb)
         return out
     f = link_frames(chain, q)
     n = f.o.shape[0]
@@ -350,7 +355,9 @@ def gravity_torques(
     msum[:, 5] += mp
     M = np.cumsum(msum[:, ::-1], axis=1)[:, ::-1]
     MC = np.cumsum(mc[:, ::-1], axis=1)[:, ::-1]
-    g = np.asarray(m.gravity, dtype=float)
+    g = np.asarray(robot.frame0_gravity() if gravity is None else gravity, dtype=float)
+    if g.ndim == 2:
+        g = g[:, None, :]  # one per pose
     lever = MC - M[:, :, None] * f.o[:, 1:]
     tau = np.einsum("nki,nki->nk", f.z, np.cross(lever, g))
     return tau[0] if single else tau

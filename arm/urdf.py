@@ -3,9 +3,11 @@ lab's modified-DH model, and a calibrated model written back into the same URDF.
 
 **In.** :func:`read_urdf` reads the file with yourdfpy (a strict XML parse first, so a broken file
 is refused with its line instead of being "recovered"), finds the chain from the base link to the
-tip link (the tip named, or found when exactly one link ends a chain of six revolute joints: on
-``z1.urdf`` the gripper's joint is a seventh and not part of the arm) and converts the joint
-placements at q = 0 into
+tip link (the tip named, or found when exactly one link ends a chain of six revolute joints after
+any extra joints: where a seventh revolute joint allows two readings, the arm is the one whose
+joints 1 and 2 are not parallel: on ``z1.urdf`` the gripper's joint is a seventh and not part of
+the arm, on a rotary table the table's is; ``<extra_joint joint default/>`` under ``<robot>``
+declares a joint before the arm and its default) and converts the joint placements at q = 0 into
 
 * modified DH rows ``RotX(alpha_{i-1}) RotY(beta_{i-1}) TransX(a_{i-1}) RotZ(theta_i) TransZ(d_i)``
   with ``theta_i = q_i + theta_offset_i``: the x axis of frame i is the common normal of joint
@@ -40,8 +42,8 @@ import logging
 import math
 import re
 import warnings
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -91,7 +93,8 @@ class UrdfArm:
 
     ``base`` (4x4): base link <- frame 0; ``flange`` (4x4): frame 6 <- tip link; ``link_offsets``
     (6, 4, 4): frame i <- the child link of arm joint i (fixed at any q); ``origins`` (6, 4, 4): the
-    arm joints' own ``<origin>``; ``gravity``: in frame 0.
+    arm joints' own ``<origin>``; ``gravity``: in frame 0, or with extra joints in the frame they
+    start from (the base link's).
     """
 
     name: str
@@ -119,6 +122,9 @@ class UrdfArm:
     # extra joint's frame, the first's in the base link's); ``base`` is then the last one's
     # frame <- frame 0 (the description's mount), the base link its frame at value 0
     extra: tuple[tuple[str, str, np.ndarray, np.ndarray], ...] = ()
+    # <extra_joint joint="column" default="0.35"/> under <robot>: the value (m or rad) a row
+    # without its own holds, by the extra joint's name (a joint so declared is never the arm's)
+    extra_defaults: dict[str, float] = field(default_factory=dict)
 
 
 # -- small transforms -------------------------------------------------------------------------------
@@ -256,32 +262,96 @@ def _arm_joints(path: list) -> list:
     return [j for j in path if j.type != "fixed"]
 
 
-def _find_tip(links: dict, up: dict, anchor: str, source: str, base: str) -> str:
-    """The one link that ends a chain of six revolute joints below ``anchor``."""
+def _declared_extra(text: str, src: str) -> dict[str, float | None]:
+    """The ``<extra_joint joint="NAME" default="VALUE"/>`` elements under ``<robot>`` (an
+    extension of this project, as ``<coupling>``): joints declared to stand before the arm, each
+    with the value (m or rad) a row without its own holds, or None."""
+    from lxml import etree
+
+    root = etree.fromstring(text.encode("utf-8"), parser=etree.XMLParser(resolve_entities=False))
+    out: dict[str, float | None] = {}
+    for el in root.findall("extra_joint"):
+        name, default = el.get("joint"), el.get("default")
+        where = f"{src}: <extra_joint joint={name!r}>"
+        if not name:
+            raise UrdfError(f'{src}: <extra_joint> without joint="NAME"')
+        if name in out:
+            raise UrdfError(f"{where}: declared twice")
+        value = None
+        if default is not None:
+            try:
+                value = float(default)
+            except ValueError:
+                value = math.nan
+            if not math.isfinite(value):
+                raise UrdfError(f"{where}: default {default!r} is not a finite number (m or rad)")
+        out[name] = value
+    return out
+
+
+def _reads_as_arm(path: list, declared: Mapping[str, Any]) -> bool:
+    """Whether the moving joints of ``path`` (from the base to a link) read as extra joints then
+    an arm of six ending at the link: not where there are fewer than six, the path ends on no
+    revolute joint, an arm joint is not revolute, mimics or is declared extra, or a joint before
+    the arm is no extra joint's kind or mimics another."""
+    moving = _arm_joints(path)
+    if len(moving) < 6 or not path or path[-1].type not in ARM_JOINTS:
+        return False
+    extra, arm = moving[:-6], moving[-6:]
+    if any(j.type not in ARM_JOINTS or j.mimic is not None or j.name in declared for j in arm):
+        return False
+    return all(j.type in EXTRA_JOINTS and j.mimic is None for j in extra)
+
+
+def _first_axes_parallel(path: list, src: str) -> bool:
+    """Whether the axes of the arm's joints 1 and 2 on ``path`` (its last six moving joints) are
+    parallel (within :data:`PARALLEL_TOL`): no 6R arm's are, a rotary table's and the arm's joint
+    1 are (consecutive axes keep their angle at every value of the joints)."""
+    R = np.eye(3)
+    axes = []
+    first_two = {id(j) for j in _arm_joints(path)[-6:-4]}
+    for j in path:
+        R = R @ _origin(j, src)[:3, :3]
+        if id(j) in first_two:
+            axes.append(R @ _axis(j, src))
+    return float(np.linalg.norm(np.cross(axes[0], axes[1]))) < math.sin(PARALLEL_TOL)
+
+
+def _find_tip(
+    links: dict, up: dict, anchor: str, src: str, base: str, declared: Mapping[str, Any]
+) -> str:
+    """The one link that ends a chain of six revolute joints below ``anchor``, after any extra
+    joints (prismatic or revolute: a column, a track, a rotary table). Where a seventh revolute
+    joint makes two readings (a table under the arm, or a gripper's joint after it), the one
+    whose first two arm axes are not parallel is the arm; the joints declared ``<extra_joint>``
+    are never the arm's."""
     found = []
     for name in links:
         path = _ancestors(name, up)
         names = [j.parent for j in path]
-        if anchor not in names and name != anchor:
+        if anchor not in names:
             continue
-        below = path[names.index(anchor) :] if anchor in names else []
-        moving = _arm_joints(below)
-        leading = next((k for k, j in enumerate(moving) if j.type != "prismatic"), len(moving))
-        if len(moving) - leading == 6 and below and below[-1].type in ARM_JOINTS:
-            found.append(name)
+        below = path[names.index(anchor) :]
+        if _reads_as_arm(below, declared):
+            found.append((name, below))
+    if len(found) > 1:  # a seventh revolute joint: the reading whose joints 1 and 2 cross
+        crossing = [(n, b) for n, b in found if not _first_axes_parallel(b, src)]
+        found = crossing or found
     if len(found) == 1:
-        return found[0]
+        return found[0][0]
     if not found:
         longest = max(
             (len(_arm_joints(_ancestors(n, up))) for n in links), default=0
         )  # a hint only
         raise UrdfError(
-            f"{source}: no chain of 6 revolute joints below base link {base!r} (the longest chain "
+            f"{src}: no chain of 6 revolute joints below base link {base!r} (the longest chain "
             f"has {longest} moving joints); name the tip link (tip=..., --tip)"
         )
     raise UrdfError(
-        f"{source}: several chains of 6 revolute joints below base link {base!r}, ending at "
-        f"{', '.join(sorted(found))}: name the tip link (tip=..., --tip)"
+        f"{src}: several chains of 6 revolute joints below base link {base!r}, ending at "
+        f"{', '.join(sorted(n for n, _ in found))}: name the tip link (tip=..., --tip), or "
+        'declare a joint before the arm (a rotary table) with <extra_joint joint="NAME"/> '
+        "under <robot>"
     )
 
 
@@ -300,7 +370,8 @@ def read_urdf(
     robot = _parse(text, src)
     links, up, down, root = _tree(robot, src)
     base = root if base is None else base
-    anchor, tip, joints = _arm_chain(links, up, base, tip, src)
+    declared = _declared_extra(text, src)
+    anchor, tip, joints = _arm_chain(links, up, base, tip, src, declared)
     extra, joints = joints[:-6], joints[-6:]
 
     # every link's pose at q = 0 relative to the anchor, the arm's subtree included
@@ -329,7 +400,9 @@ def read_urdf(
         raise UrdfError(f"{src}: internal error converting the chain ({err:.2g} m)")
     lower, upper = _limits(joints, src)
     masses, coms = _mass_model(joints, links, down, world, F, src)
-    R_anchor_0 = pose[base][:3, :3] @ F[0][:3, :3]
+    # gravity in frame 0 (the root's -z); with extra joints, in the frame they start from (the
+    # chain's base link), frame 0 turning with them per row (RobotDescription.frame0_gravity)
+    R_gravity = pose[chain_base][:3, :3] if extra else pose[base][:3, :3] @ F[0][:3, :3]
     offsets = np.array([_inv(F[i + 1]) @ world[j.child] for i, j in enumerate(joints)])
     arm = UrdfArm(
         name=robot.name or Path(src).stem,
@@ -348,9 +421,10 @@ def read_urdf(
         flange=_inv(F[6]) @ world[tip],
         link_offsets=offsets,
         origins=np.array([_origin(j, src) for j in joints]),
-        gravity=R_anchor_0.T @ np.array(GRAVITY),
+        gravity=R_gravity.T @ np.array(GRAVITY),
         couplings=_couplings(text, [j.name for j in joints], src),
         extra=extras,
+        extra_defaults={k: v for k, v in declared.items() if v is not None},
     )
     log.info(
         "%s: arm %r from %r to %r, joints %s", src, arm.name, base, tip, ", ".join(arm.joint_names)
@@ -416,10 +490,11 @@ def _read_text(source: str | Path) -> str:
 
 
 def _arm_chain(
-    links: Any, up: Any, base: str, tip: str | None, src: str
+    links: Any, up: Any, base: str, tip: str | None, src: str, declared: Mapping[str, Any]
 ) -> tuple[str, str, list[Any]]:
     """The chain from the base to the tip (found where not given): the link it starts at (the
-    base, or the link it hangs off by fixed joints), the tip, and its six revolute joints."""
+    base, or the link it hangs off by fixed joints), the tip, and its moving joints (the extra
+    joints, then the arm's six); a joint declared ``<extra_joint>`` must be one of the extra."""
     for what, name in (("base", base), ("tip", tip)):
         if name is not None and name not in links:
             raise UrdfError(
@@ -430,7 +505,7 @@ def _arm_chain(
     while anchor in up and up[anchor].type == "fixed":
         anchor = up[anchor].parent
     if tip is None:
-        tip = _find_tip(links, up, anchor, src, base)
+        tip = _find_tip(links, up, anchor, src, base, declared)
     path = _ancestors(tip, up)
     parents = [j.parent for j in path]
     if anchor not in parents:
@@ -461,6 +536,13 @@ def _arm_chain(
             f"{src}: {len(joints)} revolute joints between {base!r} and {tip!r} "
             f"({', '.join(j.name for j in joints) or 'none'}); the lab's arms have 6"
         )
+    before = [j.name for j in extra]
+    for name in declared:
+        if name not in before:
+            raise UrdfError(
+                f"{src}: <extra_joint joint={name!r}> is not a joint before the arm's six "
+                f"between {base!r} and {tip!r} (those are: {', '.join(before) or 'none'})"
+            )
     return anchor, tip, [*extra, *joints]
 
 
@@ -715,6 +797,7 @@ def urdf_of_chain(
     couplings: Sequence[tuple[int, int, float]] = (),
     extra_joints: Sequence[tuple[str, str, np.ndarray, np.ndarray]] = (),
     mount: np.ndarray | None = None,
+    extra_defaults: Mapping[str, float] | None = None,
 ) -> str:
     """A URDF of a modified-DH chain: links ``base_link`` (frame 0), ``link1`` .. ``link6`` (the
     DH frames), ``flange`` (frame 6 . ``flange``, fixed), revolute joints ``joint1`` .. ``joint6``
@@ -723,8 +806,10 @@ def urdf_of_chain(
     masses: a DH table carries no inertia), and the joints' couplings as ``<coupling joint on
     factor/>`` elements. Extra joints before the arm (:attr:`UrdfArm.extra`) hang from a link
     ``root`` as joints of their own names and types, each moving a link ``NAME_link``, and the last
-    carries ``base_link`` at ``mount`` (fixed). :func:`read_urdf` of it is the same chain (the same
-    points: with extra joints its frame 0 may be placed otherwise along joint 1's axis)."""
+    carries ``base_link`` at ``mount`` (fixed); each is declared ``<extra_joint joint default/>``
+    (its default from ``extra_defaults``, m or rad, where it has one). :func:`read_urdf` of it is
+    the same chain (the same points: with extra joints its frame 0 may be placed otherwise along
+    joint 1's axis)."""
     F = np.eye(4) if flange is None else np.asarray(flange, dtype=float)
     out = ['<?xml version="1.0" encoding="utf-8"?>', f'<robot name="{name}">']
 
@@ -782,5 +867,9 @@ def urdf_of_chain(
     joint("flange_joint", "fixed", "link6", "flange", F)
     for jn, on, factor in couplings:
         out.append(f'  <coupling joint="joint{jn}" on="joint{on}" factor="{float(factor)!r}"/>')
+    defaults = extra_defaults or {}
+    for name, *_ in extra_joints:
+        value = f' default="{float(defaults[name])!r}"' if name in defaults else ""
+        out.append(f'  <extra_joint joint="{name}"{value}/>')
     out.append("</robot>")
     return "\n".join(out) + "\n"

@@ -13,6 +13,7 @@ and ``summary.json`` (wall time, steps/s). This script gathers the runs of each 
 
     python benchmarks/learning_curves.py --runs runs ppo-residual sac-residual ppo
     python benchmarks/learning_curves.py --runs runs --ship ppo-residual   # ship the median seed
+        # (as agents/policies/ppo-residual.npz) and every seed (agents/policies/seeds/ppo-residual@sK)
     python benchmarks/learning_curves.py --runs runs --keep --ship ppo-residual  # retrained one
 """
 
@@ -30,6 +31,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np
 
 OUT = Path(__file__).resolve().parents[1] / "results" / "learning"
+#: every training seed's policy, ``<name>@s<seed>.npz``: the leaderboard's agent over its seeds
+SEEDS = Path(__file__).resolve().parents[1] / "agents" / "policies" / "seeds"
 
 
 def read_curve(path: Path) -> dict[str, np.ndarray]:
@@ -367,6 +370,19 @@ def main() -> None:
                 picked=args.pick,
             )
             print(f"{name}: shipped the {args.pick} seed {median['run']} to {dst}")
+            for r in runs:  # every seed, for the leaderboard's agent over its seeds
+                seed = int(json.loads((r["dir"] / "best.json").read_text())["config"]["seed"])
+                dst = ship_policy(
+                    r["dir"],
+                    "best",
+                    f"{name}@s{seed}",
+                    seeds_trained=len(runs),
+                    wall_s_all_seeds=round(sum(walls), 1),
+                    picked=f"seed {seed} of {len(runs)}",
+                    folder=SEEDS,
+                    evaluate=False,
+                )
+                print(f"{name}: seed {seed} to {dst}")
     for (ax1, ax2), kind in zip(axes, ("residual policies", "plain policies"), strict=True):
         ax1.set_yscale("log")
         ax1.set_xlabel("training steps")

@@ -59,7 +59,7 @@ from lab.observations import Observations, observations_of, uses_orientation
 from lab.options import LabOptions
 from lab.plausibility import Implausible, implausible, likely_cause
 from lab.registration import (
-    coupling_hint,
+    reading_hint,
     register_base,
     register_tool_rotation,
     tool_indices,
@@ -202,11 +202,11 @@ def _warn_positions_alone(source: str) -> None:
 
 def _check_follows(miss: np.ndarray, data: MeasurementSet, model: ErrorModel) -> None:
     """Refuse a fit whose median pose misses by more than :data:`IMPLAUSIBLE_RMS` (the median,
-    not the RMS: a few gross outliers must not condemn the model), naming a joint coupling that
-    would explain it (:func:`lab.registration.coupling_hint`)."""
+    not the RMS: a few gross outliers must not condemn the model), naming a joint coupling or
+    DH convention that would explain it (:func:`lab.registration.reading_hint`)."""
     typical_miss = float(np.median(np.linalg.norm(miss, axis=1)))
     if typical_miss > IMPLAUSIBLE_RMS:
-        hint = coupling_hint(model.robot, data.q, data.xyz)
+        hint = reading_hint(model.described, data.q, data.xyz, data.columns)
         raise FitError(
             f"{data.source}: the model cannot follow these measurements (RMS "
             f"{rms(miss) * 1e3:.4g} mm, median {typical_miss * 1e3:.4g} mm after fitting "
@@ -487,7 +487,8 @@ def check_plausible(
     result: FitResult, accept: bool, data: MeasurementSet | None = None
 ) -> tuple[Implausible, ...]:
     """The identified parameters beyond the plausible bound of their kind: an error naming them
-    and the likely cause (a joint coupling the robot file lacks, where ``data`` show one),
+    and the likely cause (a joint coupling or DH convention of the robot file's, where ``data``
+    show one),
     unless ``accept`` (then logged and returned)."""
     bad = tuple(implausible(result.model, result.params, result.identifiable))
     if not bad:
@@ -502,7 +503,7 @@ def check_plausible(
     if by_weights:
         cause = by_weights
     if not accept and data is not None:
-        cause = coupling_hint(result.model.robot, data.q, data.xyz) or cause
+        cause = reading_hint(result.model.described, data.q, data.xyz, data.columns) or cause
     if not accept:
         raise FitError(
             f"{result.source}: not a plausible model of {result.model.robot.name!r}: {shown}, "

@@ -29,7 +29,9 @@ serves::
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -72,7 +74,8 @@ def register_base(
     Alternates Kabsch's rotation of the chain's points onto ``xyz`` and linear least squares for
     the base translation and each target's tool point given the rotation; each step lowers the sum
     of squares, so it converges from a tool hundreds of millimetres off. Returns ``params`` with the
-    base (and tool) parameters replaced."""
+    base (and tool) parameters replaced. On an arm with extra joints the chain's points are placed
+    through them at each row's values first (the base is the frame they start from)."""
     lay = model.layout
     p = np.array(params, dtype=float)
     st = model.state(inputs, p)
@@ -82,6 +85,10 @@ def register_base(
         st_b = model.state(part, p)
         f = link_frames(st_b.chain, model.joint_angles(part, p))
         o6[sl], R6[sl] = f.o[:, 6], f.R[:, 6]
+    extra = st.extra_placement()
+    if extra is not None:  # frame 0 placed per row by the extra joints: the base is before them
+        o6 = np.einsum("nij,nj->ni", extra.R, o6) + extra.t
+        R6 = extra.R @ R6
     tool = st.tools.copy()
     tgt = inputs.target
     n, K = inputs.n, len(model.targets)
@@ -426,51 +433,122 @@ def register_station(
     return StationRegistration(R, t, residuals, ids[0] if ids else None, references.source, shift)
 
 
-#: a coupling is named when it brings the registered arm's median miss below this share of the
-#: uncoupled arm's, and under COUPLING_MISS: the rows are then the controller's angles
+#: another reading of the robot file (a coupling, the other DH convention) is named when it
+#: brings the registered arm's median miss below this share of the file's own reading's, and
+#: under COUPLING_MISS: the rows are then of the arm so read
 COUPLING_GAIN = 0.2
 COUPLING_MISS = 0.02  # m
 
 
-def registered_miss(robot: RobotDescription, q: np.ndarray, xyz: np.ndarray) -> float:
-    """The median miss (m) of the nominal ``robot``, its base and tool registered on the rows."""
+def registered_miss(
+    robot: RobotDescription,
+    q: np.ndarray,
+    xyz: np.ndarray,
+    columns: Mapping[str, np.ndarray] | None = None,
+) -> float:
+    """The median miss (m) of the nominal ``robot``, its base and tool registered on the rows
+    (its extra joints at the values ``columns`` give them, else their defaults)."""
     model = ErrorModel(robot, "geometric")
-    inputs = model.inputs(q)
+    held = {k: v for k, v in (columns or {}).items() if k in robot.extra_names}
+    inputs = model.inputs(q, held)
     p = register_base(model, inputs, xyz, model.nominal())
     return float(np.median(np.linalg.norm(model.predict(inputs, p) - xyz, axis=1)))
 
 
-def coupling_hint(robot: RobotDescription, q: np.ndarray, xyz: np.ndarray) -> str:
-    """A sentence naming the joint coupling that would explain rows the arm cannot follow, or
-    ``""``: where two consecutive axes are parallel (FANUC's J2 and J3), a controller may report
-    the second from the horizon (``theta_3 = q_3 - q_2``) or relative (``+ q_2``); the arm
-    coupled so, registered on the rows, misses them by a fraction of the uncoupled arm's miss."""
-    if len(q) < 6:
-        return ""
-    plain = registered_miss(robot, q, xyz)
-    best: tuple[float, tuple[int, int, float]] | None = None
+def _coupling_readings(
+    robot: RobotDescription,
+) -> Iterator[tuple[RobotDescription, tuple[int, int, float], bool]]:
+    """The arm read otherwise: with a coupling of two consecutive parallel joints added (either
+    sign), or without one the robot file states; each with that coupling and whether it was
+    stated (so removed)."""
     for row in robot.parallel_rows():
         for factor in (-1.0, 1.0):
             c = (row, row - 1, factor)
             if any((j, o) == c[:2] for j, o, _ in robot.couplings):
                 continue
             try:
-                arm = replace(robot, couplings=(*robot.couplings, c))
+                yield replace(robot, couplings=(*robot.couplings, c)), c, False
             except ValueError:  # dependent couplings
                 continue
-            miss = registered_miss(arm, q, xyz)
-            if (
-                miss < COUPLING_GAIN * plain
-                and miss < COUPLING_MISS
-                and (best is None or miss < best[0])
-            ):
-                best = (miss, c)
+    for c in robot.couplings:
+        yield replace(robot, couplings=tuple(x for x in robot.couplings if x != c)), c, True
+
+
+def _convention_readings(
+    robot: RobotDescription,
+) -> Iterator[tuple[RobotDescription, str]]:
+    """The robot file's DH table read in the other convention (a data sheet's standard table in a
+    file that says modified, or says nothing: modified is the default), with that convention;
+    none for a URDF's arm or a calibrated one (Hayati's beta is modified DH's alone)."""
+    if robot.urdf is not None or any(j.beta for j in robot.joints):
+        return
+    other: Literal["modified", "standard"] = (
+        "standard" if robot.convention == "modified" else "modified"
+    )
+    try:
+        yield replace(robot, convention=other), other
+    except ValueError:  # not an arm in that reading
+        return
+
+
+def reading_hint(
+    robot: RobotDescription,
+    q: np.ndarray,
+    xyz: np.ndarray,
+    columns: Mapping[str, np.ndarray] | None = None,
+) -> str:
+    """A sentence naming the joint coupling or the DH convention that would explain rows the arm
+    cannot follow, or ``""`` (``robot`` as its file states it: :attr:`ErrorModel.described`).
+    Where two consecutive axes are parallel (FANUC's J2 and J3), a controller may report the
+    second from the horizon (``theta_3 = q_3 - q_2``) or relative (``+ q_2``), and a robot file
+    may state a coupling the rows do not have; a data sheet's DH table may be standard where the
+    file reads it as modified, or the reverse. The arm read so, registered on the rows, misses
+    them by a fraction of the arm's own miss."""
+    if len(q) < 6:
+        return ""
+    plain = registered_miss(robot, q, xyz, columns)
+    best: tuple[float, str] | None = None
+    readings = [
+        *((arm, _coupling_sentence(c, stated)) for arm, c, stated in _coupling_readings(robot)),
+        *((arm, _convention_sentence(conv)) for arm, conv in _convention_readings(robot)),
+    ]
+    for arm, sentence in readings:
+        miss = registered_miss(arm, q, xyz, columns)
+        if (
+            miss < COUPLING_GAIN * plain
+            and miss < COUPLING_MISS
+            and (best is None or miss < best[0])
+        ):
+            best = (miss, sentence)
     if best is None:
         return ""
-    miss, (j, o, f) = best
+    miss, sentence = best
+    return sentence.format(miss=f"{miss * 1e3:.3g}", plain=f"{plain * 1e3:.3g}")
+
+
+def _convention_sentence(convention: str) -> str:
+    other = "modified" if convention == "standard" else "standard"
     return (
-        f"the rows fit as the controller's angles of coupled joints {o} and {j} (theta_{j} = "
-        f"q_{j} {'-' if f < 0 else '+'} q_{o}, as FANUC reports J3 from the horizon): the nominal "
-        f"arm so coupled misses by {miss * 1e3:.3g} mm (median), uncoupled by {plain * 1e3:.3g} "
-        f"mm; state it in the robot file ([[couplings]] joint = {j}, on = {o}, factor = {f:g})"
+        f"the rows fit the robot file's DH table read as {convention} DH: that arm misses by "
+        f"{{miss}} mm (median), read as {other} by {{plain}} mm; say convention = "
+        f'"{convention}" in the robot file (a data sheet\'s table is often standard DH, a file '
+        "without the key is read as modified)"
+    )
+
+
+def _coupling_sentence(c: tuple[int, int, float], stated: bool) -> str:
+    j, o, f = c
+    law = f"theta_{j} = q_{j} {'-' if f < 0 else '+'} q_{o}"
+    if stated:
+        return (
+            f"the rows fit as the arm's own angles, joint {j} not coupled on joint {o}: the "
+            f"nominal arm without the robot file's coupling ({law}) misses by {{miss}} mm "
+            f"(median), with it by {{plain}} mm; the rows are not the controller's angles it "
+            f"states (remove [[couplings]] joint = {j}, on = {o}, or give the controller's)"
+        )
+    return (
+        f"the rows fit as the controller's angles of coupled joints {o} and {j} ({law}, as "
+        f"FANUC reports J3 from the horizon): the nominal arm so coupled misses by {{miss}} mm "
+        f"(median), uncoupled by {{plain}} mm; state it in the robot file ([[couplings]] "
+        f"joint = {j}, on = {o}, factor = {f:g})"
     )

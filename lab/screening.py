@@ -104,7 +104,7 @@ from lab.estimation import check_plausible, fit_rows
 from lab.lumped_choice import held_rest
 from lab.observations import Observations, observations_of
 from lab.options import DEFAULTS, LabOptions, OptionFields, resolve
-from lab.registration import coupling_hint
+from lab.registration import reading_hint
 from lab.result import Duplicate, FitResult, Outlier, RowsCounted, inputs_of
 from lab.sanity import check_stated_noise
 from lab.solver import HUBER_K, OUTLIER_RADIUS, robust_sigma
@@ -495,7 +495,7 @@ def _refuse_contaminated(
         f"than the {100 * MAX_OUTLIER_FRACTION:.0f} % the lab leaves out, so the fit is not a "
         f"calibration ({where}{more}). "
         + (
-            _sentence(coupling_hint(res.model.robot, data.q, data.xyz))
+            _sentence(reading_hint(res.model.described, data.q, data.xyz, data.columns))
             or "Rows of another arm or instrument, a reflector that lost lock?"
         )
         + " --outliers keep fits every pose"

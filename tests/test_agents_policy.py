@@ -35,6 +35,7 @@ from agents.training import (
     evaluate_policy,
     load_train_config,
     make_policy_env,
+    ship_policy,
 )
 from arm.errormodel import ErrorModel
 from envs.wrappers import NominalToolObservation
@@ -396,6 +397,33 @@ def test_the_shipped_policies_are_weight_files():
         _, meta = load_policy_file(path)
         assert meta["name"] == name and ("residual" in name) == (meta["variant"] == "residual")
     assert not list(POLICY_DIR.glob("*.zip")) and not list(POLICY_DIR.glob("*.pkl"))
+
+
+def test_every_training_seed_ships_as_a_network_of_its_agent(tmp_path):
+    """A seed's run ships to a folder of seeds as ``<agent>@s<seed>``, says which seed it is and
+    of how many, and runs on the leaderboard as the agent ``policy`` with that label: the same
+    network, acting exactly as the run's best policy."""
+    run = tmp_path / "runs" / "ppo-residual-seed3"
+    run.mkdir(parents=True)
+    for ext in (".npz", ".json"):
+        (run / f"best{ext}").write_bytes((POLICY_DIR / f"ppo-residual{ext}").read_bytes())
+    dst = ship_policy(
+        run,
+        "best",
+        "ppo-residual@s3",
+        seeds_trained=5,
+        picked="seed 3 of 5",
+        folder=tmp_path / "seeds",
+        evaluate=False,
+    )
+    assert dst == tmp_path / "seeds" / "ppo-residual@s3.npz"
+    meta = json.loads(dst.with_suffix(".json").read_text())
+    assert meta["name"] == "ppo-residual@s3" and "leaderboard" not in meta
+    assert meta["training"]["seeds_trained"] == 5 and meta["training"]["picked"] == "seed 3 of 5"
+    env = LEADERBOARD_ENV | {"scenario": "backlash"}
+    shipped = run_episode(make_agent("ppo-residual"), env, seed=7).rms_mm(start=2.0)
+    seed = run_episode(make_agent("policy", path=str(dst)), env, seed=7).rms_mm(start=2.0)
+    assert seed == shipped
 
 
 @pytest.mark.parametrize("name", POLICIES)

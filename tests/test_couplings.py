@@ -170,6 +170,66 @@ def test_a_fit_in_the_controllers_angles_needs_the_coupling_stated():
     assert "[[couplings]] joint = 3, on = 2, factor = -1)" in str(refused.value)
 
 
+def _near_one_pose(robot: RobotDescription, n: int, seed: int) -> MeasurementSet:
+    """The issue's campaign: 60 poses about one configuration (J2 within a few degrees), the
+    rows the coupled arm's controller angles with typical geometric errors."""
+    model = ErrorModel(robot, "geometric")
+    rng = np.random.default_rng(seed)
+    p = sample_parameters(model, rng)
+    q = rng.uniform(-0.3, 0.3, (n, 6)) + np.array([0.0, 0.2, 0.3, 0.0, 0.0, 0.0])
+    xyz = model.predict(model.inputs(q), p) + rng.normal(0.0, SIGMA, (n, 3))
+    return MeasurementSet(q, xyz, {}, "fanuc.csv")
+
+
+def test_the_cli_names_the_coupling_of_the_issues_fanuc(tmp_path):
+    """Rows in the controller's angles about one configuration, the robot file uncoupled: the
+    fit does not fail to follow them, it reaches link lengths metres off; the refusal (one line,
+    exit 2) names the coupling; stated, the rows fit to the noise."""
+    from arm.measurements import write_measurements
+    from tests._cli import lab, one_error_line
+
+    rows = tmp_path / "fanuc.csv"
+    write_measurements(_near_one_pose(_coupled(), 60, 2), rows)
+    line = one_error_line(
+        lab("fit", rows, "--robot", FANUC, "--noise-mm", SIGMA * 1e3), "not a plausible model"
+    )
+    assert "coupled joints 2 and 3 (theta_3 = q_3 - q_2" in line
+    assert "[[couplings]] joint = 3, on = 2, factor = -1" in line
+    coupled = tmp_path / "coupled.toml"
+    _coupled().save(coupled)
+    res = lab("fit", rows, "--robot", coupled, "--noise-mm", SIGMA * 1e3)
+    assert res.exit_code == 0, res.output
+
+
+def test_a_coupling_stated_but_not_in_the_rows_is_named():
+    """The robot file states FANUC's coupling, the rows are the DH angles (another controller, or
+    converted already): the refusal says the rows fit without it."""
+    d = _campaign(load_robot(FANUC), 150, 9)
+    with pytest.raises(FitError) as refused:
+        fit(d, _coupled(), "geometric", noise_mm=SIGMA * 1e3)
+    message = str(refused.value)
+    assert "joint 3 not coupled on joint 2" in message, message
+    assert "remove [[couplings]] joint = 3, on = 2" in message
+
+
+def test_the_coupling_is_named_on_an_arm_on_a_column():
+    """The hint holds the rows' extra joint values (it registers the arm on them)."""
+    from arm.extra_joints import ExtraJoint
+
+    column = ExtraJoint("column", "prismatic", (0.0, 0.0, 1.0))
+    on_column = replace(_coupled(), extra_joints=(column,))
+    model = ErrorModel(on_column, "geometric")
+    rng = np.random.default_rng(10)
+    p = sample_parameters(model, rng)
+    q = sample_poses(on_column, 150, rng)
+    h = rng.uniform(0.0, 1.0, 150)
+    xyz = model.predict(model.inputs(q, {"column": h}), p) + rng.normal(0.0, SIGMA, (150, 3))
+    d = MeasurementSet(q, xyz, {"column": h}, "lifted.csv")
+    plain = replace(on_column, couplings=())
+    with pytest.raises(FitError, match=r"coupled joints 2 and 3 \(theta_3 = q_3 - q_2"):
+        fit(d, plain, "geometric", noise_mm=SIGMA * 1e3)
+
+
 def test_no_coupling_is_named_where_none_explains_the_rows():
     """Rows of the uncoupled arm read in the wrong unit: the refusal names no coupling."""
     robot = load_robot(FANUC)
@@ -177,7 +237,7 @@ def test_no_coupling_is_named_where_none_explains_the_rows():
     in_mm = MeasurementSet(d.q, d.xyz * 1e-3, {}, "m_as_mm.csv")
     with pytest.raises(FitError) as refused:
         fit(in_mm, robot, "geometric")
-    assert "coupl" not in str(refused.value)
+    assert "coupl" not in str(refused.value) and "convention =" not in str(refused.value)
 
 
 def test_the_urdf_keeps_the_couplings(tmp_path):
@@ -210,3 +270,17 @@ def test_the_simulator_and_the_mpc_refuse_a_coupled_arm_rather_than_ignore_it():
         Plant(robot)
     with pytest.raises(UnsupportedEffectError, match="coupled joints"):
         ToolModel(ErrorModel(robot, "geometric"))
+
+
+@pytest.mark.parametrize(("arm", "said"), [("ur5", "modified"), ("seed", "standard")])
+def test_a_dh_table_read_in_the_wrong_convention_is_named(arm, said):
+    """A data sheet's DH table in a robot file that reads it in the other convention (a standard
+    table where `convention` was left out): the refusal names the convention that fits."""
+    robot = load_robot(arm)
+    d = _campaign(robot, 120, 11)
+    wrong = replace(robot, convention=said)
+    with pytest.raises(FitError) as refused:
+        fit(d, wrong, "geometric", noise_mm=SIGMA * 1e3)
+    message = str(refused.value)
+    assert f'say convention = "{robot.convention}"' in message, message
+    assert "coupl" not in message

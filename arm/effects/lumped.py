@@ -37,7 +37,7 @@ from typing import ClassVar
 import numpy as np
 import scipy.linalg
 
-from arm.description import RobotDescription
+from arm.description import RobotDescription, vec3
 from arm.effect_api import EffectError, ModelInputs
 from arm.effects.base import Effect, JointAngleEffect
 from arm.kinematics import Chain, gravity_torques, link_frames
@@ -49,6 +49,8 @@ AXES = "xyz"
 SNAP = 0.02  # rad
 #: random poses (the whole circle of every joint) on which the base set is chosen
 _POSES = 240
+#: draws of a tilting extra joint's value on which gravity's directions in frame 0 are taken
+_TILTS = 24
 #: a column whose part independent of those before it is below this, relative to the largest
 #: (each column scaled to unit RMS), adds nothing the others do not
 _RANK_TOL = 1e-7
@@ -60,61 +62,90 @@ _NAME = re.compile(r"lc([1-6])_([xyz])([1-6])")
 Term = tuple[int, int]  # (link k 1..6, axis 0..2)
 
 
-def gravity_columns(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
+def gravity_columns(
+    robot: RobotDescription, q: np.ndarray, gravity: np.ndarray | None = None
+) -> np.ndarray:
     """(N, 6, 6, 3): ``[n, j, k, c] = (R_k^T (g_hat x z_j))_c`` at the joint angles ``q`` (N, 6),
     zero where link k lies before joint j (k < j): the regressor of ``c_j |g| U_k,c`` on the
-    deflection of joint j (the module docstring)."""
+    deflection of joint j (the module docstring). ``gravity`` (3,) or (N, 3) in frame 0, where
+    extra joints turn it (``ModelInputs.gravity``); default the robot's at their defaults."""
     m = robot.to_modified()
-    g = np.asarray(m.gravity, dtype=float)
-    norm = float(np.linalg.norm(g))
+    g = np.asarray(robot.frame0_gravity() if gravity is None else gravity, dtype=float)
+    norm = float(np.linalg.norm(g.reshape(-1, 3), axis=1).min())
     if not norm > 0:
         raise EffectError(f"robot {robot.name!r}: gravity is zero; no arm sags without it")
     f = link_frames(Chain.from_description(m), np.atleast_2d(np.asarray(q, dtype=float)))
     R = f.R[:, 1:]  # (N, 6, 3, 3), frames 1..6
-    w = np.cross(g / norm, f.z)  # (N, 6, 3): g_hat x z_j
+    g_hat = g / np.linalg.norm(g, axis=-1, keepdims=True)
+    w = np.cross(g_hat[:, None, :] if g.ndim == 2 else g_hat, f.z)  # (N, 6, 3): g_hat x z_j
     Y = np.einsum("nkic,nji->njkc", R, w)
     Y *= np.triu(np.ones((6, 6)))[None, :, :, None]  # link k loads joint j where k >= j
     return Y
 
 
+def gravity_directions(robot: RobotDescription) -> np.ndarray:
+    """The directions (G, 3) gravity takes in frame 0: one, unless revolute extra joints tilt
+    the arm (a tilting table), then those at :data:`_TILTS` draws of their values (a vertical
+    table's turn keeps one direction)."""
+    g = robot.frame0_gravity()
+    g = g / max(float(np.linalg.norm(g)), 1e-300)
+    if not any(j.kind == "revolute" for j in robot.extra_joints):
+        return g[None, :]
+    rng = np.random.default_rng(0)
+    values = np.array(
+        [
+            rng.uniform(-math.pi, math.pi, _TILTS) if j.kind == "revolute" else np.zeros(_TILTS)
+            for j in robot.extra_joints
+        ]
+    ).T
+    G = robot.frame0_gravity(values)
+    G /= np.linalg.norm(G, axis=1, keepdims=True)
+    if float(np.max(np.linalg.norm(G - g, axis=1))) < SNAP:
+        return g[None, :]
+    return G
+
+
 def _structure(robot: RobotDescription) -> tuple:
-    """What the base set depends on: the DH angles and gravity's direction, each rounded to a
-    quarter turn (gravity's components to zero) where within :data:`SNAP` of it."""
+    """What the base set depends on: the DH angles and the directions of gravity in frame 0
+    (:func:`gravity_directions`), each rounded to a quarter turn (gravity's components to zero)
+    where within :data:`SNAP` of it."""
 
     def snap(x: float) -> float:
         k = round(x / (math.pi / 2))
         return k * math.pi / 2 if abs(x - k * math.pi / 2) < SNAP else round(x, 9)
 
     m = robot.to_modified()
-    g = np.asarray(m.gravity, dtype=float)
-    g = g / max(float(np.linalg.norm(g)), 1e-300)
-    g = np.where(np.abs(g) < SNAP, 0.0, g)
+    G = gravity_directions(robot)
+    G = np.where(np.abs(G) < SNAP, 0.0, G)
+    G /= np.linalg.norm(G, axis=1, keepdims=True)
     return (
         tuple(snap(j.alpha) for j in m.joints),
         tuple(snap(j.beta) for j in m.joints),
         tuple(snap(j.theta_offset) for j in m.joints),
-        tuple(round(float(v), 9) for v in g / np.linalg.norm(g)),
+        tuple(tuple(round(float(v), 9) for v in g) for g in G),
     )
 
 
 def base_columns(robot: RobotDescription) -> dict[int, tuple[Term, ...]]:
     """The base set of each joint: the (link, axis) of its columns whose non-constant parts are
-    independent (QR with column pivoting on random poses of the arm's structure), sorted by link
-    and axis. A joint that gravity never loads (a vertical joint 1) has none."""
+    independent (QR with column pivoting on random poses of the arm's structure, gravity taking
+    each of its directions in turn), sorted by link and axis. A joint that gravity never loads
+    (a vertical joint 1 on a level base) has none."""
     return _base_columns(_structure(robot))
 
 
 @functools.lru_cache(maxsize=64)
 def _base_columns(structure: tuple) -> dict[int, tuple[Term, ...]]:
-    alpha, beta, theta, g = structure
+    alpha, beta, theta, directions = structure
     from arm.description import Joint  # the structure alone: lengths do not turn any frame
 
     joints = tuple(
         Joint(alpha=alpha[i], a=0.0, d=0.0, theta_offset=theta[i], beta=beta[i]) for i in range(6)
     )
-    arm = RobotDescription("structure", joints, gravity=(float(g[0]), float(g[1]), float(g[2])))
+    G = np.array(directions, dtype=float)
+    arm = RobotDescription("structure", joints, gravity=vec3(G[0]))
     q = np.random.default_rng(0).uniform(-math.pi, math.pi, (_POSES, 6))
-    Y = gravity_columns(arm, q)
+    Y = gravity_columns(arm, q, G[np.arange(_POSES) % len(G)])
     out: dict[int, tuple[Term, ...]] = {}
     for j in range(6):
         terms = [(k + 1, c) for k in range(j, 6) for c in range(3)]
@@ -226,7 +257,7 @@ class LumpedCompliance(JointAngleEffect):
     def regressor(self, inputs: ModelInputs) -> np.ndarray:
         """(N, 6, k): each parameter's column on its joint, at the encoder readings."""
         cols = self.columns_of(inputs.robot)
-        Y = gravity_columns(inputs.robot, inputs.q)
+        Y = gravity_columns(inputs.robot, inputs.q, inputs.gravity)
         out = np.zeros((inputs.n, 6, len(cols)))
         for p, (j, (k, c)) in enumerate(cols):
             out[:, j - 1, p] = Y[:, j - 1, k - 1, c]
