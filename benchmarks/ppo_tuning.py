@@ -118,7 +118,12 @@ def report(points: list[dict], args: argparse.Namespace) -> str:
         "per scenario (seeds 900000+). Figure: the geometric mean over the scenarios of the "
         "settled RMS (mm), at the best evaluation and at the last.",
         "",
-        "| gamma | learning rate | best (mm) | at step | last (mm) | wall (s) |",
+        f"Report from commit {args.state['commit'][:10]}"
+        f"{' (local changes)' if args.state['dirty'] else ', clean'}; the points were trained "
+        "(and resumed) at the commits a run's record names. Wall: the run's last session (a "
+        "resumed run's earlier sessions are not in it), on 2 cores shared with other jobs.",
+        "",
+        "| gamma | learning rate | best (mm) | at step | last (mm) | wall, last session (s) |",
         "|---:|---:|---:|---:|---:|---:|",
     ]
     for p in sorted(points, key=lambda p: (p["gamma"], p["learning_rate"])):
@@ -185,9 +190,13 @@ def main() -> None:
     else:
         points = [train_point(j) for j in jobs]
     from arm.files import atomic_write_text, make_folders
+    from experiments.records import git_state
 
     make_folders(args.out)
+    args.state = git_state(ROOT)
     doc = {
+        "commit": args.state["commit"],
+        "dirty": args.state["dirty"],
         "config": Path(args.config).name,
         "budget": args.budget,
         "seed": args.seed,
