@@ -49,7 +49,6 @@ import argparse
 import json
 import logging
 import math
-import multiprocessing as mp
 import os
 import sys
 import time
@@ -74,6 +73,7 @@ from benchmarks.lab_decisions import (  # noqa: E402
     load,
     visible_rms,
 )
+from benchmarks.lab_decisions import run as run_campaigns  # noqa: E402
 
 SEED0 = 38_000_000
 COUNT = 1000
@@ -604,19 +604,9 @@ def _q(q: dict[str, float] | None) -> str:
 
 # -- the run ----------------------------------------------------------------------------------------
 def run(seeds: list[int], records: Path, workers: int = WORKERS) -> list[dict[str, Any]]:
-    done = load(records)
-    todo = [s for s in seeds if s not in done]
-    records.parent.mkdir(parents=True, exist_ok=True)
-    if todo:
-        ctx = mp.get_context("spawn")
-        with records.open("a") as fh, ctx.Pool(workers, maxtasksperchild=50) as pool:
-            for i, rec in enumerate(pool.imap_unordered(run_campaign, todo, chunksize=1)):
-                fh.write(json.dumps(rec) + "\n")
-                fh.flush()
-                done[rec["seed"]] = rec
-                if (i + 1) % 10 == 0:
-                    print(f"{i + 1} of {len(todo)} campaigns", flush=True)
-    return [done[s] for s in seeds if s in done]
+    """The records of ``seeds``, resumable: lab_decisions' pool loop with this benchmark's
+    campaigns."""
+    return run_campaigns(seeds, records, workers, campaign=run_campaign, every=10)
 
 
 def main() -> None:

@@ -74,6 +74,7 @@ from benchmarks.real_data import (
     UR10_NOISE,
     UR10_REFERENCES,
     UR10_SERIES,
+    _json,
     _read,
     lab_fit,
     lab_path,
@@ -554,14 +555,6 @@ def merge(reports: list[dict]) -> dict:
         "held": _held(folds),
         "merged_runs": len(reports),
     }
-
-
-def _json(v):
-    if isinstance(v, set):
-        return sorted(v)
-    if isinstance(v, np.generic):
-        return v.item()
-    raise TypeError(type(v))
 
 
 if __name__ == "__main__":
