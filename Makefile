@@ -42,11 +42,13 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/isolation.py
 	$(BIN)/python benchmarks/compensation.py
 
-# The lab on public real data beside the published results and FIGAROH: results/real_data.md.
+# The lab on public real data beside the published results and FIGAROH: results/real_data.md;
+# each UR10 session left out and updated with k of its poses: results/ur10_sessions.md.
 # The Rokae rows need the converted data: SIXAXIS_REAL_DATA=DIR make real-data (README).
 real-data: $(STAMP)
 	$(BIN)/python benchmarks/real_data.py
 	$(BIN)/python benchmarks/ur10_physics.py
+	$(BIN)/python benchmarks/ur10_sessions.py
 
 # How often the lab's decisions are right over 2,100 seeded campaigns (about 20 min of CPU on two
 # cores; resumable): results/lab_decisions.md and .json, and the table of README.md and docs/lab.md.

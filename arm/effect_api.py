@@ -155,6 +155,8 @@ class ChainState:
     length_scale: np.ndarray | None = None  # (N,) product of length scalings (thermal)
     stations: tuple[int, ...] = (0,)
     orientation: bool = False
+    # each station's session was re-homed: its own zero offsets (arm.effects.chain.Geometric)
+    rehomed: bool = False
     station_R: np.ndarray | None = None
     station_t: np.ndarray | None = None
     station_r: np.ndarray | None = None

@@ -117,6 +117,7 @@ class ErrorModel:
         targets: Sequence[int] = (0,),
         stations: Sequence[int] = (0,),
         orientation: bool = False,
+        rehomed: bool = False,
     ) -> None:
         self.robot = robot.to_modified()
         self.described = robot  # as its file states it (its own DH convention), for messages
@@ -130,6 +131,8 @@ class ErrorModel:
         if not self.stations or len(set(self.stations)) != len(self.stations):
             raise ModelError(f"stations must be distinct ids, got {stations}")
         self.orientation = bool(orientation)
+        # each station's session was re-homed: its own joint zero offsets (Geometric)
+        self.rehomed = bool(rehomed) and len(self.stations) > 1
         geometric = any(isinstance(e, Geometric) for e in self.effects)
         if (len(self.stations) > 1 or self.orientation) and not geometric:
             raise EffectError(
@@ -163,7 +166,9 @@ class ErrorModel:
 
     def _names(self, e: Effect) -> list[str]:
         if isinstance(e, Geometric):
-            return e.parameter_names(self.robot, self.targets, self.stations, self.orientation)
+            return e.parameter_names(
+                self.robot, self.targets, self.stations, self.orientation, self.rehomed
+            )
         return e.parameter_names(self.robot, self.targets)
 
     def __repr__(self) -> str:
@@ -174,7 +179,9 @@ class ErrorModel:
         return [e.label for e in self.effects]
 
     def with_effects(self, effects: str | Sequence[str | Effect]) -> ErrorModel:
-        return ErrorModel(self.robot, effects, self.targets, self.stations, self.orientation)
+        return ErrorModel(
+            self.robot, effects, self.targets, self.stations, self.orientation, self.rehomed
+        )
 
     def required_columns(self) -> set[str]:
         return {c for e in self.effects for c in e.columns}
@@ -284,6 +291,7 @@ class ErrorModel:
             tools=self._tools0.copy(),
             stations=self.stations,
             orientation=self.orientation,
+            rehomed=self.rehomed,
             extra_values=None if inputs is None else inputs.extra,
         )
 

@@ -7,6 +7,8 @@ parser of the catalogue's parameter names (their grammar is in docs/format.md).
     beta{k}                           Hayati's rotation about y_k, in row k+1 in place of dd{k+1}
     bx by bz brx bry brz              the base transform (translation, rotation vector)
     bx{s} ... brz{s}                  the base of tracker station s, when there are several
+    dtheta{i}_s{s}                    joint i's zero offset in station s's session, beyond
+                                      dtheta{i} (the sessions' mean), when there are several
     tx ty tz, tx{k} ty{k} tz{k}       the tool offset (of target k when there are several)
     trx try trz                       the tool frame's rotation (where an orientation is measured)
     c{i} ts{i} tc{i} g{i} bl{i} lb{i} per-joint effects (i = 1..6)
@@ -121,7 +123,7 @@ class ParameterLayout:
 
 # --------------------------------------------------------------------------------------------------
 ParameterKind = Literal[
-    "row", "beta", "base", "tool", "tool_rotation", "joint", "global", "extra_joint"
+    "row", "beta", "base", "rehome", "tool", "tool_rotation", "joint", "global", "extra_joint"
 ]
 
 #: the DH row families in the order of the table's columns (alpha, a, theta, d)
@@ -134,6 +136,7 @@ TOOL_ROTATION_NAMES = ("trx", "try", "trz")
 
 _GRAMMAR = re.compile(
     r"(?P<row>dalpha|dtheta|da|dd)(?P<row_i>[1-6])"
+    r"|(?P<rehome>dtheta)(?P<rehome_i>[1-6])_s(?P<rehome_s>[0-9]+)"
     r"|beta(?P<beta_k>[0-5])"
     r"|(?P<base>brx|bry|brz|bx|by|bz)(?P<station>[0-9]*)"
     r"|(?P<turn>trx|try|trz)"
@@ -184,12 +187,14 @@ _UNITS = {
 class ParameterName:
     """A catalogued parameter's name, parsed.
 
-    ``kind``: ``row`` (a DH row's error), ``beta`` (Hayati's), ``base``, ``tool``,
+    ``kind``: ``row`` (a DH row's error), ``beta`` (Hayati's), ``base``, ``rehome`` (a
+    session's own zero offset of a joint, ``dtheta{i}_s{s}``), ``tool``,
     ``tool_rotation``, ``joint`` (a per-joint effect's) or ``global``; ``family``: the name
     without its number (``dalpha``, ``beta``, ``brx``, ``tx``, ``c``, ``cs``, ``kappa``...);
-    ``number``: the number as written (the row for ``row``, k of ``beta{k}``, the station of
-    ``bx{s}``, the target of ``tx{k}``, the joint for ``joint``), or None; ``order``: the order
-    per turn of a cyclic error (``cs2_17``: 17), else None.
+    ``number``: the number as written (the row for ``row`` and ``rehome``, k of ``beta{k}``, the
+    station of ``bx{s}``, the target of ``tx{k}``, the joint for ``joint``), or None; ``order``:
+    the order per turn of a cyclic error (``cs2_17``: 17), else None; ``station``: the station
+    of a ``rehome`` parameter, else None.
     """
 
     name: str
@@ -197,6 +202,7 @@ class ParameterName:
     family: str
     number: int | None = None
     order: int | None = None
+    station: int | None = None
 
     @property
     def row(self) -> int | None:
@@ -222,6 +228,10 @@ def parse_parameter_name(name: str) -> ParameterName | None:
     g = m.groupdict()
     if g["row"] is not None:
         return ParameterName(name, "row", g["row"], int(g["row_i"]))
+    if g["rehome"] is not None:
+        return ParameterName(
+            name, "rehome", "dtheta", int(g["rehome_i"]), station=int(g["rehome_s"])
+        )
     if g["beta_k"] is not None:
         return ParameterName(name, "beta", "beta", int(g["beta_k"]))
     if g["base"] is not None:

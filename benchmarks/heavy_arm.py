@@ -70,14 +70,17 @@ def draw(seed: int) -> dict[str, Any]:
     }
     planted = [_planted(rng, "compliance", [2, 3] if rng.random() < 0.5 else [2, 3, 5])]
     if rng.random() < OTHER_SHARE:
-        name = str(rng.choice(OTHER))
-        js = ld.JOINTS[name]
-        joints = sorted(
-            int(j) for j in rng.choice(js, min(len(js), int(rng.integers(1, 3))), False)
-        )
-        planted.append(_planted(rng, name, joints))
+        planted.append(other_effect(rng))
     spec["planted"] = planted
     return spec
+
+
+def other_effect(rng: np.random.Generator) -> dict[str, Any]:
+    """One more effect of the catalogue (:data:`OTHER`) on one or two of its joints."""
+    name = str(rng.choice(OTHER))
+    js = ld.JOINTS[name]
+    joints = sorted(int(j) for j in rng.choice(js, min(len(js), int(rng.integers(1, 3))), False))
+    return _planted(rng, name, joints)
 
 
 def _planted(rng: np.random.Generator, name: str, joints: list[int]) -> dict[str, Any]:
@@ -114,6 +117,13 @@ def run_campaign(seed: int) -> dict[str, Any]:
 
 
 def _run_campaign(seed: int, rec: dict[str, Any]) -> dict[str, Any]:
+    return follow_path(rec, coupled(load_robot(ROBOT)), SEED0)
+
+
+def follow_path(rec: dict[str, Any], robot: RobotDescription, seed0: int) -> dict[str, Any]:
+    """The error model's campaign of ``rec`` on ``robot`` (its masses make the truth), handed to
+    the lab without the masses and followed as the printed output says (the module docstring):
+    ``rec`` completed with the planted sizes, the path, the last model and its held-out RMS."""
     import logging
 
     from lab import diagnose
@@ -122,8 +132,7 @@ def _run_campaign(seed: int, rec: dict[str, Any]) -> dict[str, Any]:
     logging.disable(logging.WARNING)
     warnings.simplefilter("ignore")
     t0, c0 = time.perf_counter(), time.process_time()
-    robot = coupled(load_robot(ROBOT))
-    data, planted = ld.model_campaign(rec, robot, SEED0)
+    data, planted = ld.model_campaign(rec, robot, seed0)
     rec["planted"] = planted
     lab_arm = without_masses(robot)
     noise_mm = rec["noise_um"] * 1e-3

@@ -108,7 +108,7 @@ def read_point(out: Path, gamma: float, rate: float) -> dict:
     }
 
 
-def report(points: list[dict], args: argparse.Namespace) -> str:
+def report(points: list[dict], args: argparse.Namespace, state: dict) -> str:
     lines = [
         "# Tuning the plain PPO on the tool interface with the observation option",
         "",
@@ -118,8 +118,8 @@ def report(points: list[dict], args: argparse.Namespace) -> str:
         "per scenario (seeds 900000+). Figure: the geometric mean over the scenarios of the "
         "settled RMS (mm), at the best evaluation and at the last.",
         "",
-        f"Report from commit {args.state['commit'][:10]}"
-        f"{' (local changes)' if args.state['dirty'] else ', clean'}; the points were trained "
+        f"Report from commit {state['commit'][:10]}"
+        f"{' (local changes)' if state['dirty'] else ', clean'}; the points were trained "
         "(and resumed) at the commits a run's record names. Wall: the run's last session (a "
         "resumed run's earlier sessions are not in it), on 2 cores shared with other jobs.",
         "",
@@ -193,10 +193,10 @@ def main() -> None:
     from experiments.records import git_state
 
     make_folders(args.out)
-    args.state = git_state(ROOT)
+    state = git_state(ROOT)
     doc = {
-        "commit": args.state["commit"],
-        "dirty": args.state["dirty"],
+        "commit": state["commit"],
+        "dirty": state["dirty"],
         "config": Path(args.config).name,
         "budget": args.budget,
         "seed": args.seed,
@@ -206,8 +206,9 @@ def main() -> None:
         "points": points,
     }
     atomic_write_text(args.out / "tuning.json", json.dumps(doc, indent=2) + "\n")
-    atomic_write_text(args.out / "tuning.md", report(points, args))
-    print(report(points, args))
+    text = report(points, args, state)
+    atomic_write_text(args.out / "tuning.md", text)
+    print(text)
 
 
 if __name__ == "__main__":

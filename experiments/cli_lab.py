@@ -589,17 +589,15 @@ def update_cmd(
         if val is None:
             fail(f"--references {references}: they register --validate's station; give --validate")
         refs = read_data(references, length_unit, angle_unit, option="--references")
+    options: dict[str, Any] = {
+        "remount": remount,
+        "noise_mm": noise_mm,
+        "rehome_mrad": rehome_mrad,
+        "remount_mm": remount_mm,
+    }
     with user_errors(), console.status(f"updating {calibration} with {len(meas)} poses..."):
         prior = replace(prior_of(cal), source=calibration)
-        u = update(
-            prior,
-            meas,
-            remount=remount,
-            noise_mm=noise_mm,
-            robot=arm,
-            rehome_mrad=rehome_mrad,
-            remount_mm=remount_mm,
-        )
+        u = update(prior, meas, robot=arm, **options)
         result = (
             u.result
             if val is None
@@ -612,7 +610,9 @@ def update_cmd(
                 predicted_rms(u.result, val, unseen=False),
                 predicted_rms(u.prior_result, val, unseen=True, u=u.prior.uncertainty),
             )
-    target_pred = _update_prediction(u.result, predict, length_unit, angle_unit)
+    target_pred, measured = _update_prediction(
+        u, meas, predict, (length_unit, angle_unit), options, (val, extrapolate, refs)
+    )
     if output is not None:
         with user_errors(), writing(output):
             export_robot(result, output)
@@ -626,7 +626,6 @@ def update_cmd(
         summary["update"]["predicted"] = predicted[0].to_dict()
         summary["update"]["prior_predicted"] = predicted[1].to_dict()
     if target_pred is not None:
-        measured = None if val is None else result.validation_rms_mm
         summary["predicted"] = target_pred.to_dict() | {"measured_rms_mm": measured}
     emit_json(summary, as_json, out)
 
@@ -652,16 +651,30 @@ def _say_update(
         say(f"wrote the updated calibration to {output}; use it with --robot {output}")
 
 
-def _update_prediction(result: FitResult, predict: Path | None, length: str, angle: str) -> Any:
-    """``--predict`` of an update: its posterior covariance through the target's poses (the new
-    poses are too few for blocked checks: no fallback)."""
+def _update_prediction(
+    u: Any,
+    meas: Any,
+    predict: Path | None,
+    units: tuple[str, str],
+    options: dict[str, Any],
+    validation: tuple[Any, bool, Any],
+) -> tuple[Any, float | None]:
+    """``--predict`` of an update: the model its poses expect best on the target (the fallback:
+    each pose left out in turn, :func:`lab.prediction.expect_update`) with its posterior
+    covariance through the target's poses, and that model's RMS on the ``--validate`` rows
+    (``validation``: the rows, --extrapolate, the references), validated as the update is."""
     if predict is None:
-        return None
-    from lab.uncertainty import predicted_rms
+        return None, None
+    from lab.prediction import expect_update
 
-    target = read_target(predict, length, angle)
+    target = read_target(predict, *units)
+    val, extrapolate, refs = validation
     with user_errors():
-        return predicted_rms(result, target, unseen=False)
+        e = expect_update(u, meas, target, **options)
+        if val is None:
+            return e, None
+        done = e.result.validate(val, extrapolate=extrapolate, references=refs)
+    return e, done.validation_rms_mm
 
 
 # -- plan -------------------------------------------------------------------------------------------
@@ -729,6 +742,9 @@ def plan_cmd(
         with user_errors(prefix=f"--near {near}: "):
             program = read_poses(near, angle_unit)
             region_of(arm, program)  # within the limits, else refused here, by joint
+    if program is not None and arm.uncertainty and arm.nominal is not None:
+        _plan_update(n, arm, program, candidates, seed, noise_mm, output, angle_unit, as_json)
+        return
     with user_errors(), console.status(f"choosing {n} of {candidates} poses by {criterion}..."):
         p = plan(
             n,
@@ -751,6 +767,33 @@ def plan_cmd(
         )
     else:
         print_plan(p, criterion, output, angle_unit, poses=bool(noise_mrad))
+
+
+def _plan_update(
+    n: int,
+    cal: Any,
+    program: Any,
+    candidates: int,
+    seed: int,
+    noise_mm: float,
+    output: Path,
+    angle_unit: str,
+    as_json: bool,
+) -> None:
+    """``plan --near`` of a calibration (a file with its ``[uncertainty]``): the poses its update
+    needs where the program runs (:func:`lab.planning.plan_update`)."""
+    from arm.measurements import write_poses
+    from lab.planning import plan_update
+
+    with user_errors(), console.status(f"choosing {n} of {candidates} poses for the update..."):
+        p = plan_update(n, cal, program, candidates=candidates, seed=seed, noise_mm=noise_mm)
+    with writing(output):
+        write_poses(p.q, output, angle_unit)
+    if as_json:
+        extra = {"output": str(output), "angle_unit": angle_unit}
+        print(json_text(with_cautions(p.to_dict() | extra)))
+    else:
+        say(f"{p.summary()}; wrote {output}")
 
 
 # -- collect ----------------------------------------------------------------------------------------

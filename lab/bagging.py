@@ -238,7 +238,9 @@ def bag(
     names = list(union.layout.names)
     values = [_values(d.result) for d in draws]
     mean = _mean(values, names)
-    free = {n for n in names if (p := parse_parameter_name(n)) is not None and p.kind == "base"}
+    # each session's own (its base, its zero offsets) refitted; the rest the draws' mean
+    own = ("base", "rehome")
+    free = {n for n in names if (p := parse_parameter_name(n)) is not None and p.kind in own}
     result = fit(
         data, robot, model, options=opts, start=mean, fixed=[n for n in names if n not in free]
     )

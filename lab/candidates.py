@@ -105,6 +105,7 @@ def candidate_model(
         targets=model.targets,
         stations=model.stations,
         orientation=model.orientation,
+        rehomed=model.rehomed,
     )
     return full, skipped
 

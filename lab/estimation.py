@@ -16,7 +16,8 @@ The steps, each a pure function of arrays:
 4. A second identifiability pass at the solution with the noise now known (``noise_mm``, else the
    residual's): a parameter whose typical-size error moves the points by less than the noise is
    fixed too, and a parameter only nearly dependent at the start is restored if the data determine
-   it; then a short refit. Repeated poses count once here (:func:`distinct_poses`): repeating a
+   it beyond the noise and beyond what the model leaves (its residual, where larger: systematic
+   error takes up a near-null direction); then a short refit. Repeated poses count once here (:func:`distinct_poses`): repeating a
    pose averages the instrument's noise, not the model's own error, so 8,000 measurements of 60
    poses determine what 60 poses do.
 5. **Standard errors** from the scaled Jacobian at the solution: ``cov = s^2 (J^T J)^-1`` with
@@ -33,7 +34,7 @@ from __future__ import annotations
 import logging
 import math
 import warnings
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
@@ -86,13 +87,39 @@ log = logging.getLogger(__name__)
 # restores every one that the data determine (RANK_TOL and the noise criterion) and refits.
 START_TOL = 1e-2
 IMPLAUSIBLE_RMS = 0.1  # m: after a fit, no real arm's model is this far from most measurements
+#: a residual this many times the noise is the model's own (systematic) error: a parameter nearly
+#: dependent at the start is restored only where the data determine it beyond it
+SYSTEMATIC = 1.5
 
 
 def distinct_poses(data: MeasurementSet) -> int:
     """How many distinct poses the rows hold: distinct joint readings (with the target and the
-    station, where the data name them)."""
+    station, where the data name them). Repeated poses average the instrument's noise but not
+    the model's own error: what the poses determine is judged per distinct pose, as if each were
+    measured once (480,000 rows of 60 poses made nearly dependent parameters "identifiable" by
+    the row count alone; a missing effect then drove them to centimetres and the fit was refused
+    as another robot's file)."""
     keys = [data.q] + [data.columns[c][:, None] for c in ("target", "station") if c in data.columns]
     return max(1, len(np.unique(np.hstack(keys), axis=0)))
+
+
+def rehomed_stations(data: MeasurementSet) -> bool:
+    """Whether each station of ``data`` is a session of its own (files joined by
+    :func:`arm.sessions.join_sessions`, each measured from one station no other file shares),
+    two at least: each was re-homed, and a fit gives each its own zero offsets
+    (:class:`arm.effects.chain.Geometric`). Stations of one file are one session (the tracker
+    moved, the arm not re-homed); a station two files share holds two sessions, which the
+    model cannot tell apart: no offsets of their own then."""
+    stations = data.stations
+    if len(stations) < 2 or len(data.sessions) < 2:
+        return False
+    owner: dict[int, int] = {}
+    for k, s in enumerate(data.sessions):
+        for sid in s.stations:
+            if sid in owner or len(s.stations) != 1:
+                return False
+            owner[sid] = k
+    return all(s in owner for s in stations)
 
 
 def model_of(
@@ -108,7 +135,12 @@ def model_of(
     turn = uses_orientation(data, measured, noise)
     try:
         model = ErrorModel(
-            robot, effects, targets=data.targets, stations=data.stations, orientation=turn
+            robot,
+            effects,
+            targets=data.targets,
+            stations=data.stations,
+            orientation=turn,
+            rehomed=rehomed_stations(data),
         )
     except EffectError as exc:
         raise FitError(str(exc)) from None
@@ -175,6 +207,40 @@ def _registered(
             seen = np.asarray(obs.measured[:, 3:].any(axis=1))
             p = register_tool_rotation(model, inputs, p, obs.rotation, seen)
     return p
+
+
+def _restored_beyond_residual(
+    ident: Identifiability,
+    first: np.ndarray,
+    judge: Callable[..., Identifiability],
+    left: float,
+    noise: float,
+    repeats: float,
+) -> Identifiability:
+    """``ident`` without the parameters it restores (nearly dependent at the start: not in
+    ``first``) that the data do not determine beyond what the model leaves (``left``, m per
+    axis, where :data:`SYSTEMATIC` times the ``noise`` or more; ``judge(noise=...)`` the
+    identifiability at the solution): held and named with their combination, as weak.
+    The residual is systematic, and a near-null direction determined against the instrument's
+    noise alone takes it up: the UR10's tool 0.3 mm off joint 6's axis made dalpha6 and da6
+    separable at 0.015 mm, and the 0.26 mm the geometric model leaves on its three series drove
+    them, with dtheta5 and dd5, to 296 mrad, 27 mm, 148 mrad and 56 mm (refused as
+    implausible)."""
+    if not (left > SYSTEMATIC * noise and (ident.identifiable & ~first).any()):
+        return ident
+    strict = judge(noise=left * math.sqrt(repeats))
+    drop = ident.identifiable & ~first & ~strict.identifiable
+    if not drop.any():
+        return ident
+    names = [str(n) for n, d in zip(ident.names, drop, strict=True) if d]
+    log.info("held, not determined beyond the model's residual: %s", ", ".join(names))
+    return replace(
+        ident,
+        identifiable=ident.identifiable & ~drop,
+        weak=(*ident.weak, *names),
+        combinations=ident.combinations | {n: strict.combinations.get(n, {}) for n in names},
+        labels=ident.labels | {n: strict.labels.get(n, n) for n in names},
+    )
 
 
 def _noise_of(
@@ -311,12 +377,11 @@ def fit_rows(
     if judge_noise:
         check_stated_noise(stated, options, data)
     noise = _noise_of(noise_mm, obs, sol.residuals, sigma)
-    # Repeated poses average the instrument's noise but not the model's own error: what the poses
-    # determine is judged per distinct pose, as if each were measured once. (480,000 rows of 60
-    # poses made nearly dependent parameters "identifiable" by the row count alone; a missing
-    # effect then drove them to centimetres and the fit was refused as another robot's file.)
-    repeats = len(xyz) / distinct_poses(data)
+    repeats = len(xyz) / distinct_poses(data)  # judged per distinct pose (distinct_poses)
     ident = identifiability(sol.params, sol.jacobian, noise=noise * math.sqrt(repeats), warn=True)
+    left = float(np.sqrt(np.mean(points(sol) ** 2)))  # m per axis: what the model leaves
+    judge = partial(identifiability, sol.params, sol.jacobian, warn=False)
+    ident = _restored_beyond_residual(ident, free | held, judge, left, noise, repeats)
     if held.any():
         ident = replace(ident, held=tuple(np.asarray(lay.names)[held]))
     free2 = ident.identifiable & ~held

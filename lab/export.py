@@ -362,8 +362,11 @@ def station_bases(result: FitResult) -> list[tuple[int, np.ndarray]]:
 
 def _compare(result: FitResult, robot: RobotDescription, fit_torques: bool) -> float:
     """The largest distance of the calibrated arm's predictions from the fit's, every station's
-    rows through that station's frame."""
-    fitted = result.model.predict(result.inputs, result.params)
+    rows through that station's frame. A fit of several stations is compared at its sessions'
+    mean zero offsets (:meth:`FitResult.at_session_mean`): a file keeps each station's frame,
+    not the zero offsets of the session measured there (the arm is re-homed before its next
+    use)."""
+    fitted = result.model.predict(result.inputs, result.at_session_mean().params)
     frames = station_frames(robot)
     several = len(result.model.stations) > 1
     worst = 0.0

@@ -172,8 +172,10 @@ def format_combination(
 def priority_order(names: Sequence[str], geometric: Sequence[str] = ()) -> np.ndarray:
     """The order in which columns are offered to the rank test: the base transform, the tool
     offsets, the DH table row by row (alpha, a, theta, d or Hayati's beta), then everything else in
-    its order. Dependent parameters are fixed, so the base absorbs row 1 and the tool absorbs
-    ``dd6`` and ``dtheta6``, as a calibration engineer would state it."""
+    its order, a session's own zero offsets (``dtheta{i}_s{s}``) after the shared table.
+    Dependent parameters are fixed, so the base absorbs row 1 and the tool absorbs ``dd6`` and
+    ``dtheta6``, and each station's base its session's offset of joint 1, as a calibration
+    engineer would state it."""
     geo = set(geometric)
 
     def key(k: int) -> tuple:
@@ -188,6 +190,8 @@ def priority_order(names: Sequence[str], geometric: Sequence[str] = ()) -> np.nd
                 return (2, p.row, 3)
             if p.kind == "row":
                 return (2, p.row, ROW_FAMILIES.index(p.family))
+            if p.kind == "rehome":  # a session's own zero offsets: after the shared table
+                return (2, 7, k)
         return (3, k, 0)
 
     return np.array(sorted(range(len(names)), key=key), dtype=int)

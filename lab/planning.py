@@ -29,6 +29,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -38,13 +39,16 @@ from arm.effect_api import EffectError
 from arm.effects import Effect
 from arm.errormodel import ErrorModel
 from arm.noise import noise_law_problems
+from arm.params import BASE_NAMES
 from arm.sampling import SamplingError, check_count, rng_from, sample_poses
 from lab.errors import FitError
 from lab.identifiability import Identifiability, analyse_jacobian
 from lab.options import CRITERIA
+from lab.registration import tool_indices
 from lab.result import SCHEMA_VERSION
+from lab.uncertainty import least_spread
 
-__all__ = ["Plan", "plan"]
+__all__ = ["Plan", "UpdatePlan", "plan", "plan_update"]
 
 log = logging.getLogger(__name__)
 
@@ -284,3 +288,145 @@ def _exchange(A, chosen, criterion, max_exchanges) -> tuple[np.ndarray, int]:
         best = vals[k]
         exchanges += 1
     return np.array(chosen), exchanges
+
+
+# -- poses for an update ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class UpdatePlan:
+    """Poses ``q`` (n, 6) chosen to update a calibration where a program runs, and the RMS (mm,
+    3-D) the update is expected to err on the program's poses with them (``predicted_mm``: its
+    posterior through the program's Jacobian, the model's discrepancy added) beside the mean of
+    as many random poses of the program's region (``random_mm``); ``free``: the parameters
+    the update fits without a prior; ``indices``: the candidates chosen."""
+
+    q: np.ndarray
+    predicted_mm: float
+    random_mm: float
+    free: tuple[str, ...]
+    indices: np.ndarray  # rows of the candidates chosen
+
+    def to_dict(self) -> dict:
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "n_poses": len(self.q),
+            "criterion": "update",
+            "predicted_mm": self.predicted_mm,
+            "random_mm": self.random_mm,
+            "free": list(self.free),
+            "q": self.q.tolist(),
+        }
+
+    def summary(self) -> str:
+        return (
+            f"{len(self.q)} poses for the update: expected RMS {self.predicted_mm:.4f} mm on the "
+            f"program (random poses of its region: {self.random_mm:.4f} mm)"
+        )
+
+
+def plan_update(
+    n: int,
+    calibration: Any,
+    near: np.ndarray,
+    *,
+    candidates: np.ndarray | int = 2000,
+    seed: int | np.random.Generator = 0,
+    remount: bool = False,
+    noise_mm: float | None = None,
+) -> UpdatePlan:
+    """Choose ``n`` poses of a program's region (``near``, its joints (P, 6)) that make the update
+    of ``calibration`` (anything :func:`lab.update.prior_of` takes) err least on the program's
+    poses: Bayesian I-optimality. The update frees the new session's base (and with ``remount``
+    the tool) and re-estimates the rest within the calibration's prior (its covariance widened by
+    the spread between sessions and the least spread, as :func:`lab.update.update` does); a pose
+    set's posterior precision is the prior's plus its rows' (each in units of the noise,
+    ``noise_mm``, default the calibration's residual), and the criterion is the mean variance of
+    the program's predicted points, ``trace(G M^-1)`` (``G`` the program's information per pose).
+    The poses are added greedily, each the candidate that lowers it most (the Woodbury update of
+    ``M^-1``), from ``candidates`` random poses of the program's region (or those given: an
+    (M, 6) array)."""
+    from lab.update import prior_of
+
+    prior = prior_of(calibration)
+    u = prior.uncertainty
+    rng = rng_from(seed, "seed")
+    try:
+        if isinstance(candidates, int | np.integer):
+            count = check_count(candidates, "candidates", MAX_CANDIDATES)
+            cand = sample_poses(prior.nominal, count, rng, near=near)
+        else:
+            cand = np.asarray(candidates, dtype=float).reshape(-1, 6)
+    except SamplingError as exc:
+        raise FitError(str(exc)) from None
+    if n > len(cand):
+        raise FitError(f"cannot choose {n} poses from {len(cand)} candidates")
+    model = ErrorModel(prior.nominal, list(prior.effects))
+    lay = model.layout
+    p = model.nominal()
+    for name, v in u.values.items():
+        if name in lay:
+            p[lay.index(name)] = v
+    free = [str(x) for x in BASE_NAMES if x in lay]
+    if remount:
+        free += [str(lay.names[i]) for i in tool_indices(model)]
+    names = [x for x in u.names if x in lay and x not in free]
+    keep = [u.names.index(x) for x in names]
+    cov = u.prior_covariance(least_spread(u.names))[np.ix_(keep, keep)]
+    sigma = u.sigma if noise_mm is None else 1e-3 * noise_mm
+    active = lay.indices(free + names)
+    A = _rows_of(model, cand, p, active) / sigma
+    Ap = _rows_of(model, np.asarray(near, dtype=float), p, active) / sigma
+    scale = np.sqrt(np.einsum("nai,nai->i", A, A) / len(cand))
+    scale[scale == 0] = 1.0
+    A, Ap = A / scale, Ap / scale
+    G = np.einsum("nai,naj->ij", Ap, Ap) / len(Ap)
+    L = len(active)
+    prec = np.zeros((L, L))
+    s = scale[len(free) :]
+    # the prior's precision in the scaled parameters (the rows in units of the noise): C^-1 / s s^T
+    prec[len(free) :, len(free) :] = np.linalg.pinv(cov, hermitian=True) / np.outer(s, s)
+    prec += 1e-9 * np.eye(L)  # the free base: nothing before the poses
+    chosen = _i_optimal(A, G, np.linalg.inv(prec), n)
+
+    def expected(idx: np.ndarray) -> float:
+        M = prec + np.einsum("nai,naj->ij", A[idx], A[idx])
+        # the posterior through the program's poses, and the discrepancy (3 sigma^2 a pose)
+        return 1e3 * sigma * math.sqrt(float(np.trace(G @ np.linalg.inv(M))) + 3.0)
+
+    random = [expected(rng.choice(len(cand), n, replace=False)) for _ in range(20)]
+    idx = np.sort(chosen)
+    return UpdatePlan(cand[idx], expected(idx), float(np.mean(random)), tuple(free), idx)
+
+
+def _rows_of(model: ErrorModel, q: np.ndarray, p: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """The Jacobian (n, 3, L) of the parameters ``active`` at the poses ``q``, every column an
+    effect reads at a typical value (20 degC, no payload, each joint approached from +)."""
+    n = len(q)
+    cols = {"temperature": np.full(n, 20.0), "payload": np.zeros(n)}
+    cols |= {f"dir{j}": np.ones(n) for j in range(1, 7)}
+    need = model.required_columns()
+    try:
+        inputs = model.inputs(q, {k: v for k, v in cols.items() if k in need}, "planned poses")
+    except EffectError as exc:
+        raise FitError(str(exc)) from None
+    _, J = model.predict(inputs, p, jacobian=True)
+    return J[:, :, active]
+
+
+def _i_optimal(A: np.ndarray, G: np.ndarray, Minv: np.ndarray, n: int) -> np.ndarray:
+    """Greedy I-optimal poses: each the candidate that lowers ``trace(G M^-1)`` most, by the
+    Woodbury update ``(M + A_i^T A_i)^-1 = M^-1 - W_i^T (I + A_i M^-1 A_i^T)^-1 W_i``,
+    ``W_i = A_i M^-1``."""
+    taken = np.zeros(len(A), dtype=bool)
+    chosen = []
+    eye = np.eye(A.shape[1])
+    for _ in range(n):
+        W = A @ Minv  # (m, k, L)
+        S = eye + np.einsum("nai,nbi->nab", W, A)
+        X = np.einsum("nai,ij,nbj->nab", W, G, W)
+        gain = np.trace(np.linalg.solve(S, X), axis1=1, axis2=2)
+        gain[taken] = -np.inf
+        i = int(np.argmax(gain))
+        chosen.append(i)
+        taken[i] = True
+        Minv = Minv - W[i].T @ np.linalg.solve(S[i], W[i])
+    return np.array(chosen)

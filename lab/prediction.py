@@ -47,7 +47,15 @@ from lab.options import LabOptions
 from lab.result import FitResult
 from lab.uncertainty import Prediction, Uncertainty, predicted_rms, uncertainty_of
 
-__all__ = ["JOINT_BLOCKS", "MARGIN", "Expectation", "blocked_check", "expect", "joint_blocks"]
+__all__ = [
+    "JOINT_BLOCKS",
+    "MARGIN",
+    "Expectation",
+    "blocked_check",
+    "expect",
+    "expect_update",
+    "joint_blocks",
+]
 
 log = logging.getLogger(__name__)
 
@@ -147,11 +155,13 @@ def expect(
     options: LabOptions | None = None,
     geometric: FitResult | None = None,
     u: Uncertainty | None = None,
+    references: MeasurementSet | np.ndarray | None = None,
 ) -> Expectation:
     """The :class:`Expectation` of ``result`` (fitted on ``data``) on ``target`` (module
     docstring). ``geometric``: the geometric model fitted on the same rows, where it is at hand
     (else it is fitted when the fallback chooses it); ``u``: the calibration's uncertainty
-    (default measured from ``result`` and ``data``)."""
+    (default measured from ``result`` and ``data``); ``references``: the poses that register the
+    target's station (:func:`lab.uncertainty.predicted_rms`; default the target's own)."""
     target = _targets(target)
     how, blocked = blocked_check(data, result, options)
     means = {m: _log_mean(b) for m, b in blocked.items()}
@@ -163,7 +173,7 @@ def expect(
         use = geometric or _geometric(data, result, options)
         u = None
     u = u or uncertainty_of(use, data)
-    base = predicted_rms(use, target, unseen=unseen, u=u)
+    base = predicted_rms(use, target, unseen=unseen, u=u, references=references)
     excess = _excess(use, data, blocked["model" if use is result else "geometric"], u)
     outside = _outside_share(use, target)
     extra = math.sqrt(outside) * excess
@@ -226,3 +236,35 @@ def _outside_share(result: FitResult, target: MeasurementSet) -> float:
             lo, hi = ranges[f"q{j + 1}"]
             out |= (target.q[:, j] < lo) | (target.q[:, j] > hi)
     return float(np.mean(out)) if len(out) else 0.0
+
+
+def expect_update(
+    u: Any, data: MeasurementSet, target: MeasurementSet | np.ndarray, **options: Any
+) -> Expectation:
+    """The :class:`Expectation` of an update (:class:`lab.update.Update`, made from the poses
+    of ``data``) on ``target``: the new poses are too few for blocked checks, so the fallback
+    is decided on them alone, each left out in turn: the update's leave-one-pose-out RMS
+    against that of the same update from the calibration without its terms beside the geometry
+    (:func:`lab.update.geometric_prior`); the geometric one is used unless the update's is
+    under :data:`MARGIN` of it. ``options``: :func:`lab.update.update`'s (``remount``,
+    ``noise_mm``...), as the update was made. Its prediction is the posterior's
+    (:func:`lab.uncertainty.predicted_rms`, the session seen), with nothing added outside the
+    domain (no blocked check measured the extrapolation)."""
+    from lab.uncertainty import predicted_rms
+    from lab.update import geometric_prior, update
+
+    target = _targets(target)
+    blocked = {"model": u.loo_rms_mm}
+    chosen, use = "model", u
+    if any(e.name != "geometric" for e in u.prior.effects):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", LabWarning)
+            geo = update(geometric_prior(u.prior), data, **options)
+        blocked["geometric"] = geo.loo_rms_mm
+        if not u.loo_rms_mm < MARGIN * geo.loo_rms_mm:
+            chosen, use = "geometric", geo
+    pred = predicted_rms(use.result, target, unseen=False)
+    blocks = f"{u.poses} poses of the update"
+    return Expectation(
+        pred, chosen, blocked, blocks, _outside_share(use.result, target), 0.0, use.result
+    )

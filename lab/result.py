@@ -504,13 +504,17 @@ class FitResult:
         if not new:
             return self._validated(data, predict(data), None, (), outside)
         assert which is not None and references is not None
-        # the arm as fitted, in the frame of the fit's first station; each new station's frame
-        # is registered on its reference points
+        # the arm as fitted, in the frame of the fit's first station (its zero offsets the
+        # sessions' mean: a new station's session was re-homed); each new station's frame is
+        # registered on its reference points
         cols = {k: v for k, v in data.columns.items() if k != "station"}
         if "station" in self.inputs.columns:  # as measured from the fit's first station
             cols["station"] = np.full(len(data), float(model.stations[0]))
         first = MeasurementSet(data.q, data.xyz, cols, data.source, data.lines)
-        pred = predict(first)
+        unseen = self.at_session_mean()
+        pred = unseen._predict_rows(
+            inputs_of(model, first), {n: m for n, m in drop.items() if m.any()}
+        )
         pts = np.array(pred, dtype=float)
         turns = np.repeat(np.eye(3)[None], len(data), axis=0)
         # a tool offset the fit could not identify is placed with the new frames (lab.domain)
@@ -518,7 +522,7 @@ class FitResult:
         columns = (
             tool_columns(model, inputs_of(model, first), self.params, loose) if loose else None
         )
-        placed = [self.register(_references_of(references, sid, new), loose) for sid in new]
+        placed = [unseen.register(_references_of(references, sid, new), loose) for sid in new]
         shift: dict[str, float] = {}
         for sid in ids:
             if sid not in new:
@@ -538,6 +542,26 @@ class FitResult:
             self._validated(data, pts, (first, turns), new, outside, shift),
             validation_registrations=tuple(placed),
         )
+
+    def at_session_mean(self) -> FitResult:
+        """This result as it stands for a session it has not seen: each station's session's own
+        zero offsets (``dtheta{i}_s{s}``, several stations) at zero, the sessions' mean; itself
+        where it has none."""
+        names = self.model.layout.names
+        own = [
+            k for k, n in enumerate(names) if (p := parse_parameter_name(n)) and p.kind == "rehome"
+        ]
+        if not own:
+            return self
+
+        def mean(params: np.ndarray) -> np.ndarray:
+            out = params.copy()
+            out[own] = 0.0
+            return out
+
+        inner = self.refit
+        refit = None if inner is None else (lambda left_out: mean(inner(left_out)))
+        return replace(self, params=mean(self.params), refit=refit)
 
     def register(
         self, references: MeasurementSet, tool: list[str] | None = None

@@ -46,12 +46,15 @@ from lab.result import FitResult
 
 __all__ = [
     "Prediction",
+    "Rehoming",
     "Uncertainty",
     "UncertaintyError",
     "covariance_of",
     "draw_band",
+    "is_session_own",
     "least_spread",
     "predicted_rms",
+    "rehoming_of",
     "session_spread",
     "uncertainty_of",
 ]
@@ -87,6 +90,13 @@ def is_base(name: str) -> bool:
     """Whether ``name`` is a station's base parameter (``bx``, ``brz3``...): each session's own."""
     parsed = parse_parameter_name(name)
     return parsed is not None and parsed.kind == "base"
+
+
+def is_session_own(name: str) -> bool:
+    """Whether ``name`` is one session's own: a station's base, or its session's zero offset of
+    a joint (``dtheta2_s3``). A calibration states neither (an unseen session has its own)."""
+    parsed = parse_parameter_name(name)
+    return parsed is not None and parsed.kind in ("base", "rehome")
 
 
 @dataclass(frozen=True)
@@ -202,7 +212,15 @@ class Uncertainty:
 
 # -- measured from a fit -------------------------------------------------------------------------
 def covariance_of(result: FitResult) -> tuple[tuple[str, ...], np.ndarray]:
-    """The covariance (module docstring) of the parameters ``result`` identified but the bases:
+    """The covariance (module docstring) of the parameters ``result`` identified but each
+    session's own (the bases, the sessions' zero offsets): (names, (P, P))."""
+    names, cov = full_covariance(result)
+    keep = np.array([not is_session_own(n) for n in names], dtype=bool)
+    return tuple(n for n, k in zip(names, keep, strict=True) if k), cov[np.ix_(keep, keep)]
+
+
+def full_covariance(result: FitResult) -> tuple[tuple[str, ...], np.ndarray]:
+    """The covariance of every parameter ``result`` identified (the sessions' own included):
     (names, (P, P))."""
     free = np.flatnonzero(result.identifiable)
     names = np.asarray(result.names)[free]
@@ -216,8 +234,7 @@ def covariance_of(result: FitResult) -> tuple[tuple[str, ...], np.ndarray]:
     scale[scale == 0] = 1.0
     G = (A / scale).T @ (A / scale)
     cov = np.linalg.pinv(G, hermitian=True) / np.outer(scale, scale) * result.sigma**2
-    keep = np.array([not is_base(n) for n in names])
-    return tuple(str(n) for n in names[keep]), cov[np.ix_(keep, keep)]
+    return tuple(str(n) for n in names), cov
 
 
 def _blocks_of(data: MeasurementSet) -> tuple[str | None, list[float]]:
@@ -303,16 +320,83 @@ def _deviation(values: Sequence[float], calibrated: float, std: Sequence[float])
     return float(np.sqrt(max(scatter + bias - own, 0.0)))
 
 
+@dataclass(frozen=True)
+class Rehoming:
+    """The sessions' own zero offsets of a fit of several stations (``dtheta{i}_s{s}``):
+    ``offsets`` (S, 6), rad, of every station's session (the last's minus the others' sum; 0
+    where not identified), ``joints`` the joints (1..6) whose offsets the fit told apart from
+    the bases, ``spread`` (6,) each joint's re-homing standard deviation (rad) measured from
+    them (:func:`rehoming_of`; NaN where not told apart) and ``expected`` (6,) the spread of an
+    unseen session's offset about the calibration's ``dtheta{i}`` (``spread * sqrt(1 + 1/S)``:
+    the sessions' mean is itself a draw)."""
+
+    stations: tuple[int, ...]
+    offsets: np.ndarray
+    joints: tuple[int, ...]
+    spread: np.ndarray
+    expected: np.ndarray
+
+    def to_dict(self) -> dict[str, Any]:
+        def mrad(v: np.ndarray) -> list[float | None]:
+            return [None if not math.isfinite(x) else 1e3 * float(x) for x in v]
+
+        return {
+            "stations": list(self.stations),
+            "offsets_mrad": [mrad(row) for row in self.offsets],
+            "joints": list(self.joints),
+            "spread_mrad": mrad(self.spread),
+            "expected_mrad": mrad(self.expected),
+        }
+
+
+def rehoming_of(result: FitResult) -> Rehoming | None:
+    """The :class:`Rehoming` of a fit of several stations whose sessions have their own zero
+    offsets, None otherwise. A joint's spread is the RMS of the stations' offsets with S - 1
+    degrees of freedom, less the part their standard errors explain (their covariance)."""
+    from arm.effects.chain import session_offsets
+
+    stations = tuple(result.model.stations)
+    S = len(stations)
+    names = result.names
+    if S < 2 or f"dtheta1_s{stations[0]}" not in names:
+        return None
+    got = result.parameters()
+    values = np.array([[got[f"dtheta{i}_s{s}"] or 0.0 for i in range(1, 7)] for s in stations[:-1]])
+    offsets = session_offsets(values)
+    ident = dict(zip(names, result.identifiable, strict=True))
+    joints = tuple(i for i in range(1, 7) if all(ident[f"dtheta{i}_s{s}"] for s in stations[:-1]))
+    spread = np.full(6, np.nan)
+    if joints:
+        full, cov = full_covariance(result)
+        at = {n: k for k, n in enumerate(full)}
+        # the stations' offsets are T v, v the S - 1 named, T = [I; -1...-1]
+        T = np.vstack([np.eye(S - 1), -np.ones((1, S - 1))])
+        for i in joints:
+            idx = [at[f"dtheta{i}_s{s}"] for s in stations[:-1]]
+            noise = float(np.trace(T @ cov[np.ix_(idx, idx)] @ T.T))
+            square = float(np.sum(offsets[:, i - 1] ** 2))
+            spread[i - 1] = math.sqrt(max(square - noise, 0.0) / (S - 1))
+    return Rehoming(stations, offsets, joints, spread, spread * math.sqrt(1.0 + 1.0 / S))
+
+
 def uncertainty_of(result: FitResult, data: MeasurementSet | None = None) -> Uncertainty:
     """The :class:`Uncertainty` of a fit: its own where it states one (an update's posterior),
-    else its covariance and the spread of per-session fits (module docstring)."""
+    else its covariance and the spread of per-session fits (module docstring); the zero offsets
+    of the joints whose sessions' own offsets the fit identified spread as those offsets do
+    (:func:`rehoming_of`)."""
     if result.uncertainty is not None:
         return Uncertainty.from_dict(result.uncertainty, result.source)
     names, cov = covariance_of(result)
     s = session_spread(result, names, data)
-    values = {n: v for n, v in result.parameters().items() if not is_base(n)}
+    values = {n: v for n, v in result.parameters().items() if not is_session_own(n)}
     sigma = result.sigma if s.sigma is None else s.sigma
-    return Uncertainty(names, values, cov, sigma, s.sessions, s.spread, s.unmeasured, result.source)
+    spread, unmeasured = s.spread, s.unmeasured
+    rehome = rehoming_of(result)
+    if spread is not None and rehome is not None and rehome.joints:
+        measured = {f"dtheta{i}": float(rehome.expected[i - 1]) for i in rehome.joints}
+        spread = np.array([measured.get(n, v) for n, v in zip(names, spread, strict=True)])
+        unmeasured = tuple(n for n in unmeasured if n not in measured)
+    return Uncertainty(names, values, cov, sigma, s.sessions, spread, unmeasured, result.source)
 
 
 def with_uncertainty(result: FitResult, u: Uncertainty) -> FitResult:
@@ -363,50 +447,71 @@ def predicted_rms(
     *,
     unseen: bool,
     u: Uncertainty | None = None,
+    references: MeasurementSet | np.ndarray | None = None,
 ) -> Prediction:
     """The 3-D RMS ``result`` expects on the poses of ``data`` (measurements, or a program's
     joint angles (N, 6): nothing measured is read) (:class:`Prediction`): the
     covariance of its parameters (``u``, default its own, :func:`uncertainty_of`), widened by the
     spread where the poses are ``unseen`` (for a calibration of one session, which measured
-    none, the least spread, :func:`least_spread`), through the Jacobian at those poses, and the
-    discrepancy of one session fitted alone. The base is placed on the poses themselves (what a
-    change of the parameters moves as a base does, it takes up), and nothing is added for poses
-    outside the fitted domain."""
-    from lab.result import inputs_of
-
-    if not isinstance(data, MeasurementSet):
-        q = np.atleast_2d(np.asarray(data, dtype=float))
-        data = MeasurementSet(q, np.zeros((len(q), 3)), source="program")
+    none, the least spread, :func:`least_spread`), through the Jacobian at those poses, and the discrepancy of one session fitted alone. The
+    base is placed on ``references`` (the reference poses that register a new station: joint
+    angles or measurements, their measured points unread), their noise carried to the target;
+    without them on the poses themselves (what a change of the parameters moves as a base
+    does, it takes up). Nothing is added for poses outside the fitted domain."""
     u = uncertainty_of(result) if u is None else u
     model = result.model
-    cols = {k: v for k, v in data.columns.items() if k != "station"}
-    if "station" in result.inputs.columns:  # each station's base is placed: the first one's
-        cols["station"] = np.full(len(data), float(model.stations[0]))
-    inputs = inputs_of(model, MeasurementSet(data.q, data.xyz, cols, data.source))
     names = [n for n in u.names if n in model.layout]
     keep = [u.names.index(n) for n in names]
     # the least spread where nothing was measured between sessions (one session): sessions that
     # were measured say how much this shop's sessions differ
     least = least_spread(u.names) if u.spread is None else None
     cov = (u.prior_covariance(least) if unseen else u.covariance)[np.ix_(keep, keep)]
-    _, J = model.predict(inputs, result.params, jacobian=True)
-    A = J[:, :, model.layout.indices(names)].reshape(-1, len(names))
-    base = [n for n in model.layout.names if is_base(n)]
-    if base:  # what the base placed on these poses takes up of a change, it does not err by
-        B = J[:, :, model.layout.indices(base)].reshape(-1, len(base))
-        A = A - B @ np.linalg.lstsq(B, A, rcond=None)[0]
-    params = float(np.sqrt(np.einsum("ia,ab,ib->", A, cov, A) / len(data)))
+    A, B = _columns_at(result, data, names)
+    n = len(A) // 3
     discrepancy = math.sqrt(3.0) * u.sigma
-    low, high = draw_band(A, cov, len(data), discrepancy)
+    if B is not None and references is not None:
+        Ar, Br = _columns_at(result, references, names)
+        assert Br is not None
+        P = B @ np.linalg.pinv(Br)  # the base placed on the references moves the target so
+        A = A - P @ Ar
+        # each reference's own error (the discrepancy) moves the base with it
+        discrepancy = math.hypot(discrepancy, u.sigma * float(np.linalg.norm(P)) / math.sqrt(n))
+    elif B is not None:  # what the base placed on these poses takes up, it does not err by
+        A = A - B @ np.linalg.lstsq(B, A, rcond=None)[0]
+    params = float(np.sqrt(np.einsum("ia,ab,ib->", A, cov, A) / n))
+    low, high = draw_band(A, cov, n, discrepancy)
     return Prediction(
         1e3 * math.hypot(params, discrepancy),
         1e3 * params,
         1e3 * discrepancy,
         unseen,
-        len(data),
+        n,
         1e3 * low,
         1e3 * high,
     )
+
+
+def _columns_at(
+    result: FitResult, data: MeasurementSet | np.ndarray, names: Sequence[str]
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The Jacobian columns (3N, P) of ``names`` at the poses of ``data`` (as measured from the
+    fit's first station), and those of the base (None without one)."""
+    from lab.result import inputs_of
+
+    if not isinstance(data, MeasurementSet):
+        q = np.atleast_2d(np.asarray(data, dtype=float))
+        data = MeasurementSet(q, np.zeros((len(q), 3)), source="program")
+    model = result.model
+    cols = {k: v for k, v in data.columns.items() if k != "station"}
+    if "station" in result.inputs.columns:  # each station's base is placed: the first one's
+        cols["station"] = np.full(len(data), float(model.stations[0]))
+    inputs = inputs_of(model, MeasurementSet(data.q, data.xyz, cols, data.source))
+    _, J = model.predict(inputs, result.params, jacobian=True)
+    A = J[:, :, model.layout.indices(names)].reshape(-1, len(names))
+    base = [n for n in model.layout.names if is_base(n)]
+    if not base:
+        return A, None
+    return A, J[:, :, model.layout.indices(base)].reshape(-1, len(base))
 
 
 #: draws of the parameters for the band of a prediction (seeded: the same band every time)

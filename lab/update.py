@@ -47,7 +47,7 @@ from arm.effects import EFFECTS, Effect
 from arm.errormodel import ErrorModel
 from arm.errors import warn
 from arm.measurements import MeasurementSet, as_measurements
-from arm.params import BASE_NAMES
+from arm.params import BASE_NAMES, parse_parameter_name
 from lab.domain import Domain
 from lab.errors import FitError, UpdateWarning
 from lab.estimation import model_of
@@ -63,7 +63,7 @@ from lab.uncertainty import (
     uncertainty_of,
 )
 
-__all__ = ["Prior", "Update", "UpdateWarning", "prior_of", "update"]
+__all__ = ["Prior", "Update", "UpdateWarning", "geometric_prior", "prior_of", "update"]
 
 log = logging.getLogger(__name__)
 
@@ -150,6 +150,8 @@ class Update:
     # the calibration alone, its free parameters (the base) fitted on the new poses: what it
     # predicts without the update (validate it as any fit)
     prior_result: FitResult | None = field(default=None, repr=False, compare=False)
+    # the leave-one-pose-out 3-D RMS (mm) of the update on its poses (its hat matrix)
+    loo_rms_mm: float = float("nan")
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -164,6 +166,7 @@ class Update:
             "prior_rms_mm": self.prior_rms_mm,
             "rms_mm": self.result.rms_mm,
             "loo_rms_mm": self.choices,
+            "update_loo_rms_mm": self.loo_rms_mm,
         }
 
     def summary(self) -> str:
@@ -438,7 +441,33 @@ def update(
         remount,
         choices,
         prior_result,
+        1e3 * sol.loo_rms,
     )
+
+
+def geometric_prior(prior: Prior) -> Prior:
+    """``prior`` without its effects beside the geometry (their values at zero): what an update
+    falls back to where the calibration's terms are not expected to help
+    (:func:`lab.prediction.expect_update`)."""
+    from dataclasses import replace
+
+    geo = [e for e in prior.effects if e.name == "geometric"]
+    u = prior.uncertainty
+    kinds = ("row", "beta", "base", "tool", "tool_rotation")
+    names = {n for n in u.values if (p := parse_parameter_name(n)) and p.kind in kinds}
+    keep = [j for j, n in enumerate(u.names) if n in names]
+    spread = None if u.spread is None else u.spread[keep]
+    sub = Uncertainty(
+        tuple(u.names[j] for j in keep),
+        {n: v for n, v in u.values.items() if n in names},
+        u.covariance[np.ix_(keep, keep)],
+        u.sigma,
+        u.sessions,
+        spread,
+        tuple(n for n in u.unmeasured if n in names),
+        u.source,
+    )
+    return replace(prior, effects=tuple(geo), uncertainty=sub)
 
 
 def _result(

@@ -101,3 +101,48 @@ def test_a_program_outside_the_limits_is_refused_by_joint(seed):
         plan(10, seed, "geometric", near=program)
     with pytest.raises(FitError, match="near="):
         plan(10, seed, "geometric", near=np.zeros((5, 6)), candidates=np.zeros((40, 6)))
+
+
+def test_poses_planned_for_an_update_beat_random_ones_where_the_program_runs():
+    """plan_update chooses, among a new session's poses, those whose update errs least on a
+    program's poses (the update's posterior there): updated with them, the calibration errs on
+    the program's measured poses no more than with random poses of the same session (the mean
+    of five sets), and as much as the plan expected (within [0.67, 1.5])."""
+    import warnings
+
+    from arm.sessions import join_sessions
+    from lab.errors import LabWarning
+    from lab.planning import plan_update
+    from lab.update import prior_of, update
+    from tests._lab_data import drifting_session
+
+    rng = np.random.default_rng(5)
+    values = {f"da{j}": rng.normal(0.0, 3e-4) for j in range(1, 7)} | {"c2": 6e-6}
+    lo, hi = np.array([-2.0, -1.8, -0.8, -2.0, -1.4, -2.5]), np.array([2, -0.7, 0.8, 2, 1.4, 2.5])
+    sessions = [
+        drifting_session(values, 250, s, s, region=(rng.uniform(lo, hi), 0.9)) for s in (1, 2, 3)
+    ]
+    new = drifting_session(values, 500, 9, 9, region=(rng.uniform(lo, hi), 0.7))
+    pool, program = new.subset(np.arange(300)), new.subset(np.arange(300, 500))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LabWarning)
+        prior = prior_of(fit(join_sessions(sessions), "seed", "geometric,compliance"))
+
+        def held_out(rows) -> float:
+            u = update(prior, pool.subset(rows))
+            return float(u.result.validate(program).validation_rms_mm)
+
+        p = plan_update(15, prior, program.q, candidates=pool.q, seed=1)
+        planned = held_out(p.indices)
+        random = np.mean([held_out(rng.choice(300, 15, replace=False)) for _ in range(5)])
+    assert np.array_equal(p.q, pool.q[p.indices]) and p.free == (
+        "bx",
+        "by",
+        "bz",
+        "brx",
+        "bry",
+        "brz",
+    )
+    assert p.predicted_mm < p.random_mm
+    assert planned <= random
+    assert 0.67 <= planned / p.predicted_mm <= 1.5

@@ -88,3 +88,32 @@ def test_the_band_is_the_range_of_one_draw_against_a_closed_form():
     # the discrepancy adds in quadrature
     lo2, _ = draw_band(A, np.array([[s**2]]), len(A), 10 * scale)
     assert lo2 == pytest.approx(np.hypot(10 * scale, lo), rel=0.02)
+
+
+def test_an_update_falls_back_by_its_own_poses_left_out(sessions):
+    """An update's --predict decides its fallback on its own poses, each left out in turn: the
+    calibration's compliance, real, is kept (the update from the geometric part alone errs more
+    on the poses left out); a compliance the arm does not have is not expected to help, and the
+    geometric update is used and said so."""
+    from lab.prediction import expect_update
+    from lab.update import prior_of, update
+
+    data, new = sessions
+    poses, target = new.subset(np.arange(40)), new.subset(np.arange(40, 200))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LabWarning)
+        u = update(prior_of(_fit(data, EFFECTS)), poses)
+        e = expect_update(u, poses, target.q)
+    assert e.chosen == "model" and e.result is u.result
+    assert e.blocked["model"] == pytest.approx(u.loo_rms_mm)
+    assert e.blocked["model"] < MARGIN * e.blocked["geometric"]
+    # an arm without compliance, calibrated with it
+    plain = {"da2": 3e-4, "dalpha3": -2e-4}
+    cal = _fit(join_sessions([session(plain, 150, s, s) for s in (1, 2, 3)]), EFFECTS)
+    poses = session(plain, 40, 4, 4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LabWarning)
+        u = update(prior_of(cal), poses)
+        e = expect_update(u, poses, target.q)
+    assert e.chosen == "geometric" and "geometric model is used" in e.text()
+    assert e.result.model.effect_names == ["geometric"]

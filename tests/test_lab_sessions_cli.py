@@ -115,7 +115,8 @@ def test_update_a_calibration_with_a_few_poses_of_a_new_session(sessions, tmp_pa
     assert res.exit_code == 0, res.output
     got = json.loads(res.stdout)
     # the prediction on the target beside the figure measured there
-    assert got["predicted"]["measured_rms_mm"] == got["validation_rms_mm"]
+    if got["predicted"]["chosen"] == "model":  # the update itself (else its geometric fallback)
+        assert got["predicted"]["measured_rms_mm"] == got["validation_rms_mm"]
     assert 0.67 <= got["validation_rms_mm"] / got["predicted"]["rms_mm"] <= 1.5
     assert got["update"]["poses"] == 30 and got["update"]["free"][:3] == ["bx", "by", "bz"]
     assert got["validation_rms_mm"] < 0.5 * got["update"]["prior_validation_rms_mm"]

@@ -16,7 +16,7 @@ import pytest
 
 from arm.measurements import concatenate, read_measurements
 from arm.noise import InstrumentNoise
-from lab import FitError, fit
+from lab import fit
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "data" / "ur10"
@@ -112,12 +112,39 @@ def test_fitting_B_and_D_with_the_stds_works():
     assert np.all(obs.sigma[:, :3] >= floor[kept, None] * (1 - 1e-12))
 
 
-def test_stds_that_concentrate_a_fit_on_a_few_poses_say_so():
+def test_stds_that_concentrate_a_fit_on_a_few_poses_are_named():
     """Without the instrument's noise the stds weigh a few poses hundreds of times more than
-    the rest: the fit is refused for its weights, and the message says how to bound them."""
+    the rest (2,127 poses count as about 230). The fit was refused as implausible: dalpha6 and
+    da6, nearly dependent on dd5 and dtheta5 with the tool 0.3 mm off joint 6's axis, took up
+    what the geometric model leaves; now held (not determined beyond that residual), it is a
+    plausible fit, and what its weights do is still named (lab.estimation.weights_conditioning:
+    what a refused fit says), with how to bound them."""
+    from lab.estimation import weights_conditioning
+
     bd = concatenate([_series("B"), _series("D")])
-    with pytest.raises(FitError) as exc:
-        fit(bd, "ur10_robot", "geometric")
-    text = str(exc.value)
+    result = fit(bd, "ur10_robot", "geometric")
+    held = dict(zip(result.names, result.identifiable, strict=True))
+    assert not held["dalpha6"] and not held["da6"] and result.rms_mm < 0.5
+    text = weights_conditioning(result)
     assert "weights make the fit ill-conditioned" in text and "--noise-mm" in text
-    assert "not a plausible model" not in text
+
+
+@pytest.mark.slow
+def test_the_three_series_joined_hold_what_the_models_residual_leaves_undetermined():
+    """A, B and D joined, the noise stated at the tracker's 0.015 mm alone: the tool sits 0.3 mm
+    off joint 6's axis, so dalpha6 and da6 are nearly dependent on dd5 and dtheta5. Judged
+    against 0.015 mm they passed, and the 0.26 mm a geometric model leaves on these series
+    drove them to 296 mrad and 27 mm (refused as implausible); judged against that residual,
+    they are held and named, and the fit errs as much as it did with them."""
+    import warnings
+
+    from arm.sessions import join_sessions
+
+    data = join_sessions([_series(s) for s in "ABD"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a poor pose set, three outliers left out
+        result = fit(data, "ur10_robot", noise_mm=0.015)
+    held = dict(zip(result.names, result.identifiable, strict=True))
+    assert not held["dalpha6"] and not held["da6"]
+    assert "dd5" in result.identifiability.labels["dalpha6"]
+    assert result.rms_mm < 0.45

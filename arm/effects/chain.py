@@ -15,11 +15,18 @@ from arm.effects.base import ChainEffect
 from arm.params import BASE_NAMES, TOOL_ROTATION_NAMES, parse_parameter_name
 from arm.so3 import rotation_matrix
 
-__all__ = ["REFERENCE_TEMPERATURE", "Geometric", "Thermal"]
+__all__ = ["REFERENCE_TEMPERATURE", "Geometric", "Thermal", "session_offsets"]
 
 REFERENCE_TEMPERATURE = 20.0  # degC, where thermal growth is zero
 
 _Index = np.ndarray | slice  # positions as an index array, or a slice where consecutive
+
+
+def session_offsets(values: np.ndarray) -> np.ndarray:
+    """Every station's zero offsets (S, 6) from the values of the first S - 1 stations' (S - 1,
+    6): the last station's are minus their sum (:class:`Geometric`)."""
+    v = np.asarray(values, dtype=float).reshape(-1, 6)
+    return np.vstack([v, -v.sum(axis=0, keepdims=True)])
 
 
 @dataclass(frozen=True)
@@ -32,6 +39,9 @@ class _Slots:
     base: np.ndarray  # (6,), or (S, 6) with several stations
     tool: np.ndarray
     tool_rotation: np.ndarray | None = None  # trx, try, trz with an orientation measured
+    # each station's zero offsets but the last's (S - 1, 6), positions in the vector; the last
+    # station's are minus their sum. None with one station
+    rehome: np.ndarray | None = None
 
 
 class Geometric(ChainEffect):
@@ -45,6 +55,13 @@ class Geometric(ChainEffect):
     (``tx1``... with several targets) are offsets added to the tool point; ``trx try trz``, where
     an orientation is measured, the tool frame's rotation in the last frame (rotation vector,
     rad).
+
+    With several stations that are sessions of their own (``rehomed``: each was re-homed, the
+    files joined by :func:`arm.sessions.join_sessions`), each has its own zero offsets:
+    ``dtheta{i}_s{s}`` is joint i's offset in station s's session beyond ``dtheta{i}``, which
+    is then the sessions' mean. The last station has no name of its own: its offsets are minus
+    the sum of the others' (the offsets of all stations sum to zero), so that ``dtheta{i}`` is
+    what an unseen, re-homed session is expected to have (:func:`session_offsets`).
     """
 
     name = "geometric"
@@ -83,6 +100,7 @@ class Geometric(ChainEffect):
         targets: Sequence[int],
         stations: Sequence[int] = (0,),
         orientation: bool = False,
+        rehomed: bool = False,
     ) -> list[str]:
         parallel = robot.parallel_rows()
         names = [f"dalpha{i}" for i in range(1, 7)]
@@ -94,6 +112,8 @@ class Geometric(ChainEffect):
             names += list(BASE_NAMES)
         else:
             names += [f"{c}{s}" for s in stations for c in BASE_NAMES]
+            if rehomed:
+                names += [f"dtheta{i}_s{s}" for s in stations[:-1] for i in range(1, 7)]
         if len(targets) == 1:
             names += ["tx", "ty", "tz"]
         else:
@@ -121,11 +141,17 @@ class Geometric(ChainEffect):
     def _slots(self, state: ChainState) -> _Slots:
         """Where each row's parameters sit in this effect's vector, once per (robot, targets,
         stations, orientation)."""
-        key = (state.robot.parallel_rows(), state.targets, state.stations, state.orientation)
+        key = (
+            state.robot.parallel_rows(),
+            state.targets,
+            state.stations,
+            state.orientation,
+            state.rehomed,
+        )
         cache = self.__dict__.setdefault("_slot_cache", {})
         if key not in cache:
             names = self.parameter_names(
-                state.robot, state.targets, state.stations, state.orientation
+                state.robot, state.targets, state.stations, state.orientation, state.rehomed
             )
             cache[key] = self._compute_slots(names)
         return cache[key]
@@ -155,6 +181,7 @@ class Geometric(ChainEffect):
         tool = [idx[n] for n in names if (p := parse_parameter_name(n)) and p.kind == "tool"]
         base = [idx[n] for n in names if (p := parse_parameter_name(n)) and p.kind == "base"]
         turn = [idx[n] for n in TOOL_ROTATION_NAMES if n in idx]
+        rehome = [idx[n] for n in names if (p := parse_parameter_name(n)) and p.kind == "rehome"]
         return _Slots(
             rows={
                 "alpha": rows("dalpha"),
@@ -166,6 +193,7 @@ class Geometric(ChainEffect):
             base=np.array(base, dtype=int).reshape(-1, 6) if len(base) > 6 else np.array(base),
             tool=np.array(tool, dtype=int).reshape(-1, 3),
             tool_rotation=np.array(turn, dtype=int) if turn else None,
+            rehome=np.array(rehome, dtype=int).reshape(-1, 6) if rehome else None,
         )
 
     def apply(self, inputs, values, state):
@@ -177,10 +205,13 @@ class Geometric(ChainEffect):
             out[..., src] += values[dst]
             return out
 
+        theta = add(state.chain.theta_offset, "theta")
+        if s.rehome is not None and inputs is not None:  # each pose's session's own offsets
+            theta = theta + session_offsets(values[s.rehome])[inputs.stations]
         chain = state.chain.replace(
             alpha=add(state.chain.alpha, "alpha"),
             a=add(state.chain.a, "a"),
-            theta_offset=add(state.chain.theta_offset, "theta"),
+            theta_offset=theta,
             d=add(state.chain.d, "d"),
             beta=add(state.chain.beta, "beta"),
         )
@@ -229,6 +260,10 @@ class Geometric(ChainEffect):
                 out[cols] = sens.base_cols * (inputs.stations == k)
         else:
             out[s.base] = sens.base_cols
+        if s.rehome is not None:
+            last = (inputs.stations == len(s.rehome)).astype(float)
+            for k, cols in enumerate(s.rehome):
+                out[cols] = sens.rows_theta * ((inputs.stations == k) - last)
         if s.tool_rotation is not None:
             out[s.tool_rotation] = sens.tool_rotation_cols
         tool = sens.tool_cols
