@@ -277,6 +277,8 @@ def k_draw(cal: dict, left: MeasurementSet, k: int, rng, work: Path, tag: str) -
         "update_geometric": _rms(ug.result, rest),
         "predicted": predicted_rms(u.result, rest, unseen=False).rms_mm,
         "update_seconds": seconds,
+        "moved": u.moved,
+        "loo_mm": u.choices.get("calibration"),
         "dropped": list(u.dropped),
         "released": list(u.released),
     }

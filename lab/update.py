@@ -24,6 +24,16 @@ the geometry is then kept as the prior holds it, released (fitted on the new pos
 they can carry it) or dropped (held at zero), whichever predicts the new poses best when each is
 left out in turn (the leave-one-pose-out error of the linearised fit, from its hat matrix).
 
+**The calibration as it is, or moved.** The update is kept only where its leave-one-pose-out
+error is below :data:`CHANGE` times that of the calibration as it is (its base placed on the new
+poses, every other term held): else ``result`` is the calibration as it is
+(:attr:`Update.moved` False). Twenty poses of a region the calibration fits well move its many
+terms to fit their own noise (the UR10's series left out, ``results/ur10_sessions.md``).
+
+**The discrepancy** the result states (its uncertainty's ``sigma``, which the prediction adds,
+:func:`lab.uncertainty.predicted_rms`) is the larger of the calibration's and what the new
+poses measured: their leave-one-pose-out RMS less what the covariance explains at them.
+
 **The result** is a :class:`~lab.result.FitResult` of the update's model (the nominal arm and
 the calibration's effects), its residuals on the new poses, its standard errors and covariance
 the posterior's (:attr:`FitResult.uncertainty`, which an export writes), its domain the
@@ -33,8 +43,9 @@ calibration's and the new poses' together.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -152,6 +163,9 @@ class Update:
     prior_result: FitResult | None = field(default=None, repr=False, compare=False)
     # the leave-one-pose-out 3-D RMS (mm) of the update on its poses (its hat matrix)
     loo_rms_mm: float = float("nan")
+    # whether the new poses moved the calibration's terms (False: ``result`` is the calibration
+    # as it is, its base placed: updated, its terms predicted the poses left out no better)
+    moved: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -165,6 +179,7 @@ class Update:
             "released": list(self.released),
             "prior_rms_mm": self.prior_rms_mm,
             "rms_mm": self.result.rms_mm,
+            "moved": self.moved,
             "loo_rms_mm": self.choices,
             "update_loo_rms_mm": self.loo_rms_mm,
         }
@@ -177,6 +192,13 @@ class Update:
             f"placed) -> {self.result.rms_mm:.4f} mm",
             f"free (no prior): {', '.join(self.free) or 'none'}",
         ]
+        if not self.moved:
+            c = self.choices.get("calibration", {})
+            lines.append(
+                "the calibration's terms kept as they are: moved by these poses they predict "
+                f"each pose left out no better ({c.get('updated', math.nan):.4f} mm, as they "
+                f"are {c.get('placed', math.nan):.4f} mm)"
+            )
         if self.held:
             lines.append(
                 f"held at the calibration's values (too few poses): {', '.join(self.held)}"
@@ -425,10 +447,29 @@ def update(
     (sol, free, _, decided), choices = _choose_effects(
         pb, p0, free, np.arange(len(names_p)), effect_of, k
     )
-    result = _result(pb, sol, prior, data, free.size, prior_rms)
     # the prior alone counts the calibration's parameters as identified, as the update does:
     # outside the domain both leave out the same terms (lab.domain)
-    prior_result = _result(pb, alone, prior, data, len(free_names), prior_rms, pb.prior_idx)
+    prior_result = _result(
+        pb, alone, prior, data, len(free_names), prior_rms, pb.prior_idx, _discrepancy(pb, alone)
+    )
+    # the calibration's terms moved by the new poses, or the calibration as it is (its base
+    # placed): the first only where it predicts the poses left out in turn better by CHANGE
+    moved = sol.loo_rms < CHANGE * alone.loo_rms
+    choices["calibration"] = {"placed": 1e3 * alone.loo_rms, "updated": 1e3 * sol.loo_rms}
+    if moved:
+        result = _result(pb, sol, prior, data, free.size, prior_rms, None, _discrepancy(pb, sol))
+    else:
+        result, sol = prior_result, alone
+        free = lay.indices(free_names)
+        decided = {"dropped": [], "released": []}
+        log.info(
+            "%s: the calibration's terms are kept as they are (its base placed): updated on "
+            "%d poses they predict the poses left out no better (%.4f mm, placed %.4f mm)",
+            data.source,
+            k,
+            choices["calibration"]["updated"],
+            choices["calibration"]["placed"],
+        )
     return Update(
         result,
         prior,
@@ -442,6 +483,7 @@ def update(
         choices,
         prior_result,
         1e3 * sol.loo_rms,
+        moved,
     )
 
 
@@ -449,8 +491,6 @@ def geometric_prior(prior: Prior) -> Prior:
     """``prior`` without its effects beside the geometry (their values at zero): what an update
     falls back to where the calibration's terms are not expected to help
     (:func:`lab.prediction.expect_update`)."""
-    from dataclasses import replace
-
     geo = [e for e in prior.effects if e.name == "geometric"]
     u = prior.uncertainty
     kinds = ("row", "beta", "base", "tool", "tool_rotation")
@@ -478,9 +518,12 @@ def _result(
     n_free: int,
     prior_rms: float,
     identified: np.ndarray | None = None,
+    discrepancy: float | None = None,
 ) -> FitResult:
     """The update as a FitResult (the module docstring); ``identified``: parameters it counts
-    as identified beside those it fitted (the calibration's, for the prior alone)."""
+    as identified beside those it fitted (the calibration's, for the prior alone);
+    ``discrepancy``: the per-axis residual its uncertainty states (:func:`_discrepancy`;
+    default the calibration's)."""
     model = pb.model
     lay = model.layout
     P = len(lay)
@@ -506,6 +549,8 @@ def _result(
         held=tuple(n for n, a in zip(lay.names, active, strict=True) if not a),
     )
     posterior = prior.uncertainty if identified is not None else _posterior(pb, sol, prior, data)
+    if discrepancy is not None and discrepancy > posterior.sigma:
+        posterior = replace(posterior, sigma=discrepancy)
     domain = Domain.of(pb.inputs)
     if prior.domain is not None:
         domain = prior.domain.union(domain)
@@ -527,6 +572,18 @@ def _result(
         uncertainty=posterior.to_dict(),
         fitted_domain=domain,
     )
+
+
+def _discrepancy(pb: _Problem, sol: _Solution) -> float:
+    """The per-axis discrepancy the new poses measured (m): the leave-one-pose-out RMS of
+    ``sol`` less what its parameters' covariance explains at those poses, at least the
+    calibration's own. Where the poses lie in a region the calibration was not fitted on, its
+    residual there says more than the sessions it was fitted on did: the prediction
+    (:func:`lab.uncertainty.predicted_rms`) adds this one."""
+    k = len(pb.xyz)
+    Ad = sol.A[: 3 * k] * pb.sigma  # the data rows, m per scaled parameter
+    params2 = float(np.einsum("ia,ab,ib->", Ad, np.linalg.pinv(sol.A.T @ sol.A), Ad)) / k
+    return max(pb.sigma, math.sqrt(max(sol.loo_rms**2 - params2, 0.0) / 3.0))
 
 
 def _posterior(pb: _Problem, sol: _Solution, prior: Prior, data: MeasurementSet) -> Uncertainty:
