@@ -37,7 +37,10 @@ poses measured: their leave-one-pose-out RMS less what the covariance explains a
 **The result** is a :class:`~lab.result.FitResult` of the update's model (the nominal arm and
 the calibration's effects), its residuals on the new poses, its standard errors and covariance
 the posterior's (:attr:`FitResult.uncertainty`, which an export writes), its domain the
-calibration's and the new poses' together.
+calibration's and the new poses' together (the calibration's alone where it is kept as it is:
+the new poses fitted none of its terms). Outside it, the terms that do not hold are left out
+and the others moved as the covariance says a refit would move them
+(:func:`lab.uncertainty.conditioned_refit`: the rows fitted are not at hand).
 """
 
 from __future__ import annotations
@@ -69,6 +72,7 @@ from lab.result import FitResult, RowsCounted, rms
 from lab.uncertainty import (
     Uncertainty,
     UncertaintyError,
+    conditioned_refit,
     is_base,
     least_spread,
     uncertainty_of,
@@ -551,9 +555,16 @@ def _result(
     posterior = prior.uncertainty if identified is not None else _posterior(pb, sol, prior, data)
     if discrepancy is not None and discrepancy > posterior.sigma:
         posterior = replace(posterior, sigma=discrepancy)
-    domain = Domain.of(pb.inputs)
-    if prior.domain is not None:
-        domain = prior.domain.union(domain)
+    if identified is not None:
+        # the calibration as it is: the new poses placed its base, nothing of its terms was
+        # fitted on them, so where they hold is where the calibration found them
+        domain = prior.domain if prior.domain is not None else Domain.of(pb.inputs)
+        names, cov = list(prior.uncertainty.names), prior.uncertainty.covariance
+    else:
+        domain = Domain.of(pb.inputs)
+        if prior.domain is not None:
+            domain = prior.domain.union(domain)
+        names, cov = [str(lay.names[i]) for i in sol.active], sol.covariance
     return FitResult(
         model=model,
         params=sol.params,
@@ -571,6 +582,7 @@ def _result(
         counted=RowsCounted(n_rows=k),
         uncertainty=posterior.to_dict(),
         fitted_domain=domain,
+        refit=conditioned_refit(lay.names, sol.params, names, cov),
     )
 
 

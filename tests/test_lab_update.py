@@ -22,6 +22,7 @@ from lab.export import export_robot
 from lab.uncertainty import (
     Uncertainty,
     UncertaintyError,
+    conditioned_refit,
     covariance_of,
     least_spread,
     predicted_rms,
@@ -97,6 +98,31 @@ def test_the_covariance_is_the_one_the_standard_errors_come_from():
     # one session: it says it has no spread, and its file says so
     u = uncertainty_of(result)
     assert u.sessions == 1 and u.spread is None
+
+
+def _aligned_rms(a: np.ndarray, b: np.ndarray) -> float:
+    """The RMS (m) of ``a`` against ``b`` after the rigid motion that best aligns them (Kabsch):
+    what a base placed again takes up does not count."""
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
+    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    return float(np.sqrt(np.mean(np.sum(((a - ca) @ R - (b - cb)) ** 2, axis=1))))
+
+
+def test_a_term_left_out_moves_the_others_as_a_refit_does():
+    # where the rows are not at hand (an update), the terms that do not hold outside the domain
+    # are left out by the covariance (lab.uncertainty.conditioned_refit): checked against the
+    # refit on the rows (lab.fit's), which moves the geometry by 100 sigma to take up c2
+    data = session({"da2": 3e-4, "dalpha3": -2e-4, "c2": 6e-6, "c3": 4e-6}, 200, 1, 1)
+    result = lab.fit(data, "seed", "geometric,compliance[2,3]", noise_mm=0.015)
+    names, cov = covariance_of(result)
+    exact = result.refit(("c2",))
+    approx = conditioned_refit(result.model.layout.names, result.params, names, cov)(("c2",))
+    zeroed = result.params.copy()
+    zeroed[result.model.layout.index("c2")] = 0.0
+    predict = lambda p: result.model.predict(result.inputs, p)  # noqa: E731
+    assert _aligned_rms(predict(approx), predict(exact)) < 1e-6  # m
+    assert _aligned_rms(predict(zeroed), predict(exact)) > 1e-4  # zeroing alone: 0.3 mm
 
 
 def test_the_spread_is_what_changed_between_the_sessions(tmp_path):
@@ -187,6 +213,8 @@ def test_a_calibration_the_new_poses_cannot_improve_is_kept_as_it_is():
     assert "kept as they are" in u.summary() and u.to_dict()["moved"] is False
     test = again.subset(np.arange(100, 300))
     assert _held_out(u.result, test) < 0.035  # mm: the noise floor is 0.026
+    # its terms hold where the calibration found them (the new poses fitted none of them)
+    assert u.result.domain == prior_of(cal).domain
     # re-homed by 2 mrad, the same 20 poses move it (the campaigns' updates: moved)
     moved = update(prior_of(cal), drifting_session(values, 20, 2, 73, rehome_mrad=2.0))
     assert moved.moved
