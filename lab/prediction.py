@@ -239,7 +239,7 @@ def _blocks_measured(
             continue
         part = rows.subset(np.flatnonzero(rows.columns[col] == b))
         try:
-            pred = predicted_rms(result, part.q, unseen=True, u=u).rms_mm
+            pred = predicted_rms(result, part, unseen=True, u=u).rms_mm
         except FitError:
             continue
         measured.append(1e3 * rms_m)
