@@ -107,17 +107,17 @@ def _noise() -> dict[str, float]:
     return dict(UR10_NOISE)
 
 
-def calibrate(train: MeasurementSet, work: Path, tag: str) -> dict[str, Any]:
-    """The geometric calibration and the lab's path on ``train``, each with its prior
-    (:func:`lab.update.prior_of`)."""
-    from lab.update import prior_of
-
-    t0 = time.perf_counter()
-    geo, _, note = lab_fit(
-        train, ROBOT, "geometric", None, UR10_NOISE["noise_mm"], noise_ppm=UR10_NOISE["noise_ppm"]
+def _geometric(data: MeasurementSet):
+    """The geometric fit of ``data`` as a user makes it (``sixaxis lab fit``, the UR10's noise)."""
+    return lab_fit(
+        data, ROBOT, "geometric", None, UR10_NOISE["noise_mm"], noise_ppm=UR10_NOISE["noise_ppm"]
     )
-    rows = lab_path(
-        train,
+
+
+def _path(data: MeasurementSet, work: Path, tag: str) -> list[dict[str, Any]]:
+    """The lab's path on ``data`` (screen, diagnose, discover, fit), each step's result kept."""
+    return lab_path(
+        data,
         ROBOT,
         None,
         UR10_NOISE["noise_mm"],
@@ -126,6 +126,16 @@ def calibrate(train: MeasurementSet, work: Path, tag: str) -> dict[str, Any]:
         noise_ppm=UR10_NOISE["noise_ppm"],
         keep_results=True,
     )
+
+
+def calibrate(train: MeasurementSet, work: Path, tag: str) -> dict[str, Any]:
+    """The geometric calibration and the lab's path on ``train``, each with its prior
+    (:func:`lab.update.prior_of`)."""
+    from lab.update import prior_of
+
+    t0 = time.perf_counter()
+    geo, _, note = _geometric(train)
+    rows = _path(train, work, tag)
     labr = rows[-1].pop("result")
     for r in rows:
         r.pop("result", None)
@@ -223,28 +233,12 @@ def _alone(poses: MeasurementSet, rest: MeasurementSet, work: Path, tag: str) ->
 
     out: dict[str, Any] = {}
     try:
-        geo, _, _ = lab_fit(
-            poses,
-            ROBOT,
-            "geometric",
-            None,
-            UR10_NOISE["noise_mm"],
-            noise_ppm=UR10_NOISE["noise_ppm"],
-        )
+        geo, _, _ = _geometric(poses)
         out["geometric_alone"] = _rms(geo, rest)
     except SixAxisError as exc:
         out["geometric_alone"], out["geometric_alone_refused"] = None, str(exc)[:200]
     try:
-        rows = lab_path(
-            poses,
-            ROBOT,
-            None,
-            UR10_NOISE["noise_mm"],
-            work,
-            tag=tag,
-            noise_ppm=UR10_NOISE["noise_ppm"],
-            keep_results=True,
-        )
+        rows = _path(poses, work, tag)
         out["lab_alone"] = _rms(rows[-1]["result"], rest)
         out["lab_alone_effects"] = rows[-1]["effects"]
     except SixAxisError as exc:
