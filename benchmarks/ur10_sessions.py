@@ -76,8 +76,8 @@ from benchmarks.real_data import (
     UR10_SERIES,
     _json,
     _read,
+    _ur10_paths,
     lab_fit,
-    lab_path,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -114,20 +114,6 @@ def _geometric(data: MeasurementSet):
     )
 
 
-def _path(data: MeasurementSet, work: Path, tag: str) -> list[dict[str, Any]]:
-    """The lab's path on ``data`` (screen, diagnose, discover, fit), each step's result kept."""
-    return lab_path(
-        data,
-        ROBOT,
-        None,
-        UR10_NOISE["noise_mm"],
-        work,
-        tag=tag,
-        noise_ppm=UR10_NOISE["noise_ppm"],
-        keep_results=True,
-    )
-
-
 def calibrate(train: MeasurementSet, work: Path, tag: str) -> dict[str, Any]:
     """The geometric calibration and the lab's path on ``train``, each with its prior
     (:func:`lab.update.prior_of`)."""
@@ -135,7 +121,7 @@ def calibrate(train: MeasurementSet, work: Path, tag: str) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     geo, _, note = _geometric(train)
-    rows = _path(train, work, tag)
+    rows = _ur10_paths(train, work, tag)
     labr = rows[-1].pop("result")
     for r in rows:
         r.pop("result", None)
@@ -238,7 +224,7 @@ def _alone(poses: MeasurementSet, rest: MeasurementSet, work: Path, tag: str) ->
     except SixAxisError as exc:
         out["geometric_alone"], out["geometric_alone_refused"] = None, str(exc)[:200]
     try:
-        rows = _path(poses, work, tag)
+        rows = _ur10_paths(poses, work, tag)
         out["lab_alone"] = _rms(rows[-1]["result"], rest)
         out["lab_alone_effects"] = rows[-1]["effects"]
     except SixAxisError as exc:
