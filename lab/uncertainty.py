@@ -104,13 +104,10 @@ def conditioned_refit(
         d = [where[n] for n in left_out if n in where]
         r = [j for j in range(len(names)) if j not in set(d)]
         if d and r:
-            shift = (
-                cov[np.ix_(r, d)]
-                @ np.linalg.lstsq(cov[np.ix_(d, d)], p[[index[names[j]] for j in d]], rcond=1e-12)[
-                    0
-                ]
-            )
-            p[[index[names[j]] for j in r]] -= shift
+            at_d = [index[str(names[j])] for j in d]
+            at_r = [index[str(names[j])] for j in r]
+            solve = np.linalg.lstsq(cov[np.ix_(d, d)], p[at_d], rcond=1e-12)[0]
+            p[at_r] -= cov[np.ix_(r, d)] @ solve
         p[[index[n] for n in left_out if n in index]] = 0.0
         return p
 

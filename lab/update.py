@@ -49,6 +49,7 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -249,11 +250,11 @@ class _Solution:
     residual: np.ndarray  # data rows (k, 3), m
     iterations: int
     loo_rms: float  # the leave-one-pose-out 3-D RMS, m
+    inverse: np.ndarray  # (A^T A)^+: the covariance in the scaled parameters
 
-    @property
+    @cached_property
     def covariance(self) -> np.ndarray:
-        M = np.linalg.pinv(self.A.T @ self.A, hermitian=True)
-        return M / np.outer(self.scale, self.scale)
+        return self.inverse / np.outer(self.scale, self.scale)
 
 
 def _precision_root(cov: np.ndarray) -> np.ndarray:
@@ -308,7 +309,7 @@ def _solve(pb: _Problem, p: np.ndarray, free: np.ndarray, prior: np.ndarray) -> 
     H = np.einsum("kia,kja->kij", Ad @ M, Ad)  # each pose's 3x3 block of the hat matrix
     rd = r[: 3 * k].reshape(k, 3)
     loo = np.linalg.solve(np.eye(3)[None] - H, rd[..., None])[..., 0] * pb.sigma
-    return _Solution(p, active, As, scale, pred - pb.xyz, it, rms(loo))
+    return _Solution(p, active, As, scale, pred - pb.xyz, it, rms(loo), M)
 
 
 # -- the update ---------------------------------------------------------------------------------
@@ -594,7 +595,7 @@ def _discrepancy(pb: _Problem, sol: _Solution) -> float:
     (:func:`lab.uncertainty.predicted_rms`) adds this one."""
     k = len(pb.xyz)
     Ad = sol.A[: 3 * k] * pb.sigma  # the data rows, m per scaled parameter
-    params2 = float(np.einsum("ia,ab,ib->", Ad, np.linalg.pinv(sol.A.T @ sol.A), Ad)) / k
+    params2 = float(np.einsum("ia,ab,ib->", Ad, sol.inverse, Ad)) / k
     return max(pb.sigma, math.sqrt(max(sol.loo_rms**2 - params2, 0.0) / 3.0))
 
 
