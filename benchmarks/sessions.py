@@ -334,6 +334,7 @@ def _run(spec: dict[str, Any]) -> dict[str, Any]:
             "model_alone": _alone(poses, test, robot, effects),
             "predicted": pred.rms_mm,
             "band": [pred.low_mm, pred.high_mm],
+            "moved": u.moved,
         }
     out["k"] = ks
     out["planned"] = _planned(prior, robot, new, test, rng, sigma)

@@ -26,7 +26,12 @@ the spread between sessions and the least spread, :func:`lab.uncertainty.least_s
 the target is a session it has not seen), the discrepancy of a session fitted alone, and, for
 the target's poses outside the fitted domain (:mod:`lab.domain`), what the blocked check
 measured beyond the covariance's own prediction for the blocks left out (the model's
-extrapolation error). Its band (5-95 %) is that of the RMS of one session's draw of the
+extrapolation error). For a session not seen, where the blocks are sessions, the blocks left
+out are such sessions: the prediction (and its band) is scaled by what they erred against what
+the covariance and the spread predicted for them (:attr:`Expectation.scale`, the square root
+of the ratio of their mean squares; at least down to the discrepancy). A spread measured from
+two or three sessions has one or two degrees of freedom a joint; the sessions' own errors say
+how large a new session's is. Its band (5-95 %) is that of the RMS of one session's draw of the
 parameters from their covariance: with few directions that matter (a re-homing of six
 joints), one session's error may lie well away from the expected one.
 """
@@ -114,6 +119,9 @@ class Expectation:
     outside: float
     extrapolation_mm: float
     result: FitResult
+    # the sessions left out in turn erred this many times what the covariance and the spread
+    # predicted for them: an unseen target's prediction is scaled by it (1: not scaled)
+    scale: float = 1.0
 
     @property
     def reason(self) -> str:
@@ -133,6 +141,7 @@ class Expectation:
             "blocks": self.blocks,
             "outside_share": self.outside,
             "extrapolation_mm": self.extrapolation_mm,
+            "scale": self.scale,
         }
 
     def text(self) -> str:
@@ -174,15 +183,24 @@ def expect(
         u = None
     u = u or uncertainty_of(use, data)
     base = predicted_rms(use, target, unseen=unseen, u=u, references=references)
-    excess = _excess(use, data, blocked["model" if use is result else "geometric"], u)
+    measured, predicted = _blocks_measured(
+        use, data, blocked["model" if use is result else "geometric"], u
+    )
     outside = _outside_share(use, target)
-    extra = math.sqrt(outside) * excess
-    rms = math.hypot(base.rms_mm, extra)
+    scale, extra = 1.0, 0.0
+    if unseen and how == "sessions" and predicted:
+        # a session left out is what an unseen target is: what the blocks erred, against what
+        # the covariance and the spread predicted for them, scales the prediction
+        scale = math.sqrt(sum(m * m for m in measured) / sum(p * p for p in predicted))
+        scale = max(scale, base.discrepancy_mm / max(base.rms_mm, 1e-300))
+    else:
+        excess = [max(0.0, m * m - p * p) for m, p in zip(measured, predicted, strict=True)]
+        extra = math.sqrt(outside) * (math.sqrt(float(np.mean(excess))) if excess else 0.0)
     pred = replace(
         base,
-        rms_mm=rms,
-        low_mm=math.hypot(base.low_mm, extra),
-        high_mm=math.hypot(base.high_mm, extra),
+        rms_mm=math.hypot(scale * base.rms_mm, extra),
+        low_mm=math.hypot(scale * base.low_mm, extra),
+        high_mm=math.hypot(scale * base.high_mm, extra),
     )
     return Expectation(
         pred,
@@ -192,6 +210,7 @@ def expect(
         outside,
         extra,
         use,
+        scale,
     )
 
 
@@ -204,27 +223,28 @@ def _geometric(data: MeasurementSet, result: FitResult, options: LabOptions | No
         return fit(data, result.model.robot, "geometric", options=opts)
 
 
-def _excess(
+def _blocks_measured(
     result: FitResult, data: MeasurementSet, blocked: dict[float, float], u: Uncertainty
-) -> float:
-    """The RMS (mm) the blocks left out erred beyond what the covariance predicts for them (as a
-    session not seen): the model's error beyond the rows it was fitted on."""
+) -> tuple[list[float], list[float]]:
+    """Each block left out: the RMS (mm) it erred, and what ``result``'s covariance predicts for
+    it as a session not seen (the blocks that could be fitted and predicted)."""
     from lab.transfer import block_column
 
     col = block_column(data)
     rows = data if col is not None else joint_blocks(data)
     col = col or "session"
-    excess = []
-    for b, measured in blocked.items():
-        if not math.isfinite(measured):
+    measured, predicted = [], []
+    for b, rms_m in blocked.items():
+        if not math.isfinite(rms_m):
             continue
         part = rows.subset(np.flatnonzero(rows.columns[col] == b))
         try:
-            pred = predicted_rms(result, part.q, unseen=True, u=u).rms_mm
+            pred = predicted_rms(result, part, unseen=True, u=u).rms_mm
         except FitError:
             continue
-        excess.append(max(0.0, (1e3 * measured) ** 2 - pred**2))
-    return math.sqrt(float(np.mean(excess))) if excess else 0.0
+        measured.append(1e3 * rms_m)
+        predicted.append(pred)
+    return measured, predicted
 
 
 def _outside_share(result: FitResult, target: MeasurementSet) -> float:

@@ -31,7 +31,7 @@ from __future__ import annotations
 import logging
 import math
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -84,6 +84,34 @@ def least_spread(
         elif parsed.kind == "tool":
             out[n] = remount
     return out
+
+
+def conditioned_refit(
+    layout: Sequence[str], params: np.ndarray, names: Sequence[str], covariance: np.ndarray
+) -> Callable[[Sequence[str]], np.ndarray]:
+    """A :attr:`FitResult.refit <lab.result.FitResult.refit>` where the rows fitted are not at
+    hand (an update, a calibration read from its file): the parameters ``params`` (over
+    ``layout``) with the terms left out held at zero and the others moved as the fit's
+    ``covariance`` (of ``names``) says they move with them. For a least-squares fit this is
+    the refit itself to first order: the conditional mean of a Gaussian, ``p_r - C_rd C_dd^-1
+    p_d``."""
+    index = {str(n): i for i, n in enumerate(layout)}
+    where = {str(n): j for j, n in enumerate(names)}
+    cov = np.asarray(covariance, dtype=float)
+
+    def refit(left_out: Sequence[str]) -> np.ndarray:
+        p = np.array(params, dtype=float)
+        d = [where[n] for n in left_out if n in where]
+        r = [j for j in range(len(names)) if j not in set(d)]
+        if d and r:
+            at_d = [index[str(names[j])] for j in d]
+            at_r = [index[str(names[j])] for j in r]
+            solve = np.linalg.lstsq(cov[np.ix_(d, d)], p[at_d], rcond=1e-12)[0]
+            p[at_r] -= cov[np.ix_(r, d)] @ solve
+        p[[index[n] for n in left_out if n in index]] = 0.0
+        return p
+
+    return refit
 
 
 def is_base(name: str) -> bool:

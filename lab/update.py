@@ -24,17 +24,32 @@ the geometry is then kept as the prior holds it, released (fitted on the new pos
 they can carry it) or dropped (held at zero), whichever predicts the new poses best when each is
 left out in turn (the leave-one-pose-out error of the linearised fit, from its hat matrix).
 
+**The calibration as it is, or moved.** The update is kept only where its leave-one-pose-out
+error is below :data:`CHANGE` times that of the calibration as it is (its base placed on the new
+poses, every other term held): else ``result`` is the calibration as it is
+(:attr:`Update.moved` False). Twenty poses of a region the calibration fits well move its many
+terms to fit their own noise (the UR10's series left out, ``results/ur10_sessions.md``).
+
+**The discrepancy** the result states (its uncertainty's ``sigma``, which the prediction adds,
+:func:`lab.uncertainty.predicted_rms`) is the larger of the calibration's and what the new
+poses measured: their leave-one-pose-out RMS less what the covariance explains at them.
+
 **The result** is a :class:`~lab.result.FitResult` of the update's model (the nominal arm and
 the calibration's effects), its residuals on the new poses, its standard errors and covariance
 the posterior's (:attr:`FitResult.uncertainty`, which an export writes), its domain the
-calibration's and the new poses' together.
+calibration's and the new poses' together (the calibration's alone where it is kept as it is:
+the new poses fitted none of its terms). Outside it, the terms that do not hold are left out
+and the others moved as the covariance says a refit would move them
+(:func:`lab.uncertainty.conditioned_refit`: the rows fitted are not at hand).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +73,7 @@ from lab.result import FitResult, RowsCounted, rms
 from lab.uncertainty import (
     Uncertainty,
     UncertaintyError,
+    conditioned_refit,
     is_base,
     least_spread,
     uncertainty_of,
@@ -152,6 +168,9 @@ class Update:
     prior_result: FitResult | None = field(default=None, repr=False, compare=False)
     # the leave-one-pose-out 3-D RMS (mm) of the update on its poses (its hat matrix)
     loo_rms_mm: float = float("nan")
+    # whether the new poses moved the calibration's terms (False: ``result`` is the calibration
+    # as it is, its base placed: updated, its terms predicted the poses left out no better)
+    moved: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -165,6 +184,7 @@ class Update:
             "released": list(self.released),
             "prior_rms_mm": self.prior_rms_mm,
             "rms_mm": self.result.rms_mm,
+            "moved": self.moved,
             "loo_rms_mm": self.choices,
             "update_loo_rms_mm": self.loo_rms_mm,
         }
@@ -177,6 +197,13 @@ class Update:
             f"placed) -> {self.result.rms_mm:.4f} mm",
             f"free (no prior): {', '.join(self.free) or 'none'}",
         ]
+        if not self.moved:
+            c = self.choices.get("calibration", {})
+            lines.append(
+                "the calibration's terms kept as they are: moved by these poses they predict "
+                f"each pose left out no better ({c.get('updated', math.nan):.4f} mm, as they "
+                f"are {c.get('placed', math.nan):.4f} mm)"
+            )
         if self.held:
             lines.append(
                 f"held at the calibration's values (too few poses): {', '.join(self.held)}"
@@ -223,11 +250,11 @@ class _Solution:
     residual: np.ndarray  # data rows (k, 3), m
     iterations: int
     loo_rms: float  # the leave-one-pose-out 3-D RMS, m
+    inverse: np.ndarray  # (A^T A)^+: the covariance in the scaled parameters
 
-    @property
+    @cached_property
     def covariance(self) -> np.ndarray:
-        M = np.linalg.pinv(self.A.T @ self.A, hermitian=True)
-        return M / np.outer(self.scale, self.scale)
+        return self.inverse / np.outer(self.scale, self.scale)
 
 
 def _precision_root(cov: np.ndarray) -> np.ndarray:
@@ -282,7 +309,7 @@ def _solve(pb: _Problem, p: np.ndarray, free: np.ndarray, prior: np.ndarray) -> 
     H = np.einsum("kia,kja->kij", Ad @ M, Ad)  # each pose's 3x3 block of the hat matrix
     rd = r[: 3 * k].reshape(k, 3)
     loo = np.linalg.solve(np.eye(3)[None] - H, rd[..., None])[..., 0] * pb.sigma
-    return _Solution(p, active, As, scale, pred - pb.xyz, it, rms(loo))
+    return _Solution(p, active, As, scale, pred - pb.xyz, it, rms(loo), M)
 
 
 # -- the update ---------------------------------------------------------------------------------
@@ -425,10 +452,29 @@ def update(
     (sol, free, _, decided), choices = _choose_effects(
         pb, p0, free, np.arange(len(names_p)), effect_of, k
     )
-    result = _result(pb, sol, prior, data, free.size, prior_rms)
     # the prior alone counts the calibration's parameters as identified, as the update does:
     # outside the domain both leave out the same terms (lab.domain)
-    prior_result = _result(pb, alone, prior, data, len(free_names), prior_rms, pb.prior_idx)
+    prior_result = _result(
+        pb, alone, prior, data, len(free_names), prior_rms, pb.prior_idx, _discrepancy(pb, alone)
+    )
+    # the calibration's terms moved by the new poses, or the calibration as it is (its base
+    # placed): the first only where it predicts the poses left out in turn better by CHANGE
+    moved = sol.loo_rms < CHANGE * alone.loo_rms
+    choices["calibration"] = {"placed": 1e3 * alone.loo_rms, "updated": 1e3 * sol.loo_rms}
+    if moved:
+        result = _result(pb, sol, prior, data, free.size, prior_rms, None, _discrepancy(pb, sol))
+    else:
+        result, sol = prior_result, alone
+        free = lay.indices(free_names)
+        decided = {"dropped": [], "released": []}
+        log.info(
+            "%s: the calibration's terms are kept as they are (its base placed): updated on "
+            "%d poses they predict the poses left out no better (%.4f mm, placed %.4f mm)",
+            data.source,
+            k,
+            choices["calibration"]["updated"],
+            choices["calibration"]["placed"],
+        )
     return Update(
         result,
         prior,
@@ -442,6 +488,7 @@ def update(
         choices,
         prior_result,
         1e3 * sol.loo_rms,
+        moved,
     )
 
 
@@ -449,8 +496,6 @@ def geometric_prior(prior: Prior) -> Prior:
     """``prior`` without its effects beside the geometry (their values at zero): what an update
     falls back to where the calibration's terms are not expected to help
     (:func:`lab.prediction.expect_update`)."""
-    from dataclasses import replace
-
     geo = [e for e in prior.effects if e.name == "geometric"]
     u = prior.uncertainty
     kinds = ("row", "beta", "base", "tool", "tool_rotation")
@@ -478,9 +523,12 @@ def _result(
     n_free: int,
     prior_rms: float,
     identified: np.ndarray | None = None,
+    discrepancy: float | None = None,
 ) -> FitResult:
     """The update as a FitResult (the module docstring); ``identified``: parameters it counts
-    as identified beside those it fitted (the calibration's, for the prior alone)."""
+    as identified beside those it fitted (the calibration's, for the prior alone);
+    ``discrepancy``: the per-axis residual its uncertainty states (:func:`_discrepancy`;
+    default the calibration's)."""
     model = pb.model
     lay = model.layout
     P = len(lay)
@@ -506,9 +554,18 @@ def _result(
         held=tuple(n for n, a in zip(lay.names, active, strict=True) if not a),
     )
     posterior = prior.uncertainty if identified is not None else _posterior(pb, sol, prior, data)
-    domain = Domain.of(pb.inputs)
-    if prior.domain is not None:
-        domain = prior.domain.union(domain)
+    if discrepancy is not None and discrepancy > posterior.sigma:
+        posterior = replace(posterior, sigma=discrepancy)
+    if identified is not None:
+        # the calibration as it is: the new poses placed its base, nothing of its terms was
+        # fitted on them, so where they hold is where the calibration found them
+        domain = prior.domain if prior.domain is not None else Domain.of(pb.inputs)
+        names, cov = list(prior.uncertainty.names), prior.uncertainty.covariance
+    else:
+        domain = Domain.of(pb.inputs)
+        if prior.domain is not None:
+            domain = prior.domain.union(domain)
+        names, cov = [str(lay.names[i]) for i in sol.active], sol.covariance
     return FitResult(
         model=model,
         params=sol.params,
@@ -526,7 +583,20 @@ def _result(
         counted=RowsCounted(n_rows=k),
         uncertainty=posterior.to_dict(),
         fitted_domain=domain,
+        refit=conditioned_refit(lay.names, sol.params, names, cov),
     )
+
+
+def _discrepancy(pb: _Problem, sol: _Solution) -> float:
+    """The per-axis discrepancy the new poses measured (m): the leave-one-pose-out RMS of
+    ``sol`` less what its parameters' covariance explains at those poses, at least the
+    calibration's own. Where the poses lie in a region the calibration was not fitted on, its
+    residual there says more than the sessions it was fitted on did: the prediction
+    (:func:`lab.uncertainty.predicted_rms`) adds this one."""
+    k = len(pb.xyz)
+    Ad = sol.A[: 3 * k] * pb.sigma  # the data rows, m per scaled parameter
+    params2 = float(np.einsum("ia,ab,ib->", Ad, sol.inverse, Ad)) / k
+    return max(pb.sigma, math.sqrt(max(sol.loo_rms**2 - params2, 0.0) / 3.0))
 
 
 def _posterior(pb: _Problem, sol: _Solution, prior: Prior, data: MeasurementSet) -> Uncertainty:
