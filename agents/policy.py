@@ -709,9 +709,9 @@ def _network_parameters(algo: str, kw: dict, obs: int, act: int, where: str) -> 
         sizes = [obs, *units, act if head == "pi" else 1]
         if head != "pi" and algo != "ppo":
             sizes[0] = obs + act  # a Q-function reads the action too
-        if head == "pi" and kw.get("structured"):
-            sizes[-2:-1] = [sizes[-2] + obs]  # agents.structured: the features reach the action
         n = sum((a + 1) * b for a, b in itertools.pairwise(sizes))
+        if head == "pi" and kw.get("structured"):
+            n += obs * act  # agents.structured: the features reach the action
         total += n * (critics if head == "qf" else 1)
     return total
 
