@@ -15,6 +15,8 @@ and ``summary.json`` (wall time, steps/s). This script gathers the runs of each 
     python benchmarks/learning_curves.py --runs runs --ship ppo-residual   # ship the median seed
         # (as agents/policies/ppo-residual.npz) and every seed (agents/policies/seeds/ppo-residual@sK)
     python benchmarks/learning_curves.py --runs runs --keep --ship ppo-residual  # retrained one
+    python benchmarks/learning_curves.py --runs runs ppo=ppo-scn --ship ppo  # the agent ppo from
+        # the runs of the config named ppo-scn (runs/ppo-scn-seed*)
 """
 
 from __future__ import annotations
@@ -48,6 +50,12 @@ def score(curve: dict[str, np.ndarray]) -> float:
     cols = [k for k in curve if k.startswith("rms_settled_mm/") and not k.endswith("/mean")]
     per_eval = np.mean([np.log(curve[k]) for k in cols], axis=0)
     return float(per_eval.min())
+
+
+def agent_and_runs(arg: str) -> tuple[str, str]:
+    """``"ppo=ppo-scn"``: the agent ``ppo`` from the runs ``ppo-scn-seed*``; ``"ppo"``: both."""
+    agent, _, runs = arg.partition("=")
+    return agent, runs or agent
 
 
 def gather(runs: Path, name: str) -> list[dict]:
@@ -309,8 +317,8 @@ def main() -> None:
         if (args.out / "runs.json").exists()
         else []
     )
-    for name in args.names:
-        runs = gather(args.runs, name)
+    for name, prefix in map(agent_and_runs, args.names):
+        runs = gather(args.runs, prefix)
         if not runs:
             if not args.keep or not (args.out / f"{name}.csv").exists():
                 print(f"{name}: no runs in {args.runs}")
@@ -423,7 +431,9 @@ def main() -> None:
     total = sum(r["wall_s"] for r in table)
     lines += ["", f"Training wall time in all: {total / 3600:.2f} h (2 shared CPU cores)."]
     lines += cost_lines(table)
-    lines += resume_lines([r for name in args.names for r in gather(args.runs, name)])
+    lines += resume_lines(
+        [r for arg in args.names for r in gather(args.runs, agent_and_runs(arg)[1])]
+    )
     lines += pilot_sections(args.out / "pilots")
     atomic_write_text(args.out / "README.md", "\n".join(lines) + "\n")
     print("\n".join(lines))

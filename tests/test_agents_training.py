@@ -124,7 +124,7 @@ def test_each_shipped_policy_names_the_config_that_made_it():
         # behaviour that policy was trained with)
         defaults = TrainConfig().to_dict()
         recorded = {k: v for k, v in defaults.items() if k not in meta["config"]} | meta["config"]
-        source = configs / f"{name if 'residual' in name else name + '-plain'}.toml"
+        source = configs / f"{recorded['name']}.toml"  # the recipe's file is named as its runs
         cfg = load_train_config(source, seed=recorded["seed"])
         # the run may have been launched for more steps and stopped: its evaluations up to the
         # file's total_timesteps, and so the policy selected among them, are the same
