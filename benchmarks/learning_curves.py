@@ -171,7 +171,8 @@ def pilot_sections(folder: Path) -> list[str]:
             "## The plain policy's horizon, chosen by measurement",
             "",
             "Pilot runs of the plain PPO (`results/learning/pilots/`, their configs beside their "
-            "curves: seed 1, 300k steps, `ppo-plain.toml` but for gamma), settled RMS (mm) of the "
+            "curves: seed 1, 300k steps, the plain recipe of their day but for gamma), settled RMS "
+            "(mm) of the "
             "evaluations, mean over the scenarios; the plain policy shipped before was trained "
             "with gamma 0.99:",
             "",
@@ -238,7 +239,7 @@ def cost_lines(table: list[dict], seeds: int = SEEDS_PER_AGENT) -> list[str]:
         "",
         f"Estimated from the measured runs above: {seeds} x the wall time of a seed (its range "
         "over the seeds measured), one run per core; two at a time on the 2 cores halves the "
-        "wall clock, not the CPU. The plain policy's patience rule (`ppo-plain.toml`) can end "
+        "wall clock, not the CPU. The plain policy's patience rule (`ppo-scn.toml`) can end "
         "a seed sooner than its cap; the figures are for the whole budget.",
         "",
         f"| policy | seeds measured | wall time a seed (min) | {seeds} seeds, CPU (h) | "
@@ -269,7 +270,7 @@ def cost_lines(table: list[dict], seeds: int = SEEDS_PER_AGENT) -> list[str]:
             f"steps/s: {lo:.1f}-{hi:.1f} h of CPU, {lo / 2:.1f}-{hi / 2:.1f} h with `--jobs 2`."
         )
     lines.append(
-        "`ppo-plain.toml` caps a seed at 2.4M steps, twice the previous plain policy's measured 1.2M: "
+        "`ppo-scn.toml` caps a seed at 2.4M steps, twice the previous plain policy's measured 1.2M: "
         "up to twice its row if the patience rule never ends it. A session of 3 hours fits one "
         "agent's seeds two at a time (the plain policy's over two sessions: `--stop-at` and "
         "`--resume`, with the checkpoints kept outside the repository)."
