@@ -141,15 +141,15 @@ class Expectation:
     # the sessions left out in turn erred this many times what the covariance and the spread
     # predicted for them: an unseen target's prediction is scaled by it (1: not scaled)
     scale: float = 1.0
-    # blocks left out whose fold of the model could not be fitted to a plausible model: not
-    # counted (the module docstring), and said
+    # blocks left out whose fold of the model could not be fitted, or only to an implausible
+    # model: not counted (the module docstring), and said
     unfitted: int = 0
 
     @property
     def reason(self) -> str:
         unfit = (
             f" ({self.unfitted} fold{'s' if self.unfitted != 1 else ''} of the model, fitted "
-            "without a block, could not be fitted to a plausible model and "
+            "without a block, could not be fitted, or only to an implausible model, and "
             f"{'are' if self.unfitted != 1 else 'is'} not counted)"
             if self.unfitted
             else ""
