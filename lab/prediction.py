@@ -107,8 +107,7 @@ def blocked_check(
 
 
 def _log_mean(rms: dict[float, float], blocks: set[float] | None = None) -> float:
-    v = [x for b, x in rms.items() if (blocks is None or b in blocks) and x > 0]
-    v = [x for x in v if math.isfinite(x)]
+    v = [x for b, x in rms.items() if (blocks is None or b in blocks) and 0 < x < math.inf]
     return math.exp(float(np.mean(np.log(v)))) if v else math.inf
 
 
@@ -117,7 +116,7 @@ def _log_means(blocked: dict[str, dict[float, float]]) -> dict[str, float]:
     cannot be fitted, or only to an implausible model, says nothing about the others' blocks);
     the model's alone, infinite, where it could be fitted for none of them."""
     common = set.intersection(
-        *({b for b, x in rms.items() if math.isfinite(x) and x > 0} for rms in blocked.values())
+        *({b for b, x in rms.items() if 0 < x < math.inf} for rms in blocked.values())
     )
     if not common:
         return {m: _log_mean(rms) if m != "model" else math.inf for m, rms in blocked.items()}
