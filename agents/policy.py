@@ -375,7 +375,9 @@ class PolicyNetwork:
     def __init__(self, algo: str, policy: Any, norm: Mapping[str, Any]) -> None:
         self.algo = algo
         self.policy = policy
-        self.structured = type(policy).__name__ == "StructuredActorCriticPolicy"
+        from agents.structured import StructuredActorCriticPolicy  # SB3 is loaded: policy is one
+
+        self.structured = isinstance(policy, StructuredActorCriticPolicy)
         # a float64 snapshot of the weights: a policy still in training keeps its own float32 ones
         self.params = {
             k: v.detach().to(dtype=_float64()).clone()
