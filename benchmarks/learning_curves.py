@@ -406,16 +406,19 @@ def main() -> None:
     fig.tight_layout()
     fig.savefig(args.out / "curves.png", dpi=110)
     atomic_write_text(args.out / "runs.json", json.dumps(table, indent=2) + "\n")
+    seeds = sorted({int(r["run"].rsplit("-seed", 1)[1]) for r in table if "-seed" in r["run"]})
     lines = [
         "# Learning curves",
         "",
         "Made by `python benchmarks/learning_curves.py` from the runs of "
-        "`sixaxis train ALGO --config experiments/configs/NAME.toml --seed S` (S = 1, 2, 3).",
+        "`sixaxis train ALGO --config experiments/configs/NAME.toml --seed S` "
+        f"(S = {', '.join(map(str, seeds))}).",
         "Evaluations: every `eval_every` steps, `eval_episodes` deterministic episodes per "
         "scenario (each config says how many) on seeds 900000+ (never trained on, never on the "
         "leaderboard). Score: the mean over the scenarios of log settled RMS; the policy of a "
         "run's best evaluation is its `best.npz`, and the median seed by that score is shipped "
-        "(the plain `ppo`: the best seed; every seed of it on held-out episodes in "
+        "as the agent's single policy; every seed is shipped too (`agents/policies/seeds/`) and the "
+        "leaderboard ranks the agent over them (the plain `ppo`'s seeds on held-out episodes: "
         "`results/ppo_seeds.md`).",
         "",
         "![learning curves](curves.png)",
