@@ -303,8 +303,10 @@ def _activation(name: str) -> Any:
 
 def policy_kwargs_for_sb3(kwargs: Mapping[str, Any]) -> dict[str, Any]:
     """A policy's architecture as data (JSON/TOML: the activation by name) into the keyword
-    arguments of stable-baselines3's policy classes."""
+    arguments of stable-baselines3's policy classes (``structured`` chooses the class,
+    :func:`policy_class`, and is not one of them)."""
     out = dict(kwargs)
+    out.pop("structured", None)
     if "activation_fn" in out:
         out["activation_fn"] = _activation(str(out["activation_fn"]))
     if isinstance(out.get("net_arch"), Mapping):
@@ -312,6 +314,18 @@ def policy_kwargs_for_sb3(kwargs: Mapping[str, Any]) -> dict[str, Any]:
     elif "net_arch" in out:
         out["net_arch"] = list(out["net_arch"])
     return out
+
+
+def policy_class(algo: str, kwargs: Mapping[str, Any]) -> Any:
+    """The stable-baselines3 policy of ``kwargs``: ``"MlpPolicy"``, or for PPO with
+    ``structured = true`` the structured control net (:mod:`agents.structured`)."""
+    if kwargs.get("structured"):
+        if algo != "ppo":
+            raise ValueError(f"structured is a PPO network; {algo} has none")
+        from agents.structured import StructuredActorCriticPolicy
+
+        return StructuredActorCriticPolicy
+    return "MlpPolicy"
 
 
 def build_network(
@@ -328,7 +342,9 @@ def build_network(
     if algo == "ppo":
         from stable_baselines3.common.policies import ActorCriticPolicy
 
-        return ActorCriticPolicy(obs_space, act_space, lambda _: 0.0, use_sde=use_sde, **kw)
+        cls = policy_class(algo, policy_kwargs)
+        cls = ActorCriticPolicy if cls == "MlpPolicy" else cls
+        return cls(obs_space, act_space, lambda _: 0.0, use_sde=use_sde, **kw)
     if algo == "sac":
         from stable_baselines3.sac.policies import SACPolicy
 
@@ -359,6 +375,9 @@ class PolicyNetwork:
     def __init__(self, algo: str, policy: Any, norm: Mapping[str, Any]) -> None:
         self.algo = algo
         self.policy = policy
+        from agents.structured import StructuredActorCriticPolicy  # SB3 is loaded: policy is one
+
+        self.structured = isinstance(policy, StructuredActorCriticPolicy)
         # a float64 snapshot of the weights: a policy still in training keeps its own float32 ones
         self.params = {
             k: v.detach().to(dtype=_float64()).clone()
@@ -386,7 +405,10 @@ class PolicyNetwork:
 
         call = self._layer
         if self.algo == "ppo":
-            a = call("action_net", call("mlp_extractor.policy_net", x))
+            latent = call("mlp_extractor.policy_net", x)
+            if self.structured:  # agents.structured: the features beside the MLP's latent
+                latent = torch.cat([x, latent], dim=-1)
+            a = call("action_net", latent)
             return torch.tanh(a) if self.policy.squash_output else a
         if self.algo == "sac":
             return torch.tanh(call("mu", call("latent_pi", x)))
@@ -551,6 +573,7 @@ POLICY_KWARGS = {
         "use_expln",
         "squash_output",
         "share_features_extractor",
+        "structured",
     },
     "sac": {
         "net_arch",
@@ -563,7 +586,14 @@ POLICY_KWARGS = {
     },
     "td3": {"net_arch", "activation_fn", "n_critics", "share_features_extractor"},
 }
-_BOOL_KWARGS = {"ortho_init", "full_std", "use_expln", "squash_output", "share_features_extractor"}
+_BOOL_KWARGS = {
+    "ortho_init",
+    "full_std",
+    "use_expln",
+    "squash_output",
+    "share_features_extractor",
+    "structured",
+}
 _ARCH_KEYS = {"ppo": ("pi", "vf"), "sac": ("pi", "qf"), "td3": ("pi", "qf")}
 
 
@@ -682,6 +712,8 @@ def _network_parameters(algo: str, kw: dict, obs: int, act: int, where: str) -> 
         if head != "pi" and algo != "ppo":
             sizes[0] = obs + act  # a Q-function reads the action too
         n = sum((a + 1) * b for a, b in itertools.pairwise(sizes))
+        if head == "pi" and kw.get("structured"):
+            n += obs * act  # agents.structured: the features reach the action
         total += n * (critics if head == "qf" else 1)
     return total
 

@@ -73,6 +73,7 @@ from agents.policy import (
     PolicyIO,
     PolicyNetwork,
     Variant,
+    policy_class,
     policy_kwargs_for_sb3,
     save_policy_file,
 )
@@ -280,6 +281,7 @@ class TrainConfig:
             )
         try:
             policy_kwargs_for_sb3(self.hyperparameters.get("policy_kwargs", {}))
+            policy_class(self.algo, self.hyperparameters.get("policy_kwargs", {}))
         except ValueError as exc:
             out.append(f"hyperparameters.policy_kwargs: {exc}")
         if not out:
@@ -763,7 +765,8 @@ class _Run:
         hp = _hyperparameters(cfg, act_size)
         cls = _algorithm(cfg.algo)
         if not resuming:
-            self.model = cls("MlpPolicy", venv, seed=cfg.seed, device="cpu", verbose=0, **hp)
+            network = policy_class(cfg.algo, cfg.hyperparameters.get("policy_kwargs", {}))
+            self.model = cls(network, venv, seed=cfg.seed, device="cpu", verbose=0, **hp)
             _shrink_output(self.model, cfg.algo, cfg.init_output_scale)
             self._log_diagnostics()
             return

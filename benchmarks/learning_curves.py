@@ -15,6 +15,8 @@ and ``summary.json`` (wall time, steps/s). This script gathers the runs of each 
     python benchmarks/learning_curves.py --runs runs --ship ppo-residual   # ship the median seed
         # (as agents/policies/ppo-residual.npz) and every seed (agents/policies/seeds/ppo-residual@sK)
     python benchmarks/learning_curves.py --runs runs --keep --ship ppo-residual  # retrained one
+    python benchmarks/learning_curves.py --runs runs ppo=ppo-scn --ship ppo  # the agent ppo from
+        # the runs of the config named ppo-scn (runs/ppo-scn-seed*)
 """
 
 from __future__ import annotations
@@ -48,6 +50,12 @@ def score(curve: dict[str, np.ndarray]) -> float:
     cols = [k for k in curve if k.startswith("rms_settled_mm/") and not k.endswith("/mean")]
     per_eval = np.mean([np.log(curve[k]) for k in cols], axis=0)
     return float(per_eval.min())
+
+
+def agent_and_runs(arg: str) -> tuple[str, str]:
+    """``"ppo=ppo-scn"``: the agent ``ppo`` from the runs ``ppo-scn-seed*``; ``"ppo"``: both."""
+    agent, _, runs = arg.partition("=")
+    return agent, runs or agent
 
 
 def gather(runs: Path, name: str) -> list[dict]:
@@ -163,7 +171,8 @@ def pilot_sections(folder: Path) -> list[str]:
             "## The plain policy's horizon, chosen by measurement",
             "",
             "Pilot runs of the plain PPO (`results/learning/pilots/`, their configs beside their "
-            "curves: seed 1, 300k steps, `ppo-plain.toml` but for gamma), settled RMS (mm) of the "
+            "curves: seed 1, 300k steps, the plain recipe of their day but for gamma), settled RMS "
+            "(mm) of the "
             "evaluations, mean over the scenarios; the plain policy shipped before was trained "
             "with gamma 0.99:",
             "",
@@ -230,7 +239,7 @@ def cost_lines(table: list[dict], seeds: int = SEEDS_PER_AGENT) -> list[str]:
         "",
         f"Estimated from the measured runs above: {seeds} x the wall time of a seed (its range "
         "over the seeds measured), one run per core; two at a time on the 2 cores halves the "
-        "wall clock, not the CPU. The plain policy's patience rule (`ppo-observe.toml`) can end "
+        "wall clock, not the CPU. The plain policy's patience rule (`ppo-scn.toml`) can end "
         "a seed sooner than its cap; the figures are for the whole budget.",
         "",
         f"| policy | seeds measured | wall time a seed (min) | {seeds} seeds, CPU (h) | "
@@ -261,7 +270,7 @@ def cost_lines(table: list[dict], seeds: int = SEEDS_PER_AGENT) -> list[str]:
             f"steps/s: {lo:.1f}-{hi:.1f} h of CPU, {lo / 2:.1f}-{hi / 2:.1f} h with `--jobs 2`."
         )
     lines.append(
-        "`ppo-observe.toml` caps a seed at 2.4M steps, twice the plain policy's measured 1.2M: "
+        "`ppo-scn.toml` caps a seed at 2.4M steps, twice the previous plain policy's measured 1.2M: "
         "up to twice its row if the patience rule never ends it. A session of 3 hours fits one "
         "agent's seeds two at a time (the plain policy's over two sessions: `--stop-at` and "
         "`--resume`, with the checkpoints kept outside the repository)."
@@ -309,8 +318,8 @@ def main() -> None:
         if (args.out / "runs.json").exists()
         else []
     )
-    for name in args.names:
-        runs = gather(args.runs, name)
+    for name, prefix in map(agent_and_runs, args.names):
+        runs = gather(args.runs, prefix)
         if not runs:
             if not args.keep or not (args.out / f"{name}.csv").exists():
                 print(f"{name}: no runs in {args.runs}")
@@ -397,16 +406,19 @@ def main() -> None:
     fig.tight_layout()
     fig.savefig(args.out / "curves.png", dpi=110)
     atomic_write_text(args.out / "runs.json", json.dumps(table, indent=2) + "\n")
+    seeds = sorted({int(r["run"].rsplit("-seed", 1)[1]) for r in table if "-seed" in r["run"]})
     lines = [
         "# Learning curves",
         "",
         "Made by `python benchmarks/learning_curves.py` from the runs of "
-        "`sixaxis train ALGO --config experiments/configs/NAME.toml --seed S` (S = 1, 2, 3).",
+        "`sixaxis train ALGO --config experiments/configs/NAME.toml --seed S` "
+        f"(S = {', '.join(map(str, seeds))}).",
         "Evaluations: every `eval_every` steps, `eval_episodes` deterministic episodes per "
         "scenario (each config says how many) on seeds 900000+ (never trained on, never on the "
         "leaderboard). Score: the mean over the scenarios of log settled RMS; the policy of a "
         "run's best evaluation is its `best.npz`, and the median seed by that score is shipped "
-        "(the plain `ppo`: the best seed; every seed of it on held-out episodes in "
+        "as the agent's single policy; every seed is shipped too (`agents/policies/seeds/`) and the "
+        "leaderboard ranks the agent over them (the plain `ppo`'s seeds on held-out episodes: "
         "`results/ppo_seeds.md`).",
         "",
         "![learning curves](curves.png)",
@@ -423,7 +435,9 @@ def main() -> None:
     total = sum(r["wall_s"] for r in table)
     lines += ["", f"Training wall time in all: {total / 3600:.2f} h (2 shared CPU cores)."]
     lines += cost_lines(table)
-    lines += resume_lines([r for name in args.names for r in gather(args.runs, name)])
+    lines += resume_lines(
+        [r for arg in args.names for r in gather(args.runs, agent_and_runs(arg)[1])]
+    )
     lines += pilot_sections(args.out / "pilots")
     atomic_write_text(args.out / "README.md", "\n".join(lines) + "\n")
     print("\n".join(lines))

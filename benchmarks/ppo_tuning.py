@@ -1,5 +1,8 @@
 """gamma x learning rate of the plain PPO on the tool interface with the observation option
-(``experiments/configs/ppo-observe.toml``), tuned on short runs of equal budget.
+(``experiments/configs/ppo-scn.toml``, the agent ``ppo``'s recipe), tuned on short runs of equal
+budget. The committed ``results/learning/tuning.md`` was made when the recipe's network was the
+[256, 256] MLP (``ppo-plain.toml`` of its commit, which the report names); the structured network
+took its gamma and rate.
 
 Every point of the grid is the config with ``hyperparameters.gamma`` and a constant learning
 rate set, trained for ``--budget`` steps (no patience: every point gets the same budget, so the
@@ -38,7 +41,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIG = ROOT / "experiments" / "configs" / "ppo-observe.toml"
+CONFIG = ROOT / "experiments" / "configs" / "ppo-scn.toml"
 OUT = ROOT / "results" / "learning"
 GAMMAS = (0.9, 0.95)
 RATES = (1e-4, 3e-4, 1e-3)

@@ -20,6 +20,7 @@ from agents.policy import (
     PolicyFileError,
     PolicyIO,
     load_policy_file,
+    policy_kwargs_for_sb3,
     save_policy_file,
 )
 from agents.reference import FeedforwardAgent
@@ -39,7 +40,7 @@ from agents.training import (
 )
 from arm.errormodel import ErrorModel
 from envs.wrappers import NominalToolObservation
-from experiments.config import load_config
+from experiments.config import load_config, split_train_seed
 
 CONFIGS = Path(__file__).resolve().parents[1] / "experiments" / "configs"
 TRAIN_CONFIGS = sorted(p for p in CONFIGS.glob("*.toml") if "[train]" in p.read_text())
@@ -240,6 +241,54 @@ def test_policy_files_act_as_the_trained_network(tmp_path, algo):
         assert not np.array_equal(net.act(f), want.astype(float))  # not float32 any more
 
 
+def test_a_structured_network_is_a_linear_law_plus_its_mlp(tmp_path):
+    """policy_kwargs.structured (agents.structured, PPO): the action's mean is W_l x + W_n mlp(x)
+    + b. With the MLP's weights into the action zeroed it is the closed-form linear map of the
+    normalised observation; the exported file acts as SB3's own network does; its parameter
+    count is the description's; SAC has no such network."""
+    import stable_baselines3 as sb3
+    import torch
+
+    from agents.policy import _network_parameters, policy_class
+
+    env = PolicyEnv(gym.make("SixAxisTrack-v0"), "residual")
+    kwargs = {"net_arch": [16, 16], "structured": True}
+    cls = policy_class("ppo", kwargs)
+    model = sb3.PPO(
+        cls, env, seed=3, device="cpu", policy_kwargs=policy_kwargs_for_sb3(kwargs), use_sde=True
+    )
+    n, m = env.observation_space.shape[0], env.action_space.shape[0]
+    weight = model.policy.action_net.weight
+    assert tuple(weight.shape) == (m, n + 16)
+    own = sum(p.numel() for p in model.policy.parameters() if p.requires_grad)
+    sde = model.policy.log_std.numel()  # gSDE's exploration matrix: not in the acting network
+    assert _network_parameters("ppo", kwargs, n, m, "x") == own - sde
+    norm = _norm(n)
+    meta = _meta("ppo", n, m) | {"policy_kwargs": kwargs}
+    path = save_policy_file(tmp_path / "s.npz", "ppo", model.policy, norm, meta)
+    net, _ = load_policy_file(path)
+    rng = np.random.default_rng(2)
+    f = rng.normal(size=n) * 3
+    x = np.clip((f - norm["obs_mean"]) / np.sqrt(norm["obs_var"] + 1e-8), -10, 10)
+    want, _ = model.predict(x.astype(np.float32), deterministic=True)
+    np.testing.assert_allclose(net.act(f), want, rtol=0, atol=1e-5)
+    with torch.no_grad():
+        weight[:, n:] = 0.0  # the MLP's path closed: what is left is linear in x
+    net, _ = load_policy_file(
+        save_policy_file(tmp_path / "l.npz", "ppo", model.policy, norm, meta)
+    )
+    w = weight.detach().numpy().astype(float)[:, :n]
+    b = model.policy.action_net.bias.detach().numpy().astype(float)
+    np.testing.assert_allclose(net.act(f), np.clip(w @ x + b, -1, 1), rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match="PPO"):
+        policy_class("sac", kwargs)
+    bad = _meta("sac", n, m) | {"algo": "sac", "policy_kwargs": kwargs}
+    (tmp_path / "q.json").write_text(json.dumps(bad | {"format": "sixaxis-policy/1"}))
+    np.savez(tmp_path / "q.npz", obs_mean=np.zeros(n))
+    with pytest.raises(PolicyFileError, match="structured"):
+        load_policy_file(tmp_path / "q.npz")
+
+
 def _evil_pickle(marker: Path) -> bytes:
     class Payload:
         def __reduce__(self):
@@ -389,7 +438,13 @@ def test_the_shipped_policies_are_weight_files():
     assert {"ppo-residual"} <= set(POLICIES)
     assert {"sac-residual", "td3-residual"} & set(POLICIES)  # the off-policy residual
     full = load_config(CONFIGS / "full.toml", check_agents=False)
-    assert set(POLICIES) <= {a.agent for a in full.agents}  # every one on the leaderboard
+    # every one on the leaderboard, over its training seeds (each seed's network a file of its own)
+    ranked = {split_train_seed(a.label)[0] for a in full.agents}
+    assert set(POLICIES) <= ranked
+    for a in full.agents:
+        if split_train_seed(a.label)[1] is not None:
+            assert a.agent == "policy" and Path(a.settings["path"]).stem == a.label
+            assert (POLICY_DIR.parents[1] / a.settings["path"]).exists(), a.label
     for name in POLICIES:
         path = POLICY_DIR / f"{name}.npz"
         assert path.exists(), name

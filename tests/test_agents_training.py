@@ -124,7 +124,7 @@ def test_each_shipped_policy_names_the_config_that_made_it():
         # behaviour that policy was trained with)
         defaults = TrainConfig().to_dict()
         recorded = {k: v for k, v in defaults.items() if k not in meta["config"]} | meta["config"]
-        source = configs / f"{name if 'residual' in name else name + '-plain'}.toml"
+        source = configs / f"{recorded['name']}.toml"  # the recipe's file is named as its runs
         cfg = load_train_config(source, seed=recorded["seed"])
         # the run may have been launched for more steps and stopped: its evaluations up to the
         # file's total_timesteps, and so the policy selected among them, are the same
@@ -243,7 +243,9 @@ def test_a_resume_takes_a_longer_recipe_and_refuses_another_one(tmp_path):
 
 
 def test_a_learning_rate_schedule_is_checked_where_it_is_written(tmp_path):
-    base = (ROOT / "experiments" / "configs" / "ppo-plain.toml").read_text()
+    base = (ROOT / "experiments" / "configs" / "ppo-scn.toml").read_text()
+    schedule = "learning_rate_schedule = [[100_000, 3e-4], [700_000, 3e-5]]"
+    assert schedule in base
     cases = {
         "[[600, 3e-4], [300, 0.0]]": "do not increase",
         "[[600, 3e-4, 1]]": r"\[step, learning rate\] pairs",
@@ -251,24 +253,21 @@ def test_a_learning_rate_schedule_is_checked_where_it_is_written(tmp_path):
     }
     for value, message in cases.items():
         path = tmp_path / "c.toml"
-        path.write_text(
-            base.replace("learning_rate_schedule = [[600_000, 3e-4], [1_200_000, 0.0]]", "")
-            .replace("[train.hyperparameters]", "[train.hyperparameters]\n")
-            .replace("n_envs = 8", f"n_envs = 8\nlearning_rate_schedule = {value}")
-        )
+        path.write_text(base.replace(schedule, f"learning_rate_schedule = {value}"))
         with pytest.raises(TrainConfigError, match=message) as info:
             load_train_config(path)
         assert "c.toml" in str(info.value)
     path.write_text(base.replace("n_steps = 256", "learning_rate = 3e-4\nn_steps = 256"))
     with pytest.raises(TrainConfigError, match="give one of the two"):
         load_train_config(path)
-    cfg = load_train_config(ROOT / "experiments" / "configs" / "ppo-plain.toml")
-    assert [cfg.learning_rate_at(s) for s in (0, 600_000, 900_000, 1_200_000, 2_000_000)] == [
+    cfg = load_train_config(ROOT / "experiments" / "configs" / "ppo-scn.toml")
+    # 3e-4 to 100k steps, linearly to 3e-5 at 700k, and there on (of the absolute step count)
+    assert [cfg.learning_rate_at(s) for s in (0, 100_000, 400_000, 700_000, 2_000_000)] == [
         3e-4,
         3e-4,
-        pytest.approx(1.5e-4),
-        0.0,
-        0.0,
+        pytest.approx(1.65e-4),
+        pytest.approx(3e-5),
+        pytest.approx(3e-5),
     ]
 
 
@@ -300,18 +299,22 @@ def test_the_patience_rule_stops_on_a_plateau_and_not_while_improving():
 
 
 def test_patience_refuses_a_schedule_that_falls_to_zero(tmp_path):
-    base = (ROOT / "experiments" / "configs" / "ppo-plain.toml").read_text()
+    base = (ROOT / "experiments" / "configs" / "ppo-scn.toml").read_text()
+    schedule = "learning_rate_schedule = [[100_000, 3e-4], [700_000, 3e-5]]"
+    assert schedule in base and "patience = 5 " in base
     path = tmp_path / "p.toml"
-    path.write_text(base.replace("patience = 0 ", "patience = 5 "))
+    path.write_text(base.replace(schedule, schedule.replace("3e-5", "0.0")))
     with pytest.raises(TrainConfigError, match="ends at 0 with patience on"):
         load_train_config(path)
-    floor = "learning_rate_schedule = [[600_000, 3e-4], [1_200_000, 3e-5]]"
     path.write_text(
-        base.replace("patience = 0 ", "patience = 5 ").replace(
-            "learning_rate_schedule = [[600_000, 3e-4], [1_200_000, 0.0]]", floor
+        base.replace("patience = 5 ", "patience = 0 ").replace(
+            schedule, schedule.replace("3e-5", "0.0")
         )
     )
-    assert load_train_config(path).learning_rate_at(5e6) == pytest.approx(3e-5)
+    assert load_train_config(path).learning_rate_at(5e6) == 0.0  # no patience: it may
+    assert load_train_config(ROOT / "experiments" / "configs" / "ppo-scn.toml").learning_rate_at(
+        5e6
+    ) == pytest.approx(3e-5)
 
 
 @pytest.mark.slow
@@ -416,7 +419,7 @@ def test_sixaxis_train_writes_diagnostics_where_asked(tmp_path):
 
 
 def test_the_tuning_grid_trains_each_point_at_its_gamma_and_rate_for_equal_budgets(tmp_path):
-    """benchmarks/ppo_tuning.py: each point is ppo-observe.toml with its gamma and a constant
+    """benchmarks/ppo_tuning.py: each point is ppo-scn.toml with its gamma and a constant
     learning rate, the same budget and no patience (equal cost), in a folder of its own."""
     import argparse
 
