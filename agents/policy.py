@@ -622,7 +622,7 @@ def check_policy_description(meta: Any, where: str) -> None:
     if not isinstance(kw, dict):
         raise PolicyFileError(f"{where}: policy_kwargs must be an object, got {kw!r}")
     _check_policy_kwargs(algo, kw, where)
-    total = _network_parameters(algo, kw, meta["obs_size"], meta["act_size"], where)
+    total = network_parameters(algo, kw, meta["obs_size"], meta["act_size"], where)
     if total > MAX_NETWORK_PARAMETERS:
         raise PolicyFileError(
             f"{where}: the network has {total:,} parameters, more than the "
@@ -682,7 +682,7 @@ def _check_policy_kwargs(algo: str, kw: dict, where: str) -> None:
         raise PolicyFileError(f"{where}: policy_kwargs.n_critics must be 1 to 10, got {critics!r}")
 
 
-def _network_parameters(algo: str, kw: dict, obs: int, act: int, where: str) -> int:
+def network_parameters(algo: str, kw: dict, obs: int, act: int, where: str) -> int:
     """How many parameters the network of ``net_arch`` has (the actor and its critics), each
     layer checked first: up to :data:`MAX_LAYERS` of at most :data:`MAX_LAYER_UNITS` units."""
     arch = kw.get("net_arch", [64, 64])

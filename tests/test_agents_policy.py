@@ -249,7 +249,7 @@ def test_a_structured_network_is_a_linear_law_plus_its_mlp(tmp_path):
     import stable_baselines3 as sb3
     import torch
 
-    from agents.policy import _network_parameters, policy_class
+    from agents.policy import network_parameters, policy_class
 
     env = PolicyEnv(gym.make("SixAxisTrack-v0"), "residual")
     kwargs = {"net_arch": [16, 16], "structured": True}
@@ -262,7 +262,7 @@ def test_a_structured_network_is_a_linear_law_plus_its_mlp(tmp_path):
     assert tuple(weight.shape) == (m, n + 16)
     own = sum(p.numel() for p in model.policy.parameters() if p.requires_grad)
     sde = model.policy.log_std.numel()  # gSDE's exploration matrix: not in the acting network
-    assert _network_parameters("ppo", kwargs, n, m, "x") == own - sde
+    assert network_parameters("ppo", kwargs, n, m, "x") == own - sde
     norm = _norm(n)
     meta = _meta("ppo", n, m) | {"policy_kwargs": kwargs}
     path = save_policy_file(tmp_path / "s.npz", "ppo", model.policy, norm, meta)
@@ -274,9 +274,7 @@ def test_a_structured_network_is_a_linear_law_plus_its_mlp(tmp_path):
     np.testing.assert_allclose(net.act(f), want, rtol=0, atol=1e-5)
     with torch.no_grad():
         weight[:, n:] = 0.0  # the MLP's path closed: what is left is linear in x
-    net, _ = load_policy_file(
-        save_policy_file(tmp_path / "l.npz", "ppo", model.policy, norm, meta)
-    )
+    net, _ = load_policy_file(save_policy_file(tmp_path / "l.npz", "ppo", model.policy, norm, meta))
     w = weight.detach().numpy().astype(float)[:, :n]
     b = model.policy.action_net.bias.detach().numpy().astype(float)
     np.testing.assert_allclose(net.act(f), np.clip(w @ x + b, -1, 1), rtol=0, atol=1e-5)
