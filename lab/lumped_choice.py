@@ -29,7 +29,6 @@ the law, lowered it by 38 % and more where it was freed in the first twelve of
 from __future__ import annotations
 
 import logging
-import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -38,8 +37,8 @@ from arm.description import RobotDescription
 from arm.effects import Effect
 from arm.effects.lumped import LumpedCompliance, first_group, parameter_name
 from arm.measurements import MeasurementSet
-from lab.errors import FitError
 from lab.estimation import fit_rows
+from lab.folds import fold_residuals
 from lab.options import LabOptions
 
 __all__ = ["held_rest"]
@@ -132,19 +131,13 @@ def _blocked_sse(
     infinite when a fit is refused."""
     total = 0.0
     for b in blocks:
-        keep = np.ones(len(data), dtype=bool)
-        keep[b] = False
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                res = fit_rows(
-                    data.subset(np.flatnonzero(keep)), robot, effects, options, fixed=fixed
-                )
-                v = res.validate(data.subset(b), register_on_rows=stations)
-        except FitError:
-            return float("inf")
-        e = v.validation_residuals
-        if e is None:  # validate always sets them; a result without is no prediction
+        e = fold_residuals(
+            data,
+            b,
+            lambda train: fit_rows(train, robot, effects, options, fixed=fixed),
+            register=stations,
+        )
+        if e is None:
             return float("inf")
         total += float(np.sum(e**2))
     return total

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import logging
 import math
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 
@@ -41,6 +40,7 @@ from arm.description import RobotDescription
 from arm.effects import Effect
 from arm.measurements import MeasurementSet
 from lab.errors import FitError, LabWarning
+from lab.folds import fold_residuals
 from lab.identification import fit
 from lab.options import LabOptions
 
@@ -107,22 +107,15 @@ def blocked_rms(
     opts = replace(options, outliers="keep", accept_large=accept)
     out = {}
     for b in np.unique(data.columns[col]):
-        held_out = data.columns[col] == b
-        train = data.subset(np.flatnonzero(~held_out))
-        held = data.subset(np.flatnonzero(held_out))
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", LabWarning)
-                res = fit(train, robot, effects, options=opts)
-                # a held-out station's frame from its own rows: every model alike
-                res = res.validate(held, register_on_rows=True)
-        except FitError as exc:
-            log.info("blocked fold %s=%g: %s", col, b, exc)
-            out[float(b)] = math.inf
-            continue
-        e = res.validation_residuals
-        assert e is not None
-        out[float(b)] = math.sqrt(float(np.mean(np.sum(e**2, axis=1))))
+        # a held-out station's frame from its own rows: every model alike
+        e = fold_residuals(
+            data,
+            data.columns[col] == b,
+            lambda train: fit(train, robot, effects, options=opts),
+            register=True,
+            ignore=LabWarning,
+        )
+        out[float(b)] = math.inf if e is None else math.sqrt(float(np.mean(np.sum(e**2, axis=1))))
     return out
 
 

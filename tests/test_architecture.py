@@ -151,7 +151,7 @@ LAB_ORDER = [
         "domain",
     },
     {"solver", "registration", "result"},
-    {"estimation", "sanity"},
+    {"estimation", "sanity", "folds"},
     {"candidates", "spectral", "lumped_choice"},
     {"screening"},
     {"identification", "transfer"},
