@@ -191,6 +191,24 @@ def test_process_pool_gives_the_same_records_as_in_process(tmp_path):
     assert ra == rb
 
 
+def pid_run(spec: RunSpec) -> dict:
+    """A run that says which process ran it."""
+    return {"metrics": {"rms_mm": 1.0, "max_mm": 1.0}, "pid": os.getpid()}
+
+
+def test_a_worker_is_replaced_after_its_share_of_runs(tmp_path, monkeypatch):
+    """A long sweep does not run every episode in one process (whose address space grows past
+    the run's memory limit): after RUNS_PER_WORKER runs a fresh worker takes over."""
+    import experiments.sweep as sweep
+
+    monkeypatch.setattr(sweep, "RUNS_PER_WORKER", 2)
+    summary = run_sweep(config(), tmp_path, workers=1, run_fn=pid_run)
+    assert summary.done == 12 and not summary.failed
+    pids = [load_record(p)["extra"]["pid"] for p in RunStore(tmp_path).paths()]
+    counts = {p: pids.count(p) for p in set(pids)}
+    assert max(counts.values()) <= 2 and len(counts) >= 6
+
+
 # -- for real: the actual env and agents --------------------------------------------------------
 
 TINY = """
