@@ -628,17 +628,17 @@ def test_an_agent_label_may_name_a_training_seed_and_nothing_else():
 def test_a_shipped_policys_row_says_which_seed_it_is():
     """The shipped policies' files say how many seeds were trained and which was shipped; a run's
     report carries both, and the leaderboard's label reads them (results/learning/README.md:
-    the plain ppo is the best seed of three, the residuals the median)."""
+    every agent ships its median seed of five)."""
     from agents.policy import PolicyAgent
     from agents.runner import run_episode
     from experiments.leaderboard.writers import seeds_text
 
     agent = PolicyAgent("ppo")
     report = run_episode(agent, {"scenario": "nominal"}, seed=5, episode_seconds=0.2).report
-    assert report["training_seeds"] == 3.0 and report["training_picked"] == "best"
+    assert report["training_seeds"] == 5.0 and report["training_picked"] == "median"
     compute = {
         "ranked_seeds": [],
         "training_seeds": report["training_seeds"],
         "training_picked": report["training_picked"],
     }
-    assert seeds_text(compute) == " (1 seed: the best of 3 trained)"
+    assert seeds_text(compute) == " (1 seed: the median of 5 trained)"
