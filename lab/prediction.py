@@ -214,7 +214,13 @@ def expect(
     u = u or uncertainty_of(use, data)
     base = predicted_rms(use, target, unseen=unseen, u=u, references=references)
     measured, predicted = _blocks_measured(
-        use, data, blocked["model" if use is result else "geometric"], u
+        use,
+        data,
+        blocked["model" if use is result else "geometric"],
+        u,
+        options=(options or LabOptions(noise_mm=1e3 * use.sigma))
+        if how == "sessions" and unseen
+        else None,
     )
     outside = _outside_share(use, target)
     scale, extra = 1.0, 0.0
@@ -255,10 +261,18 @@ def _geometric(data: MeasurementSet, result: FitResult, options: LabOptions | No
 
 
 def _blocks_measured(
-    result: FitResult, data: MeasurementSet, blocked: dict[float, float], u: Uncertainty
+    result: FitResult,
+    data: MeasurementSet,
+    blocked: dict[float, float],
+    u: Uncertainty,
+    options: LabOptions | None = None,
 ) -> tuple[list[float], list[float]]:
     """Each block left out: the RMS (mm) it erred, and what ``result``'s covariance predicts for
-    it as a session not seen (the blocks that could be fitted and predicted)."""
+    it as a session not seen (the blocks that could be fitted and predicted). With ``options``
+    (sessions left out), each block is predicted as its fold knew it: with the covariance of the
+    fit of the other blocks (fewer poses, a narrower region) and the calibration's spread, so
+    that what the folds erred is set against what a calibration of their poses would have
+    predicted, not what the calibration of every session predicts."""
     from lab.transfer import block_column
 
     col = block_column(data)
@@ -268,14 +282,51 @@ def _blocks_measured(
     for b, rms_m in blocked.items():
         if not math.isfinite(rms_m):
             continue
-        part = rows.subset(np.flatnonzero(rows.columns[col] == b))
+        held = rows.columns[col] == b
+        part = rows.subset(np.flatnonzero(held))
         try:
-            pred = predicted_rms(result, part, unseen=True, u=u).rms_mm
+            fold_u = u if options is None else _fold_uncertainty(result, rows, held, u, options)
+            pred = predicted_rms(result, part, unseen=True, u=fold_u).rms_mm
         except FitError:
             continue
         measured.append(1e3 * rms_m)
         predicted.append(pred)
     return measured, predicted
+
+
+def _fold_uncertainty(
+    result: FitResult,
+    rows: MeasurementSet,
+    held: np.ndarray,
+    u: Uncertainty,
+    options: LabOptions,
+) -> Uncertainty:
+    """``u`` with the covariance of ``result``'s model fitted to the rows not ``held`` (where
+    that fit identifies a parameter; ``u``'s own elsewhere), its spread kept."""
+    from lab.identification import fit
+    from lab.uncertainty import covariance_of
+
+    opts = replace(options, outliers="keep")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LabWarning)
+        fold = fit(
+            rows.subset(np.flatnonzero(~held)),
+            result.model.robot,
+            list(result.model.effects),
+            options=opts,
+        )
+    names, cov = covariance_of(fold)
+    at = {n: i for i, n in enumerate(names)}
+    idx = [at.get(n, -1) for n in u.names]
+    new = np.array(u.covariance, dtype=float, copy=True)
+    both = [i for i, j in enumerate(idx) if j >= 0]
+    src = [idx[i] for i in both]
+    new[np.ix_(both, both)] = cov[np.ix_(src, src)]
+    # a parameter the fold identified and one it did not: no covariance known between them
+    other = [i for i, j in enumerate(idx) if j < 0]
+    new[np.ix_(both, other)] = 0.0
+    new[np.ix_(other, both)] = 0.0
+    return replace(u, covariance=new)
 
 
 def _outside_share(result: FitResult, target: MeasurementSet) -> float:
