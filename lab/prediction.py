@@ -34,7 +34,8 @@ the target's poses outside the fitted domain (:mod:`lab.domain`), what the block
 measured beyond the covariance's own prediction for the blocks left out (the model's
 extrapolation error). For a session not seen, where the blocks are sessions, the blocks left
 out are such sessions: the prediction (and its band) is scaled by what they erred against what
-the covariance and the spread predicted for them (:attr:`Expectation.scale`, the square root
+the fit of the other sessions would have predicted for them, its covariance and the
+calibration's spread (:attr:`Expectation.scale`, the square root
 of the ratio of their mean squares; at least down to the discrepancy). A spread measured from
 two or three sessions has one or two degrees of freedom a joint; the sessions' own errors say
 how large a new session's is. Its band (5-95 %) is that of the RMS of one session's draw of the
