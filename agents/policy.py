@@ -67,7 +67,7 @@ from typing import Any, Literal
 import numpy as np
 
 from agents.base import Agent, refuse_settings, solve_time_stats
-from agents.errors import AgentStateError, PolicyFileError
+from agents.errors import AgentStateError, PolicyFileError, TrainConfigError
 from agents.reference import FeedforwardAgent
 from arm.constraints import POSITIVE, Constraint, OneOf
 from arm.files import check_input_file, read_input_text
@@ -321,7 +321,7 @@ def policy_class(algo: str, kwargs: Mapping[str, Any]) -> Any:
     ``structured = true`` the structured control net (:mod:`agents.structured`)."""
     if kwargs.get("structured"):
         if algo != "ppo":
-            raise ValueError(f"structured is a PPO network; {algo} has none")
+            raise TrainConfigError(f"structured is a PPO network; {algo} has none")
         from agents.structured import StructuredActorCriticPolicy
 
         return StructuredActorCriticPolicy

@@ -278,7 +278,7 @@ def test_a_structured_network_is_a_linear_law_plus_its_mlp(tmp_path):
     w = weight.detach().numpy().astype(float)[:, :n]
     b = model.policy.action_net.bias.detach().numpy().astype(float)
     np.testing.assert_allclose(net.act(f), np.clip(w @ x + b, -1, 1), rtol=0, atol=1e-5)
-    with pytest.raises(ValueError, match="PPO"):
+    with pytest.raises(TrainConfigError, match="PPO"):
         policy_class("sac", kwargs)
     bad = _meta("sac", n, m) | {"algo": "sac", "policy_kwargs": kwargs}
     (tmp_path / "q.json").write_text(json.dumps(bad | {"format": "sixaxis-policy/1"}))
