@@ -12,7 +12,8 @@ import itertools
 import math
 import os
 import warnings
-from collections.abc import Sequence
+import weakref
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -597,7 +598,7 @@ class SixAxisTrackEnv(gym.Env):
         plant.configure(self.truth.true_robot, self.truth.hidden)
         plant.place(q0, dirs=start_rng.choice((-1.0, 1.0), 6))
         self.tracker.reset(noise_rng)
-        self.truth.bind(self._conditions)
+        self.truth.bind(_live_conditions(self, self.truth))
         self._temperature = self.thermometer.reset(sensor_rng, plant.temperature)
         self._payload = self.truth.declared_payload_at(plant.time)
         self._k = 0
@@ -859,3 +860,21 @@ class SixAxisTrackEnv(gym.Env):
 
 
 make_env.env_class = SixAxisTrackEnv  # type: ignore[attr-defined]
+
+
+def _live_conditions(env: SixAxisTrackEnv, truth: EpisodeTruth) -> Callable[[], dict[str, float]]:
+    """The env's live conditions for its episode's truth, holding the env weakly: a bound
+    method would make env -> truth -> env a cycle that only the cyclic collector frees, and a
+    sweep's worker makes envs faster than it runs (about 16 MiB of MuJoCo state each). Once the
+    env is gone the truth has no plant: its episode's start values, as an unbound truth gives."""
+    ref = weakref.ref(env)
+    start = {
+        "temperature": float(truth.hidden.temperature0),
+        "payload": float(truth.true_robot.payload),
+    }
+
+    def live() -> dict[str, float]:
+        e = ref()
+        return dict(start) if e is None else e._conditions()
+
+    return live

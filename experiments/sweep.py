@@ -631,11 +631,11 @@ def run_sweep(
 #: the least grace (s) past a run's time limit before the sweep ends its worker
 OVERDUE_GRACE_S = 30.0
 
-#: runs a worker process does before a fresh one replaces it. A process that has run many
-#: episodes holds more address space than its live objects need (freed blocks the allocator
-#: keeps, about 12 MiB an episode of the plant at first), and a run's address-space limit
-#: (``memory_limit_mb``) counts it: the leaderboard's full sweep, 2,160 runs a worker, had 11
-#: runs refused memory after some 1,700 each. A fresh process (its imports: about 2 s) bounds that.
+#: runs a worker process does before a fresh one replaces it. A run's address-space limit
+#: (``memory_limit_mb``) counts all a long-lived worker holds: the leaderboard's full sweep at
+#: 295022a, 2,160 runs a worker, had 11 runs refused memory after some 1,700 each, its envs kept
+#: alive by a reference cycle until the cyclic collector ran (about 12-16 MiB each; the env no
+#: longer makes that cycle). A fresh process (its imports: about 2 s) bounds any such growth.
 RUNS_PER_WORKER = 200
 
 

@@ -404,3 +404,32 @@ def test_a_frame_larger_than_the_default_offscreen_buffer_renders():
     env.reset(seed=0)
     assert env.render().shape == (600, 800, 3)
     env.close()
+
+
+def test_a_closed_env_is_freed_without_the_cyclic_collector():
+    """An env dropped after use frees its MuJoCo state at once (reference counting), not when
+    the cyclic collector happens to run: a sweep's worker that makes an env per run would
+    otherwise hold the state of many, and its address space grew past the run's limit. The
+    episode's truth reads the env's live conditions while it exists, its start values after."""
+    import gc
+    import weakref
+
+    env = gym.make("SixAxisTrack-v0", scenario="thermal")
+    env.reset(seed=3)
+    env.step(np.zeros(env.action_space.shape))
+    u = env.unwrapped
+    truth = u.truth
+    assert truth.conditions()["temperature"] == u._conditions()["temperature"]
+    ref, plant = weakref.ref(u), weakref.ref(u.plant)
+    gc.disable()
+    try:
+        env.close()
+        del env, u
+        assert ref() is None and plant() is None
+    finally:
+        gc.enable()
+    # no plant any more: the episode's start values, as a truth never bound gives
+    assert truth.conditions() == {
+        "temperature": float(truth.hidden.temperature0),
+        "payload": float(truth.true_robot.payload),
+    }
