@@ -44,7 +44,7 @@ bench: $(STAMP)
 
 # The lab on public real data beside the published results and FIGAROH: results/real_data.md;
 # each UR10 session left out and updated with k of its poses: results/ur10_sessions.md.
-# The Rokae rows need the converted data: SIXAXIS_REAL_DATA=DIR make real-data (README).
+# The Rokae rows need the converted data: SIXAXIS_REAL_DATA=DIR make real-data (docs/lab.md, "Real measurements").
 real-data: $(STAMP)
 	$(BIN)/python benchmarks/real_data.py
 	$(BIN)/python benchmarks/ur10_physics.py

@@ -34,6 +34,7 @@ The child runs a small driver that uses only long-standing APIs (``load_config``
 from __future__ import annotations
 
 import csv
+import difflib
 import hashlib
 import json
 import logging
@@ -164,6 +165,20 @@ def read_runs_csv(path: str | Path) -> list[tuple[int, dict[str, str]]]:
     return rows
 
 
+def _no_run(key: str, keys: Sequence[str], source: str) -> str:
+    """Why ``key`` names no row, and the keys the user may have meant: an agent ranked over its
+    training seeds has a row per seed (``ppo@s2__thermal__ep4``), not one under its name."""
+    agent, _, rest = key.partition("__")
+    seeds = [k for k in keys if k.partition("__")[2] == rest and k.split("@")[0] == agent]
+    if "@" not in agent and seeds:
+        return (
+            f"{source}: no run {key!r}: {agent!r} is ranked over its training seeds, and each "
+            f"seed's run is a row of its own: {', '.join(seeds)}"
+        )
+    near = difflib.get_close_matches(key, keys, n=5, cutoff=0.5) or list(keys)[:5]
+    return f"{source}: no run {key!r} (runs are named like {', '.join(near)}, ...)"
+
+
 def select_rows(
     rows: Sequence[tuple[int, dict[str, str]]],
     run_keys: Iterable[str] = (),
@@ -179,8 +194,7 @@ def select_rows(
     out = []
     for k in run_keys:
         if k not in by_key:
-            near = ", ".join(list(by_key)[:5])
-            raise ReproduceError(f"{source}: no run {k!r} (runs are named like {near}, ...)")
+            raise ReproduceError(_no_run(k, list(by_key), source))
         out.append(by_key[k])
     for n in lines:
         if n not in by_line:

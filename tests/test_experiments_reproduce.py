@@ -82,6 +82,12 @@ def test_rows_are_picked_by_run_key_or_line_and_unknown_ones_named(tmp_path):
         select_rows(rows, [], [9])
     with pytest.raises(ReproduceError, match="name the rows"):
         select_rows(rows)
+    seeds = write_rows(
+        tmp_path / "seeds.csv",
+        [sample_row(run_key=f"ppo@s{k}__thermal__ep4") for k in (1, 2)],
+    )
+    with pytest.raises(ReproduceError, match="ppo@s1__thermal__ep4, ppo@s2__thermal__ep4"):
+        select_rows(read_runs_csv(seeds), ["ppo__thermal__ep4"])
 
 
 def test_rows_no_commit_reproduces_are_refused(tmp_path):
