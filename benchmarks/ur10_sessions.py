@@ -164,11 +164,12 @@ def _rms(result, data: MeasurementSet, references: MeasurementSet | None = None)
 @contextlib.contextmanager
 def _blocked_once():
     """``lab.prediction.expect`` runs its blocked check (each training session left out in turn,
-    four fits) on every call; it depends on the training rows and the model alone, never on the
-    target: computed once a fold and reused for each draw's target."""
+    four fits, whose fits also give the folds' covariance) on every call; it depends on the
+    training rows and the model alone, never on the target: computed once a fold and reused for
+    each draw's target."""
     import lab.prediction as pred
 
-    original = pred.blocked_check
+    original = pred.blocked_folds_check
     cache: dict[tuple[int, int], Any] = {}
 
     def once(data, result, options=None):
@@ -177,11 +178,11 @@ def _blocked_once():
             cache[key] = original(data, result, options)
         return cache[key]
 
-    pred.blocked_check = once
+    pred.blocked_folds_check = once
     try:
         yield
     finally:
-        pred.blocked_check = original
+        pred.blocked_folds_check = original
 
 
 def k0_draw(cal: dict, train: MeasurementSet, left: MeasurementSet, rng) -> dict[str, Any]:

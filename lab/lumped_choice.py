@@ -38,7 +38,7 @@ from arm.effects import Effect
 from arm.effects.lumped import LumpedCompliance, first_group, parameter_name
 from arm.measurements import MeasurementSet
 from lab.estimation import fit_rows
-from lab.folds import fold_residuals
+from lab.folds import fold
 from lab.options import LabOptions
 
 __all__ = ["held_rest"]
@@ -131,13 +131,13 @@ def _blocked_sse(
     infinite when a fit is refused."""
     total = 0.0
     for b in blocks:
-        e = fold_residuals(
+        f = fold(
             data,
             b,
             lambda train: fit_rows(train, robot, effects, options, fixed=fixed),
             register=stations,
         )
-        if e is None:
+        if f is None:
             return float("inf")
-        total += float(np.sum(e**2))
+        total += float(np.sum(f.residuals**2))
     return total

@@ -55,6 +55,7 @@ import numpy as np
 
 from arm.measurements import MeasurementSet
 from lab.errors import FitError, LabWarning
+from lab.folds import Fold
 from lab.options import LabOptions
 from lab.result import FitResult
 from lab.uncertainty import Prediction, Uncertainty, predicted_rms, uncertainty_of
@@ -64,6 +65,7 @@ __all__ = [
     "MARGIN",
     "Expectation",
     "blocked_check",
+    "blocked_folds_check",
     "expect",
     "expect_update",
     "joint_blocks",
@@ -91,7 +93,18 @@ def blocked_check(
 ) -> tuple[str, dict[str, dict[float, float]]]:
     """The blocks (``"sessions"`` or ``"joint qN"``) and {model: {block: RMS (m)}} of ``result``'s
     model and the geometric one, each block left out in turn (module docstring)."""
-    from lab.transfer import block_column, blocked_rms
+    from lab.transfer import rms_of
+
+    how, folds = blocked_folds_check(data, result, options)
+    return how, {m: rms_of(f) for m, f in folds.items()}
+
+
+def blocked_folds_check(
+    data: MeasurementSet, result: FitResult, options: LabOptions | None = None
+) -> tuple[str, dict[str, dict[float, Fold | None]]]:
+    """:func:`blocked_check` with each block's fold (the fit of the other blocks and its
+    residuals on the block; None where it could not be fitted to a plausible model)."""
+    from lab.transfer import block_column, blocked_folds
 
     col = block_column(data)
     if col is not None and len(np.unique(data.columns[col])) >= 2:
@@ -101,9 +114,9 @@ def blocked_check(
         how = f"joint q{int(np.argmax(np.ptp(data.q, axis=0))) + 1}"
     opts = options or LabOptions(noise_mm=1e3 * result.sigma)
     robot = result.model.robot
-    out = {"model": blocked_rms(rows, robot, list(result.model.effects), opts, plausible=True)}
+    out = {"model": blocked_folds(rows, robot, list(result.model.effects), opts, plausible=True)}
     if result.model.effect_names != ["geometric"]:
-        out["geometric"] = blocked_rms(rows, robot, "geometric", opts, plausible=True)
+        out["geometric"] = blocked_folds(rows, robot, "geometric", opts, plausible=True)
     return how, out
 
 
@@ -202,8 +215,11 @@ def expect(
     (else it is fitted when the fallback chooses it); ``u``: the calibration's uncertainty
     (default measured from ``result`` and ``data``); ``references``: the poses that register the
     target's station (:func:`lab.uncertainty.predicted_rms`; default the target's own)."""
+    from lab.transfer import rms_of
+
     target = _targets(target)
-    how, blocked = blocked_check(data, result, options)
+    how, folds = blocked_folds_check(data, result, options)
+    blocked = {m: rms_of(f) for m, f in folds.items()}
     means = _log_means(blocked)
     chosen = "model"
     if "geometric" in means and not means["model"] < MARGIN * means["geometric"]:
@@ -217,11 +233,9 @@ def expect(
     measured, predicted = _blocks_measured(
         use,
         data,
-        blocked["model" if use is result else "geometric"],
+        folds["model" if use is result else "geometric"],
         u,
-        options=(options or LabOptions(noise_mm=1e3 * use.sigma))
-        if how == "sessions" and unseen
-        else None,
+        fold_covariance=how == "sessions" and unseen,
     )
     outside = _outside_share(use, target)
     scale, extra = 1.0, 0.0
@@ -264,58 +278,42 @@ def _geometric(data: MeasurementSet, result: FitResult, options: LabOptions | No
 def _blocks_measured(
     result: FitResult,
     data: MeasurementSet,
-    blocked: dict[float, float],
+    folds: dict[float, Fold | None],
     u: Uncertainty,
-    options: LabOptions | None = None,
+    *,
+    fold_covariance: bool = False,
 ) -> tuple[list[float], list[float]]:
-    """Each block left out: the RMS (mm) it erred, and what ``result``'s covariance predicts for
-    it as a session not seen (the blocks that could be fitted and predicted). With ``options``
-    (sessions left out), each block is predicted as its fold knew it: with the covariance of the
-    fit of the other blocks (fewer poses, a narrower region) and the calibration's spread, so
-    that what the folds erred is set against what a calibration of their poses would have
-    predicted, not what the calibration of every session predicts."""
+    """Each block left out: the RMS (mm) its fold erred, and what ``result``'s covariance
+    predicts for it as a session not seen (the blocks that could be fitted and predicted). With
+    ``fold_covariance`` (sessions left out), each block is predicted as its fold knew it: with
+    the covariance of the fold's own fit of the other blocks (fewer poses, a narrower region) and
+    the calibration's spread, so that what the folds erred is set against what a calibration of
+    their poses would have predicted, not what the calibration of every session predicts."""
     from lab.transfer import block_column
 
     col = block_column(data)
     rows = data if col is not None else joint_blocks(data)
     col = col or "session"
     measured, predicted = [], []
-    for b, rms_m in blocked.items():
-        if not math.isfinite(rms_m):
+    for b, f in folds.items():
+        if f is None:
             continue
-        held = rows.columns[col] == b
-        part = rows.subset(np.flatnonzero(held))
+        part = rows.subset(np.flatnonzero(rows.columns[col] == b))
         try:
-            fold_u = u if options is None else _fold_uncertainty(result, rows, held, u, options)
+            fold_u = _with_fold_covariance(u, f.result) if fold_covariance else u
             pred = predicted_rms(result, part, unseen=True, u=fold_u).rms_mm
         except FitError:
             continue
-        measured.append(1e3 * rms_m)
+        measured.append(1e3 * f.rms)
         predicted.append(pred)
     return measured, predicted
 
 
-def _fold_uncertainty(
-    result: FitResult,
-    rows: MeasurementSet,
-    held: np.ndarray,
-    u: Uncertainty,
-    options: LabOptions,
-) -> Uncertainty:
-    """``u`` with the covariance of ``result``'s model fitted to the rows not ``held`` (where
-    that fit identifies a parameter; ``u``'s own elsewhere), its spread kept."""
-    from lab.identification import fit
+def _with_fold_covariance(u: Uncertainty, fold: FitResult) -> Uncertainty:
+    """``u`` with the covariance of ``fold`` (a fit of some of the calibration's rows) where that
+    fit identifies a parameter, ``u``'s own elsewhere, its spread kept."""
     from lab.uncertainty import covariance_of
 
-    opts = replace(options, outliers="keep")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", LabWarning)
-        fold = fit(
-            rows.subset(np.flatnonzero(~held)),
-            result.model.robot,
-            list(result.model.effects),
-            options=opts,
-        )
     names, cov = covariance_of(fold)
     at = {n: i for i, n in enumerate(names)}
     idx = [at.get(n, -1) for n in u.names]

@@ -40,7 +40,7 @@ from arm.description import RobotDescription
 from arm.effects import Effect
 from arm.measurements import MeasurementSet
 from lab.errors import FitError, LabWarning
-from lab.folds import fold_residuals
+from lab.folds import Fold, fold
 from lab.identification import fit
 from lab.options import LabOptions
 
@@ -48,9 +48,11 @@ __all__ = [
     "BLOCK_COLUMNS",
     "MIN_BLOCKS",
     "block_column",
+    "blocked_folds",
     "blocked_rms",
     "blocked_text",
     "confirm_groups",
+    "rms_of",
     "use_blocks",
 ]
 
@@ -86,16 +88,16 @@ def use_blocks(data: MeasurementSet, across: bool | None) -> bool:
     return bool(across) or len(np.unique(data.columns[col])) >= MIN_BLOCKS
 
 
-def blocked_rms(
+def blocked_folds(
     data: MeasurementSet,
     robot: RobotDescription,
     effects: Effects,
     options: LabOptions,
     *,
     plausible: bool = False,
-) -> dict[float, float]:
-    """{block id: the 3-D RMS (m) of its rows predicted by the model fitted to the other blocks}
-    (the module docstring); infinite where a fold cannot be fitted. ``plausible``: a fold whose
+) -> dict[float, Fold | None]:
+    """{block id: the model fitted to the other blocks, and its residuals on the block's rows}
+    (the module docstring); None where a fold cannot be fitted. ``plausible``: a fold whose
     parameters the lab would refuse as a result (beyond the plausible bound of their kind,
     unless ``options.accept_large``) is one that cannot be fitted either: fitted on one session,
     terms that two sessions identify can be absorbed into millimetres that cancel in that session
@@ -105,18 +107,36 @@ def blocked_rms(
         raise FitError(f"{data.source}: no session or station column of two or more ids")
     accept = options.accept_large if plausible else True
     opts = replace(options, outliers="keep", accept_large=accept)
-    out = {}
-    for b in np.unique(data.columns[col]):
-        # a held-out station's frame from its own rows: every model alike
-        e = fold_residuals(
+    # a held-out station's frame from its own rows: every model alike
+    return {
+        float(b): fold(
             data,
             data.columns[col] == b,
             lambda train: fit(train, robot, effects, options=opts),
             register=True,
             ignore=LabWarning,
         )
-        out[float(b)] = math.inf if e is None else math.sqrt(float(np.mean(np.sum(e**2, axis=1))))
-    return out
+        for b in np.unique(data.columns[col])
+    }
+
+
+def blocked_rms(
+    data: MeasurementSet,
+    robot: RobotDescription,
+    effects: Effects,
+    options: LabOptions,
+    *,
+    plausible: bool = False,
+) -> dict[float, float]:
+    """{block id: the 3-D RMS (m) of its rows predicted by the model fitted to the other blocks}
+    (:func:`blocked_folds`); infinite where a fold cannot be fitted."""
+    folds = blocked_folds(data, robot, effects, options, plausible=plausible)
+    return rms_of(folds)
+
+
+def rms_of(folds: dict[float, Fold | None]) -> dict[float, float]:
+    """Each block's RMS (m) of :func:`blocked_folds`; infinite where its fold was not fitted."""
+    return {b: math.inf if f is None else f.rms for b, f in folds.items()}
 
 
 def _gain(with_: dict[float, float], without: dict[float, float]) -> float:
