@@ -432,15 +432,10 @@ def markdown(report: dict) -> str:
 
 def _timing_lines(report: dict) -> list[str]:
     """The time an update of 50 poses took (issue 38's target: <= 5 s on the UR10)."""
-    times = [
-        d["update_seconds"]
-        for f in report["folds"]
-        for d in f["k"].get("50", {}).get("draws", [])
-        if "update_seconds" in d
-    ]
+    draws = [d for f in report["folds"] for d in f["k"].get("50", {}).get("draws", [])]
+    times = [d["update_seconds"] for d in draws if "update_seconds" in d]
     if not times:
         return []
-    draws = [d for f in report["folds"] for d in f["k"].get("50", {}).get("draws", [])]
     cpu = [d["update_cpu_seconds"] for d in draws if "update_cpu_seconds" in d]
     load = [d["load_1min"] for d in draws if "load_1min" in d]
     priors = ", ".join(f"{f['train_poses']:,}" for f in report["folds"])
